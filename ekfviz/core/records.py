@@ -1,0 +1,177 @@
+"""Immutable per-event records: what the filter emits and every consumer reads.
+
+A record carries the pose, its 3x3 covariance, every landmark mean with its 2x2
+marginal covariance and, for an update, what was done with each observation. The full
+(3+2N)^2 covariance is kept only when a consumer asks for it, because N can be large
+and a run has many events.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+import numpy as np
+
+from ekfviz.core.types import BoolArray, FloatArray, IntArray
+
+
+class EventKind(str, enum.Enum):
+    """What produced a record."""
+
+    INIT = "init"
+    PREDICT = "predict"
+    UPDATE = "update"
+
+
+@dataclass(frozen=True, slots=True)
+class Control:
+    """A control read from a log: drive ``d`` metres, then turn ``alpha`` radians."""
+
+    line: int
+    d: float
+    alpha: float
+
+
+@dataclass(frozen=True, slots=True)
+class Sighting:
+    """An observation line read from a log.
+
+    ``ids`` (m,) are landmark ids, ``z`` (m, 2) their (bearing, range) in file order.
+    """
+
+    line: int
+    ids: IntArray
+    z: FloatArray
+
+
+LogEvent = Control | Sighting
+
+
+@dataclass(frozen=True, slots=True)
+class Observations:
+    """What one update did with each landmark of its observation line, in file order.
+
+    Landmarks seen for the first time are initialised, not used to correct the state:
+    their ``initialised`` flag is set and their prediction, innovation, S and NIS are NaN.
+
+    :param ids: (m,) landmark ids
+    :param z: (m, 2) measured (bearing, range)
+    :param z_pred: (m, 2) predicted (bearing, range) just before the landmark was folded in
+    :param innovation: (m, 2) z - z_pred, bearing wrapped to (-pi, pi]
+    :param S: (m, 2, 2) innovation covariance
+    :param nis: (m,) normalised innovation squared nu^T S^-1 nu (2 dof each)
+    :param initialised: (m,) True where the landmark was first seen here
+    """
+
+    ids: IntArray
+    z: FloatArray
+    z_pred: FloatArray
+    innovation: FloatArray
+    S: FloatArray
+    nis: FloatArray
+    initialised: BoolArray
+
+    def __len__(self) -> int:
+        return int(self.ids.shape[0])
+
+
+@dataclass(frozen=True, slots=True)
+class EventRecord:
+    """The filter state right after one event (initialisation, predict or update).
+
+    :param event: event index: 0 for the initialisation, +1 for every predict and update
+    :param step: 0 for the initialisation, then one per control/observation cycle
+    :param kind: what produced this record
+    :param line: 1-based line of the log that produced it (0 when none did)
+    :param pose: (3,) x, y, theta with theta in (-pi, pi]
+    :param pose_cov: (3, 3) pose covariance
+    :param landmark_ids: (N,) ids in state order (the order of first sighting)
+    :param landmarks_xy: (N, 2) landmark means
+    :param landmark_covs: (N, 2, 2) landmark marginal covariances
+    :param control: (2,) the (d, alpha) of a predict, else None
+    :param observations: what an update or the initialisation did, else None
+    :param full_cov: (3+2N, 3+2N) covariance, only when the consumer asked for it
+    """
+
+    event: int
+    step: int
+    kind: EventKind
+    line: int
+    pose: FloatArray
+    pose_cov: FloatArray
+    landmark_ids: IntArray
+    landmarks_xy: FloatArray
+    landmark_covs: FloatArray
+    control: FloatArray | None = None
+    observations: Observations | None = None
+    full_cov: FloatArray | None = None
+
+    @property
+    def n_landmarks(self) -> int:
+        return int(self.landmark_ids.shape[0])
+
+
+def landmark_marginals(P: FloatArray, n_landmarks: int) -> FloatArray:
+    """Gather the 2x2 diagonal landmark blocks of a state covariance in O(N).
+
+    :return: (N, 2, 2) array of marginal covariances
+    """
+    i = 3 + 2 * np.arange(n_landmarks)
+    covs = np.empty((n_landmarks, 2, 2))
+    covs[:, 0, 0] = P[i, i]
+    covs[:, 0, 1] = P[i, i + 1]
+    covs[:, 1, 0] = P[i + 1, i]
+    covs[:, 1, 1] = P[i + 1, i + 1]
+    return covs
+
+
+def frozen(array: FloatArray) -> FloatArray:
+    """Make an array read-only so that a record cannot be changed after the fact."""
+    array.flags.writeable = False
+    return array
+
+
+def snapshot(
+    x: FloatArray,
+    P: FloatArray,
+    *,
+    event: int,
+    step: int,
+    kind: EventKind,
+    line: int = 0,
+    landmark_ids: IntArray | None = None,
+    control: FloatArray | None = None,
+    observations: Observations | None = None,
+    full_cov: bool = False,
+) -> EventRecord:
+    """Build a record from a state in the classic layout x = [x, y, theta, l1x, l1y, ...].
+
+    Copies what it keeps: the caller may go on changing ``x`` and ``P``.
+
+    :param x: (3+2N,) state mean
+    :param P: (3+2N, 3+2N) state covariance (only the diagonal blocks are read unless
+        ``full_cov``)
+    :param landmark_ids: (N,) ids in state order; default 1..N
+    """
+    n_landmarks = (x.shape[0] - 3) // 2
+    if x.shape[0] != 3 + 2 * n_landmarks or P.shape != (x.shape[0], x.shape[0]):
+        raise ValueError(
+            f"expected x of length 3+2N and P of shape (3+2N, 3+2N), got {x.shape} and {P.shape}"
+        )
+    if landmark_ids is None:
+        landmark_ids = np.arange(1, n_landmarks + 1, dtype=np.int64)
+    return EventRecord(
+        event=event,
+        step=step,
+        kind=kind,
+        line=line,
+        pose=frozen(np.array(x[:3], dtype=np.float64)),
+        pose_cov=frozen(np.array(P[:3, :3], dtype=np.float64)),
+        landmark_ids=frozen(np.array(landmark_ids, dtype=np.int64)),
+        landmarks_xy=frozen(np.array(x[3:], dtype=np.float64).reshape(n_landmarks, 2)),
+        landmark_covs=frozen(landmark_marginals(P, n_landmarks)),
+        control=None if control is None else frozen(np.array(control, dtype=np.float64)),
+        observations=observations,
+        full_cov=frozen(np.array(P, dtype=np.float64)) if full_cov else None,
+    )

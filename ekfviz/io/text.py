@@ -1,0 +1,64 @@
+"""Line-by-line reading of numeric text files, shared by the log and truth readers."""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+from ekfviz.io.errors import InputError
+
+_NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
+_NON_FINITE = re.compile(r"[-+]?(?:nan|inf|infinity)", re.IGNORECASE)
+
+ProgressCallback = Callable[[int], None]
+
+
+def numeric_lines(
+    path: Path, progress: ProgressCallback | None = None
+) -> Iterator[tuple[int, list[float]]]:
+    """Stream the non-blank lines of a file as numbers, never holding the whole file.
+
+    Accepts tabs or spaces, trailing separators, CRLF line ends and ``#`` comments.
+
+    :param progress: called now and then with the number of bytes read so far
+    :return: iterator of (1-based line number, numbers on that line)
+    :raises InputError: a missing or unreadable file, text that is not UTF-8, a token
+        that is not a finite decimal number
+    """
+    try:
+        handle = path.open("rb")
+    except FileNotFoundError:
+        raise InputError(path, 0, "no such file") from None
+    except IsADirectoryError:
+        raise InputError(path, 0, "is a directory, expected a text file") from None
+    except OSError as error:
+        raise InputError(path, 0, f"cannot be read ({error.strerror})") from None
+    with handle:
+        bytes_read = 0
+        for number, raw in enumerate(handle, start=1):
+            bytes_read += len(raw)
+            if progress is not None and number % 4096 == 0:
+                progress(bytes_read)
+            try:
+                text = raw.decode("utf-8")
+            except UnicodeDecodeError:
+                raise InputError(path, number, "found bytes that are not UTF-8 text") from None
+            tokens = text.split("#", 1)[0].split()
+            if tokens:
+                yield number, [_parse_number(path, number, token) for token in tokens]
+        if progress is not None:
+            progress(bytes_read)
+
+
+def _parse_number(path: Path, line: int, token: str) -> float:
+    if _NUMBER.fullmatch(token):
+        value = float(token)
+        if math.isfinite(value):
+            return value
+        raise InputError(path, line, f"found {token!r}, which overflows, expected a finite number")
+    if _NON_FINITE.fullmatch(token):
+        raise InputError(path, line, f"found {token!r}, expected a finite number")
+    shown = token if len(token) <= 20 else token[:20] + "..."
+    raise InputError(path, line, f"found {shown!r}, expected a decimal number")
