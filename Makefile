@@ -1,0 +1,40 @@
+# Two commands for a fresh machine with Python 3.10+ and make:
+#   make demo   replay the bundled sample and write recordings/classic.rrd
+#   make test   ruff, mypy and pytest
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+RECORDING := recordings/classic.rrd
+
+.PHONY: demo test bench sample clean
+
+$(BIN)/python:
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+
+$(VENV)/.installed: pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install --quiet -e .
+	touch $@
+
+$(VENV)/.installed-dev: pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	touch $(VENV)/.installed $@
+
+demo: $(VENV)/.installed
+	$(BIN)/ekfviz replay data/classic.txt --truth data/classic_truth.json \
+		--save $(RECORDING) --report recordings/classic.json
+	@echo
+	@echo "Saved $(RECORDING). Open it with:  $(BIN)/rerun $(RECORDING)"
+
+test: $(VENV)/.installed-dev
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+	$(BIN)/mypy
+	$(BIN)/pytest
+
+# Regenerate the bundled sample (a test checks data/ matches this).
+sample: $(VENV)/.installed
+	$(BIN)/python -m ekfviz.sim.sample data
+
+clean:
+	rm -rf $(VENV) .mypy_cache .ruff_cache .pytest_cache .hypothesis

@@ -1,0 +1,334 @@
+"""The ``ekfviz`` command line: parse options, wire reader, filter and logger, print tables."""
+
+from __future__ import annotations
+
+import json
+import os
+import shlex
+import sys
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Annotated, NoReturn
+
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, DownloadColumn, Progress, TimeRemainingColumn
+from rich.table import Table
+
+from ekfviz import __version__
+from ekfviz.core.evaluation import Evaluation, GroundTruth, evaluate
+from ekfviz.core.filter import FilterError, FilterParams, LandmarkInit, UpdateMode
+from ekfviz.core.records import EventRecord
+from ekfviz.core.replay import replay as run_filter
+from ekfviz.io.classic import read_classic
+from ekfviz.io.errors import InputError
+from ekfviz.io.text import ProgressCallback
+from ekfviz.io.truth import read_truth
+
+app = typer.Typer(
+    help="Replay a 2-D EKF-SLAM run and explore it in Rerun.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+out = Console(highlight=False)
+err = Console(stderr=True, highlight=False)
+
+PROGRESS_MIN_BYTES = 1 << 20  # files under 1 MiB replay in well under a second
+RECORDINGS_DIR = Path("recordings")
+
+
+def fail(message: str, code: int = 2) -> NoReturn:
+    """Print one line on stderr and exit: no traceback for a user's mistake."""
+    err.print(f"[bold red]error:[/] {message}", soft_wrap=True)
+    raise typer.Exit(code)
+
+
+def _version(value: bool) -> None:
+    if value:
+        out.print(f"ekfviz {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def main(
+    version: Annotated[
+        bool,
+        typer.Option("--version", callback=_version, is_eager=True, help="Print the version."),
+    ] = False,
+) -> None:
+    """Replay a 2-D EKF-SLAM run and explore it in Rerun."""
+
+
+SENSOR_HELP = "Measurement noise sigma ({}); must be positive."
+
+
+@app.command()
+def replay(
+    data: Annotated[Path, typer.Argument(help="Log in the classic format.", show_default=False)],
+    truth: Annotated[
+        Path | None,
+        typer.Option(help="True landmark positions: 'x y' per line, or JSON.", show_default=False),
+    ] = None,
+    report: Annotated[
+        Path | None, typer.Option(help="Write the evaluation as JSON here.", show_default=False)
+    ] = None,
+    sigma_x: Annotated[
+        float,
+        typer.Option(
+            min=0.0,
+            help="Motion noise sigma along the heading (m).",
+            rich_help_panel="Filter noise",
+        ),
+    ] = 0.25,
+    sigma_y: Annotated[
+        float,
+        typer.Option(
+            min=0.0, help="Motion noise sigma sideways (m).", rich_help_panel="Filter noise"
+        ),
+    ] = 0.1,
+    sigma_alpha: Annotated[
+        float,
+        typer.Option(
+            min=0.0, help="Motion noise sigma of the turn (rad).", rich_help_panel="Filter noise"
+        ),
+    ] = 0.1,
+    sigma_bearing: Annotated[
+        float, typer.Option(help=SENSOR_HELP.format("bearing, rad"), rich_help_panel="Filter noise")
+    ] = 0.01,
+    sigma_range: Annotated[
+        float, typer.Option(help=SENSOR_HELP.format("range, m"), rich_help_panel="Filter noise")
+    ] = 0.08,
+    init_pose_sigma: Annotated[
+        tuple[float, float, float],
+        typer.Option(
+            metavar="SX SY STHETA",
+            help="Sigma of the initial pose prior at (0, 0, 0).",
+            rich_help_panel="Filter options",
+        ),
+    ] = (0.02, 0.02, 0.1),
+    landmark_init: Annotated[
+        LandmarkInit,
+        typer.Option(
+            help="Keep the new landmark's cross-covariances (correlated) or drop them.",
+            rich_help_panel="Filter options",
+        ),
+    ] = LandmarkInit.CORRELATED,
+    update: Annotated[
+        UpdateMode,
+        typer.Option(
+            help="Fold a line's landmarks one after another, or all at once.",
+            rich_help_panel="Filter options",
+        ),
+    ] = UpdateMode.SEQUENTIAL,
+    save: Annotated[
+        Path | None,
+        typer.Option(
+            help="Write the recording to this .rrd file.",
+            show_default=False,
+            rich_help_panel="Rerun output",
+        ),
+    ] = None,
+    spawn: Annotated[
+        bool,
+        typer.Option(
+            "--spawn", help="Open the native Rerun viewer.", rich_help_panel="Rerun output"
+        ),
+    ] = False,
+    serve: Annotated[
+        bool,
+        typer.Option(
+            "--serve",
+            help="Serve the web viewer on localhost until Ctrl-C.",
+            rich_help_panel="Rerun output",
+        ),
+    ] = False,
+    connect: Annotated[
+        str | None,
+        typer.Option(
+            help="Stream to a running viewer at this gRPC URL.",
+            show_default=False,
+            rich_help_panel="Rerun output",
+        ),
+    ] = None,
+) -> None:
+    """Replay a log through EKF-SLAM, record it for Rerun and print the evaluation.
+
+    With no Rerun output option, the native viewer opens where a display exists;
+    otherwise the recording is saved to recordings/<input name>.rrd.
+    """
+    from ekfviz import viz  # rerun loads only for commands that record
+
+    if sigma_bearing <= 0 or sigma_range <= 0:
+        fail("--sigma-bearing and --sigma-range must be positive: R must be invertible")
+    if min(init_pose_sigma) < 0:
+        fail("--init-pose-sigma values must not be negative")
+    params = FilterParams(
+        sigma_x=sigma_x,
+        sigma_y=sigma_y,
+        sigma_alpha=sigma_alpha,
+        sigma_bearing=sigma_bearing,
+        sigma_range=sigma_range,
+        init_pose_sigma=init_pose_sigma,
+        landmark_init=landmark_init,
+        update=update,
+    )
+    try:
+        truth_xy = read_truth(truth) if truth is not None else None
+        sinks, note = viz.resolve_default_sinks(
+            viz.Sinks(save=save, spawn=spawn, serve=serve, connect=connect),
+            data,
+            RECORDINGS_DIR,
+        )
+        info = viz.run_info(
+            name=data.stem,
+            command=shlex.join(["ekfviz", *sys.argv[1:]]),
+            parameters=params.as_dict(),
+            input_path=data,
+            truth=truth_xy,
+            truth_path=truth,
+        )
+        with open_progress(data) as progress, viz.open_run(info, sinks) as logger:
+            last: EventRecord | None = None
+            for record in run_filter(read_classic(data, progress), params):
+                logger.log(record)
+                last = record
+            assert last is not None  # replay always yields the initialisation
+            evaluation = evaluate(last, truth_xy)
+            logger.finish(evaluation)
+            print_evaluation(evaluation, truth_xy)
+            if report is not None:
+                write_json(report, report_json(evaluation, params, data, info.input_sha256))
+            if note:
+                out.print(note)
+            if logger.url:
+                out.print(f"Serving the web viewer at [bold]{logger.url}[/] (Ctrl-C to stop)")
+            logger.wait_while_serving()
+    except (InputError, FilterError, viz.SinkError) as error:
+        fail(str(error))
+    except KeyboardInterrupt:
+        raise typer.Exit(130) from None
+
+
+@app.command()
+def info(
+    recording: Annotated[
+        Path, typer.Argument(help="A recording written by ekfviz.", show_default=False)
+    ],
+    extract_input: Annotated[
+        Path | None,
+        typer.Option(help="Write the embedded input log here, byte for byte.", show_default=False),
+    ] = None,
+) -> None:
+    """Print how a recording was made (version, command, parameters, input) and its result."""
+    from ekfviz import viz
+
+    try:
+        found = viz.read_recording_info(recording)
+    except viz.NotARecordingError as error:
+        fail(str(error))
+    table = Table(show_header=False, box=None, pad_edge=False)
+    table.add_column(style="bold")
+    table.add_column(overflow="fold")
+    for key, value in found.summary():
+        table.add_row(key, value)
+    out.print(table)
+    if found.evaluation_markdown:
+        from rich.markdown import Markdown
+
+        out.print(Markdown(found.evaluation_markdown))
+    if extract_input is not None:
+        if found.input_text is None:
+            fail(f"{recording}: the input is not embedded (it was over the size cap)")
+        write_bytes_atomic(extract_input, found.input_text.encode("utf-8"))
+        out.print(f"Wrote the input to {extract_input}")
+
+
+# -- helpers ---------------------------------------------------------------------------
+
+
+@contextmanager
+def open_progress(path: Path) -> Iterator[ProgressCallback | None]:
+    """A progress bar over the bytes of ``path`` when it is long, else nothing."""
+    try:
+        size = path.stat().st_size
+    except OSError:
+        size = 0  # the reader reports a missing file
+    if size < PROGRESS_MIN_BYTES:
+        yield None
+        return
+    with Progress(
+        "[progress.description]{task.description}",
+        BarColumn(),
+        DownloadColumn(),
+        TimeRemainingColumn(),
+        console=err,
+        transient=True,
+    ) as bar:
+        task = bar.add_task(f"replaying {path.name}", total=size)
+        yield lambda done: bar.update(task, completed=done)
+
+
+def print_evaluation(evaluation: Evaluation, truth: GroundTruth | None) -> None:
+    """The final landmark table and pose, with errors when the truth is known."""
+    table = Table(title="Landmarks at the end of the run", title_justify="left")
+    for column in ("id", "x", "y", "sigma x", "sigma y"):
+        table.add_column(column, justify="right")
+    if truth is not None:
+        for column in ("euclidean", "mahalanobis", "in 3-sigma"):
+            table.add_column(column, justify="right")
+    for r in evaluation.landmarks:
+        cells = [str(r.id), *(f"{v:.4f}" for v in (*r.estimate, *r.sigma))]
+        if truth is not None:
+            if r.mahalanobis is None or r.euclidean is None:
+                cells += ["-", "-", "no truth"]
+            else:
+                inside = "[green]yes[/]" if r.inside_3sigma else "[bold red]no[/]"
+                cells += [f"{r.euclidean:.4f}", f"{r.mahalanobis:.3f}", inside]
+        table.add_row(*cells)
+    out.print(table)
+    x, y, theta = evaluation.pose
+    sx, sy, st = evaluation.pose_sigma
+    out.print(
+        f"Final pose: x {x:.4f} ± {sx:.4f} m, y {y:.4f} ± {sy:.4f} m, "
+        f"theta {theta:.4f} ± {st:.4f} rad (± one sigma)"
+    )
+    if truth is not None:
+        inside = sum(bool(r.inside_3sigma) for r in evaluation.landmarks)
+        out.print(f"{inside} of {len(evaluation.landmarks)} landmarks inside their 3-sigma ellipse")
+        missing = set(truth.ids.tolist()) - {r.id for r in evaluation.landmarks}
+        if missing:
+            out.print(f"[yellow]never observed: landmarks {sorted(missing)}[/]")
+
+
+def report_json(
+    evaluation: Evaluation, params: FilterParams, data: Path, sha256: str
+) -> dict[str, object]:
+    return {
+        "ekfviz_version": __version__,
+        "input": {"name": data.name, "sha256": sha256},
+        "parameters": params.as_dict(),
+        **evaluation.to_json(),
+    }
+
+
+def write_json(path: Path, document: dict[str, object]) -> None:
+    write_bytes_atomic(path, (json.dumps(document, indent=2) + "\n").encode("utf-8"))
+
+
+def write_bytes_atomic(path: Path, content: bytes) -> None:
+    """Write beside ``path`` and rename, so an existing file is never left half-written."""
+    path = path.resolve()
+    try:
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    except OSError as error:
+        fail(f"{path}: cannot write ({error.strerror})")
+    try:
+        with os.fdopen(fd, "wb") as handle:
+            handle.write(content)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise

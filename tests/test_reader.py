@@ -1,0 +1,180 @@
+"""The classic reader on every accepted variant and every error, and the truth reader."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from ekfviz.core.records import Control, Sighting
+from ekfviz.io.classic import format_classic, read_classic
+from ekfviz.io.errors import InputError
+from ekfviz.io.truth import read_truth
+from ekfviz.sim.sample import classic_sample
+
+OBS = "0.1 5.0 0.2 6.0"
+LOG = f"{OBS}\n3.0 0.0\n{OBS}\n"
+
+
+def write(tmp_path: Path, content: str | bytes, name: str = "log.txt") -> Path:
+    path = tmp_path / name
+    if isinstance(content, str):
+        content = content.encode("utf-8")
+    path.write_bytes(content)
+    return path
+
+
+def kinds(path: Path) -> list[str]:
+    return [type(event).__name__ for event in read_classic(path)]
+
+
+@pytest.mark.parametrize(
+    "content",
+    [
+        LOG,
+        LOG.replace(" ", "\t"),
+        LOG.replace("\n", "\r\n"),
+        LOG.replace("\n", "\t\r\n"),
+        LOG.replace("\n", "  \n"),
+        "# a comment\n\n" + LOG.replace("3.0 0.0", "3.0 0.0   # drive") + "\n\n",
+        LOG.rstrip("\n"),  # no final newline
+        LOG.replace("3.0", "+3e0").replace("0.1", ".1"),
+    ],
+    ids=[
+        "spaces",
+        "tabs",
+        "crlf",
+        "trailing-tab-crlf",
+        "trailing-spaces",
+        "comments-blank",
+        "no-final-newline",
+        "number-forms",
+    ],
+)
+def test_accepted_variants_read_the_same(tmp_path: Path, content: str) -> None:
+    events = list(read_classic(write(tmp_path, content)))
+    assert [type(e).__name__ for e in events] == ["Sighting", "Control", "Sighting"]
+    first, control = events[0], events[1]
+    assert isinstance(first, Sighting) and isinstance(control, Control)
+    np.testing.assert_array_equal(first.ids, [1, 2])
+    np.testing.assert_allclose(first.z, [[0.1, 5.0], [0.2, 6.0]])
+    assert (control.d, control.alpha) == (3.0, 0.0)
+
+
+def test_line_numbers_count_blank_and_comment_lines(tmp_path: Path) -> None:
+    events = list(read_classic(write(tmp_path, "# header\n" + OBS + "\n\n3 0\n")))
+    assert [e.line for e in events] == [2, 4]
+
+
+def test_alternation_is_not_required(tmp_path: Path) -> None:
+    path = write(tmp_path, f"{OBS}\n1 0\n1 0\n{OBS}\n{OBS}\n")
+    assert kinds(path) == ["Sighting", "Control", "Control", "Sighting", "Sighting"]
+
+
+def test_writer_round_trips_a_simulated_run(tmp_path: Path) -> None:
+    run = classic_sample()
+    path = write(tmp_path, format_classic(run.events, precision=17))
+    for read, made in zip(read_classic(path), run.events, strict=True):
+        assert type(read) is type(made) and read.line == made.line
+        if isinstance(read, Sighting) and isinstance(made, Sighting):
+            np.testing.assert_allclose(read.z, made.z, rtol=1e-15)
+
+
+@pytest.mark.parametrize(
+    ("content", "line", "message"),
+    [
+        ("", 1, "found no data, expected a first line"),
+        ("\n# only a comment\n\n", 1, "found no data"),
+        ("3.0 0.0\n", 1, "found 2 numbers on the first line"),
+        ("0.1 5 0.2\n", 1, "found 3 numbers on the first line, expected the initial observation"),
+        (f"{OBS}\n3.0 0.0 1.0\n", 2, "found 3 numbers, expected 2 (a control: d alpha) or 4"),
+        (f"{OBS}\n3.0\n", 2, "found 1 number, expected 2"),
+        (f"{OBS}\n3.0 abc\n", 2, "found 'abc', expected a decimal number"),
+        (f"{OBS}\n3.0 1,5\n", 2, "found '1,5', expected a decimal number"),
+        (f"{OBS}\n3.0 nan\n", 2, "found 'nan', expected a finite number"),
+        (f"{OBS}\n3.0 -inf\n", 2, "found '-inf', expected a finite number"),
+        (f"{OBS}\n3.0 Infinity\n", 2, "found 'Infinity', expected a finite number"),
+        (f"{OBS}\n3.0 1e999\n", 2, "found '1e999', which overflows"),
+        (f"{OBS}\n3 0\n0.1 5 0.2 -6\n", 3, "found range -6 for landmark 2, expected a positive"),
+        ("0.1 0 0.2 6\n", 1, "found range 0 for landmark 1"),
+    ],
+)
+def test_errors_name_the_line_and_what_was_expected(
+    tmp_path: Path, content: str, line: int, message: str
+) -> None:
+    path = write(tmp_path, content)
+    with pytest.raises(InputError) as caught:
+        list(read_classic(path))
+    assert caught.value.line == line
+    assert message in str(caught.value)
+    assert str(caught.value).startswith(f"{path}:{line}: ")
+    assert "\n" not in str(caught.value)
+
+
+def test_one_landmark_is_rejected_as_ambiguous(tmp_path: Path) -> None:
+    with pytest.raises(InputError, match="could not be told from controls"):
+        list(read_classic(write(tmp_path, "0.1 5\n3 0\n")))
+
+
+def test_missing_file_and_directory_and_binary(tmp_path: Path) -> None:
+    with pytest.raises(InputError, match="no such file"):
+        list(read_classic(tmp_path / "missing.txt"))
+    with pytest.raises(InputError, match="is a directory"):
+        list(read_classic(tmp_path))
+    with pytest.raises(InputError, match=r":1: found bytes that are not UTF-8"):
+        list(read_classic(write(tmp_path, b"\xff\xfe\x00garbage")))
+
+
+def test_reader_streams_lazily(tmp_path: Path) -> None:
+    """An error far down the file surfaces only when the reader gets there."""
+    path = write(tmp_path, LOG + "oops\n")
+    events = read_classic(path)
+    assert isinstance(next(events), Sighting)
+    assert isinstance(next(events), Control)
+    assert isinstance(next(events), Sighting)
+    with pytest.raises(InputError, match=":4:"):
+        next(events)
+
+
+@settings(max_examples=200, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(
+    st.one_of(
+        st.binary(max_size=300), st.text(alphabet="0123456789.-+eE \t\r\n#xnaif", max_size=300)
+    )
+)
+def test_any_input_gives_events_or_a_clean_error(tmp_path: Path, content: bytes | str) -> None:
+    path = write(tmp_path, content, "fuzz.txt")
+    try:
+        events = list(read_classic(path))
+    except InputError as error:
+        assert str(error).startswith(str(path)) and "\n" not in str(error)
+    else:
+        assert events and isinstance(events[0], Sighting)
+        assert all(np.isfinite(e.z).all() for e in events if isinstance(e, Sighting))
+
+
+def test_truth_text_and_json(tmp_path: Path) -> None:
+    text = read_truth(write(tmp_path, "# x y\n3 6\r\n3\t12\n", "truth.txt"))
+    as_json = read_truth(write(tmp_path, '{"landmarks": [[3, 6], [3.0, 12]]}', "truth.json"))
+    for truth in (text, as_json):
+        np.testing.assert_array_equal(truth.ids, [1, 2])
+        np.testing.assert_array_equal(truth.landmarks_xy, [[3, 6], [3, 12]])
+
+
+@pytest.mark.parametrize(
+    ("name", "content", "message"),
+    [
+        ("t.txt", "3 6\n3 12 1\n", "t.txt:2: found 3 numbers, expected 2"),
+        ("t.txt", "", "t.txt:1: found no data"),
+        ("t.json", "{", "t.json:1: invalid JSON"),
+        ("t.json", '{"poses": []}', 'expected an object {"landmarks"'),
+        ("t.json", '{"landmarks": [[1, "a"]]}', 'landmark 1 is [1, "a"], expected [x, y]'),
+    ],
+)
+def test_truth_errors(tmp_path: Path, name: str, content: str, message: str) -> None:
+    with pytest.raises(InputError) as caught:
+        read_truth(write(tmp_path, content, name))
+    assert message in str(caught.value)
