@@ -38,3 +38,7 @@ sample: $(VENV)/.installed
 
 clean:
 	rm -rf $(VENV) .mypy_cache .ruff_cache .pytest_cache .hypothesis
+
+# Benchmarks (not part of make test): ratios measured in one run.
+bench: $(VENV)/.installed-dev
+	$(BIN)/python benchmarks/bench_replay.py

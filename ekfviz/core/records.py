@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import enum
 from dataclasses import dataclass
+from typing import TypeVar
 
 import numpy as np
 
@@ -126,7 +127,10 @@ def landmark_marginals(P: FloatArray, n_landmarks: int) -> FloatArray:
     return covs
 
 
-def frozen(array: FloatArray) -> FloatArray:
+ArrayT = TypeVar("ArrayT", bound=np.ndarray)
+
+
+def frozen(array: ArrayT) -> ArrayT:
     """Make an array read-only so that a record cannot be changed after the fact."""
     array.flags.writeable = False
     return array

@@ -42,10 +42,9 @@ def replay(
         if first is not None:
             pending.append(first)
 
-    event = step = 0
+    step = 0
     step_has_update = True  # the initialisation counts as step 0's update
-    for log_event in chain(pending, stream):
-        event += 1
+    for event, log_event in enumerate(chain(pending, stream), start=1):
         if isinstance(log_event, Control):
             step += 1
             step_has_update = False

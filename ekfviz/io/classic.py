@@ -79,9 +79,6 @@ def format_classic(events: list[LogEvent] | tuple[LogEvent, ...], precision: int
     """
     lines = []
     for event in events:
-        if isinstance(event, Control):
-            values = [event.d, event.alpha]
-        else:
-            values = event.z.ravel().tolist()
+        values = [event.d, event.alpha] if isinstance(event, Control) else event.z.ravel().tolist()
         lines.append("\t".join(f"{v:.{precision}f}" for v in values))
     return "\n".join(lines) + "\n"
