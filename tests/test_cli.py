@@ -1,0 +1,183 @@
+"""The command line through a subprocess-free CliRunner and a real subprocess."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from ekfviz import __version__
+from ekfviz.cli import app
+from ekfviz.core.replay import replay
+from ekfviz.io.classic import read_classic
+
+DATA = Path(__file__).parents[1] / "data"
+SAMPLE, TRUTH = DATA / "classic.txt", DATA / "classic_truth.json"
+runner = CliRunner()
+
+
+def test_version() -> None:
+    result = runner.invoke(app, ["--version"])
+    assert result.exit_code == 0 and result.output.strip() == f"ekfviz {__version__}"
+
+
+def test_replay_help_lists_every_option() -> None:
+    result = runner.invoke(app, ["replay", "--help"], env={"COLUMNS": "200"})
+    assert result.exit_code == 0
+    for option in (
+        "--truth",
+        "--report",
+        "--sigma-x",
+        "--sigma-y",
+        "--sigma-alpha",
+        "--sigma-bearing",
+        "--sigma-range",
+        "--init-pose-sigma",
+        "--landmark-init",
+        "--update",
+        "--save",
+        "--spawn",
+        "--serve",
+        "--connect",
+    ):
+        assert option in result.output
+
+
+def test_replay_saves_reports_and_prints_the_table(tmp_path: Path) -> None:
+    rrd, report = tmp_path / "run.rrd", tmp_path / "report.json"
+    result = runner.invoke(
+        app,
+        ["replay", str(SAMPLE), "--truth", str(TRUTH), "--save", str(rrd), "--report", str(report)],
+        env={"COLUMNS": "200"},
+    )
+    assert result.exit_code == 0, result.output
+    assert rrd.stat().st_size > 0
+    document = json.loads(report.read_text())
+    last = list(replay(read_classic(SAMPLE)))[-1]
+    np.testing.assert_allclose(document["final_pose"], last.pose, atol=1e-12)
+    assert -math.pi < document["final_pose"][2] <= math.pi
+    np.testing.assert_allclose(document["final_pose_cov"], last.pose_cov, atol=1e-15)
+    assert [lm["id"] for lm in document["landmarks"]] == [1, 2, 3, 4, 5, 6]
+    for entry in document["landmarks"]:
+        assert set(entry) >= {"id", "estimate", "cov", "euclidean", "mahalanobis", "inside_3sigma"}
+        assert entry["inside_3sigma"] == (entry["mahalanobis"] < 3)
+    assert document["parameters"] == {
+        "sigma_x": 0.25,
+        "sigma_y": 0.1,
+        "sigma_alpha": 0.1,
+        "sigma_bearing": 0.01,
+        "sigma_range": 0.08,
+        "init_pose": [0.0, 0.0, 0.0],
+        "init_pose_sigma": [0.02, 0.02, 0.1],
+        "landmark_init": "correlated",
+        "update": "sequential",
+    }
+    assert "mahalanobis" in result.output and "Final pose" in result.output
+    assert "6 of 6 landmarks inside their 3-sigma ellipse" in result.output
+
+
+def test_options_reach_the_filter(tmp_path: Path) -> None:
+    report = tmp_path / "report.json"
+    result = runner.invoke(
+        app,
+        [
+            "replay",
+            str(SAMPLE),
+            "--save",
+            str(tmp_path / "r.rrd"),
+            "--report",
+            str(report),
+            "--sigma-range",
+            "0.2",
+            "--update",
+            "joint",
+            "--landmark-init",
+            "independent",
+            "--init-pose-sigma",
+            "0.1",
+            "0.1",
+            "0.2",
+        ],
+    )
+    assert result.exit_code == 0, result.output
+    document = json.loads(report.read_text())
+    assert document["parameters"]["sigma_range"] == 0.2
+    assert document["parameters"]["update"] == "joint"
+    assert document["parameters"]["landmark_init"] == "independent"
+    assert document["parameters"]["init_pose_sigma"] == [0.1, 0.1, 0.2]
+    assert "euclidean" not in document["landmarks"][0]  # no truth given
+
+
+def test_without_truth_the_table_shows_estimates_and_sigmas(tmp_path: Path) -> None:
+    result = runner.invoke(
+        app, ["replay", str(SAMPLE), "--save", str(tmp_path / "r.rrd")], env={"COLUMNS": "200"}
+    )
+    assert result.exit_code == 0
+    assert "sigma x" in result.output and "mahalanobis" not in result.output
+
+
+@pytest.mark.parametrize(
+    ("content", "expected"),
+    [
+        ("0.1 5 0.2 6\n3 0\n1 2 3\n", "log.txt:3: found 3 numbers, expected 2"),
+        ("0.1 5 0.2 6\n3 nan\n", "log.txt:2: found 'nan', expected a finite number"),
+    ],
+)
+def test_bad_input_is_one_line_exit_2_and_keeps_the_old_recording(
+    tmp_path: Path, content: str, expected: str
+) -> None:
+    log = tmp_path / "log.txt"
+    log.write_text(content)
+    rrd = tmp_path / "old.rrd"
+    rrd.write_bytes(b"previous recording")
+    result = subprocess.run(
+        [sys.executable, "-m", "ekfviz", "replay", str(log), "--save", str(rrd)],
+        capture_output=True,
+        text=True,
+    )
+    assert result.returncode == 2
+    assert expected in result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1
+    assert "Traceback" not in result.stderr
+    assert rrd.read_bytes() == b"previous recording"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["log.txt", "old.rrd"]
+
+
+@pytest.mark.parametrize(
+    ("args", "expected"),
+    [
+        (["replay", "missing.txt"], "missing.txt: no such file"),
+        (["replay", str(SAMPLE), "--truth", "nope.json"], "nope.json: no such file"),
+        (["replay", str(SAMPLE), "--sigma-range", "0"], "must be positive"),
+        (["info", "missing.rrd"], "missing.rrd"),
+    ],
+)
+def test_usage_errors_exit_2_without_traceback(
+    tmp_path: Path, args: list[str], expected: str
+) -> None:
+    result = subprocess.run(
+        [sys.executable, "-m", "ekfviz", *args, "--save", str(tmp_path / "x.rrd")]
+        if args[0] == "replay"
+        else [sys.executable, "-m", "ekfviz", *args],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+    )
+    assert result.returncode == 2, result.stderr
+    assert expected in result.stderr and "Traceback" not in result.stderr
+
+
+def test_info_on_a_file_that_is_not_a_recording(tmp_path: Path) -> None:
+    bogus = tmp_path / "bogus.rrd"
+    bogus.write_text("not a recording")
+    result = subprocess.run(
+        [sys.executable, "-m", "ekfviz", "info", str(bogus)], capture_output=True, text=True
+    )
+    assert result.returncode == 2
+    assert str(bogus) in result.stderr and "Traceback" not in result.stderr
