@@ -141,9 +141,13 @@ class Evaluation:
                 if r.truth is None:
                     cells += ["-"] * 5
                 else:
-                    cells += [f"{r.truth[0]:.4f}", f"{r.truth[1]:.4f}",
-                              f"{r.euclidean:.4f}", f"{r.mahalanobis:.3f}",
-                              "yes" if r.inside_3sigma else "**no**"]
+                    cells += [
+                        f"{r.truth[0]:.4f}",
+                        f"{r.truth[1]:.4f}",
+                        f"{r.euclidean:.4f}",
+                        f"{r.mahalanobis:.3f}",
+                        "yes" if r.inside_3sigma else "**no**",
+                    ]
             rows.append("| " + " | ".join(cells) + " |")
         return "\n".join(rows) + "\n"
 

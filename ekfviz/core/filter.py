@@ -194,9 +194,7 @@ class EkfSlam:
                 self._update_joint(ids_arr, z, known, z_pred, innovation, S, nis)
             else:
                 for k in known:
-                    z_pred[k], innovation[k], S[k], nis[k] = self._update_one(
-                        int(ids_arr[k]), z[k]
-                    )
+                    z_pred[k], innovation[k], S[k], nis[k] = self._update_one(int(ids_arr[k]), z[k])
         new_at = np.flatnonzero(new)
         self._reserve(new_at.size)
         for k in new_at:
@@ -268,24 +266,28 @@ class EkfSlam:
         self._correct(PHt, S, nu)
 
     def _correct(self, PHt: FloatArray, S: FloatArray, nu: FloatArray) -> float:
-        """Apply x += K nu and P -= K S K^T given P H^T, S and nu; O(N^2).
+        """Apply x += K nu and P -= K S K^T given P H^T (n x k), S (k x k) and nu; O(N^2).
 
         With S = L L^T (Cholesky) and A = L^-1 (P H^T)^T, K nu = A^T L^-1 nu and
         K S K^T = A^T A. S^-1 is never formed, and A^T A is exactly symmetric (numpy
         computes a product with its own transpose as a symmetric rank-k update), so P
-        stays exactly symmetric.
+        stays exactly symmetric. The 2x2 case of a single landmark is written out in
+        scalars: at small N the filter's time goes to numpy call overhead, not flops.
 
         :return: the NIS nu^T S^-1 nu
         """
         n = self._n
-        S = 0.5 * (S + S.T)
-        try:
-            L = np.linalg.cholesky(S)
-        except np.linalg.LinAlgError as error:
-            raise FilterError("innovation covariance S is not positive definite") from error
-        A = np.linalg.solve(L, PHt.T)
-        w = np.linalg.solve(L, nu)
-        self._x[:n] += A.T @ w
+        if S.shape == (2, 2):
+            A, w = _whiten_2x2(PHt, S, nu)
+        else:
+            S = 0.5 * (S + S.T)
+            try:
+                L = np.linalg.cholesky(S)
+            except np.linalg.LinAlgError as error:
+                raise FilterError("innovation covariance S is not positive definite") from error
+            A = np.linalg.solve(L, PHt.T)
+            w = np.linalg.solve(L, nu)
+        self._x[:n] += w @ A
         self._x[2] = wrap_angle(self._x[2])
         self._P[:n, :n] -= A.T @ A
         return float(w @ w)
@@ -338,3 +340,22 @@ class EkfSlam:
         n = self._n
         if not (np.isfinite(self._x[:n]).all() and math.isfinite(float(self._P[:3, :3].sum()))):
             raise FilterError(f"the state became non-finite in {where}")
+
+
+def _whiten_2x2(PHt: FloatArray, S: FloatArray, nu: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """L^-1 (P H^T)^T (2 x n) and L^-1 nu (2,) for S = L L^T, with the Cholesky in scalars."""
+    (s00, s01), (s10, s11) = S.tolist()
+    s01 = 0.5 * (s01 + s10)
+    l00 = math.sqrt(s00) if s00 > 0.0 else math.nan
+    l10 = s01 / l00
+    d = s11 - l10 * l10
+    if not (s00 > 0.0 and d > 0.0):  # also catches NaN
+        raise FilterError("innovation covariance S is not positive definite")
+    l11 = math.sqrt(d)
+    A = PHt.T.copy()
+    A[0] /= l00
+    A[1] -= l10 * A[0]
+    A[1] /= l11
+    nu0, nu1 = nu.tolist()
+    w0 = nu0 / l00
+    return A, np.array([w0, (nu1 - l10 * w0) / l11])

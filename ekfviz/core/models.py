@@ -38,9 +38,7 @@ def motion(pose_xytheta: FloatArray, d: float, alpha: float) -> FloatArray:
     :return: new pose (3,), theta wrapped to (-pi, pi]
     """
     x, y, theta = pose_xytheta
-    return np.array(
-        [x + d * math.cos(theta), y + d * math.sin(theta), wrap_angle(theta + alpha)]
-    )
+    return np.array([x + d * math.cos(theta), y + d * math.sin(theta), wrap_angle(theta + alpha)])
 
 
 def motion_jacobians(pose_xytheta: FloatArray, d: float) -> tuple[FloatArray, FloatArray]:
@@ -78,9 +76,7 @@ def measurement_jacobians(
     q = dx * dx + dy * dy
     r = math.sqrt(q)
     z_D_landmark = np.array([[-dy / q, dx / q], [dx / r, dy / r]])
-    z_D_pose = np.array(
-        [[dy / q, -dx / q, -1.0], [-dx / r, -dy / r, 0.0]]
-    )
+    z_D_pose = np.array([[dy / q, -dx / q, -1.0], [-dx / r, -dy / r, 0.0]])
     return z_D_pose, z_D_landmark
 
 

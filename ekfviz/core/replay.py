@@ -34,8 +34,12 @@ def replay(
     if isinstance(first, Sighting):
         observations = ekf.observe(first.ids, first.z)
         yield ekf.record(
-            event=0, step=0, kind=EventKind.INIT, line=first.line,
-            observations=observations, full_cov=full_cov,
+            event=0,
+            step=0,
+            kind=EventKind.INIT,
+            line=first.line,
+            observations=observations,
+            full_cov=full_cov,
         )
     else:
         yield ekf.record(event=0, step=0, kind=EventKind.INIT, full_cov=full_cov)
@@ -50,8 +54,12 @@ def replay(
             step_has_update = False
             ekf.predict(log_event.d, log_event.alpha)
             yield ekf.record(
-                event=event, step=step, kind=EventKind.PREDICT, line=log_event.line,
-                control=np.array([log_event.d, log_event.alpha]), full_cov=full_cov,
+                event=event,
+                step=step,
+                kind=EventKind.PREDICT,
+                line=log_event.line,
+                control=np.array([log_event.d, log_event.alpha]),
+                full_cov=full_cov,
             )
         else:
             if step_has_update:
@@ -59,7 +67,10 @@ def replay(
             step_has_update = True
             observations = ekf.observe(log_event.ids, log_event.z)
             yield ekf.record(
-                event=event, step=step, kind=EventKind.UPDATE, line=log_event.line,
-                observations=observations, full_cov=full_cov,
+                event=event,
+                step=step,
+                kind=EventKind.UPDATE,
+                line=log_event.line,
+                observations=observations,
+                full_cov=full_cov,
             )
-
