@@ -15,17 +15,16 @@ _NON_FINITE = re.compile(r"[-+]?(?:nan|inf|infinity)", re.IGNORECASE)
 ProgressCallback = Callable[[int], None]
 
 
-def numeric_lines(
+def token_lines(
     path: Path, progress: ProgressCallback | None = None
-) -> Iterator[tuple[int, list[float]]]:
-    """Stream the non-blank lines of a file as numbers, never holding the whole file.
+) -> Iterator[tuple[int, list[str]]]:
+    """Stream the non-blank lines of a file as tokens, never holding the whole file.
 
     Accepts tabs or spaces, trailing separators, CRLF line ends and ``#`` comments.
 
     :param progress: called now and then with the number of bytes read so far
-    :return: iterator of (1-based line number, numbers on that line)
-    :raises InputError: a missing or unreadable file, text that is not UTF-8, a token
-        that is not a finite decimal number
+    :return: iterator of (1-based line number, whitespace-separated tokens of that line)
+    :raises InputError: a missing or unreadable file, text that is not UTF-8
     """
     try:
         handle = path.open("rb")
@@ -47,12 +46,25 @@ def numeric_lines(
                 raise InputError(path, number, "found bytes that are not UTF-8 text") from None
             tokens = text.split("#", 1)[0].split()
             if tokens:
-                yield number, [_parse_number(path, number, token) for token in tokens]
+                yield number, tokens
         if progress is not None:
             progress(bytes_read)
 
 
-def _parse_number(path: Path, line: int, token: str) -> float:
+def numeric_lines(
+    path: Path, progress: ProgressCallback | None = None
+) -> Iterator[tuple[int, list[float]]]:
+    """Stream the non-blank lines of a file as numbers (see :func:`token_lines`).
+
+    :raises InputError: as :func:`token_lines`, and for a token that is not a finite
+        decimal number
+    """
+    for number, tokens in token_lines(path, progress):
+        yield number, [parse_number(path, number, token) for token in tokens]
+
+
+def parse_number(path: Path, line: int, token: str) -> float:
+    """A finite decimal number, or an :class:`InputError` naming the token."""
     if _NUMBER.fullmatch(token):
         value = float(token)
         if math.isfinite(value):
