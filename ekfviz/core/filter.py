@@ -130,6 +130,7 @@ class EkfSlam:
         control: FloatArray | None = None,
         observations: Observations | None = None,
         full_cov: bool = False,
+        time: float | None = None,
     ) -> EventRecord:
         """Snapshot the current state as an immutable record."""
         return snapshot(
@@ -143,6 +144,7 @@ class EkfSlam:
             control=control,
             observations=observations,
             full_cov=full_cov,
+            time=time,
         )
 
     # -- predict -----------------------------------------------------------------------

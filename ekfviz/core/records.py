@@ -27,23 +27,29 @@ class EventKind(str, enum.Enum):
 
 @dataclass(frozen=True, slots=True)
 class Control:
-    """A control read from a log: drive ``d`` metres, then turn ``alpha`` radians."""
+    """A control read from a log: drive ``d`` metres, then turn ``alpha`` radians.
+
+    ``time`` is the log's timestamp in seconds, when it has one.
+    """
 
     line: int
     d: float
     alpha: float
+    time: float | None = None
 
 
 @dataclass(frozen=True, slots=True)
 class Sighting:
     """An observation line read from a log.
 
-    ``ids`` (m,) are landmark ids, ``z`` (m, 2) their (bearing, range) in file order.
+    ``ids`` (m,) are landmark ids, ``z`` (m, 2) their (bearing, range) in file order;
+    ``time`` is the log's timestamp in seconds, when it has one.
     """
 
     line: int
     ids: IntArray
     z: FloatArray
+    time: float | None = None
 
 
 LogEvent = Control | Sighting
@@ -93,6 +99,7 @@ class EventRecord:
     :param control: (2,) the (d, alpha) of a predict, else None
     :param observations: what an update or the initialisation did, else None
     :param full_cov: (3+2N, 3+2N) covariance, only when the consumer asked for it
+    :param time: the log's timestamp of the event in seconds, when it has one
     """
 
     event: int
@@ -107,6 +114,7 @@ class EventRecord:
     control: FloatArray | None = None
     observations: Observations | None = None
     full_cov: FloatArray | None = None
+    time: float | None = None
 
     @property
     def n_landmarks(self) -> int:
@@ -148,6 +156,7 @@ def snapshot(
     control: FloatArray | None = None,
     observations: Observations | None = None,
     full_cov: bool = False,
+    time: float | None = None,
 ) -> EventRecord:
     """Build a record from a state in the classic layout x = [x, y, theta, l1x, l1y, ...].
 
@@ -178,4 +187,5 @@ def snapshot(
         control=None if control is None else frozen(np.array(control, dtype=np.float64)),
         observations=observations,
         full_cov=frozen(np.array(P, dtype=np.float64)) if full_cov else None,
+        time=time,
     )

@@ -38,6 +38,7 @@ def replay(
             step=0,
             kind=EventKind.INIT,
             line=first.line,
+            time=first.time,
             observations=observations,
             full_cov=full_cov,
         )
@@ -58,6 +59,7 @@ def replay(
                 step=step,
                 kind=EventKind.PREDICT,
                 line=log_event.line,
+                time=log_event.time,
                 control=np.array([log_event.d, log_event.alpha]),
                 full_cov=full_cov,
             )
@@ -71,6 +73,7 @@ def replay(
                 step=step,
                 kind=EventKind.UPDATE,
                 line=log_event.line,
+                time=log_event.time,
                 observations=observations,
                 full_cov=full_cov,
             )

@@ -37,8 +37,11 @@ def read_classic(path: Path, progress: ProgressCallback | None = None) -> Iterat
             line,
             f"found {_count(len(values))} on the first line, expected the initial observation"
             " of k >= 2 landmarks: 2k numbers, a bearing and a range per landmark"
-            + (" (with one landmark, observations could not be told from controls)"
-               if k == 1 and not len(values) % 2 else ""),
+            + (
+                " (with one landmark, observations could not be told from controls)"
+                if k == 1 and not len(values) % 2
+                else ""
+            ),
         )
     ids = np.arange(1, k + 1, dtype=np.int64)
     yield _sighting(path, line, ids, values)
@@ -62,8 +65,10 @@ def _sighting(path: Path, line: int, ids: np.ndarray, values: list[float]) -> Si
     if bad.size:
         i = int(bad[0])
         raise InputError(
-            path, line, f"found range {values[2 * i + 1]:g} for landmark {int(ids[i])},"
-            " expected a positive range"
+            path,
+            line,
+            f"found range {values[2 * i + 1]:g} for landmark {int(ids[i])},"
+            " expected a positive range",
         )
     return Sighting(line=line, ids=ids, z=z)
 

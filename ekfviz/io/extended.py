@@ -1,0 +1,136 @@
+"""Reader and writer of the extended log format, and detection of a log's format.
+
+One event a line, a keyword first, ``#`` comments, an optional leading timestamp::
+
+    # time  keyword  values
+    control 3.0 0.0
+    observe 4 1.1072 6.7060 17 1.3257 12.3812     # id bearing range, any number of them
+    observe                                       # a step with nothing in view
+    12.5 control 3.0 0.0                          # with a timestamp in seconds
+
+Landmark ids are non-negative integers; they need not be dense or ordered.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+
+import numpy as np
+
+from ekfviz.core.records import Control, LogEvent, Sighting
+from ekfviz.io.classic import read_classic
+from ekfviz.io.errors import InputError
+from ekfviz.io.text import ProgressCallback, parse_number, token_lines
+
+KEYWORDS = ("control", "observe")
+_ID = re.compile(r"\+?\d+")
+
+
+def read_log(path: Path, progress: ProgressCallback | None = None) -> Iterator[LogEvent]:
+    """Stream the events of a log in either format, told apart by its first data line."""
+    if is_extended(path):
+        return read_extended(path, progress)
+    return read_classic(path, progress)
+
+
+def is_extended(path: Path) -> bool:
+    """Whether the first data line of ``path`` is a keyword line (maybe after a timestamp)."""
+    try:
+        for _, tokens in token_lines(path):
+            return tokens[0] in KEYWORDS or (len(tokens) > 1 and tokens[1] in KEYWORDS)
+    except InputError:
+        return False  # let the classic reader report the problem
+    return False
+
+
+def read_extended(path: Path, progress: ProgressCallback | None = None) -> Iterator[LogEvent]:
+    """Stream the events of an extended log.
+
+    :raises InputError: for the first bad line met, naming it and what was expected
+    """
+    last_time = -np.inf
+    for line, tokens in token_lines(path, progress):
+        time: float | None = None
+        if not tokens[0].isalpha():
+            time = parse_number(path, line, tokens[0])
+            if time < last_time:
+                raise InputError(
+                    path,
+                    line,
+                    f"found time {time:g} after {last_time:g},"
+                    " expected timestamps that never decrease",
+                )
+            last_time = time
+            tokens = tokens[1:]
+            if not tokens:
+                raise InputError(path, line, "found only a timestamp, expected a keyword after it")
+        keyword, values = tokens[0], tokens[1:]
+        if keyword == "control":
+            if len(values) != 2:
+                raise InputError(
+                    path, line, f"found {len(values)} values after 'control', expected 2: d alpha"
+                )
+            d, alpha = (parse_number(path, line, token) for token in values)
+            yield Control(line=line, d=d, alpha=alpha, time=time)
+        elif keyword == "observe":
+            yield _observation(path, line, values, time)
+        else:
+            shown = keyword if len(keyword) <= 20 else keyword[:20] + "..."
+            raise InputError(
+                path,
+                line,
+                f"found {shown!r}, expected a keyword: control or observe"
+                " (after an optional timestamp)",
+            )
+
+
+def _observation(path: Path, line: int, values: list[str], time: float | None) -> Sighting:
+    if len(values) % 3:
+        raise InputError(
+            path,
+            line,
+            f"found {len(values)} values after 'observe', expected a multiple of 3:"
+            " id bearing range per landmark",
+        )
+    ids: list[int] = []
+    z = np.empty((len(values) // 3, 2))
+    for k in range(len(values) // 3):
+        token = values[3 * k]
+        if not _ID.fullmatch(token):
+            raise InputError(path, line, f"found landmark id {token!r}, expected an integer >= 0")
+        landmark_id = int(token)
+        if landmark_id in ids:
+            raise InputError(
+                path, line, f"found landmark {landmark_id} twice, expected each id once a line"
+            )
+        ids.append(landmark_id)
+        z[k] = [
+            parse_number(path, line, values[3 * k + 1]),
+            parse_number(path, line, values[3 * k + 2]),
+        ]
+        if not z[k, 1] > 0:
+            raise InputError(
+                path,
+                line,
+                f"found range {values[3 * k + 2]} for landmark {landmark_id},"
+                " expected a positive range",
+            )
+    return Sighting(line=line, ids=np.array(ids, dtype=np.int64), z=z, time=time)
+
+
+def format_extended(events: Iterable[LogEvent], precision: int = 6) -> str:
+    """Write events in the extended format, one event a line, with timestamps if given."""
+    lines = ["# ekfviz extended log: control d alpha | observe id bearing range ..."]
+    for event in events:
+        head = "" if event.time is None else f"{event.time:.{precision}f} "
+        if isinstance(event, Control):
+            lines.append(f"{head}control {event.d:.{precision}f} {event.alpha:.{precision}f}")
+        else:
+            cells = [
+                f"{int(i)} {b:.{precision}f} {r:.{precision}f}"
+                for i, (b, r) in zip(event.ids, event.z, strict=True)
+            ]
+            lines.append(" ".join([f"{head}observe", *cells]))
+    return "\n".join(lines) + "\n"

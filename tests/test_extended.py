@@ -1,0 +1,107 @@
+"""The extended log format: reading, writing, detection, and what the filter makes of it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ekfviz.core.records import Control, EventKind, Sighting
+from ekfviz.core.replay import replay
+from ekfviz.io.classic import format_classic
+from ekfviz.io.errors import InputError
+from ekfviz.io.extended import format_extended, is_extended, read_extended, read_log
+from ekfviz.sim.sample import classic_sample
+
+LOG = """# a log
+observe 17 0.1 5.0 4 -0.2 6.0
+control 3.0 0.0
+observe
+1.5 control 3.0 0.1   # with a timestamp
+2.0 observe 4 0.3 4.0 9 1.0 2.0
+"""
+
+
+def write(tmp_path: Path, content: str, name: str = "log.txt") -> Path:
+    path = tmp_path / name
+    path.write_text(content)
+    return path
+
+
+def test_reads_ids_subsets_empty_observations_and_timestamps(tmp_path: Path) -> None:
+    events = list(read_extended(write(tmp_path, LOG)))
+    assert [type(e).__name__ for e in events] == [
+        "Sighting",
+        "Control",
+        "Sighting",
+        "Control",
+        "Sighting",
+    ]
+    first, empty, last = events[0], events[2], events[4]
+    assert isinstance(first, Sighting) and isinstance(empty, Sighting)
+    assert isinstance(last, Sighting)
+    np.testing.assert_array_equal(first.ids, [17, 4])
+    np.testing.assert_array_equal(first.z, [[0.1, 5.0], [-0.2, 6.0]])
+    assert len(empty.ids) == 0 and empty.z.shape == (0, 2)
+    assert [e.time for e in events] == [None, None, None, 1.5, 2.0]
+    assert [e.line for e in events] == [2, 3, 4, 5, 6]
+
+
+def test_detection_tells_the_formats_apart(tmp_path: Path) -> None:
+    extended = write(tmp_path, LOG, "e.txt")
+    classic = write(tmp_path, "0.1 5 0.2 6\n3 0\n", "c.txt")
+    timed = write(tmp_path, "# t\n0.0 control 1 0\n", "t.txt")
+    assert is_extended(extended) and is_extended(timed) and not is_extended(classic)
+    assert isinstance(next(read_log(timed)), Control)
+    assert isinstance(next(read_log(classic)), Sighting)
+
+
+def test_writer_round_trips_both_formats(tmp_path: Path) -> None:
+    events = classic_sample().events
+    for text in (format_extended(events, precision=17), format_classic(events, precision=17)):
+        read = list(read_log(write(tmp_path, text)))
+        assert len(read) == len(events)
+        for a, b in zip(read, events, strict=True):
+            assert type(a) is type(b)
+            if isinstance(a, Sighting) and isinstance(b, Sighting):
+                np.testing.assert_array_equal(a.ids, b.ids)
+                np.testing.assert_allclose(a.z, b.z, rtol=1e-15)
+
+
+def test_filter_grows_on_sparse_ids_and_skips_empty_steps(tmp_path: Path) -> None:
+    records = list(replay(read_extended(write(tmp_path, LOG))))
+    assert [r.kind for r in records] == [
+        EventKind.INIT,
+        EventKind.PREDICT,
+        EventKind.UPDATE,
+        EventKind.PREDICT,
+        EventKind.UPDATE,
+    ]
+    np.testing.assert_array_equal(records[-1].landmark_ids, [17, 4, 9])
+    assert records[2].landmarks_xy.shape == (2, 2)
+    assert records[-1].time == 2.0
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        ("contrl 1 0\n", "log.txt:1: found 'contrl', expected a keyword"),
+        ("control 1\n", "log.txt:1: found 1 values after 'control', expected 2"),
+        (
+            "control 1 0\nobserve 1 0.1\n",
+            "log.txt:2: found 2 values after 'observe', expected a multiple of 3",
+        ),
+        ("observe a 0.1 2\n", "found landmark id 'a', expected an integer >= 0"),
+        ("observe -1 0.1 2\n", "found landmark id '-1', expected an integer >= 0"),
+        ("observe 1 0.1 2 1 0.2 3\n", "found landmark 1 twice"),
+        ("observe 1 0.1 0\n", "found range 0 for landmark 1, expected a positive range"),
+        ("observe 1 0.1 nan\n", "found 'nan', expected a finite number"),
+        ("2.0 control 1 0\n1.0 control 1 0\n", "log.txt:2: found time 1 after 2"),
+        ("control 1 0\n3.0\n", "log.txt:2: found only a timestamp"),
+    ],
+)
+def test_errors_name_the_line(tmp_path: Path, content: str, message: str) -> None:
+    with pytest.raises(InputError) as caught:
+        list(read_extended(write(tmp_path, content)))
+    assert message in str(caught.value)
