@@ -1,0 +1,57 @@
+"""The Rerun logging layer: the only part of ekfviz that imports rerun.
+
+- :mod:`ekfviz.viz.recorder` -- ``Recorder``, from filter states to Rerun entities
+  (also for a filter of your own: ``initialise``/``predict``/``update`` take numpy
+  arrays in the classic layout x = [x, y, theta, l1x, l1y, ...]);
+- :mod:`ekfviz.viz.ellipses` -- the 3-sigma outline of a covariance;
+- :mod:`ekfviz.viz.style` -- entity paths and colours;
+- :mod:`ekfviz.viz.blueprint` -- the default viewer layout;
+- :mod:`ekfviz.viz.run` -- one ``ekfviz replay`` run: properties, sinks, atomic save;
+- :mod:`ekfviz.viz.info` -- reading a recording's properties and documents back.
+
+Bring your own filter::
+
+    import rerun as rr
+    from ekfviz.viz import Recorder
+
+    rec = rr.RecordingStream("my_slam")
+    rec.save("run.rrd")
+    recorder = Recorder(rec)  # sends the default layout, logs the styling once
+    recorder.initialise(x, P, landmark_ids=ids, z=z)
+    ...
+    recorder.predict(x, P, control=(d, alpha))
+    recorder.update(x, P, landmark_ids=ids, z=z, z_pred=z_pred, S=S)
+    recorder.finish()
+
+See ``examples/byof_minimal.py`` for a complete, runnable loop.
+"""
+
+from __future__ import annotations
+
+from ekfviz.viz.ellipses import ellipse_outlines
+from ekfviz.viz.info import NotARecordingError, RecordingInfo, read_recording_info
+from ekfviz.viz.recorder import Recorder
+from ekfviz.viz.run import (
+    RunInfo,
+    RunLogger,
+    SinkError,
+    Sinks,
+    open_run,
+    resolve_default_sinks,
+    run_info,
+)
+
+__all__ = [
+    "NotARecordingError",
+    "Recorder",
+    "RecordingInfo",
+    "RunInfo",
+    "RunLogger",
+    "SinkError",
+    "Sinks",
+    "ellipse_outlines",
+    "open_run",
+    "read_recording_info",
+    "resolve_default_sinks",
+    "run_info",
+]

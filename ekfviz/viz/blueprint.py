@@ -1,0 +1,83 @@
+"""The default viewer layout sent with every recording: a large map, metric plots, the log."""
+
+from __future__ import annotations
+
+import rerun.blueprint as rrb
+
+from ekfviz.core.types import FloatArray
+from ekfviz.viz import style
+
+
+def accumulated_range() -> rrb.VisibleTimeRanges:
+    """Show an entity from the infinite past up to the time cursor, on both timelines."""
+    return rrb.VisibleTimeRanges(
+        [
+            rrb.VisibleTimeRange(
+                timeline,
+                start=rrb.TimeRangeBoundary.infinite(),
+                end=rrb.TimeRangeBoundary.cursor_relative(),
+            )
+            for timeline in (style.STEP, style.EVENT)
+        ]
+    )
+
+
+def map_view(bounds_xy: FloatArray | None = None) -> rrb.Spatial2DView:
+    """The 2-D map: robot, ellipses, landmarks, observations and the trajectory so far.
+
+    :param bounds_xy: (2, 2) [[x_min, y_min], [x_max, y_max]] in world coordinates to
+        frame, or None to let the viewer choose
+    """
+    visual_bounds = None
+    if bounds_xy is not None:
+        (x_min, y_min), (x_max, y_max) = bounds_xy
+        # the view shows the root frame, where "world" is mirrored in y
+        visual_bounds = rrb.VisualBounds2D(x_range=[x_min, x_max], y_range=[-y_max, -y_min])
+    return rrb.Spatial2DView(
+        name="Map",
+        origin="/",  # the display frame: y up, through the static transform of "world"
+        contents=f"/{style.WORLD}/**",
+        background=style.BACKGROUND,
+        visual_bounds=visual_bounds,
+        overrides={path: accumulated_range() for path in style.ACCUMULATED},
+    )
+
+
+def default_blueprint(
+    *, has_truth: bool, has_run_info: bool, bounds_xy: FloatArray | None = None
+) -> rrb.Blueprint:
+    """The layout: the map on the left, plots above and documents below on the right.
+
+    :param has_truth: add the landmark error and Mahalanobis distance plots
+    :param has_run_info: add the run information, input and evaluation documents
+    :param bounds_xy: (2, 2) world box the map frames, see :func:`map_view`
+    """
+    plots: list[rrb.View] = [
+        rrb.TimeSeriesView(name="NIS", origin=style.NIS),
+        rrb.TimeSeriesView(name="Pose sigma", origin=style.POSE_SIGMA),
+    ]
+    if has_truth:
+        plots += [
+            rrb.TimeSeriesView(name="Landmark error [m]", origin=style.LANDMARK_ERROR),
+            rrb.TimeSeriesView(name="Mahalanobis distance", origin=style.MAHALANOBIS),
+        ]
+    texts: list[rrb.View] = [rrb.TextLogView(name="Log", origin=style.LOG)]
+    if has_run_info:
+        texts += [
+            rrb.TextDocumentView(name="Run", origin=style.RUN_INFO),
+            rrb.TextDocumentView(name="Evaluation", origin=style.RUN_EVALUATION),
+            rrb.TextDocumentView(name="Input", origin=style.RUN_INPUT),
+        ]
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            map_view(bounds_xy),
+            rrb.Vertical(
+                rrb.Grid(*plots, grid_columns=2),
+                rrb.Tabs(*texts),
+                row_shares=[3, 2],
+            ),
+            column_shares=[3, 2],
+        ),
+        rrb.TimePanel(timeline=style.STEP, play_state="following", state="collapsed"),
+        collapse_panels=True,
+    )

@@ -1,0 +1,396 @@
+"""One ``ekfviz replay`` run as a self-describing recording, sent to the sinks asked for.
+
+``open_run`` makes the recording stream (application id "ekfviz", a recording id fixed
+by the version, the input, the truth and the parameters), sends the default layout,
+the recording properties, the run information and the input itself, attaches the sinks
+and hands out a ``RunLogger`` built on :class:`~ekfviz.viz.recorder.Recorder`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import os
+import shutil
+import sys
+import time
+import uuid
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from urllib.parse import quote
+
+import rerun as rr
+from rerun.any_batch_value import ComponentValueLike
+
+from ekfviz import __version__
+from ekfviz.core.evaluation import Evaluation, GroundTruth
+from ekfviz.core.records import EventRecord
+from ekfviz.io.errors import InputError
+from ekfviz.viz import style
+from ekfviz.viz.recorder import Recorder
+
+APPLICATION_ID = "ekfviz"
+INPUT_TEXT_CAP = 4 * 1024 * 1024  # bytes of input embedded in a recording
+GRPC_PORT = 9876
+WEB_PORT = 9090
+FLUSH_TIMEOUT_S = 60.0
+# Fixed namespace: recording ids are uuid5(namespace, digest of what made the run).
+RECORDING_NAMESPACE = uuid.UUID("6f1d3c52-8a47-5e0b-9c1e-2b7a4d9e0f31")
+
+
+class SinkError(Exception):
+    """A Rerun output that cannot be used, with a one-line reason and what to do instead."""
+
+
+@dataclass(frozen=True, slots=True)
+class RunInfo:
+    """Everything that describes a run: what was replayed, how, and with which result.
+
+    Build it with :func:`run_info`, which reads the input to fill in its size, sha256
+    and text.
+    """
+
+    name: str
+    command: str
+    parameters: dict[str, object]
+    input_path: Path
+    input_size: int
+    input_sha256: str
+    input_text: str | None  # None when over INPUT_TEXT_CAP or not UTF-8 (see input_note)
+    input_note: str | None
+    truth: GroundTruth | None = None
+    truth_path: Path | None = None
+    truth_sha256: str | None = None
+    version: str = field(default=__version__)
+
+    @property
+    def recording_id(self) -> str:
+        """A UUID fixed by the version, the input, the truth and the parameters."""
+        digest = hashlib.sha256(
+            json.dumps(
+                [self.version, self.input_sha256, self.truth_sha256, self.parameters],
+                sort_keys=True,
+                default=str,
+            ).encode()
+        ).hexdigest()
+        return str(uuid.uuid5(RECORDING_NAMESPACE, digest))
+
+    def markdown(self) -> str:
+        """The run information as a markdown document for the viewer."""
+        rows = [
+            f"# {self.name}",
+            "",
+            f"- **ekfviz** {self.version}",
+            f"- **command** `{self.command}`",
+            f"- **input** `{self.input_path.name}`, {self.input_size} bytes,"
+            f" sha256 `{self.input_sha256}`",
+        ]
+        if self.input_note:
+            rows.append(f"- **input text** {self.input_note}")
+        if self.truth_path is not None:
+            rows.append(f"- **truth** `{self.truth_path.name}`, sha256 `{self.truth_sha256}`")
+        rows += ["", "## Parameters", "", "| parameter | value |", "|---|---|"]
+        rows += [f"| {key} | `{_json(value)}` |" for key, value in self.parameters.items()]
+        return "\n".join(rows) + "\n"
+
+
+def run_info(
+    name: str,
+    command: str,
+    parameters: dict[str, object],
+    input_path: Path,
+    truth: GroundTruth | None = None,
+    truth_path: Path | None = None,
+) -> RunInfo:
+    """Describe a run, reading the input (and truth) file for its size, sha256 and text.
+
+    :raises InputError: when the input or truth file cannot be read
+    """
+    size, sha256, data = _digest(input_path, keep_up_to=INPUT_TEXT_CAP)
+    text: str | None = None
+    note: str | None = None
+    if data is None:
+        note = f"not embedded: over the {INPUT_TEXT_CAP // (1024 * 1024)} MiB cap"
+    else:
+        try:
+            text = data.decode("utf-8")
+        except UnicodeDecodeError:
+            note = "not embedded: not UTF-8 text"
+    truth_sha256 = None if truth_path is None else _digest(truth_path, keep_up_to=0)[1]
+    return RunInfo(
+        name=name,
+        command=command,
+        parameters=dict(parameters),
+        input_path=input_path,
+        input_size=size,
+        input_sha256=sha256,
+        input_text=text,
+        input_note=note,
+        truth=truth,
+        truth_path=truth_path,
+        truth_sha256=truth_sha256,
+    )
+
+
+def _digest(path: Path, *, keep_up_to: int) -> tuple[int, str, bytes | None]:
+    """Size, sha256 and, when at most ``keep_up_to`` bytes, the content of a file."""
+    sha = hashlib.sha256()
+    kept = bytearray()
+    size = 0
+    try:
+        with path.open("rb") as file:
+            while block := file.read(1 << 20):
+                sha.update(block)
+                size += len(block)
+                if size <= keep_up_to:
+                    kept += block
+    except FileNotFoundError:
+        raise InputError(path, 0, "no such file") from None
+    except OSError as error:  # the same words as the readers' errors
+        raise InputError(path, 0, f"cannot be read ({error.strerror})") from None
+    return size, sha.hexdigest(), bytes(kept) if size <= keep_up_to else None
+
+
+def _json(value: object) -> str:
+    return json.dumps(value, default=str)
+
+
+# -- sinks -----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class Sinks:
+    """Where a recording goes: a file, a spawned viewer, a served web viewer, a viewer URL."""
+
+    save: Path | None = None
+    spawn: bool = False
+    serve: bool = False
+    connect: str | None = None
+
+    @property
+    def any(self) -> bool:
+        return self.save is not None or self.spawn or self.serve or self.connect is not None
+
+
+def has_display() -> bool:
+    """Whether a native viewer window can open here."""
+    if sys.platform in ("darwin", "win32"):
+        return True
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+def resolve_default_sinks(
+    sinks: Sinks, input_path: Path, recordings_dir: Path
+) -> tuple[Sinks, str | None]:
+    """The sinks asked for or, when none: a viewer where a display exists, else a file.
+
+    :return: the sinks to use and a note to print about the choice (None when asked for)
+    """
+    if sinks.any:
+        return sinks, None
+    if has_display():
+        return Sinks(spawn=True), "No Rerun output option given: sent the run to a Rerun viewer."
+    path = recordings_dir / f"{input_path.stem}.rrd"
+    return Sinks(save=path), (
+        f"No Rerun output option and no display: saved the recording to {path}"
+        f" (open it with: rerun {path})"
+    )
+
+
+def _rerun_executable() -> str | None:
+    """The ``rerun`` viewer binary: on PATH, or beside this Python in an unactivated venv."""
+    found = shutil.which("rerun")
+    if found:
+        return found
+    beside = Path(sys.executable).parent / ("rerun.exe" if sys.platform == "win32" else "rerun")
+    return str(beside) if beside.is_file() else None
+
+
+def web_viewer_url(grpc_uri: str, web_port: int = WEB_PORT) -> str:
+    """The address of the served web viewer, pointed at the gRPC server."""
+    return f"http://localhost:{web_port}/?url={quote(grpc_uri, safe=':/')}"
+
+
+# -- the run ---------------------------------------------------------------------------
+
+
+class RunLogger:
+    """Logs the records of one run; built by :func:`open_run`.
+
+    :ivar url: the web viewer's address when serving, else None
+    :ivar recorder: the :class:`Recorder` doing the logging
+    """
+
+    def __init__(self, recorder: Recorder, url: str | None) -> None:
+        self.recorder = recorder
+        self.url = url
+        self.finished = False
+
+    def log(self, record: EventRecord) -> None:
+        """Log one record of the core."""
+        self.recorder.log_record(record)
+
+    def finish(self, evaluation: Evaluation) -> None:
+        """Log the evaluation document and send the buffered series: the run is complete."""
+        try:
+            self.recorder.finish(evaluation)
+        except RuntimeError as error:  # a viewer that never answered; a file is complete
+            self.finished = True
+            reason = str(error).splitlines()[0] if str(error) else type(error).__name__
+            raise SinkError(f"the Rerun viewer did not take the recording: {reason}") from None
+        self.finished = True
+
+    def wait_while_serving(self) -> None:
+        """Block until Ctrl-C while the web viewer is served; return at once otherwise."""
+        if self.url is None:
+            return
+        try:
+            while True:
+                time.sleep(3600.0)
+        except KeyboardInterrupt:
+            return
+
+
+@contextmanager
+def open_run(info: RunInfo, sinks: Sinks) -> Iterator[RunLogger]:
+    """A recording of one run, sent to ``sinks``, closed when the block ends.
+
+    A ``--save`` file is written beside its path under a temporary name and moved over
+    the path only once ``RunLogger.finish`` has run; if the block fails before that,
+    the temporary file is removed and an existing file at the path is left untouched.
+
+    :raises SinkError: when a sink cannot be used (no display for ``spawn``, ...)
+    """
+    if not sinks.any:
+        raise SinkError("no Rerun output: use --save PATH, --spawn, --serve or --connect URL")
+    rec = rr.RecordingStream(APPLICATION_ID, recording_id=info.recording_id, send_properties=False)
+    rec.set_log_time_enabled(False)  # only step and event: the same run gives the same data
+    temporary: Path | None = None
+    logger: RunLogger | None = None
+    try:
+        log_sinks, temporary, url = _attach(rec, sinks)
+        rec.set_sinks(*log_sinks)
+        _describe(rec, info)
+        logger = RunLogger(Recorder(rec, truth=info.truth, run_documents=True), url)
+        yield logger
+    finally:
+        with contextlib.suppress(Exception):
+            rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
+        rec.disconnect()  # finalises the file (footer) and stops a server
+        if temporary is not None:
+            _commit_or_remove(temporary, sinks.save, logger is not None and logger.finished)
+
+
+def _attach(
+    rec: rr.RecordingStream, sinks: Sinks
+) -> tuple[list[rr.LogSinkLike], Path | None, str | None]:
+    """Make the sinks; return them, the temporary file of a save, and a web viewer URL."""
+    log_sinks: list[rr.LogSinkLike] = []
+    temporary: Path | None = None
+    url: str | None = None
+    if sinks.spawn:
+        if not has_display():
+            raise SinkError(
+                "--spawn needs a display: DISPLAY/WAYLAND_DISPLAY is not set; use --save or --serve"
+            )
+        executable = _rerun_executable()
+        if executable is None:
+            raise SinkError("--spawn needs the rerun viewer, which is not installed; use --save")
+        rr.spawn(
+            port=GRPC_PORT,
+            connect=False,
+            executable_path=executable,
+            hide_welcome_screen=True,
+            recording=rec,  # without it, spawn() asks the (absent) global recording and skips
+        )
+        log_sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{GRPC_PORT}/proxy"))
+    if sinks.connect is not None:
+        try:
+            log_sinks.append(rr.GrpcSink(sinks.connect))
+        except (ValueError, RuntimeError) as error:
+            raise SinkError(f"--connect {sinks.connect}: {error}") from None
+    if sinks.serve:
+        try:
+            server = rr.GrpcServerSink(bind_ip="127.0.0.1", port=GRPC_PORT)
+            rr.serve_web_viewer(web_port=WEB_PORT, open_browser=False, connect_to=server.uri)
+        except (ValueError, RuntimeError, OSError) as error:
+            raise SinkError(f"--serve: {error}") from None
+        log_sinks.append(server)
+        url = web_viewer_url(server.uri)
+    if sinks.save is not None:
+        target = sinks.save
+        # Beside the target (same file system, so os.replace is atomic), made by the
+        # FileSink itself so that it gets the usual permissions.
+        temporary = target.with_name(f".{target.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.part")
+        try:
+            target.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as error:
+            raise SinkError(f"--save {target}: {error.strerror or error}") from None
+        log_sinks.append(rr.FileSink(temporary))
+    return log_sinks, temporary, url
+
+
+def _commit_or_remove(temporary: Path, target: Path | None, complete: bool) -> None:
+    """Move a complete recording over its path; drop an incomplete one."""
+    if complete and target is not None:
+        os.replace(temporary, target)
+    else:
+        temporary.unlink(missing_ok=True)
+
+
+def _describe(rec: rr.RecordingStream, info: RunInfo) -> None:
+    """Recording name and properties, the run information and the input, all static."""
+    rec.send_recording_name(info.name)
+    values: dict[str, str | int | bool | None] = {
+        "version": info.version,
+        "command": info.command,
+        "parameters": _json(info.parameters),
+        "input_name": info.input_path.name,
+        "input_size": info.input_size,
+        "input_sha256": info.input_sha256,
+        "input_embedded": info.input_text is not None,
+        "truth_name": None if info.truth_path is None else info.truth_path.name,
+        "truth_sha256": info.truth_sha256,
+    }
+    rec.send_property("ekfviz", _any_values(values))
+    if info.parameters:
+        rec.send_property(
+            "parameters", _any_values({k: _property_value(v) for k, v in info.parameters.items()})
+        )
+    rec.log(
+        style.RUN_INFO,
+        rr.TextDocument(info.markdown(), media_type=rr.MediaType.MARKDOWN),
+        static=True,
+    )
+    if info.input_text is not None:
+        rec.log(style.RUN_INPUT, rr.TextDocument(info.input_text), static=True)
+    else:
+        rec.log(
+            style.RUN_INPUT,
+            rr.TextDocument(
+                f"The input {info.input_path.name} ({info.input_size} bytes, sha256"
+                f" {info.input_sha256}) is {info.input_note}."
+            ),
+            static=True,
+        )
+
+
+def _any_values(values: Mapping[str, ComponentValueLike | None]) -> rr.AnyValues:
+    bundle = rr.AnyValues()
+    for name, value in values.items():
+        bundle.with_component_from_data(name, value)
+    return bundle
+
+
+def _property_value(value: object) -> str | int | float | bool | list[float]:
+    """A parameter as a value the viewer shows well: scalars as is, the rest as JSON."""
+    if isinstance(value, (str, int, float, bool)):
+        return value
+    if isinstance(value, (list, tuple)) and all(
+        isinstance(v, (int, float)) and not isinstance(v, bool) for v in value
+    ):
+        return [float(v) for v in value]
+    return _json(value)

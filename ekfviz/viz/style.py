@@ -1,0 +1,62 @@
+"""Entity paths and colours of an ekfviz recording, in one place.
+
+Colours follow the classic matplotlib EKF-SLAM plots (white background): magenta
+predicted pose ellipse, blue updated one, green landmark ellipses, red ellipse at a
+landmark's first sighting, black true landmarks.
+"""
+
+from __future__ import annotations
+
+# -- entity paths ----------------------------------------------------------------------
+
+WORLD = "world"
+ROBOT = "world/robot"  # Points2D: the current position
+HEADING = "world/robot/heading"  # Arrows2D: the heading
+POSE_PREDICTED = "world/robot/ellipse/predicted"  # LineStrips2D, at every predict
+POSE_UPDATED = "world/robot/ellipse/updated"  # LineStrips2D, at every update and the init
+TRAJECTORY = "world/trajectory"  # LineStrips2D, one new segment per event
+LANDMARKS = "world/landmarks"  # Points2D, class id = landmark id
+LANDMARK_ELLIPSES = "world/landmarks/ellipses"  # LineStrips2D, after every update and init
+LANDMARK_INITIAL = "world/landmarks/initial"  # LineStrips2D, at first sighting only
+OBSERVATIONS = "world/observations"  # LineStrips2D, robot -> measured landmark position
+TRUTH_LANDMARKS = "world/truth/landmarks"  # Points2D, static
+
+METRICS = "metrics"
+NIS = "metrics/nis"
+POSE_SIGMA = "metrics/pose_sigma"  # /x, /y, /theta
+LANDMARK_ERROR = "metrics/landmark_error"  # /<id>, with truth
+MAHALANOBIS = "metrics/mahalanobis"  # /<id>, with truth
+
+LOG = "log"  # TextLog, one line per event
+RUN_INFO = "run/info"  # TextDocument (markdown), static
+RUN_INPUT = "run/input"  # TextDocument (the input log itself), static
+RUN_EVALUATION = "run/evaluation"  # TextDocument (markdown), static, at the end
+
+# Entities drawn from the infinite past up to the time cursor instead of latest-at.
+ACCUMULATED = (TRAJECTORY, LANDMARK_INITIAL)
+
+# -- timelines -------------------------------------------------------------------------
+
+STEP = "step"
+EVENT = "event"
+
+# -- colours (RGB) and sizes -----------------------------------------------------------
+
+Rgb = tuple[int, int, int]
+
+BACKGROUND: Rgb = (255, 255, 255)
+ROBOT_COLOR: Rgb = (0, 0, 0)
+TRAJECTORY_COLOR: Rgb = (0, 0, 255)  # "b-"
+PREDICTED_COLOR: Rgb = (255, 0, 255)  # "m"
+UPDATED_COLOR: Rgb = (0, 0, 255)  # "b"
+LANDMARK_COLOR: Rgb = (0, 128, 0)  # "g"
+INITIAL_COLOR: Rgb = (255, 0, 0)  # "r"
+OBSERVATION_COLOR: Rgb = (255, 165, 0)
+TRUTH_COLOR: Rgb = (0, 0, 0)  # "k"
+
+# Negative radii are UI points, so the map looks the same at any scale.
+POINT_RADIUS_UI = 4.0
+TRUTH_RADIUS_UI = 3.0
+ROBOT_RADIUS_UI = 6.0
+LINE_RADIUS_UI = 1.0
+THIN_LINE_RADIUS_UI = 0.5

@@ -1,0 +1,47 @@
+"""Shared fixtures: keep Rerun's analytics and config out of tests; read recordings back."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _quiet_rerun(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+    """A throw-away config/data home, and no analytics, for this process and its children.
+
+    Rerun 0.41 reads no opt-out variable (``RERUN_ANALYTICS`` does nothing); it skips
+    analytics, its first-run banner and its analytics.json on CI, detected by ``CI``.
+    """
+    home = tmp_path_factory.mktemp("home")
+    patch = pytest.MonkeyPatch()
+    patch.setenv("XDG_CONFIG_HOME", str(home / "config"))
+    patch.setenv("XDG_DATA_HOME", str(home / "data"))
+    patch.setenv("CI", "1")
+    yield
+    patch.undo()
+
+
+def entity_rows(path: Path, entity: str, *, static: bool = False) -> list[dict[str, object]]:
+    """Every row logged to one entity of an .rrd, as {column name: value}, by event.
+
+    Temporal rows carry their "event" and "step"; with ``static`` only static rows.
+    """
+    from rerun.chunk import RrdReader
+
+    rows: list[dict[str, object]] = []
+    for chunk in RrdReader(path).stream().filter(content=entity, is_static=static):
+        if chunk.entity_path != entity:
+            continue
+        batch = chunk.to_record_batch()
+        table = {
+            name: column.to_pylist()
+            for name, column in zip(batch.schema.names, batch.columns, strict=True)
+            if name != "rerun.controls.RowId" and not str(column.type).startswith("timestamp")
+        }
+        rows += [
+            dict(zip(table, values, strict=True)) for values in zip(*table.values(), strict=True)
+        ]
+    return rows if static else sorted(rows, key=lambda row: int(str(row["event"])))

@@ -1,0 +1,353 @@
+"""A replay saved through ekfviz.viz, read back from the .rrd and checked against the core."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from conftest import entity_rows
+
+from ekfviz import __version__, viz
+from ekfviz.core.evaluation import GroundTruth, evaluate
+from ekfviz.core.filter import FilterParams
+from ekfviz.core.records import EventKind, EventRecord, LogEvent
+from ekfviz.core.replay import replay
+from ekfviz.io.classic import format_classic
+from ekfviz.sim.simulate import CLASSIC_LANDMARKS_XY, classic_controls, simulate
+from ekfviz.viz import style
+
+F32 = float(np.finfo(np.float32).eps)
+
+
+@dataclass(frozen=True, slots=True)
+class Run:
+    rrd: Path
+    log: Path
+    records: tuple[EventRecord, ...]
+    truth: GroundTruth
+
+
+def write_log(path: Path, events: tuple[LogEvent, ...]) -> Path:
+    """A classic log with CRLF line ends and tabs, the awkward case for a byte round trip."""
+    text = format_classic(list(events)).replace(" ", "\t").replace("\n", "\r\n")
+    path.write_bytes(text.encode("utf-8"))
+    return path
+
+
+def save_run(
+    folder: Path, events: tuple[LogEvent, ...], truth: GroundTruth | None, name: str = "run"
+) -> tuple[Path, tuple[EventRecord, ...]]:
+    log = write_log(folder / f"{name}.txt", events)
+    params = FilterParams()
+    info = viz.run_info(name, f"ekfviz replay {log}", params.as_dict(), log, truth=truth)
+    rrd = folder / f"{name}.rrd"
+    records = tuple(replay(events, params))
+    with viz.open_run(info, viz.Sinks(save=rrd)) as logger:
+        for record in records:
+            logger.log(record)
+        logger.finish(evaluate(records[-1], truth))
+    return rrd, records
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory: pytest.TempPathFactory) -> Run:
+    folder = tmp_path_factory.mktemp("run")
+    sim = simulate(classic_controls(), CLASSIC_LANDMARKS_XY, seed=3)
+    truth = GroundTruth(np.arange(1, 7, dtype=np.int64), CLASSIC_LANDMARKS_XY)
+    rrd, records = save_run(folder, sim.events, truth)
+    return Run(rrd=rrd, log=folder / "run.txt", records=records, truth=truth)
+
+
+def points(row: dict[str, object], column: str) -> np.ndarray:
+    return np.asarray(row[column], dtype=np.float64)
+
+
+def mahalanobis(outline: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    e = outline - mean
+    d: np.ndarray = np.sqrt(np.einsum("ni,ni->n", e, np.linalg.solve(cov, e.T).T))
+    return d
+
+
+def float32_tolerance(mean: np.ndarray, cov: np.ndarray) -> float:
+    """How far from 3 a float32-rounded outline point may be: rounding / smallest sigma."""
+    scale = float(np.abs(mean).max() + 3 * np.sqrt(cov.max()))
+    return 10 * F32 * scale / float(np.sqrt(np.linalg.eigvalsh(cov).min())) + 1e-6
+
+
+def test_robot_position_at_every_event_is_the_cores(run: Run) -> None:
+    rows = entity_rows(run.rrd, f"/{style.ROBOT}")
+    assert [row["event"] for row in rows] == [r.event for r in run.records]
+    for row, record in zip(rows, run.records, strict=True):
+        assert row["step"] == record.step
+        np.testing.assert_allclose(points(row, "Points2D:positions")[0], record.pose[:2], rtol=F32)
+
+
+def test_pose_ellipses_sit_at_mahalanobis_3(run: Run) -> None:
+    for path, kinds in (
+        (style.POSE_PREDICTED, {EventKind.PREDICT}),
+        (style.POSE_UPDATED, {EventKind.UPDATE, EventKind.INIT}),
+    ):
+        rows = entity_rows(run.rrd, f"/{path}")
+        records = [r for r in run.records if r.kind in kinds]
+        assert [row["event"] for row in rows] == [r.event for r in records]
+        for row, record in zip(rows, records, strict=True):
+            (outline,) = points(row, "LineStrips2D:strips")
+            cov = record.pose_cov[:2, :2]
+            np.testing.assert_array_equal(outline[0], outline[-1])
+            d = mahalanobis(outline, record.pose[:2], cov)
+            np.testing.assert_allclose(d, 3.0, atol=float32_tolerance(record.pose[:2], cov))
+
+
+def test_landmark_ellipses_sit_at_mahalanobis_3(run: Run) -> None:
+    rows = entity_rows(run.rrd, f"/{style.LANDMARK_ELLIPSES}")
+    records = {r.event: r for r in run.records if r.kind is not EventKind.PREDICT}
+    assert len(rows) == len(records)
+    for row in rows:
+        record = records[int(str(row["event"]))]
+        outlines = points(row, "LineStrips2D:strips")
+        assert outlines.shape[0] == record.n_landmarks
+        assert row["LineStrips2D:class_ids"] == record.landmark_ids.tolist()
+        for outline, mean, cov in zip(
+            outlines, record.landmarks_xy, record.landmark_covs, strict=True
+        ):
+            d = mahalanobis(outline, mean, cov)
+            np.testing.assert_allclose(d, 3.0, atol=float32_tolerance(mean, cov))
+
+
+def test_landmarks_are_one_batch_with_their_ids_as_classes(run: Run) -> None:
+    rows = entity_rows(run.rrd, f"/{style.LANDMARKS}")
+    updates = [r for r in run.records if r.kind is not EventKind.PREDICT]
+    assert len(rows) == len(updates)
+    for row, record in zip(rows, updates, strict=True):
+        np.testing.assert_allclose(points(row, "Points2D:positions"), record.landmarks_xy, rtol=F32)
+        assert row["Points2D:class_ids"] == record.landmark_ids.tolist()
+    contexts = [
+        row["AnnotationContext:context"]
+        for row in entity_rows(run.rrd, f"/{style.WORLD}", static=True)
+        if "AnnotationContext:context" in row
+    ]
+    classes: list[dict[str, Any]] = contexts[-1][0]  # type: ignore[index]
+    labels = {c["class_id"]: c["class_description"]["info"]["label"] for c in classes}
+    assert all(labels[i] == f"L{i}" for i in range(1, 7))
+
+
+def test_initial_ellipses_only_at_first_sighting(run: Run) -> None:
+    rows = entity_rows(run.rrd, f"/{style.LANDMARK_INITIAL}")
+    assert [row["event"] for row in rows] == [0]  # the classic log sees all at once
+    assert rows[0]["LineStrips2D:class_ids"] == [1, 2, 3, 4, 5, 6]
+
+
+def test_trajectory_grows_one_segment_per_event(run: Run) -> None:
+    rows = entity_rows(run.rrd, f"/{style.TRAJECTORY}")
+    assert [row["event"] for row in rows] == [r.event for r in run.records[1:]]
+    for row, before, after in zip(rows, run.records[:-1], run.records[1:], strict=True):
+        (segment,) = points(row, "LineStrips2D:strips")
+        np.testing.assert_allclose(segment, [before.pose[:2], after.pose[:2]], rtol=F32)
+
+
+def test_observation_rays_at_updates_and_cleared_at_predicts(run: Run) -> None:
+    rows = entity_rows(run.rrd, f"/{style.OBSERVATIONS}")
+    assert [row["event"] for row in rows] == [r.event for r in run.records]
+    for row, record in zip(rows, run.records, strict=True):
+        rays = points(row, "LineStrips2D:strips")
+        if record.kind is EventKind.PREDICT:
+            assert rays.size == 0
+            continue
+        assert record.observations is not None
+        assert rays.shape == (len(record.observations), 2, 2)
+        lengths = np.linalg.norm(rays[:, 1] - rays[:, 0], axis=1)
+        np.testing.assert_allclose(lengths, record.observations.z[:, 1], rtol=1e-5)
+
+
+def test_both_timelines_on_every_temporal_chunk(run: Run) -> None:
+    from rerun.chunk import RrdReader
+
+    for chunk in RrdReader(run.rrd).stream().filter(is_static=False):
+        assert sorted(chunk.timeline_names) == ["event", "step"], chunk.entity_path
+
+
+def test_styling_is_static_and_logged_once(run: Run) -> None:
+    for path in (style.LANDMARKS, style.LANDMARK_ELLIPSES, style.TRAJECTORY):
+        temporal = entity_rows(run.rrd, f"/{path}")
+        assert all(not any(key.endswith((":colors", ":radii")) for key in row) for row in temporal)
+        static = entity_rows(run.rrd, f"/{path}", static=True)
+        assert sum(any(key.endswith(":colors") for key in row) for row in static) == 1
+
+
+def test_metric_series(run: Run) -> None:
+    updates = [r for r in run.records if r.kind is EventKind.UPDATE]
+    nis = entity_rows(run.rrd, f"/{style.NIS}")
+    assert [row["event"] for row in nis] == [r.event for r in updates]
+    for row, record in zip(nis, updates, strict=True):
+        assert record.observations is not None
+        assert row["Scalars:scalars"] == [pytest.approx(float(record.observations.nis.sum()))]
+    sigma_x = entity_rows(run.rrd, f"/{style.POSE_SIGMA}/x")
+    assert len(sigma_x) == len(run.records)
+    final = evaluate(run.records[-1], run.truth)
+    for landmark in final.landmarks:
+        error = entity_rows(run.rrd, f"/{style.LANDMARK_ERROR}/{landmark.id}")
+        distance = entity_rows(run.rrd, f"/{style.MAHALANOBIS}/{landmark.id}")
+        assert error[-1]["Scalars:scalars"] == [pytest.approx(landmark.euclidean)]
+        assert distance[-1]["Scalars:scalars"] == [pytest.approx(landmark.mahalanobis)]
+
+
+def test_text_log_line_per_event(run: Run) -> None:
+    rows = entity_rows(run.rrd, f"/{style.LOG}")
+    assert len(rows) == len(run.records)
+    assert rows[2]["TextLog:text"] == [
+        f"step 1 update line 3: 6 landmarks, NIS {run.records[2].observations.nis.sum():.2f}"  # type: ignore[union-attr]
+    ]
+
+
+def test_blueprint_and_properties_are_in_the_file(run: Run) -> None:
+    from rerun.chunk import RrdReader
+
+    reader = RrdReader(run.rrd)
+    (recording,) = reader.recordings()
+    assert recording.application_id == "ekfviz"
+    # the layout at the start, and again at the end framing the whole run
+    blueprints = reader.blueprints()
+    assert len(blueprints) == 2
+    for blueprint in blueprints:
+        chunks = list(reader.stream(store=blueprint))
+        names = {
+            c.to_record_batch().column("ViewBlueprint:display_name")[0][0].as_py()
+            for c in chunks
+            if "ViewBlueprint:display_name" in c.to_record_batch().schema.names
+        }
+        assert {"Map", "NIS", "Pose sigma", "Log", "Run", "Evaluation", "Input"} <= names
+        accumulated = {
+            c.entity_path.split("/overrides/")[1].removesuffix("/visualizers")
+            for c in chunks
+            if "VisibleTimeRanges:ranges" in c.to_record_batch().schema.names
+        }
+        assert accumulated == {style.TRAJECTORY, style.LANDMARK_INITIAL}
+    (name,) = entity_rows(run.rrd, "/__properties", static=True)
+    assert name["RecordingInfo:name"] == ["run"]
+    (properties,) = entity_rows(run.rrd, "/__properties/ekfviz", static=True)
+    assert properties["version"] == [__version__]
+    assert json.loads(str(properties["parameters"][0])) == FilterParams().as_dict()  # type: ignore[index]
+    assert properties["input_sha256"][0] == viz.run_info("x", "", {}, run.log).input_sha256  # type: ignore[index]
+
+
+def test_info_round_trips_the_input_byte_for_byte(run: Run) -> None:
+    found = viz.read_recording_info(run.rrd)
+    assert found.input_text is not None
+    assert found.input_text.encode("utf-8") == run.log.read_bytes()
+    assert "\r\n" in found.input_text and "\t" in found.input_text
+    assert found.parameters == FilterParams().as_dict()
+    assert found.command == f"ekfviz replay {run.log}"
+    assert found.input_name == "run.txt" and found.input_size == run.log.stat().st_size
+    assert found.evaluation_markdown == evaluate(run.records[-1], run.truth).to_markdown()
+    assert dict(found.summary())["input embedded"] == "yes"
+
+
+def test_info_rejects_what_is_not_a_recording(tmp_path: Path, run: Run) -> None:
+    with pytest.raises(viz.NotARecordingError, match="not a Rerun recording"):
+        viz.read_recording_info(run.log)
+    with pytest.raises(viz.NotARecordingError, match="no such file"):
+        viz.read_recording_info(tmp_path / "missing.rrd")
+
+
+def test_input_over_the_cap_is_not_embedded(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(viz.run, "INPUT_TEXT_CAP", 100)
+    sim = simulate(classic_controls()[:2], CLASSIC_LANDMARKS_XY, seed=1)
+    rrd, _ = save_run(tmp_path, sim.events, None)
+    found = viz.read_recording_info(rrd)
+    assert found.input_text is None and found.input_size > 100
+    (note,) = entity_rows(rrd, f"/{style.RUN_INPUT}", static=True)
+    assert "cap" in str(note["TextDocument:text"])
+
+
+def test_recording_id_is_fixed_by_the_inputs(tmp_path: Path, run: Run) -> None:
+    params = FilterParams().as_dict()
+    a = viz.run_info("a", "one command", params, run.log)
+    b = viz.run_info("b", "another command", params, run.log)
+    c = viz.run_info("a", "one command", {**params, "sigma_x": 0.3}, run.log)
+    assert a.recording_id == b.recording_id != c.recording_id
+    assert (
+        viz.read_recording_info(run.rrd).recording_id
+        == viz.run_info("run", "", params, run.log, truth=run.truth).recording_id
+    )
+
+
+def test_rerun_rrd_verify_accepts_the_recording(run: Run) -> None:
+    rerun = Path(sys.executable).parent / "rerun"
+    result = subprocess.run(
+        [str(rerun), "rrd", "verify", str(run.rrd)],
+        capture_output=True,
+        text=True,
+        env=os.environ.copy(),
+        timeout=120,
+    )
+    assert result.returncode == 0, result.stderr
+
+
+def test_save_is_atomic_when_logging_fails_midway(tmp_path: Path) -> None:
+    sim = simulate(classic_controls()[:4], CLASSIC_LANDMARKS_XY, seed=2)
+    log = write_log(tmp_path / "in.txt", sim.events)
+    target = tmp_path / "out.rrd"
+    target.write_bytes(b"the previous recording")
+    info = viz.run_info("in", "ekfviz replay in.txt", {}, log)
+    with (
+        pytest.raises(RuntimeError, match="midway"),
+        viz.open_run(info, viz.Sinks(save=target)) as logger,
+    ):
+        for record in replay(sim.events):
+            logger.log(record)
+            if record.event == 3:
+                raise RuntimeError("midway")
+    assert target.read_bytes() == b"the previous recording"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in.txt", "out.rrd"]
+
+
+def test_default_sinks(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    given = viz.Sinks(save=tmp_path / "x.rrd")
+    assert viz.resolve_default_sinks(given, Path("in.txt"), tmp_path) == (given, None)
+    monkeypatch.setattr(sys, "platform", "linux")
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    sinks, note = viz.resolve_default_sinks(viz.Sinks(), Path("data/classic.txt"), tmp_path)
+    assert sinks == viz.Sinks(save=tmp_path / "classic.rrd") and note and "no display" in note
+    monkeypatch.setenv("DISPLAY", ":0")
+    sinks, note = viz.resolve_default_sinks(viz.Sinks(), Path("data/classic.txt"), tmp_path)
+    assert sinks == viz.Sinks(spawn=True) and note
+
+
+def test_spawn_without_display_is_a_one_line_error(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, run: Run
+) -> None:
+    monkeypatch.setattr(sys, "platform", "linux")
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    info = viz.run_info("run", "", {}, run.log)
+    with (
+        pytest.raises(viz.SinkError, match=r"^--spawn needs a display.*--save") as error,
+        viz.open_run(info, viz.Sinks(spawn=True)),
+    ):
+        pass
+    assert "\n" not in str(error.value)
+
+
+def test_200_landmarks_are_one_batch(tmp_path: Path) -> None:
+    rng = np.random.default_rng(200)
+    landmarks = rng.uniform([-4.0, -4.0], [16.0, 20.0], size=(200, 2))
+    sim = simulate(classic_controls(), landmarks, seed=200)
+    records = tuple(replay(sim.events))
+    log = write_log(tmp_path / "in.txt", sim.events)
+    info = viz.run_info("in", "", {}, log, truth=GroundTruth(np.arange(1, 201), landmarks))
+    with viz.open_run(info, viz.Sinks(save=tmp_path / "out.rrd")) as logger:
+        for record in records:
+            logger.log(record)
+        logger.finish(evaluate(records[-1], info.truth))
+    (row,) = entity_rows(tmp_path / "out.rrd", f"/{style.LANDMARKS}")[-1:]
+    assert len(points(row, "Points2D:positions")) == 200
