@@ -22,8 +22,8 @@ from ekfviz.core.evaluation import Evaluation, GroundTruth, evaluate
 from ekfviz.core.filter import FilterError, FilterParams, LandmarkInit, UpdateMode
 from ekfviz.core.records import EventRecord
 from ekfviz.core.replay import replay as run_filter
-from ekfviz.io.classic import read_classic
 from ekfviz.io.errors import InputError
+from ekfviz.io.extended import read_log
 from ekfviz.io.text import ProgressCallback
 from ekfviz.io.truth import read_truth
 
@@ -67,7 +67,9 @@ SENSOR_HELP = "Measurement noise sigma ({}); must be positive."
 
 @app.command()
 def replay(
-    data: Annotated[Path, typer.Argument(help="Log in the classic format.", show_default=False)],
+    data: Annotated[
+        Path, typer.Argument(help="Log in the classic or the extended format.", show_default=False)
+    ],
     truth: Annotated[
         Path | None,
         typer.Option(help="True landmark positions: 'x y' per line, or JSON.", show_default=False),
@@ -192,7 +194,7 @@ def replay(
         )
         with open_progress(data) as progress, viz.open_run(info, sinks) as logger:
             last: EventRecord | None = None
-            for record in run_filter(read_classic(data, progress), params):
+            for record in run_filter(read_log(data, progress), params):
                 logger.log(record)
                 last = record
             assert last is not None  # replay always yields the initialisation
@@ -285,8 +287,8 @@ def print_evaluation(evaluation: Evaluation, truth: GroundTruth | None) -> None:
             if r.mahalanobis is None or r.euclidean is None:
                 cells += ["-", "-", "no truth"]
             else:
-                inside = "[green]yes[/]" if r.inside_3sigma else "[bold red]no[/]"
-                cells += [f"{r.euclidean:.4f}", f"{r.mahalanobis:.3f}", inside]
+                verdict = "[green]yes[/]" if r.inside_3sigma else "[bold red]no[/]"
+                cells += [f"{r.euclidean:.4f}", f"{r.mahalanobis:.3f}", verdict]
         table.add_row(*cells)
     out.print(table)
     x, y, theta = evaluation.pose
