@@ -276,10 +276,10 @@ def open_progress(path: Path) -> Iterator[ProgressCallback | None]:
 def print_evaluation(evaluation: Evaluation, truth: GroundTruth | None) -> None:
     """The final landmark table and pose, with errors when the truth is known."""
     table = Table(title="Landmarks at the end of the run", title_justify="left")
-    for column in ("id", "x", "y", "sigma x", "sigma y"):
+    for column in ("id", "x", "y", "σ x", "σ y"):
         table.add_column(column, justify="right")
     if truth is not None:
-        for column in ("euclidean", "mahalanobis", "in 3-sigma"):
+        for column in ("error (m)", "Mahalanobis", "in 3σ"):
             table.add_column(column, justify="right")
     for r in evaluation.landmarks:
         cells = [str(r.id), *(f"{v:.4f}" for v in (*r.estimate, *r.sigma))]

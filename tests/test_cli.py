@@ -78,7 +78,7 @@ def test_replay_saves_reports_and_prints_the_table(tmp_path: Path) -> None:
         "landmark_init": "correlated",
         "update": "sequential",
     }
-    assert "mahalanobis" in result.output and "Final pose" in result.output
+    assert "Mahalanobis" in result.output and "Final pose" in result.output
     assert "6 of 6 landmarks inside their 3-sigma ellipse" in result.output
 
 
@@ -119,7 +119,7 @@ def test_without_truth_the_table_shows_estimates_and_sigmas(tmp_path: Path) -> N
         app, ["replay", str(SAMPLE), "--save", str(tmp_path / "r.rrd")], env={"COLUMNS": "200"}
     )
     assert result.exit_code == 0
-    assert "sigma x" in result.output and "mahalanobis" not in result.output
+    assert "σ x" in result.output and "Mahalanobis" not in result.output
 
 
 @pytest.mark.parametrize(
