@@ -120,30 +120,24 @@ class Evaluation:
         rows = [
             "## Final pose",
             "",
-            "| x | y | theta | sigma x | sigma y | sigma theta |",
+            "| x | y | theta | σ x | σ y | σ theta |",
             "|---|---|---|---|---|---|",
             f"| {x:.4f} | {y:.4f} | {theta:.4f} | {sx:.4f} | {sy:.4f} | {st:.4f} |",
             "",
             "## Landmarks",
             "",
         ]
+        header = "| id | x | y | σ x | σ y |"
         if self.has_truth:
-            rows += [
-                "| id | x | y | sigma x | sigma y | true x | true y | euclidean"
-                " | mahalanobis | inside 3-sigma |",
-                "|---|---|---|---|---|---|---|---|---|---|",
-            ]
-        else:
-            rows += ["| id | x | y | sigma x | sigma y |", "|---|---|---|---|---|"]
+            header += " error (m) | Mahalanobis | in 3σ |"
+        rows += [header, "|" + "---|" * (header.count("|") - 1)]
         for r in self.landmarks:
             cells = [str(r.id), *(f"{v:.4f}" for v in (*r.estimate, *r.sigma))]
             if self.has_truth:
-                if r.truth is None:
-                    cells += ["-"] * 5
+                if r.euclidean is None or r.mahalanobis is None:
+                    cells += ["-", "-", "no truth"]
                 else:
                     cells += [
-                        f"{r.truth[0]:.4f}",
-                        f"{r.truth[1]:.4f}",
                         f"{r.euclidean:.4f}",
                         f"{r.mahalanobis:.3f}",
                         "yes" if r.inside_3sigma else "**no**",
