@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from ekfviz.core.filter import FilterParams
-from ekfviz.core.records import Control, Sighting
+from ekfviz.core.records import Sighting
 from ekfviz.io.classic import format_classic, read_classic
 from ekfviz.sim.simulate import Noise, classic_controls, simulate
 
@@ -55,12 +55,7 @@ def time_textbook(log: Path) -> tuple[float, np.ndarray]:
     params = FilterParams()
     start = time.perf_counter()
     ekf = TextbookEkfSlam(len(first.ids), params.Q, params.R, params.init_pose_sigma)
-    ekf.initialise(first.z)
-    for event in events[1:]:
-        if isinstance(event, Control):
-            ekf.predict(event.d, event.alpha)
-        else:
-            ekf.update(event.z)
+    ekf.run(events)
     return time.perf_counter() - start, ekf.x[:3]
 
 

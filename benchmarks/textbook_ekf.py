@@ -9,6 +9,9 @@ format), so the state has a fixed size.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from typing import Any
+
 import numpy as np
 import numpy.typing as npt
 
@@ -39,6 +42,19 @@ class TextbookEkfSlam:
         self.R = R
         self.correlated_init = correlated_init
         self.F_x = np.hstack([np.eye(3), np.zeros((3, 2 * n_landmarks))])
+
+    def run(self, events: Sequence[Any]) -> None:
+        """Initialise from the first line, then predict or update line by line.
+
+        Duck-typed so that this file shares no code with ekfviz: a control has ``d`` and
+        ``alpha``, an observation has ``z``.
+        """
+        self.initialise(events[0].z)
+        for event in events[1:]:
+            if hasattr(event, "d"):
+                self.predict(event.d, event.alpha)
+            else:
+                self.update(event.z)
 
     def initialise(self, z: Array) -> None:
         """Initialise landmark i from the i-th (bearing, range) of the first line."""

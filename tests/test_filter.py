@@ -29,12 +29,7 @@ def run_textbook(events: tuple[Control | Sighting, ...], params: FilterParams) -
         params.init_pose_sigma,
         correlated_init=params.landmark_init is LandmarkInit.CORRELATED,
     )
-    ekf.initialise(first.z)
-    for event in events[1:]:
-        if isinstance(event, Control):
-            ekf.predict(event.d, event.alpha)
-        else:
-            ekf.update(event.z)
+    ekf.run(events)
     return ekf
 
 
