@@ -34,7 +34,7 @@ test: $(VENV)/.installed-dev
 
 # Regenerate the bundled sample (a test checks data/ matches this).
 sample: $(VENV)/.installed
-	$(BIN)/python -m ekfviz.sim.sample data
+	$(BIN)/python -m ekfviz.samples data
 
 clean:
 	rm -rf $(VENV) .mypy_cache .ruff_cache .pytest_cache .hypothesis

@@ -2,16 +2,20 @@
 
 from __future__ import annotations
 
+import enum
 import json
+import math
 import os
 import shlex
 import sys
 import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import asdict, astuple
 from pathlib import Path
-from typing import Annotated, NoReturn
+from typing import Annotated, Any, NoReturn
 
+import numpy as np
 import typer
 from rich.console import Console
 from rich.progress import BarColumn, DownloadColumn, Progress, TimeRemainingColumn
@@ -26,6 +30,14 @@ from ekfviz.io.errors import InputError
 from ekfviz.io.extended import read_log
 from ekfviz.io.text import ProgressCallback
 from ekfviz.io.truth import read_truth
+from ekfviz.sim.scenarios import ScenarioName
+from ekfviz.sim.simulate import Noise
+
+
+class LogFormat(str, enum.Enum):
+    CLASSIC = "classic"
+    EXTENDED = "extended"
+
 
 app = typer.Typer(
     help="Replay a 2-D EKF-SLAM run and explore it in Rerun.",
@@ -203,6 +215,8 @@ def replay(
             print_evaluation(evaluation, truth_xy)
             if report is not None:
                 write_json(report, report_json(evaluation, params, data, info.input_sha256))
+            if truth_xy is not None:
+                mismatch_note(params, truth_xy)
             if note:
                 out.print(note)
             if logger.url:
@@ -246,6 +260,220 @@ def info(
             fail(f"{recording}: the input is not embedded (it was over the size cap)")
         write_bytes_atomic(extract_input, found.input_text.encode("utf-8"))
         out.print(f"Wrote the input to {extract_input}")
+
+
+@app.command()
+def simulate(
+    output: Annotated[
+        Path, typer.Option("-o", "--output", help="Where to write the log.", show_default=False)
+    ],
+    truth_out: Annotated[
+        Path,
+        typer.Option(help="Where to write the truth (JSON: landmarks, poses).", show_default=False),
+    ],
+    scenario: Annotated[
+        ScenarioName, typer.Option(help="The world and route.")
+    ] = ScenarioName.CLASSIC,
+    seed: Annotated[
+        int, typer.Option(help="Seed of the noise (and of the loop's landmark field).")
+    ] = 0,
+    log_format: Annotated[
+        LogFormat | None,
+        typer.Option(
+            "--format",
+            help="Log format; default classic for classic, extended for loop.",
+            show_default=False,
+        ),
+    ] = None,
+    steps: Annotated[
+        int | None,
+        typer.Option(
+            min=4,
+            help="loop: controls in one lap [default: 1000].",
+            rich_help_panel="Loop scenario",
+            show_default=False,
+        ),
+    ] = None,
+    landmarks: Annotated[
+        int | None,
+        typer.Option(
+            min=1,
+            help="loop: number of landmarks [default: 200].",
+            rich_help_panel="Loop scenario",
+            show_default=False,
+        ),
+    ] = None,
+    max_range: Annotated[
+        float | None,
+        typer.Option(
+            min=0.0,
+            help="loop: sensor range in metres [default: 15].",
+            rich_help_panel="Loop scenario",
+            show_default=False,
+        ),
+    ] = None,
+    fov: Annotated[
+        float | None,
+        typer.Option(
+            min=0.0,
+            max=360.0,
+            help="loop: sensor field of view in degrees [default: 180].",
+            rich_help_panel="Loop scenario",
+            show_default=False,
+        ),
+    ] = None,
+    true_sigma_x: Annotated[
+        float | None,
+        typer.Option(
+            min=0.0,
+            help="True motion noise along the heading [default: the scenario's].",
+            rich_help_panel="True noise",
+            show_default=False,
+        ),
+    ] = None,
+    true_sigma_y: Annotated[
+        float | None,
+        typer.Option(
+            min=0.0,
+            help="True motion noise sideways.",
+            rich_help_panel="True noise",
+            show_default=False,
+        ),
+    ] = None,
+    true_sigma_alpha: Annotated[
+        float | None,
+        typer.Option(
+            min=0.0,
+            help="True noise of the turn.",
+            rich_help_panel="True noise",
+            show_default=False,
+        ),
+    ] = None,
+    true_sigma_bearing: Annotated[
+        float | None,
+        typer.Option(
+            min=0.0, help="True bearing noise.", rich_help_panel="True noise", show_default=False
+        ),
+    ] = None,
+    true_sigma_range: Annotated[
+        float | None,
+        typer.Option(
+            min=0.0, help="True range noise.", rich_help_panel="True noise", show_default=False
+        ),
+    ] = None,
+    init_pose_sigma: Annotated[
+        tuple[float, float, float] | None,
+        typer.Option(
+            metavar="SX SY STHETA",
+            help="The true start is drawn from N(0, diag(sigma^2)), the prior a filter should"
+            " assume [default: classic 0.02 0.02 0.1, loop 0.01 0.01 0.005].",
+            show_default=False,
+        ),
+    ] = None,
+    precision: Annotated[int, typer.Option(min=1, max=17, help="Decimals written.")] = 6,
+) -> None:
+    """Simulate a run with known truth and write its log and truth files (deterministic)."""
+    from ekfviz.io.classic import format_classic
+    from ekfviz.io.extended import format_extended
+    from ekfviz.io.truth import truth_json
+    from ekfviz.sim import scenarios
+
+    loop_options: dict[str, Any] = {
+        "steps": steps,
+        "landmarks": landmarks,
+        "max_range": max_range,
+        "fov_deg": fov,
+    }
+    if scenario is ScenarioName.CLASSIC:
+        given = [
+            f"--{name.replace('_deg', '').replace('_', '-')}"
+            for name, v in loop_options.items()
+            if v is not None
+        ]
+        if given:
+            fail(f"{', '.join(given)}: only for --scenario loop")
+        world = scenarios.classic()
+    else:
+        world = scenarios.loop(
+            seed=seed, **{k: v for k, v in loop_options.items() if v is not None}
+        )
+    true_noise = Noise(
+        *(
+            default if given is None else given
+            for given, default in zip(
+                (
+                    true_sigma_x,
+                    true_sigma_y,
+                    true_sigma_alpha,
+                    true_sigma_bearing,
+                    true_sigma_range,
+                ),
+                astuple(world.noise),
+                strict=True,
+            )
+        )
+    )
+    if init_pose_sigma is None:
+        init_pose_sigma = world.init_pose_sigma
+    run = world.run(true_noise, seed=seed, init_pose_sigma=init_pose_sigma)
+    if log_format is None:
+        log_format = LogFormat.CLASSIC if scenario is ScenarioName.CLASSIC else LogFormat.EXTENDED
+    try:
+        text = (
+            format_classic(run.events, precision)
+            if log_format is LogFormat.CLASSIC
+            else format_extended(run.events, precision)
+        )
+    except ValueError as error:
+        fail(f"--format classic: {error}")
+    truth = GroundTruth(run.landmark_ids, run.landmarks_xy, run.poses_xytheta)
+    extra: dict[str, object] = {
+        "scenario": scenario.value,
+        "seed": seed,
+        "noise": asdict(true_noise),
+        "init_pose_sigma": list(init_pose_sigma),
+        "sensor": {
+            "max_range": world.sensor.max_range if math.isfinite(world.sensor.max_range) else None,
+            "fov_deg": math.degrees(world.sensor.fov),
+        },
+        "steps": len(world.controls),
+    }
+    write_bytes_atomic(output, text.encode("utf-8"))
+    write_bytes_atomic(truth_out, truth_json(truth, **extra).encode("utf-8"))
+    out.print(f"Wrote {output} ({len(run.events)} events) and {truth_out}")
+    replay_noise = [
+        f"--sigma-{name.removeprefix('sigma_').replace('_', '-')} {value:g}"
+        for name, value in asdict(true_noise).items()
+        if value != getattr(FilterParams(), name)
+    ]
+    if tuple(init_pose_sigma) != FilterParams().init_pose_sigma:
+        replay_noise.append("--init-pose-sigma " + " ".join(f"{v:g}" for v in init_pose_sigma))
+    out.print(
+        "Replay it with the filter told the true noise:\n  "
+        + " ".join(["ekfviz replay", str(output), "--truth", str(truth_out), *replay_noise]),
+        soft_wrap=True,
+    )
+
+
+@app.command()
+def convert(
+    source: Annotated[
+        Path, typer.Argument(help="A log in the classic format.", show_default=False)
+    ],
+    target: Annotated[
+        Path, typer.Argument(help="Where to write the extended log.", show_default=False)
+    ],
+) -> None:
+    """Rewrite a classic log in the extended format, every number exactly as read."""
+    from ekfviz.io.classic import read_classic
+    from ekfviz.io.extended import format_extended
+
+    try:
+        events = list(read_classic(source))
+    except InputError as error:
+        fail(str(error))
+    write_bytes_atomic(target, format_extended(events, precision=None).encode("utf-8"))
+    out.print(f"Wrote {target} ({len(events)} events)")
 
 
 # -- helpers ---------------------------------------------------------------------------
@@ -305,6 +533,22 @@ def print_evaluation(evaluation: Evaluation, truth: GroundTruth | None) -> None:
             out.print(f"[yellow]never observed: landmarks {sorted(missing)}[/]")
 
 
+def mismatch_note(params: FilterParams, truth: GroundTruth) -> None:
+    """Say so when the filter was told other noise levels than the simulator used."""
+    told = params.as_dict()
+    flags = [
+        f"--{name.replace('_', '-')} " + " ".join(f"{v:g}" for v in np.atleast_1d(value))
+        for name, value in (truth.simulated_with or {}).items()
+        if name in told and not np.allclose(np.asarray(told[name], dtype=float), value)
+    ]
+    if flags:
+        out.print(
+            "[yellow]note:[/] the truth file says the log was simulated with other noise"
+            f" levels than the filter was told; to match them: {' '.join(flags)}",
+            soft_wrap=True,
+        )
+
+
 def report_json(
     evaluation: Evaluation, params: FilterParams, data: Path, sha256: str
 ) -> dict[str, object]:
@@ -330,7 +574,18 @@ def write_bytes_atomic(path: Path, content: bytes) -> None:
     try:
         with os.fdopen(fd, "wb") as handle:
             handle.write(content)
+        os.chmod(tmp, _file_mode(path))
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def _file_mode(path: Path) -> int:
+    """The mode a file written at ``path`` should get: the old file's, else the umask's."""
+    try:
+        return path.stat().st_mode & 0o777
+    except OSError:
+        umask = os.umask(0)
+        os.umask(umask)
+        return 0o666 & ~umask

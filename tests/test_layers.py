@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from pathlib import Path
 
 
 def test_core_io_and_sim_do_not_import_rerun_or_typer() -> None:
     code = (
         "import sys\n"
         "import ekfviz.core.filter, ekfviz.core.replay, ekfviz.core.evaluation\n"
-        "import ekfviz.io.classic, ekfviz.io.truth, ekfviz.sim.sample\n"
+        "import ekfviz.io.classic, ekfviz.io.extended, ekfviz.io.truth, ekfviz.sim.scenarios\n"
         "bad = sorted(m for m in sys.modules if m.split('.')[0] in {'rerun', 'typer', 'rich'})\n"
         "print(','.join(bad))\n"
     )
@@ -29,11 +30,14 @@ def test_the_logging_layer_does_load_rerun() -> None:
     assert result.stdout.strip() == "True"
 
 
-def test_bundled_sample_is_what_the_generator_writes() -> None:
-    from pathlib import Path
-
-    from ekfviz.sim.sample import sample_files
+def test_bundled_samples_are_what_ekfviz_simulate_writes(tmp_path: Path) -> None:
+    from ekfviz.cli import app
+    from ekfviz.samples import SAMPLES, simulate_arguments
 
     data = Path(__file__).parents[1] / "data"
-    for name, content in sample_files().items():
-        assert (data / name).read_text(encoding="utf-8") == content, "regenerate with make sample"
+    for stem in SAMPLES:
+        app(simulate_arguments(tmp_path, stem), standalone_mode=False)
+        for name in (f"{stem}.txt", f"{stem}_truth.json"):
+            made, bundled = (tmp_path / name).read_bytes(), (data / name).read_bytes()
+            assert made == bundled, f"data/{name} differs: regenerate it with make sample"
+    assert sum(f.stat().st_size for f in data.iterdir()) < 2_000_000

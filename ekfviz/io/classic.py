@@ -7,14 +7,14 @@ control (d, alpha) and a line of 2k numbers an observation of the same k landmar
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 import numpy as np
 
 from ekfviz.core.records import Control, LogEvent, Sighting
 from ekfviz.io.errors import InputError
-from ekfviz.io.text import ProgressCallback, numeric_lines
+from ekfviz.io.text import ProgressCallback, format_number, numeric_lines
 
 
 def read_classic(path: Path, progress: ProgressCallback | None = None) -> Iterator[LogEvent]:
@@ -77,13 +77,30 @@ def _count(n: int) -> str:
     return f"{n} number" + ("" if n == 1 else "s")
 
 
-def format_classic(events: list[LogEvent] | tuple[LogEvent, ...], precision: int = 6) -> str:
+def format_classic(events: Iterable[LogEvent], precision: int | None = 6) -> str:
     """Write events in the classic format, tab separated, one event a line.
 
-    Every observation must list the same landmarks in the same order as the first line.
+    :param precision: decimals, or None for the shortest text that reads back exactly
+    :raises ValueError: when the events do not fit the format: the first must be an
+        observation of k >= 2 landmarks with ids 1..k, and every later one of the same
     """
-    lines = []
+    lines: list[str] = []
     for event in events:
-        values = [event.d, event.alpha] if isinstance(event, Control) else event.z.ravel().tolist()
-        lines.append("\t".join(f"{v:.{precision}f}" for v in values))
+        if isinstance(event, Control):
+            values = [event.d, event.alpha]
+        else:
+            k = len(event.ids)
+            if (
+                (lines and len(lines[0].split("\t")) != 2 * k)
+                or k < 2
+                or (event.ids.tolist() != list(range(1, k + 1)))
+            ):
+                raise ValueError(
+                    f"event of line {event.line} does not fit the classic format: it needs"
+                    " every landmark 1..k seen at every observation, in order"
+                )
+            values = event.z.ravel().tolist()
+        if not lines and isinstance(event, Control):
+            raise ValueError("the classic format starts with an observation, not a control")
+        lines.append("\t".join(format_number(v, precision) for v in values))
     return "\n".join(lines) + "\n"

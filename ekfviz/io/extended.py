@@ -22,7 +22,7 @@ import numpy as np
 from ekfviz.core.records import Control, LogEvent, Sighting
 from ekfviz.io.classic import read_classic
 from ekfviz.io.errors import InputError
-from ekfviz.io.text import ProgressCallback, parse_number, token_lines
+from ekfviz.io.text import ProgressCallback, format_number, parse_number, token_lines
 
 KEYWORDS = ("control", "observe")
 _ID = re.compile(r"\+?\d+")
@@ -120,17 +120,23 @@ def _observation(path: Path, line: int, values: list[str], time: float | None) -
     return Sighting(line=line, ids=np.array(ids, dtype=np.int64), z=z, time=time)
 
 
-def format_extended(events: Iterable[LogEvent], precision: int = 6) -> str:
-    """Write events in the extended format, one event a line, with timestamps if given."""
+def format_extended(events: Iterable[LogEvent], precision: int | None = 6) -> str:
+    """Write events in the extended format, one event a line, with timestamps if given.
+
+    :param precision: decimals, or None for the shortest text that reads back exactly
+    """
+
+    def num(value: float) -> str:
+        return format_number(value, precision)
+
     lines = ["# ekfviz extended log: control d alpha | observe id bearing range ..."]
     for event in events:
-        head = "" if event.time is None else f"{event.time:.{precision}f} "
+        head = "" if event.time is None else f"{num(event.time)} "
         if isinstance(event, Control):
-            lines.append(f"{head}control {event.d:.{precision}f} {event.alpha:.{precision}f}")
+            lines.append(f"{head}control {num(event.d)} {num(event.alpha)}")
         else:
             cells = [
-                f"{int(i)} {b:.{precision}f} {r:.{precision}f}"
-                for i, (b, r) in zip(event.ids, event.z, strict=True)
+                f"{int(i)} {num(b)} {num(r)}" for i, (b, r) in zip(event.ids, event.z, strict=True)
             ]
             lines.append(" ".join([f"{head}observe", *cells]))
     return "\n".join(lines) + "\n"

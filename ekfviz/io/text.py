@@ -74,3 +74,8 @@ def parse_number(path: Path, line: int, token: str) -> float:
         raise InputError(path, line, f"found {token!r}, expected a finite number")
     shown = token if len(token) <= 20 else token[:20] + "..."
     raise InputError(path, line, f"found {shown!r}, expected a decimal number")
+
+
+def format_number(value: float, precision: int | None) -> str:
+    """``precision`` decimals, or the shortest text that reads back exactly when None."""
+    return repr(float(value)) if precision is None else f"{value:.{precision}f}"

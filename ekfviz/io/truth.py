@@ -1,13 +1,16 @@
 """Readers of ground-truth files.
 
 Plain text: one ``x y`` pair per line in landmark order (ids 1, 2, ...), ``#`` comments
-and blank lines allowed. JSON: ``{"landmarks": [[x, y], ...]}`` in landmark order.
+and blank lines allowed. JSON: ``{"landmarks": {"<id>": [x, y], ...}, "poses": [[x, y,
+theta], ...]}`` with one pose per step (step 0 = the start; optional), or landmarks as a
+list ``[[x, y], ...]`` in landmark order (ids 1, 2, ...).
 """
 
 from __future__ import annotations
 
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +18,8 @@ import numpy as np
 from ekfviz.core.evaluation import GroundTruth
 from ekfviz.io.errors import InputError
 from ekfviz.io.text import numeric_lines
+
+_ID = re.compile(r"\d+")
 
 
 def read_truth(path: Path) -> GroundTruth:
@@ -62,18 +67,71 @@ def _read_json(path: Path) -> GroundTruth:
     except json.JSONDecodeError as error:
         raise InputError(path, error.lineno, f"invalid JSON: {error.msg}") from None
     landmarks = document.get("landmarks") if isinstance(document, dict) else None
-    if not isinstance(landmarks, list) or not landmarks:
-        raise InputError(path, 1, 'expected an object {"landmarks": [[x, y], ...]}')
-    for i, pair in enumerate(landmarks, start=1):
-        if not (
-            isinstance(pair, list)
-            and len(pair) == 2
-            and all(isinstance(v, int | float) and math.isfinite(v) for v in pair)
-        ):
+    if isinstance(landmarks, list) and landmarks:
+        ids = list(range(1, len(landmarks) + 1))
+        pairs = landmarks
+    elif isinstance(landmarks, dict) and landmarks:
+        if not all(_ID.fullmatch(key) for key in landmarks):
+            bad = next(key for key in landmarks if not _ID.fullmatch(key))
+            raise InputError(path, 1, f"found landmark id {bad!r}, expected an integer >= 0")
+        ids = [int(key) for key in landmarks]
+        pairs = list(landmarks.values())
+    else:
+        raise InputError(
+            path, 1, 'expected an object {"landmarks": {"<id>": [x, y], ...}} or [[x, y], ...]'
+        )
+    for landmark_id, pair in zip(ids, pairs, strict=True):
+        if not _finite_numbers(pair, 2):
             raise InputError(
-                path, 1, f"landmark {i} is {json.dumps(pair)[:40]}, expected [x, y] numbers"
+                path, 1, f"landmark {landmark_id} is {json.dumps(pair)[:40]}, expected [x, y]"
             )
-    return _truth(landmarks)
+    poses = document.get("poses")
+    poses_xytheta = None
+    if poses is not None:
+        if not (isinstance(poses, list) and poses and all(_finite_numbers(p, 3) for p in poses)):
+            raise InputError(path, 1, '"poses" must be a list of [x, y, theta], one per step')
+        poses_xytheta = np.array(poses, dtype=np.float64)
+    settings: dict[str, float | list[float]] = {}
+    noise = document.get("noise")
+    if isinstance(noise, dict):
+        settings.update({k: float(v) for k, v in noise.items() if isinstance(v, int | float)})
+    prior = document.get("init_pose_sigma")
+    if isinstance(prior, list) and _finite_numbers(prior, 3):
+        settings["init_pose_sigma"] = [float(v) for v in prior]
+    return GroundTruth(
+        ids=np.array(ids, dtype=np.int64),
+        landmarks_xy=np.array(pairs, dtype=np.float64).reshape(-1, 2),
+        poses_xytheta=poses_xytheta,
+        simulated_with=settings or None,
+    )
+
+
+def _finite_numbers(value: object, count: int) -> bool:
+    return (
+        isinstance(value, list)
+        and len(value) == count
+        and all(
+            isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+            for v in value
+        )
+    )
+
+
+def truth_json(truth: GroundTruth, **extra: object) -> str:
+    """A truth file's JSON text, one landmark and one pose a line, ``extra`` keys first."""
+    lines = [f"  {json.dumps(key)}: {json.dumps(value)}," for key, value in extra.items()]
+    order = np.argsort(truth.ids, kind="stable")
+    landmarks = [
+        f'    "{int(truth.ids[i])}": {json.dumps(truth.landmarks_xy[i].tolist())}' for i in order
+    ]
+    lines.append('  "landmarks": {\n' + ",\n".join(landmarks) + "\n  }")
+    if truth.poses_xytheta is not None:
+        poses = [
+            f"    {json.dumps([round(v, 9) for v in p])}" for p in truth.poses_xytheta.tolist()
+        ]
+        lines[-1] += ","
+        lines.append('  "poses": [\n' + ",\n".join(poses) + "\n  ]")
+    return "{\n" + "\n".join(lines) + "\n}\n"
 
 
 def _truth(rows: list[list[float]]) -> GroundTruth:

@@ -1,0 +1,42 @@
+"""The bundled sample data: how each file in ``data/`` is made by ``ekfviz simulate``.
+
+    python -m ekfviz.samples data        (or: make sample)
+
+regenerates them byte for byte; a test checks that ``data/`` holds exactly this.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+# file stem -> the arguments of `ekfviz simulate` that write <stem>.txt and <stem>_truth.json
+SAMPLES: dict[str, list[str]] = {
+    "classic": ["--scenario", "classic", "--seed", "2", "--precision", "4"],
+    "loop": ["--scenario", "loop", "--seed", "1", "--precision", "4"],
+}
+
+
+def simulate_arguments(folder: Path, stem: str) -> list[str]:
+    """The full ``ekfviz simulate`` command line (without the program) for one sample."""
+    return [
+        "simulate",
+        *SAMPLES[stem],
+        "-o",
+        str(folder / f"{stem}.txt"),
+        "--truth-out",
+        str(folder / f"{stem}_truth.json"),
+    ]
+
+
+def main(argv: list[str]) -> None:
+    from ekfviz.cli import app
+
+    folder = Path(argv[0]) if argv else Path("data")
+    folder.mkdir(parents=True, exist_ok=True)
+    for stem in SAMPLES:
+        app(simulate_arguments(folder, stem), standalone_mode=False)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
