@@ -222,7 +222,15 @@ def test_blueprint_and_properties_are_in_the_file(run: Run) -> None:
             for c in chunks
             if "ViewBlueprint:display_name" in c.to_record_batch().schema.names
         }
-        assert {"Map", "NIS", "Pose sigma", "Log", "Run", "Evaluation", "Input"} <= names
+        assert {
+            "Map",
+            "NIS and 95% bounds",
+            "Pose sigma",
+            "Log",
+            "Run",
+            "Evaluation",
+            "Input",
+        } <= names
         accumulated = {
             c.entity_path.split("/overrides/")[1].removesuffix("/visualizers")
             for c in chunks

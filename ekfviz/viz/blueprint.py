@@ -44,18 +44,23 @@ def map_view(bounds_xy: FloatArray | None = None) -> rrb.Spatial2DView:
 
 
 def default_blueprint(
-    *, has_truth: bool, has_run_info: bool, bounds_xy: FloatArray | None = None
+    *,
+    has_truth: bool,
+    has_run_info: bool,
+    has_true_poses: bool = False,
+    bounds_xy: FloatArray | None = None,
 ) -> rrb.Blueprint:
     """The layout: the map on the left, plots above and documents below on the right.
 
     :param has_truth: add the landmark error and Mahalanobis distance plots
     :param has_run_info: add the run information, input and evaluation documents
+    :param has_true_poses: add the NEES plot
     :param bounds_xy: (2, 2) world box the map frames, see :func:`map_view`
     """
-    plots: list[rrb.View] = [
-        rrb.TimeSeriesView(name="NIS", origin=style.NIS),
-        rrb.TimeSeriesView(name="Pose sigma", origin=style.POSE_SIGMA),
-    ]
+    plots: list[rrb.View] = [rrb.TimeSeriesView(name="NIS and 95% bounds", origin=style.NIS)]
+    if has_true_poses:
+        plots.append(rrb.TimeSeriesView(name="NEES and 95% bounds", origin=style.NEES))
+    plots.append(rrb.TimeSeriesView(name="Pose sigma", origin=style.POSE_SIGMA))
     if has_truth:
         plots += [
             rrb.TimeSeriesView(name="Landmark error [m]", origin=style.LANDMARK_ERROR),

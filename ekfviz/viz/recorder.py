@@ -30,6 +30,7 @@ import numpy.typing as npt
 import rerun as rr
 import rerun.blueprint as rrb
 
+from ekfviz.core.consistency import chi2_bounds, pose_nees, update_nis
 from ekfviz.core.evaluation import Evaluation, GroundTruth, landmark_errors
 from ekfviz.core.models import wrap_angles
 from ekfviz.core.records import EventKind, EventRecord, Observations, snapshot
@@ -229,6 +230,7 @@ class Recorder:
             bounds_xy = bounds_xy + np.array([[-margin], [margin]])
         return default_blueprint(
             has_truth=self._truth is not None,
+            has_true_poses=self._truth is not None and self._truth.poses_xytheta is not None,
             has_run_info=self._run_documents,
             bounds_xy=bounds_xy,
         )
@@ -323,11 +325,13 @@ class Recorder:
         step, event = record.step, record.event
         for name, sigma in zip(("x", "y", "theta"), np.sqrt(np.diag(record.pose_cov)), strict=True):
             add(f"{style.POSE_SIGMA}/{name}", step, event, float(sigma))
-        observations = record.observations
-        if observations is not None:
-            nis = observations.nis[np.isfinite(observations.nis)]
-            if nis.size:
-                add(style.NIS, step, event, float(nis.sum()))
+        nis = update_nis(record)
+        if nis is not None:
+            self._add_statistic(style.NIS, step, event, nis[0], chi2_bounds(nis[1]))
+        if self._truth is not None and record.kind is not EventKind.PREDICT:
+            nees = pose_nees(record, self._truth)
+            if nees is not None:
+                self._add_statistic(style.NEES, step, event, nees, chi2_bounds(3))
         if self._truth is not None and record.kind is not EventKind.PREDICT:
             truth_xy = self._truth.lookup(record.landmark_ids)
             euclidean, mahalanobis = landmark_errors(
@@ -339,6 +343,14 @@ class Recorder:
                 if np.isfinite(error):
                     add(f"{style.LANDMARK_ERROR}/{landmark_id}", step, event, error)
                     add(f"{style.MAHALANOBIS}/{landmark_id}", step, event, distance)
+
+    def _add_statistic(
+        self, path: str, step: int, event: int, value: float, bounds: tuple[float, float]
+    ) -> None:
+        """A NIS or NEES value with its chi-square bounds, drawn in the same plot."""
+        self._series.add(path, step, event, value)
+        self._series.add(f"{path}/{style.LOWER}", step, event, bounds[0])
+        self._series.add(f"{path}/{style.UPPER}", step, event, bounds[1])
 
     @staticmethod
     def _describe(record: EventRecord) -> str:
@@ -366,6 +378,14 @@ class Recorder:
 
     def _log_styling(self) -> None:
         rec = self._rec
+        for path, name in ((style.NIS, "NIS"), (style.NEES, "NEES")):
+            rec.log(path, rr.SeriesLines(colors=style.STATISTIC_COLOR, names=name), static=True)
+            for bound, label in ((style.LOWER, "95% lower"), (style.UPPER, "95% upper")):
+                rec.log(
+                    f"{path}/{bound}",
+                    rr.SeriesLines(colors=style.BOUND_COLOR, names=label, widths=1.0),
+                    static=True,
+                )
         # A 2-D view draws y down; mirroring "world" in the root frame shows the map y up
         # as in the classic plots, while every entity keeps its true world coordinates.
         rec.log(style.WORLD, rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)

@@ -22,7 +22,10 @@ OBSERVATIONS = "world/observations"  # LineStrips2D, robot -> measured landmark 
 TRUTH_LANDMARKS = "world/truth/landmarks"  # Points2D, static
 
 METRICS = "metrics"
-NIS = "metrics/nis"
+NIS = "metrics/nis"  # with /lower_95 and /upper_95: the chi-square bounds of each update
+NEES = "metrics/nees"  # with true poses; /lower_95 and /upper_95 likewise
+LOWER = "lower_95"
+UPPER = "upper_95"
 POSE_SIGMA = "metrics/pose_sigma"  # /x, /y, /theta
 LANDMARK_ERROR = "metrics/landmark_error"  # /<id>, with truth
 MAHALANOBIS = "metrics/mahalanobis"  # /<id>, with truth
@@ -52,6 +55,8 @@ UPDATED_COLOR: Rgb = (0, 0, 255)  # "b"
 LANDMARK_COLOR: Rgb = (0, 128, 0)  # "g"
 INITIAL_COLOR: Rgb = (255, 0, 0)  # "r"
 OBSERVATION_COLOR: Rgb = (255, 165, 0)
+STATISTIC_COLOR: Rgb = (31, 119, 180)  # NIS and NEES
+BOUND_COLOR: Rgb = (150, 150, 150)  # their chi-square bounds
 TRUTH_COLOR: Rgb = (0, 0, 0)  # "k"
 
 # Negative radii are UI points, so the map looks the same at any scale.

@@ -1,0 +1,204 @@
+"""Filter consistency: NEES against the true poses, NIS of the updates, chi-square bounds.
+
+A consistent filter's errors match its covariance: the pose NEES e^T P^-1 e is chi-square
+with 3 degrees of freedom, an update's NIS nu^T S^-1 nu chi-square with 2 per landmark
+used. Averaged over N independent runs, N times the mean is chi-square with N times the
+degrees of freedom. Too many values above the upper bound: the filter is over-confident;
+below the lower one: too cautious.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ekfviz.core.evaluation import GroundTruth
+from ekfviz.core.models import wrap_angle
+from ekfviz.core.records import EventKind, EventRecord
+
+CONFIDENCE = 0.95
+INSIDE_FOR_CONSISTENT = 0.9  # share of steps inside the bounds to call a run consistent
+
+
+def chi2_cdf(x: float, dof: float) -> float:
+    """P(X <= x) for X chi-square with ``dof`` degrees of freedom.
+
+    The regularised lower incomplete gamma P(dof/2, x/2): its power series below
+    a + 1, the continued fraction of the upper one above (Numerical Recipes, 6.2). Written
+    out rather than imported because scipy would add a third of a second to every replay.
+    """
+    a, y = 0.5 * dof, 0.5 * x
+    if y <= 0.0:
+        return 0.0
+    log_prefactor = -y + a * math.log(y) - math.lgamma(a)
+    if y < a + 1.0:
+        term = total = 1.0 / a
+        n = 0
+        while abs(term) > abs(total) * 1e-16 and n < 100_000:
+            n += 1
+            term *= y / (a + n)
+            total += term
+        return min(1.0, total * math.exp(log_prefactor))
+    tiny = 1e-300  # modified Lentz for the continued fraction of Q(a, y)
+    b = y + 1.0 - a
+    c = 1.0 / tiny
+    d = 1.0 / b
+    h = d
+    for i in range(1, 100_000):
+        an = -i * (i - a)
+        b += 2.0
+        d = an * d + b
+        d = tiny if abs(d) < tiny else d
+        c = b + an / c
+        c = tiny if abs(c) < tiny else c
+        d = 1.0 / d
+        delta = d * c
+        h *= delta
+        if abs(delta - 1.0) < 1e-16:
+            break
+    return max(0.0, 1.0 - h * math.exp(log_prefactor))
+
+
+def chi2_quantile(p: float, dof: float) -> float:
+    """The x with P(X <= x) = p for X chi-square with ``dof`` degrees of freedom (bisection)."""
+    if not 0.0 < p < 1.0:
+        raise ValueError(f"p must be in (0, 1), got {p}")
+    lo, hi = 0.0, dof + 20.0 * math.sqrt(2.0 * dof) + 50.0
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        if chi2_cdf(mid, dof) < p:
+            lo = mid
+        else:
+            hi = mid
+        if hi - lo <= 1e-12 * max(1.0, hi):
+            break
+    return 0.5 * (lo + hi)
+
+
+_BOUNDS: dict[tuple[float, float, int], tuple[float, float]] = {}
+
+
+def chi2_bounds(dof: float, runs: int = 1, confidence: float = CONFIDENCE) -> tuple[float, float]:
+    """Two-sided ``confidence`` bounds of the mean of ``runs`` chi-square(dof) values."""
+    key = (dof, confidence, runs)
+    if key not in _BOUNDS:
+        tail = 0.5 * (1.0 - confidence)
+        total = dof * runs
+        _BOUNDS[key] = (
+            chi2_quantile(tail, total) / runs,
+            chi2_quantile(1.0 - tail, total) / runs,
+        )
+    return _BOUNDS[key]
+
+
+def pose_nees(record: EventRecord, truth: GroundTruth) -> float | None:
+    """NEES e^T P^-1 e of the pose at the record's step, or None without a true pose."""
+    poses = truth.poses_xytheta
+    if poses is None or record.step >= len(poses):
+        return None
+    e = record.pose - poses[record.step]
+    e[2] = wrap_angle(float(e[2]))
+    return float(e @ np.linalg.solve(record.pose_cov, e))
+
+
+def update_nis(record: EventRecord) -> tuple[float, int] | None:
+    """The NIS of an update summed over the landmarks it used, and its degrees of freedom."""
+    observations = record.observations
+    if observations is None:
+        return None
+    used = np.isfinite(observations.nis)
+    if not used.any():
+        return None
+    return float(observations.nis[used].sum()), 2 * int(used.sum())
+
+
+class Verdict(str, enum.Enum):
+    CONSISTENT = "consistent"
+    OVER_CONFIDENT = "over-confident"
+    TOO_CAUTIOUS = "too cautious"
+
+
+@dataclass(slots=True)
+class BoundCount:
+    """How many values of a statistic fell below, inside and above their bounds."""
+
+    below: int = 0
+    inside: int = 0
+    above: int = 0
+
+    def add(self, value: float, bounds: tuple[float, float]) -> None:
+        if value < bounds[0]:
+            self.below += 1
+        elif value > bounds[1]:
+            self.above += 1
+        else:
+            self.inside += 1
+
+    @property
+    def total(self) -> int:
+        return self.below + self.inside + self.above
+
+    @property
+    def fraction_inside(self) -> float:
+        return self.inside / self.total if self.total else math.nan
+
+    @property
+    def verdict(self) -> Verdict | None:
+        if not self.total:
+            return None
+        if self.fraction_inside >= INSIDE_FOR_CONSISTENT:
+            return Verdict.CONSISTENT
+        return Verdict.OVER_CONFIDENT if self.above >= self.below else Verdict.TOO_CAUTIOUS
+
+    def to_json(self) -> dict[str, object]:
+        verdict = self.verdict
+        return {
+            "count": self.total,
+            "below": self.below,
+            "inside": self.inside,
+            "above": self.above,
+            "fraction_inside": None if not self.total else self.fraction_inside,
+            "verdict": None if verdict is None else verdict.value,
+        }
+
+
+@dataclass(slots=True)
+class Consistency:
+    """Running count of NEES (per step, with true poses) and NIS (per update) in bounds."""
+
+    truth: GroundTruth | None = None
+    nees: BoundCount = field(default_factory=BoundCount)
+    nis: BoundCount = field(default_factory=BoundCount)
+
+    def add(self, record: EventRecord) -> None:
+        """Count a record: its NIS if an update used landmarks, its NEES if it ends a step."""
+        nis = update_nis(record)
+        if nis is not None:
+            self.nis.add(nis[0], chi2_bounds(nis[1]))
+        if self.truth is not None and record.kind is not EventKind.PREDICT:
+            nees = pose_nees(record, self.truth)
+            if nees is not None:
+                self.nees.add(nees, chi2_bounds(3))
+
+    def summary(self) -> list[str]:
+        """One sentence per statistic, for the terminal and the evaluation document."""
+        lines = []
+        for name, count, what in (
+            ("NEES", self.nees, "steps"),
+            ("NIS", self.nis, "updates"),
+        ):
+            verdict = count.verdict
+            if verdict is None:
+                continue
+            lines.append(
+                f"{name}: {count.inside} of {count.total} {what} ({count.fraction_inside:.0%})"
+                f" inside the {CONFIDENCE:.0%} chi-square bounds, {count.above} above,"
+                f" {count.below} below: the filter looks {verdict.value}"
+            )
+        return lines
+
+    def to_json(self) -> dict[str, object]:
+        return {"nees": self.nees.to_json(), "nis": self.nis.to_json(), "confidence": CONFIDENCE}
