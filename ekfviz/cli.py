@@ -22,6 +22,7 @@ from rich.progress import BarColumn, DownloadColumn, Progress, TimeRemainingColu
 from rich.table import Table
 
 from ekfviz import __version__
+from ekfviz.core.consistency import Consistency, Verdict
 from ekfviz.core.evaluation import Evaluation, GroundTruth, evaluate
 from ekfviz.core.filter import FilterError, FilterParams, LandmarkInit, UpdateMode
 from ekfviz.core.records import EventRecord
@@ -30,7 +31,7 @@ from ekfviz.io.errors import InputError
 from ekfviz.io.extended import read_log
 from ekfviz.io.text import ProgressCallback
 from ekfviz.io.truth import read_truth
-from ekfviz.sim.scenarios import ScenarioName
+from ekfviz.sim.scenarios import Scenario, ScenarioName
 from ekfviz.sim.simulate import Noise
 
 
@@ -74,7 +75,126 @@ def main(
     """Replay a 2-D EKF-SLAM run and explore it in Rerun."""
 
 
-SENSOR_HELP = "Measurement noise sigma ({}); must be positive."
+# -- options shared by several commands ------------------------------------------------
+
+FILTER_NOISE = "Filter noise"
+FILTER_OPTIONS = "Filter options"
+TRUE_NOISE = "True noise (default: the scenario's)"
+LOOP = "Loop scenario"
+
+
+def _option(help: str, panel: str | None = None, **kwargs: Any) -> Any:
+    return typer.Option(help=help, rich_help_panel=panel, **kwargs)
+
+
+SigmaX = Annotated[
+    float, _option("Motion noise sigma along the heading (m).", FILTER_NOISE, min=0.0)
+]
+SigmaY = Annotated[float, _option("Motion noise sigma sideways (m).", FILTER_NOISE, min=0.0)]
+SigmaAlpha = Annotated[
+    float, _option("Motion noise sigma of the turn (rad).", FILTER_NOISE, min=0.0)
+]
+SigmaBearing = Annotated[
+    float, _option("Measurement noise sigma of the bearing (rad); positive.", FILTER_NOISE)
+]
+SigmaRange = Annotated[
+    float, _option("Measurement noise sigma of the range (m); positive.", FILTER_NOISE)
+]
+LandmarkInitOption = Annotated[
+    LandmarkInit,
+    _option("Keep the new landmark's cross-covariances (correlated) or drop them.", FILTER_OPTIONS),
+]
+UpdateOption = Annotated[
+    UpdateMode,
+    _option("Fold a line's landmarks one after another, or all at once.", FILTER_OPTIONS),
+]
+Triple = tuple[float, float, float]
+
+
+def _true(what: str) -> Any:
+    return _option(f"True {what}.", TRUE_NOISE, min=0.0, show_default=False)
+
+
+TrueSigmaX = Annotated[float | None, _true("motion noise sigma along the heading")]
+TrueSigmaY = Annotated[float | None, _true("motion noise sigma sideways")]
+TrueSigmaAlpha = Annotated[float | None, _true("motion noise sigma of the turn")]
+TrueSigmaBearing = Annotated[float | None, _true("bearing noise sigma")]
+TrueSigmaRange = Annotated[float | None, _true("range noise sigma")]
+ScenarioOption = Annotated[ScenarioName, _option("The world and route.")]
+Steps = Annotated[
+    int | None,
+    _option("loop: controls in one lap [default: 1000].", LOOP, min=4, show_default=False),
+]
+Landmarks = Annotated[
+    int | None,
+    _option("loop: number of landmarks [default: 200].", LOOP, min=1, show_default=False),
+]
+MaxRange = Annotated[
+    float | None,
+    _option("loop: sensor range in metres [default: 15].", LOOP, min=0.0, show_default=False),
+]
+Fov = Annotated[
+    float | None,
+    _option(
+        "loop: sensor field of view in degrees [default: 180].",
+        LOOP,
+        min=0.0,
+        max=360.0,
+        show_default=False,
+    ),
+]
+
+
+def filter_params(
+    sigmas: tuple[float, float, float, float, float],
+    init_pose_sigma: Triple,
+    landmark_init: LandmarkInit,
+    update: UpdateMode,
+) -> FilterParams:
+    """The filter's parameters from the command line, refusing what cannot work."""
+    sigma_x, sigma_y, sigma_alpha, sigma_bearing, sigma_range = sigmas
+    if sigma_bearing <= 0 or sigma_range <= 0:
+        fail("--sigma-bearing and --sigma-range must be positive: R must be invertible")
+    if min(init_pose_sigma) < 0:
+        fail("--init-pose-sigma values must not be negative")
+    return FilterParams(
+        sigma_x=sigma_x,
+        sigma_y=sigma_y,
+        sigma_alpha=sigma_alpha,
+        sigma_bearing=sigma_bearing,
+        sigma_range=sigma_range,
+        init_pose_sigma=init_pose_sigma,
+        landmark_init=landmark_init,
+        update=update,
+    )
+
+
+def scenario_world(
+    scenario: ScenarioName,
+    seed: int,
+    steps: int | None,
+    landmarks: int | None,
+    max_range: float | None,
+    fov: float | None,
+) -> Scenario:
+    """The scenario asked for; the loop options are refused for the classic one."""
+    from ekfviz.sim import scenarios
+
+    options: dict[str, Any] = {
+        "steps": steps, "landmarks": landmarks, "max_range": max_range, "fov_deg": fov
+    }  # fmt: skip
+    given = {name: value for name, value in options.items() if value is not None}
+    if scenario is ScenarioName.CLASSIC:
+        if given:
+            flags = (f"--{name.removesuffix('_deg').replace('_', '-')}" for name in given)
+            fail(f"{', '.join(flags)}: only for --scenario loop")
+        return scenarios.classic()
+    return scenarios.loop(seed=seed, **given)
+
+
+def true_noise(world: Scenario, *given: float | None) -> Noise:
+    """The scenario's own noise, with the values given on the command line instead."""
+    return Noise(*(d if g is None else g for g, d in zip(given, astuple(world.noise), strict=True)))
 
 
 @app.command()
@@ -89,54 +209,19 @@ def replay(
     report: Annotated[
         Path | None, typer.Option(help="Write the evaluation as JSON here.", show_default=False)
     ] = None,
-    sigma_x: Annotated[
-        float,
-        typer.Option(
-            min=0.0,
-            help="Motion noise sigma along the heading (m).",
-            rich_help_panel="Filter noise",
-        ),
-    ] = 0.25,
-    sigma_y: Annotated[
-        float,
-        typer.Option(
-            min=0.0, help="Motion noise sigma sideways (m).", rich_help_panel="Filter noise"
-        ),
-    ] = 0.1,
-    sigma_alpha: Annotated[
-        float,
-        typer.Option(
-            min=0.0, help="Motion noise sigma of the turn (rad).", rich_help_panel="Filter noise"
-        ),
-    ] = 0.1,
-    sigma_bearing: Annotated[
-        float, typer.Option(help=SENSOR_HELP.format("bearing, rad"), rich_help_panel="Filter noise")
-    ] = 0.01,
-    sigma_range: Annotated[
-        float, typer.Option(help=SENSOR_HELP.format("range, m"), rich_help_panel="Filter noise")
-    ] = 0.08,
+    sigma_x: SigmaX = 0.25,
+    sigma_y: SigmaY = 0.1,
+    sigma_alpha: SigmaAlpha = 0.1,
+    sigma_bearing: SigmaBearing = 0.01,
+    sigma_range: SigmaRange = 0.08,
     init_pose_sigma: Annotated[
-        tuple[float, float, float],
-        typer.Option(
-            metavar="SX SY STHETA",
-            help="Sigma of the initial pose prior at (0, 0, 0).",
-            rich_help_panel="Filter options",
+        Triple,
+        _option(
+            "Sigma of the initial pose prior at (0, 0, 0).", FILTER_OPTIONS, metavar="SX SY STHETA"
         ),
     ] = (0.02, 0.02, 0.1),
-    landmark_init: Annotated[
-        LandmarkInit,
-        typer.Option(
-            help="Keep the new landmark's cross-covariances (correlated) or drop them.",
-            rich_help_panel="Filter options",
-        ),
-    ] = LandmarkInit.CORRELATED,
-    update: Annotated[
-        UpdateMode,
-        typer.Option(
-            help="Fold a line's landmarks one after another, or all at once.",
-            rich_help_panel="Filter options",
-        ),
-    ] = UpdateMode.SEQUENTIAL,
+    landmark_init: LandmarkInitOption = LandmarkInit.CORRELATED,
+    update: UpdateOption = UpdateMode.SEQUENTIAL,
     save: Annotated[
         Path | None,
         typer.Option(
@@ -175,19 +260,11 @@ def replay(
     """
     from ekfviz import viz  # rerun loads only for commands that record
 
-    if sigma_bearing <= 0 or sigma_range <= 0:
-        fail("--sigma-bearing and --sigma-range must be positive: R must be invertible")
-    if min(init_pose_sigma) < 0:
-        fail("--init-pose-sigma values must not be negative")
-    params = FilterParams(
-        sigma_x=sigma_x,
-        sigma_y=sigma_y,
-        sigma_alpha=sigma_alpha,
-        sigma_bearing=sigma_bearing,
-        sigma_range=sigma_range,
-        init_pose_sigma=init_pose_sigma,
-        landmark_init=landmark_init,
-        update=update,
+    params = filter_params(
+        (sigma_x, sigma_y, sigma_alpha, sigma_bearing, sigma_range),
+        init_pose_sigma,
+        landmark_init,
+        update,
     )
     try:
         truth_xy = read_truth(truth) if truth is not None else None
@@ -206,11 +283,13 @@ def replay(
         )
         with open_progress(data) as progress, viz.open_run(info, sinks) as logger:
             last: EventRecord | None = None
+            consistency = Consistency(truth_xy)
             for record in run_filter(read_log(data, progress), params):
                 logger.log(record)
+                consistency.add(record)
                 last = record
             assert last is not None  # replay always yields the initialisation
-            evaluation = evaluate(last, truth_xy)
+            evaluation = evaluate(last, truth_xy, consistency)
             logger.finish(evaluation)
             print_evaluation(evaluation, truth_xy)
             if report is not None:
@@ -271,12 +350,8 @@ def simulate(
         Path,
         typer.Option(help="Where to write the truth (JSON: landmarks, poses).", show_default=False),
     ],
-    scenario: Annotated[
-        ScenarioName, typer.Option(help="The world and route.")
-    ] = ScenarioName.CLASSIC,
-    seed: Annotated[
-        int, typer.Option(help="Seed of the noise (and of the loop's landmark field).")
-    ] = 0,
+    scenario: ScenarioOption = ScenarioName.CLASSIC,
+    seed: Annotated[int, _option("Seed of the noise (and of the loop's landmark field).")] = 0,
     log_format: Annotated[
         LogFormat | None,
         typer.Option(
@@ -285,82 +360,15 @@ def simulate(
             show_default=False,
         ),
     ] = None,
-    steps: Annotated[
-        int | None,
-        typer.Option(
-            min=4,
-            help="loop: controls in one lap [default: 1000].",
-            rich_help_panel="Loop scenario",
-            show_default=False,
-        ),
-    ] = None,
-    landmarks: Annotated[
-        int | None,
-        typer.Option(
-            min=1,
-            help="loop: number of landmarks [default: 200].",
-            rich_help_panel="Loop scenario",
-            show_default=False,
-        ),
-    ] = None,
-    max_range: Annotated[
-        float | None,
-        typer.Option(
-            min=0.0,
-            help="loop: sensor range in metres [default: 15].",
-            rich_help_panel="Loop scenario",
-            show_default=False,
-        ),
-    ] = None,
-    fov: Annotated[
-        float | None,
-        typer.Option(
-            min=0.0,
-            max=360.0,
-            help="loop: sensor field of view in degrees [default: 180].",
-            rich_help_panel="Loop scenario",
-            show_default=False,
-        ),
-    ] = None,
-    true_sigma_x: Annotated[
-        float | None,
-        typer.Option(
-            min=0.0,
-            help="True motion noise along the heading [default: the scenario's].",
-            rich_help_panel="True noise",
-            show_default=False,
-        ),
-    ] = None,
-    true_sigma_y: Annotated[
-        float | None,
-        typer.Option(
-            min=0.0,
-            help="True motion noise sideways.",
-            rich_help_panel="True noise",
-            show_default=False,
-        ),
-    ] = None,
-    true_sigma_alpha: Annotated[
-        float | None,
-        typer.Option(
-            min=0.0,
-            help="True noise of the turn.",
-            rich_help_panel="True noise",
-            show_default=False,
-        ),
-    ] = None,
-    true_sigma_bearing: Annotated[
-        float | None,
-        typer.Option(
-            min=0.0, help="True bearing noise.", rich_help_panel="True noise", show_default=False
-        ),
-    ] = None,
-    true_sigma_range: Annotated[
-        float | None,
-        typer.Option(
-            min=0.0, help="True range noise.", rich_help_panel="True noise", show_default=False
-        ),
-    ] = None,
+    steps: Steps = None,
+    landmarks: Landmarks = None,
+    max_range: MaxRange = None,
+    fov: Fov = None,
+    true_sigma_x: TrueSigmaX = None,
+    true_sigma_y: TrueSigmaY = None,
+    true_sigma_alpha: TrueSigmaAlpha = None,
+    true_sigma_bearing: TrueSigmaBearing = None,
+    true_sigma_range: TrueSigmaRange = None,
     init_pose_sigma: Annotated[
         tuple[float, float, float] | None,
         typer.Option(
@@ -376,46 +384,14 @@ def simulate(
     from ekfviz.io.classic import format_classic
     from ekfviz.io.extended import format_extended
     from ekfviz.io.truth import truth_json
-    from ekfviz.sim import scenarios
 
-    loop_options: dict[str, Any] = {
-        "steps": steps,
-        "landmarks": landmarks,
-        "max_range": max_range,
-        "fov_deg": fov,
-    }
-    if scenario is ScenarioName.CLASSIC:
-        given = [
-            f"--{name.replace('_deg', '').replace('_', '-')}"
-            for name, v in loop_options.items()
-            if v is not None
-        ]
-        if given:
-            fail(f"{', '.join(given)}: only for --scenario loop")
-        world = scenarios.classic()
-    else:
-        world = scenarios.loop(
-            seed=seed, **{k: v for k, v in loop_options.items() if v is not None}
-        )
-    true_noise = Noise(
-        *(
-            default if given is None else given
-            for given, default in zip(
-                (
-                    true_sigma_x,
-                    true_sigma_y,
-                    true_sigma_alpha,
-                    true_sigma_bearing,
-                    true_sigma_range,
-                ),
-                astuple(world.noise),
-                strict=True,
-            )
-        )
+    world = scenario_world(scenario, seed, steps, landmarks, max_range, fov)
+    noise = true_noise(
+        world, true_sigma_x, true_sigma_y, true_sigma_alpha, true_sigma_bearing, true_sigma_range
     )
     if init_pose_sigma is None:
         init_pose_sigma = world.init_pose_sigma
-    run = world.run(true_noise, seed=seed, init_pose_sigma=init_pose_sigma)
+    run = world.run(noise, seed=seed, init_pose_sigma=init_pose_sigma)
     if log_format is None:
         log_format = LogFormat.CLASSIC if scenario is ScenarioName.CLASSIC else LogFormat.EXTENDED
     try:
@@ -430,7 +406,7 @@ def simulate(
     extra: dict[str, object] = {
         "scenario": scenario.value,
         "seed": seed,
-        "noise": asdict(true_noise),
+        "noise": asdict(noise),
         "init_pose_sigma": list(init_pose_sigma),
         "sensor": {
             "max_range": world.sensor.max_range if math.isfinite(world.sensor.max_range) else None,
@@ -443,7 +419,7 @@ def simulate(
     out.print(f"Wrote {output} ({len(run.events)} events) and {truth_out}")
     replay_noise = [
         f"--sigma-{name.removeprefix('sigma_').replace('_', '-')} {value:g}"
-        for name, value in asdict(true_noise).items()
+        for name, value in asdict(noise).items()
         if value != getattr(FilterParams(), name)
     ]
     if tuple(init_pose_sigma) != FilterParams().init_pose_sigma:
@@ -453,6 +429,105 @@ def simulate(
         + " ".join(["ekfviz replay", str(output), "--truth", str(truth_out), *replay_noise]),
         soft_wrap=True,
     )
+
+
+@app.command()
+def consistency(
+    scenario: ScenarioOption = ScenarioName.CLASSIC,
+    runs: Annotated[int, _option("Number of Monte-Carlo runs.", min=1)] = 50,
+    seed: Annotated[int, _option("Seed of the first run; run k uses seed + k.")] = 0,
+    sigma_x: SigmaX = 0.25,
+    sigma_y: SigmaY = 0.1,
+    sigma_alpha: SigmaAlpha = 0.1,
+    sigma_bearing: SigmaBearing = 0.01,
+    sigma_range: SigmaRange = 0.08,
+    init_pose_sigma: Annotated[
+        Triple | None,
+        _option(
+            "The prior the true start is drawn from AND the filter's initial covariance"
+            " [default: the scenario's: classic 0.02 0.02 0.1, loop 0.01 0.01 0.005].",
+            FILTER_OPTIONS,
+            metavar="SX SY STHETA",
+            show_default=False,
+        ),
+    ] = None,
+    landmark_init: LandmarkInitOption = LandmarkInit.CORRELATED,
+    update: UpdateOption = UpdateMode.SEQUENTIAL,
+    true_sigma_x: TrueSigmaX = None,
+    true_sigma_y: TrueSigmaY = None,
+    true_sigma_alpha: TrueSigmaAlpha = None,
+    true_sigma_bearing: TrueSigmaBearing = None,
+    true_sigma_range: TrueSigmaRange = None,
+    steps: Steps = None,
+    landmarks: Landmarks = None,
+    max_range: MaxRange = None,
+    fov: Fov = None,
+    report: Annotated[
+        Path | None,
+        _option("Write the averaged curves and verdict as JSON here.", show_default=False),
+    ] = None,
+    save: Annotated[
+        Path | None, _option("Write the averaged curves to this .rrd file.", show_default=False)
+    ] = None,
+    workers: Annotated[
+        int | None, _option("Processes to use [default: one per core].", min=1, show_default=False)
+    ] = None,
+) -> None:
+    """Monte-Carlo consistency: average NEES and NIS over many simulated runs, per step.
+
+    A consistent filter keeps the averaged NEES inside its 95% chi-square bounds; above
+    them it is over-confident, below them too cautious.
+    """
+    from ekfviz.sim.montecarlo import Trials, monte_carlo
+
+    world = scenario_world(scenario, seed, steps, landmarks, max_range, fov)
+    prior = world.init_pose_sigma if init_pose_sigma is None else init_pose_sigma
+    params = filter_params(
+        (sigma_x, sigma_y, sigma_alpha, sigma_bearing, sigma_range), prior, landmark_init, update
+    )
+    noise = true_noise(
+        world, true_sigma_x, true_sigma_y, true_sigma_alpha, true_sigma_bearing, true_sigma_range
+    )
+    trials = Trials(scenario=world, true_noise=noise, init_pose_sigma=prior, params=params)
+    with err.status(f"{runs} runs of the {scenario.value} scenario..."):
+        result = monte_carlo(trials, runs, seed=seed, workers=workers)
+
+    table = Table(title=f"Consistency over {runs} runs ({scenario.value})", title_justify="left")
+    for column in ("statistic", "inside 95%", "above", "below", "verdict"):
+        table.add_column(column, justify="left" if column in ("statistic", "verdict") else "right")
+    for name, count in (("mean NEES per step", result.nees), ("mean NIS per step", result.nis)):
+        verdict = count.verdict
+        colour = "green" if verdict is Verdict.CONSISTENT else "bold red"
+        table.add_row(
+            name,
+            f"{count.inside}/{count.total} ({count.fraction_inside:.1%})" if count.total else "-",
+            str(count.above),
+            str(count.below),
+            "-" if verdict is None else f"[{colour}]{verdict.value}[/]",
+        )
+    out.print(table)
+    verdict = result.nees.verdict
+    if verdict is not None:
+        out.print(f"The filter looks [bold]{verdict.value}[/] on this scenario (by its NEES).")
+    settings = {
+        "scenario": scenario.value,
+        "runs": runs,
+        "seed": seed,
+        "filter": params.as_dict(),
+        "true_noise": asdict(noise),
+        "init_pose_sigma": list(prior),
+    }
+    if report is not None:
+        write_json(report, {"ekfviz_version": __version__, **settings, **result.to_json()})
+    if save is not None:
+        from ekfviz.viz.montecarlo import save_monte_carlo
+
+        lines = [f"# Consistency: {scenario.value}, {runs} runs", ""]
+        lines += [f"- **{key}** `{json.dumps(value)}`" for key, value in settings.items()]
+        if verdict is not None:
+            lines += ["", f"**Verdict (NEES):** {verdict.value}"]
+        save_monte_carlo(save, result, f"consistency-{scenario.value}", "\n".join(lines) + "\n")
+        out.print(f"Saved {save}; open it with: rerun {save}")
 
 
 @app.command()
@@ -531,6 +606,9 @@ def print_evaluation(evaluation: Evaluation, truth: GroundTruth | None) -> None:
         missing = set(truth.ids.tolist()) - {r.id for r in evaluation.landmarks}
         if missing:
             out.print(f"[yellow]never observed: landmarks {sorted(missing)}[/]")
+    if evaluation.consistency is not None:
+        for line in evaluation.consistency.summary():
+            out.print(line)
 
 
 def mismatch_note(params: FilterParams, truth: GroundTruth) -> None:

@@ -44,4 +44,8 @@ def entity_rows(path: Path, entity: str, *, static: bool = False) -> list[dict[s
         rows += [
             dict(zip(table, values, strict=True)) for values in zip(*table.values(), strict=True)
         ]
-    return rows if static else sorted(rows, key=lambda row: int(str(row["event"])))
+    return (
+        rows
+        if static
+        else sorted(rows, key=lambda row: int(str(row.get("event", row.get("step")))))
+    )

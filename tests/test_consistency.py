@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -118,3 +119,69 @@ def test_nees_and_nis_with_bounds_are_in_the_recording(tmp_path: Path) -> None:
     assert all(row["Scalars:scalars"] == [pytest.approx(chi2_bounds(3)[1])] for row in upper)
     lower = entity_rows(rrd, f"/{style.NIS}/{style.LOWER}")
     assert [row["Scalars:scalars"] for row in lower] == [[pytest.approx(chi2_bounds(12)[0])]] * 29
+
+
+def consistency_report(tmp_path: Path, *args: str) -> dict[str, object]:
+    from typer.testing import CliRunner
+
+    from ekfviz.cli import app
+
+    report = tmp_path / "mc.json"
+    result = CliRunner().invoke(app, ["consistency", *args, "--report", str(report)])
+    assert result.exit_code == 0, result.output
+    document: dict[str, object] = json.loads(report.read_text())
+    return document
+
+
+TIGHT = ["--init-pose-sigma", "0.001", "0.001", "0.001", "--runs", "12", "--workers", "1"]
+SMALL = ["--sigma-x", "0.025", "--sigma-y", "0.01", "--sigma-alpha", "0.01",
+         "--sigma-bearing", "0.001", "--sigma-range", "0.008"]  # fmt: skip
+LARGE = ["--sigma-x", "2.5", "--sigma-y", "1", "--sigma-alpha", "1",
+         "--sigma-bearing", "0.1", "--sigma-range", "0.8"]  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("args", "verdict"),
+    [
+        (TIGHT, "consistent"),
+        (TIGHT + SMALL, "over-confident"),
+        (TIGHT + LARGE, "too cautious"),
+        (["--runs", "12", "--workers", "1"], "over-confident"),  # the classic 0.1 rad prior
+    ],
+)
+def test_monte_carlo_verdicts(tmp_path: Path, args: list[str], verdict: str) -> None:
+    document = consistency_report(tmp_path, *args)
+    assert document["verdict"] == verdict
+    assert document["runs"] == 12
+    mean_nees = document["mean_nees"]
+    assert isinstance(mean_nees, list) and len(mean_nees) == 30
+    lo, hi = chi2_bounds(3, runs=12)
+    assert document["nees_bounds"] == [pytest.approx(lo), pytest.approx(hi)]
+    inside = np.mean([lo <= v <= hi for v in mean_nees])
+    assert document["fraction_inside"] == pytest.approx(inside)
+
+
+def test_monte_carlo_is_the_same_on_one_or_two_workers(tmp_path: Path) -> None:
+    from ekfviz.sim.montecarlo import Trials, monte_carlo
+
+    world = classic()
+    trials = Trials(world, world.noise, world.init_pose_sigma, FilterParams())
+    one, two = monte_carlo(trials, 4, seed=3, workers=1), monte_carlo(trials, 4, seed=3, workers=2)
+    np.testing.assert_array_equal(one.mean_nees, two.mean_nees)
+    np.testing.assert_array_equal(one.mean_nis, two.mean_nis)
+
+
+def test_monte_carlo_recording_holds_the_averaged_curves(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from ekfviz.cli import app
+
+    rrd, report = tmp_path / "mc.rrd", tmp_path / "mc.json"
+    result = CliRunner().invoke(
+        app, ["consistency", *TIGHT, "--save", str(rrd), "--report", str(report)]
+    )
+    assert result.exit_code == 0, result.output
+    mean_nees = json.loads(report.read_text())["mean_nees"]
+    rows = entity_rows(rrd, f"/{style.NEES}")
+    assert [row["step"] for row in rows] == list(range(30))
+    assert [row["Scalars:scalars"][0] for row in rows] == pytest.approx(mean_nees)  # type: ignore[index]

@@ -194,7 +194,7 @@ class Consistency:
             if verdict is None:
                 continue
             lines.append(
-                f"{name}: {count.inside} of {count.total} {what} ({count.fraction_inside:.0%})"
+                f"{name}: {count.inside} of {count.total} {what} ({count.fraction_inside:.1%})"
                 f" inside the {CONFIDENCE:.0%} chi-square bounds, {count.above} above,"
                 f" {count.below} below: the filter looks {verdict.value}"
             )

@@ -7,12 +7,16 @@ landmark; "inside its 3-sigma ellipse" means a Mahalanobis distance below 3.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ekfviz.core.models import wrap_angle
 from ekfviz.core.records import EventRecord
 from ekfviz.core.types import FloatArray, IntArray
+
+if TYPE_CHECKING:
+    from ekfviz.core.consistency import Consistency
 
 INSIDE_SIGMA = 3.0
 
@@ -89,6 +93,7 @@ class Evaluation:
     pose_cov: FloatArray
     landmarks: tuple[LandmarkResult, ...]
     has_truth: bool
+    consistency: Consistency | None = None  # NEES and NIS counts over the whole run
 
     @property
     def pose_sigma(self) -> FloatArray:
@@ -111,12 +116,15 @@ class Evaluation:
                 entry["mahalanobis"] = result.mahalanobis
                 entry["inside_3sigma"] = result.inside_3sigma
             landmarks.append(entry)
-        return {
+        document: dict[str, object] = {
             "final_pose": pose,
             "final_pose_cov": self.pose_cov.tolist(),
             "final_pose_sigma": self.pose_sigma.tolist(),
             "landmarks": landmarks,
         }
+        if self.consistency is not None:
+            document["consistency"] = self.consistency.to_json()
+        return document
 
     def to_markdown(self) -> str:
         """The evaluation as a markdown table, for a recording's document."""
@@ -148,11 +156,25 @@ class Evaluation:
                         "yes" if r.inside_3sigma else "**no**",
                     ]
             rows.append("| " + " | ".join(cells) + " |")
+        if self.consistency is not None and self.consistency.summary():
+            rows += [
+                "",
+                "## Consistency",
+                "",
+                *(f"- {line}" for line in self.consistency.summary()),
+            ]
         return "\n".join(rows) + "\n"
 
 
-def evaluate(record: EventRecord, truth: GroundTruth | None = None) -> Evaluation:
-    """Judge a record (usually the last of a run) against the truth, if given."""
+def evaluate(
+    record: EventRecord,
+    truth: GroundTruth | None = None,
+    consistency: Consistency | None = None,
+) -> Evaluation:
+    """Judge a record (usually the last of a run) against the truth, if given.
+
+    :param consistency: the NEES and NIS counts gathered over the run, to report with it
+    """
     results: list[LandmarkResult] = []
     if truth is not None:
         truth_xy = truth.lookup(record.landmark_ids)
@@ -176,4 +198,5 @@ def evaluate(record: EventRecord, truth: GroundTruth | None = None) -> Evaluatio
         pose_cov=record.pose_cov,
         landmarks=tuple(results),
         has_truth=truth is not None,
+        consistency=consistency,
     )

@@ -1,0 +1,161 @@
+"""Monte-Carlo consistency: many simulated runs of a scenario, NEES and NIS averaged per step.
+
+Numpy only. Each trial simulates the scenario with its own seed, replays it through the
+filter and keeps the pose NEES after every step and the NIS of every update. Averaged
+over N trials, N times the mean NEES is chi-square with 3N degrees of freedom if the
+filter is consistent; the same holds for the NIS with the summed degrees of freedom.
+"""
+
+from __future__ import annotations
+
+import os
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+
+from ekfviz.core.consistency import CONFIDENCE, BoundCount, chi2_quantile, pose_nees, update_nis
+from ekfviz.core.evaluation import GroundTruth
+from ekfviz.core.filter import FilterParams
+from ekfviz.core.records import EventKind
+from ekfviz.core.replay import replay
+from ekfviz.core.types import FloatArray, IntArray
+from ekfviz.sim.scenarios import Scenario
+from ekfviz.sim.simulate import Noise
+
+
+@dataclass(frozen=True, slots=True)
+class Trials:
+    """What every trial shares: the world, the true noise and prior, the filter."""
+
+    scenario: Scenario
+    true_noise: Noise
+    init_pose_sigma: tuple[float, float, float]
+    params: FilterParams
+
+
+@dataclass(frozen=True, slots=True)
+class TrialResult:
+    """One trial, by step (0 = the start): NEES, NIS and its degrees of freedom (NaN/0
+    where a step had no update)."""
+
+    nees: FloatArray
+    nis: FloatArray
+    nis_dof: IntArray
+
+
+def run_trial(trials: Trials, seed: int) -> TrialResult:
+    """Simulate and replay one trial."""
+    run = trials.scenario.run(trials.true_noise, seed=seed, init_pose_sigma=trials.init_pose_sigma)
+    truth = GroundTruth(run.landmark_ids, run.landmarks_xy, run.poses_xytheta)
+    steps = len(run.poses_xytheta)
+    nees = np.full(steps, np.nan)
+    nis = np.full(steps, np.nan)
+    nis_dof = np.zeros(steps, dtype=np.int64)
+    for record in replay(run.events, trials.params):
+        if record.kind is EventKind.PREDICT:
+            continue
+        value = pose_nees(record, truth)
+        if value is not None:
+            nees[record.step] = value
+        found = update_nis(record)
+        if found is not None:
+            nis[record.step], nis_dof[record.step] = found
+    return TrialResult(nees, nis, nis_dof)
+
+
+@dataclass(frozen=True, slots=True)
+class MonteCarlo:
+    """NEES and NIS averaged over the trials, per step, with the bounds of such a mean.
+
+    :param mean_nees: (T+1,) mean NEES per step
+    :param nees_bounds: (T+1, 2) bounds of the mean NEES (NaN where no trial had a value)
+    :param mean_nis: (T+1,) mean NIS per step (NaN at steps without updates)
+    :param nis_bounds: (T+1, 2) bounds of the mean NIS
+    """
+
+    runs: int
+    mean_nees: FloatArray
+    nees_bounds: FloatArray
+    mean_nis: FloatArray
+    nis_bounds: FloatArray
+    nees: BoundCount
+    nis: BoundCount
+
+    def to_json(self) -> dict[str, object]:
+        def listed(values: FloatArray) -> list[float | None]:
+            return [None if not np.isfinite(v) else float(v) for v in values]
+
+        constant = np.unique(self.nees_bounds[np.isfinite(self.nees_bounds[:, 0])], axis=0)
+        return {
+            "runs": self.runs,
+            "confidence": CONFIDENCE,
+            "mean_nees": listed(self.mean_nees),
+            "nees_bounds": constant[0].tolist() if len(constant) == 1 else None,
+            "nees_bounds_per_step": [listed(b) for b in self.nees_bounds],
+            "fraction_inside": self.nees.fraction_inside if self.nees.total else None,
+            "verdict": None if self.nees.verdict is None else self.nees.verdict.value,
+            "nees": self.nees.to_json(),
+            "mean_nis": listed(self.mean_nis),
+            "nis_bounds_per_step": [listed(b) for b in self.nis_bounds],
+            "nis": self.nis.to_json(),
+        }
+
+
+def monte_carlo(trials: Trials, runs: int, seed: int = 0, workers: int | None = None) -> MonteCarlo:
+    """Run ``runs`` trials with seeds ``seed``, ``seed + 1``, ... over the machine's cores."""
+    seeds = [seed + k for k in range(runs)]
+    workers = min(runs, workers or os.cpu_count() or 1)
+    if workers > 1:
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            results = list(
+                pool.map(run_trial, [trials] * runs, seeds, chunksize=max(1, runs // (4 * workers)))
+            )
+    else:
+        results = [run_trial(trials, s) for s in seeds]
+    return average(results)
+
+
+def average(results: list[TrialResult]) -> MonteCarlo:
+    """Per-step means over trials and the two-sided bounds of those means."""
+    nees = np.array([r.nees for r in results])
+    nis = np.array([r.nis for r in results])
+    dof = np.array([r.nis_dof for r in results])
+    have_nees = np.isfinite(nees).sum(axis=0)
+    mean_nees = np.where(have_nees > 0, np.nansum(nees, axis=0) / np.maximum(have_nees, 1), np.nan)
+    have_nis = np.isfinite(nis).sum(axis=0)
+    mean_nis = np.where(have_nis > 0, np.nansum(nis, axis=0) / np.maximum(have_nis, 1), np.nan)
+    nees_bounds = _mean_bounds(3 * have_nees, have_nees)
+    nis_bounds = _mean_bounds(dof.sum(axis=0), have_nis)
+    return MonteCarlo(
+        runs=len(results),
+        mean_nees=mean_nees,
+        nees_bounds=nees_bounds,
+        mean_nis=mean_nis,
+        nis_bounds=nis_bounds,
+        nees=_count(mean_nees, nees_bounds),
+        nis=_count(mean_nis, nis_bounds),
+    )
+
+
+def _mean_bounds(total_dof: IntArray, count: IntArray) -> FloatArray:
+    """Bounds of a mean of ``count`` chi-square values whose degrees of freedom sum to
+    ``total_dof``: the quantiles of chi-square(total_dof), divided by ``count``."""
+    tail = 0.5 * (1.0 - CONFIDENCE)
+    bounds = np.full((len(count), 2), np.nan)
+    cache: dict[tuple[int, int], tuple[float, float]] = {}
+    for step, (k, n) in enumerate(zip(total_dof.tolist(), count.tolist(), strict=True)):
+        if n == 0 or k == 0:
+            continue
+        if (k, n) not in cache:
+            cache[k, n] = (chi2_quantile(tail, k) / n, chi2_quantile(1.0 - tail, k) / n)
+        bounds[step] = cache[k, n]
+    return bounds
+
+
+def _count(means: FloatArray, bounds: FloatArray) -> BoundCount:
+    count = BoundCount()
+    for value, (lo, hi) in zip(means.tolist(), bounds.tolist(), strict=True):
+        if np.isfinite(value) and np.isfinite(lo):
+            count.add(value, (lo, hi))
+    return count

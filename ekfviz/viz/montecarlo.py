@@ -1,0 +1,73 @@
+"""A recording of a Monte-Carlo consistency study: mean NEES and NIS per step, with bounds."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import uuid
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from ekfviz.sim.montecarlo import MonteCarlo
+from ekfviz.viz import style
+
+REPORT = "run/consistency"
+
+
+@contextlib.contextmanager
+def atomic_rrd(path: Path) -> Iterator[Path]:
+    """A temporary path beside ``path`` to write a recording to, moved over ``path`` only
+    when the block completes; removed otherwise, leaving an existing file untouched."""
+    temporary = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.part")
+    try:
+        yield temporary
+        os.replace(temporary, path)
+    finally:
+        temporary.unlink(missing_ok=True)
+
+
+def save_monte_carlo(path: Path, result: MonteCarlo, name: str, markdown: str) -> None:
+    """Write the averaged curves, their bounds and the verdict document to ``path``.
+
+    :param markdown: the study's settings and verdict, shown beside the plots
+    """
+    blueprint = rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Vertical(
+                rrb.TimeSeriesView(name="Mean NEES and 95% bounds", origin=style.NEES),
+                rrb.TimeSeriesView(name="Mean NIS and 95% bounds", origin=style.NIS),
+            ),
+            rrb.TextDocumentView(name="Consistency", origin=REPORT),
+            column_shares=[3, 2],
+        ),
+        collapse_panels=True,
+    )
+    with atomic_rrd(path) as temporary:
+        rec = rr.RecordingStream("ekfviz", recording_id=str(uuid.uuid4()), send_properties=False)
+        rec.set_log_time_enabled(False)
+        rec.save(temporary, default_blueprint=blueprint)
+        rec.send_recording_name(name)
+        rec.log(REPORT, rr.TextDocument(markdown, media_type=rr.MediaType.MARKDOWN), static=True)
+        steps = np.arange(len(result.mean_nees))
+        for path_, label, mean, bounds in (
+            (style.NEES, "mean NEES", result.mean_nees, result.nees_bounds),
+            (style.NIS, "mean NIS", result.mean_nis, result.nis_bounds),
+        ):
+            for entity, values, color, series in (
+                (path_, mean, style.STATISTIC_COLOR, label),
+                (f"{path_}/{style.LOWER}", bounds[:, 0], style.BOUND_COLOR, "95% lower"),
+                (f"{path_}/{style.UPPER}", bounds[:, 1], style.BOUND_COLOR, "95% upper"),
+            ):
+                rec.log(entity, rr.SeriesLines(colors=color, names=series), static=True)
+                keep = np.isfinite(values)
+                rec.send_columns(
+                    entity,
+                    indexes=[rr.TimeColumn(style.STEP, sequence=steps[keep])],
+                    columns=rr.Scalars.columns(scalars=values[keep]),
+                )
+        rec.flush()
+        rec.disconnect()
