@@ -18,6 +18,7 @@ from typing import Annotated, Any, NoReturn
 import numpy as np
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, DownloadColumn, Progress, TimeRemainingColumn
 from rich.table import Table
 
@@ -28,9 +29,9 @@ from ekfviz.core.filter import FilterError, FilterParams, LandmarkInit, UpdateMo
 from ekfviz.core.records import EventRecord
 from ekfviz.core.replay import replay as run_filter
 from ekfviz.io.errors import InputError
-from ekfviz.io.extended import read_log
+from ekfviz.io.extended import is_extended, read_log
 from ekfviz.io.text import ProgressCallback
-from ekfviz.io.truth import read_truth
+from ekfviz.io.truth import checked_against, read_truth
 from ekfviz.sim.scenarios import Scenario, ScenarioName
 from ekfviz.sim.simulate import Noise
 
@@ -54,8 +55,11 @@ RECORDINGS_DIR = Path("recordings")
 
 
 def fail(message: str, code: int = 2) -> NoReturn:
-    """Print one line on stderr and exit: no traceback for a user's mistake."""
-    err.print(f"[bold red]error:[/] {message}", soft_wrap=True)
+    """Print one line on stderr and exit: no traceback for a user's mistake (unless
+    ``--debug``, and then only when called while handling an exception)."""
+    if DEBUG["traceback"] and sys.exc_info()[1] is not None:
+        raise
+    err.print(f"[bold red]error:[/] {escape(message)}", soft_wrap=True)
     raise typer.Exit(code)
 
 
@@ -65,14 +69,26 @@ def _version(value: bool) -> None:
         raise typer.Exit()
 
 
+DEBUG = {"traceback": False}
+
+
 @app.callback()
 def main(
     version: Annotated[
         bool,
         typer.Option("--version", callback=_version, is_eager=True, help="Print the version."),
     ] = False,
+    debug: Annotated[
+        bool, typer.Option("--debug", help="Show the traceback of an error, not one line.")
+    ] = False,
 ) -> None:
     """Replay a 2-D EKF-SLAM run and explore it in Rerun."""
+    DEBUG["traceback"] = debug
+
+
+def warn(message: str) -> None:
+    """One line on stderr that does not stop the run."""
+    err.print(f"[yellow]warning:[/] {message}", soft_wrap=True, markup=True, highlight=False)
 
 
 # -- options shared by several commands ------------------------------------------------
@@ -284,7 +300,10 @@ def replay(
         with open_progress(data) as progress, viz.open_run(info, sinks) as logger:
             last: EventRecord | None = None
             consistency = Consistency(truth_xy)
-            for record in run_filter(read_log(data, progress), params):
+            events = read_log(data, progress, warn)
+            if truth_xy is not None and truth is not None:
+                events = checked_against(events, truth_xy, truth, every_id=not is_extended(data))
+            for record in run_filter(events, params):
                 logger.log(record)
                 consistency.add(record)
                 last = record

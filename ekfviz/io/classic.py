@@ -13,14 +13,26 @@ from pathlib import Path
 import numpy as np
 
 from ekfviz.core.records import Control, LogEvent, Sighting
+from ekfviz.core.types import IntArray
 from ekfviz.io.errors import InputError
-from ekfviz.io.text import ProgressCallback, format_number, numeric_lines
+from ekfviz.io.text import (
+    BearingWrapper,
+    ProgressCallback,
+    WarningCallback,
+    format_number,
+    numeric_lines,
+)
 
 
-def read_classic(path: Path, progress: ProgressCallback | None = None) -> Iterator[LogEvent]:
+def read_classic(
+    path: Path,
+    progress: ProgressCallback | None = None,
+    warn: WarningCallback | None = None,
+) -> Iterator[LogEvent]:
     """Stream the events of a classic log; landmark ids are 1..k in pair order.
 
     :param progress: called now and then with the number of bytes read so far
+    :param warn: told once when bearings outside (-pi, pi] are wrapped into range
     :raises InputError: for the first bad line met, naming it and what was expected
     """
     lines = numeric_lines(path, progress)
@@ -44,12 +56,13 @@ def read_classic(path: Path, progress: ProgressCallback | None = None) -> Iterat
             ),
         )
     ids = np.arange(1, k + 1, dtype=np.int64)
-    yield _sighting(path, line, ids, values)
+    wrap = BearingWrapper(path, warn)
+    yield _sighting(path, line, ids, values, wrap)
     for line, values in lines:
         if len(values) == 2:
             yield Control(line=line, d=values[0], alpha=values[1])
         elif len(values) == 2 * k:
-            yield _sighting(path, line, ids, values)
+            yield _sighting(path, line, ids, values, wrap)
         else:
             raise InputError(
                 path,
@@ -59,7 +72,9 @@ def read_classic(path: Path, progress: ProgressCallback | None = None) -> Iterat
             )
 
 
-def _sighting(path: Path, line: int, ids: np.ndarray, values: list[float]) -> Sighting:
+def _sighting(
+    path: Path, line: int, ids: IntArray, values: list[float], wrap: BearingWrapper
+) -> Sighting:
     z = np.array(values, dtype=np.float64).reshape(-1, 2)
     bad = np.flatnonzero(z[:, 1] <= 0.0)
     if bad.size:
@@ -70,6 +85,7 @@ def _sighting(path: Path, line: int, ids: np.ndarray, values: list[float]) -> Si
             f"found range {values[2 * i + 1]:g} for landmark {int(ids[i])},"
             " expected a positive range",
         )
+    z[:, 0] = wrap(line, z[:, 0])
     return Sighting(line=line, ids=ids, z=z)
 
 

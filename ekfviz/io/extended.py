@@ -22,17 +22,32 @@ import numpy as np
 from ekfviz.core.records import Control, LogEvent, Sighting
 from ekfviz.io.classic import read_classic
 from ekfviz.io.errors import InputError
-from ekfviz.io.text import ProgressCallback, format_number, parse_number, token_lines
+from ekfviz.io.text import (
+    BearingWrapper,
+    ProgressCallback,
+    WarningCallback,
+    format_number,
+    parse_number,
+    token_lines,
+)
 
 KEYWORDS = ("control", "observe")
 _ID = re.compile(r"\+?\d+")
 
 
-def read_log(path: Path, progress: ProgressCallback | None = None) -> Iterator[LogEvent]:
-    """Stream the events of a log in either format, told apart by its first data line."""
+def read_log(
+    path: Path,
+    progress: ProgressCallback | None = None,
+    warn: WarningCallback | None = None,
+) -> Iterator[LogEvent]:
+    """Stream the events of a log in either format, told apart by its first data line.
+
+    :param progress: called now and then with the number of bytes read so far
+    :param warn: told once when bearings outside (-pi, pi] are wrapped into range
+    """
     if is_extended(path):
-        return read_extended(path, progress)
-    return read_classic(path, progress)
+        return read_extended(path, progress, warn)
+    return read_classic(path, progress, warn)
 
 
 def is_extended(path: Path) -> bool:
@@ -45,12 +60,17 @@ def is_extended(path: Path) -> bool:
     return False
 
 
-def read_extended(path: Path, progress: ProgressCallback | None = None) -> Iterator[LogEvent]:
-    """Stream the events of an extended log.
+def read_extended(
+    path: Path,
+    progress: ProgressCallback | None = None,
+    warn: WarningCallback | None = None,
+) -> Iterator[LogEvent]:
+    """Stream the events of an extended log (``warn`` as for :func:`read_log`).
 
     :raises InputError: for the first bad line met, naming it and what was expected
     """
     last_time = -np.inf
+    wrap = BearingWrapper(path, warn)
     for line, tokens in token_lines(path, progress):
         time: float | None = None
         if not tokens[0].isalpha():
@@ -75,7 +95,7 @@ def read_extended(path: Path, progress: ProgressCallback | None = None) -> Itera
             d, alpha = (parse_number(path, line, token) for token in values)
             yield Control(line=line, d=d, alpha=alpha, time=time)
         elif keyword == "observe":
-            yield _observation(path, line, values, time)
+            yield _observation(path, line, values, time, wrap)
         else:
             shown = keyword if len(keyword) <= 20 else keyword[:20] + "..."
             raise InputError(
@@ -86,7 +106,9 @@ def read_extended(path: Path, progress: ProgressCallback | None = None) -> Itera
             )
 
 
-def _observation(path: Path, line: int, values: list[str], time: float | None) -> Sighting:
+def _observation(
+    path: Path, line: int, values: list[str], time: float | None, wrap: BearingWrapper
+) -> Sighting:
     if len(values) % 3:
         raise InputError(
             path,
@@ -117,6 +139,7 @@ def _observation(path: Path, line: int, values: list[str], time: float | None) -
                 f"found range {values[3 * k + 2]} for landmark {landmark_id},"
                 " expected a positive range",
             )
+    z[:, 0] = wrap(line, z[:, 0])
     return Sighting(line=line, ids=np.array(ids, dtype=np.int64), z=z, time=time)
 
 

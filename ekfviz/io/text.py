@@ -7,12 +7,16 @@ import re
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
+from ekfviz.core.models import wrap_angles
+from ekfviz.core.types import FloatArray
 from ekfviz.io.errors import InputError
 
 _NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
 _NON_FINITE = re.compile(r"[-+]?(?:nan|inf|infinity)", re.IGNORECASE)
 
 ProgressCallback = Callable[[int], None]
+WarningCallback = Callable[[str], None]
+MAX_LINE_BYTES = 1 << 20  # an observation of some 50,000 landmarks: far past any EKF
 
 
 def token_lines(
@@ -36,7 +40,17 @@ def token_lines(
         raise InputError(path, 0, f"cannot be read ({error.strerror})") from None
     with handle:
         bytes_read = 0
-        for number, raw in enumerate(handle, start=1):
+        number = 0
+        # readline with a limit: a runaway line cannot take the memory
+        while raw := handle.readline(MAX_LINE_BYTES + 1):
+            number += 1
+            if len(raw) > MAX_LINE_BYTES and not raw.endswith(b"\n"):
+                raise InputError(
+                    path,
+                    number,
+                    f"found a line longer than {MAX_LINE_BYTES // (1 << 20)} MiB,"
+                    " expected one event a line",
+                )
             bytes_read += len(raw)
             if progress is not None and number % 4096 == 0:
                 progress(bytes_read)
@@ -79,3 +93,25 @@ def parse_number(path: Path, line: int, token: str) -> float:
 def format_number(value: float, precision: int | None) -> str:
     """``precision`` decimals, or the shortest text that reads back exactly when None."""
     return repr(float(value)) if precision is None else f"{value:.{precision}f}"
+
+
+class BearingWrapper:
+    """Wraps bearings outside (-pi, pi] into range, warning once per file."""
+
+    def __init__(self, path: Path, warn: WarningCallback | None) -> None:
+        self._path = path
+        self._warn = warn
+        self._warned = False
+
+    def __call__(self, line: int, bearings: FloatArray) -> FloatArray:
+        outside = (bearings > math.pi) | (bearings <= -math.pi)
+        if not outside.any():
+            return bearings
+        if self._warn is not None and not self._warned:
+            first = float(bearings[outside][0])
+            self._warn(
+                f"{self._path}:{line}: found bearing {first:g} outside (-pi, pi],"
+                " wrapped it and any later ones into range"
+            )
+        self._warned = True
+        return wrap_angles(bearings)

@@ -11,11 +11,13 @@ from __future__ import annotations
 import json
 import math
 import re
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 import numpy as np
 
 from ekfviz.core.evaluation import GroundTruth
+from ekfviz.core.records import LogEvent, Sighting
 from ekfviz.io.errors import InputError
 from ekfviz.io.text import numeric_lines
 
@@ -137,3 +139,36 @@ def truth_json(truth: GroundTruth, **extra: object) -> str:
 def _truth(rows: list[list[float]]) -> GroundTruth:
     xy = np.array(rows, dtype=np.float64).reshape(-1, 2)
     return GroundTruth(ids=np.arange(1, len(xy) + 1, dtype=np.int64), landmarks_xy=xy)
+
+
+def checked_against(
+    events: Iterable[LogEvent], truth: GroundTruth, truth_path: Path, *, every_id: bool
+) -> Iterator[LogEvent]:
+    """Pass events through, stopping at the first landmark the truth does not know.
+
+    :param every_id: the log names all its landmarks on its first line (the classic
+        format): then the truth must hold exactly those
+    :raises InputError: naming the truth file and the log line that does not fit it
+    """
+    known = set(truth.ids.tolist())
+    first = True
+    for event in events:
+        if isinstance(event, Sighting):
+            ids = set(event.ids.tolist())
+            if first and every_id and ids != known:
+                raise InputError(
+                    truth_path,
+                    0,
+                    f"found {len(known)} landmarks, expected the {len(ids)} of the log's"
+                    f" first line (ids 1 to {len(ids)})",
+                )
+            unknown = ids - known
+            if unknown:
+                raise InputError(
+                    truth_path,
+                    0,
+                    f"has no landmark {min(unknown)}, which line {event.line} of the log"
+                    " observes: expected a true position for every landmark",
+                )
+            first = False
+        yield event

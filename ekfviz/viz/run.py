@@ -149,6 +149,8 @@ def _digest(path: Path, *, keep_up_to: int) -> tuple[int, str, bytes | None]:
                     kept += block
     except FileNotFoundError:
         raise InputError(path, 0, "no such file") from None
+    except IsADirectoryError:
+        raise InputError(path, 0, "is a directory, expected a text file") from None
     except OSError as error:  # the same words as the readers' errors
         raise InputError(path, 0, f"cannot be read ({error.strerror})") from None
     return size, sha.hexdigest(), bytes(kept) if size <= keep_up_to else None

@@ -1,0 +1,95 @@
+"""Every kind of bad input: one line naming file and line, exit code 2, no traceback."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from ekfviz.cli import app
+
+runner = CliRunner()
+OBS = "0.1 5.0 0.2 6.0"
+
+# name -> (log content, truth content or None, expected message)
+CASES: dict[str, tuple[str | bytes | None, str | None, str]] = {
+    "missing file": (None, None, "log.txt: no such file"),
+    "empty file": ("", None, "log.txt:1: found no data"),
+    "blank lines only": ("\n\n   \n\t\n", None, "log.txt:1: found no data"),
+    "binary": (b"\x00\x01\x02\xff\xfe", None, "log.txt:1: found bytes that are not UTF-8"),
+    "latin-1 text": ("0.1 5 0.2 6 # caf\xe9\n".encode("latin-1"), None, "not UTF-8"),
+    "non-numeric token": (f"{OBS}\n3.0 x\n", None, "log.txt:2: found 'x', expected a decimal"),
+    "nan": (f"{OBS}\n3.0 NaN\n", None, "log.txt:2: found 'NaN', expected a finite number"),
+    "infinity": (f"{OBS}\ninf 0\n", None, "log.txt:2: found 'inf', expected a finite number"),
+    "count fits no event": (f"{OBS}\n1 2 3\n", None, "log.txt:2: found 3 numbers, expected 2"),
+    "other landmark count": (
+        f"{OBS}\n3 0\n{OBS} 0.3 7\n",
+        None,
+        "log.txt:3: found 6 numbers, expected 2 (a control",
+    ),
+    "first line a control": (
+        "3.0 0.0\n" + OBS + "\n",
+        None,
+        "log.txt:1: found 2 numbers on the first line",
+    ),
+    "unknown keyword": (
+        "control 1 0\ndrive 1 0\n",
+        None,
+        "log.txt:2: found 'drive', expected a keyword",
+    ),
+    "negative range": (
+        f"{OBS}\n3 0\n0.1 -5 0.2 6\n",
+        None,
+        "log.txt:3: found range -5 for landmark 1",
+    ),
+    "zero range": ("observe 3 0.1 0\n", None, "log.txt:1: found range 0 for landmark 3"),
+    "long line": ("1 " * 600_000 + "\n", None, "log.txt:1: found a line longer than 1 MiB"),
+    "truth count": (f"{OBS}\n", "3 6\n3 12\n5 5\n", "truth.txt: found 3 landmarks, expected the 2"),
+    "truth ids": ("observe 7 0.1 5\n", "3 6\n", "truth.txt: has no landmark 7, which line 1"),
+    "truth bad line": (f"{OBS}\n", "3 6 1\n", "truth.txt:1: found 3 numbers, expected 2"),
+}
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_bad_input(tmp_path: Path, case: str) -> None:
+    content, truth, expected = CASES[case]
+    log = tmp_path / "log.txt"
+    if content is not None:
+        log.write_bytes(content.encode() if isinstance(content, str) else content)
+    args = ["replay", str(log), "--save", str(tmp_path / "run.rrd")]
+    if truth is not None:
+        (tmp_path / "truth.txt").write_text(truth)
+        args += ["--truth", str(tmp_path / "truth.txt")]
+    result = runner.invoke(app, args, env={"COLUMNS": "400"})
+    assert result.exit_code == 2, result.output
+    lines = result.output.strip().splitlines()
+    assert len(lines) == 1, result.output
+    assert lines[0].startswith("error: ") and expected in lines[0], lines[0]
+    assert "Traceback" not in result.output
+
+
+def test_a_directory_is_refused(tmp_path: Path) -> None:
+    result = runner.invoke(app, ["replay", str(tmp_path), "--save", str(tmp_path / "r.rrd")])
+    assert result.exit_code == 2 and "is a directory" in result.output
+
+
+def test_bearings_outside_pi_are_wrapped_with_one_warning(tmp_path: Path) -> None:
+    log = tmp_path / "log.txt"
+    log.write_text("0.1 5 4.0 6\n3 0\n0.1 5 -4.0 6\n3 0\n0.1 5 7 6\n")
+    result = runner.invoke(app, ["replay", str(log), "--save", str(tmp_path / "r.rrd")])
+    assert result.exit_code == 0, result.output
+    warnings = [line for line in result.output.splitlines() if line.startswith("warning:")]
+    assert len(warnings) == 1
+    assert f"{log}:1: found bearing 4 outside (-pi, pi]" in warnings[0]
+
+
+def test_debug_shows_the_traceback(tmp_path: Path) -> None:
+    command = [sys.executable, "-m", "ekfviz", "replay", str(tmp_path / "nope.txt"), "--save",
+               str(tmp_path / "r.rrd")]  # fmt: skip
+    plain = subprocess.run(command, capture_output=True, text=True)
+    debug = subprocess.run([*command[:3], "--debug", *command[3:]], capture_output=True, text=True)
+    assert plain.returncode == 2 and "Traceback" not in plain.stderr
+    assert debug.returncode != 0 and "Traceback" in debug.stderr and "InputError" in debug.stderr
