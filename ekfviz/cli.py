@@ -7,6 +7,7 @@ import json
 import math
 import os
 import shlex
+import signal
 import sys
 import tempfile
 from collections.abc import Iterator
@@ -27,6 +28,7 @@ from ekfviz.core.consistency import Consistency, Verdict
 from ekfviz.core.evaluation import Evaluation, GroundTruth, evaluate
 from ekfviz.core.filter import FilterError, FilterParams, LandmarkInit, UpdateMode
 from ekfviz.core.records import EventRecord
+from ekfviz.core.replay import FilterLineError
 from ekfviz.core.replay import replay as run_filter
 from ekfviz.io.errors import InputError
 from ekfviz.io.extended import is_extended, read_log
@@ -297,16 +299,26 @@ def replay(
             truth=truth_xy,
             truth_path=truth,
         )
-        with open_progress(data) as progress, viz.open_run(info, sinks) as logger:
+        with (
+            open_progress(data) as progress,
+            viz.open_run(info, sinks) as logger,
+            signals_as_exceptions(),
+        ):
             last: EventRecord | None = None
             consistency = Consistency(truth_xy)
             events = read_log(data, progress, warn)
             if truth_xy is not None and truth is not None:
                 events = checked_against(events, truth_xy, truth, every_id=not is_extended(data))
-            for record in run_filter(events, params):
-                logger.log(record)
-                consistency.add(record)
-                last = record
+            try:
+                for record in run_filter(events, params):
+                    logger.log(record)
+                    consistency.add(record)
+                    last = record
+            except (InputError, FilterLineError, KeyboardInterrupt, Terminated) as cause:
+                final = None if last is None else evaluate(last, truth_xy, consistency)
+                reason = stop_reason(cause, data, last)
+                kept = logger.stop(reason, final)
+                raise RunStopped(reason, cause, kept) from cause
             assert last is not None  # replay always yields the initialisation
             evaluation = evaluate(last, truth_xy, consistency)
             logger.finish(evaluation)
@@ -320,10 +332,15 @@ def replay(
             if logger.url:
                 out.print(f"Serving the web viewer at [bold]{logger.url}[/] (Ctrl-C to stop)")
             logger.wait_while_serving()
+    except RunStopped as stopped:
+        where = ""
+        if stopped.kept and sinks.save is not None:
+            where = f"; the recording of everything before it is saved in {sinks.save}"
+        fail(f"{stopped.reason}{where}", code=stopped.exit_code)
     except (InputError, FilterError, viz.SinkError) as error:
         fail(str(error))
-    except KeyboardInterrupt:
-        raise typer.Exit(130) from None
+    except (KeyboardInterrupt, Terminated) as signal_error:
+        raise typer.Exit(143 if isinstance(signal_error, Terminated) else 130) from None
 
 
 @app.command()
@@ -571,6 +588,51 @@ def convert(
 
 
 # -- helpers ---------------------------------------------------------------------------
+
+
+class Terminated(BaseException):  # like KeyboardInterrupt: not caught by "except Exception"
+    """SIGTERM, turned into an exception so that a run can close its recording."""
+
+
+class RunStopped(Exception):
+    """A replay cut short; ``kept`` says whether its recording was kept."""
+
+    def __init__(self, reason: str, cause: BaseException, kept: bool) -> None:
+        super().__init__(reason)
+        self.reason = reason
+        self.kept = kept
+        if isinstance(cause, KeyboardInterrupt):
+            self.exit_code = 130  # 128 + SIGINT, as a shell reports it
+        elif isinstance(cause, Terminated):
+            self.exit_code = 143  # 128 + SIGTERM
+        else:
+            self.exit_code = 2
+
+
+def stop_reason(cause: BaseException, data: Path, last: EventRecord | None) -> str:
+    """One line saying why and where a replay stopped."""
+    after = f"after input line {last.line}" if last is not None and last.line else "at the start"
+    if isinstance(cause, KeyboardInterrupt):
+        return f"{data}: interrupted (SIGINT) {after}"
+    if isinstance(cause, Terminated):
+        return f"{data}: terminated (SIGTERM) {after}"
+    if isinstance(cause, FilterLineError):
+        return f"{data}:{cause.line}: {cause}"
+    return str(cause)
+
+
+@contextmanager
+def signals_as_exceptions() -> Iterator[None]:
+    """Raise :class:`Terminated` on SIGTERM inside the block (SIGINT already raises)."""
+
+    def terminate(signum: int, frame: object) -> None:
+        raise Terminated
+
+    previous = signal.signal(signal.SIGTERM, terminate)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 @contextmanager

@@ -123,15 +123,18 @@ def test_without_truth_the_table_shows_estimates_and_sigmas(tmp_path: Path) -> N
 
 
 @pytest.mark.parametrize(
-    ("content", "expected"),
+    ("content", "expected", "kept"),
     [
-        ("0.1 5 0.2 6\n3 0\n1 2 3\n", "log.txt:3: found 3 numbers, expected 2"),
-        ("0.1 5 0.2 6\n3 nan\n", "log.txt:2: found 'nan', expected a finite number"),
+        ("1 2 3\n", "log.txt:1: found 3 numbers on the first line", False),
+        ("0.1 5 0.2 6\n3 0\n1 2 3\n", "log.txt:3: found 3 numbers, expected 2", True),
+        ("0.1 5 0.2 6\n3 nan\n", "log.txt:2: found 'nan', expected a finite number", True),
     ],
 )
-def test_bad_input_is_one_line_exit_2_and_keeps_the_old_recording(
-    tmp_path: Path, content: str, expected: str
+def test_bad_input_is_one_line_exit_2_and_keeps_what_came_before(
+    tmp_path: Path, content: str, expected: str, kept: bool
 ) -> None:
+    from conftest import entity_rows
+
     log = tmp_path / "log.txt"
     log.write_text(content)
     rrd = tmp_path / "old.rrd"
@@ -145,8 +148,14 @@ def test_bad_input_is_one_line_exit_2_and_keeps_the_old_recording(
     assert expected in result.stderr
     assert len(result.stderr.strip().splitlines()) == 1
     assert "Traceback" not in result.stderr
-    assert rrd.read_bytes() == b"previous recording"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["log.txt", "old.rrd"]
+    if not kept:  # nothing was replayed: the old file stays as it was
+        assert rrd.read_bytes() == b"previous recording"
+        return
+    assert f"the recording of everything before it is saved in {rrd}" in result.stderr
+    log_lines = [row["TextLog:text"] for row in entity_rows(rrd, "/log")]
+    assert log_lines[0] == ["step 0 init line 1: 2 landmarks (2 new)"]
+    assert expected in str(log_lines[-1][0])  # type: ignore[index]
 
 
 @pytest.mark.parametrize(

@@ -3,12 +3,24 @@
 from __future__ import annotations
 
 from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
 from itertools import chain
 
 import numpy as np
 
-from ekfviz.core.filter import EkfSlam, FilterParams
+from ekfviz.core.filter import EkfSlam, FilterError, FilterParams
 from ekfviz.core.records import Control, EventKind, EventRecord, LogEvent, Sighting
+
+
+class FilterLineError(FilterError):
+    """The filter could not go on at a line of the log.
+
+    :param line: the log line whose event failed
+    """
+
+    def __init__(self, line: int, message: str) -> None:
+        self.line = line
+        super().__init__(message)
 
 
 def replay(
@@ -32,7 +44,8 @@ def replay(
     first = next(stream, None)
     pending: list[LogEvent] = []
     if isinstance(first, Sighting):
-        observations = ekf.observe(first.ids, first.z)
+        with _at_line(first.line):
+            observations = ekf.observe(first.ids, first.z)
         yield ekf.record(
             event=0,
             step=0,
@@ -53,7 +66,8 @@ def replay(
         if isinstance(log_event, Control):
             step += 1
             step_has_update = False
-            ekf.predict(log_event.d, log_event.alpha)
+            with _at_line(log_event.line):
+                ekf.predict(log_event.d, log_event.alpha)
             yield ekf.record(
                 event=event,
                 step=step,
@@ -67,7 +81,8 @@ def replay(
             if step_has_update:
                 step += 1
             step_has_update = True
-            observations = ekf.observe(log_event.ids, log_event.z)
+            with _at_line(log_event.line):
+                observations = ekf.observe(log_event.ids, log_event.z)
             yield ekf.record(
                 event=event,
                 step=step,
@@ -77,3 +92,12 @@ def replay(
                 observations=observations,
                 full_cov=full_cov,
             )
+
+
+@contextmanager
+def _at_line(line: int) -> Iterator[None]:
+    """Name the log line in a filter error raised inside the block."""
+    try:
+        yield
+    except FilterError as error:
+        raise FilterLineError(line, str(error)) from error

@@ -224,6 +224,12 @@ class Recorder:
             self._rec.send_blueprint(self._layout(self._bounds_xy))
         self._rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
 
+    def note(self, text: str, level: str = rr.TextLogLevel.WARN) -> None:
+        """A line in the text log at the latest event: a warning, or why a run stopped."""
+        self._rec.set_time(style.STEP, sequence=self._step)
+        self._rec.set_time(style.EVENT, sequence=self._event)
+        self._rec.log(style.LOG, rr.TextLog(text, level=level))
+
     def _layout(self, bounds_xy: FloatArray | None = None) -> rrb.Blueprint:
         if bounds_xy is not None:
             margin = 0.05 * max(float(np.max(bounds_xy[1] - bounds_xy[0])), 1.0)

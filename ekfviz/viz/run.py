@@ -230,10 +230,25 @@ class RunLogger:
         self.recorder = recorder
         self.url = url
         self.finished = False
+        self.logged = 0  # records logged so far
 
     def log(self, record: EventRecord) -> None:
         """Log one record of the core."""
         self.recorder.log_record(record)
+        self.logged += 1
+
+    def stop(self, reason: str, evaluation: Evaluation | None) -> bool:
+        """End a run cut short (bad input, a numerical fault, a signal): log why as the
+        last line, send what is buffered and keep the recording if it holds any event.
+
+        :return: whether the recording is kept (and, with ``--save``, written)
+        """
+        if not self.logged:
+            return False
+        self.recorder.note(reason, level=rr.TextLogLevel.ERROR)
+        self.recorder.finish(evaluation)
+        self.finished = True
+        return True
 
     def finish(self, evaluation: Evaluation) -> None:
         """Log the evaluation document and send the buffered series: the run is complete."""
