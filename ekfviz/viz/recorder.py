@@ -24,6 +24,7 @@ logged once as static data; metric series are buffered and sent in columns.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -54,10 +55,37 @@ def _f32(strips: FloatArray) -> npt.NDArray[np.float32]:
     return strips.astype(np.float32)
 
 
+class _Entities:
+    """The recording stream with every entity path under ``prefix`` (none when empty),
+    so that several runs can share one recording (``variants/<key>/world/...``)."""
+
+    def __init__(self, rec: rr.RecordingStream, prefix: str) -> None:
+        self.rec = rec
+        self._prefix = prefix.strip("/") + "/" if prefix.strip("/") else ""
+
+    def path(self, entity: str) -> str:
+        return self._prefix + entity
+
+    def log(self, entity: str, data: Any, *, static: bool = False) -> None:
+        self.rec.log(self.path(entity), data, static=static)
+
+    def send_columns(self, entity: str, indexes: Sequence[rr.TimeColumn], columns: Any) -> None:
+        self.rec.send_columns(self.path(entity), indexes=indexes, columns=columns)
+
+    def set_time(self, timeline: str, *, sequence: int) -> None:
+        self.rec.set_time(timeline, sequence=sequence)
+
+    def send_blueprint(self, blueprint: rrb.Blueprint) -> None:
+        self.rec.send_blueprint(blueprint)
+
+    def flush(self, *, timeout_sec: float) -> None:
+        self.rec.flush(timeout_sec=timeout_sec)
+
+
 class _SeriesBuffer:
     """Scalar series gathered per entity path and sent with ``send_columns`` in chunks."""
 
-    def __init__(self, rec: rr.RecordingStream) -> None:
+    def __init__(self, rec: _Entities) -> None:
         self._rec = rec
         self._series: dict[str, tuple[list[int], list[int], list[float]]] = {}
 
@@ -94,6 +122,8 @@ class Recorder:
     :param run_documents: the layout has tabs for the run information, input and
         evaluation documents (what ``open_run`` logs)
     :param heading_length: length in metres of the robot's heading arrow
+    :param prefix: entity path under which to log everything (e.g. ``variants/a``), so
+        that several runs share one recording; the default layout then does not fit
     """
 
     def __init__(
@@ -105,15 +135,16 @@ class Recorder:
         blueprint: bool = True,
         run_documents: bool = False,
         heading_length: float = HEADING_LENGTH,
+        prefix: str = "",
     ) -> None:
-        self._rec = rec
+        self._rec = _Entities(rec, prefix)
         self._truth = truth
         self._heading_length = heading_length
         self._order: list[int] = [int(i) for i in landmark_ids] if landmark_ids else []
         self._in_order: set[int] = set(self._order)
         self._seen: set[int] = set()  # ids observed so far through the array API
         self._annotated: set[int] = set()
-        self._series = _SeriesBuffer(rec)
+        self._series = _SeriesBuffer(self._rec)
         self._since_flush = 0
         self._event = 0
         self._step = 0
@@ -123,7 +154,7 @@ class Recorder:
         self._run_documents = run_documents
         self._bounds_xy: FloatArray | None = None  # [[x_min, y_min], [x_max, y_max]] so far
         if blueprint:
-            rec.send_blueprint(self._layout())
+            self._rec.send_blueprint(self._layout())
         self._log_styling()
         seed_ids = list(self._order)
         if truth is not None:
@@ -224,7 +255,7 @@ class Recorder:
             self._rec.send_blueprint(self._layout(self._bounds_xy))
         self._rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
 
-    def note(self, text: str, level: str = rr.TextLogLevel.WARN) -> None:
+    def note(self, text: str, level: str | rr.TextLogLevel = rr.TextLogLevel.WARN) -> None:
         """A line in the text log at the latest event: a warning, or why a run stopped."""
         self._rec.set_time(style.STEP, sequence=self._step)
         self._rec.set_time(style.EVENT, sequence=self._event)
