@@ -32,10 +32,12 @@ from ekfviz.viz.ellipses import ellipse_outlines
 from ekfviz.viz.info import NotARecordingError, RecordingInfo, read_recording_info
 from ekfviz.viz.recorder import Recorder
 from ekfviz.viz.run import (
+    Recording,
     RunInfo,
     RunLogger,
     SinkError,
     Sinks,
+    open_recording,
     open_run,
     resolve_default_sinks,
     run_info,
@@ -44,12 +46,14 @@ from ekfviz.viz.run import (
 __all__ = [
     "NotARecordingError",
     "Recorder",
+    "Recording",
     "RecordingInfo",
     "RunInfo",
     "RunLogger",
     "SinkError",
     "Sinks",
     "ellipse_outlines",
+    "open_recording",
     "open_run",
     "read_recording_info",
     "resolve_default_sinks",

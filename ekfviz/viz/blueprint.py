@@ -22,24 +22,28 @@ def accumulated_range() -> rrb.VisibleTimeRanges:
     )
 
 
-def map_view(bounds_xy: FloatArray | None = None) -> rrb.Spatial2DView:
+def map_view(
+    bounds_xy: FloatArray | None = None, *, prefix: str = "", name: str = "Map"
+) -> rrb.Spatial2DView:
     """The 2-D map: robot, ellipses, landmarks, observations and the trajectory so far.
 
     :param bounds_xy: (2, 2) [[x_min, y_min], [x_max, y_max]] in world coordinates to
         frame, or None to let the viewer choose
+    :param prefix: the entity path the run was logged under (see ``Recorder(prefix=)``)
     """
+    root = f"/{prefix.strip('/')}/" if prefix.strip("/") else "/"
     visual_bounds = None
     if bounds_xy is not None:
         (x_min, y_min), (x_max, y_max) = bounds_xy
         # the view shows the root frame, where "world" is mirrored in y
         visual_bounds = rrb.VisualBounds2D(x_range=[x_min, x_max], y_range=[-y_max, -y_min])
     return rrb.Spatial2DView(
-        name="Map",
-        origin="/",  # the display frame: y up, through the static transform of "world"
-        contents=f"/{style.WORLD}/**",
+        name=name,
+        origin=root,  # the display frame: y up, through the static transform of "world"
+        contents=f"{root}{style.WORLD}/**",
         background=style.BACKGROUND,
         visual_bounds=visual_bounds,
-        overrides={path: accumulated_range() for path in style.ACCUMULATED},
+        overrides={f"{root}{path}": accumulated_range() for path in style.ACCUMULATED},
     )
 
 
@@ -82,6 +86,38 @@ def default_blueprint(
                 row_shares=[3, 2],
             ),
             column_shares=[3, 2],
+        ),
+        rrb.TimePanel(timeline=style.STEP, play_state="following", state="collapsed"),
+        collapse_panels=True,
+    )
+
+
+def sweep_blueprint(
+    variants: list[tuple[str, str]], *, has_truth: bool, bounds_xy: FloatArray | None = None
+) -> rrb.Blueprint:
+    """A grid of maps, one per variant (baseline first), above overlaid metric plots.
+
+    :param variants: (label, prefix) of every variant, in order
+    """
+    maps = [map_view(bounds_xy, prefix=prefix, name=label) for label, prefix in variants]
+    plots = [
+        rrb.TimeSeriesView(
+            name="NIS per variant",
+            contents=[f"/{prefix}/{style.NIS}" for _, prefix in variants],
+        )
+    ]
+    if has_truth:
+        plots.append(
+            rrb.TimeSeriesView(
+                name="Mean landmark error [m] per variant",
+                contents=[f"/{prefix}/{style.MEAN_LANDMARK_ERROR}" for _, prefix in variants],
+            )
+        )
+    return rrb.Blueprint(
+        rrb.Vertical(
+            rrb.Grid(*maps),
+            rrb.Horizontal(*plots),
+            row_shares=[3, 1],
         ),
         rrb.TimePanel(timeline=style.STEP, play_state="following", state="collapsed"),
         collapse_panels=True,

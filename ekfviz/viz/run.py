@@ -16,7 +16,7 @@ import shutil
 import sys
 import time
 import uuid
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -219,46 +219,18 @@ def web_viewer_url(grpc_uri: str, web_port: int = WEB_PORT) -> str:
 # -- the run ---------------------------------------------------------------------------
 
 
-class RunLogger:
-    """Logs the records of one run; built by :func:`open_run`.
+class Recording:
+    """An open recording stream with its sinks; built by :func:`open_recording`.
 
+    :ivar rec: the stream to log to
     :ivar url: the web viewer's address when serving, else None
-    :ivar recorder: the :class:`Recorder` doing the logging
+    :ivar complete: set once everything is logged: only then is a ``--save`` file written
     """
 
-    def __init__(self, recorder: Recorder, url: str | None) -> None:
-        self.recorder = recorder
+    def __init__(self, rec: rr.RecordingStream, url: str | None) -> None:
+        self.rec = rec
         self.url = url
-        self.finished = False
-        self.logged = 0  # records logged so far
-
-    def log(self, record: EventRecord) -> None:
-        """Log one record of the core."""
-        self.recorder.log_record(record)
-        self.logged += 1
-
-    def stop(self, reason: str, evaluation: Evaluation | None) -> bool:
-        """End a run cut short (bad input, a numerical fault, a signal): log why as the
-        last line, send what is buffered and keep the recording if it holds any event.
-
-        :return: whether the recording is kept (and, with ``--save``, written)
-        """
-        if not self.logged:
-            return False
-        self.recorder.note(reason, level=rr.TextLogLevel.ERROR)
-        self.recorder.finish(evaluation)
-        self.finished = True
-        return True
-
-    def finish(self, evaluation: Evaluation) -> None:
-        """Log the evaluation document and send the buffered series: the run is complete."""
-        try:
-            self.recorder.finish(evaluation)
-        except RuntimeError as error:  # a viewer that never answered; a file is complete
-            self.finished = True
-            reason = str(error).splitlines()[0] if str(error) else type(error).__name__
-            raise SinkError(f"the Rerun viewer did not take the recording: {reason}") from None
-        self.finished = True
+        self.complete = False
 
     def wait_while_serving(self) -> None:
         """Block until Ctrl-C while the web viewer is served; return at once otherwise."""
@@ -271,13 +243,70 @@ class RunLogger:
             return
 
 
+class RunLogger:
+    """Logs the records of one run; built by :func:`open_run`.
+
+    :ivar url: the web viewer's address when serving, else None
+    :ivar recorder: the :class:`Recorder` doing the logging
+    """
+
+    def __init__(self, recorder: Recorder, recording: Recording) -> None:
+        self.recorder = recorder
+        self.recording = recording
+        self.url = recording.url
+        self.logged = 0  # records logged so far
+
+    @property
+    def finished(self) -> bool:
+        return self.recording.complete
+
+    def log(self, record: EventRecord) -> None:
+        """Log one record of the core."""
+        self.recorder.log_record(record)
+        self.logged += 1
+
+    def finish(self, evaluation: Evaluation | None) -> None:
+        """Log the evaluation document and send the buffered series: the run is complete."""
+        finish_recorders(self.recording, [(self.recorder, evaluation)])
+
+    def stop(self, reason: str, evaluation: Evaluation | None) -> bool:
+        """End a run cut short (bad input, a numerical fault, a signal): log why as the
+        last line, send what is buffered and keep the recording if it holds any event.
+
+        :return: whether the recording is kept (and, with ``--save``, written)
+        """
+        if not self.logged:
+            return False
+        self.recorder.note(reason, level=rr.TextLogLevel.ERROR)
+        self.finish(evaluation)
+        return True
+
+    def wait_while_serving(self) -> None:
+        """Block until Ctrl-C while the web viewer is served; return at once otherwise."""
+        self.recording.wait_while_serving()
+
+
+def finish_recorders(
+    recording: Recording, recorders: Sequence[tuple[Recorder, Evaluation | None]]
+) -> None:
+    """Finish every recorder of a recording (series, evaluation) and mark it complete."""
+    try:
+        for recorder, evaluation in recorders:
+            recorder.finish(evaluation)
+    except RuntimeError as error:  # a viewer that never answered; a file is complete
+        recording.complete = True
+        reason = str(error).splitlines()[0] if str(error) else type(error).__name__
+        raise SinkError(f"the Rerun viewer did not take the recording: {reason}") from None
+    recording.complete = True
+
+
 @contextmanager
-def open_run(info: RunInfo, sinks: Sinks) -> Iterator[RunLogger]:
-    """A recording of one run, sent to ``sinks``, closed when the block ends.
+def open_recording(info: RunInfo, sinks: Sinks) -> Iterator[Recording]:
+    """A self-describing recording sent to ``sinks``, closed when the block ends.
 
     A ``--save`` file is written beside its path under a temporary name and moved over
-    the path only once ``RunLogger.finish`` has run; if the block fails before that,
-    the temporary file is removed and an existing file at the path is left untouched.
+    the path only once the recording is marked complete; otherwise the temporary file is
+    removed and an existing file at the path is left untouched.
 
     :raises SinkError: when a sink cannot be used (no display for ``spawn``, ...)
     """
@@ -286,19 +315,26 @@ def open_run(info: RunInfo, sinks: Sinks) -> Iterator[RunLogger]:
     rec = rr.RecordingStream(APPLICATION_ID, recording_id=info.recording_id, send_properties=False)
     rec.set_log_time_enabled(False)  # only step and event: the same run gives the same data
     temporary: Path | None = None
-    logger: RunLogger | None = None
+    recording: Recording | None = None
     try:
         log_sinks, temporary, url = _attach(rec, sinks)
         rec.set_sinks(*log_sinks)
         _describe(rec, info)
-        logger = RunLogger(Recorder(rec, truth=info.truth, run_documents=True), url)
-        yield logger
+        recording = Recording(rec, url)
+        yield recording
     finally:
         with contextlib.suppress(Exception):
             rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
         rec.disconnect()  # finalises the file (footer) and stops a server
         if temporary is not None:
-            _commit_or_remove(temporary, sinks.save, logger is not None and logger.finished)
+            _commit_or_remove(temporary, sinks.save, recording is not None and recording.complete)
+
+
+@contextmanager
+def open_run(info: RunInfo, sinks: Sinks) -> Iterator[RunLogger]:
+    """A recording of one replay (see :func:`open_recording`), logged by a RunLogger."""
+    with open_recording(info, sinks) as recording:
+        yield RunLogger(Recorder(recording.rec, truth=info.truth, run_documents=True), recording)
 
 
 def _attach(

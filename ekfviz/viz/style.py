@@ -28,6 +28,7 @@ LOWER = "lower_95"
 UPPER = "upper_95"
 POSE_SIGMA = "metrics/pose_sigma"  # /x, /y, /theta
 LANDMARK_ERROR = "metrics/landmark_error"  # /<id>, with truth
+MEAN_LANDMARK_ERROR = "metrics/mean_landmark_error"  # with truth, in sweeps
 MAHALANOBIS = "metrics/mahalanobis"  # /<id>, with truth
 
 LOG = "log"  # TextLog, one line per event
