@@ -128,6 +128,19 @@ UpdateOption = Annotated[
     _option("Fold a line's landmarks one after another, or all at once.", FILTER_OPTIONS),
 ]
 Triple = tuple[float, float, float]
+DEFAULT = FilterParams()  # the classic defaults, stated once
+InitPoseSigma = Annotated[
+    Triple,
+    _option(
+        "Sigma of the initial pose prior at (0, 0, 0).", FILTER_OPTIONS, metavar="SX SY STHETA"
+    ),
+]
+LogArgument = Annotated[
+    Path, typer.Argument(help="Log in the classic or the extended format.", show_default=False)
+]
+TruthOption = Annotated[
+    Path | None, _option("True landmark positions: 'x y' per line, or JSON.", show_default=False)
+]
 
 
 def _true(what: str) -> Any:
@@ -218,29 +231,19 @@ def true_noise(world: Scenario, *given: float | None) -> Noise:
 
 @app.command()
 def replay(
-    data: Annotated[
-        Path, typer.Argument(help="Log in the classic or the extended format.", show_default=False)
-    ],
-    truth: Annotated[
-        Path | None,
-        typer.Option(help="True landmark positions: 'x y' per line, or JSON.", show_default=False),
-    ] = None,
+    data: LogArgument,
+    truth: TruthOption = None,
     report: Annotated[
         Path | None, typer.Option(help="Write the evaluation as JSON here.", show_default=False)
     ] = None,
-    sigma_x: SigmaX = 0.25,
-    sigma_y: SigmaY = 0.1,
-    sigma_alpha: SigmaAlpha = 0.1,
-    sigma_bearing: SigmaBearing = 0.01,
-    sigma_range: SigmaRange = 0.08,
-    init_pose_sigma: Annotated[
-        Triple,
-        _option(
-            "Sigma of the initial pose prior at (0, 0, 0).", FILTER_OPTIONS, metavar="SX SY STHETA"
-        ),
-    ] = (0.02, 0.02, 0.1),
-    landmark_init: LandmarkInitOption = LandmarkInit.CORRELATED,
-    update: UpdateOption = UpdateMode.SEQUENTIAL,
+    sigma_x: SigmaX = DEFAULT.sigma_x,
+    sigma_y: SigmaY = DEFAULT.sigma_y,
+    sigma_alpha: SigmaAlpha = DEFAULT.sigma_alpha,
+    sigma_bearing: SigmaBearing = DEFAULT.sigma_bearing,
+    sigma_range: SigmaRange = DEFAULT.sigma_range,
+    init_pose_sigma: InitPoseSigma = DEFAULT.init_pose_sigma,
+    landmark_init: LandmarkInitOption = DEFAULT.landmark_init,
+    update: UpdateOption = DEFAULT.update,
     save: Annotated[
         Path | None,
         typer.Option(
@@ -470,11 +473,11 @@ def consistency(
     scenario: ScenarioOption = ScenarioName.CLASSIC,
     runs: Annotated[int, _option("Number of Monte-Carlo runs.", min=1)] = 50,
     seed: Annotated[int, _option("Seed of the first run; run k uses seed + k.")] = 0,
-    sigma_x: SigmaX = 0.25,
-    sigma_y: SigmaY = 0.1,
-    sigma_alpha: SigmaAlpha = 0.1,
-    sigma_bearing: SigmaBearing = 0.01,
-    sigma_range: SigmaRange = 0.08,
+    sigma_x: SigmaX = DEFAULT.sigma_x,
+    sigma_y: SigmaY = DEFAULT.sigma_y,
+    sigma_alpha: SigmaAlpha = DEFAULT.sigma_alpha,
+    sigma_bearing: SigmaBearing = DEFAULT.sigma_bearing,
+    sigma_range: SigmaRange = DEFAULT.sigma_range,
     init_pose_sigma: Annotated[
         Triple | None,
         _option(
@@ -485,8 +488,8 @@ def consistency(
             show_default=False,
         ),
     ] = None,
-    landmark_init: LandmarkInitOption = LandmarkInit.CORRELATED,
-    update: UpdateOption = UpdateMode.SEQUENTIAL,
+    landmark_init: LandmarkInitOption = DEFAULT.landmark_init,
+    update: UpdateOption = DEFAULT.update,
     true_sigma_x: TrueSigmaX = None,
     true_sigma_y: TrueSigmaY = None,
     true_sigma_alpha: TrueSigmaAlpha = None,
@@ -570,9 +573,7 @@ class Preset(str, enum.Enum):
 
 @app.command()
 def sweep(
-    data: Annotated[
-        Path, typer.Argument(help="Log in the classic or the extended format.", show_default=False)
-    ],
+    data: LogArgument,
     truth: Annotated[
         Path | None,
         _option("True landmark positions: 'x y' per line, or JSON.", show_default=False),
@@ -604,19 +605,14 @@ def sweep(
             "tuning: each noise sigma x10 and /10, one at a time (11 variants).", show_default=False
         ),
     ] = None,
-    sigma_x: SigmaX = 0.25,
-    sigma_y: SigmaY = 0.1,
-    sigma_alpha: SigmaAlpha = 0.1,
-    sigma_bearing: SigmaBearing = 0.01,
-    sigma_range: SigmaRange = 0.08,
-    init_pose_sigma: Annotated[
-        Triple,
-        _option(
-            "Sigma of the initial pose prior at (0, 0, 0).", FILTER_OPTIONS, metavar="SX SY STHETA"
-        ),
-    ] = (0.02, 0.02, 0.1),
-    landmark_init: LandmarkInitOption = LandmarkInit.CORRELATED,
-    update: UpdateOption = UpdateMode.SEQUENTIAL,
+    sigma_x: SigmaX = DEFAULT.sigma_x,
+    sigma_y: SigmaY = DEFAULT.sigma_y,
+    sigma_alpha: SigmaAlpha = DEFAULT.sigma_alpha,
+    sigma_bearing: SigmaBearing = DEFAULT.sigma_bearing,
+    sigma_range: SigmaRange = DEFAULT.sigma_range,
+    init_pose_sigma: InitPoseSigma = DEFAULT.init_pose_sigma,
+    landmark_init: LandmarkInitOption = DEFAULT.landmark_init,
+    update: UpdateOption = DEFAULT.update,
     workers: Annotated[
         int | None, _option("Processes to use [default: one per core].", min=1, show_default=False)
     ] = None,
