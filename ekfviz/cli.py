@@ -574,10 +574,7 @@ class Preset(str, enum.Enum):
 @app.command()
 def sweep(
     data: LogArgument,
-    truth: Annotated[
-        Path | None,
-        _option("True landmark positions: 'x y' per line, or JSON.", show_default=False),
-    ] = None,
+    truth: TruthOption = None,
     save: Annotated[
         Path | None,
         _option(
