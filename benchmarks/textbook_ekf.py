@@ -47,14 +47,14 @@ class TextbookEkfSlam:
         """Initialise from the first line, then predict or update line by line.
 
         Duck-typed so that this file shares no code with ekfviz: a control has ``d`` and
-        ``alpha``, an observation has ``z``.
+        ``alpha``, an observation has ``z`` and ``ids``, landmark i having id i+1.
         """
         self.initialise(events[0].z)
         for event in events[1:]:
             if hasattr(event, "d"):
                 self.predict(event.d, event.alpha)
             else:
-                self.update(event.z)
+                self.update(event.z, [int(i) - 1 for i in event.ids])
 
     def initialise(self, z: Array) -> None:
         """Initialise landmark i from the i-th (bearing, range) of the first line."""
@@ -85,10 +85,17 @@ class TextbookEkfSlam:
         )
         self.P = G @ self.P @ G.T + self.F_x.T @ (W @ self.Q @ W.T) @ self.F_x
 
-    def update(self, z: Array) -> None:
-        """Sequential update with every landmark, in order."""
+    def update(self, z: Array, landmarks: Sequence[int] | None = None) -> None:
+        """Sequential update with every landmark, in order.
+
+        ``landmarks`` gives the 0-based index of the landmark of each (bearing, range) pair
+        of ``z`` when not all are seen (default: all of them, in order).
+        """
         dim = len(self.x)
-        for i, (bearing, rng) in enumerate(z.reshape(-1, 2)):
+        z = z.reshape(-1, 2)
+        if landmarks is None:
+            landmarks = range(len(z))
+        for i, (bearing, rng) in zip(landmarks, z, strict=True):
             j = 3 + 2 * i
             dx, dy = self.x[j] - self.x[0], self.x[j + 1] - self.x[1]
             q = dx * dx + dy * dy

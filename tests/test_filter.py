@@ -56,6 +56,38 @@ def test_sparse_filter_equals_dense_textbook_filter(landmark_init: LandmarkInit,
     np.testing.assert_allclose(ours.P, theirs.P, atol=1e-9)
 
 
+def partially_seen(n_landmarks: int, seen: int, steps: int, seed: int) -> list[Control | Sighting]:
+    """Landmarks scattered around a circling robot; all seen first, then ``seen`` of them
+    per line in a random order."""
+    rng = np.random.default_rng(seed)
+    landmarks_xy = rng.uniform(-15.0, 15.0, size=(n_landmarks, 2))
+    controls = np.tile([[1.0, 0.2]], (steps, 1))
+    run = simulate(controls, landmarks_xy, Noise(), seed=seed)
+    events: list[Control | Sighting] = [run.events[0]]
+    for event in run.events[1:]:
+        if isinstance(event, Sighting):
+            pick = rng.choice(n_landmarks, size=seen, replace=False)
+            events.append(Sighting(event.line, event.ids[pick], event.z[pick]))
+        else:
+            events.append(event)
+    return events
+
+
+@pytest.mark.parametrize(
+    ("n_landmarks", "seen"),
+    [(6, 3), (40, 7), (40, 40)],  # 40: the deferred update, flushed mid-line when all are seen
+)
+def test_sparse_filter_equals_dense_filter_with_partial_observations(
+    n_landmarks: int, seen: int
+) -> None:
+    events = tuple(partially_seen(n_landmarks, seen, steps=12, seed=n_landmarks + seen))
+    params = FilterParams()
+    ours, theirs = final_state(events, params), run_textbook(events, params)
+    np.testing.assert_allclose(ours.x, theirs.x, atol=1e-9)
+    np.testing.assert_allclose(ours.P, theirs.P, atol=1e-9)
+    assert np.array_equal(ours.P, ours.P.T)
+
+
 def test_known_answer_on_bundled_sample() -> None:
     """Pinned values of the bundled sample (seed 2), guarding against silent changes."""
     last = list(replay(classic().run(seed=2).events))[-1]
@@ -82,16 +114,18 @@ def test_noise_free_run_recovers_the_true_landmarks() -> None:
         np.testing.assert_allclose(last.pose, run.poses_xytheta[-1], atol=1e-9)
 
 
-def test_joint_update_equals_the_dense_stacked_update() -> None:
-    events = classic().run(seed=2).events
-    ekf = final_state(events[:2], FilterParams(update=UpdateMode.JOINT))
+@pytest.mark.parametrize("n_landmarks", [6, 40])  # 40: P -= A^T A by strips
+def test_joint_update_equals_the_dense_stacked_update(n_landmarks: int) -> None:
+    events = partially_seen(n_landmarks, 6, steps=2, seed=2) if n_landmarks > 6 else None
+    events = list(classic().run(seed=2).events) if events is None else events
+    ekf = final_state(tuple(events[:2]), FilterParams(update=UpdateMode.JOINT))
     x, P = np.array(ekf.x), np.array(ekf.P)
     sighting = events[2]
     assert isinstance(sighting, Sighting)
     H = np.zeros((12, len(x)))
     nu = np.zeros(12)
-    for i in range(6):
-        j = 3 + 2 * i
+    for i, landmark_id in enumerate(sighting.ids.tolist()):
+        j = 1 + 2 * landmark_id  # ids 1..N in state order
         z_pred = measure(x[:3], x[j : j + 2])
         z_D_pose, z_D_landmark = measurement_jacobians(x[:3], x[j : j + 2])
         H[2 * i : 2 * i + 2, :3], H[2 * i : 2 * i + 2, j : j + 2] = z_D_pose, z_D_landmark
@@ -104,6 +138,7 @@ def test_joint_update_equals_the_dense_stacked_update() -> None:
     ekf.observe(sighting.ids, sighting.z)
     np.testing.assert_allclose(ekf.x, x + K @ nu, atol=1e-12)
     np.testing.assert_allclose(ekf.P, (np.eye(len(x)) - K @ H) @ P, atol=1e-12)
+    assert np.array_equal(ekf.P, ekf.P.T)
 
 
 def test_joint_and_sequential_updates_differ_only_by_linearisation() -> None:

@@ -4,11 +4,19 @@ State x = [x, y, theta, l1x, l1y, ...] (3+2N) and covariance P live in buffers w
 spare capacity, so that adding a landmark does not copy P every time. Predict touches
 only the robot rows and columns (O(N)); an update uses the 5 non-zero columns of the
 sparse measurement Jacobian and a rank-2 change of P (O(N^2) per landmark).
+
+Two regimes decide how the code is written. With a few landmarks, numpy's per-call
+overhead is the cost, so the small algebra is done in Python floats and each landmark
+costs a dozen numpy calls. With thousands, the passes over P are the cost: the rank-2
+changes of the landmarks of one observation line are kept as a low-rank factor U
+(P_current = P - U^T U) and applied to P in one blocked pass, which never builds an
+n x n temporary and keeps P exactly symmetric.
 """
 
 from __future__ import annotations
 
 import enum
+import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
@@ -18,14 +26,22 @@ import numpy as np
 from ekfviz.core.models import (
     landmark_from_measurement,
     landmark_init_jacobians,
-    measure,
-    measurement_jacobians,
-    motion,
-    motion_jacobians,
     wrap_angle,
+    wrap_angles,
 )
-from ekfviz.core.records import EventKind, EventRecord, Observations, frozen, snapshot
+from ekfviz.core.records import EventKind, EventRecord, Observations, frozen
 from ekfviz.core.types import FloatArray, IntArray
+
+# From this state dimension on, the sequential update defers its rank-2 changes to one
+# pass over P per DEFER_LANDMARKS landmarks (below it, one numpy call per change is
+# cheaper than the bookkeeping). Both chosen with `make bench` on a 2-core machine.
+DEFER_MIN_DIM = 64
+DEFER_LANDMARKS = 32
+GRAM_STRIP_ROWS = 48  # rows of P per block of the blocked P -= U^T U (see _subtract_gram)
+
+_TWO_PI = 2.0 * math.pi
+# z_pred (2), innovation (2), S (4) and NIS of a landmark seen for the first time
+_NAN_ROW: tuple[float, ...] = (math.nan,) * 9
 
 
 class LandmarkInit(str, enum.Enum):
@@ -85,16 +101,27 @@ class EkfSlam:
 
     def __init__(self, params: FilterParams | None = None, *, capacity: int = 0) -> None:
         self.params = params if params is not None else FilterParams()
-        self._Q = self.params.Q
-        self._R = self.params.R
+        p = self.params
+        self._R = p.R
+        # Q and R are diagonal: their entries as floats for the scalar algebra
+        self._q = (p.sigma_x**2, p.sigma_y**2, p.sigma_alpha**2)
+        self._r = (p.sigma_bearing**2, p.sigma_range**2)
         self._n = 3  # current state dimension, 3 + 2N
         self._x = np.zeros(3 + 2 * capacity)
         self._P = np.zeros((3 + 2 * capacity, 3 + 2 * capacity))
-        self._x[:3] = self.params.init_pose
+        self._x[:3] = p.init_pose
         self._x[2] = wrap_angle(self._x[2])
-        self._P[:3, :3] = np.diag(np.square(self.params.init_pose_sigma))
+        self._P[:3, :3] = np.diag(np.square(p.init_pose_sigma))
         self._ids: list[int] = []
         self._slot: dict[int, int] = {}  # landmark id -> index of its x in the state
+        self._ids_array: IntArray | None = None  # self._ids as a frozen array, built lazily
+        self._rows: dict[int, IntArray] = {}  # slot j -> [0, 1, 2, j, j+1]
+        self._landmark_covs: FloatArray | None = None  # for records, until P's map changes
+        # rows and columns of P holding the landmarks' 2x2 marginals, (N, 2, 2) each
+        self._marginal_index: tuple[IntArray, IntArray] = (
+            np.zeros((0, 2, 2), dtype=np.int64),
+            np.zeros((0, 2, 2), dtype=np.int64),
+        )
 
     # -- views -------------------------------------------------------------------------
 
@@ -132,18 +159,45 @@ class EkfSlam:
         full_cov: bool = False,
         time: float | None = None,
     ) -> EventRecord:
-        """Snapshot the current state as an immutable record."""
-        return snapshot(
-            self._x[: self._n],
-            self._P[: self._n, : self._n],
+        """Snapshot the current state as an immutable record.
+
+        What :func:`~ekfviz.core.records.snapshot` does, without its checks and with the
+        landmark ids and the index of the marginals kept between records: at a few
+        landmarks a record costs as much as a predict.
+        """
+        n = self._n
+        n_landmarks = (n - 3) // 2
+        if self._ids_array is None:
+            self._ids_array = frozen(np.array(self._ids, dtype=np.int64))
+        if self._marginal_index[0].shape[0] != n_landmarks:
+            i = 3 + 2 * np.arange(n_landmarks)
+            self._marginal_index = (
+                np.stack([i, i, i + 1, i + 1], axis=1).reshape(n_landmarks, 2, 2),
+                np.stack([i, i + 1, i, i + 1], axis=1).reshape(n_landmarks, 2, 2),
+            )
+        mean = self._x[:n].copy()
+        mean.setflags(write=False)  # pose and landmarks_xy are read-only views of it
+        pose_cov = self._P[:3, :3].copy()
+        pose_cov.setflags(write=False)
+        landmark_covs = self._landmark_covs  # unchanged by a predict: kept since the update
+        if landmark_covs is None:
+            landmark_covs = self._landmark_covs = frozen(self._P[self._marginal_index])
+        if control is not None:
+            control = np.array(control, dtype=np.float64)
+            control.setflags(write=False)
+        return EventRecord(
             event=event,
             step=step,
             kind=kind,
             line=line,
-            landmark_ids=np.array(self._ids, dtype=np.int64),
+            pose=mean[:3],
+            pose_cov=pose_cov,
+            landmark_ids=self._ids_array,  # read-only, replaced when the map grows
+            landmarks_xy=mean[3:].reshape(n_landmarks, 2),
+            landmark_covs=landmark_covs,
             control=control,
             observations=observations,
-            full_cov=full_cov,
+            full_cov=frozen(self._P[:n, :n].copy()) if full_cov else None,
             time=time,
         )
 
@@ -153,19 +207,32 @@ class EkfSlam:
         """Drive ``d`` along the heading, then turn ``alpha``; O(N).
 
         P' = F P F^T + F_r^T W Q W^T F_r changes only the robot rows and columns:
-        P_rr' = G P_rr G^T + W Q W^T and P_rm' = G P_rm.
+        P_rr' = G P_rr G^T + W Q W^T and P_rm' = G P_rm. G is the identity but for
+        G[0, 2] = -d sin(theta) and G[1, 2] = d cos(theta), and Q is diagonal, so the
+        3x3 block is written out in floats (symmetric by construction).
         """
         n = self._n
         x, P = self._x, self._P
-        G, W = motion_jacobians(x[:3], d)
-        x[:3] = motion(x[:3], d, alpha)
-        P_rr = G @ P[:3, :3] @ G.T + W @ self._Q @ W.T
-        P[:3, :3] = 0.5 * (P_rr + P_rr.T)
+        px, py, theta = x[:3].tolist()
+        c, s = math.cos(theta), math.sin(theta)
+        x[:3] = (px + d * c, py + d * s, wrap_angle(theta + alpha))
+        a, b = -d * s, d * c  # G[0, 2], G[1, 2]
+        (p00, p01, p02), (_, p11, p12), (_, _, p22) = P[:3, :3].tolist()
         if n > 3:
-            P_rm = G @ P[:3, 3:n]
-            P[:3, 3:n] = P_rm
-            P[3:n, :3] = P_rm.T
-        self._check_finite("predict")
+            # rows 0, 1 of G P (its 3x3 block is overwritten below), and their mirror
+            P_rm = np.array(((1.0, 0.0, a), (0.0, 1.0, b))).dot(P[:3, :n])
+            P[:2, :n] = P_rm
+            P[:n, :2] = P_rm.T
+        qx, qy, qa = self._q
+        r02 = p02 + a * p22
+        r12 = p12 + b * p22
+        m00 = p00 + a * p02 + a * r02 + c * c * qx + s * s * qy
+        m01 = p01 + a * p12 + b * r02 + c * s * (qx - qy)
+        m11 = p11 + b * p12 + b * r12 + s * s * qx + c * c * qy
+        m22 = p22 + qa
+        P[:3, :3] = ((m00, m01, r02), (m01, m11, r12), (r02, r12, m22))
+        if not math.isfinite(m00 + m11 + m22 + px + py + d + alpha):
+            raise FilterError("the state became non-finite in predict")
 
     # -- update ------------------------------------------------------------------------
 
@@ -180,119 +247,210 @@ class EkfSlam:
         :param z: (m, 2) (bearing, range) per landmark
         :return: what was done with each observation, in file order
         """
-        ids_arr = np.asarray(ids, dtype=np.int64)
-        z = np.asarray(z, dtype=np.float64).reshape(-1, 2)
-        m = ids_arr.shape[0]
-        if len(set(ids_arr.tolist())) != m:
+        self._landmark_covs = None
+        ids_arr = np.array(ids, dtype=np.int64)  # copies: the record keeps them
+        z = np.array(z, dtype=np.float64).reshape(-1, 2)
+        ids_list: list[int] = ids_arr.tolist()
+        m = len(ids_list)
+        if len(set(ids_list)) != m:
             raise FilterError("an observation names the same landmark twice")
-        z_pred = np.full((m, 2), np.nan)
-        innovation = np.full((m, 2), np.nan)
-        S = np.full((m, 2, 2), np.nan)
-        nis = np.full(m, np.nan)
-        new = np.array([not self.knows(int(i)) for i in ids_arr], dtype=bool)
-        known = np.flatnonzero(~new)
-        if known.size:
+        slot = self._slot
+        new = [i not in slot for i in ids_list]
+        any_new = True in new
+        z_list: list[list[float]] = z.tolist()
+        # per observation: z_pred (2), innovation (2), S (2x2, row-major) and NIS
+        table: list[tuple[float, ...]] = [_NAN_ROW] * m
+        if not any_new or not all(new):
+            known = [k for k, is_new in enumerate(new) if not is_new] if any_new else range(m)
             if self.params.update is UpdateMode.JOINT:
-                self._update_joint(ids_arr, z, known, z_pred, innovation, S, nis)
+                self._update_joint(ids_list, z, known, table)
             else:
-                for k in known:
-                    z_pred[k], innovation[k], S[k], nis[k] = self._update_one(int(ids_arr[k]), z[k])
-        new_at = np.flatnonzero(new)
-        self._reserve(new_at.size)
-        for k in new_at:
-            self._add_landmark(int(ids_arr[k]), z[k])
-        self._check_finite("update")
+                self._update_sequential(ids_list, z_list, known, table)
+        if any_new:
+            self._reserve(sum(new))
+            for k in range(m):
+                if new[k]:
+                    self._add_landmark(ids_list[k], z_list[k])
+        values = np.fromiter(itertools.chain.from_iterable(table), np.float64, 9 * m)
+        values = frozen(values.reshape(m, 9))  # its views below are read-only too
         return Observations(
-            ids=frozen(ids_arr.copy()),
-            z=frozen(z.copy()),
-            z_pred=frozen(z_pred),
-            innovation=frozen(innovation),
-            S=frozen(S),
-            nis=frozen(nis),
-            initialised=frozen(new),
+            ids=frozen(ids_arr),
+            z=frozen(z),
+            z_pred=values[:, 0:2],
+            innovation=values[:, 2:4],
+            S=values[:, 4:8].reshape(m, 2, 2),
+            nis=values[:, 8],
+            initialised=frozen(np.array(new, dtype=bool)),
         )
 
-    def _update_one(
-        self, landmark_id: int, z: FloatArray
-    ) -> tuple[FloatArray, FloatArray, FloatArray, float]:
-        """EKF update with one landmark through the 5 non-zero columns of H; O(N^2)."""
+    def _update_sequential(
+        self,
+        ids: list[int],
+        z: list[list[float]],
+        known: Sequence[int],
+        table: list[tuple[float, ...]],
+    ) -> None:
+        """EKF updates with the known landmarks one after another, in file order.
+
+        For landmark i, H has 5 non-zero columns c = (0, 1, 2, j, j+1), so H P (= (P H^T)^T,
+        P symmetric) needs only the rows c of P. With S = L L^T (Cholesky, in floats),
+        A = L^-1 H P (2 x n) and w = L^-1 nu: x += A^T w and P -= A^T A (= K S K^T).
+        S^-1 is never formed, and numpy computes A^T A as a symmetric rank-k update, so P
+        stays exactly symmetric. Large states defer the P -= A^T A (see the module).
+        """
         n = self._n
         x, P = self._x[:n], self._P[:n, :n]
-        j = self._slot[landmark_id]
-        cols = [0, 1, 2, j, j + 1]
-        z_pred = measure(x[:3], x[j : j + 2])
-        self._require_range(landmark_id, z_pred)
-        z_D_pose, z_D_landmark = measurement_jacobians(x[:3], x[j : j + 2])
-        H = np.hstack([z_D_pose, z_D_landmark])  # the 5 non-zero columns, 2x5
-        PHt = P[:, cols] @ H.T  # n x 2: a gather of 5 columns instead of P @ H_full^T
-        S = H @ PHt[cols] + self._R
-        nu = z - z_pred
-        nu[0] = wrap_angle(nu[0])  # bearings near +-pi must not jump by 2 pi
-        nis = self._correct(PHt, S, nu)
-        return z_pred, nu, S, nis
+        # take() gathers from the contiguous buffer: on a view it would copy all of P first
+        P_buffer = self._P
+        spare = P_buffer.shape[0] > n
+        r00, r11 = self._r
+        defer = n >= DEFER_MIN_DIM
+        U = np.empty((2 * min(len(known), DEFER_LANDMARKS), n)) if defer else x[None]
+        rank = 0  # rows of U in use: P_current = P - U[:rank]^T U[:rank]
+        for k in known:
+            landmark_id = ids[k]
+            j = self._slot[landmark_id]
+            rows = self._rows.get(j)
+            if rows is None:
+                rows = self._rows[j] = np.array((0, 1, 2, j, j + 1))
+            px, py, theta, lx, ly = x[rows].tolist()
+            dx, dy = lx - px, ly - py
+            q = dx * dx + dy * dy
+            rng = math.sqrt(q)
+            # the measurement Jacobian divides by the range: undefined at the landmark
+            if not rng > 1e-9:
+                raise FilterError(f"landmark {landmark_id} is predicted at zero range")
+            bearing = math.remainder(math.atan2(dy, dx) - theta, _TWO_PI)  # wrap_angle, inlined
+            if bearing == -math.pi:
+                bearing = math.pi
+            e, f, g, h = dy / q, dx / q, dx / rng, dy / rng
+            H = np.array(((e, -f, -1.0, -e, f), (-g, -h, 0.0, g, h)))  # its 5 columns
+            # ndarray methods (take, dot) cost about half of indexing and @ at small n
+            P_c = P_buffer.take(rows, 0)  # the rows c of P (5 x capacity)
+            HP = H.dot(P_c[:, :n] if spare else P_c)
+            if rank:
+                HP -= H.dot(U[:rank].take(rows, 1).T).dot(U[:rank])
+            # S = H P_cc H^T + R from the 5 columns of H P, in floats: H is (e, -f, -1, -e, f)
+            # over (-g, -h, 0, g, h)
+            (a0, a1, a2, a3, a4), (b0, b1, _, b3, b4) = HP.take(rows, 1).tolist()
+            s00 = e * (a0 - a3) - f * (a1 - a4) - a2 + r00
+            s01 = g * (a3 - a0) + h * (a4 - a1)
+            s11 = g * (b3 - b0) + h * (b4 - b1) + r11
+            z_bearing, z_range = z[k]
+            nu0 = math.remainder(z_bearing - bearing, _TWO_PI)  # no jump of 2 pi near +-pi
+            nu1 = z_range - rng
+            # Cholesky of the 2x2 S in floats; "not >" also catches NaN
+            l00 = math.sqrt(s00) if s00 > 0.0 else 0.0
+            l10 = s01 / l00 if l00 > 0.0 else 0.0
+            d11 = s11 - l10 * l10
+            if not (l00 > 0.0 and d11 > 0.0):
+                raise FilterError("innovation covariance S is not positive definite")
+            l11 = math.sqrt(d11)
+            w0 = nu0 / l00
+            w1 = (nu1 - l10 * w0) / l11
+            if not math.isfinite(w0 + w1):
+                raise FilterError("the state became non-finite in update")
+            i00, i11 = 1.0 / l00, 1.0 / l11
+            i10 = -l10 * i00 * i11
+            # rows: A = L^-1 H P, then (S^-1 nu)^T H P = w^T A, the change of x
+            B = np.array(((i00, 0.0), (i10, i11), (w0 * i00 + w1 * i10, w1 * i11))).dot(HP)
+            np.add(x, B[2], out=x)
+            if defer:
+                U[rank : rank + 2] = B[:2]
+                rank += 2
+                if rank == U.shape[0]:
+                    self._subtract_gram(U)
+                    rank = 0
+            else:
+                A = B[:2]  # C-contiguous: np.dot takes A^T A as a symmetric rank-k update
+                P -= A.T.dot(A)
+            table[k] = (bearing, rng, nu0, nu1, s00, s01, s01, s11, w0 * w0 + w1 * w1)
+        if rank:
+            self._subtract_gram(U[:rank])
+        x[2] = wrap_angle(float(x[2]))  # once per line: the bearings above are wrapped
 
     def _update_joint(
         self,
-        ids: IntArray,
+        ids: list[int],
         z: FloatArray,
-        known: IntArray,
-        z_pred: FloatArray,
-        innovation: FloatArray,
-        S_out: FloatArray,
-        nis_out: FloatArray,
+        known: Sequence[int],
+        table: list[tuple[float, ...]],
     ) -> None:
-        """EKF update with all known landmarks of a line at once (stacked H, one solve)."""
-        n = self._n
-        x, P = self._x[:n], self._P[:n, :n]
-        m = known.size
-        cols = [0, 1, 2]
-        H = np.zeros((2 * m, 3 + 2 * m))
-        nu = np.empty(2 * m)
-        for row, k in enumerate(known):
-            j = self._slot[int(ids[k])]
-            cols += [j, j + 1]
-            z_pred[k] = measure(x[:3], x[j : j + 2])
-            self._require_range(int(ids[k]), z_pred[k])
-            z_D_pose, z_D_landmark = measurement_jacobians(x[:3], x[j : j + 2])
-            H[2 * row : 2 * row + 2, :3] = z_D_pose
-            H[2 * row : 2 * row + 2, 3 + 2 * row : 5 + 2 * row] = z_D_landmark
-            innovation[k] = z[k] - z_pred[k]
-            innovation[k, 0] = wrap_angle(innovation[k, 0])
-            nu[2 * row : 2 * row + 2] = innovation[k]
-        PHt = P[:, cols] @ H.T  # n x 2m
-        S = H @ PHt[cols] + np.kron(np.eye(m), self._R)
-        for row, k in enumerate(known):
-            S_k = S[2 * row : 2 * row + 2, 2 * row : 2 * row + 2]
-            S_out[k] = S_k
-            nis_out[k] = float(innovation[k] @ np.linalg.solve(S_k, innovation[k]))
-        self._correct(PHt, S, nu)
+        """EKF update with all known landmarks of a line at once (stacked H, one solve).
 
-    def _correct(self, PHt: FloatArray, S: FloatArray, nu: FloatArray) -> float:
-        """Apply x += K nu and P -= K S K^T given P H^T (n x k), S (k x k) and nu; O(N^2).
-
-        With S = L L^T (Cholesky) and A = L^-1 (P H^T)^T, K nu = A^T L^-1 nu and
-        K S K^T = A^T A. S^-1 is never formed, and A^T A is exactly symmetric (numpy
-        computes a product with its own transpose as a symmetric rank-k update), so P
-        stays exactly symmetric. The 2x2 case of a single landmark is written out in
-        scalars: at small N the filter's time goes to numpy call overhead, not flops.
-
-        :return: the NIS nu^T S^-1 nu
+        H (2m x n) has its non-zero columns in (0, 1, 2) and the landmarks' own pairs;
+        H P gathers those rows of P. With S = L L^T, A = L^-1 H P (2m x n) and
+        w = L^-1 nu: x += A^T w, P -= A^T A (one blocked pass, exactly symmetric).
         """
         n = self._n
-        if S.shape == (2, 2):
-            A, w = _whiten_2x2(PHt, S, nu)
-        else:
-            S = 0.5 * (S + S.T)
-            try:
-                L = np.linalg.cholesky(S)
-            except np.linalg.LinAlgError as error:
-                raise FilterError("innovation covariance S is not positive definite") from error
-            A = np.linalg.solve(L, PHt.T)
-            w = np.linalg.solve(L, nu)
-        self._x[:n] += w @ A
-        self._x[2] = wrap_angle(self._x[2])
-        self._P[:n, :n] -= A.T @ A
-        return float(w @ w)
+        x = self._x[:n]
+        m = len(known)
+        slots = np.array([self._slot[ids[k]] for k in known], dtype=np.int64)
+        rows = np.concatenate(([0, 1, 2], np.column_stack([slots, slots + 1]).ravel()))
+        px, py, theta = x[:3].tolist()
+        dx, dy = x[slots] - px, x[slots + 1] - py
+        q = dx * dx + dy * dy
+        rng = np.sqrt(q)
+        too_close = np.flatnonzero(~(rng > 1e-9))
+        if too_close.size:
+            landmark_id = ids[known[int(too_close[0])]]
+            raise FilterError(f"landmark {landmark_id} is predicted at zero range")
+        z_pred = np.column_stack([wrap_angles(np.arctan2(dy, dx) - theta), rng])
+        nu = z[known] - z_pred
+        nu[:, 0] = wrap_angles(nu[:, 0])
+        e, f, g, h = dy / q, dx / q, dx / rng, dy / rng
+        H = np.zeros((2 * m, 3 + 2 * m))
+        H[0::2, :3] = np.column_stack([e, -f, -np.ones(m)])
+        H[1::2, 0] = -g
+        H[1::2, 1] = -h
+        landmark_cols = 3 + 2 * np.arange(m)
+        H[2 * np.arange(m), landmark_cols] = -e
+        H[2 * np.arange(m), landmark_cols + 1] = f
+        H[2 * np.arange(m) + 1, landmark_cols] = g
+        H[2 * np.arange(m) + 1, landmark_cols + 1] = h
+        HP = H @ self._P[rows, :n]
+        S = HP[:, rows] @ H.T
+        S[np.diag_indices(2 * m)] += np.tile(self._r, m)
+        S = 0.5 * (S + S.T)
+        try:
+            L = np.linalg.cholesky(S)
+        except np.linalg.LinAlgError as error:
+            raise FilterError("innovation covariance S is not positive definite") from error
+        A = np.asarray(np.linalg.solve(L, HP), dtype=np.float64)
+        w = np.linalg.solve(L, nu.ravel())
+        if not np.isfinite(w).all():
+            raise FilterError("the state became non-finite in update")
+        x += w @ A
+        x[2] = wrap_angle(float(x[2]))
+        self._subtract_gram(A)
+        blocks = S.reshape(m, 2, m, 2)[np.arange(m), :, np.arange(m), :]  # (m, 2, 2)
+        nis = np.einsum("ki,ki->k", nu, np.linalg.solve(blocks, nu[:, :, None])[:, :, 0])
+        for row, k in enumerate(known):
+            table[k] = (*z_pred[row].tolist(), *nu[row].tolist(), *blocks[row].ravel().tolist(),
+                        float(nis[row]))  # fmt: skip
+
+    def _subtract_gram(self, U: FloatArray) -> None:
+        """P -= U^T U for U (r x n), in place, in one pass over P, exactly symmetric.
+
+        A plain ``P -= U.T @ U`` builds an n x n temporary and reads P twice. Here P goes by
+        strips of rows: the diagonal block gets numpy's symmetric rank-k product, the
+        block right of it a plain product, and the block below it is then copied as the
+        transpose of the one to its right, so that P[i, j] and P[j, i] are the same float
+        whatever the BLAS does.
+        """
+        n = U.shape[1]
+        P = self._P
+        if n <= GRAM_STRIP_ROWS:
+            P[:n, :n] -= U.T @ U
+            return
+        for i0 in range(0, n, GRAM_STRIP_ROWS):
+            i1 = min(i0 + GRAM_STRIP_ROWS, n)
+            U_i = U[:, i0:i1]
+            P[i0:i1, i0:i1] -= U_i.T @ U_i
+            if i1 < n:
+                right = P[i0:i1, i1:n]
+                right -= U_i.T @ U[:, i1:]
+                P[i1:n, i0:i1] = right.T
 
     # -- landmark initialisation -------------------------------------------------------
 
@@ -308,56 +466,31 @@ class EkfSlam:
         P[: self._n, : self._n] = self._P[: self._n, : self._n]
         self._x, self._P = x, P
 
-    def _add_landmark(self, landmark_id: int, z: FloatArray) -> None:
+    def _add_landmark(self, landmark_id: int, z: Sequence[float]) -> None:
         """Append a landmark seen for the first time at ``z`` = (bearing, range).
 
         P_ll = J_p P_pp J_p^T + J_z R J_z^T and, unless the simplified variant is asked
         for, P_l,all = J_p P_p,all: the cross-covariances with the pose and with every
         landmark already mapped.
         """
+        if not math.isfinite(z[0] + z[1]):
+            raise FilterError("the state became non-finite in update")
         self._reserve(1)
         n = self._n
         x, P = self._x, self._P
-        l_D_pose, l_D_z = landmark_init_jacobians(x[:3], z)
-        x[n : n + 2] = landmark_from_measurement(x[:3], z)
+        z_arr = np.asarray(z, dtype=np.float64)
+        l_D_pose, l_D_z = landmark_init_jacobians(x[:3], z_arr)
+        x[n : n + 2] = landmark_from_measurement(x[:3], z_arr)
         P_ll = l_D_pose @ P[:3, :3] @ l_D_pose.T + l_D_z @ self._R @ l_D_z.T
         if self.params.landmark_init is LandmarkInit.CORRELATED:
             P_lx = l_D_pose @ P[:3, :n]
+            P[n : n + 2, :n] = P_lx
+            P[:n, n : n + 2] = P_lx.T
         else:
-            P_lx = np.zeros((2, n))
-        P[n : n + 2, :n] = P_lx
-        P[:n, n : n + 2] = P_lx.T
+            P[n : n + 2, :n] = 0.0
+            P[:n, n : n + 2] = 0.0
         P[n : n + 2, n : n + 2] = 0.5 * (P_ll + P_ll.T)
         self._slot[landmark_id] = n
         self._ids.append(landmark_id)
+        self._ids_array = None
         self._n = n + 2
-
-    @staticmethod
-    def _require_range(landmark_id: int, z_pred: FloatArray) -> None:
-        # The measurement Jacobian divides by the range: undefined at the landmark itself.
-        if not z_pred[1] > 1e-9:
-            raise FilterError(f"landmark {landmark_id} is predicted at zero range")
-
-    def _check_finite(self, where: str) -> None:
-        n = self._n
-        if not (np.isfinite(self._x[:n]).all() and math.isfinite(float(self._P[:3, :3].sum()))):
-            raise FilterError(f"the state became non-finite in {where}")
-
-
-def _whiten_2x2(PHt: FloatArray, S: FloatArray, nu: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """L^-1 (P H^T)^T (2 x n) and L^-1 nu (2,) for S = L L^T, with the Cholesky in scalars."""
-    (s00, s01), (s10, s11) = S.tolist()
-    s01 = 0.5 * (s01 + s10)
-    l00 = math.sqrt(s00) if s00 > 0.0 else math.nan
-    l10 = s01 / l00
-    d = s11 - l10 * l10
-    if not (s00 > 0.0 and d > 0.0):  # also catches NaN
-        raise FilterError("innovation covariance S is not positive definite")
-    l11 = math.sqrt(d)
-    A = PHt.T.copy()
-    A[0] /= l00
-    A[1] -= l10 * A[0]
-    A[1] /= l11
-    nu0, nu1 = nu.tolist()
-    w0 = nu0 / l00
-    return A, np.array([w0, (nu1 - l10 * w0) / l11])

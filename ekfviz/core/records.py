@@ -126,12 +126,11 @@ def landmark_marginals(P: FloatArray, n_landmarks: int) -> FloatArray:
 
     :return: (N, 2, 2) array of marginal covariances
     """
-    i = 3 + 2 * np.arange(n_landmarks)
-    covs = np.empty((n_landmarks, 2, 2))
-    covs[:, 0, 0] = P[i, i]
-    covs[:, 0, 1] = P[i, i + 1]
-    covs[:, 1, 0] = P[i + 1, i]
-    covs[:, 1, 1] = P[i + 1, i + 1]
+    # P[3:, 3:] viewed as (N, 2, N, 2) blocks: its (i, :, i, :) diagonal, without a copy of P
+    blocks = P[3 : 3 + 2 * n_landmarks, 3 : 3 + 2 * n_landmarks].reshape(
+        n_landmarks, 2, n_landmarks, 2
+    )
+    covs: FloatArray = np.diagonal(blocks, axis1=0, axis2=2).transpose(2, 0, 1).copy()
     return covs
 
 
@@ -140,7 +139,7 @@ ArrayT = TypeVar("ArrayT", bound=np.ndarray)
 
 def frozen(array: ArrayT) -> ArrayT:
     """Make an array read-only so that a record cannot be changed after the fact."""
-    array.flags.writeable = False
+    array.setflags(write=False)
     return array
 
 
@@ -174,15 +173,16 @@ def snapshot(
         )
     if landmark_ids is None:
         landmark_ids = np.arange(1, n_landmarks + 1, dtype=np.int64)
+    mean = frozen(np.array(x, dtype=np.float64))  # pose and landmarks: views of one copy
     return EventRecord(
         event=event,
         step=step,
         kind=kind,
         line=line,
-        pose=frozen(np.array(x[:3], dtype=np.float64)),
+        pose=mean[:3],
         pose_cov=frozen(np.array(P[:3, :3], dtype=np.float64)),
         landmark_ids=frozen(np.array(landmark_ids, dtype=np.int64)),
-        landmarks_xy=frozen(np.array(x[3:], dtype=np.float64).reshape(n_landmarks, 2)),
+        landmarks_xy=mean[3:].reshape(n_landmarks, 2),
         landmark_covs=frozen(landmark_marginals(P, n_landmarks)),
         control=None if control is None else frozen(np.array(control, dtype=np.float64)),
         observations=observations,
