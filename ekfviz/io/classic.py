@@ -7,6 +7,7 @@ control (d, alpha) and a line of 2k numbers an observation of the same k landmar
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
@@ -75,17 +76,19 @@ def read_classic(
 def _sighting(
     path: Path, line: int, ids: IntArray, values: list[float], wrap: BearingWrapper
 ) -> Sighting:
-    z = np.array(values, dtype=np.float64).reshape(-1, 2)
-    bad = np.flatnonzero(z[:, 1] <= 0.0)
-    if bad.size:
-        i = int(bad[0])
+    # checks on the floats first: numpy's per-call cost would dominate on a short line
+    if min(values[1::2]) <= 0.0:
+        i = next(i for i, r in enumerate(values[1::2]) if r <= 0.0)
         raise InputError(
             path,
             line,
             f"found range {values[2 * i + 1]:g} for landmark {int(ids[i])},"
             " expected a positive range",
         )
-    z[:, 0] = wrap(line, z[:, 0])
+    z = np.array(values, dtype=np.float64).reshape(-1, 2)
+    bearings = values[0::2]
+    if max(bearings) > math.pi or min(bearings) <= -math.pi:
+        z[:, 0] = wrap(line, z[:, 0])
     return Sighting(line=line, ids=ids, z=z)
 
 

@@ -12,6 +12,7 @@ from ekfviz.core.types import FloatArray
 from ekfviz.io.errors import InputError
 
 _NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
+_NUMBERS = re.compile(rf"{_NUMBER.pattern}(?: {_NUMBER.pattern})*")  # tokens joined by spaces
 _NON_FINITE = re.compile(r"[-+]?(?:nan|inf|infinity)", re.IGNORECASE)
 
 ProgressCallback = Callable[[int], None]
@@ -74,6 +75,12 @@ def numeric_lines(
         decimal number
     """
     for number, tokens in token_lines(path, progress):
+        # one regex match a line for the usual case; token by token to name a bad one
+        if _NUMBERS.fullmatch(" ".join(tokens)):
+            values = list(map(float, tokens))
+            if all(map(math.isfinite, values)):
+                yield number, values
+                continue
         yield number, [parse_number(path, number, token) for token in tokens]
 
 
