@@ -274,6 +274,15 @@ def replay(
             rich_help_panel="Rerun output",
         ),
     ] = None,
+    detail: Annotated[
+        bool,
+        typer.Option(
+            "--detail",
+            help="Log every landmark's ellipse at every update, even in a large map"
+            " (by default a map of over 32 landmarks is logged whole every 25 steps).",
+            rich_help_panel="Rerun output",
+        ),
+    ] = False,
 ) -> None:
     """Replay a log through EKF-SLAM, record it for Rerun and print the evaluation.
 
@@ -305,7 +314,7 @@ def replay(
         )
         with (
             open_progress(data) as progress,
-            viz.open_run(info, sinks) as logger,
+            viz.open_run(info, sinks, detail=detail) as logger,
             signals_as_exceptions(),
         ):
             last: EventRecord | None = None

@@ -17,7 +17,7 @@ from conftest import entity_rows
 from ekfviz import __version__, viz
 from ekfviz.core.evaluation import GroundTruth, evaluate
 from ekfviz.core.filter import FilterParams
-from ekfviz.core.records import EventKind, EventRecord, LogEvent
+from ekfviz.core.records import EventKind, EventRecord, LogEvent, Sighting
 from ekfviz.core.replay import replay
 from ekfviz.io.classic import format_classic
 from ekfviz.sim.simulate import CLASSIC_LANDMARKS_XY, classic_controls, simulate
@@ -359,3 +359,64 @@ def test_200_landmarks_are_one_batch(tmp_path: Path) -> None:
         logger.finish(evaluate(records[-1], info.truth))
     (row,) = entity_rows(tmp_path / "out.rrd", f"/{style.LANDMARKS}")[-1:]
     assert len(points(row, "Points2D:positions")) == 200
+
+
+def large_map_run(tmp_path: Path, detail: bool) -> tuple[Path, tuple[EventRecord, ...]]:
+    """40 landmarks, 5 of them seen per step in turn, with truth: more than a small map."""
+    rng = np.random.default_rng(40)
+    landmarks = rng.uniform(-20.0, 20.0, size=(40, 2))
+    sim = simulate(np.tile([[1.0, 0.1]], (60, 1)), landmarks, seed=40)
+    events: list[LogEvent] = [sim.events[0]]
+    for k, event in enumerate(sim.events[1:]):
+        if isinstance(event, Sighting):
+            pick = (5 * k + np.arange(5)) % 40
+            event = Sighting(event.line, event.ids[pick], event.z[pick])
+        events.append(event)
+    records = tuple(replay(events))
+    truth = GroundTruth(np.arange(1, 41), landmarks)
+    log = write_log(tmp_path / "large.txt", sim.events)  # the input document only
+    info = viz.run_info("large", "", {}, log, truth=truth)
+    rrd = tmp_path / f"large_{detail}.rrd"
+    with viz.open_run(info, viz.Sinks(save=rrd), detail=detail) as logger:
+        for record in records:
+            logger.log(record)
+        logger.finish(evaluate(records[-1], truth))
+    return rrd, records
+
+
+def test_a_large_map_is_logged_whole_every_k_steps_and_its_observed_ellipses_always(
+    tmp_path: Path,
+) -> None:
+    from ekfviz.viz.recorder import MAP_EVERY_STEPS
+
+    rrd, records = large_map_run(tmp_path, detail=False)
+    updates = [r for r in records if r.kind is not EventKind.PREDICT]
+    every_k = [r.event for r in updates if r.step % MAP_EVERY_STEPS == 0]
+    rows = entity_rows(rrd, f"/{style.LANDMARK_ELLIPSES}")
+    assert [row["event"] for row in rows] == [*every_k, updates[-1].event]  # and at the end
+    by_event = {r.event: r for r in records}
+    for row in rows:
+        assert (
+            row["LineStrips2D:class_ids"] == by_event[int(str(row["event"]))].landmark_ids.tolist()
+        )
+    observed = entity_rows(rrd, f"/{style.LANDMARK_ELLIPSES_OBSERVED}")
+    assert [row["event"] for row in observed] == [r.event for r in updates]
+    for row in observed:
+        record = by_event[int(str(row["event"]))]
+        assert record.observations is not None
+        expected = [] if row["event"] in every_k else sorted(record.observations.ids.tolist())
+        assert sorted(np.asarray(row["LineStrips2D:class_ids"]).tolist()) == expected
+    # a landmark's error series: at its sightings and the whole map's, and at the end
+    error = entity_rows(rrd, f"/{style.LANDMARK_ERROR}/7")
+    assert error[-1]["event"] == records[-1].event
+    assert len(error) < len(updates) / 2
+
+
+def test_detail_logs_every_ellipse_at_every_update(tmp_path: Path) -> None:
+    rrd, records = large_map_run(tmp_path, detail=True)
+    updates = [r for r in records if r.kind is not EventKind.PREDICT]
+    rows = entity_rows(rrd, f"/{style.LANDMARK_ELLIPSES}")
+    assert [row["event"] for row in rows] == [r.event for r in updates]
+    assert all(np.asarray(row["LineStrips2D:class_ids"]).shape == (40,) for row in rows)
+    assert entity_rows(rrd, f"/{style.LANDMARK_ELLIPSES_OBSERVED}") == []
+    assert len(entity_rows(rrd, f"/{style.LANDMARK_ERROR}/7")) == len(updates)

@@ -18,20 +18,34 @@ numpy arrays in the classic layout x = [x, y, theta, l1x, l1y, ...] (``initialis
 
 Every call sets both timelines: ``step`` (0 at the initialisation, +1 per predict, or
 per update when the step already had one) and ``event`` (+1 per call). Styling is
-logged once as static data; metric series are buffered and sent in columns.
+logged once as static data. Everything else is buffered and sent in columns
+(``send_columns``) every ``FLUSH_EVERY`` events and at ``finish``: a ``rec.log`` per
+entity and event would cost more than the filter itself.
+
+What is logged when, by default: the robot, its ellipses, the observation rays, all
+landmark positions and a log line at every event. The 3-sigma ellipses of all landmarks
+at every update while the map holds at most ``SMALL_MAP`` landmarks; beyond that, at
+every update only those of the landmarks observed (``world/landmarks/ellipses/observed``)
+and the whole map every ``MAP_EVERY_STEPS`` steps and at the end (the viewer shows the
+latest of each, so every landmark keeps an ellipse at any time). With truth, the error
+series of a landmark get a value whenever its ellipse is logged. ``detail=True`` logs
+every ellipse and error at every update.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+import pyarrow as pa  # type: ignore[import-untyped]
 import rerun as rr
 import rerun.blueprint as rrb
 
-from ekfviz.core.consistency import chi2_bounds, pose_nees, update_nis
+from ekfviz.core.consistency import chi2_bounds, pose_nees
 from ekfviz.core.evaluation import Evaluation, GroundTruth, landmark_errors
 from ekfviz.core.models import wrap_angles
 from ekfviz.core.records import EventKind, EventRecord, Observations, snapshot
@@ -40,7 +54,10 @@ from ekfviz.viz import style
 from ekfviz.viz.blueprint import default_blueprint
 from ekfviz.viz.ellipses import ellipse_outlines, outline_points
 
-FLUSH_EVERY = 1024  # events between two sends of the buffered metric series
+FLUSH_EVERY = 256  # events between two sends of the buffered data: one chunk each
+FLUSH_LANDMARKS = 1 << 20  # ... or sooner, once the buffered records hold this many landmarks
+SMALL_MAP = 32  # up to this many landmarks, every ellipse at every update
+MAP_EVERY_STEPS = 25  # beyond: the whole map every this many steps
 FLUSH_TIMEOUT_S = 30.0  # how long finish() waits for a slow or absent viewer
 MAX_CLASS_ID = 65535  # Rerun class ids are u16
 HEADING_LENGTH = 1.0  # metres
@@ -50,9 +67,53 @@ def _radius(ui_points: float) -> npt.ArrayLike:
     return rr.Radius.ui_points(ui_points)
 
 
-def _f32(strips: FloatArray) -> npt.NDArray[np.float32]:
-    """(K, n, 2) polylines in Rerun's own precision (saves a conversion in the SDK)."""
-    return strips.astype(np.float32)
+def _strips(polylines: FloatArray) -> Any:
+    """(K, n, 2) polylines as Rerun's line strips, in its own float32.
+
+    Built as the Arrow array Rerun would make, with offsets from numpy: the SDK's own
+    conversion walks the strips in Python, which costs more than the rest of logging
+    them. Falls back to the SDK's conversion should its Arrow type ever be unknown.
+    """
+    points = polylines.astype(np.float32)
+    strip_type = getattr(rr.components.LineStrip2DBatch, "_ARROW_DATATYPE", None)
+    if strip_type is None:
+        return points
+    k, n = points.shape[:2]
+    values = pa.FixedSizeListArray.from_arrays(
+        pa.array(points.reshape(-1)), type=strip_type.value_type
+    )
+    offsets = pa.array(
+        np.arange(0, (k + 1) * n, n, dtype=np.int32) if n else np.zeros(k + 1, np.int32)
+    )
+    return pa.ListArray.from_arrays(offsets, values, type=strip_type)
+
+
+_NO_ROWS: IntArray = np.zeros(0, dtype=np.int64)
+
+
+@dataclass(frozen=True, slots=True)
+class _Rows:
+    """The step and event of each buffered record, to pick the time columns of a send."""
+
+    steps: IntArray
+    events: IntArray
+
+    @property
+    def all(self) -> tuple[IntArray, IntArray]:
+        return self.steps, self.events
+
+    def pick(self, rows: Sequence[int] | IntArray) -> tuple[IntArray, IntArray]:
+        index = np.asarray(rows, dtype=np.int64)
+        return self.steps[index], self.events[index]
+
+
+def _landmark_rows(record: EventRecord, which: str | None) -> IntArray:
+    """Rows of ``record``'s landmarks: all (None), the observed or the initialised ones."""
+    if which is None or record.observations is None:
+        return np.arange(record.n_landmarks)
+    observations = record.observations
+    ids = observations.ids if which == "observed" else observations.ids[observations.initialised]
+    return np.flatnonzero(np.isin(record.landmark_ids, ids))
 
 
 class _Entities:
@@ -124,6 +185,8 @@ class Recorder:
     :param heading_length: length in metres of the robot's heading arrow
     :param prefix: entity path under which to log everything (e.g. ``variants/a``), so
         that several runs share one recording; the default layout then does not fit
+    :param detail: log every landmark's ellipse (and, with truth, its errors) at every
+        update, however large the map (see the module for what is logged otherwise)
     """
 
     def __init__(
@@ -136,16 +199,27 @@ class Recorder:
         run_documents: bool = False,
         heading_length: float = HEADING_LENGTH,
         prefix: str = "",
+        detail: bool = False,
     ) -> None:
         self._rec = _Entities(rec, prefix)
+        self._detail = detail
         self._truth = truth
         self._heading_length = heading_length
         self._order: list[int] = [int(i) for i in landmark_ids] if landmark_ids else []
         self._in_order: set[int] = set(self._order)
         self._seen: set[int] = set()  # ids observed so far through the array API
-        self._annotated: set[int] = set()
+        # landmark classes (see _annotate): ids 0.._class_top and _class_extra are logged
+        self._class_top = -1
+        self._class_extra: set[int] = set()
+        self._class_pending: set[int] = set()
+        self._class_count = 0
         self._series = _SeriesBuffer(self._rec)
-        self._since_flush = 0
+        # records not sent yet, each with whether it logs the whole map's ellipses
+        self._pending: list[tuple[EventRecord, bool]] = []
+        self._pending_landmarks = 0
+        self._map_step: int | None = None  # step of the last update that logged the whole map
+        self._last_update: tuple[EventRecord, bool] | None = None
+        self._last_ids: IntArray | None = None  # landmark ids of the last update, annotated
         self._event = 0
         self._step = 0
         self._step_has_update = True  # the initialisation counts as step 0's update
@@ -241,10 +315,20 @@ class Recorder:
         )  # fmt: skip
 
     def finish(self, evaluation: Evaluation | None = None) -> None:
-        """Send the buffered series, the evaluation document if given, the layout framing
-        the whole run, and flush."""
+        """Send the buffered data, the whole map at the last update, the evaluation document
+        if given, the layout framing the whole run, and flush."""
+        self._send_pending()
+        if self._class_pending:
+            self._log_classes()
+        if self._last_update is not None and not self._last_update[1]:
+            record = self._last_update[0]
+            self._last_update = (record, True)
+            self._log_landmark_errors(record, None)
+            rows = _Rows(np.array([record.step]), np.array([record.event]))
+            self._send_ellipses(
+                style.LANDMARK_ELLIPSES, rows, [(0, record, _landmark_rows(record, None))]
+            )
         self._series.flush()
-        self._since_flush = 0
         if evaluation is not None:
             self._rec.log(
                 style.RUN_EVALUATION,
@@ -257,6 +341,7 @@ class Recorder:
 
     def note(self, text: str, level: str | rr.TextLogLevel = rr.TextLogLevel.WARN) -> None:
         """A line in the text log at the latest event: a warning, or why a run stopped."""
+        self._send_pending()
         self._rec.set_time(style.STEP, sequence=self._step)
         self._rec.set_time(style.EVENT, sequence=self._event)
         self._rec.log(style.LOG, rr.TextLog(text, level=level))
@@ -276,78 +361,228 @@ class Recorder:
 
     def log_record(self, record: EventRecord) -> None:
         """Log one record of the core: the map, the metrics and a line of text."""
-        rec = self._rec
         self._event, self._step = record.event, record.step
         self._step_has_update = record.kind is not EventKind.PREDICT
-        rec.set_time(style.STEP, sequence=record.step)
-        rec.set_time(style.EVENT, sequence=record.event)
-
-        xy = record.pose[:2]
-        theta = float(record.pose[2])
-        rec.log(style.ROBOT, rr.Points2D(xy[None]))
-        heading = self._heading_length * np.array([[np.cos(theta), np.sin(theta)]])
-        rec.log(style.HEADING, rr.Arrows2D(origins=xy[None], vectors=heading))
-        if self._last_xy is not None:
-            rec.log(style.TRAJECTORY, rr.LineStrips2D(_f32(np.stack([self._last_xy, xy])[None])))
-        self._last_xy = np.array(xy)
-        self._grow_bounds(xy[None])
-        if record.n_landmarks:
-            self._grow_bounds(record.landmarks_xy)
-
-        pose_outline = ellipse_outlines(xy[None], record.pose_cov[None, :2, :2])
-        if record.kind is EventKind.PREDICT:
-            rec.log(style.POSE_PREDICTED, rr.LineStrips2D(_f32(pose_outline)))
-            rec.log(style.OBSERVATIONS, rr.LineStrips2D([]))
-        else:
-            rec.log(style.POSE_UPDATED, rr.LineStrips2D(_f32(pose_outline)))
-            self._log_landmarks(record)
-
-        self._log_metrics(record)
-        rec.log(style.LOG, rr.TextLog(self._describe(record), level=rr.TextLogLevel.INFO))
-        self._since_flush += 1
-        if self._since_flush >= FLUSH_EVERY:
+        whole_map = False
+        if record.kind is not EventKind.PREDICT:
+            ids = record.landmark_ids
+            # the core's records share one ids array until the map grows
+            if ids is not self._last_ids and (
+                self._last_ids is None or not np.array_equal(ids, self._last_ids)
+            ):
+                self._annotate(ids)
+                self._last_ids = ids
+            whole_map = (
+                self._detail
+                or record.n_landmarks <= SMALL_MAP
+                or self._map_step is None
+                or record.step - self._map_step >= MAP_EVERY_STEPS
+            )
+            if whole_map:
+                self._map_step = record.step
+            self._last_update = (record, whole_map)
+        if self._truth is not None:
+            self._log_metrics(record, whole_map)
+        self._pending.append((record, whole_map))
+        self._pending_landmarks += len(record.landmark_ids)
+        if len(self._pending) >= FLUSH_EVERY or self._pending_landmarks >= FLUSH_LANDMARKS:
+            self._send_pending()
             self._series.flush()
-            self._since_flush = 0
 
-    def _log_landmarks(self, record: EventRecord) -> None:
-        rec = self._rec
-        ids = record.landmark_ids
-        self._annotate(ids)
-        class_ids = ids if self._has_class_ids(ids) else None
-        labels = None if class_ids is not None else [f"L{i}" for i in ids.tolist()]
-        rec.log(
-            style.LANDMARKS,
-            rr.Points2D(record.landmarks_xy, class_ids=class_ids, labels=labels),
-        )
-        n_points = outline_points(record.n_landmarks)
-        outlines = ellipse_outlines(record.landmarks_xy, record.landmark_covs, n_points=n_points)
-        rec.log(
-            style.LANDMARK_ELLIPSES,
-            rr.LineStrips2D(_f32(outlines), class_ids=class_ids),
-        )
-
-        observations = record.observations
-        if observations is None or len(observations) == 0:
-            rec.log(style.OBSERVATIONS, rr.LineStrips2D([]))
+    def _send_pending(self) -> None:
+        """Send the buffered records: one column per entity (see the module for what)."""
+        pending = self._pending
+        if not pending:
             return
-        bearing_world = record.pose[2] + observations.z[:, 0]
-        seen_xy = record.pose[:2] + observations.z[:, 1:2] * np.column_stack(
-            [np.cos(bearing_world), np.sin(bearing_world)]
+        self._pending = []
+        self._pending_landmarks = 0
+        records = [record for record, _ in pending]
+        count = len(records)
+        rows = _Rows(
+            np.array([record.step for record in records], dtype=np.int64),
+            np.array([record.event for record in records], dtype=np.int64),
         )
-        rays = np.stack([np.broadcast_to(record.pose[:2], seen_xy.shape), seen_xy], axis=1)
-        rec.log(style.OBSERVATIONS, rr.LineStrips2D(_f32(rays)))
+        poses = np.stack([record.pose for record in records])
+        pose_covs = np.stack([record.pose_cov for record in records])
+        corrected = [k for k, record in enumerate(records) if record.kind is not EventKind.PREDICT]
+        predicted = [k for k, record in enumerate(records) if record.kind is EventKind.PREDICT]
 
-        if observations.initialised.any():
-            new_ids = observations.ids[observations.initialised]
-            rows = np.flatnonzero(np.isin(ids, new_ids))
-            initial = ellipse_outlines(
-                record.landmarks_xy[rows], record.landmark_covs[rows], n_points=n_points
+        # what each update did with its observations, summed in one go
+        seen = np.zeros(count, dtype=np.int64)
+        z, nis, initialised = [], [], []
+        for k in corrected:
+            observations = records[k].observations
+            if observations is not None:
+                seen[k] = len(observations)
+                z.append(observations.z)
+                nis.append(observations.nis)
+                initialised.append(observations.initialised)
+        nis_sum: FloatArray = np.zeros(count)
+        nis_used: IntArray = np.zeros(count, dtype=np.int64)
+        new: IntArray = np.zeros(count, dtype=np.int64)
+        if z:
+            owner = np.repeat(np.arange(count), seen)
+            nis_all = np.concatenate(nis)
+            used = np.isfinite(nis_all)
+            nis_sum = np.bincount(owner[used], weights=nis_all[used], minlength=count).astype(float)
+            nis_used = np.bincount(owner[used], minlength=count).astype(np.int64)
+            new = np.bincount(owner[np.concatenate(initialised)], minlength=count).astype(np.int64)
+
+        self._send(style.ROBOT, rows.all, rr.Points2D.columns(positions=poses[:, :2]))
+        heading = self._heading_length * np.column_stack([np.cos(poses[:, 2]), np.sin(poses[:, 2])])
+        self._send(
+            style.HEADING, rows.all, rr.Arrows2D.columns(origins=poses[:, :2], vectors=heading)
+        )
+        ends_xy = poses[:, :2]
+        starts_xy = np.vstack(
+            [ends_xy[:1] if self._last_xy is None else self._last_xy, ends_xy[:-1]]
+        )
+        first = 1 if self._last_xy is None else 0  # the very first event has no segment
+        if count > first:
+            segments = np.stack([starts_xy[first:], ends_xy[first:]], axis=1)
+            self._send(
+                style.TRAJECTORY,
+                rows.pick(range(first, count)),
+                rr.LineStrips2D.columns(strips=_strips(segments)),
             )
-            new_class_ids = ids[rows] if class_ids is not None else None
-            rec.log(
+        self._last_xy = ends_xy[-1].copy()
+        self._grow_bounds(ends_xy)
+        for path, picked in ((style.POSE_PREDICTED, predicted), (style.POSE_UPDATED, corrected)):
+            if picked:
+                outlines = ellipse_outlines(poses[picked, :2], pose_covs[picked, :2, :2])
+                self._send(
+                    path, rows.pick(picked), rr.LineStrips2D.columns(strips=_strips(outlines))
+                )
+        # rays from the robot to where each observation puts its landmark; an empty row at
+        # a predict clears the previous update's
+        rays = np.zeros((0, 2, 2))
+        if z:
+            pose = np.repeat(poses, seen, axis=0)
+            measured = np.concatenate(z)
+            bearing_world = pose[:, 2] + measured[:, 0]
+            seen_xy = pose[:, :2] + measured[:, 1:2] * np.column_stack(
+                [np.cos(bearing_world), np.sin(bearing_world)]
+            )
+            rays = np.stack([pose[:, :2], seen_xy], axis=1)
+        self._send(
+            style.OBSERVATIONS,
+            rows.all,
+            rr.LineStrips2D.columns(strips=_strips(rays)).partition(seen),
+        )
+
+        sigma = np.sqrt(np.diagonal(pose_covs, axis1=1, axis2=2))
+        for axis, name in enumerate(("x", "y", "theta")):
+            self._send(
+                f"{style.POSE_SIGMA}/{name}", rows.all, rr.Scalars.columns(scalars=sigma[:, axis])
+            )
+        with_nis = np.flatnonzero(nis_used)
+        if with_nis.size:  # with the chi-square bounds of 2 dof per landmark used
+            bounds = np.array([chi2_bounds(2 * int(used)) for used in nis_used[with_nis]])
+            for path, values in (
+                (style.NIS, nis_sum[with_nis]),
+                (f"{style.NIS}/{style.LOWER}", bounds[:, 0]),
+                (f"{style.NIS}/{style.UPPER}", bounds[:, 1]),
+            ):
+                self._send(path, rows.pick(with_nis), rr.Scalars.columns(scalars=values))
+
+        if corrected:
+            updates = [(k, records[k], pending[k][1]) for k in corrected]
+            self._send_landmarks(rows.pick(corrected), [record for _, record, _ in updates])
+            self._send_ellipses(
+                style.LANDMARK_ELLIPSES,
+                rows,
+                [
+                    (k, record, _landmark_rows(record, None))
+                    for k, record, whole in updates
+                    if whole
+                ],
+            )
+            # Beyond a small map: the observed landmarks' own ellipses at the updates between
+            # two of the whole map's (and an empty row, clearing them, at those).
+            self._send_ellipses(
+                style.LANDMARK_ELLIPSES_OBSERVED,
+                rows,
+                [
+                    (k, record, _NO_ROWS if whole else _landmark_rows(record, "observed"))
+                    for k, record, whole in updates
+                    if record.n_landmarks > SMALL_MAP and not self._detail
+                ],
+            )
+            self._send_ellipses(
                 style.LANDMARK_INITIAL,
-                rr.LineStrips2D(_f32(initial), class_ids=new_class_ids),
+                rows,
+                [
+                    (k, record, _landmark_rows(record, "initialised"))
+                    for k, record, _ in updates
+                    if new[k]
+                ],
             )
+        text = [
+            self._describe(record, int(seen[k]), int(new[k]), float(nis_sum[k]), int(nis_used[k]))
+            for k, record in enumerate(records)
+        ]
+        self._send(
+            style.LOG,
+            rows.all,
+            rr.TextLog.columns(text=text, level=[rr.TextLogLevel.INFO] * count),
+        )
+
+    def _send(self, entity: str, times: tuple[IntArray, IntArray], columns: Any) -> None:
+        """Send one column batch on both timelines: ``times`` = (steps, events) per row."""
+        self._rec.send_columns(
+            entity,
+            indexes=[
+                rr.TimeColumn(style.STEP, sequence=times[0]),
+                rr.TimeColumn(style.EVENT, sequence=times[1]),
+            ],
+            columns=columns,
+        )
+
+    def _send_landmarks(self, times: tuple[IntArray, IntArray], updates: list[EventRecord]) -> None:
+        """All landmark estimates at every update, one batch each, class id = landmark id."""
+        ids = np.concatenate([record.landmark_ids for record in updates])
+        positions = np.concatenate([record.landmarks_xy for record in updates])
+        counts = [record.n_landmarks for record in updates]
+        if len(positions):
+            self._grow_bounds(positions)
+        if self._has_class_ids(ids):
+            columns = rr.Points2D.columns(positions=positions, class_ids=ids)
+        else:
+            columns = rr.Points2D.columns(positions=positions, labels=[f"L{i}" for i in ids])
+        self._send(style.LANDMARKS, times, columns.partition(counts))
+
+    def _send_ellipses(
+        self, entity: str, rows: _Rows, batches: list[tuple[int, EventRecord, IntArray]]
+    ) -> None:
+        """3-sigma outlines of some landmarks of some updates, class id = landmark id.
+
+        :param batches: per row to send, its index in ``rows``, the update and the rows of
+            the landmarks to draw
+        """
+        if not batches:
+            return
+        counts = [len(picked) for _, _, picked in batches]
+        # one outline size per send, from the largest batch (see ellipses.outline_points)
+        n_points = outline_points(max(counts))
+        means, covs, ids = [], [], []
+        for _, record, picked in batches:
+            if len(picked) == record.n_landmarks:  # all of them: no copy
+                means.append(record.landmarks_xy)
+                covs.append(record.landmark_covs)
+                ids.append(record.landmark_ids)
+            else:
+                means.append(record.landmarks_xy[picked])
+                covs.append(record.landmark_covs[picked])
+                ids.append(record.landmark_ids[picked])
+        all_ids = np.concatenate(ids)
+        outlines = _strips(
+            ellipse_outlines(np.concatenate(means), np.concatenate(covs), n_points=n_points)
+        )
+        if self._has_class_ids(all_ids):
+            columns = rr.LineStrips2D.columns(strips=outlines, class_ids=all_ids)
+        else:
+            columns = rr.LineStrips2D.columns(strips=outlines, labels=[f"L{i}" for i in all_ids])
+        self._send(entity, rows.pick([k for k, _, _ in batches]), columns.partition(counts))
 
     def _grow_bounds(self, points_xy: FloatArray) -> None:
         box = np.stack([points_xy.min(axis=0), points_xy.max(axis=0)])
@@ -357,29 +592,32 @@ class Recorder:
             )
         self._bounds_xy = box
 
-    def _log_metrics(self, record: EventRecord) -> None:
+    def _log_metrics(self, record: EventRecord, whole_map: bool) -> None:
+        """The series that need the truth; the others go by columns (_send_metrics)."""
+        if self._truth is None or record.kind is EventKind.PREDICT:
+            return
+        nees = pose_nees(record, self._truth)
+        if nees is not None:
+            self._add_statistic(style.NEES, record.step, record.event, nees, chi2_bounds(3))
+        self._log_landmark_errors(record, None if whole_map else "observed")
+
+    def _log_landmark_errors(self, record: EventRecord, which: str | None) -> None:
+        """Euclidean error and Mahalanobis distance of the landmarks (see _landmark_rows)."""
+        if self._truth is None:
+            return
+        rows = _landmark_rows(record, which)
+        ids = record.landmark_ids[rows]
+        euclidean, mahalanobis = landmark_errors(
+            record.landmarks_xy[rows], record.landmark_covs[rows], self._truth.lookup(ids)
+        )
         add = self._series.add
         step, event = record.step, record.event
-        for name, sigma in zip(("x", "y", "theta"), np.sqrt(np.diag(record.pose_cov)), strict=True):
-            add(f"{style.POSE_SIGMA}/{name}", step, event, float(sigma))
-        nis = update_nis(record)
-        if nis is not None:
-            self._add_statistic(style.NIS, step, event, nis[0], chi2_bounds(nis[1]))
-        if self._truth is not None and record.kind is not EventKind.PREDICT:
-            nees = pose_nees(record, self._truth)
-            if nees is not None:
-                self._add_statistic(style.NEES, step, event, nees, chi2_bounds(3))
-        if self._truth is not None and record.kind is not EventKind.PREDICT:
-            truth_xy = self._truth.lookup(record.landmark_ids)
-            euclidean, mahalanobis = landmark_errors(
-                record.landmarks_xy, record.landmark_covs, truth_xy
-            )
-            for landmark_id, error, distance in zip(
-                record.landmark_ids.tolist(), euclidean.tolist(), mahalanobis.tolist(), strict=True
-            ):
-                if np.isfinite(error):
-                    add(f"{style.LANDMARK_ERROR}/{landmark_id}", step, event, error)
-                    add(f"{style.MAHALANOBIS}/{landmark_id}", step, event, distance)
+        for landmark_id, error, distance in zip(
+            ids.tolist(), euclidean.tolist(), mahalanobis.tolist(), strict=True
+        ):
+            if math.isfinite(error):
+                add(f"{style.LANDMARK_ERROR}/{landmark_id}", step, event, error)
+                add(f"{style.MAHALANOBIS}/{landmark_id}", step, event, distance)
 
     def _add_statistic(
         self, path: str, step: int, event: int, value: float, bounds: tuple[float, float]
@@ -390,25 +628,24 @@ class Recorder:
         self._series.add(f"{path}/{style.UPPER}", step, event, bounds[1])
 
     @staticmethod
-    def _describe(record: EventRecord) -> str:
+    def _describe(record: EventRecord, seen: int, new: int, nis: float, nis_used: int) -> str:
+        """The log line of a record; for an update, ``seen`` observations of which ``new``
+        first sightings, and the NIS summed over the ``nis_used`` landmarks it used."""
         where = f"step {record.step} {record.kind.value}"
         if record.line:
             where += f" line {record.line}"
         if record.kind is EventKind.PREDICT:
             if record.control is None:
                 return where
-            d, alpha = record.control
+            d, alpha = record.control.tolist()
             return f"{where}: d {d:.3f}, alpha {alpha:.4f}"
-        observations = record.observations
-        if observations is None:
+        if record.observations is None:
             return f"{where}: {record.n_landmarks} landmarks in the map"
-        new = int(observations.initialised.sum())
-        text = f"{where}: {len(observations)} landmarks"
+        text = f"{where}: {seen} landmarks"
         if new:
             text += f" ({new} new)"
-        nis = observations.nis[np.isfinite(observations.nis)]
-        if nis.size:
-            text += f", NIS {nis.sum():.2f}"
+        if nis_used:
+            text += f", NIS {nis:.2f}"
         return text
 
     # -- static data -----------------------------------------------------------------------
@@ -448,6 +685,7 @@ class Recorder:
             (style.POSE_PREDICTED, style.PREDICTED_COLOR),
             (style.POSE_UPDATED, style.UPDATED_COLOR),
             (style.LANDMARK_ELLIPSES, style.LANDMARK_COLOR),
+            (style.LANDMARK_ELLIPSES_OBSERVED, style.LANDMARK_COLOR),
             (style.LANDMARK_INITIAL, style.INITIAL_COLOR),
         ):
             rec.log(
@@ -491,21 +729,37 @@ class Recorder:
         )
 
     def _annotate(self, ids: IntArray) -> None:
-        """Give every landmark id a class with its label, re-logging the context rarely.
+        """Give every landmark id a class with its label "L<id>", re-logging the (static)
+        context rarely: it costs some 25 us per class.
 
-        New ids extend the annotated set by as many consecutive ids again after the
-        largest, so landmarks met one at a time cost O(log N) re-logs, not O(N).
+        Ids usually number the landmarks 1..N in some order: the context then covers all
+        ids from 0 to a power of two above the largest, re-logged when an id passes it
+        (O(log N) times). Ids far sparser than that get their own classes, re-logged
+        whenever their number has doubled and at ``finish``: while streaming a few labels
+        may show late, none is missing from the recording.
         """
-        new = {int(i) for i in ids.tolist() if 0 <= i <= MAX_CLASS_ID} - self._annotated
+        new = {i for i in ids.tolist() if self._class_top < i <= MAX_CLASS_ID}
+        new -= self._class_extra | self._class_pending
         if not new:
             return
-        wanted = self._annotated | new
-        top = max(wanted)
-        wanted |= set(range(top + 1, min(top + len(wanted), MAX_CLASS_ID) + 1))
-        self._annotated = wanted
+        self._class_pending |= new
+        self._class_count = max(self._class_count, len(ids))  # the map's size: distinct ids
+        top = max(self._class_pending)
+        if top <= 2 * self._class_count + 64:
+            self._class_top = min(MAX_CLASS_ID, (1 << top.bit_length()) - 1 if top else 1)
+            self._class_extra = {i for i in self._class_extra if i > self._class_top}
+            self._class_pending.clear()
+            self._log_classes()
+        elif len(self._class_pending) >= max(16, len(self._class_extra)):
+            self._log_classes()
+
+    def _log_classes(self) -> None:
+        self._class_extra |= self._class_pending
+        self._class_pending.clear()
+        classes = [*range(self._class_top + 1), *sorted(self._class_extra)]
         self._rec.log(
             style.WORLD,
-            rr.AnnotationContext([(i, f"L{i}") for i in sorted(wanted)]),
+            rr.AnnotationContext([(i, f"L{i}") for i in classes]),
             static=True,
         )
 

@@ -331,10 +331,16 @@ def open_recording(info: RunInfo, sinks: Sinks) -> Iterator[Recording]:
 
 
 @contextmanager
-def open_run(info: RunInfo, sinks: Sinks) -> Iterator[RunLogger]:
-    """A recording of one replay (see :func:`open_recording`), logged by a RunLogger."""
+def open_run(info: RunInfo, sinks: Sinks, *, detail: bool = False) -> Iterator[RunLogger]:
+    """A recording of one replay (see :func:`open_recording`), logged by a RunLogger.
+
+    :param detail: log every landmark's ellipse and error at every update (see
+        :class:`~ekfviz.viz.recorder.Recorder`); by default a large map is logged whole
+        only every ``MAP_EVERY_STEPS`` steps
+    """
     with open_recording(info, sinks) as recording:
-        yield RunLogger(Recorder(recording.rec, truth=info.truth, run_documents=True), recording)
+        recorder = Recorder(recording.rec, truth=info.truth, run_documents=True, detail=detail)
+        yield RunLogger(recorder, recording)
 
 
 def _attach(

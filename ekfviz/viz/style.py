@@ -16,7 +16,8 @@ POSE_PREDICTED = "world/robot/ellipse/predicted"  # LineStrips2D, at every predi
 POSE_UPDATED = "world/robot/ellipse/updated"  # LineStrips2D, at every update and the init
 TRAJECTORY = "world/trajectory"  # LineStrips2D, one new segment per event
 LANDMARKS = "world/landmarks"  # Points2D, class id = landmark id
-LANDMARK_ELLIPSES = "world/landmarks/ellipses"  # LineStrips2D, after every update and init
+LANDMARK_ELLIPSES = "world/landmarks/ellipses"  # LineStrips2D, the whole map (see recorder)
+LANDMARK_ELLIPSES_OBSERVED = "world/landmarks/ellipses/observed"  # LineStrips2D, large maps
 LANDMARK_INITIAL = "world/landmarks/initial"  # LineStrips2D, at first sighting only
 OBSERVATIONS = "world/observations"  # LineStrips2D, robot -> measured landmark position
 TRUTH_LANDMARKS = "world/truth/landmarks"  # Points2D, static
