@@ -39,6 +39,7 @@ sample: $(VENV)/.installed
 clean:
 	rm -rf $(VENV) .mypy_cache .ruff_cache .pytest_cache .hypothesis
 
-# Benchmarks (not part of make test): ratios measured in one run.
+# Benchmarks (not part of make test): core against dense, the bandwidth bound and end-to-end
+# replays, measured in one run (a few minutes); writes benchmarks/RESULTS.md.
 bench: $(VENV)/.installed-dev
-	$(BIN)/python benchmarks/bench_replay.py
+	$(BIN)/python benchmarks/bench.py
