@@ -178,3 +178,12 @@ def test_truth_errors(tmp_path: Path, name: str, content: str, message: str) -> 
     with pytest.raises(InputError) as caught:
         read_truth(write(tmp_path, content, name))
     assert message in str(caught.value)
+
+
+def test_truth_lookup_by_id_with_gaps_and_unknown_ids() -> None:
+    from ekfviz.core.evaluation import GroundTruth
+
+    truth = GroundTruth(np.array([5, 2, 9]), np.array([[5.0, 5.0], [2.0, 2.0], [9.0, 9.0]]))
+    found = truth.lookup(np.array([9, 3, 2, 5, 10]))
+    np.testing.assert_array_equal(found[[0, 2, 3]], [[9, 9], [2, 2], [5, 5]])
+    assert np.isnan(found[[1, 4]]).all()

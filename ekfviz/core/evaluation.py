@@ -35,12 +35,14 @@ class GroundTruth:
 
     def lookup(self, ids: IntArray) -> FloatArray:
         """True positions (len(ids), 2) of the given ids, NaN where the truth has none."""
-        index = {int(i): row for row, i in enumerate(self.ids)}
+        # vectorised: this runs at every update of a replay with truth
+        ids = np.asarray(ids, dtype=np.int64)
+        order = np.argsort(self.ids, kind="stable")
+        sorted_ids = self.ids[order]
+        at = np.minimum(np.searchsorted(sorted_ids, ids), max(len(sorted_ids) - 1, 0))
+        found = (sorted_ids[at] == ids) if len(sorted_ids) else np.zeros(len(ids), dtype=bool)
         out = np.full((len(ids), 2), np.nan)
-        for row, landmark_id in enumerate(ids):
-            at = index.get(int(landmark_id))
-            if at is not None:
-                out[row] = self.landmarks_xy[at]
+        out[found] = self.landmarks_xy[order[at[found]]]
         return out
 
 
