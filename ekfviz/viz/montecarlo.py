@@ -14,6 +14,7 @@ import rerun.blueprint as rrb
 
 from ekfviz.sim.montecarlo import MonteCarlo
 from ekfviz.viz import style
+from ekfviz.viz.run import temporary_beside
 
 REPORT = "run/consistency"
 
@@ -22,7 +23,7 @@ REPORT = "run/consistency"
 def atomic_rrd(path: Path) -> Iterator[Path]:
     """A temporary path beside ``path`` to write a recording to, moved over ``path`` only
     when the block completes; removed otherwise, leaving an existing file untouched."""
-    temporary = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.part")
+    temporary = temporary_beside(path)
     try:
         yield temporary
         os.replace(temporary, path)

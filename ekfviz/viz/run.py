@@ -383,13 +383,19 @@ def _attach(
         target = sinks.save
         # Beside the target (same file system, so os.replace is atomic), made by the
         # FileSink itself so that it gets the usual permissions.
-        temporary = target.with_name(f".{target.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.part")
+        temporary = temporary_beside(target)
         try:
             target.parent.mkdir(parents=True, exist_ok=True)
         except OSError as error:
             raise SinkError(f"--save {target}: {error.strerror or error}") from None
         log_sinks.append(rr.FileSink(temporary))
     return log_sinks, temporary, url
+
+
+def temporary_beside(target: Path) -> Path:
+    """A fresh hidden name in the folder of ``target``: the same file system, so a
+    finished file can replace ``target`` atomically with ``os.replace``."""
+    return target.with_name(f".{target.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.part")
 
 
 def _commit_or_remove(temporary: Path, target: Path | None, complete: bool) -> None:
