@@ -319,10 +319,13 @@ def replay(
         ):
             last: EventRecord | None = None
             consistency = Consistency(truth_xy)
+            warnings = FilterWarnings(data)
             try:
                 for record in run_filter(log_events(data, truth_xy, truth, progress), params):
                     logger.log(record)
                     consistency.add(record)
+                    if record.warnings:
+                        warnings.add(record)
                     last = record
             except (InputError, FilterLineError, KeyboardInterrupt, Terminated) as cause:
                 final = None if last is None else evaluate(last, truth_xy, consistency)
@@ -332,6 +335,7 @@ def replay(
             assert last is not None  # replay always yields the initialisation
             evaluation = evaluate(last, truth_xy, consistency)
             logger.finish(evaluation)
+            warnings.summarise()
             print_evaluation(evaluation, truth_xy)
             if report is not None:
                 write_json(report, report_json(evaluation, params, data, info.input_sha256))
@@ -776,6 +780,31 @@ def log_events(
     if truth is not None and truth_path is not None:
         events = checked_against(events, truth, truth_path, every_id=not is_extended(data))
     return events
+
+
+class FilterWarnings:
+    """Print the filter's warnings as ``FILE:LINE: warning: ...``, the first few only:
+    the recording's log holds all of them."""
+
+    PRINTED = 10
+
+    def __init__(self, data: Path) -> None:
+        self._data = data
+        self.count = 0
+
+    def add(self, record: EventRecord) -> None:
+        for text in record.warnings:
+            self.count += 1
+            if self.count <= self.PRINTED:
+                where = f"{self._data}:{record.line}" if record.line else str(self._data)
+                warn(escape(f"{where}: {text}"))
+
+    def summarise(self) -> None:
+        if self.count > self.PRINTED:
+            warn(
+                f"{self.count - self.PRINTED} more filter warnings"
+                f" ({self.count} in all) are in the recording's log"
+            )
 
 
 class Terminated(BaseException):  # like KeyboardInterrupt: not caught by "except Exception"

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ekfviz.core.filter import EkfSlam, FilterError, FilterParams, LandmarkInit, UpdateMode
+from ekfviz.core.filter import EkfSlam, FilterParams, LandmarkInit, UpdateMode
 from ekfviz.core.models import measure, measurement_jacobians, wrap_angle
 from ekfviz.core.records import Control, EventKind, EventRecord, Sighting
 from ekfviz.core.replay import replay
@@ -250,11 +250,3 @@ def test_update_records_carry_predictions_innovations_and_nis() -> None:
     np.testing.assert_allclose(obs.innovation[:, 1], obs.z[:, 1] - obs.z_pred[:, 1])
     manual = [nu @ np.linalg.solve(S, nu) for nu, S in zip(obs.innovation, obs.S, strict=True)]
     np.testing.assert_allclose(obs.nis, manual, rtol=1e-9)
-
-
-def test_a_landmark_at_zero_range_is_a_filter_error() -> None:
-    ekf = EkfSlam()
-    ekf.observe([1], np.array([[0.0, 1.0]]))
-    ekf.predict(1.0, 0.0)
-    with pytest.raises(FilterError, match="zero range"):
-        ekf.observe([1], np.array([[0.0, 0.5]]))

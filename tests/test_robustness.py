@@ -140,3 +140,33 @@ def test_a_signal_leaves_a_complete_recording(
     last = entity_rows(rrd, "/log")[-1]
     assert word in str(last["TextLog:text"]) and "after input line" in str(last["TextLog:text"])
     assert not list(tmp_path.glob("*.part"))
+
+
+def test_a_skipped_observation_is_a_warning_in_the_terminal_and_the_recording(
+    tmp_path: Path,
+) -> None:
+    from conftest import entity_rows
+
+    log = tmp_path / "log.txt"
+    # landmark 1 mapped at (1, 0); the robot drives onto it and sees it at 0.5 m
+    log.write_text("observe 1 0 1\ncontrol 1 0\nobserve 1 0 0.5\ncontrol 1 0\nobserve 1 3.1 0.9\n")
+    rrd = tmp_path / "r.rrd"
+    result = runner.invoke(app, ["replay", str(log), "--save", str(rrd)], env={"COLUMNS": "400"})
+    assert result.exit_code == 0, result.output
+    warnings = [line for line in result.output.splitlines() if line.startswith("warning:")]
+    assert len(warnings) == 1
+    assert f"{log}:3: landmark 1: predicted 0 m from the robot" in warnings[0]
+    log_rows = entity_rows(rrd, "/log")
+    warned = [row for row in log_rows if row["TextLog:level"] == ["WARN"]]
+    assert len(warned) == 1 and warned[0]["event"] == 2
+    assert "observation skipped" in str(warned[0]["TextLog:text"])
+    skipped = {
+        row["event"]: row["Scalars:scalars"]
+        for row in entity_rows(rrd, "/metrics/health/skipped_observations")
+    }
+    assert skipped == {0: [0.0], 2: [1.0], 4: [0.0]}
+    pose_health = entity_rows(rrd, "/metrics/health/pose_min_eigenvalue")
+    assert [row["event"] for row in pose_health] == [0, 1, 2, 3, 4]
+    checked = entity_rows(rrd, "/metrics/health/P_min_eigenvalue")
+    assert [row["event"] for row in checked] == [0, 2, 4]  # first, skip, last
+    assert all(value > 0 for row in checked for value in row["Scalars:scalars"])  # type: ignore[attr-defined]

@@ -63,3 +63,35 @@ def test_counters_of_the_array_api(tmp_path: Path) -> None:
     assert [row["event"] for row in initial] == [1]  # id 7 was new there, and only there
     nis = entity_rows(out, f"/{style.NIS}")
     assert [row["Scalars:scalars"] for row in nis] == [[0.0]]
+
+
+def test_your_filters_covariance_is_checked_and_its_faults_logged(tmp_path: Path) -> None:
+    """A filter of one's own whose update breaks P: the recording says so, at that event."""
+    out = tmp_path / "broken.rrd"
+    rec = rr.RecordingStream("broken")
+    rec.save(out)
+    recorder = Recorder(rec, blueprint=False)
+    x: FloatArray = np.array([0.0, 0.0, 0.0, 1.0, 1.0])
+    P: FloatArray = np.eye(5) * 0.01
+    recorder.initialise(x, P, landmark_ids=[1], z=np.array([[0.78, 1.41]]))
+    recorder.predict(x, P, control=(0.0, 0.0))
+    P_asymmetric = P.copy()
+    P_asymmetric[0, 3] = 0.002  # the typical slip: K H P written without its transpose
+    recorder.update(x, P_asymmetric, landmark_ids=[1], z=np.array([[0.78, 1.41]]))
+    P_indefinite = P.copy()
+    P_indefinite[3, 3] = -0.01
+    recorder.predict(x, P_indefinite, control=(0.0, 0.0))
+    recorder.finish()
+    rec.disconnect()
+    warned = [
+        (row["event"], str(row["TextLog:text"]))
+        for row in entity_rows(out, f"/{style.LOG}")
+        if row["TextLog:level"] == ["WARN"]
+    ]
+    assert [event for event, _ in warned] == [2, 3]
+    assert "not symmetric (|P - P^T| up to 0.002)" in warned[0][1]
+    assert "not positive semi-definite" in warned[1][1]
+    asymmetry = entity_rows(out, f"/{style.HEALTH_P_ASYMMETRY}")
+    assert [row["Scalars:scalars"] for row in asymmetry] == [[0.0], [0.0], [0.002], [0.0]]
+    landmark = entity_rows(out, f"/{style.HEALTH_LANDMARK_MIN_EIG}")
+    assert [row["Scalars:scalars"] for row in landmark] == [[0.01], [0.01]]

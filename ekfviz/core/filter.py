@@ -23,6 +23,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from ekfviz.core.health import CovarianceCheck
 from ekfviz.core.models import (
     landmark_from_measurement,
     landmark_init_jacobians,
@@ -38,6 +39,9 @@ from ekfviz.core.types import FloatArray, IntArray
 DEFER_MIN_DIM = 64
 DEFER_LANDMARKS = 32
 GRAM_STRIP_ROWS = 48  # rows of P per block of the blocked P -= U^T U (see _subtract_gram)
+# A landmark predicted closer than this (metres) to the robot has no usable measurement
+# Jacobian (it divides by the range): its observation is skipped with a warning.
+MIN_PREDICTED_RANGE = 1e-6
 
 _TWO_PI = 2.0 * math.pi
 # z_pred (2), innovation (2), S (4) and NIS of a landmark seen for the first time
@@ -93,7 +97,12 @@ class FilterParams:
 
 
 class FilterError(ValueError):
-    """The filter cannot go on: a non-positive-definite S, a non-finite state, ..."""
+    """The filter cannot go on: a non-finite state, a landmark named twice, ...
+
+    Faults confined to one observation (a landmark predicted at zero range, an
+    innovation covariance that is not positive definite) are not errors: the
+    observation is skipped and :attr:`EkfSlam.warnings` says why.
+    """
 
 
 class EkfSlam:
@@ -113,6 +122,7 @@ class EkfSlam:
         self._x[2] = wrap_angle(self._x[2])
         self._P[:3, :3] = np.diag(np.square(p.init_pose_sigma))
         self._ids: list[int] = []
+        self._warnings: list[str] = []  # of the last observe
         self._slot: dict[int, int] = {}  # landmark id -> index of its x in the state
         self._ids_array: IntArray | None = None  # self._ids as a frozen array, built lazily
         self._rows: dict[int, IntArray] = {}  # slot j -> [0, 1, 2, j, j+1]
@@ -140,12 +150,22 @@ class EkfSlam:
         return view
 
     @property
+    def dim(self) -> int:
+        """Current state dimension 3 + 2N."""
+        return self._n
+
+    @property
     def landmark_ids(self) -> list[int]:
         """Landmark ids in state order (order of first sighting)."""
         return list(self._ids)
 
     def knows(self, landmark_id: int) -> bool:
         return landmark_id in self._slot
+
+    @property
+    def warnings(self) -> tuple[str, ...]:
+        """Why observations of the last :meth:`observe` were skipped, one sentence each."""
+        return tuple(self._warnings)
 
     def record(
         self,
@@ -158,6 +178,8 @@ class EkfSlam:
         observations: Observations | None = None,
         full_cov: bool = False,
         time: float | None = None,
+        warnings: tuple[str, ...] = (),
+        covariance: CovarianceCheck | None = None,
     ) -> EventRecord:
         """Snapshot the current state as an immutable record.
 
@@ -199,6 +221,8 @@ class EkfSlam:
             observations=observations,
             full_cov=frozen(self._P[:n, :n].copy()) if full_cov else None,
             time=time,
+            warnings=warnings,
+            covariance=covariance,
         )
 
     # -- predict -----------------------------------------------------------------------
@@ -245,9 +269,12 @@ class EkfSlam:
 
         :param ids: (m,) landmark ids
         :param z: (m, 2) (bearing, range) per landmark
-        :return: what was done with each observation, in file order
+        :return: what was done with each observation, in file order; why any was
+            skipped is in :attr:`warnings`
+        :raises FilterError: a landmark named twice, or the state turned non-finite
         """
         self._landmark_covs = None
+        self._warnings = []
         ids_arr = np.array(ids, dtype=np.int64)  # copies: the record keeps them
         z = np.array(z, dtype=np.float64).reshape(-1, 2)
         ids_list: list[int] = ids_arr.tolist()
@@ -260,12 +287,17 @@ class EkfSlam:
         z_list: list[list[float]] = z.tolist()
         # per observation: z_pred (2), innovation (2), S (2x2, row-major) and NIS
         table: list[tuple[float, ...]] = [_NAN_ROW] * m
+        skipped = [False] * m
         if not any_new or not all(new):
             known = [k for k, is_new in enumerate(new) if not is_new] if any_new else range(m)
             if self.params.update is UpdateMode.JOINT:
-                self._update_joint(ids_list, z, known, table)
+                self._update_joint(ids_list, z, known, table, skipped)
             else:
-                self._update_sequential(ids_list, z_list, known, table)
+                self._update_sequential(ids_list, z_list, known, table, skipped)
+            n = self._n
+            # one O(n) look at x and diag(P): a NaN must not reach the next event
+            if not math.isfinite(float(self._x[:n].sum()) + float(self._P[:n, :n].trace())):
+                raise FilterError("the state became non-finite in update")
         if any_new:
             self._reserve(sum(new))
             for k in range(m):
@@ -281,6 +313,7 @@ class EkfSlam:
             S=values[:, 4:8].reshape(m, 2, 2),
             nis=values[:, 8],
             initialised=frozen(np.array(new, dtype=bool)),
+            skipped=frozen(np.array(skipped, dtype=bool)),
         )
 
     def _update_sequential(
@@ -289,6 +322,7 @@ class EkfSlam:
         z: list[list[float]],
         known: Sequence[int],
         table: list[tuple[float, ...]],
+        skipped: list[bool],
     ) -> None:
         """EKF updates with the known landmarks one after another, in file order.
 
@@ -317,9 +351,9 @@ class EkfSlam:
             dx, dy = lx - px, ly - py
             q = dx * dx + dy * dy
             rng = math.sqrt(q)
-            # the measurement Jacobian divides by the range: undefined at the landmark
-            if not rng > 1e-9:
-                raise FilterError(f"landmark {landmark_id} is predicted at zero range")
+            if not rng > MIN_PREDICTED_RANGE:
+                self._skip(k, landmark_id, skipped, _zero_range(rng))
+                continue
             bearing = math.remainder(math.atan2(dy, dx) - theta, _TWO_PI)  # wrap_angle, inlined
             if bearing == -math.pi:
                 bearing = math.pi
@@ -343,8 +377,12 @@ class EkfSlam:
             l00 = math.sqrt(s00) if s00 > 0.0 else 0.0
             l10 = s01 / l00 if l00 > 0.0 else 0.0
             d11 = s11 - l10 * l10
+            if not math.isfinite(s00 + s01 + s11):
+                raise FilterError(f"the covariance became non-finite (S of landmark {landmark_id})")
             if not (l00 > 0.0 and d11 > 0.0):
-                raise FilterError("innovation covariance S is not positive definite")
+                table[k] = (bearing, rng, nu0, nu1, s00, s01, s01, s11, math.nan)
+                self._skip(k, landmark_id, skipped, _not_definite(s00, s01, s11))
+                continue
             l11 = math.sqrt(d11)
             w0 = nu0 / l00
             w1 = (nu1 - l10 * w0) / l11
@@ -375,6 +413,7 @@ class EkfSlam:
         z: FloatArray,
         known: Sequence[int],
         table: list[tuple[float, ...]],
+        skipped: list[bool],
     ) -> None:
         """EKF update with all known landmarks of a line at once (stacked H, one solve).
 
@@ -384,17 +423,24 @@ class EkfSlam:
         """
         n = self._n
         x = self._x[:n]
+        px, py, theta = x[:3].tolist()
+        usable = []
+        for k in known:
+            j = self._slot[ids[k]]
+            rng_k = math.hypot(float(x[j]) - px, float(x[j + 1]) - py)
+            if rng_k > MIN_PREDICTED_RANGE:
+                usable.append(k)
+            else:
+                self._skip(k, ids[k], skipped, _zero_range(rng_k))
+        known = usable
         m = len(known)
+        if not m:
+            return
         slots = np.array([self._slot[ids[k]] for k in known], dtype=np.int64)
         rows = np.concatenate(([0, 1, 2], np.column_stack([slots, slots + 1]).ravel()))
-        px, py, theta = x[:3].tolist()
         dx, dy = x[slots] - px, x[slots + 1] - py
         q = dx * dx + dy * dy
         rng = np.sqrt(q)
-        too_close = np.flatnonzero(~(rng > 1e-9))
-        if too_close.size:
-            landmark_id = ids[known[int(too_close[0])]]
-            raise FilterError(f"landmark {landmark_id} is predicted at zero range")
         z_pred = np.column_stack([wrap_angles(np.arctan2(dy, dx) - theta), rng])
         nu = z[known] - z_pred
         nu[:, 0] = wrap_angles(nu[:, 0])
@@ -412,10 +458,23 @@ class EkfSlam:
         S = HP[:, rows] @ H.T
         S[np.diag_indices(2 * m)] += np.tile(self._r, m)
         S = 0.5 * (S + S.T)
+        if not np.isfinite(S).all():
+            raise FilterError("the covariance became non-finite (joint S)")
+        blocks = S.reshape(m, 2, m, 2)[np.arange(m), :, np.arange(m), :]  # (m, 2, 2)
         try:
             L = np.linalg.cholesky(S)
-        except np.linalg.LinAlgError as error:
-            raise FilterError("innovation covariance S is not positive definite") from error
+        except np.linalg.LinAlgError:
+            # not one landmark's fault alone: the whole line is skipped
+            for row, k in enumerate(known):
+                (s00, s01), (_, s11) = blocks[row].tolist()
+                table[k] = (*z_pred[row].tolist(), *nu[row].tolist(), s00, s01, s01, s11,
+                            math.nan)  # fmt: skip
+                skipped[k] = True
+            self._warnings.append(
+                f"the joint innovation covariance S of landmarks {[ids[k] for k in known]}"
+                " is not positive definite: their observations were skipped"
+            )
+            return
         A = np.asarray(np.linalg.solve(L, HP), dtype=np.float64)
         w = np.linalg.solve(L, nu.ravel())
         if not np.isfinite(w).all():
@@ -423,11 +482,14 @@ class EkfSlam:
         x += w @ A
         x[2] = wrap_angle(float(x[2]))
         self._subtract_gram(A)
-        blocks = S.reshape(m, 2, m, 2)[np.arange(m), :, np.arange(m), :]  # (m, 2, 2)
         nis = np.einsum("ki,ki->k", nu, np.linalg.solve(blocks, nu[:, :, None])[:, :, 0])
         for row, k in enumerate(known):
             table[k] = (*z_pred[row].tolist(), *nu[row].tolist(), *blocks[row].ravel().tolist(),
                         float(nis[row]))  # fmt: skip
+
+    def _skip(self, k: int, landmark_id: int, skipped: list[bool], why: str) -> None:
+        skipped[k] = True
+        self._warnings.append(f"landmark {landmark_id}: {why}: observation skipped")
 
     def _subtract_gram(self, U: FloatArray) -> None:
         """P -= U^T U for U (r x n), in place, in one pass over P, exactly symmetric.
@@ -494,3 +556,17 @@ class EkfSlam:
         self._ids.append(landmark_id)
         self._ids_array = None
         self._n = n + 2
+
+
+def _zero_range(rng: float) -> str:
+    return (
+        f"predicted {rng:.3g} m from the robot, where the measurement Jacobian"
+        " (which divides by the range) is undefined"
+    )
+
+
+def _not_definite(s00: float, s01: float, s11: float) -> str:
+    return (
+        f"innovation covariance S = [[{s00:.3g}, {s01:.3g}], [{s01:.3g}, {s11:.3g}]]"
+        " is not positive definite"
+    )

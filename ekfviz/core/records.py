@@ -14,6 +14,7 @@ from typing import TypeVar
 
 import numpy as np
 
+from ekfviz.core.health import CovarianceCheck
 from ekfviz.core.types import BoolArray, FloatArray, IntArray
 
 
@@ -61,6 +62,8 @@ class Observations:
 
     Landmarks seen for the first time are initialised, not used to correct the state:
     their ``initialised`` flag is set and their prediction, innovation, S and NIS are NaN.
+    An observation the filter could not use is ``skipped`` (the record's warnings say
+    why): its NIS is NaN, and so are its prediction, innovation and S where undefined.
 
     :param ids: (m,) landmark ids
     :param z: (m, 2) measured (bearing, range)
@@ -69,6 +72,7 @@ class Observations:
     :param S: (m, 2, 2) innovation covariance
     :param nis: (m,) normalised innovation squared nu^T S^-1 nu (2 dof each)
     :param initialised: (m,) True where the landmark was first seen here
+    :param skipped: (m,) True where the observation was not used (see the warnings)
     """
 
     ids: IntArray
@@ -78,6 +82,7 @@ class Observations:
     S: FloatArray
     nis: FloatArray
     initialised: BoolArray
+    skipped: BoolArray
 
     def __len__(self) -> int:
         return int(self.ids.shape[0])
@@ -100,6 +105,9 @@ class EventRecord:
     :param observations: what an update or the initialisation did, else None
     :param full_cov: (3+2N, 3+2N) covariance, only when the consumer asked for it
     :param time: the log's timestamp of the event in seconds, when it has one
+    :param warnings: what went wrong at this event without stopping the run, one
+        sentence each (a skipped observation, a covariance that lost definiteness)
+    :param covariance: the check of the whole covariance, at the events where it ran
     """
 
     event: int
@@ -115,6 +123,8 @@ class EventRecord:
     observations: Observations | None = None
     full_cov: FloatArray | None = None
     time: float | None = None
+    warnings: tuple[str, ...] = ()
+    covariance: CovarianceCheck | None = None
 
     @property
     def n_landmarks(self) -> int:
@@ -156,6 +166,8 @@ def snapshot(
     observations: Observations | None = None,
     full_cov: bool = False,
     time: float | None = None,
+    warnings: tuple[str, ...] = (),
+    covariance: CovarianceCheck | None = None,
 ) -> EventRecord:
     """Build a record from a state in the classic layout x = [x, y, theta, l1x, l1y, ...].
 
@@ -188,4 +200,6 @@ def snapshot(
         observations=observations,
         full_cov=frozen(np.array(P, dtype=np.float64)) if full_cov else None,
         time=time,
+        warnings=warnings,
+        covariance=covariance,
     )

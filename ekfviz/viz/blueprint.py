@@ -65,6 +65,20 @@ def default_blueprint(
     if has_true_poses:
         plots.append(rrb.TimeSeriesView(name="NEES and 95% bounds", origin=style.NEES))
     plots.append(rrb.TimeSeriesView(name="Pose sigma", origin=style.POSE_SIGMA))
+    plots.append(
+        rrb.TimeSeriesView(
+            name="Smallest eigenvalue of P",
+            origin=style.HEALTH,
+            contents=[
+                f"$origin/{path.rsplit('/', 1)[1]}"
+                for path in (
+                    style.HEALTH_POSE_MIN_EIG,
+                    style.HEALTH_LANDMARK_MIN_EIG,
+                    style.HEALTH_P_MIN_EIG,
+                )
+            ],
+        )
+    )
     if has_truth:
         plots += [
             rrb.TimeSeriesView(name="Landmark error [m]", origin=style.LANDMARK_ERROR),

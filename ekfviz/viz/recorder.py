@@ -47,6 +47,13 @@ import rerun.blueprint as rrb
 
 from ekfviz.core.consistency import chi2_bounds, pose_nees
 from ekfviz.core.evaluation import Evaluation, GroundTruth, landmark_errors
+from ekfviz.core.health import (
+    CovarianceCheck,
+    check_covariance,
+    check_interval,
+    landmark_min_eigenvalues,
+    pose_min_eigenvalues,
+)
 from ekfviz.core.models import wrap_angles
 from ekfviz.core.records import EventKind, EventRecord, Observations, snapshot
 from ekfviz.core.types import FloatArray, IntArray
@@ -61,6 +68,7 @@ MAP_EVERY_STEPS = 25  # beyond: the whole map every this many steps
 FLUSH_TIMEOUT_S = 30.0  # how long finish() waits for a slow or absent viewer
 MAX_CLASS_ID = 65535  # Rerun class ids are u16
 HEADING_LENGTH = 1.0  # metres
+CHECK_ALL_DIM = 64  # the array API checks a covariance up to this size at every call
 
 
 def _radius(ui_points: float) -> npt.ArrayLike:
@@ -224,6 +232,7 @@ class Recorder:
         self._step = 0
         self._step_has_update = True  # the initialisation counts as step 0's update
         self._last_xy: FloatArray | None = None
+        self._checked_step: int | None = None  # of the last covariance check (array API)
         self._blueprint = blueprint
         self._run_documents = run_documents
         self._bounds_xy: FloatArray | None = None  # [[x_min, y_min], [x_max, y_max]] so far
@@ -256,10 +265,12 @@ class Recorder:
         """
         observations = self._observations(landmark_ids, z, None, None)
         self._event = self._step = 0
+        self._checked_step = None
         self.log_record(
             snapshot(
                 x, P, event=0, step=0, kind=EventKind.INIT, line=line,
                 landmark_ids=self._state_ids(x), observations=observations,
+                **self._check(P, 0),
             )
         )  # fmt: skip
 
@@ -282,6 +293,7 @@ class Recorder:
                 x, P, event=self._event + 1, step=self._step + 1, kind=EventKind.PREDICT,
                 line=line, landmark_ids=self._state_ids(x),
                 control=None if control is None else np.asarray(control, dtype=np.float64),
+                **self._check(P, self._step + 1),
             )
         )  # fmt: skip
 
@@ -311,6 +323,7 @@ class Recorder:
             snapshot(
                 x, P, event=self._event + 1, step=step, kind=EventKind.UPDATE, line=line,
                 landmark_ids=self._state_ids(x), observations=observations,
+                **self._check(P, step),
             )
         )  # fmt: skip
 
@@ -517,15 +530,84 @@ class Recorder:
                     if new[k]
                 ],
             )
-        text = [
-            self._describe(record, int(seen[k]), int(new[k]), float(nis_sum[k]), int(nis_used[k]))
-            for k, record in enumerate(records)
-        ]
+        self._send_health(records, rows, pose_covs, corrected)
+        # a line per event, then one per warning at the same event
+        text: list[str] = []
+        level: list[rr.TextLogLevel] = []
+        line_of: list[int] = []
+        for k, record in enumerate(records):
+            text.append(
+                self._describe(
+                    record, int(seen[k]), int(new[k]), float(nis_sum[k]), int(nis_used[k])
+                )
+            )
+            level.append(rr.TextLogLevel.INFO)
+            line_of.append(k)
+            for warning in record.warnings:
+                text.append(f"step {record.step} line {record.line}: {warning}")
+                level.append(rr.TextLogLevel.WARN)
+                line_of.append(k)
+        self._send(style.LOG, rows.pick(line_of), rr.TextLog.columns(text=text, level=level))
+
+    def _send_health(
+        self,
+        records: list[EventRecord],
+        rows: _Rows,
+        pose_covs: FloatArray,
+        corrected: list[int],
+    ) -> None:
+        """The numerical health series (see ``ekfviz.core.health``)."""
         self._send(
-            style.LOG,
+            style.HEALTH_POSE_MIN_EIG,
             rows.all,
-            rr.TextLog.columns(text=text, level=[rr.TextLogLevel.INFO] * count),
+            rr.Scalars.columns(scalars=pose_min_eigenvalues(pose_covs)),
         )
+        with_map = [k for k in corrected if records[k].n_landmarks]
+        if with_map:
+            counts = np.array([records[k].n_landmarks for k in with_map])
+            eigenvalues = landmark_min_eigenvalues(
+                np.concatenate([records[k].landmark_covs for k in with_map])
+            )
+            smallest = np.minimum.reduceat(eigenvalues, np.cumsum(counts) - counts)
+            self._send(
+                style.HEALTH_LANDMARK_MIN_EIG,
+                rows.pick(with_map),
+                rr.Scalars.columns(scalars=smallest),
+            )
+        observed = [
+            (k, observations)
+            for k in corrected
+            if (observations := records[k].observations) is not None
+        ]
+        if observed:
+            self._send(
+                style.HEALTH_SKIPPED,
+                rows.pick([k for k, _ in observed]),
+                rr.Scalars.columns(scalars=[int(obs.skipped.sum()) for _, obs in observed]),
+            )
+        checked = [
+            (k, check)
+            for k, record in enumerate(records)
+            if (check := record.covariance) is not None
+        ]
+        if checked:
+            self._send_checks(rows, checked)
+
+    def _send_checks(self, rows: _Rows, checked: list[tuple[int, CovarianceCheck]]) -> None:
+        """The checks of the whole covariance; a condition number only where P is definite."""
+        at = rows.pick([k for k, _ in checked])
+        for path, values in (
+            (style.HEALTH_P_MIN_EIG, [check.min_eigenvalue for _, check in checked]),
+            (style.HEALTH_P_ASYMMETRY, [check.asymmetry for _, check in checked]),
+        ):
+            self._send(path, at, rr.Scalars.columns(scalars=values))
+        definite = [(k, check) for k, check in checked if math.isfinite(check.condition)]
+        if definite:
+            self._send(
+                style.HEALTH_P_LOG10_CONDITION,
+                rows.pick([k for k, _ in definite]),
+                rr.Scalars.columns(scalars=[math.log10(check.condition) for _, check in definite]),
+            )
 
     def _send(self, entity: str, times: tuple[IntArray, IntArray], columns: Any) -> None:
         """Send one column batch on both timelines: ``times`` = (steps, events) per row."""
@@ -660,6 +742,15 @@ class Recorder:
                     rr.SeriesLines(colors=style.BOUND_COLOR, names=label, widths=1.0),
                     static=True,
                 )
+        for path, name in (
+            (style.HEALTH_POSE_MIN_EIG, "pose block"),
+            (style.HEALTH_LANDMARK_MIN_EIG, "landmark blocks"),
+            (style.HEALTH_P_MIN_EIG, "whole P"),
+            (style.HEALTH_P_ASYMMETRY, "max |P - P^T|"),
+            (style.HEALTH_P_LOG10_CONDITION, "log10 cond(P)"),
+            (style.HEALTH_SKIPPED, "skipped observations"),
+        ):
+            rec.log(path, rr.SeriesLines(names=name), static=True)
         # A 2-D view draws y down; mirroring "world" in the root frame shows the map y up
         # as in the classic plots, while every entity keeps its true world coordinates.
         rec.log(style.WORLD, rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)
@@ -777,6 +868,21 @@ class Recorder:
             self._in_order.update(self._order)
         return np.asarray(self._order[:n], dtype=np.int64)
 
+    def _check(self, P: FloatArray, step: int) -> dict[str, Any]:
+        """The check of a whole covariance handed in through the array API: at every call
+        while it is small (``CHECK_ALL_DIM``), else as often as a replay checks its own."""
+        P = np.asarray(P, dtype=np.float64)
+        dim = P.shape[0]
+        if (
+            dim > CHECK_ALL_DIM
+            and self._checked_step is not None
+            and step - self._checked_step < check_interval(dim)
+        ):
+            return {}
+        self._checked_step = step
+        check = check_covariance(P)
+        return {"covariance": check, "warnings": tuple(check.problems())}
+
     def _observations(
         self,
         landmark_ids: Sequence[int] | IntArray | None,
@@ -810,5 +916,5 @@ class Recorder:
         S[initialised] = np.nan
         return Observations(
             ids=ids, z=z, z_pred=z_pred, innovation=innovation, S=S, nis=nis,
-            initialised=initialised,
+            initialised=initialised, skipped=np.zeros(m, dtype=bool),
         )  # fmt: skip

@@ -31,8 +31,15 @@ POSE_SIGMA = "metrics/pose_sigma"  # /x, /y, /theta
 LANDMARK_ERROR = "metrics/landmark_error"  # /<id>, with truth
 MEAN_LANDMARK_ERROR = "metrics/mean_landmark_error"  # with truth, in sweeps
 MAHALANOBIS = "metrics/mahalanobis"  # /<id>, with truth
+HEALTH = "metrics/health"  # numerical health, see ekfviz.core.health
+HEALTH_POSE_MIN_EIG = "metrics/health/pose_min_eigenvalue"  # every event
+HEALTH_LANDMARK_MIN_EIG = "metrics/health/landmark_min_eigenvalue"  # every update
+HEALTH_SKIPPED = "metrics/health/skipped_observations"  # every update
+HEALTH_P_MIN_EIG = "metrics/health/P_min_eigenvalue"  # where the whole P was checked
+HEALTH_P_ASYMMETRY = "metrics/health/P_asymmetry"  # likewise: max |P - P^T|
+HEALTH_P_LOG10_CONDITION = "metrics/health/P_log10_condition"  # likewise
 
-LOG = "log"  # TextLog, one line per event
+LOG = "log"  # TextLog, one line per event, and one per warning
 RUN_INFO = "run/info"  # TextDocument (markdown), static
 RUN_INPUT = "run/input"  # TextDocument (the input log itself), static
 RUN_EVALUATION = "run/evaluation"  # TextDocument (markdown), static, at the end
