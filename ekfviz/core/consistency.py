@@ -109,10 +109,10 @@ def update_nis(record: EventRecord) -> tuple[float, int] | None:
     observations = record.observations
     if observations is None:
         return None
-    used = np.isfinite(observations.nis)
-    if not used.any():
+    used = [value for value in observations.nis.tolist() if math.isfinite(value)]
+    if not used:
         return None
-    return float(observations.nis[used].sum()), 2 * int(used.sum())
+    return sum(used), 2 * len(used)
 
 
 class Verdict(str, enum.Enum):

@@ -174,7 +174,7 @@ class EkfSlam:
         step: int,
         kind: EventKind,
         line: int = 0,
-        control: FloatArray | None = None,
+        control: FloatArray | tuple[float, float] | None = None,
         observations: Observations | None = None,
         full_cov: bool = False,
         time: float | None = None,
@@ -294,9 +294,9 @@ class EkfSlam:
                 self._update_joint(ids_list, z, known, table, skipped)
             else:
                 self._update_sequential(ids_list, z_list, known, table, skipped)
-            n = self._n
-            # one O(n) look at x and diag(P): a NaN must not reach the next event
-            if not math.isfinite(float(self._x[:n].sum()) + float(self._P[:n, :n].trace())):
+            # one O(n) look at x and diag(P) (the buffer's: zero beyond the state), so that
+            # a NaN cannot reach the next event
+            if not math.isfinite(float(self._x.sum()) + float(self._P.trace())):
                 raise FilterError("the state became non-finite in update")
         if any_new:
             self._reserve(sum(new))
@@ -347,7 +347,7 @@ class EkfSlam:
             rows = self._rows.get(j)
             if rows is None:
                 rows = self._rows[j] = np.array((0, 1, 2, j, j + 1))
-            px, py, theta, lx, ly = x[rows].tolist()
+            px, py, theta, lx, ly = x.take(rows).tolist()
             dx, dy = lx - px, ly - py
             q = dx * dx + dy * dy
             rng = math.sqrt(q)

@@ -3,10 +3,8 @@
 from __future__ import annotations
 
 from collections.abc import Iterable, Iterator
-from contextlib import contextmanager
 from itertools import chain
-
-import numpy as np
+from typing import Any
 
 from ekfviz.core.filter import EkfSlam, FilterError, FilterParams
 from ekfviz.core.health import check_covariance, check_interval
@@ -15,7 +13,6 @@ from ekfviz.core.records import (
     EventKind,
     EventRecord,
     LogEvent,
-    Observations,
     Sighting,
 )
 
@@ -55,76 +52,72 @@ def replay(
     :raises FilterLineError: the filter cannot go on at a line (a non-finite state, ...)
     """
     ekf = EkfSlam(params)
-    next_check = 0  # the step from which the covariance is due for a check
-    step = 0
+    next_check = 0  # the step from which the whole covariance is due for a check
 
-    def record(
-        *,
-        event: int,
-        kind: EventKind,
-        last: bool,
-        log_event: LogEvent | None = None,
-        observations: Observations | None = None,
-    ) -> EventRecord:
+    def checked(line: int, warnings: tuple[str, ...]) -> dict[str, Any]:
+        """Check the whole covariance; its problems join the event's warnings."""
         nonlocal next_check
-        warnings = ekf.warnings if observations is not None else ()
-        check = None
-        if step >= next_check or last or warnings:
-            check = check_covariance(ekf.P)
-            next_check = step + check_interval(ekf.dim)
-            if not check.finite:
-                raise FilterLineError(
-                    0 if log_event is None else log_event.line, check.problems()[0]
-                )
-            warnings += tuple(check.problems())
-        return ekf.record(
-            event=event,
-            step=step,
-            kind=kind,
-            line=0 if log_event is None else log_event.line,
-            time=None if log_event is None else log_event.time,
-            control=(
-                np.array([log_event.d, log_event.alpha]) if isinstance(log_event, Control) else None
-            ),
-            observations=observations,
-            full_cov=full_cov,
-            warnings=warnings,
-            covariance=check,
-        )
+        check = check_covariance(ekf.P)
+        next_check = step + check_interval(ekf.dim)
+        if not check.finite:
+            raise FilterLineError(line, check.problems()[0])
+        return {"covariance": check, "warnings": warnings + tuple(check.problems())}
 
+    step = 0
     stream = _with_last(events)
-    first, first_is_last = next(stream, (None, True))
-    pending: list[tuple[LogEvent, bool]] = []
+    first, last = next(stream, (None, True))
+    extra: dict[str, Any]
     if isinstance(first, Sighting):
-        with _at_line(first.line):
+        try:
             observations = ekf.observe(first.ids, first.z)
-        yield record(
-            event=0, kind=EventKind.INIT, last=first_is_last, log_event=first,
-            observations=observations,
+        except FilterError as error:
+            raise FilterLineError(first.line, str(error)) from error
+        extra = checked(first.line, ekf.warnings)
+        yield ekf.record(
+            event=0, step=0, kind=EventKind.INIT, line=first.line, time=first.time,
+            observations=observations, full_cov=full_cov, **extra,
         )  # fmt: skip
+        pending: list[tuple[LogEvent, bool]] = []
     else:
-        yield record(event=0, kind=EventKind.INIT, last=first is None)
-        if first is not None:
-            pending.append((first, first_is_last))
+        extra = checked(0, ())
+        yield ekf.record(event=0, step=0, kind=EventKind.INIT, full_cov=full_cov, **extra)
+        pending = [] if first is None else [(first, last)]
 
     step_has_update = True  # the initialisation counts as step 0's update
+    no_extra: dict[str, Any] = {}
     for event, (log_event, last) in enumerate(chain(pending, stream), start=1):
-        if isinstance(log_event, Control):
-            step += 1
-            step_has_update = False
-            with _at_line(log_event.line):
-                ekf.predict(log_event.d, log_event.alpha)
-            yield record(event=event, kind=EventKind.PREDICT, last=last, log_event=log_event)
-        else:
-            if step_has_update:
+        # the filter's own errors name the line; "try" costs nothing until one is raised
+        try:
+            if isinstance(log_event, Control):
                 step += 1
-            step_has_update = True
-            with _at_line(log_event.line):
+                step_has_update = False
+                ekf.predict(log_event.d, log_event.alpha)
+                extra = checked(log_event.line, ()) if step >= next_check or last else no_extra
+                yield ekf.record(
+                    event=event, step=step, kind=EventKind.PREDICT, line=log_event.line,
+                    time=log_event.time, control=(log_event.d, log_event.alpha),
+                    full_cov=full_cov, **extra,
+                )  # fmt: skip
+            else:
+                if step_has_update:
+                    step += 1
+                step_has_update = True
                 observations = ekf.observe(log_event.ids, log_event.z)
-            yield record(
-                event=event, kind=EventKind.UPDATE, last=last, log_event=log_event,
-                observations=observations,
-            )  # fmt: skip
+                warnings = ekf.warnings
+                extra = (
+                    checked(log_event.line, warnings)
+                    if step >= next_check or last or warnings
+                    else no_extra
+                )
+                yield ekf.record(
+                    event=event, step=step, kind=EventKind.UPDATE, line=log_event.line,
+                    time=log_event.time, observations=observations, full_cov=full_cov,
+                    **extra,
+                )  # fmt: skip
+        except FilterLineError:
+            raise
+        except FilterError as error:
+            raise FilterLineError(log_event.line, str(error)) from error
 
 
 def _with_last(events: Iterable[LogEvent]) -> Iterator[tuple[LogEvent, bool]]:
@@ -149,12 +142,3 @@ def _with_last(events: Iterable[LogEvent]) -> Iterator[tuple[LogEvent, bool]]:
             raise
         yield current, False
         current = following
-
-
-@contextmanager
-def _at_line(line: int) -> Iterator[None]:
-    """Name the log line in a filter error raised inside the block."""
-    try:
-        yield
-    except FilterError as error:
-        raise FilterLineError(line, str(error)) from error
