@@ -342,6 +342,53 @@ def end_to_end(folder: Path, quick: bool) -> list[EndToEnd]:
     return rows
 
 
+@dataclass(frozen=True, slots=True)
+class Memory:
+    """Peak resident memory of a replay of the first ``steps`` steps of the long log."""
+
+    steps: int
+    log_mb: float
+    core_mb: float  # reading, filter, records and consistency; no recording
+    end_to_end_mb: float  # `ekfviz replay --save`
+    rrd_mb: float
+
+
+CORE_ONLY = """
+import resource, sys
+from pathlib import Path
+from ekfviz.core.consistency import Consistency
+from ekfviz.core.replay import replay
+from ekfviz.io.extended import read_log
+consistency = Consistency()
+for record in replay(read_log(Path(sys.argv[1]))):
+    consistency.add(record)
+print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0)
+"""
+
+
+def memory_rows(
+    folder: Path, long_log: Path, long_peak_mb: float, long_rrd_mb: float
+) -> list[Memory]:
+    """Peak memory against the log's length: the long log and its first tenth."""
+    lines = long_log.read_text().splitlines(keepends=True)
+    short_log = folder / "classic_tenth.txt"
+    short_log.write_text("".join(lines[: len(lines) // 10 + 1]))
+    rows = []
+    for log in (short_log, long_log):
+        core = subprocess.run(
+            [sys.executable, "-c", CORE_ONLY, str(log)],
+            check=True, capture_output=True, text=True,
+        )  # fmt: skip
+        if log is long_log:
+            peak, rrd = long_peak_mb, long_rrd_mb
+        else:
+            _, peak, rrd = run_replay(log, folder)
+        steps = (sum(1 for _ in log.open()) - 1) // 2
+        rows.append(Memory(steps, log.stat().st_size / 1e6, float(core.stdout), peak, rrd))
+        print(f"  {steps:,} steps: core {float(core.stdout):.0f} MB, end to end {peak:.0f} MB")
+    return rows
+
+
 def startup() -> tuple[float, float]:
     """Median wall seconds of the bare interpreter, and of it importing rerun, numpy, typer."""
 
@@ -393,6 +440,7 @@ def verdict(ok: bool) -> str:
 def report(
     rows: list[CoreRow],
     e2e: list[EndToEnd],
+    memory: list[Memory],
     interpreter_s: float,
     imports_s: float,
     flops: float,
@@ -506,6 +554,24 @@ def report(
         " and at the end. `detail=True` (`--detail`) logs every ellipse at every update.",
         "",
     ]
+    if memory:
+        lines += [
+            "## Memory against the length of the log",
+            "",
+            "Peak resident memory replaying the classic-size log and its first tenth. *Core*:"
+            " reading, filter, records and the consistency count in a child process, no"
+            " recording. *End to end*: `ekfviz replay --save`. The core streams; what grows"
+            " end to end is Rerun's .rrd writer, which keeps an index entry per chunk for the"
+            " file's footer.",
+            "",
+            "| steps | log MB | core peak MB | end-to-end peak MB | .rrd MB |",
+            "|---:|---:|---:|---:|---:|",
+        ]
+        lines += [
+            f"| {m.steps:,} | {m.log_mb:.1f} | {m.core_mb:.0f} | {m.end_to_end_mb:.0f}"
+            f" | {m.rrd_mb:.1f} |"
+            for m in memory
+        ]
     return "\n".join(lines)
 
 
@@ -520,11 +586,14 @@ def main(argv: Sequence[str] | None = None) -> None:
     print("end to end", flush=True)
     with tempfile.TemporaryDirectory() as tmp:
         e2e = end_to_end(Path(tmp), args.quick)
+        print("memory against log length", flush=True)
+        long = e2e[2]
+        memory = memory_rows(Path(tmp), Path(tmp) / "classic_long.txt", long.peak_mb, long.rrd_mb)
     print("core against dense (one BLAS thread)", flush=True)
     rows = core_rows(args.quick)
     flops = dgemm_flops()
     interpreter_s, imports_s = startup()
-    text = report(rows, e2e, interpreter_s, imports_s, flops, args.quick)
+    text = report(rows, e2e, memory, interpreter_s, imports_s, flops, args.quick)
     args.out.write_text(text)
     print()
     print(text)

@@ -42,6 +42,9 @@ def kinds(path: Path) -> list[str]:
         "# a comment\n\n" + LOG.replace("3.0 0.0", "3.0 0.0   # drive") + "\n\n",
         LOG.rstrip("\n"),  # no final newline
         LOG.replace("3.0", "+3e0").replace("0.1", ".1"),
+        "\ufeff" + LOG,  # a UTF-8 byte-order mark, as Windows editors write
+        LOG.replace("\n", "\r"),  # classic Mac line ends
+        LOG.replace("\n", "\f\n"),  # a form feed is white space
     ],
     ids=[
         "spaces",
@@ -52,6 +55,9 @@ def kinds(path: Path) -> list[str]:
         "comments-blank",
         "no-final-newline",
         "number-forms",
+        "byte-order-mark",
+        "cr-only",
+        "form-feed",
     ],
 )
 def test_accepted_variants_read_the_same(tmp_path: Path, content: str) -> None:
@@ -67,6 +73,13 @@ def test_accepted_variants_read_the_same(tmp_path: Path, content: str) -> None:
 def test_line_numbers_count_blank_and_comment_lines(tmp_path: Path) -> None:
     events = list(read_classic(write(tmp_path, "# header\n" + OBS + "\n\n3 0\n")))
     assert [e.line for e in events] == [2, 4]
+
+
+@pytest.mark.parametrize("end", ["\n", "\r\n", "\r"])
+def test_line_numbers_with_any_line_end(tmp_path: Path, end: str) -> None:
+    content = end.join(["# header", OBS, "", "3 0", "1 2 3", ""])
+    with pytest.raises(InputError, match=r"log\.txt:5: found 3 numbers"):
+        list(read_classic(write(tmp_path, content)))
 
 
 def test_alternation_is_not_required(tmp_path: Path) -> None:

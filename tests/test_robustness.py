@@ -46,6 +46,11 @@ CASES: dict[str, tuple[str | bytes | None, str | None, str]] = {
         "log.txt:3: found range -5 for landmark 1",
     ),
     "zero range": ("observe 3 0.1 0\n", None, "log.txt:1: found range 0 for landmark 3"),
+    "id beyond int64": (
+        "observe 99999999999999999999 0.1 5\n",
+        None,
+        "log.txt:1: found landmark id 99999999999999999999, expected an integer up to",
+    ),
     "long line": ("1 " * 600_000 + "\n", None, "log.txt:1: found a line longer than 1 MiB"),
     "truth count": (f"{OBS}\n", "3 6\n3 12\n5 5\n", "truth.txt: found 3 landmarks, expected the 2"),
     "truth ids": ("observe 7 0.1 5\n", "3 6\n", "truth.txt: has no landmark 7, which line 1"),

@@ -33,6 +33,7 @@ from ekfviz.io.text import (
 
 KEYWORDS = ("control", "observe")
 _ID = re.compile(r"\+?\d+")
+MAX_ID = 2**63 - 1  # ids are int64
 
 
 def read_log(
@@ -123,6 +124,10 @@ def _observation(
         if not _ID.fullmatch(token):
             raise InputError(path, line, f"found landmark id {token!r}, expected an integer >= 0")
         landmark_id = int(token)
+        if landmark_id > MAX_ID:
+            raise InputError(
+                path, line, f"found landmark id {token}, expected an integer up to {MAX_ID}"
+            )
         if landmark_id in ids:
             raise InputError(
                 path, line, f"found landmark {landmark_id} twice, expected each id once a line"

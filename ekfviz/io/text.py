@@ -25,7 +25,8 @@ def token_lines(
 ) -> Iterator[tuple[int, list[str]]]:
     """Stream the non-blank lines of a file as tokens, never holding the whole file.
 
-    Accepts tabs or spaces, trailing separators, CRLF line ends and ``#`` comments.
+    Accepts tabs or spaces, trailing separators, LF, CRLF or CR line ends, a UTF-8
+    byte-order mark and ``#`` comments.
 
     :param progress: called now and then with the number of bytes read so far
     :return: iterator of (1-based line number, whitespace-separated tokens of that line)
@@ -59,6 +60,20 @@ def token_lines(
                 text = raw.decode("utf-8")
             except UnicodeDecodeError:
                 raise InputError(path, number, "found bytes that are not UTF-8 text") from None
+            if number == 1 and text.startswith(
+                "\ufeff"
+            ):  # a byte-order mark, as some editors write
+                text = text[1:]
+            if "\r" in text:  # CRLF, or lines ended by CR alone (classic Mac)
+                pieces = text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
+                if pieces[-1] == "":
+                    pieces.pop()
+                for piece in pieces[:-1]:
+                    tokens = piece.split("#", 1)[0].split()
+                    if tokens:
+                        yield number, tokens
+                    number += 1
+                text = pieces[-1] if pieces else ""
             tokens = text.split("#", 1)[0].split()
             if tokens:
                 yield number, tokens

@@ -22,6 +22,7 @@ from ekfviz.io.errors import InputError
 from ekfviz.io.text import numeric_lines
 
 _ID = re.compile(r"\d+")
+MAX_ID = 2**63 - 1  # ids are int64
 
 
 def read_truth(path: Path) -> GroundTruth:
@@ -37,7 +38,7 @@ def read_truth(path: Path) -> GroundTruth:
 def _starts_with_brace(path: Path) -> bool:
     try:
         with path.open("rb") as handle:
-            return handle.read(64).lstrip().startswith(b"{")
+            return handle.read(64).removeprefix(b"\xef\xbb\xbf").lstrip().startswith(b"{")
     except OSError:
         return False  # the text reader reports it
 
@@ -57,7 +58,7 @@ def _read_text(path: Path) -> GroundTruth:
 
 def _read_json(path: Path) -> GroundTruth:
     try:
-        text = path.read_text(encoding="utf-8")
+        text = path.read_text(encoding="utf-8-sig")
     except FileNotFoundError:
         raise InputError(path, 0, "no such file") from None
     except IsADirectoryError:
@@ -77,6 +78,8 @@ def _read_json(path: Path) -> GroundTruth:
             bad = next(key for key in landmarks if not _ID.fullmatch(key))
             raise InputError(path, 1, f"found landmark id {bad!r}, expected an integer >= 0")
         ids = [int(key) for key in landmarks]
+        if max(ids, default=0) > MAX_ID:
+            raise InputError(path, 1, f"found landmark id {max(ids)}, expected up to {MAX_ID}")
         pairs = list(landmarks.values())
     else:
         raise InputError(
