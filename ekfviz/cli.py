@@ -7,7 +7,6 @@ import json
 import math
 import os
 import shlex
-import signal
 import sys
 import tempfile
 from collections.abc import Iterator
@@ -24,7 +23,7 @@ from rich.markup import escape
 from rich.progress import BarColumn, DownloadColumn, Progress, TimeRemainingColumn
 from rich.table import Table
 
-from ekfviz import __version__
+from ekfviz import __version__, signals
 from ekfviz.core.consistency import Consistency, Verdict
 from ekfviz.core.evaluation import Evaluation, GroundTruth, evaluate
 from ekfviz.core.filter import FilterError, FilterParams, LandmarkInit, UpdateMode
@@ -77,6 +76,7 @@ DEBUG = {"traceback": False}
 
 @app.callback()
 def main(
+    ctx: typer.Context,
     version: Annotated[
         bool,
         typer.Option("--version", callback=_version, is_eager=True, help="Print the version."),
@@ -87,6 +87,8 @@ def main(
 ) -> None:
     """Replay a 2-D EKF-SLAM run and explore it in Rerun."""
     DEBUG["traceback"] = debug
+    if ctx.invoked_subcommand != "replay":  # only a replay keeps signals for later
+        signals.restore()
 
 
 def warn(message: str) -> None:
@@ -315,7 +317,7 @@ def replay(
         with (
             open_progress(data) as progress,
             viz.open_run(info, sinks, detail=detail) as logger,
-            signals_as_exceptions(),
+            signals.as_exceptions(),
         ):
             last: EventRecord | None = None
             consistency = Consistency(truth_xy)
@@ -327,7 +329,9 @@ def replay(
                     if record.warnings:
                         warnings.add(record)
                     last = record
-            except (InputError, FilterLineError, KeyboardInterrupt, Terminated) as cause:
+                    if record.event == 0:  # a signal during start-up: stop, with a recording
+                        signals.raise_pending()
+            except (InputError, FilterLineError, KeyboardInterrupt, signals.Terminated) as cause:
                 final = None if last is None else evaluate(last, truth_xy, consistency)
                 reason = stop_reason(cause, data, last)
                 kept = logger.stop(reason, final)
@@ -353,8 +357,8 @@ def replay(
         fail(f"{stopped.reason}{where}", code=stopped.exit_code)
     except (InputError, FilterError, viz.SinkError) as error:
         fail(str(error))
-    except (KeyboardInterrupt, Terminated) as signal_error:
-        raise typer.Exit(143 if isinstance(signal_error, Terminated) else 130) from None
+    except (KeyboardInterrupt, signals.Terminated) as signal_error:
+        raise typer.Exit(143 if isinstance(signal_error, signals.Terminated) else 130) from None
 
 
 @app.command()
@@ -807,10 +811,6 @@ class FilterWarnings:
             )
 
 
-class Terminated(BaseException):  # like KeyboardInterrupt: not caught by "except Exception"
-    """SIGTERM, turned into an exception so that a run can close its recording."""
-
-
 class RunStopped(Exception):
     """A replay cut short; ``kept`` says whether its recording was kept."""
 
@@ -820,7 +820,7 @@ class RunStopped(Exception):
         self.kept = kept
         if isinstance(cause, KeyboardInterrupt):
             self.exit_code = 130  # 128 + SIGINT, as a shell reports it
-        elif isinstance(cause, Terminated):
+        elif isinstance(cause, signals.Terminated):
             self.exit_code = 143  # 128 + SIGTERM
         else:
             self.exit_code = 2
@@ -831,25 +831,11 @@ def stop_reason(cause: BaseException, data: Path, last: EventRecord | None) -> s
     after = f"after input line {last.line}" if last is not None and last.line else "at the start"
     if isinstance(cause, KeyboardInterrupt):
         return f"{data}: interrupted (SIGINT) {after}"
-    if isinstance(cause, Terminated):
+    if isinstance(cause, signals.Terminated):
         return f"{data}: terminated (SIGTERM) {after}"
     if isinstance(cause, FilterLineError):
         return f"{data}:{cause.line}: {cause}"
     return str(cause)
-
-
-@contextmanager
-def signals_as_exceptions() -> Iterator[None]:
-    """Raise :class:`Terminated` on SIGTERM inside the block (SIGINT already raises)."""
-
-    def terminate(signum: int, frame: object) -> None:
-        raise Terminated
-
-    previous = signal.signal(signal.SIGTERM, terminate)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
 
 
 @contextmanager

@@ -175,3 +175,49 @@ def test_a_skipped_observation_is_a_warning_in_the_terminal_and_the_recording(
     checked = entity_rows(rrd, "/metrics/health/P_min_eigenvalue")
     assert [row["event"] for row in checked] == [0, 2, 4]  # first, skip, last
     assert all(value > 0 for row in checked for value in row["Scalars:scalars"])  # type: ignore[attr-defined]
+
+
+def _catches(pid: int, signum: int) -> bool:
+    """Whether a process has a handler for ``signum`` (Linux: SigCgt in /proc)."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("SigCgt:"):
+            return bool(int(line.split()[1], 16) >> (signum - 1) & 1)
+    return False
+
+
+@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="reads /proc")
+@pytest.mark.parametrize(("signum", "code", "word"), [(2, 130, "SIGINT"), (15, 143, "SIGTERM")])
+def test_a_signal_during_start_up_still_leaves_a_recording(
+    tmp_path: Path, signum: int, code: int, word: str
+) -> None:
+    """Even while rerun is still being imported, and with SIGINT ignored by the parent
+    (as ``ekfviz ... &`` in a script has it)."""
+    import os
+    import signal
+    import time
+
+    from conftest import entity_rows
+
+    log = tmp_path / "log.txt"
+    log.write_text(f"{OBS}\n" + "1 0.1\n0.1 5 0.2 6\n" * 50)
+    rrd = tmp_path / "run.rrd"
+    process = subprocess.Popen(
+        [sys.executable, "-m", "ekfviz", "replay", str(log), "--save", str(rrd)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN),
+    )
+    deadline = time.monotonic() + 30
+    while not _catches(process.pid, signum) and time.monotonic() < deadline:
+        time.sleep(0.005)
+    os.kill(process.pid, signum)
+    _, stderr = process.communicate(timeout=60)
+    assert process.returncode == code, stderr
+    assert f"({word}) after input line 1;" in stderr and "Traceback" not in stderr
+    verify = subprocess.run(
+        [str(Path(sys.executable).parent / "rerun"), "rrd", "verify", str(rrd)],
+        capture_output=True, text=True,
+    )  # fmt: skip
+    assert verify.returncode == 0, verify.stderr
+    assert word in str(entity_rows(rrd, "/log")[-1]["TextLog:text"])
