@@ -294,9 +294,9 @@ class EkfSlam:
                 self._update_joint(ids_list, z, known, table, skipped)
             else:
                 self._update_sequential(ids_list, z_list, known, table, skipped)
-            # one O(n) look at x and diag(P) (the buffer's: zero beyond the state), so that
-            # a NaN cannot reach the next event
-            if not math.isfinite(float(self._x.sum()) + float(self._P.trace())):
+            # one O(n) look at x (the buffer's: zero beyond the state), so that a NaN cannot
+            # reach the next event: a non-finite S or H P reaches x through its update
+            if not math.isfinite(float(self._x.sum())):
                 raise FilterError("the state became non-finite in update")
         if any_new:
             self._reserve(sum(new))
@@ -377,9 +377,11 @@ class EkfSlam:
             l00 = math.sqrt(s00) if s00 > 0.0 else 0.0
             l10 = s01 / l00 if l00 > 0.0 else 0.0
             d11 = s11 - l10 * l10
-            if not math.isfinite(s00 + s01 + s11):
-                raise FilterError(f"the covariance became non-finite (S of landmark {landmark_id})")
-            if not (l00 > 0.0 and d11 > 0.0):
+            if not (l00 > 0.0 and d11 > 0.0):  # also NaN; an infinite S ends as NaN in x
+                if not math.isfinite(s00 + s01 + s11):
+                    raise FilterError(
+                        f"the covariance became non-finite (S of landmark {landmark_id})"
+                    )
                 table[k] = (bearing, rng, nu0, nu1, s00, s01, s01, s11, math.nan)
                 self._skip(k, landmark_id, skipped, _not_definite(s00, s01, s11))
                 continue
@@ -552,6 +554,8 @@ class EkfSlam:
             P[n : n + 2, :n] = 0.0
             P[:n, n : n + 2] = 0.0
         P[n : n + 2, n : n + 2] = 0.5 * (P_ll + P_ll.T)
+        if not np.isfinite(P[n : n + 2, : n + 2]).all():  # a range so large it overflows
+            raise FilterError(f"the covariance of new landmark {landmark_id} is not finite")
         self._slot[landmark_id] = n
         self._ids.append(landmark_id)
         self._ids_array = None
