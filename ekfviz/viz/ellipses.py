@@ -14,10 +14,13 @@ import numpy as np
 from ekfviz.core.types import FloatArray
 
 N_SIGMA = 3.0
-N_POINTS = 64
+# 32 points (31 chords) keep an outline within about 0.5 % of its radius of the true ellipse,
+# finer than a line's width at any useful zoom; 64 doubled the size of a recording and
+# the CPU to encode it for nothing one could see.
+N_POINTS = 32
 MIN_POINTS = 16
 # Above this many points per batch the outlines get coarser, so that a map of thousands
-# of landmarks costs a bounded number of points per event (64 points up to 256 ellipses).
+# of landmarks costs a bounded number of points per event (32 points up to 512 ellipses).
 POINT_BUDGET = 16384
 
 
