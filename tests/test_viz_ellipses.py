@@ -48,6 +48,6 @@ def test_degenerate_covariance_gives_a_flat_outline_not_nan() -> None:
 
 
 def test_point_budget() -> None:
-    assert outline_points(6) == 64
-    assert outline_points(256) == 64
+    assert outline_points(6) == 32
+    assert outline_points(512) == 32
     assert outline_points(5000) == 16

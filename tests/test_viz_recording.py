@@ -420,3 +420,48 @@ def test_detail_logs_every_ellipse_at_every_update(tmp_path: Path) -> None:
     assert all(np.asarray(row["LineStrips2D:class_ids"]).shape == (40,) for row in rows)
     assert entity_rows(rrd, f"/{style.LANDMARK_ELLIPSES_OBSERVED}") == []
     assert len(entity_rows(rrd, f"/{style.LANDMARK_ERROR}/7")) == len(updates)
+
+
+def test_a_long_run_across_flushes_keeps_every_row_and_small_strip_chunks(
+    tmp_path: Path,
+) -> None:
+    """Past a flush (FLUSH_EVERY events) and several chunks of line strips (SHAPES_EVERY):
+    a row per event or update everywhere, the trajectory unbroken between two sends."""
+    from rerun.chunk import RrdReader
+
+    from ekfviz.viz.recorder import FLUSH_EVERY, SHAPES_EVERY
+
+    steps = FLUSH_EVERY // 2 + SHAPES_EVERY
+    controls = np.tile(classic_controls(), (steps // len(classic_controls()) + 1, 1))[:steps]
+    sim = simulate(controls, CLASSIC_LANDMARKS_XY, seed=7)
+    rrd, records = save_run(tmp_path, sim.events, None, name="long")
+    assert len(records) > FLUSH_EVERY + SHAPES_EVERY
+    updates = [r for r in records if r.kind is not EventKind.PREDICT]
+    trajectory = entity_rows(rrd, f"/{style.TRAJECTORY}")
+    assert [row["event"] for row in trajectory] == [r.event for r in records[1:]]
+    for row, before, after in zip(trajectory, records[:-1], records[1:], strict=True):
+        np.testing.assert_allclose(
+            points(row, "LineStrips2D:strips")[0], [before.pose[:2], after.pose[:2]], rtol=F32
+        )
+    rays = entity_rows(rrd, f"/{style.OBSERVATIONS}")
+    assert [len(points(row, "LineStrips2D:strips")) for row in rays] == [
+        0 if r.observations is None else len(r.observations) for r in records
+    ]
+    ellipses = entity_rows(rrd, f"/{style.LANDMARK_ELLIPSES}")
+    assert [row["event"] for row in ellipses] == [r.event for r in updates]
+    assert all(row["LineStrips2D:class_ids"] == [1, 2, 3, 4, 5, 6] for row in ellipses)
+    assert [row["event"] for row in entity_rows(rrd, f"/{style.LOG}")] == [r.event for r in records]
+    strips = {
+        f"/{path}"
+        for path in (
+            style.TRAJECTORY,
+            style.OBSERVATIONS,
+            style.POSE_PREDICTED,
+            style.POSE_UPDATED,
+            style.LANDMARK_ELLIPSES,
+            style.LANDMARK_INITIAL,
+        )
+    }
+    for chunk in RrdReader(rrd).stream().filter(is_static=False):
+        if chunk.entity_path in strips:
+            assert chunk.to_record_batch().num_rows <= SHAPES_EVERY, chunk.entity_path

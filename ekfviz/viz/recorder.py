@@ -34,6 +34,7 @@ every ellipse and error at every update.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -61,7 +62,10 @@ from ekfviz.viz import style
 from ekfviz.viz.blueprint import default_blueprint
 from ekfviz.viz.ellipses import ellipse_outlines, outline_points
 
-FLUSH_EVERY = 256  # events between two sends of the buffered data: one chunk each
+# Events between two sends of the buffered data, one chunk per entity: each chunk costs
+# ~0.1 ms in the main thread and as much in Rerun's encoder, whatever its size.
+FLUSH_EVERY = 1024
+SHAPES_EVERY = 256  # ... but line strips in chunks of at most this many events (_send_strips)
 FLUSH_LANDMARKS = 1 << 20  # ... or sooner, once the buffered records hold this many landmarks
 SMALL_MAP = 32  # up to this many landmarks, every ellipse at every update
 MAP_EVERY_STEPS = 25  # beyond: the whole map every this many steps
@@ -75,44 +79,101 @@ def _radius(ui_points: float) -> npt.ArrayLike:
     return rr.Radius.ui_points(ui_points)
 
 
-def _strips(polylines: FloatArray) -> Any:
-    """(K, n, 2) polylines as Rerun's line strips, in its own float32.
-
-    Built as the Arrow array Rerun would make, with offsets from numpy: the SDK's own
-    conversion walks the strips in Python, which costs more than the rest of logging
-    them. Falls back to the SDK's conversion should its Arrow type ever be unknown.
-    """
-    points = polylines.astype(np.float32)
-    strip_type = getattr(rr.components.LineStrip2DBatch, "_ARROW_DATATYPE", None)
-    if strip_type is None:
-        return points
-    k, n = points.shape[:2]
-    values = pa.FixedSizeListArray.from_arrays(
-        pa.array(points.reshape(-1)), type=strip_type.value_type
-    )
-    offsets = pa.array(
-        np.arange(0, (k + 1) * n, n, dtype=np.int32) if n else np.zeros(k + 1, np.int32)
-    )
-    return pa.ListArray.from_arrays(offsets, values, type=strip_type)
-
-
-_NO_ROWS: IntArray = np.zeros(0, dtype=np.int64)
+# Arrow types of the components built here (see _column), from the SDK's own conversion
+_XY = rr.components.Position2DBatch([[0.0, 0.0]]).as_arrow_array().type
+_VECTOR = rr.components.Vector2DBatch([[0.0, 0.0]]).as_arrow_array().type
+_STRIP = rr.components.LineStrip2DBatch([[[0.0, 0.0], [0.0, 0.0]]]).as_arrow_array().type
 
 
 @dataclass(frozen=True, slots=True)
+class _Arrow:
+    """An Arrow array built here, as the SDK's ``ComponentBatchLike``."""
+
+    array: pa.Array
+
+    def as_arrow_array(self) -> pa.Array:
+        return self.array
+
+
+def _column(
+    descriptor: rr.ComponentDescriptor, values: pa.Array, counts: IntArray | None = None
+) -> rr.ComponentColumn:
+    """``values`` as a column of rows of ``counts[i]`` values each (one each by default).
+
+    Built straight from Arrow: the SDK's archetype ``columns`` check and convert their
+    input in Python at every call, which cost more than the rest of a send, a dozen
+    sends per flush.
+    """
+    offsets = np.zeros(len(values) + 1 if counts is None else len(counts) + 1, dtype=np.int32)
+    if counts is None:
+        offsets[1:] = np.arange(1, len(values) + 1)
+    else:
+        np.cumsum(counts, out=offsets[1:])
+    return rr.ComponentColumn(descriptor, _Arrow(values), offsets=offsets)
+
+
+def _scalars(values: npt.ArrayLike) -> list[rr.ComponentColumn]:
+    """One ``Scalars`` value per row."""
+    array = pa.array(np.asarray(values, dtype=np.float64))
+    return [_column(rr.Scalars.descriptor_scalars(), array)]
+
+
+def _xy(points: FloatArray, vector_type: pa.DataType = _XY) -> pa.Array:
+    """(K, 2) points (or vectors) as Rerun's float32 pairs."""
+    flat = pa.array(np.ascontiguousarray(points, dtype=np.float32).reshape(-1))
+    return pa.FixedSizeListArray.from_arrays(flat, type=vector_type)
+
+
+def _strips(polylines: FloatArray) -> pa.Array:
+    """(K, n, 2) polylines as Rerun's line strips, in its own float32.
+
+    Built as the Arrow array Rerun would make, with offsets from numpy: the SDK's own
+    conversion walks the strips in Python, which costs more than the rest of logging them.
+    """
+    k, n = polylines.shape[:2]
+    offsets = pa.array(
+        np.arange(0, (k + 1) * n, n, dtype=np.int32) if n else np.zeros(k + 1, np.int32)
+    )
+    return pa.ListArray.from_arrays(offsets, _xy(polylines.reshape(-1, 2)), type=_STRIP)
+
+
+_NO_ROWS: IntArray = np.zeros(0, dtype=np.int64)
+_INFO, _WARN = str(rr.TextLogLevel.INFO), str(rr.TextLogLevel.WARN)  # as Arrow strings
+
+
+@dataclass(frozen=True, slots=True)
+class _Index:
+    """A time column already in Arrow, as the SDK's ``TimeColumnLike``."""
+
+    timeline: str
+    times: pa.Array
+
+    def timeline_name(self) -> str:
+        return self.timeline
+
+    def as_arrow_array(self) -> pa.Array:
+        return self.times
+
+
+def _times(steps: IntArray, events: IntArray) -> list[rr.TimeColumnLike]:
+    """Both timelines of some rows, in Arrow."""
+    return [_Index(style.STEP, pa.array(steps)), _Index(style.EVENT, pa.array(events))]
+
+
 class _Rows:
     """The step and event of each buffered record, to pick the time columns of a send."""
 
-    steps: IntArray
-    events: IntArray
+    def __init__(self, steps: IntArray, events: IntArray) -> None:
+        self.steps = steps
+        self.events = events
+        self.all = _times(steps, events)  # most sends have a row per record: once
 
-    @property
-    def all(self) -> tuple[IntArray, IntArray]:
-        return self.steps, self.events
+    def __len__(self) -> int:
+        return len(self.steps)
 
-    def pick(self, rows: Sequence[int] | IntArray) -> tuple[IntArray, IntArray]:
+    def pick(self, rows: Sequence[int] | IntArray) -> list[rr.TimeColumnLike]:
         index = np.asarray(rows, dtype=np.int64)
-        return self.steps[index], self.events[index]
+        return _times(self.steps[index], self.events[index])
 
 
 def _landmark_rows(record: EventRecord, which: str | None) -> IntArray:
@@ -122,6 +183,53 @@ def _landmark_rows(record: EventRecord, which: str | None) -> IntArray:
     observations = record.observations
     ids = observations.ids if which == "observed" else observations.ids[observations.initialised]
     return np.flatnonzero(np.isin(record.landmark_ids, ids))
+
+
+@dataclass(frozen=True, slots=True)
+class _Observed:
+    """What the updates of a send did with their observations, summed per record in one
+    go (a numpy call per record would cost more than the rest of its logging).
+
+    :param rows: the records with observations
+    :param seen: (count,) observations per record, 0 without
+    :param z: (sum(seen), 2) their measured (bearing, range), record after record
+    """
+
+    rows: IntArray
+    seen: IntArray
+    z: FloatArray
+    new: IntArray
+    nis_sum: FloatArray
+    nis_used: IntArray
+    skipped: IntArray
+
+    @staticmethod
+    def of(records: list[EventRecord], corrected: IntArray) -> _Observed:
+        count = len(records)
+        observed = [
+            (k, observations)
+            for k in corrected.tolist()
+            if (observations := records[k].observations) is not None
+        ]
+        rows = np.array([k for k, _ in observed], dtype=np.int64)
+        seen = np.zeros(count, dtype=np.int64)
+        seen[rows] = [len(observations) for _, observations in observed]
+        owner = np.repeat(np.arange(count), seen)
+
+        def joined(field: str, empty: npt.NDArray[Any]) -> npt.NDArray[Any]:
+            return np.concatenate([empty, *(getattr(o, field) for _, o in observed)])
+
+        nis = joined("nis", np.zeros(0))
+        used = np.isfinite(nis)
+        return _Observed(
+            rows=rows,
+            seen=seen,
+            z=joined("z", np.zeros((0, 2))),
+            new=np.bincount(owner[joined("initialised", np.zeros(0, bool))], minlength=count),
+            nis_sum=np.bincount(owner[used], weights=nis[used], minlength=count).astype(np.float64),
+            nis_used=np.bincount(owner[used], minlength=count),
+            skipped=np.bincount(owner[joined("skipped", np.zeros(0, bool))], minlength=count),
+        )
 
 
 class _Entities:
@@ -138,7 +246,7 @@ class _Entities:
     def log(self, entity: str, data: Any, *, static: bool = False) -> None:
         self.rec.log(self.path(entity), data, static=static)
 
-    def send_columns(self, entity: str, indexes: Sequence[rr.TimeColumn], columns: Any) -> None:
+    def send_columns(self, entity: str, indexes: Sequence[rr.TimeColumnLike], columns: Any) -> None:
         self.rec.send_columns(self.path(entity), indexes=indexes, columns=columns)
 
     def set_time(self, timeline: str, *, sequence: int) -> None:
@@ -169,11 +277,8 @@ class _SeriesBuffer:
             if values:
                 self._rec.send_columns(
                     path,
-                    indexes=[
-                        rr.TimeColumn(style.STEP, sequence=steps),
-                        rr.TimeColumn(style.EVENT, sequence=events),
-                    ],
-                    columns=rr.Scalars.columns(scalars=values),
+                    indexes=_times(np.array(steps), np.array(events)),
+                    columns=_scalars(values),
                 )
         self._series.clear()
 
@@ -412,94 +517,56 @@ class Recorder:
         records = [record for record, _ in pending]
         count = len(records)
         rows = _Rows(
-            np.array([record.step for record in records], dtype=np.int64),
-            np.array([record.event for record in records], dtype=np.int64),
+            np.fromiter((record.step for record in records), np.int64, count),
+            np.fromiter((record.event for record in records), np.int64, count),
         )
         poses = np.stack([record.pose for record in records])
         pose_covs = np.stack([record.pose_cov for record in records])
-        corrected = [k for k, record in enumerate(records) if record.kind is not EventKind.PREDICT]
-        predicted = [k for k, record in enumerate(records) if record.kind is EventKind.PREDICT]
+        is_predict = np.fromiter(
+            (record.kind is EventKind.PREDICT for record in records), bool, count
+        )
+        corrected = np.flatnonzero(~is_predict)
+        observed = _Observed.of(records, corrected)
 
-        # what each update did with its observations, summed in one go
-        seen = np.zeros(count, dtype=np.int64)
-        z, nis, initialised = [], [], []
-        for k in corrected:
-            observations = records[k].observations
-            if observations is not None:
-                seen[k] = len(observations)
-                z.append(observations.z)
-                nis.append(observations.nis)
-                initialised.append(observations.initialised)
-        nis_sum: FloatArray = np.zeros(count)
-        nis_used: IntArray = np.zeros(count, dtype=np.int64)
-        new: IntArray = np.zeros(count, dtype=np.int64)
-        if z:
-            owner = np.repeat(np.arange(count), seen)
-            nis_all = np.concatenate(nis)
-            used = np.isfinite(nis_all)
-            nis_sum = np.bincount(owner[used], weights=nis_all[used], minlength=count).astype(float)
-            nis_used = np.bincount(owner[used], minlength=count).astype(np.int64)
-            new = np.bincount(owner[np.concatenate(initialised)], minlength=count).astype(np.int64)
-
-        self._send(style.ROBOT, rows.all, rr.Points2D.columns(positions=poses[:, :2]))
+        self._send(
+            style.ROBOT, rows.all, [_column(rr.Points2D.descriptor_positions(), _xy(poses[:, :2]))]
+        )
         heading = self._heading_length * np.column_stack([np.cos(poses[:, 2]), np.sin(poses[:, 2])])
         self._send(
-            style.HEADING, rows.all, rr.Arrows2D.columns(origins=poses[:, :2], vectors=heading)
-        )
-        ends_xy = poses[:, :2]
-        starts_xy = np.vstack(
-            [ends_xy[:1] if self._last_xy is None else self._last_xy, ends_xy[:-1]]
-        )
-        first = 1 if self._last_xy is None else 0  # the very first event has no segment
-        if count > first:
-            segments = np.stack([starts_xy[first:], ends_xy[first:]], axis=1)
-            self._send(
-                style.TRAJECTORY,
-                rows.pick(range(first, count)),
-                rr.LineStrips2D.columns(strips=_strips(segments)),
-            )
-        self._last_xy = ends_xy[-1].copy()
-        self._grow_bounds(ends_xy)
-        for path, picked in ((style.POSE_PREDICTED, predicted), (style.POSE_UPDATED, corrected)):
-            if picked:
-                outlines = ellipse_outlines(poses[picked, :2], pose_covs[picked, :2, :2])
-                self._send(
-                    path, rows.pick(picked), rr.LineStrips2D.columns(strips=_strips(outlines))
-                )
-        # rays from the robot to where each observation puts its landmark; an empty row at
-        # a predict clears the previous update's
-        rays = np.zeros((0, 2, 2))
-        if z:
-            pose = np.repeat(poses, seen, axis=0)
-            measured = np.concatenate(z)
-            bearing_world = pose[:, 2] + measured[:, 0]
-            seen_xy = pose[:, :2] + measured[:, 1:2] * np.column_stack(
-                [np.cos(bearing_world), np.sin(bearing_world)]
-            )
-            rays = np.stack([pose[:, :2], seen_xy], axis=1)
-        self._send(
-            style.OBSERVATIONS,
+            style.HEADING,
             rows.all,
-            rr.LineStrips2D.columns(strips=_strips(rays)).partition(seen),
+            [
+                _column(rr.Arrows2D.descriptor_origins(), _xy(poses[:, :2])),
+                _column(rr.Arrows2D.descriptor_vectors(), _xy(heading, _VECTOR)),
+            ],
         )
+        self._send_trajectory(rows, poses[:, :2])
+        for path, picked in (
+            (style.POSE_PREDICTED, np.flatnonzero(is_predict)),
+            (style.POSE_UPDATED, corrected),
+        ):
+            if picked.size:
+                outlines = ellipse_outlines(poses[picked, :2], pose_covs[picked, :2, :2])
+                self._send_strips(path, rows, picked, outlines)
+        self._send_rays(rows, poses, observed)
 
         sigma = np.sqrt(np.diagonal(pose_covs, axis1=1, axis2=2))
         for axis, name in enumerate(("x", "y", "theta")):
-            self._send(
-                f"{style.POSE_SIGMA}/{name}", rows.all, rr.Scalars.columns(scalars=sigma[:, axis])
-            )
-        with_nis = np.flatnonzero(nis_used)
+            self._send(f"{style.POSE_SIGMA}/{name}", rows.all, _scalars(sigma[:, axis]))
+        with_nis = np.flatnonzero(observed.nis_used)
         if with_nis.size:  # with the chi-square bounds of 2 dof per landmark used
-            bounds = np.array([chi2_bounds(2 * int(used)) for used in nis_used[with_nis]])
+            used, which = np.unique(observed.nis_used[with_nis], return_inverse=True)
+            bounds = np.array([chi2_bounds(2 * int(n)) for n in used])[which]
+            at = rows.pick(with_nis)
             for path, values in (
-                (style.NIS, nis_sum[with_nis]),
+                (style.NIS, observed.nis_sum[with_nis]),
                 (f"{style.NIS}/{style.LOWER}", bounds[:, 0]),
                 (f"{style.NIS}/{style.UPPER}", bounds[:, 1]),
             ):
-                self._send(path, rows.pick(with_nis), rr.Scalars.columns(scalars=values))
+                self._send(path, at, _scalars(values))
 
-        if corrected:
-            updates = [(k, records[k], pending[k][1]) for k in corrected]
+        if corrected.size:
+            updates = [(k, records[k], pending[k][1]) for k in corrected.tolist()]
             self._send_landmarks(rows.pick(corrected), [record for _, record, _ in updates])
             self._send_ellipses(
                 style.LANDMARK_ELLIPSES,
@@ -527,63 +594,89 @@ class Recorder:
                 [
                     (k, record, _landmark_rows(record, "initialised"))
                     for k, record, _ in updates
-                    if new[k]
+                    if observed.new[k]
                 ],
             )
-        self._send_health(records, rows, pose_covs, corrected)
-        # a line per event, then one per warning at the same event
+        self._send_health(records, rows, pose_covs, corrected, observed)
+        self._send_text(records, rows, observed)
+
+    def _send_trajectory(self, rows: _Rows, ends_xy: FloatArray) -> None:
+        """A segment from the previous position to this one at every event but the first."""
+        starts_xy = np.vstack(
+            [ends_xy[:1] if self._last_xy is None else self._last_xy, ends_xy[:-1]]
+        )
+        first = 1 if self._last_xy is None else 0  # the very first event has no segment
+        if len(rows) > first:
+            segments = np.stack([starts_xy[first:], ends_xy[first:]], axis=1)
+            self._send_strips(style.TRAJECTORY, rows, np.arange(first, len(rows)), segments)
+        self._last_xy = ends_xy[-1].copy()
+        self._grow_bounds(ends_xy)
+
+    def _send_rays(self, rows: _Rows, poses: FloatArray, observed: _Observed) -> None:
+        """Rays from the robot to where each observation puts its landmark; an empty row at
+        a predict clears the previous update's."""
+        pose = np.repeat(poses, observed.seen, axis=0)
+        bearing_world = pose[:, 2] + observed.z[:, 0]
+        seen_xy = pose[:, :2] + observed.z[:, 1:2] * np.column_stack(
+            [np.cos(bearing_world), np.sin(bearing_world)]
+        )
+        rays = np.stack([pose[:, :2], seen_xy], axis=1)
+        self._send_strips(style.OBSERVATIONS, rows, np.arange(len(rows)), rays, observed.seen)
+
+    def _send_text(self, records: list[EventRecord], rows: _Rows, observed: _Observed) -> None:
+        """A line per event, then one per warning at the same event."""
         text: list[str] = []
-        level: list[rr.TextLogLevel] = []
+        level: list[str] = []
         line_of: list[int] = []
-        for k, record in enumerate(records):
-            text.append(
-                self._describe(
-                    record, int(seen[k]), int(new[k]), float(nis_sum[k]), int(nis_used[k])
-                )
+        for k, (record, seen, new, nis_sum, nis_used) in enumerate(
+            zip(
+                records,
+                observed.seen.tolist(),
+                observed.new.tolist(),
+                observed.nis_sum.tolist(),
+                observed.nis_used.tolist(),
+                strict=True,
             )
-            level.append(rr.TextLogLevel.INFO)
+        ):
+            text.append(self._describe(record, seen, new, nis_sum, nis_used))
+            level.append(_INFO)
             line_of.append(k)
             for warning in record.warnings:
                 text.append(f"step {record.step} line {record.line}: {warning}")
-                level.append(rr.TextLogLevel.WARN)
+                level.append(_WARN)
                 line_of.append(k)
-        self._send(style.LOG, rows.pick(line_of), rr.TextLog.columns(text=text, level=level))
+        self._send(
+            style.LOG,
+            rows.pick(line_of),
+            [
+                _column(rr.TextLog.descriptor_text(), pa.array(text, pa.utf8())),
+                _column(rr.TextLog.descriptor_level(), pa.array(level, pa.utf8())),
+            ],
+        )
 
     def _send_health(
         self,
         records: list[EventRecord],
         rows: _Rows,
         pose_covs: FloatArray,
-        corrected: list[int],
+        corrected: IntArray,
+        observed: _Observed,
     ) -> None:
         """The numerical health series (see ``ekfviz.core.health``)."""
-        self._send(
-            style.HEALTH_POSE_MIN_EIG,
-            rows.all,
-            rr.Scalars.columns(scalars=pose_min_eigenvalues(pose_covs)),
-        )
-        with_map = [k for k in corrected if records[k].n_landmarks]
+        self._send(style.HEALTH_POSE_MIN_EIG, rows.all, _scalars(pose_min_eigenvalues(pose_covs)))
+        with_map = [k for k in corrected.tolist() if records[k].n_landmarks]
         if with_map:
             counts = np.array([records[k].n_landmarks for k in with_map])
             eigenvalues = landmark_min_eigenvalues(
                 np.concatenate([records[k].landmark_covs for k in with_map])
             )
             smallest = np.minimum.reduceat(eigenvalues, np.cumsum(counts) - counts)
-            self._send(
-                style.HEALTH_LANDMARK_MIN_EIG,
-                rows.pick(with_map),
-                rr.Scalars.columns(scalars=smallest),
-            )
-        observed = [
-            (k, observations)
-            for k in corrected
-            if (observations := records[k].observations) is not None
-        ]
-        if observed:
+            self._send(style.HEALTH_LANDMARK_MIN_EIG, rows.pick(with_map), _scalars(smallest))
+        if observed.rows.size:
             self._send(
                 style.HEALTH_SKIPPED,
-                rows.pick([k for k, _ in observed]),
-                rr.Scalars.columns(scalars=[int(obs.skipped.sum()) for _, obs in observed]),
+                rows.pick(observed.rows),
+                _scalars(observed.skipped[observed.rows]),
             )
         checked = [
             (k, check)
@@ -600,38 +693,87 @@ class Recorder:
             (style.HEALTH_P_MIN_EIG, [check.min_eigenvalue for _, check in checked]),
             (style.HEALTH_P_ASYMMETRY, [check.asymmetry for _, check in checked]),
         ):
-            self._send(path, at, rr.Scalars.columns(scalars=values))
+            self._send(path, at, _scalars(values))
         definite = [(k, check) for k, check in checked if math.isfinite(check.condition)]
         if definite:
             self._send(
                 style.HEALTH_P_LOG10_CONDITION,
                 rows.pick([k for k, _ in definite]),
-                rr.Scalars.columns(scalars=[math.log10(check.condition) for _, check in definite]),
+                _scalars([math.log10(check.condition) for _, check in definite]),
             )
 
-    def _send(self, entity: str, times: tuple[IntArray, IntArray], columns: Any) -> None:
-        """Send one column batch on both timelines: ``times`` = (steps, events) per row."""
-        self._rec.send_columns(
-            entity,
-            indexes=[
-                rr.TimeColumn(style.STEP, sequence=times[0]),
-                rr.TimeColumn(style.EVENT, sequence=times[1]),
-            ],
-            columns=columns,
+    def _send(
+        self,
+        entity: str,
+        times: Sequence[rr.TimeColumnLike],
+        columns: Sequence[rr.ComponentColumn],
+    ) -> None:
+        """Send one column batch on both timelines (``times``: see ``_Rows``)."""
+        self._rec.send_columns(entity, indexes=times, columns=columns)
+
+    def _identify(
+        self, archetype: type[rr.Points2D] | type[rr.LineStrips2D], ids: IntArray, counts: IntArray
+    ) -> rr.ComponentColumn:
+        """Landmark ids as class ids (labelled by the annotation context), or as labels
+        "L<id>" where an id does not fit a class id."""
+        if self._has_class_ids(ids):
+            return _column(
+                archetype.descriptor_class_ids(), pa.array(ids.astype(np.uint16)), counts
+            )
+        return _column(
+            archetype.descriptor_labels(), pa.array([f"L{i}" for i in ids.tolist()]), counts
         )
 
-    def _send_landmarks(self, times: tuple[IntArray, IntArray], updates: list[EventRecord]) -> None:
+    def _send_landmarks(
+        self, times: Sequence[rr.TimeColumnLike], updates: list[EventRecord]
+    ) -> None:
         """All landmark estimates at every update, one batch each, class id = landmark id."""
         ids = np.concatenate([record.landmark_ids for record in updates])
         positions = np.concatenate([record.landmarks_xy for record in updates])
-        counts = [record.n_landmarks for record in updates]
+        counts = np.array([record.n_landmarks for record in updates])
         if len(positions):
             self._grow_bounds(positions)
-        if self._has_class_ids(ids):
-            columns = rr.Points2D.columns(positions=positions, class_ids=ids)
-        else:
-            columns = rr.Points2D.columns(positions=positions, labels=[f"L{i}" for i in ids])
-        self._send(style.LANDMARKS, times, columns.partition(counts))
+        self._send(
+            style.LANDMARKS,
+            times,
+            [
+                _column(rr.Points2D.descriptor_positions(), _xy(positions), counts),
+                self._identify(rr.Points2D, ids, counts),
+            ],
+        )
+
+    def _send_strips(
+        self,
+        entity: str,
+        rows: _Rows,
+        at: IntArray,
+        polylines: FloatArray,
+        counts: IntArray | None = None,
+        ids: IntArray | None = None,
+    ) -> None:
+        """Line strips at the rows ``at`` (ascending): ``counts[i]`` of the ``polylines`` at
+        ``at[i]`` (one each by default), with class id = ``ids`` if given.
+
+        Sent in chunks of at most ``SHAPES_EVERY`` events, whatever the flush: ``rerun rrd
+        verify`` takes a time in rows x points per chunk of line strips.
+        """
+        counts = np.ones(len(at), dtype=np.int64) if counts is None else counts
+        ends = np.cumsum(counts)
+        cuts = np.searchsorted(at, np.arange(SHAPES_EVERY, len(rows), SHAPES_EVERY))
+        for lo, hi in itertools.pairwise([0, *cuts.tolist(), len(at)]):
+            if lo == hi:
+                continue
+            first, last = (int(ends[lo - 1]) if lo else 0), int(ends[hi - 1])
+            columns = [
+                _column(
+                    rr.LineStrips2D.descriptor_strips(),
+                    _strips(polylines[first:last]),
+                    counts[lo:hi],
+                )
+            ]
+            if ids is not None:
+                columns.append(self._identify(rr.LineStrips2D, ids[first:last], counts[lo:hi]))
+            self._send(entity, rows.pick(at[lo:hi]), columns)
 
     def _send_ellipses(
         self, entity: str, rows: _Rows, batches: list[tuple[int, EventRecord, IntArray]]
@@ -643,9 +785,9 @@ class Recorder:
         """
         if not batches:
             return
-        counts = [len(picked) for _, _, picked in batches]
+        counts = np.array([len(picked) for _, _, picked in batches])
         # one outline size per send, from the largest batch (see ellipses.outline_points)
-        n_points = outline_points(max(counts))
+        n_points = outline_points(int(counts.max()))
         means, covs, ids = [], [], []
         for _, record, picked in batches:
             if len(picked) == record.n_landmarks:  # all of them: no copy
@@ -656,15 +798,9 @@ class Recorder:
                 means.append(record.landmarks_xy[picked])
                 covs.append(record.landmark_covs[picked])
                 ids.append(record.landmark_ids[picked])
-        all_ids = np.concatenate(ids)
-        outlines = _strips(
-            ellipse_outlines(np.concatenate(means), np.concatenate(covs), n_points=n_points)
-        )
-        if self._has_class_ids(all_ids):
-            columns = rr.LineStrips2D.columns(strips=outlines, class_ids=all_ids)
-        else:
-            columns = rr.LineStrips2D.columns(strips=outlines, labels=[f"L{i}" for i in all_ids])
-        self._send(entity, rows.pick([k for k, _, _ in batches]), columns.partition(counts))
+        outlines = ellipse_outlines(np.concatenate(means), np.concatenate(covs), n_points=n_points)
+        at = np.array([k for k, _, _ in batches], dtype=np.int64)
+        self._send_strips(entity, rows, at, outlines, counts, np.concatenate(ids))
 
     def _grow_bounds(self, points_xy: FloatArray) -> None:
         box = np.stack([points_xy.min(axis=0), points_xy.max(axis=0)])
