@@ -37,29 +37,41 @@ def _raise(signum: int, frame: FrameType | None = None) -> None:
     raise Terminated
 
 
+def _handle(on_sigint: signal._HANDLER, on_sigterm: signal._HANDLER) -> None:
+    signal.signal(signal.SIGINT, on_sigint)
+    signal.signal(signal.SIGTERM, on_sigterm)
+
+
+def _usual() -> None:
+    _handle(signal.default_int_handler, signal.SIG_DFL)
+
+
+def _take_pending() -> int | None:
+    """The first signal remembered while deferred, forgetting any others."""
+    signum = _pending[0] if _pending else None
+    _pending.clear()
+    return signum
+
+
 def defer() -> None:
     """From now on, remember SIGINT and SIGTERM instead of acting on them."""
-    signal.signal(signal.SIGINT, _remember)
-    signal.signal(signal.SIGTERM, _remember)
+    _handle(_remember, _remember)
 
 
 def restore() -> None:
     """The usual handlers again; a signal that came while deferred is acted on now."""
-    signal.signal(signal.SIGINT, signal.default_int_handler)
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    if _pending:
-        signum = _pending.pop(0)
-        _pending.clear()
-        if signum == signal.SIGINT:
-            raise KeyboardInterrupt
+    _usual()
+    signum = _take_pending()
+    if signum == signal.SIGINT:
+        raise KeyboardInterrupt
+    if signum is not None:
         signal.raise_signal(signum)
 
 
 def raise_pending() -> None:
     """Raise the exception of a signal that came while deferred, if any."""
-    if _pending:
-        signum = _pending.pop(0)
-        _pending.clear()
+    signum = _take_pending()
+    if signum is not None:
         _raise(signum)
 
 
@@ -67,11 +79,9 @@ def raise_pending() -> None:
 def as_exceptions() -> Iterator[None]:
     """Inside the block SIGINT raises KeyboardInterrupt and SIGTERM :class:`Terminated`;
     one that came earlier waits for :func:`raise_pending`. The usual handlers after it."""
-    signal.signal(signal.SIGINT, _raise)
-    signal.signal(signal.SIGTERM, _raise)
+    _handle(_raise, _raise)
     try:
         yield
     finally:
         _pending.clear()
-        signal.signal(signal.SIGINT, signal.default_int_handler)
-        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        _usual()
