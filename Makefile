@@ -12,11 +12,14 @@ $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 
-$(VENV)/.installed: pyproject.toml | $(BIN)/python
+# setup.py builds the compiled kernel of small maps (ekfviz/core/_kernel.c) in place
+BUILD_INPUTS := pyproject.toml setup.py ekfviz/core/_kernel.c
+
+$(VENV)/.installed: $(BUILD_INPUTS) | $(BIN)/python
 	$(BIN)/python -m pip install --quiet -e .
 	touch $@
 
-$(VENV)/.installed-dev: pyproject.toml | $(BIN)/python
+$(VENV)/.installed-dev: $(BUILD_INPUTS) | $(BIN)/python
 	$(BIN)/python -m pip install --quiet -e '.[dev]'
 	touch $(VENV)/.installed $@
 
@@ -37,7 +40,8 @@ sample: $(VENV)/.installed
 	$(BIN)/python -m ekfviz.samples data
 
 clean:
-	rm -rf $(VENV) .mypy_cache .ruff_cache .pytest_cache .hypothesis
+	rm -rf $(VENV) .mypy_cache .ruff_cache .pytest_cache .hypothesis build
+	rm -f ekfviz/core/_kernel*.so
 
 # Benchmarks (not part of make test): core against dense, the bandwidth bound and end-to-end
 # replays, measured in one run (a few minutes); writes benchmarks/RESULTS.md.

@@ -2,13 +2,22 @@
 
 from __future__ import annotations
 
+import itertools
+import shutil
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from ekfviz.core.filter import EkfSlam, FilterParams, LandmarkInit, UpdateMode
+from ekfviz.core.filter import (
+    HAVE_KERNEL,
+    KERNEL_MAX_DIM,
+    EkfSlam,
+    FilterParams,
+    LandmarkInit,
+    UpdateMode,
+)
 from ekfviz.core.models import measure, measurement_jacobians, wrap_angle
 from ekfviz.core.records import Control, EventKind, EventRecord, Sighting
 from ekfviz.core.replay import replay
@@ -33,8 +42,10 @@ def run_textbook(events: tuple[Control | Sighting, ...], params: FilterParams) -
     return ekf
 
 
-def final_state(events: tuple[Control | Sighting, ...], params: FilterParams) -> EkfSlam:
-    ekf = EkfSlam(params)
+def final_state(
+    events: tuple[Control | Sighting, ...], params: FilterParams, *, compiled: bool = True
+) -> EkfSlam:
+    ekf = EkfSlam(params, compiled=compiled)
     first = events[0]
     assert isinstance(first, Sighting)
     ekf.observe(first.ids, first.z)
@@ -46,12 +57,16 @@ def final_state(events: tuple[Control | Sighting, ...], params: FilterParams) ->
     return ekf
 
 
+@pytest.mark.parametrize("compiled", [True, False], ids=["kernel", "numpy"])
 @pytest.mark.parametrize("landmark_init", list(LandmarkInit))
 @pytest.mark.parametrize("seed", [1, 4, 9])
-def test_sparse_filter_equals_dense_textbook_filter(landmark_init: LandmarkInit, seed: int) -> None:
+def test_sparse_filter_equals_dense_textbook_filter(
+    landmark_init: LandmarkInit, seed: int, compiled: bool
+) -> None:
     params = FilterParams(landmark_init=landmark_init)
     events = classic().run(seed=seed).events
-    ours, theirs = final_state(events, params), run_textbook(events, params)
+    ours = final_state(events, params, compiled=compiled)
+    theirs = run_textbook(events, params)
     np.testing.assert_allclose(ours.x, theirs.x, atol=1e-9)
     np.testing.assert_allclose(ours.P, theirs.P, atol=1e-9)
 
@@ -73,16 +88,20 @@ def partially_seen(n_landmarks: int, seen: int, steps: int, seed: int) -> list[C
     return events
 
 
+@pytest.mark.parametrize("compiled", [True, False], ids=["kernel", "numpy"])
 @pytest.mark.parametrize(
     ("n_landmarks", "seen"),
-    [(6, 3), (40, 7), (40, 40)],  # 40: the deferred update, flushed mid-line when all are seen
+    # 30: the kernel (dim 63) or numpy's per-landmark update; 40: the deferred update,
+    # flushed mid-line when all are seen
+    [(6, 3), (30, 30), (40, 7), (40, 40)],
 )
 def test_sparse_filter_equals_dense_filter_with_partial_observations(
-    n_landmarks: int, seen: int
+    n_landmarks: int, seen: int, compiled: bool
 ) -> None:
     events = tuple(partially_seen(n_landmarks, seen, steps=12, seed=n_landmarks + seen))
     params = FilterParams()
-    ours, theirs = final_state(events, params), run_textbook(events, params)
+    ours = final_state(events, params, compiled=compiled)
+    theirs = run_textbook(events, params)
     np.testing.assert_allclose(ours.x, theirs.x, atol=1e-9)
     np.testing.assert_allclose(ours.P, theirs.P, atol=1e-9)
     assert np.array_equal(ours.P, ours.P.T)
@@ -99,8 +118,8 @@ def test_known_answer_on_bundled_sample() -> None:
 def test_covariance_stays_exactly_symmetric_and_psd_over_a_long_run() -> None:
     controls = np.tile(classic_controls(), (20, 1))  # 580 controls
     events = simulate(controls, CLASSIC_LANDMARKS_XY, Noise(), seed=3).events
-    for update in UpdateMode:
-        ekf = final_state(events, FilterParams(update=update))
+    for update, compiled in itertools.product(UpdateMode, (True, False)):
+        ekf = final_state(events, FilterParams(update=update), compiled=compiled)
         P = np.array(ekf.P)
         assert np.array_equal(P, P.T)
         assert np.linalg.eigvalsh(P).min() > -1e-12
@@ -250,3 +269,69 @@ def test_update_records_carry_predictions_innovations_and_nis() -> None:
     np.testing.assert_allclose(obs.innovation[:, 1], obs.z[:, 1] - obs.z_pred[:, 1])
     manual = [nu @ np.linalg.solve(S, nu) for nu, S in zip(obs.innovation, obs.S, strict=True)]
     np.testing.assert_allclose(obs.nis, manual, rtol=1e-9)
+
+
+# -- the compiled kernel of small maps ---------------------------------------------------
+
+
+def test_the_kernel_is_built_wherever_a_c_compiler_is() -> None:
+    """`pip install` builds it when it can; elsewhere the numpy code stands in."""
+    if shutil.which("cc") is None and shutil.which("gcc") is None:
+        pytest.skip("no C compiler here: the numpy code stands in for the kernel")
+    assert HAVE_KERNEL and EkfSlam()._compiled
+    assert not EkfSlam(compiled=False)._compiled
+
+
+@pytest.mark.skipif(not HAVE_KERNEL, reason="the compiled kernel was not built")
+@pytest.mark.parametrize(("n_landmarks", "seen"), [(6, 6), (30, 9)])
+def test_kernel_and_numpy_code_give_the_same_records(n_landmarks: int, seen: int) -> None:
+    """Line for line, to round-off: the state, P and every observation's figures."""
+    events = partially_seen(n_landmarks, seen, steps=40, seed=7)
+    kernel, numpy_code = EkfSlam(compiled=True), EkfSlam(compiled=False)
+    for event in events:
+        if isinstance(event, Control):
+            kernel.predict(event.d, event.alpha)
+            numpy_code.predict(event.d, event.alpha)
+            np.testing.assert_allclose(kernel.P, numpy_code.P, rtol=1e-11, atol=1e-13)
+            continue
+        ours, theirs = kernel.observe(event.ids, event.z), numpy_code.observe(event.ids, event.z)
+        for name in ("z_pred", "innovation", "S", "nis"):
+            np.testing.assert_allclose(
+                getattr(ours, name), getattr(theirs, name), rtol=1e-10, atol=1e-12, err_msg=name
+            )
+        assert ours.skipped.tolist() == theirs.skipped.tolist()
+        assert np.array_equal(kernel.P, kernel.P.T)
+    assert kernel.dim == 3 + 2 * n_landmarks < KERNEL_MAX_DIM
+    np.testing.assert_allclose(kernel.x, numpy_code.x, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(kernel.P, numpy_code.P, rtol=0, atol=1e-12)
+
+
+@pytest.mark.skipif(not HAVE_KERNEL, reason="the compiled kernel was not built")
+def test_kernel_refuses_buffers_of_the_wrong_kind() -> None:
+    """A wrong buffer is a ValueError, never a write outside it."""
+    from ekfviz.core import _kernel
+
+    x, P = np.zeros(5), np.eye(5)
+    with pytest.raises(ValueError, match="float64"):
+        _kernel.predict(x.astype(np.float32), P, 5, 1.0, 0.0, 0.1, 0.1, 0.1)
+    with pytest.raises(ValueError, match="P"):
+        _kernel.predict(x, np.eye(4), 5, 1.0, 0.0, 0.1, 0.1, 0.1)
+    with pytest.raises(ValueError, match="x"):
+        _kernel.predict(x, P, 6, 1.0, 0.0, 0.1, 0.1, 0.1)
+    slots, table, status = np.array([3]), np.zeros((1, 9)), np.zeros(1, dtype=np.int8)
+    with pytest.raises(ValueError, match="z"):
+        _kernel.update_sequential(x, P, 5, slots, np.zeros(1), table, status, 1.0, 1.0, 0.0)
+    with pytest.raises(ValueError, match="int64"):
+        _kernel.update_sequential(
+            x,
+            P,
+            5,
+            slots.astype(np.int32),
+            np.zeros(2),
+            table,
+            status,
+            1.0,
+            1.0,
+            0.0,
+        )
+    assert not x.any()

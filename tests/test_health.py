@@ -15,6 +15,9 @@ from ekfviz.core.records import Control, EventKind, EventRecord, LogEvent, Sight
 from ekfviz.core.replay import FilterLineError, replay
 from ekfviz.sim.scenarios import classic, loop
 
+# the compiled kernel of small maps, and the numpy code that stands in where it is not built
+COMPILED = pytest.mark.parametrize("compiled", [True, False], ids=["kernel", "numpy"])
+
 
 def test_a_healthy_run_has_no_problem() -> None:
     for record in replay(classic().run(seed=1).events):
@@ -47,17 +50,20 @@ def test_round_off_below_zero_is_not_a_fault() -> None:
 # -- faults the filter meets: each constructed, each seen and survived or stopped ------
 
 
-def _mapped_then_on_top(params: FilterParams) -> EkfSlam:
+def _mapped_then_on_top(params: FilterParams, compiled: bool) -> EkfSlam:
     """A filter that has mapped landmark 1 at (1, 0) and driven onto it."""
-    ekf = EkfSlam(params)
+    ekf = EkfSlam(params, compiled=compiled)
     ekf.observe([1, 2], np.array([[0.0, 1.0], [0.5, 4.0]]))
     ekf.predict(1.0, 0.0)
     return ekf
 
 
+@COMPILED
 @pytest.mark.parametrize("mode", list(UpdateMode))
-def test_a_landmark_at_zero_range_is_skipped_with_a_warning(mode: UpdateMode) -> None:
-    ekf = _mapped_then_on_top(FilterParams(update=mode))
+def test_a_landmark_at_zero_range_is_skipped_with_a_warning(
+    mode: UpdateMode, compiled: bool
+) -> None:
+    ekf = _mapped_then_on_top(FilterParams(update=mode), compiled)
     x, P = ekf.x.copy(), ekf.P.copy()
     observations = ekf.observe([1], np.array([[0.0, 0.5]]))
     assert observations.skipped.tolist() == [True] and np.isnan(observations.nis).all()
@@ -72,9 +78,12 @@ def test_a_landmark_at_zero_range_is_skipped_with_a_warning(mode: UpdateMode) ->
     assert not np.array_equal(ekf.x, x)
 
 
+@COMPILED
 @pytest.mark.parametrize("mode", list(UpdateMode))
-def test_an_innovation_covariance_that_is_not_definite_is_skipped(mode: UpdateMode) -> None:
-    ekf = EkfSlam(FilterParams(update=mode))
+def test_an_innovation_covariance_that_is_not_definite_is_skipped(
+    mode: UpdateMode, compiled: bool
+) -> None:
+    ekf = EkfSlam(FilterParams(update=mode), compiled=compiled)
     ekf.observe([1], np.array([[0.0, 3.0]]))
     # a landmark block with a large negative eigenvalue along the line of sight: the
     # fault a broken covariance update makes
@@ -90,9 +99,10 @@ def test_an_innovation_covariance_that_is_not_definite_is_skipped(mode: UpdateMo
     assert problems and "not positive semi-definite" in problems[0]
 
 
+@COMPILED
 @pytest.mark.parametrize("mode", list(UpdateMode))
-def test_a_nan_in_the_covariance_stops_the_update(mode: UpdateMode) -> None:
-    ekf = EkfSlam(FilterParams(update=mode))
+def test_a_nan_in_the_covariance_stops_the_update(mode: UpdateMode, compiled: bool) -> None:
+    ekf = EkfSlam(FilterParams(update=mode), compiled=compiled)
     ekf.observe([1, 2], np.array([[0.0, 3.0], [1.0, 2.0]]))
     ekf._P[3, 5] = ekf._P[5, 3] = np.nan  # a cross-covariance between the two landmarks
     with pytest.raises(FilterError, match="non-finite"):
@@ -153,13 +163,14 @@ def test_a_replay_checks_its_covariance_and_keeps_it_exactly_symmetric(
     landmarks=st.integers(1, 12),
     mode=st.sampled_from(list(UpdateMode)),
     sigma_range=st.floats(1e-4, 1.0),
+    compiled=st.booleans(),
 )
 def test_any_run_keeps_p_symmetric_and_positive_definite(
-    seed: int, landmarks: int, mode: UpdateMode, sigma_range: float
+    seed: int, landmarks: int, mode: UpdateMode, sigma_range: float, compiled: bool
 ) -> None:
     run = loop(steps=60, landmarks=landmarks).run(seed=seed)
     params = FilterParams(update=mode, sigma_range=sigma_range)
-    ekf = EkfSlam(params)
+    ekf = EkfSlam(params, compiled=compiled)
     for event in run.events:
         if isinstance(event, Control):
             ekf.predict(event.d, event.alpha)

@@ -6,11 +6,13 @@ only the robot rows and columns (O(N)); an update uses the 5 non-zero columns of
 sparse measurement Jacobian and a rank-2 change of P (O(N^2) per landmark).
 
 Two regimes decide how the code is written. With a few landmarks, numpy's per-call
-overhead is the cost, so the small algebra is done in Python floats and each landmark
-costs a dozen numpy calls. With thousands, the passes over P are the cost: the rank-2
-changes of the landmarks of one observation line are kept as a low-rank factor U
-(P_current = P - U^T U) and applied to P in one blocked pass, which never builds an
-n x n temporary and keeps P exactly symmetric.
+overhead is the cost: below KERNEL_MAX_DIM, predict and the sequential update run in a
+small compiled kernel (``_kernel.c``, the same algebra in C loops over the same buffers),
+and where it was not built (no C compiler at install) the small algebra is done in
+Python floats and each landmark costs a dozen numpy calls. With thousands, the passes
+over P are the cost: the rank-2 changes of the landmarks of one observation line are
+kept as a low-rank factor U (P_current = P - U^T U) and applied to P in one blocked
+pass, which never builds an n x n temporary and keeps P exactly symmetric.
 """
 
 from __future__ import annotations
@@ -31,8 +33,18 @@ from ekfviz.core.models import (
     wrap_angles,
 )
 from ekfviz.core.records import EventKind, EventRecord, Observations, frozen
-from ekfviz.core.types import FloatArray, IntArray
+from ekfviz.core.types import BoolArray, FloatArray, IntArray
 
+try:
+    from ekfviz.core import _kernel
+except ImportError:  # installed without a C compiler: numpy throughout
+    _kernel = None  # type: ignore[assignment]
+
+# Is the compiled kernel of small maps here (see the module's docstring)?
+HAVE_KERNEL = _kernel is not None
+# Below this state dimension the sequential update runs in the compiled kernel: it does
+# one pass over P per landmark, which from here on the deferred numpy update beats.
+KERNEL_MAX_DIM = 128  # chosen with make bench-like timings on a 2-core machine
 # From this state dimension on, the sequential update defers its rank-2 changes to one
 # pass over P per DEFER_LANDMARKS landmarks (below it, one numpy call per change is
 # cheaper than the bookkeeping). Both chosen with `make bench` on a 2-core machine.
@@ -108,9 +120,17 @@ class FilterError(ValueError):
 class EkfSlam:
     """EKF-SLAM on a state that grows by landmark id."""
 
-    def __init__(self, params: FilterParams | None = None, *, capacity: int = 0) -> None:
+    def __init__(
+        self, params: FilterParams | None = None, *, capacity: int = 0, compiled: bool = True
+    ) -> None:
+        """
+        :param capacity: landmarks to make room for at once
+        :param compiled: use the compiled kernel of small maps, where it was built
+            (``False``: the numpy code throughout, as where it was not)
+        """
         self.params = params if params is not None else FilterParams()
         p = self.params
+        self._compiled = compiled and HAVE_KERNEL
         self._R = p.R
         # Q and R are diagonal: their entries as floats for the scalar algebra
         self._q = (p.sigma_x**2, p.sigma_y**2, p.sigma_alpha**2)
@@ -237,6 +257,10 @@ class EkfSlam:
         """
         n = self._n
         x, P = self._x, self._P
+        if self._compiled:  # the same algebra in C (O(n) either way)
+            if not _kernel.predict(x, P, n, d, alpha, *self._q):
+                raise FilterError("the state became non-finite in predict")
+            return
         px, py, theta = x[:3].tolist()
         c, s = math.cos(theta), math.sin(theta)
         x[:3] = (px + d * c, py + d * s, wrap_angle(theta + alpha))
@@ -286,10 +310,20 @@ class EkfSlam:
         any_new = True in new
         z_list: list[list[float]] = z.tolist()
         # per observation: z_pred (2), innovation (2), S (2x2, row-major) and NIS
-        table: list[tuple[float, ...]] = [_NAN_ROW] * m
-        skipped = [False] * m
-        if not any_new or not all(new):
+        values: FloatArray
+        skipped: list[bool] | BoolArray
+        if any_new and all(new):
+            values, skipped = np.full((m, 9), np.nan), [False] * m
+        elif (
+            self._compiled
+            and self._n < KERNEL_MAX_DIM
+            and self.params.update is UpdateMode.SEQUENTIAL
+        ):
+            values, skipped = self._update_compiled(ids_list, z)
+        else:
             known = [k for k, is_new in enumerate(new) if not is_new] if any_new else range(m)
+            table: list[tuple[float, ...]] = [_NAN_ROW] * m
+            skipped = [False] * m
             if self.params.update is UpdateMode.JOINT:
                 self._update_joint(ids_list, z, known, table, skipped)
             else:
@@ -298,12 +332,12 @@ class EkfSlam:
             # reach the next event: a non-finite S or H P reaches x through its update
             if not math.isfinite(float(self._x.sum())):
                 raise FilterError("the state became non-finite in update")
+            values = np.fromiter(itertools.chain.from_iterable(table), np.float64, 9 * m)
         if any_new:
             self._reserve(sum(new))
             for k in range(m):
                 if new[k]:
                     self._add_landmark(ids_list[k], z_list[k])
-        values = np.fromiter(itertools.chain.from_iterable(table), np.float64, 9 * m)
         values = frozen(values.reshape(m, 9))  # its views below are read-only too
         return Observations(
             ids=frozen(ids_arr),
@@ -313,8 +347,32 @@ class EkfSlam:
             S=values[:, 4:8].reshape(m, 2, 2),
             nis=values[:, 8],
             initialised=frozen(np.array(new, dtype=bool)),
-            skipped=frozen(np.array(skipped, dtype=bool)),
+            skipped=frozen(np.asarray(skipped, dtype=bool)),
         )
+
+    def _update_compiled(self, ids: list[int], z: FloatArray) -> tuple[FloatArray, BoolArray]:
+        """:meth:`_update_sequential` in the compiled kernel; its table and skipped flags."""
+        slot = self._slot
+        slots = np.array([slot.get(i, -1) for i in ids], dtype=np.int64)  # new ones: -1
+        table = np.full((len(ids), 9), np.nan)
+        status = np.zeros(len(ids), dtype=np.int8)
+        r00, r11 = self._r
+        code, k, n_skipped = _kernel.update_sequential(
+            self._x, self._P, self._n, slots, z, table, status, r00, r11, MIN_PREDICTED_RANGE
+        )
+        if code == _S_NOT_FINITE:
+            raise FilterError(f"the covariance became non-finite (S of landmark {ids[k]})")
+        if code == _STATE_NOT_FINITE:
+            raise FilterError("the state became non-finite in update")
+        if n_skipped:  # the warnings, in file order
+            for k, why in enumerate(status.tolist()):
+                if why == _ZERO_RANGE:
+                    self._warnings.append(_skip_warning(ids[k], _zero_range(table[k, 1])))
+                    table[k] = np.nan
+                elif why == _NOT_DEFINITE:
+                    s00, s01, _, s11 = table[k, 4:8].tolist()
+                    self._warnings.append(_skip_warning(ids[k], _not_definite(s00, s01, s11)))
+        return table, status >= _ZERO_RANGE
 
     def _update_sequential(
         self,
@@ -491,7 +549,7 @@ class EkfSlam:
 
     def _skip(self, k: int, landmark_id: int, skipped: list[bool], why: str) -> None:
         skipped[k] = True
-        self._warnings.append(f"landmark {landmark_id}: {why}: observation skipped")
+        self._warnings.append(_skip_warning(landmark_id, why))
 
     def _subtract_gram(self, U: FloatArray) -> None:
         """P -= U^T U for U (r x n), in place, in one pass over P, exactly symmetric.
@@ -560,6 +618,15 @@ class EkfSlam:
         self._ids.append(landmark_id)
         self._ids_array = None
         self._n = n + 2
+
+
+# what the compiled update says of an observation, and of the whole line (see _kernel.c)
+_ZERO_RANGE, _NOT_DEFINITE = 2, 3
+_S_NOT_FINITE, _STATE_NOT_FINITE = 1, 2
+
+
+def _skip_warning(landmark_id: int, why: str) -> str:
+    return f"landmark {landmark_id}: {why}: observation skipped"
 
 
 def _zero_range(rng: float) -> str:

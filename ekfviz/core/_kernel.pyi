@@ -1,0 +1,18 @@
+# The compiled kernel of small maps (_kernel.c); see its docstrings.
+from ekfviz.core.types import FloatArray, Int8Array, IntArray
+
+def predict(
+    x: FloatArray, P: FloatArray, n: int, d: float, alpha: float, qx: float, qy: float, qa: float
+) -> bool: ...
+def update_sequential(
+    x: FloatArray,
+    P: FloatArray,
+    n: int,
+    slots: IntArray,
+    z: FloatArray,
+    table: FloatArray,
+    status: Int8Array,
+    r00: float,
+    r11: float,
+    min_range: float,
+) -> tuple[int, int, int]: ...

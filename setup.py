@@ -1,0 +1,18 @@
+"""The compiled kernel of small maps: everything else is in pyproject.toml.
+
+The extension is optional: without a C compiler the install goes on and the filter
+uses its numpy code throughout (``ekfviz.core.filter.KERNEL`` is then None).
+"""
+
+from setuptools import Extension, setup
+
+setup(
+    ext_modules=[
+        Extension(
+            "ekfviz.core._kernel",
+            ["ekfviz/core/_kernel.c"],
+            extra_compile_args=["-O2", "-std=c99", "-Wall", "-Wextra", "-Wno-unused-parameter"],
+            optional=True,
+        )
+    ]
+)
