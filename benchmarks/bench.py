@@ -4,7 +4,8 @@
 
 1. The core (``EkfSlam.predict`` and ``observe``, sequential updates) against the dense
    textbook filter of ``textbook_ekf.py`` for N = 6, 50, 200, 1000, 2000 landmarks, all
-   of them or 10 of them observed per step; both sides with one BLAS thread.
+   of them or 10 of them observed per step; both sides with one BLAS thread. Where the
+   compiled kernel of small maps runs, the core is timed without it too.
 2. The memory-bandwidth bound: one read-and-write pass over an array the size of P,
    and the core's time per observed landmark as a multiple of it.
 3. End to end: ``ekfviz replay LOG --save RUN.rrd`` as a subprocess (process start,
@@ -12,7 +13,10 @@
    resident memory and ``.rrd`` size, for the classic sample, a simulated loop of 10,000
    steps among 300 landmarks, a classic-size log of 100,000 steps and the classic route
    among 200 landmarks; the dense filter's arithmetic on the same classic-format files.
-4. The interpreter plus ``import rerun, numpy, typer``, which every replay pays.
+4. Where a long replay's time goes: reading, the filter, the records and checks, and
+   the logging (in the main thread, and the CPU of Rerun's own threads with it).
+5. The interpreter plus ``import rerun, numpy, typer``, which every replay pays, and the
+   import of the compiled kernel.
 
 It prints the tables and writes them, with the machine, the date and the command, to
 ``benchmarks/RESULTS.md``. Timings are medians (bounds: best) of repeated runs; where
@@ -31,6 +35,7 @@ os.environ["MKL_NUM_THREADS"] = "1"
 
 import argparse
 import datetime
+import json
 import platform
 import statistics
 import subprocess
@@ -44,7 +49,7 @@ from pathlib import Path
 import numpy as np
 
 import ekfviz
-from ekfviz.core.filter import EkfSlam, FilterParams, UpdateMode
+from ekfviz.core.filter import HAVE_KERNEL, KERNEL_MAX_DIM, EkfSlam, FilterParams, UpdateMode
 from ekfviz.core.records import Control, EventKind, Sighting
 from ekfviz.io.classic import format_classic, read_classic
 from ekfviz.sim.simulate import CLASSIC_LANDMARKS_XY, Noise, classic_controls, simulate
@@ -121,9 +126,11 @@ def make_world(n: int, seen: int | None, steps: int, seed: int = 1) -> World:
     return World(n, first, pairs)
 
 
-def time_core(world: World, params: FilterParams) -> tuple[list[float], list[float]]:
+def time_core(
+    world: World, params: FilterParams, compiled: bool = True
+) -> tuple[list[float], list[float]]:
     """Seconds per step of predict + observe, and of the two records a replay makes."""
-    ekf = EkfSlam(params)
+    ekf = EkfSlam(params, compiled=compiled)
     ekf.observe(world.first.ids, world.first.z)
     filtering, recording = [], []
     for control, sighting in world.steps:
@@ -185,6 +192,7 @@ class CoreRow:
     dense_basis: str
     bound_ms: float
     mode: str = "sequential"
+    numpy_ms: float | None = None  # the core without the compiled kernel, where it runs
 
     @property
     def ratio(self) -> float:
@@ -221,6 +229,10 @@ def core_row(n: int, seen: int, quick: bool, mode: UpdateMode = UpdateMode.SEQUE
     runs = [time_core(world, params) for _ in range(20 if n == 6 else 1)]
     core = statistics.median(statistics.median(filtering) for filtering, _ in runs)
     records = statistics.median(statistics.median(recording) for _, recording in runs)
+    numpy_ms = None
+    if HAVE_KERNEL and 3 + 2 * n < KERNEL_MAX_DIM and mode is UpdateMode.SEQUENTIAL:
+        numpy_runs = [time_core(world, params, False) for _ in range(20 if n == 6 else 1)]
+        numpy_ms = 1e3 * statistics.median(statistics.median(f) for f, _ in numpy_runs)
     if (n, seen) in _DENSE:
         dense, basis = _DENSE[n, seen]
     elif n <= 200:
@@ -250,6 +262,7 @@ def core_row(n: int, seen: int, quick: bool, mode: UpdateMode = UpdateMode.SEQUE
         dense_basis=basis,
         bound_ms=1e3 * bound,
         mode=mode.value,
+        numpy_ms=numpy_ms,
     )
 
 
@@ -399,6 +412,94 @@ def memory_rows(folder: Path, long_log: Path) -> list[Memory]:
     return rows
 
 
+@dataclass(frozen=True, slots=True)
+class Phases:
+    """Where the time of a replay with a recording goes, in one process (seconds)."""
+
+    name: str
+    events: int
+    read_s: float  # the log into events
+    filter_s: float  # predict and observe alone, no records
+    core_s: float  # the replay: filter, records and covariance checks
+    logging_s: float  # Recorder.log_record, finish and the flush, in the main thread
+    rerun_cpu_s: float  # CPU of Rerun's own threads (encoding, writing) meanwhile
+
+    @property
+    def logging_over_filter(self) -> float:
+        return self.logging_s / self.filter_s
+
+
+PHASES = """
+import json, sys, time
+from pathlib import Path
+import rerun as rr
+from ekfviz.core.filter import EkfSlam
+from ekfviz.core.records import Control
+from ekfviz.core.replay import replay
+from ekfviz.io.extended import read_log
+from ekfviz.viz.recorder import Recorder
+start = time.perf_counter()
+events = list(read_log(Path(sys.argv[1])))
+read = time.perf_counter() - start
+ekf = EkfSlam()
+start = time.perf_counter()
+for event in events:
+    if isinstance(event, Control):
+        ekf.predict(event.d, event.alpha)
+    else:
+        ekf.observe(event.ids, event.z)
+filtering = time.perf_counter() - start
+rec = rr.RecordingStream("ekfviz", recording_id="bench")
+rec.save(sys.argv[2])
+recorder = Recorder(rec)
+logging = 0.0
+start, cpu, main_cpu = time.perf_counter(), time.process_time(), time.thread_time()
+for record in replay(events):
+    begin = time.perf_counter()
+    recorder.log_record(record)
+    logging += time.perf_counter() - begin
+begin = time.perf_counter()
+recorder.finish()
+rec.flush(timeout_sec=600.0)
+rec.disconnect()
+logging += time.perf_counter() - begin
+total = time.perf_counter() - start
+rerun_cpu = (time.process_time() - cpu) - (time.thread_time() - main_cpu)
+print(json.dumps([len(events), read, filtering, total - logging, logging, rerun_cpu]))
+"""
+
+
+def phase_rows(folder: Path, logs: Sequence[tuple[str, Path]]) -> list[Phases]:
+    """Reading, filter, records and logging of each log, timed apart in a child process."""
+    env = dict(os.environ, CI="1", XDG_CONFIG_HOME=str(folder), XDG_DATA_HOME=str(folder))
+    rows = []
+    for name, log in logs:
+        out = subprocess.run(
+            [sys.executable, "-c", PHASES, str(log), str(folder / "phases.rrd")],
+            check=True, capture_output=True, text=True, env=env,
+        )  # fmt: skip
+        events, *seconds = json.loads(out.stdout)
+        rows.append(Phases(name, int(events), *seconds))
+        print(f"  {name}: {rows[-1]}", flush=True)
+    return rows
+
+
+def kernel_import_us() -> float | None:
+    """Microseconds of ``import ekfviz.core._kernel`` (``-X importtime``), if built."""
+    if not HAVE_KERNEL:
+        return None
+    out = subprocess.run(
+        [sys.executable, "-X", "importtime", "-c", "import ekfviz.core._kernel"],
+        check=True, capture_output=True, text=True,
+    )  # fmt: skip
+    # "import time: self [us] | cumulative | imported package"
+    return next(
+        float(line.split("|")[0].split(":")[1])
+        for line in out.stderr.splitlines()
+        if line.rstrip().endswith("ekfviz.core._kernel")
+    )
+
+
 def startup() -> tuple[float, float]:
     """Median wall seconds of the bare interpreter, and of it importing rerun, numpy, typer."""
 
@@ -437,6 +538,13 @@ def machine() -> list[str]:
         f"- **software**: Python {platform.python_version()}, numpy {np.__version__}"
         f" ({blas.get('name')} {blas.get('version')}), ekfviz {ekfviz.__version__},"
         " one BLAS thread (OPENBLAS/OMP/MKL_NUM_THREADS=1) on both sides",
+        "- **compiled kernel** (`ekfviz/core/_kernel.c`): "
+        + (
+            f"built, used below state dimension {KERNEL_MAX_DIM}"
+            f" (N <= {(KERNEL_MAX_DIM - 4) // 2} landmarks)"
+            if HAVE_KERNEL
+            else "**not built** (no C compiler at install): numpy throughout"
+        ),
         f"- **date**: {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC",
         f"- **command**: `make bench` (`{Path(sys.executable).name} benchmarks/bench.py"
         f"{' ' + ' '.join(sys.argv[1:]) if sys.argv[1:] else ''}`)",
@@ -451,8 +559,10 @@ def report(
     rows: list[CoreRow],
     e2e: list[EndToEnd],
     memory: list[Memory],
+    phases: list[Phases],
     interpreter_s: float,
     imports_s: float,
+    kernel_us: float | None,
     flops: float,
     quick: bool,
 ) -> str:
@@ -465,21 +575,25 @@ def report(
         "",
         "Milliseconds per step (one predict and one observation line). *Core*: `EkfSlam`"
         " (sequential updates unless said); *+ records*: what the two per-step records the"
-        " replay emits add. *Dense*: `benchmarks/textbook_ekf.py`. *Bound*: one read-and-write"
-        " pass over an array the size of P, this run; *per landmark / bound*: core time per"
-        " step divided by the landmarks observed, over the bound.",
+        " replay emits add; *without kernel*: the core with `compiled=False`, numpy"
+        " throughout, where the compiled kernel would run. *Dense*:"
+        " `benchmarks/textbook_ekf.py`. *Bound*: one read-and-write pass over an array the"
+        " size of P, this run; *per landmark / bound*: core time per step divided by the"
+        " landmarks observed, over the bound.",
         "",
-        "| N | observed | core ms | + records ms | dense ms | dense timed | dense / core"
-        " | bound ms | per landmark / bound |",
-        "|---:|---:|---:|---:|---:|---|---:|---:|---:|",
+        "| N | observed | core ms | + records ms | without kernel ms | dense ms | dense timed"
+        " | dense / core | bound ms | per landmark / bound |",
+        "|---:|---:|---:|---:|---:|---:|---|---:|---:|---:|",
     ]
     for r in rows:
         mode = "" if r.mode == "sequential" else f" ({r.mode})"
         dense = f"{r.dense_ms:.3f}" if r.dense_ms < 10 else f"{r.dense_ms:,.0f}"
         ratio = f"{r.ratio:.1f}" if r.ratio < 10 else f"{r.ratio:,.0f}"
+        numpy_ms = "" if r.numpy_ms is None else f"{r.numpy_ms:.3f}"
         lines.append(
-            f"| {r.n} | {r.seen}{mode} | {r.core_ms:.3f} | {r.records_ms:.3f} | {dense}"
-            f" | {r.dense_basis} | {ratio}x | {r.bound_ms:.3f} | {r.per_landmark_over_bound:.2f} |"
+            f"| {r.n} | {r.seen}{mode} | {r.core_ms:.3f} | {r.records_ms:.3f} | {numpy_ms}"
+            f" | {dense} | {r.dense_basis} | {ratio}x | {r.bound_ms:.3f}"
+            f" | {r.per_landmark_over_bound:.2f} |"
         )
     joint = [r for r in rows if r.mode == "joint"]
     lines += [
@@ -512,11 +626,47 @@ def report(
             f"| {e.name} | {e.lines:,} | {e.wall_s:.2f} | {e.peak_mb:.0f} | {e.rrd_mb:.1f}"
             f" | {dense} |"
         )
+    kernel = (
+        "the compiled kernel was not built"
+        if kernel_us is None
+        else f"importing the compiled kernel takes {kernel_us:.0f} us (`-X importtime`)"
+    )
     lines += [
         "",
         f"Interpreter alone: {interpreter_s:.2f} s; interpreter + `import rerun, numpy, typer`:"
-        f" {imports_s:.2f} s (median of 5), paid by every replay.",
+        f" {imports_s:.2f} s (median of 5), paid by every replay; {kernel}.",
         "",
+    ]
+    if phases:
+        lines += [
+            "## Where a long replay's time goes",
+            "",
+            "One child process per log: *read*: the log into events; *filter*: `predict` and"
+            " `observe` alone; *records and checks*: what `replay()` adds to them (records,"
+            " covariance checks); *logging*: `Recorder.log_record`, `finish` and the flush to"
+            " the .rrd file in the main thread; *Rerun threads*: the CPU time Rerun's own"
+            " threads (encoding, compression, writing) spent meanwhile, on the second core.",
+            "",
+            "| log | events | read s | filter s | records and checks s | logging s"
+            " | Rerun threads CPU s | logging per event us | logging / filter"
+            " | logging / (filter + records) |",
+            "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+        ]
+        lines += [
+            f"| {p.name} | {p.events:,} | {p.read_s:.2f} | {p.filter_s:.2f}"
+            f" | {p.core_s - p.filter_s:.2f} | {p.logging_s:.2f} | {p.rerun_cpu_s:.2f}"
+            f" | {1e6 * p.logging_s / p.events:.1f} | {p.logging_over_filter:.2f}"
+            f" | {p.logging_s / p.core_s:.2f} |"
+            for p in phases
+        ]
+        lines += [
+            "",
+            "Logging costs a fixed amount per event and per landmark it draws; the filter's"
+            " cost grows with the map. Where the compiled kernel makes a step of a small map"
+            " cost a few microseconds, logging is the larger part.",
+            "",
+        ]
+    lines += [
         "## Targets",
         "",
         "| target | measured | |",
@@ -598,11 +748,18 @@ def main(argv: Sequence[str] | None = None) -> None:
         e2e = end_to_end(Path(tmp), args.quick)
         print("memory against log length", flush=True)
         memory = memory_rows(Path(tmp), Path(tmp) / "classic_long.txt")
+        print("where the time goes", flush=True)
+        phases = phase_rows(
+            Path(tmp),
+            [(e2e[1].name, Path(tmp) / "loop.txt"), (e2e[2].name, Path(tmp) / "classic_long.txt")],
+        )
     print("core against dense (one BLAS thread)", flush=True)
     rows = core_rows(args.quick)
     flops = dgemm_flops()
     interpreter_s, imports_s = startup()
-    text = report(rows, e2e, memory, interpreter_s, imports_s, flops, args.quick)
+    text = report(
+        rows, e2e, memory, phases, interpreter_s, imports_s, kernel_import_us(), flops, args.quick
+    )
     args.out.write_text(text)
     print()
     print(text)
