@@ -43,3 +43,36 @@ def test_bundled_samples_are_what_ekfviz_simulate_writes(tmp_path: Path) -> None
             made, bundled = (tmp_path / name).read_bytes(), (data / name).read_bytes()
             assert made == bundled, f"data/{name} differs: regenerate it with make sample"
     assert sum(f.stat().st_size for f in data.iterdir()) < 2_000_000
+
+
+def test_without_the_compiled_kernel_the_numpy_code_stands_in() -> None:
+    """As on a machine that had no C compiler at install: the import of the kernel
+    fails, and a replay still runs, with the same result as the one with the kernel."""
+    code = (
+        "import sys\n"
+        "class NoKernel:\n"
+        "    def find_spec(self, name, path=None, target=None):\n"
+        "        if name == 'ekfviz.core._kernel':\n"
+        "            raise ImportError('not built')\n"
+        "if sys.argv[1] == 'without':\n"
+        "    sys.meta_path.insert(0, NoKernel())\n"
+        "from ekfviz.core.filter import HAVE_KERNEL, EkfSlam\n"
+        "from ekfviz.core.replay import replay\n"
+        "from ekfviz.sim.scenarios import classic\n"
+        "last = list(replay(classic().run(seed=2).events))[-1]\n"
+        "print(HAVE_KERNEL, EkfSlam()._compiled, repr(last.pose.tolist()))\n"
+    )
+
+    def run(which: str) -> list[str]:
+        result = subprocess.run(
+            [sys.executable, "-c", code, which], capture_output=True, text=True, check=True
+        )
+        return result.stdout.split(maxsplit=2)
+
+    without = run("without")
+    assert without[:2] == ["False", "False"]
+    with_kernel = run("with")
+    if with_kernel[0] == "True":  # built here: both give the same pose, to round-off
+        first = [float(v) for v in without[2].strip("[]\n").split(",")]
+        second = [float(v) for v in with_kernel[2].strip("[]\n").split(",")]
+        assert max(abs(a - b) for a, b in zip(first, second, strict=True)) < 1e-12
