@@ -26,7 +26,7 @@ from rich.table import Table
 from ekfviz import __version__, signals
 from ekfviz.core.consistency import Consistency, Verdict
 from ekfviz.core.evaluation import Evaluation, GroundTruth, evaluate
-from ekfviz.core.filter import FilterError, FilterParams, LandmarkInit, UpdateMode
+from ekfviz.core.filter import HAVE_KERNEL, FilterError, FilterParams, LandmarkInit, UpdateMode
 from ekfviz.core.records import EventRecord, LogEvent
 from ekfviz.core.replay import FilterLineError
 from ekfviz.core.replay import replay as run_filter
@@ -67,7 +67,8 @@ def fail(message: str, code: int = 2) -> NoReturn:
 
 def _version(value: bool) -> None:
     if value:
-        out.print(f"ekfviz {__version__}")
+        kernel = "compiled" if HAVE_KERNEL else "numpy (the compiled kernel was not built)"
+        out.print(f"ekfviz {__version__}, filter kernel for small maps: {kernel}")
         raise typer.Exit()
 
 

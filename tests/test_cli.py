@@ -14,6 +14,7 @@ from typer.testing import CliRunner
 
 from ekfviz import __version__
 from ekfviz.cli import app
+from ekfviz.core.filter import HAVE_KERNEL
 from ekfviz.core.replay import replay
 from ekfviz.io.classic import read_classic
 
@@ -24,7 +25,9 @@ runner = CliRunner()
 
 def test_version() -> None:
     result = runner.invoke(app, ["--version"])
-    assert result.exit_code == 0 and result.output.strip() == f"ekfviz {__version__}"
+    kernel = "compiled" if HAVE_KERNEL else "numpy (the compiled kernel was not built)"
+    assert result.exit_code == 0
+    assert result.output.strip() == f"ekfviz {__version__}, filter kernel for small maps: {kernel}"
 
 
 def test_replay_help_lists_every_option() -> None:

@@ -16,7 +16,7 @@ from conftest import entity_rows
 
 from ekfviz import __version__, viz
 from ekfviz.core.evaluation import GroundTruth, evaluate
-from ekfviz.core.filter import FilterParams
+from ekfviz.core.filter import HAVE_KERNEL, FilterParams
 from ekfviz.core.records import EventKind, EventRecord, LogEvent, Sighting
 from ekfviz.core.replay import replay
 from ekfviz.io.classic import format_classic
@@ -241,6 +241,7 @@ def test_blueprint_and_properties_are_in_the_file(run: Run) -> None:
     assert name["RecordingInfo:name"] == ["run"]
     (properties,) = entity_rows(run.rrd, "/__properties/ekfviz", static=True)
     assert properties["version"] == [__version__]
+    assert properties["compiled_kernel"] == [HAVE_KERNEL]
     assert json.loads(str(properties["parameters"][0])) == FilterParams().as_dict()  # type: ignore[index]
     assert properties["input_sha256"][0] == viz.run_info("x", "", {}, run.log).input_sha256  # type: ignore[index]
 
@@ -255,6 +256,8 @@ def test_info_round_trips_the_input_byte_for_byte(run: Run) -> None:
     assert found.input_name == "run.txt" and found.input_size == run.log.stat().st_size
     assert found.evaluation_markdown == evaluate(run.records[-1], run.truth).to_markdown()
     assert dict(found.summary())["input embedded"] == "yes"
+    assert found.compiled_kernel is HAVE_KERNEL
+    assert dict(found.summary())["filter kernel"] == ("compiled" if HAVE_KERNEL else "numpy")
 
 
 def test_info_rejects_what_is_not_a_recording(tmp_path: Path, run: Run) -> None:

@@ -33,6 +33,7 @@ class RecordingInfo:
     truth_sha256: str | None
     input_text: str | None
     evaluation_markdown: str | None
+    compiled_kernel: bool | None = None  # None: made before ekfviz recorded it
 
     def summary(self) -> list[tuple[str, str]]:
         """(key, value) rows for a two-column table."""
@@ -41,6 +42,7 @@ class RecordingInfo:
             ("name", self.name or "-"),
             ("recording id", self.recording_id),
             ("ekfviz", self.version),
+            ("filter kernel", {True: "compiled", False: "numpy", None: "-"}[self.compiled_kernel]),
             ("command", self.command),
             ("input", f"{self.input_name} ({self.input_size} bytes)"),
             ("input sha256", self.input_sha256),
@@ -96,6 +98,9 @@ def read_recording_info(path: Path) -> RecordingInfo:
         truth_sha256=_optional(properties.get("truth_sha256")),
         input_text=_optional(documents.get(f"/{style.RUN_INPUT}")) if embedded else None,
         evaluation_markdown=_optional(documents.get(f"/{style.RUN_EVALUATION}")),
+        compiled_kernel=(
+            None if "compiled_kernel" not in properties else bool(properties["compiled_kernel"])
+        ),
     )
 
 

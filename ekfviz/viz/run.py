@@ -27,6 +27,7 @@ from rerun.any_batch_value import ComponentValueLike
 
 from ekfviz import __version__
 from ekfviz.core.evaluation import Evaluation, GroundTruth
+from ekfviz.core.filter import HAVE_KERNEL
 from ekfviz.core.records import EventRecord
 from ekfviz.io.errors import InputError
 from ekfviz.viz import style
@@ -419,6 +420,7 @@ def _describe(rec: rr.RecordingStream, info: RunInfo) -> None:
         "input_embedded": info.input_text is not None,
         "truth_name": None if info.truth_path is None else info.truth_path.name,
         "truth_sha256": info.truth_sha256,
+        "compiled_kernel": HAVE_KERNEL,  # numbers differ from numpy's by round-off only
     }
     rec.send_property("ekfviz", _any_values(values))
     if info.parameters:
