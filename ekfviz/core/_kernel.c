@@ -4,8 +4,9 @@
  * landmarks) and the numpy version of ekfviz/core/filter.py spends its time in the
  * overhead of a dozen numpy calls per landmark. These two functions do the same algebra
  * as EkfSlam.predict and EkfSlam._update_sequential, in the same order, in plain C
- * loops over the filter's own buffers; filter.py calls them below KERNEL_MAX_DIM and
- * falls back to numpy when this module was not built (no C compiler at install time).
+ * loops over the filter's own buffers; filter.py calls predict at any size and the
+ * update below KERNEL_MAX_DIM, and falls back to numpy when this module was not built
+ * (no C compiler at install time).
  *
  * Buffers are the filter's: x (capacity,) and P (capacity, capacity), C-contiguous
  * float64, of which the leading n entries (n x n block) are the state.
@@ -136,7 +137,8 @@ static PyObject *update_sequential(PyObject *self, PyObject *args)
     if (PyObject_GetBuffer(slots_object, &slots_b, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0)
         goto release_state;
     Py_ssize_t m = slots_b.len / 8;
-    if (slots_b.itemsize != 8 || (strcmp(slots_b.format, "l") != 0 && strcmp(slots_b.format, "q") != 0)) {
+    if (slots_b.itemsize != 8 ||
+        (strcmp(slots_b.format, "l") != 0 && strcmp(slots_b.format, "q") != 0)) {
         PyErr_SetString(PyExc_ValueError, "slots: expected contiguous int64");
         goto release_slots;
     }

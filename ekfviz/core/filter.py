@@ -6,10 +6,10 @@ only the robot rows and columns (O(N)); an update uses the 5 non-zero columns of
 sparse measurement Jacobian and a rank-2 change of P (O(N^2) per landmark).
 
 Two regimes decide how the code is written. With a few landmarks, numpy's per-call
-overhead is the cost: below KERNEL_MAX_DIM, predict and the sequential update run in a
-small compiled kernel (``_kernel.c``, the same algebra in C loops over the same buffers),
-and where it was not built (no C compiler at install) the small algebra is done in
-Python floats and each landmark costs a dozen numpy calls. With thousands, the passes
+overhead is the cost: predict (at any size) and, below KERNEL_MAX_DIM, the sequential
+update run in a small compiled kernel (``_kernel.c``, the same algebra in C loops over
+the same buffers); where it was not built (no C compiler at install) the small algebra
+is done in Python floats and each landmark costs a dozen numpy calls. With thousands, the passes
 over P are the cost: the rank-2 changes of the landmarks of one observation line are
 kept as a low-rank factor U (P_current = P - U^T U) and applied to P in one blocked
 pass, which never builds an n x n temporary and keeps P exactly symmetric.
@@ -308,7 +308,6 @@ class EkfSlam:
         slot = self._slot
         new = [i not in slot for i in ids_list]
         any_new = True in new
-        z_list: list[list[float]] = z.tolist()
         # per observation: z_pred (2), innovation (2), S (2x2, row-major) and NIS
         values: FloatArray
         skipped: list[bool] | BoolArray
@@ -327,7 +326,7 @@ class EkfSlam:
             if self.params.update is UpdateMode.JOINT:
                 self._update_joint(ids_list, z, known, table, skipped)
             else:
-                self._update_sequential(ids_list, z_list, known, table, skipped)
+                self._update_sequential(ids_list, z.tolist(), known, table, skipped)
             # one O(n) look at x (the buffer's: zero beyond the state), so that a NaN cannot
             # reach the next event: a non-finite S or H P reaches x through its update
             if not math.isfinite(float(self._x.sum())):
@@ -337,7 +336,7 @@ class EkfSlam:
             self._reserve(sum(new))
             for k in range(m):
                 if new[k]:
-                    self._add_landmark(ids_list[k], z_list[k])
+                    self._add_landmark(ids_list[k], z[k].tolist())
         values = frozen(values.reshape(m, 9))  # its views below are read-only too
         return Observations(
             ids=frozen(ids_arr),
