@@ -540,8 +540,8 @@ def machine() -> list[str]:
         " one BLAS thread (OPENBLAS/OMP/MKL_NUM_THREADS=1) on both sides",
         "- **compiled kernel** (`ekfviz/core/_kernel.c`): "
         + (
-            f"built, used below state dimension {KERNEL_MAX_DIM}"
-            f" (N <= {(KERNEL_MAX_DIM - 4) // 2} landmarks)"
+            f"built; predict runs in it at any size, the sequential update below state"
+            f" dimension {KERNEL_MAX_DIM} (N <= {(KERNEL_MAX_DIM - 4) // 2} landmarks)"
             if HAVE_KERNEL
             else "**not built** (no C compiler at install): numpy throughout"
         ),
