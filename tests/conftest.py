@@ -49,3 +49,10 @@ def entity_rows(path: Path, entity: str, *, static: bool = False) -> list[dict[s
         if static
         else sorted(rows, key=lambda row: int(str(row.get("event", row.get("step")))))
     )
+
+
+@pytest.fixture(params=[True, False], ids=["kernel", "numpy"])
+def compiled(request: pytest.FixtureRequest) -> bool:
+    """Both ways the filter runs: the compiled kernel of small maps, and the numpy code
+    that stands in where it is not built."""
+    return bool(request.param)

@@ -57,7 +57,6 @@ def final_state(
     return ekf
 
 
-@pytest.mark.parametrize("compiled", [True, False], ids=["kernel", "numpy"])
 @pytest.mark.parametrize("landmark_init", list(LandmarkInit))
 @pytest.mark.parametrize("seed", [1, 4, 9])
 def test_sparse_filter_equals_dense_textbook_filter(
@@ -88,7 +87,6 @@ def partially_seen(n_landmarks: int, seen: int, steps: int, seed: int) -> list[C
     return events
 
 
-@pytest.mark.parametrize("compiled", [True, False], ids=["kernel", "numpy"])
 @pytest.mark.parametrize(
     ("n_landmarks", "seen"),
     # 30: the kernel (dim 63) or numpy's per-landmark update; 40: the deferred update,

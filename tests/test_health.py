@@ -15,9 +15,6 @@ from ekfviz.core.records import Control, EventKind, EventRecord, LogEvent, Sight
 from ekfviz.core.replay import FilterLineError, replay
 from ekfviz.sim.scenarios import classic, loop
 
-# the compiled kernel of small maps, and the numpy code that stands in where it is not built
-COMPILED = pytest.mark.parametrize("compiled", [True, False], ids=["kernel", "numpy"])
-
 
 def test_a_healthy_run_has_no_problem() -> None:
     for record in replay(classic().run(seed=1).events):
@@ -58,7 +55,6 @@ def _mapped_then_on_top(params: FilterParams, compiled: bool) -> EkfSlam:
     return ekf
 
 
-@COMPILED
 @pytest.mark.parametrize("mode", list(UpdateMode))
 def test_a_landmark_at_zero_range_is_skipped_with_a_warning(
     mode: UpdateMode, compiled: bool
@@ -78,7 +74,6 @@ def test_a_landmark_at_zero_range_is_skipped_with_a_warning(
     assert not np.array_equal(ekf.x, x)
 
 
-@COMPILED
 @pytest.mark.parametrize("mode", list(UpdateMode))
 def test_an_innovation_covariance_that_is_not_definite_is_skipped(
     mode: UpdateMode, compiled: bool
@@ -99,7 +94,6 @@ def test_an_innovation_covariance_that_is_not_definite_is_skipped(
     assert problems and "not positive semi-definite" in problems[0]
 
 
-@COMPILED
 @pytest.mark.parametrize("mode", list(UpdateMode))
 def test_a_nan_in_the_covariance_stops_the_update(mode: UpdateMode, compiled: bool) -> None:
     ekf = EkfSlam(FilterParams(update=mode), compiled=compiled)
