@@ -25,11 +25,12 @@ from rich.table import Table
 
 from ekfviz import __version__, signals
 from ekfviz.core.consistency import Consistency, Verdict
-from ekfviz.core.evaluation import Evaluation, GroundTruth, evaluate
+from ekfviz.core.evaluation import Evaluation, evaluate
 from ekfviz.core.filter import HAVE_KERNEL, FilterError, FilterParams, LandmarkInit, UpdateMode
 from ekfviz.core.records import EventRecord, LogEvent
 from ekfviz.core.replay import FilterLineError
 from ekfviz.core.replay import replay as run_filter
+from ekfviz.core.truth import GroundTruth
 from ekfviz.io.errors import InputError
 from ekfviz.io.extended import is_extended, read_log
 from ekfviz.io.text import ProgressCallback

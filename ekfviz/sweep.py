@@ -24,10 +24,11 @@ from typing import Any
 import numpy as np
 
 from ekfviz.core.consistency import Consistency
-from ekfviz.core.evaluation import Evaluation, GroundTruth, evaluate
+from ekfviz.core.evaluation import Evaluation, evaluate
 from ekfviz.core.filter import FilterParams
 from ekfviz.core.records import EventRecord
 from ekfviz.core.replay import replay
+from ekfviz.core.truth import GroundTruth
 from ekfviz.io.extended import read_log
 
 VARIABLE = ("sigma_x", "sigma_y", "sigma_alpha", "sigma_bearing", "sigma_range")

@@ -19,9 +19,10 @@ from ekfviz.core.consistency import (
     chi2_quantile,
     pose_nees,
 )
-from ekfviz.core.evaluation import GroundTruth, evaluate
+from ekfviz.core.evaluation import evaluate
 from ekfviz.core.filter import FilterParams
 from ekfviz.core.replay import replay
+from ekfviz.core.truth import GroundTruth
 from ekfviz.io.classic import format_classic
 from ekfviz.sim.scenarios import classic
 from ekfviz.sim.simulate import Noise

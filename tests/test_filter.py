@@ -18,9 +18,10 @@ from ekfviz.core.filter import (
     LandmarkInit,
     UpdateMode,
 )
-from ekfviz.core.models import measure, measurement_jacobians, wrap_angle
 from ekfviz.core.records import Control, EventKind, EventRecord, Sighting
 from ekfviz.core.replay import replay
+from ekfviz.models.angles import wrap_angle
+from ekfviz.models.classic import measure, measurement_jacobians
 from ekfviz.sim.scenarios import classic
 from ekfviz.sim.simulate import CLASSIC_LANDMARKS_XY, Noise, classic_controls, simulate
 

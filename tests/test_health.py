@@ -18,7 +18,7 @@ from ekfviz.sim.scenarios import classic, loop
 
 def test_a_healthy_run_has_no_problem() -> None:
     for record in replay(classic().run(seed=1).events):
-        figures = health(record)
+        figures = health(record.pose_cov, record.landmark_covs)
         assert figures.problems() == []
         assert figures.pose_min_eigenvalue > 0 and figures.pose_asymmetry == 0.0
 
@@ -29,7 +29,8 @@ def test_each_fault_is_named() -> None:
     P[3:, 3:] = [[1.0, 2.0], [2.0, 1.0]]  # eigenvalues 3 and -1
     P[0, 1] = 0.5  # not symmetric
     P[2, 2] = -0.1
-    figures = health(snapshot(x, P, event=0, step=0, kind=EventKind.INIT))
+    record = snapshot(x, P, event=0, step=0, kind=EventKind.INIT)
+    figures = health(record.pose_cov, record.landmark_covs)
     assert figures.landmark_min_eigenvalue == -1.0
     assert figures.pose_asymmetry == 0.5
     assert figures.pose_min_eigenvalue < 0
@@ -40,7 +41,8 @@ def test_each_fault_is_named() -> None:
 
 def test_round_off_below_zero_is_not_a_fault() -> None:
     P = np.diag([1.0, 1.0, 1.0, 1.0, -1e-12])
-    figures = health(snapshot(np.zeros(5), P, event=0, step=0, kind=EventKind.INIT))
+    record = snapshot(np.zeros(5), P, event=0, step=0, kind=EventKind.INIT)
+    figures = health(record.pose_cov, record.landmark_covs)
     assert figures.landmark_min_eigenvalue == 0.0 and figures.problems() == []
 
 

@@ -9,17 +9,16 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ekfviz.core.models import (
+from ekfviz.core.types import FloatArray
+from ekfviz.models.angles import wrap_angle, wrap_angles
+from ekfviz.models.classic import (
     landmark_from_measurement,
     landmark_init_jacobians,
     measure,
     measurement_jacobians,
     motion,
     motion_jacobians,
-    wrap_angle,
-    wrap_angles,
 )
-from ekfviz.core.types import FloatArray
 
 coordinate = st.floats(-50.0, 50.0)
 heading = st.floats(-3 * math.pi, 3 * math.pi)

@@ -194,7 +194,7 @@ def test_truth_errors(tmp_path: Path, name: str, content: str, message: str) -> 
 
 
 def test_truth_lookup_by_id_with_gaps_and_unknown_ids() -> None:
-    from ekfviz.core.evaluation import GroundTruth
+    from ekfviz.core.truth import GroundTruth
 
     truth = GroundTruth(np.array([5, 2, 9]), np.array([[5.0, 5.0], [2.0, 2.0], [9.0, 9.0]]))
     found = truth.lookup(np.array([9, 3, 2, 5, 10]))

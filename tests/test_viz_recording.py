@@ -15,10 +15,11 @@ import pytest
 from conftest import entity_rows
 
 from ekfviz import __version__, viz
-from ekfviz.core.evaluation import GroundTruth, evaluate
+from ekfviz.core.evaluation import evaluate
 from ekfviz.core.filter import HAVE_KERNEL, FilterParams
 from ekfviz.core.records import EventKind, EventRecord, LogEvent, Sighting
 from ekfviz.core.replay import replay
+from ekfviz.core.truth import GroundTruth
 from ekfviz.io.classic import format_classic
 from ekfviz.sim.simulate import CLASSIC_LANDMARKS_XY, classic_controls, simulate
 from ekfviz.viz import style

@@ -15,9 +15,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ekfviz.core.evaluation import GroundTruth
-from ekfviz.core.models import wrap_angle
 from ekfviz.core.records import EventKind, EventRecord
+from ekfviz.core.truth import GroundTruth
+from ekfviz.models.angles import wrap_angle
 
 CONFIDENCE = 0.95
 INSIDE_FOR_CONSISTENT = 0.9  # share of steps inside the bounds to call a run consistent

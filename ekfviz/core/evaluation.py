@@ -7,43 +7,16 @@ landmark; "inside its 3-sigma ellipse" means a Mahalanobis distance below 3.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ekfviz.core.models import wrap_angle
+from ekfviz.core.consistency import Consistency
 from ekfviz.core.records import EventRecord
-from ekfviz.core.types import FloatArray, IntArray
-
-if TYPE_CHECKING:
-    from ekfviz.core.consistency import Consistency
+from ekfviz.core.truth import GroundTruth
+from ekfviz.core.types import FloatArray
+from ekfviz.models.angles import wrap_angle
 
 INSIDE_SIGMA = 3.0
-
-
-@dataclass(frozen=True, slots=True)
-class GroundTruth:
-    """True landmark positions: ``ids`` (K,), ``landmarks_xy`` (K, 2); and, when known,
-    the true poses ``poses_xytheta`` (T+1, 3), one per step (step 0 = start), and the
-    noise levels and prior a simulator used (``simulated_with``, by filter parameter name:
-    ``sigma_x`` ... ``sigma_range``, ``init_pose_sigma``)."""
-
-    ids: IntArray
-    landmarks_xy: FloatArray
-    poses_xytheta: FloatArray | None = None
-    simulated_with: dict[str, float | list[float]] | None = None
-
-    def lookup(self, ids: IntArray) -> FloatArray:
-        """True positions (len(ids), 2) of the given ids, NaN where the truth has none."""
-        # vectorised: this runs at every update of a replay with truth
-        ids = np.asarray(ids, dtype=np.int64)
-        order = np.argsort(self.ids, kind="stable")
-        sorted_ids = self.ids[order]
-        at = np.minimum(np.searchsorted(sorted_ids, ids), max(len(sorted_ids) - 1, 0))
-        found = (sorted_ids[at] == ids) if len(sorted_ids) else np.zeros(len(ids), dtype=bool)
-        out = np.full((len(ids), 2), np.nan)
-        out[found] = self.landmarks_xy[order[at[found]]]
-        return out
 
 
 def landmark_errors(

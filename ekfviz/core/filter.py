@@ -26,14 +26,10 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from ekfviz.core.health import CovarianceCheck
-from ekfviz.core.models import (
-    landmark_from_measurement,
-    landmark_init_jacobians,
-    wrap_angle,
-    wrap_angles,
-)
 from ekfviz.core.records import EventKind, EventRecord, Observations, frozen
 from ekfviz.core.types import BoolArray, FloatArray, IntArray
+from ekfviz.models.angles import wrap_angle, wrap_angles
+from ekfviz.models.classic import landmark_from_measurement, landmark_init_jacobians
 
 try:
     from ekfviz.core import _kernel

@@ -20,15 +20,11 @@ matrix is round-off, reported as 0.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
 
 from ekfviz.core.types import FloatArray
-
-if TYPE_CHECKING:
-    from ekfviz.core.records import EventRecord
 
 TOLERANCE = 1e-9
 
@@ -100,12 +96,12 @@ class Health:
         return found
 
 
-def health(record: EventRecord) -> Health:
-    """The health figures of a record; eigenvalues within round-off of 0 count as 0."""
-    pose_cov = record.pose_cov
+def health(pose_cov: FloatArray, landmark_covs: FloatArray) -> Health:
+    """The health figures of a record's (3, 3) pose and (N, 2, 2) landmark covariances;
+    eigenvalues within round-off of 0 count as 0."""
     landmark_min = float("nan")
-    if record.n_landmarks:
-        landmark_min = float(landmark_min_eigenvalues(record.landmark_covs).min())
+    if len(landmark_covs):
+        landmark_min = float(landmark_min_eigenvalues(landmark_covs).min())
     return Health(
         pose_min_eigenvalue=float(pose_min_eigenvalues(pose_cov[None])[0]),
         landmark_min_eigenvalue=landmark_min,

@@ -7,9 +7,9 @@ import re
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
-from ekfviz.core.models import wrap_angles
 from ekfviz.core.types import FloatArray
 from ekfviz.io.errors import InputError
+from ekfviz.models.angles import wrap_angles
 
 _NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
 _NUMBERS = re.compile(rf"{_NUMBER.pattern}(?: {_NUMBER.pattern})*")  # tokens joined by spaces

@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ekfviz.core.evaluation import GroundTruth
 from ekfviz.core.records import LogEvent, Sighting
+from ekfviz.core.truth import GroundTruth
 from ekfviz.io.errors import InputError
 from ekfviz.io.text import numeric_lines
 

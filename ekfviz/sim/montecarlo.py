@@ -15,10 +15,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from ekfviz.core.consistency import CONFIDENCE, BoundCount, chi2_quantile, pose_nees, update_nis
-from ekfviz.core.evaluation import GroundTruth
 from ekfviz.core.filter import FilterParams
 from ekfviz.core.records import EventKind
 from ekfviz.core.replay import replay
+from ekfviz.core.truth import GroundTruth
 from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.sim.scenarios import Scenario
 from ekfviz.sim.simulate import Noise

@@ -13,9 +13,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ekfviz.core.models import motion, wrap_angles
 from ekfviz.core.records import Control, LogEvent, Sighting
 from ekfviz.core.types import FloatArray, IntArray
+from ekfviz.models.angles import wrap_angles
+from ekfviz.models.classic import motion
 
 CLASSIC_LANDMARKS_XY = np.array(
     [[3.0, 6.0], [3.0, 12.0], [7.0, 8.0], [7.0, 14.0], [11.0, 6.0], [11.0, 12.0]]

@@ -47,7 +47,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from ekfviz.core.consistency import chi2_bounds, pose_nees
-from ekfviz.core.evaluation import Evaluation, GroundTruth, landmark_errors
+from ekfviz.core.evaluation import Evaluation, landmark_errors
 from ekfviz.core.health import (
     CovarianceCheck,
     check_covariance,
@@ -55,9 +55,10 @@ from ekfviz.core.health import (
     landmark_min_eigenvalues,
     pose_min_eigenvalues,
 )
-from ekfviz.core.models import wrap_angles
 from ekfviz.core.records import EventKind, EventRecord, Observations, snapshot
+from ekfviz.core.truth import GroundTruth
 from ekfviz.core.types import FloatArray, IntArray
+from ekfviz.models.angles import wrap_angles
 from ekfviz.viz import style
 from ekfviz.viz.blueprint import default_blueprint
 from ekfviz.viz.ellipses import ellipse_outlines, outline_points

@@ -26,9 +26,10 @@ import rerun as rr
 from rerun.any_batch_value import ComponentValueLike
 
 from ekfviz import __version__
-from ekfviz.core.evaluation import Evaluation, GroundTruth
+from ekfviz.core.evaluation import Evaluation
 from ekfviz.core.filter import HAVE_KERNEL
 from ekfviz.core.records import EventRecord
+from ekfviz.core.truth import GroundTruth
 from ekfviz.io.errors import InputError
 from ekfviz.viz import style
 from ekfviz.viz.recorder import Recorder

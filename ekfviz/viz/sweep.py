@@ -9,8 +9,9 @@ from __future__ import annotations
 import numpy as np
 import rerun as rr
 
-from ekfviz.core.evaluation import GroundTruth, landmark_errors
+from ekfviz.core.evaluation import landmark_errors
 from ekfviz.core.records import EventKind
+from ekfviz.core.truth import GroundTruth
 from ekfviz.sweep import VariantRun
 from ekfviz.viz import style
 from ekfviz.viz.blueprint import sweep_blueprint
