@@ -1,7 +1,7 @@
 """The compiled kernel of small maps: everything else is in pyproject.toml.
 
 The extension is optional: without a C compiler the install goes on and the filter
-uses its numpy code throughout (``ekfviz.core.filter.KERNEL`` is then None).
+uses its numpy code throughout (``ekfviz.core.filter.HAVE_KERNEL`` is then False).
 """
 
 from setuptools import Extension, setup

@@ -1,0 +1,9 @@
+"""The ``ekfviz`` command line: one module per command, shared options in :mod:`.common`.
+
+Importing this package registers every command on :data:`app`.
+"""
+
+from ekfviz.cli import consistency, convert, info, replay, simulate, sweep
+from ekfviz.cli.common import app
+
+__all__ = ["app", "consistency", "convert", "info", "replay", "simulate", "sweep"]

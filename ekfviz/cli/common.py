@@ -1,0 +1,410 @@
+"""What the commands share: the app, one-line errors, option declarations, output helpers."""
+
+from __future__ import annotations
+
+import enum
+import json
+import os
+import sys
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import astuple
+from pathlib import Path
+from typing import Annotated, Any, NoReturn
+
+import numpy as np
+import typer
+from rich.console import Console
+from rich.markup import escape
+from rich.progress import BarColumn, DownloadColumn, Progress, TimeRemainingColumn
+from rich.table import Table
+
+from ekfviz import __version__, signals
+from ekfviz.core.evaluation import Evaluation
+from ekfviz.core.filter import HAVE_KERNEL, FilterParams, LandmarkInit, UpdateMode
+from ekfviz.core.records import EventRecord, LogEvent
+from ekfviz.core.replay import FilterLineError
+from ekfviz.core.truth import GroundTruth
+from ekfviz.io.extended import is_extended, read_log
+from ekfviz.io.text import ProgressCallback
+from ekfviz.io.truth import checked_against
+from ekfviz.sim.scenarios import Scenario, ScenarioName
+from ekfviz.sim.simulate import Noise
+
+
+class LogFormat(str, enum.Enum):
+    CLASSIC = "classic"
+    EXTENDED = "extended"
+
+
+app = typer.Typer(
+    help="Replay a 2-D EKF-SLAM run and explore it in Rerun.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+out = Console(highlight=False)
+err = Console(stderr=True, highlight=False)
+
+PROGRESS_MIN_BYTES = 1 << 20  # files under 1 MiB replay in well under a second
+RECORDINGS_DIR = Path("recordings")
+
+
+def fail(message: str, code: int = 2) -> NoReturn:
+    """Print one line on stderr and exit: no traceback for a user's mistake (unless
+    ``--debug``, and then only when called while handling an exception)."""
+    if DEBUG["traceback"] and sys.exc_info()[1] is not None:
+        raise
+    err.print(f"[bold red]error:[/] {escape(message)}", soft_wrap=True)
+    raise typer.Exit(code)
+
+
+def _version(value: bool) -> None:
+    if value:
+        kernel = "compiled" if HAVE_KERNEL else "numpy (the compiled kernel was not built)"
+        out.print(f"ekfviz {__version__}, filter kernel for small maps: {kernel}")
+        raise typer.Exit()
+
+
+DEBUG = {"traceback": False}
+
+
+@app.callback()
+def main(
+    ctx: typer.Context,
+    version: Annotated[
+        bool,
+        typer.Option("--version", callback=_version, is_eager=True, help="Print the version."),
+    ] = False,
+    debug: Annotated[
+        bool, typer.Option("--debug", help="Show the traceback of an error, not one line.")
+    ] = False,
+) -> None:
+    """Replay a 2-D EKF-SLAM run and explore it in Rerun."""
+    DEBUG["traceback"] = debug
+    if ctx.invoked_subcommand != "replay":  # only a replay keeps signals for later
+        signals.restore()
+
+
+def warn(message: str) -> None:
+    """One line on stderr that does not stop the run."""
+    err.print(f"[yellow]warning:[/] {message}", soft_wrap=True, markup=True, highlight=False)
+
+
+# -- options shared by several commands ------------------------------------------------
+
+FILTER_NOISE = "Filter noise"
+FILTER_OPTIONS = "Filter options"
+TRUE_NOISE = "True noise (default: the scenario's)"
+LOOP = "Loop scenario"
+
+
+def _option(help: str, panel: str | None = None, **kwargs: Any) -> Any:
+    return typer.Option(help=help, rich_help_panel=panel, **kwargs)
+
+
+SigmaX = Annotated[
+    float, _option("Motion noise sigma along the heading (m).", FILTER_NOISE, min=0.0)
+]
+SigmaY = Annotated[float, _option("Motion noise sigma sideways (m).", FILTER_NOISE, min=0.0)]
+SigmaAlpha = Annotated[
+    float, _option("Motion noise sigma of the turn (rad).", FILTER_NOISE, min=0.0)
+]
+SigmaBearing = Annotated[
+    float, _option("Measurement noise sigma of the bearing (rad); positive.", FILTER_NOISE)
+]
+SigmaRange = Annotated[
+    float, _option("Measurement noise sigma of the range (m); positive.", FILTER_NOISE)
+]
+LandmarkInitOption = Annotated[
+    LandmarkInit,
+    _option("Keep the new landmark's cross-covariances (correlated) or drop them.", FILTER_OPTIONS),
+]
+UpdateOption = Annotated[
+    UpdateMode,
+    _option("Fold a line's landmarks one after another, or all at once.", FILTER_OPTIONS),
+]
+Triple = tuple[float, float, float]
+DEFAULT = FilterParams()  # the classic defaults, stated once
+InitPoseSigma = Annotated[
+    Triple,
+    _option(
+        "Sigma of the initial pose prior at (0, 0, 0).", FILTER_OPTIONS, metavar="SX SY STHETA"
+    ),
+]
+LogArgument = Annotated[
+    Path, typer.Argument(help="Log in the classic or the extended format.", show_default=False)
+]
+TruthOption = Annotated[
+    Path | None, _option("True landmark positions: 'x y' per line, or JSON.", show_default=False)
+]
+
+
+def _true(what: str) -> Any:
+    return _option(f"True {what}.", TRUE_NOISE, min=0.0, show_default=False)
+
+
+TrueSigmaX = Annotated[float | None, _true("motion noise sigma along the heading")]
+TrueSigmaY = Annotated[float | None, _true("motion noise sigma sideways")]
+TrueSigmaAlpha = Annotated[float | None, _true("motion noise sigma of the turn")]
+TrueSigmaBearing = Annotated[float | None, _true("bearing noise sigma")]
+TrueSigmaRange = Annotated[float | None, _true("range noise sigma")]
+ScenarioOption = Annotated[ScenarioName, _option("The world and route.")]
+Steps = Annotated[
+    int | None,
+    _option("loop: controls in one lap [default: 1000].", LOOP, min=4, show_default=False),
+]
+Landmarks = Annotated[
+    int | None,
+    _option("loop: number of landmarks [default: 200].", LOOP, min=1, show_default=False),
+]
+MaxRange = Annotated[
+    float | None,
+    _option("loop: sensor range in metres [default: 15].", LOOP, min=0.0, show_default=False),
+]
+Fov = Annotated[
+    float | None,
+    _option(
+        "loop: sensor field of view in degrees [default: 180].",
+        LOOP,
+        min=0.0,
+        max=360.0,
+        show_default=False,
+    ),
+]
+
+
+def filter_params(
+    sigmas: tuple[float, float, float, float, float],
+    init_pose_sigma: Triple,
+    landmark_init: LandmarkInit,
+    update: UpdateMode,
+) -> FilterParams:
+    """The filter's parameters from the command line, refusing what cannot work."""
+    sigma_x, sigma_y, sigma_alpha, sigma_bearing, sigma_range = sigmas
+    if sigma_bearing <= 0 or sigma_range <= 0:
+        fail("--sigma-bearing and --sigma-range must be positive: R must be invertible")
+    if min(init_pose_sigma) < 0:
+        fail("--init-pose-sigma values must not be negative")
+    return FilterParams(
+        sigma_x=sigma_x,
+        sigma_y=sigma_y,
+        sigma_alpha=sigma_alpha,
+        sigma_bearing=sigma_bearing,
+        sigma_range=sigma_range,
+        init_pose_sigma=init_pose_sigma,
+        landmark_init=landmark_init,
+        update=update,
+    )
+
+
+def scenario_world(
+    scenario: ScenarioName,
+    seed: int,
+    steps: int | None,
+    landmarks: int | None,
+    max_range: float | None,
+    fov: float | None,
+) -> Scenario:
+    """The scenario asked for; the loop options are refused for the classic one."""
+    from ekfviz.sim import scenarios
+
+    options: dict[str, Any] = {
+        "steps": steps, "landmarks": landmarks, "max_range": max_range, "fov_deg": fov
+    }  # fmt: skip
+    given = {name: value for name, value in options.items() if value is not None}
+    if scenario is ScenarioName.CLASSIC:
+        if given:
+            flags = (f"--{name.removesuffix('_deg').replace('_', '-')}" for name in given)
+            fail(f"{', '.join(flags)}: only for --scenario loop")
+        return scenarios.classic()
+    return scenarios.loop(seed=seed, **given)
+
+
+def true_noise(world: Scenario, *given: float | None) -> Noise:
+    """The scenario's own noise, with the values given on the command line instead."""
+    return Noise(*(d if g is None else g for g, d in zip(given, astuple(world.noise), strict=True)))
+
+
+# -- helpers ---------------------------------------------------------------------------
+
+
+def log_events(
+    data: Path,
+    truth: GroundTruth | None,
+    truth_path: Path | None,
+    progress: ProgressCallback | None = None,
+) -> Iterator[LogEvent]:
+    """The log's events, checked against the truth's landmarks when there is one."""
+    events = read_log(data, progress, warn)
+    if truth is not None and truth_path is not None:
+        events = checked_against(events, truth, truth_path, every_id=not is_extended(data))
+    return events
+
+
+class FilterWarnings:
+    """Print the filter's warnings as ``FILE:LINE: warning: ...``, the first few only:
+    the recording's log holds all of them."""
+
+    PRINTED = 10
+
+    def __init__(self, data: Path) -> None:
+        self._data = data
+        self.count = 0
+
+    def add(self, record: EventRecord) -> None:
+        for text in record.warnings:
+            self.count += 1
+            if self.count <= self.PRINTED:
+                where = f"{self._data}:{record.line}" if record.line else str(self._data)
+                warn(escape(f"{where}: {text}"))
+
+    def summarise(self) -> None:
+        if self.count > self.PRINTED:
+            warn(
+                f"{self.count - self.PRINTED} more filter warnings"
+                f" ({self.count} in all) are in the recording's log"
+            )
+
+
+class RunStopped(Exception):
+    """A replay cut short; ``kept`` says whether its recording was kept."""
+
+    def __init__(self, reason: str, cause: BaseException, kept: bool) -> None:
+        super().__init__(reason)
+        self.reason = reason
+        self.kept = kept
+        if isinstance(cause, KeyboardInterrupt):
+            self.exit_code = 130  # 128 + SIGINT, as a shell reports it
+        elif isinstance(cause, signals.Terminated):
+            self.exit_code = 143  # 128 + SIGTERM
+        else:
+            self.exit_code = 2
+
+
+def stop_reason(cause: BaseException, data: Path, last: EventRecord | None) -> str:
+    """One line saying why and where a replay stopped."""
+    after = f"after input line {last.line}" if last is not None and last.line else "at the start"
+    if isinstance(cause, KeyboardInterrupt):
+        return f"{data}: interrupted (SIGINT) {after}"
+    if isinstance(cause, signals.Terminated):
+        return f"{data}: terminated (SIGTERM) {after}"
+    if isinstance(cause, FilterLineError):
+        return f"{data}:{cause.line}: {cause}"
+    return str(cause)
+
+
+@contextmanager
+def open_progress(path: Path) -> Iterator[ProgressCallback | None]:
+    """A progress bar over the bytes of ``path`` when it is long, else nothing."""
+    try:
+        size = path.stat().st_size
+    except OSError:
+        size = 0  # the reader reports a missing file
+    if size < PROGRESS_MIN_BYTES:
+        yield None
+        return
+    with Progress(
+        "[progress.description]{task.description}",
+        BarColumn(),
+        DownloadColumn(),
+        TimeRemainingColumn(),
+        console=err,
+        transient=True,
+    ) as bar:
+        task = bar.add_task(f"replaying {path.name}", total=size)
+        yield lambda done: bar.update(task, completed=done)
+
+
+def print_evaluation(evaluation: Evaluation, truth: GroundTruth | None) -> None:
+    """The final landmark table and pose, with errors when the truth is known."""
+    table = Table(title="Landmarks at the end of the run", title_justify="left")
+    for column in ("id", "x", "y", "σ x", "σ y"):
+        table.add_column(column, justify="right")
+    if truth is not None:
+        for column in ("error (m)", "Mahalanobis", "in 3σ"):
+            table.add_column(column, justify="right")
+    for r in evaluation.landmarks:
+        cells = [str(r.id), *(f"{v:.4f}" for v in (*r.estimate, *r.sigma))]
+        if truth is not None:
+            if r.mahalanobis is None or r.euclidean is None:
+                cells += ["-", "-", "no truth"]
+            else:
+                verdict = "[green]yes[/]" if r.inside_3sigma else "[bold red]no[/]"
+                cells += [f"{r.euclidean:.4f}", f"{r.mahalanobis:.3f}", verdict]
+        table.add_row(*cells)
+    out.print(table)
+    x, y, theta = evaluation.pose
+    sx, sy, st = evaluation.pose_sigma
+    out.print(
+        f"Final pose: x {x:.4f} ± {sx:.4f} m, y {y:.4f} ± {sy:.4f} m, "
+        f"theta {theta:.4f} ± {st:.4f} rad (± one sigma)"
+    )
+    if truth is not None:
+        inside = sum(bool(r.inside_3sigma) for r in evaluation.landmarks)
+        out.print(f"{inside} of {len(evaluation.landmarks)} landmarks inside their 3-sigma ellipse")
+        missing = set(truth.ids.tolist()) - {r.id for r in evaluation.landmarks}
+        if missing:
+            out.print(f"[yellow]never observed: landmarks {sorted(missing)}[/]")
+    if evaluation.consistency is not None:
+        for line in evaluation.consistency.summary():
+            out.print(line)
+
+
+def mismatch_note(params: FilterParams, truth: GroundTruth) -> None:
+    """Say so when the filter was told other noise levels than the simulator used."""
+    told = params.as_dict()
+    flags = [
+        f"--{name.replace('_', '-')} " + " ".join(f"{v:g}" for v in np.atleast_1d(value))
+        for name, value in (truth.simulated_with or {}).items()
+        if name in told and not np.allclose(np.asarray(told[name], dtype=float), value)
+    ]
+    if flags:
+        out.print(
+            "[yellow]note:[/] the truth file says the log was simulated with other noise"
+            f" levels than the filter was told; to match them: {' '.join(flags)}",
+            soft_wrap=True,
+        )
+
+
+def report_json(
+    evaluation: Evaluation, params: FilterParams, data: Path, sha256: str
+) -> dict[str, object]:
+    return {
+        "ekfviz_version": __version__,
+        "input": {"name": data.name, "sha256": sha256},
+        "parameters": params.as_dict(),
+        **evaluation.to_json(),
+    }
+
+
+def write_json(path: Path, document: dict[str, object]) -> None:
+    write_bytes_atomic(path, (json.dumps(document, indent=2) + "\n").encode("utf-8"))
+
+
+def write_bytes_atomic(path: Path, content: bytes) -> None:
+    """Write beside ``path`` and rename, so an existing file is never left half-written."""
+    path = path.resolve()
+    try:
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    except OSError as error:
+        fail(f"{path}: cannot write ({error.strerror})")
+    try:
+        with os.fdopen(fd, "wb") as handle:
+            handle.write(content)
+        os.chmod(tmp, _file_mode(path))
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _file_mode(path: Path) -> int:
+    """The mode a file written at ``path`` should get: the old file's, else the umask's."""
+    try:
+        return path.stat().st_mode & 0o777
+    except OSError:
+        umask = os.umask(0)
+        os.umask(umask)
+        return 0o666 & ~umask

@@ -1,0 +1,177 @@
+"""``ekfviz replay``: replay a log through a filter, record it, print the evaluation."""
+
+from __future__ import annotations
+
+import shlex
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from ekfviz import signals
+from ekfviz.cli.common import (
+    DEFAULT,
+    RECORDINGS_DIR,
+    FilterWarnings,
+    InitPoseSigma,
+    LandmarkInitOption,
+    LogArgument,
+    RunStopped,
+    SigmaAlpha,
+    SigmaBearing,
+    SigmaRange,
+    SigmaX,
+    SigmaY,
+    TruthOption,
+    UpdateOption,
+    app,
+    fail,
+    filter_params,
+    log_events,
+    mismatch_note,
+    open_progress,
+    out,
+    print_evaluation,
+    report_json,
+    stop_reason,
+    write_json,
+)
+from ekfviz.core.consistency import Consistency
+from ekfviz.core.evaluation import evaluate
+from ekfviz.core.filter import FilterError
+from ekfviz.core.records import EventRecord
+from ekfviz.core.replay import FilterLineError
+from ekfviz.core.replay import replay as run_filter
+from ekfviz.io.errors import InputError
+from ekfviz.io.truth import read_truth
+
+
+@app.command()
+def replay(
+    data: LogArgument,
+    truth: TruthOption = None,
+    report: Annotated[
+        Path | None, typer.Option(help="Write the evaluation as JSON here.", show_default=False)
+    ] = None,
+    sigma_x: SigmaX = DEFAULT.sigma_x,
+    sigma_y: SigmaY = DEFAULT.sigma_y,
+    sigma_alpha: SigmaAlpha = DEFAULT.sigma_alpha,
+    sigma_bearing: SigmaBearing = DEFAULT.sigma_bearing,
+    sigma_range: SigmaRange = DEFAULT.sigma_range,
+    init_pose_sigma: InitPoseSigma = DEFAULT.init_pose_sigma,
+    landmark_init: LandmarkInitOption = DEFAULT.landmark_init,
+    update: UpdateOption = DEFAULT.update,
+    save: Annotated[
+        Path | None,
+        typer.Option(
+            help="Write the recording to this .rrd file.",
+            show_default=False,
+            rich_help_panel="Rerun output",
+        ),
+    ] = None,
+    spawn: Annotated[
+        bool,
+        typer.Option(
+            "--spawn", help="Open the native Rerun viewer.", rich_help_panel="Rerun output"
+        ),
+    ] = False,
+    serve: Annotated[
+        bool,
+        typer.Option(
+            "--serve",
+            help="Serve the web viewer on localhost until Ctrl-C.",
+            rich_help_panel="Rerun output",
+        ),
+    ] = False,
+    connect: Annotated[
+        str | None,
+        typer.Option(
+            help="Stream to a running viewer at this gRPC URL.",
+            show_default=False,
+            rich_help_panel="Rerun output",
+        ),
+    ] = None,
+    detail: Annotated[
+        bool,
+        typer.Option(
+            "--detail",
+            help="Log every landmark's ellipse at every update, even in a large map"
+            " (by default a map of over 32 landmarks is logged whole every 25 steps).",
+            rich_help_panel="Rerun output",
+        ),
+    ] = False,
+) -> None:
+    """Replay a log through EKF-SLAM, record it for Rerun and print the evaluation.
+
+    With no Rerun output option, the native viewer opens where a display exists;
+    otherwise the recording is saved to recordings/<input name>.rrd.
+    """
+    from ekfviz import viz  # rerun loads only for commands that record
+
+    params = filter_params(
+        (sigma_x, sigma_y, sigma_alpha, sigma_bearing, sigma_range),
+        init_pose_sigma,
+        landmark_init,
+        update,
+    )
+    try:
+        truth_xy = read_truth(truth) if truth is not None else None
+        sinks, note = viz.resolve_default_sinks(
+            viz.Sinks(save=save, spawn=spawn, serve=serve, connect=connect),
+            data,
+            RECORDINGS_DIR,
+        )
+        info = viz.run_info(
+            name=data.stem,
+            command=shlex.join(["ekfviz", *sys.argv[1:]]),
+            parameters=params.as_dict(),
+            input_path=data,
+            truth=truth_xy,
+            truth_path=truth,
+        )
+        with (
+            open_progress(data) as progress,
+            viz.open_run(info, sinks, detail=detail) as logger,
+            signals.as_exceptions(),
+        ):
+            last: EventRecord | None = None
+            consistency = Consistency(truth_xy)
+            warnings = FilterWarnings(data)
+            try:
+                for record in run_filter(log_events(data, truth_xy, truth, progress), params):
+                    logger.log(record)
+                    consistency.add(record)
+                    if record.warnings:
+                        warnings.add(record)
+                    last = record
+                    if record.event == 0:  # a signal during start-up: stop, with a recording
+                        signals.raise_pending()
+            except (InputError, FilterLineError, KeyboardInterrupt, signals.Terminated) as cause:
+                final = None if last is None else evaluate(last, truth_xy, consistency)
+                reason = stop_reason(cause, data, last)
+                kept = logger.stop(reason, final)
+                raise RunStopped(reason, cause, kept) from cause
+            assert last is not None  # replay always yields the initialisation
+            evaluation = evaluate(last, truth_xy, consistency)
+            logger.finish(evaluation)
+            warnings.summarise()
+            print_evaluation(evaluation, truth_xy)
+            if report is not None:
+                write_json(report, report_json(evaluation, params, data, info.input_sha256))
+            if truth_xy is not None:
+                mismatch_note(params, truth_xy)
+            if note:
+                out.print(note)
+            if logger.url:
+                out.print(f"Serving the web viewer at [bold]{logger.url}[/] (Ctrl-C to stop)")
+            logger.wait_while_serving()
+    except RunStopped as stopped:
+        where = ""
+        if stopped.kept and sinks.save is not None:
+            where = f"; the recording of everything before it is saved in {sinks.save}"
+        fail(f"{stopped.reason}{where}", code=stopped.exit_code)
+    except (InputError, FilterError, viz.SinkError) as error:
+        fail(str(error))
+    except (KeyboardInterrupt, signals.Terminated) as signal_error:
+        raise typer.Exit(143 if isinstance(signal_error, signals.Terminated) else 130) from None
