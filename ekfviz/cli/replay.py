@@ -45,10 +45,23 @@ from ekfviz.core.replay import FilterLineError
 from ekfviz.core.replay import replay as run_filter
 from ekfviz.io.errors import InputError
 from ekfviz.io.truth import read_truth
+from ekfviz.association import AssociationError
+from ekfviz.cli.scans import (
+    AssociationOption,
+    Confirm,
+    ConfirmWindow,
+    GateProbability,
+    SigmaSpeed,
+    SigmaSteering,
+    DEFAULT_ASSOCIATION,
+    VICTORIA,
+    replay_setup,
+)
 
 
 @app.command()
 def replay(
+    ctx: typer.Context,
     data: LogArgument,
     truth: TruthOption = None,
     report: Annotated[
@@ -92,6 +105,12 @@ def replay(
             rich_help_panel="Rerun output",
         ),
     ] = None,
+    association: AssociationOption = None,
+    gate_probability: GateProbability = DEFAULT_ASSOCIATION.gate_probability,
+    confirm: Confirm = DEFAULT_ASSOCIATION.confirm,
+    confirm_window: ConfirmWindow = DEFAULT_ASSOCIATION.confirm_window,
+    sigma_speed: SigmaSpeed = VICTORIA.sigma_speed,
+    sigma_steering: SigmaSteering = VICTORIA.sigma_steering,
     detail: Annotated[
         bool,
         typer.Option(
@@ -117,6 +136,11 @@ def replay(
     )
     try:
         truth_xy = read_truth(truth) if truth is not None else None
+        setup = replay_setup(
+            ctx, data, params, truth_xy, association, gate_probability, confirm, confirm_window,
+            sigma_speed, sigma_steering,
+        )  # fmt: skip
+        params = setup.params
         sinks, note = viz.resolve_default_sinks(
             viz.Sinks(save=save, spawn=spawn, serve=serve, connect=connect),
             data,
@@ -125,22 +149,26 @@ def replay(
         info = viz.run_info(
             name=data.stem,
             command=shlex.join(["ekfviz", *sys.argv[1:]]),
-            parameters=params.as_dict(),
-            input_path=data,
-            truth=truth_xy,
+            parameters={**params.as_dict(), **setup.parameters},
+            input_path=setup.input_path,
+            truth=setup.recorder_truth,
             truth_path=truth,
         )
         with (
             open_progress(data) as progress,
-            viz.open_run(info, sinks, detail=detail) as logger,
+            viz.open_run(info, sinks, detail=detail, sensor=setup.sensor) as logger,
             signals.as_exceptions(),
         ):
             last: EventRecord | None = None
             consistency = Consistency(truth_xy)
             warnings = FilterWarnings(data)
             try:
-                for record in run_filter(log_events(data, truth_xy, truth, progress), params):
+                for record in run_filter(
+                    setup.events(truth, progress), params, slam=setup.slam,
+                    associator=setup.associator,
+                ):  # fmt: skip
                     logger.log(record)
+                    setup.add(record)
                     consistency.add(record)
                     if record.warnings:
                         warnings.add(record)
@@ -148,17 +176,22 @@ def replay(
                     if record.event == 0:  # a signal during start-up: stop, with a recording
                         signals.raise_pending()
             except (InputError, FilterLineError, KeyboardInterrupt, signals.Terminated) as cause:
-                final = None if last is None else evaluate(last, truth_xy, consistency)
+                final = None if last is None else evaluate(last, setup.truth_of(last), consistency)
                 reason = stop_reason(cause, data, last)
                 kept = logger.stop(reason, final)
                 raise RunStopped(reason, cause, kept) from cause
             assert last is not None  # replay always yields the initialisation
-            evaluation = evaluate(last, truth_xy, consistency)
+            evaluation = evaluate(last, setup.truth_of(last), consistency)
+            extra = setup.finish(logger, last)
             logger.finish(evaluation)
             warnings.summarise()
-            print_evaluation(evaluation, truth_xy)
+            print_evaluation(evaluation, setup.truth_of(last))
+            setup.print_summary(extra)
             if report is not None:
-                write_json(report, report_json(evaluation, params, data, info.input_sha256))
+                write_json(
+                    report,
+                    {**report_json(evaluation, params, data, info.input_sha256), **extra},
+                )
             if truth_xy is not None:
                 mismatch_note(params, truth_xy)
             if note:
@@ -171,7 +204,7 @@ def replay(
         if stopped.kept and sinks.save is not None:
             where = f"; the recording of everything before it is saved in {sinks.save}"
         fail(f"{stopped.reason}{where}", code=stopped.exit_code)
-    except (InputError, FilterError, viz.SinkError) as error:
+    except (InputError, FilterError, AssociationError, viz.SinkError) as error:
         fail(str(error))
     except (KeyboardInterrupt, signals.Terminated) as signal_error:
         raise typer.Exit(143 if isinstance(signal_error, signals.Terminated) else 130) from None

@@ -32,6 +32,9 @@ from ekfviz.cli.common import (
 from ekfviz.core.filter import FilterParams
 from ekfviz.core.truth import GroundTruth
 from ekfviz.sim.scenarios import ScenarioName
+from ekfviz.sim.simulate import Detection
+
+SENSOR = "Detection"
 
 
 @app.command()
@@ -72,6 +75,23 @@ def simulate(
         ),
     ] = None,
     precision: Annotated[int, typer.Option(min=1, max=17, help="Decimals written.")] = 6,
+    unknown_ids: Annotated[
+        bool,
+        _option(
+            "Write id-less 'scan' lines (extended format); the truth's scan_ids keep each"
+            " measurement's landmark (null for clutter).",
+            SENSOR,
+        ),
+    ] = False,
+    clutter: Annotated[
+        float,
+        _option("Mean false alarms per scan (Poisson), uniform over the field.", SENSOR, min=0.0),
+    ] = 0.0,
+    detection_probability: Annotated[
+        float,
+        _option("Probability of detecting a landmark in reach.", SENSOR, min=0.0, max=1.0),
+    ] = 1.0,
+    laps: Annotated[int, _option("Drive the route this many times.", min=1)] = 1,
 ) -> None:
     """Simulate a run with known truth and write its log and truth files (deterministic)."""
     from ekfviz.io.classic import format_classic
@@ -84,9 +104,17 @@ def simulate(
     )
     if init_pose_sigma is None:
         init_pose_sigma = world.init_pose_sigma
-    run = world.run(noise, seed=seed, init_pose_sigma=init_pose_sigma)
+    if clutter > 0 and not unknown_ids:
+        fail("--clutter: only with --unknown-ids (a log with ids names no false alarms)")
+    if unknown_ids and log_format is LogFormat.CLASSIC:
+        fail("--unknown-ids: the classic format has no id-less scans; use --format extended")
+    detection = Detection(unknown_ids, clutter, detection_probability)
+    run = world.run(
+        noise, seed=seed, init_pose_sigma=init_pose_sigma, detection=detection, laps=laps
+    )
     if log_format is None:
-        log_format = LogFormat.CLASSIC if scenario is ScenarioName.CLASSIC else LogFormat.EXTENDED
+        classic = scenario is ScenarioName.CLASSIC and not unknown_ids
+        log_format = LogFormat.CLASSIC if classic else LogFormat.EXTENDED
     try:
         text = (
             format_classic(run.events, precision)
@@ -105,8 +133,14 @@ def simulate(
             "max_range": world.sensor.max_range if math.isfinite(world.sensor.max_range) else None,
             "fov_deg": math.degrees(world.sensor.fov),
         },
-        "steps": len(world.controls),
+        "steps": len(world.controls) * laps,
     }
+    if laps > 1:
+        extra["laps"] = laps
+    if unknown_ids or detection_probability < 1.0:
+        extra["detection"] = {"clutter": clutter, "probability": detection_probability}
+    if run.scan_ids is not None:
+        extra["scan_ids"] = [list(ids) for ids in run.scan_ids]
     write_bytes_atomic(output, text.encode("utf-8"))
     write_bytes_atomic(truth_out, truth_json(truth, **extra).encode("utf-8"))
     out.print(f"Wrote {output} ({len(run.events)} events) and {truth_out}")
@@ -115,6 +149,8 @@ def simulate(
         for name, value in asdict(noise).items()
         if value != getattr(FilterParams(), name)
     ]
+    if unknown_ids:
+        replay_noise.append("--association jcbb")
     if tuple(init_pose_sigma) != FilterParams().init_pose_sigma:
         replay_noise.append("--init-pose-sigma " + " ".join(f"{v:g}" for v in init_pose_sigma))
     out.print(

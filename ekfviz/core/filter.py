@@ -26,7 +26,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from ekfviz.core.health import CovarianceCheck
-from ekfviz.core.records import EventKind, EventRecord, Observations, frozen
+from ekfviz.core.records import EventKind, EventRecord, Observations, ScanAssociation, frozen
 from ekfviz.core.types import BoolArray, FloatArray, IntArray
 from ekfviz.models.angles import wrap_angle, wrap_angles
 from ekfviz.models.classic import landmark_from_measurement, landmark_init_jacobians
@@ -196,6 +196,7 @@ class EkfSlam:
         time: float | None = None,
         warnings: tuple[str, ...] = (),
         covariance: CovarianceCheck | None = None,
+        association: ScanAssociation | None = None,
     ) -> EventRecord:
         """Snapshot the current state as an immutable record.
 
@@ -239,6 +240,7 @@ class EkfSlam:
             time=time,
             warnings=warnings,
             covariance=covariance,
+            association=association,
         )
 
     # -- predict -----------------------------------------------------------------------
@@ -568,6 +570,41 @@ class EkfSlam:
                 right = P[i0:i1, i1:n]
                 right -= U_i.T @ U[:, i1:]
                 P[i1:n, i0:i1] = right.T
+
+    # -- landmark removal ----------------------------------------------------------------
+
+    def remove_landmarks(self, ids: Sequence[int]) -> None:
+        """Drop landmarks from the state (a tentative landmark that was not confirmed).
+
+        Marginalising a Gaussian is dropping its rows and columns: the rest of x and P is
+        unchanged, and P stays exactly symmetric and positive semi-definite (a principal
+        submatrix of one). The kept rows are moved up in place, O(n^2) at worst.
+
+        :raises FilterError: an id not in the state
+        """
+        doomed = set(int(i) for i in ids)
+        if not doomed:
+            return
+        unknown = doomed - self._slot.keys()
+        if unknown:
+            raise FilterError(f"cannot remove landmarks {sorted(unknown)}: not in the state")
+        n = self._n
+        kept_ids = [i for i in self._ids if i not in doomed]
+        keep = np.concatenate(
+            ([0, 1, 2], *[(self._slot[i], self._slot[i] + 1) for i in kept_ids])
+        ).astype(np.int64)
+        m = keep.shape[0]
+        self._x[:m] = self._x[keep]
+        self._x[m:n] = 0.0
+        self._P[:m, :m] = self._P[np.ix_(keep, keep)]
+        self._P[m:n, :n] = 0.0
+        self._P[:n, m:n] = 0.0
+        self._n = m
+        self._ids = kept_ids
+        self._slot = {i: 3 + 2 * k for k, i in enumerate(kept_ids)}
+        self._ids_array = None
+        self._rows = {}
+        self._landmark_covs = None
 
     # -- landmark initialisation -------------------------------------------------------
 

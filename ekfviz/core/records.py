@@ -15,7 +15,7 @@ from typing import TypeVar
 import numpy as np
 
 from ekfviz.core.health import CovarianceCheck
-from ekfviz.core.types import BoolArray, FloatArray, IntArray
+from ekfviz.core.types import BoolArray, FloatArray, Int8Array, IntArray
 
 
 class EventKind(str, enum.Enum):
@@ -53,7 +53,37 @@ class Sighting:
     time: float | None = None
 
 
-LogEvent = Control | Sighting
+@dataclass(frozen=True, slots=True)
+class Scan:
+    """An observation line whose landmarks are unknown (``scan`` in the extended format).
+
+    ``z`` (m, 2) is the (bearing, range) of each measurement in file order; the
+    association decides which landmark, if any, each belongs to. ``diameters`` (m,) is
+    what the sensor says of each object's size (Victoria Park's trunk diameters), when
+    it says anything.
+    """
+
+    line: int
+    z: FloatArray
+    time: float | None = None
+    diameters: FloatArray | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Drive:
+    """A vehicle's raw controls held over time spans, ending at ``time``.
+
+    ``segments`` (k, 3) holds (speed m/s, steering rad, duration s) per span, in order:
+    the controls read from the log, each held until the next input or the next scan.
+    The filter's vehicle model (:mod:`ekfviz.models.ackermann`) drives them in one predict.
+    """
+
+    line: int
+    segments: FloatArray
+    time: float | None = None
+
+
+LogEvent = Control | Sighting | Scan | Drive
 
 
 @dataclass(frozen=True, slots=True)
@@ -88,6 +118,57 @@ class Observations:
         return int(self.ids.shape[0])
 
 
+class Fate(enum.IntEnum):
+    """What the association made of one measurement of a scan."""
+
+    MATCHED = 0  # paired with a landmark of the map (confirmed or tentative)
+    NEW = 1  # explained by no landmark: starts a tentative landmark
+    REJECTED = 2  # compatible with a landmark but left out of the best joint pairing: clutter
+
+
+@dataclass(frozen=True, slots=True)
+class ScanAssociation:
+    """What the association decided at one scan (see :mod:`ekfviz.association`).
+
+    :param method: "nn" or "jcbb"
+    :param z: (m, 2) the scan's (bearing, range), in file order
+    :param fate: (m,) a :class:`Fate` per measurement
+    :param landmark: (m,) the id each measurement was paired with or started, -1 when rejected
+    :param gate_ids: (g,) the landmarks whose gate some measurement fell in (the candidates)
+    :param gate_z: (g, 2) their predicted (bearing, range)
+    :param gate_S: (g, 2, 2) their innovation covariances
+    :param gate_threshold: the chi-square quantile of the individual gate (2 dof)
+    :param hypotheses: how many JCBB hypotheses (search nodes) were explored
+    :param joint_nis: the joint Mahalanobis distance squared of the chosen pairing
+    :param exhausted: the search hit its node budget and kept the best found so far
+    :param tentative: (t,) the landmarks still tentative after this scan
+    :param confirmed: (c,) the landmarks confirmed at this scan
+    :param removed: (r,) the tentative landmarks removed at this scan
+    :param diameters: (m,) the sensor's size of each measured object, when known
+    :param truth: (m,) the true landmark id of each measurement (-1 for clutter), when known
+    """
+
+    method: str
+    z: FloatArray
+    fate: Int8Array
+    landmark: IntArray
+    gate_ids: IntArray
+    gate_z: FloatArray
+    gate_S: FloatArray
+    gate_threshold: float
+    hypotheses: int
+    joint_nis: float
+    exhausted: bool
+    tentative: IntArray
+    confirmed: IntArray
+    removed: IntArray
+    diameters: FloatArray | None = None
+    truth: IntArray | None = None
+
+    def count(self, fate: Fate) -> int:
+        return int(np.count_nonzero(self.fate == fate))
+
+
 @dataclass(frozen=True, slots=True)
 class EventRecord:
     """The filter state right after one event (initialisation, predict or update).
@@ -108,6 +189,7 @@ class EventRecord:
     :param warnings: what went wrong at this event without stopping the run, one
         sentence each (a skipped observation, a covariance that lost definiteness)
     :param covariance: the check of the whole covariance, at the events where it ran
+    :param association: what the association decided, at the update of a scan
     """
 
     event: int
@@ -125,6 +207,7 @@ class EventRecord:
     time: float | None = None
     warnings: tuple[str, ...] = ()
     covariance: CovarianceCheck | None = None
+    association: ScanAssociation | None = None
 
     @property
     def n_landmarks(self) -> int:

@@ -3,17 +3,26 @@
 from __future__ import annotations
 
 from collections.abc import Iterable, Iterator
+from dataclasses import replace
 from itertools import chain
 from typing import Any
 
+import numpy as np
+
+from ekfviz.association.associator import Associator
 from ekfviz.core.filter import EkfSlam, FilterError, FilterParams
 from ekfviz.core.health import check_covariance, check_interval
 from ekfviz.core.records import (
     Control,
+    Drive,
     EventKind,
     EventRecord,
     LogEvent,
+    Scan,
+    Observations,
+    ScanAssociation,
     Sighting,
+    frozen,
 )
 
 
@@ -33,6 +42,8 @@ def replay(
     params: FilterParams | None = None,
     *,
     full_cov: bool = False,
+    slam: EkfSlam | None = None,
+    associator: Associator | None = None,
 ) -> Iterator[EventRecord]:
     """Run EKF-SLAM over ``events`` lazily, one record per event.
 
@@ -48,10 +59,17 @@ def replay(
     warnings. An error of the event stream (bad input, an interrupt) is raised only
     after the record of the last good event, checked, has been yielded.
 
+    Id-less scans go through ``associator`` (:mod:`ekfviz.association`), which pairs
+    them and folds them into the filter; at the last event the landmarks still tentative
+    are removed. Drive events (a vehicle's raw controls) need a filter with a vehicle
+    model (:class:`~ekfviz.core.model_filter.ModelEkfSlam`).
+
     :param full_cov: also keep the full (3+2N)^2 covariance in every record
+    :param slam: the filter to run (default ``EkfSlam(params)``)
+    :param associator: for logs with scans
     :raises FilterLineError: the filter cannot go on at a line (a non-finite state, ...)
     """
-    ekf = EkfSlam(params)
+    ekf = slam if slam is not None else EkfSlam(params)
     next_check = 0  # the step from which the whole covariance is due for a check
 
     def checked(line: int, warnings: tuple[str, ...]) -> dict[str, Any]:
@@ -67,15 +85,15 @@ def replay(
     stream = _with_last(events)
     first, last = next(stream, (None, True))
     extra: dict[str, Any]
-    if isinstance(first, Sighting):
+    if isinstance(first, Sighting | Scan):
         try:
-            observations = ekf.observe(first.ids, first.z)
+            observations, association = _observe(ekf, first, associator, last)
         except FilterError as error:
             raise FilterLineError(first.line, str(error)) from error
         extra = checked(first.line, ekf.warnings)
         yield ekf.record(
             event=0, step=0, kind=EventKind.INIT, line=first.line, time=first.time,
-            observations=observations, full_cov=full_cov, **extra,
+            observations=observations, full_cov=full_cov, association=association, **extra,
         )  # fmt: skip
         pending: list[tuple[LogEvent, bool]] = []
     else:
@@ -88,21 +106,27 @@ def replay(
     for event, (log_event, last) in enumerate(chain(pending, stream), start=1):
         # the filter's own errors name the line; "try" costs nothing until one is raised
         try:
-            if isinstance(log_event, Control):
+            if isinstance(log_event, Control | Drive):
                 step += 1
                 step_has_update = False
-                ekf.predict(log_event.d, log_event.alpha)
+                if isinstance(log_event, Drive):
+                    _drive(ekf, log_event)
+                else:
+                    ekf.predict(log_event.d, log_event.alpha)
+                if last and associator is not None:
+                    associator.finish(ekf)
                 extra = checked(log_event.line, ()) if step >= next_check or last else no_extra
                 yield ekf.record(
                     event=event, step=step, kind=EventKind.PREDICT, line=log_event.line,
-                    time=log_event.time, control=(log_event.d, log_event.alpha),
+                    time=log_event.time,
+                    control=(log_event.d, log_event.alpha) if isinstance(log_event, Control) else None,
                     full_cov=full_cov, **extra,
                 )  # fmt: skip
             else:
                 if step_has_update:
                     step += 1
                 step_has_update = True
-                observations = ekf.observe(log_event.ids, log_event.z)
+                observations, association = _observe(ekf, log_event, associator, last)
                 warnings = ekf.warnings
                 extra = (
                     checked(log_event.line, warnings)
@@ -112,12 +136,36 @@ def replay(
                 yield ekf.record(
                     event=event, step=step, kind=EventKind.UPDATE, line=log_event.line,
                     time=log_event.time, observations=observations, full_cov=full_cov,
-                    **extra,
+                    association=association, **extra,
                 )  # fmt: skip
         except FilterLineError:
             raise
         except FilterError as error:
             raise FilterLineError(log_event.line, str(error)) from error
+
+
+def _observe(
+    ekf: EkfSlam, event: Sighting | Scan, associator: Associator | None, last: bool
+) -> tuple[Observations, ScanAssociation | None]:
+    """Fold an observation in: by its ids, or a scan through the association."""
+    if isinstance(event, Sighting):
+        return ekf.observe(event.ids, event.z), None
+    if associator is None:
+        raise FilterError("a scan has no landmark ids: it needs --association nn or jcbb")
+    observations, association = associator.process(ekf, event)
+    if last:  # the end of the run: nothing tentative is left in the map
+        removed = associator.finish(ekf)
+        if removed:
+            both = np.union1d(association.removed, removed)
+            association = replace(association, removed=frozen(both), tentative=frozen(both[:0]))
+    return observations, association
+
+
+def _drive(ekf: EkfSlam, event: Drive) -> None:
+    drive = getattr(ekf, "drive", None)
+    if drive is None:
+        raise FilterError("speed and steering controls need a filter with a vehicle model")
+    drive(event.segments)
 
 
 def _with_last(events: Iterable[LogEvent]) -> Iterator[tuple[LogEvent, bool]]:

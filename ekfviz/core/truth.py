@@ -14,12 +14,14 @@ class GroundTruth:
     """True landmark positions: ``ids`` (K,), ``landmarks_xy`` (K, 2); and, when known,
     the true poses ``poses_xytheta`` (T+1, 3), one per step (step 0 = start), and the
     noise levels and prior a simulator used (``simulated_with``, by filter parameter name:
-    ``sigma_x`` ... ``sigma_range``, ``init_pose_sigma``)."""
+    ``sigma_x`` ... ``sigma_range``, ``init_pose_sigma``); for id-less scans, ``scan_ids``:
+    per scan line the true landmark id of each measurement, None for clutter."""
 
     ids: IntArray
     landmarks_xy: FloatArray
     poses_xytheta: FloatArray | None = None
     simulated_with: dict[str, float | list[float]] | None = None
+    scan_ids: tuple[tuple[int | None, ...], ...] | None = None
 
     def lookup(self, ids: IntArray) -> FloatArray:
         """True positions (len(ids), 2) of the given ids, NaN where the truth has none."""

@@ -7,7 +7,10 @@ One event a line, a keyword first, ``#`` comments, an optional leading timestamp
     observe 4 1.1072 6.7060 17 1.3257 12.3812     # id bearing range, any number of them
     observe                                       # a step with nothing in view
     12.5 control 3.0 0.0                          # with a timestamp in seconds
+    scan 1.1072 6.7060 1.3257 12.3812             # bearing range, landmarks unknown
 
+A ``scan`` line is an observation whose landmarks are unknown (any number of pairs,
+none included): ``--association nn|jcbb`` decides which landmark each one is.
 Landmark ids are non-negative integers; they need not be dense or ordered.
 """
 
@@ -19,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ekfviz.core.records import Control, LogEvent, Sighting
+from ekfviz.core.records import Control, Drive, LogEvent, Scan, Sighting
 from ekfviz.io.classic import read_classic
 from ekfviz.io.errors import InputError
 from ekfviz.io.text import (
@@ -31,7 +34,7 @@ from ekfviz.io.text import (
     token_lines,
 )
 
-KEYWORDS = ("control", "observe")
+KEYWORDS = ("control", "observe", "scan")
 _ID = re.compile(r"\+?\d+")
 MAX_ID = 2**63 - 1  # ids are int64
 
@@ -97,12 +100,14 @@ def read_extended(
             yield Control(line=line, d=d, alpha=alpha, time=time)
         elif keyword == "observe":
             yield _observation(path, line, values, time, wrap)
+        elif keyword == "scan":
+            yield _scan(path, line, values, time, wrap)
         else:
             shown = keyword if len(keyword) <= 20 else keyword[:20] + "..."
             raise InputError(
                 path,
                 line,
-                f"found {shown!r}, expected a keyword: control or observe"
+                f"found {shown!r}, expected a keyword: control, observe or scan"
                 " (after an optional timestamp)",
             )
 
@@ -148,6 +153,29 @@ def _observation(
     return Sighting(line=line, ids=np.array(ids, dtype=np.int64), z=z, time=time)
 
 
+def _scan(
+    path: Path, line: int, values: list[str], time: float | None, wrap: BearingWrapper
+) -> Scan:
+    if len(values) % 2:
+        raise InputError(
+            path,
+            line,
+            f"found {len(values)} values after 'scan', expected an even number:"
+            " bearing range per measurement",
+        )
+    z = np.array([parse_number(path, line, token) for token in values]).reshape(-1, 2)
+    bad = np.flatnonzero(~(z[:, 1] > 0))
+    if bad.size:
+        raise InputError(
+            path,
+            line,
+            f"found range {values[2 * int(bad[0]) + 1]} in measurement {int(bad[0]) + 1},"
+            " expected a positive range",
+        )
+    z[:, 0] = wrap(line, z[:, 0])
+    return Scan(line=line, z=z, time=time)
+
+
 def format_extended(events: Iterable[LogEvent], precision: int | None = 6) -> str:
     """Write events in the extended format, one event a line, with timestamps if given.
 
@@ -157,11 +185,19 @@ def format_extended(events: Iterable[LogEvent], precision: int | None = 6) -> st
     def num(value: float) -> str:
         return format_number(value, precision)
 
-    lines = ["# ekfviz extended log: control d alpha | observe id bearing range ..."]
+    lines = [
+        "# ekfviz extended log: control d alpha | observe id bearing range ..."
+        " | scan bearing range ..."
+    ]
     for event in events:
         head = "" if event.time is None else f"{num(event.time)} "
         if isinstance(event, Control):
             lines.append(f"{head}control {num(event.d)} {num(event.alpha)}")
+        elif isinstance(event, Scan):
+            cells = [f"{num(b)} {num(r)}" for b, r in event.z]
+            lines.append(" ".join([f"{head}scan", *cells]))
+        elif isinstance(event, Drive):
+            raise ValueError("speed and steering controls have no line in the extended format")
         else:
             cells = [
                 f"{int(i)} {num(b)} {num(r)}" for i, (b, r) in zip(event.ids, event.z, strict=True)

@@ -96,6 +96,7 @@ def _read_json(path: Path) -> GroundTruth:
         if not (isinstance(poses, list) and poses and all(_finite_numbers(p, 3) for p in poses)):
             raise InputError(path, 1, '"poses" must be a list of [x, y, theta], one per step')
         poses_xytheta = np.array(poses, dtype=np.float64)
+    scan_ids = _scan_ids(path, document.get("scan_ids"))
     settings: dict[str, float | list[float]] = {}
     noise = document.get("noise")
     if isinstance(noise, dict):
@@ -108,7 +109,26 @@ def _read_json(path: Path) -> GroundTruth:
         landmarks_xy=np.array(pairs, dtype=np.float64).reshape(-1, 2),
         poses_xytheta=poses_xytheta,
         simulated_with=settings or None,
+        scan_ids=scan_ids,
     )
+
+
+def _scan_ids(path: Path, value: object) -> tuple[tuple[int | None, ...], ...] | None:
+    """The truth's ``scan_ids``: per scan line, each measurement's landmark id or null."""
+    if value is None:
+        return None
+    expected = '"scan_ids" must be a list with one list per scan line of landmark ids or null'
+    if not isinstance(value, list):
+        raise InputError(path, 1, expected)
+    scans: list[tuple[int | None, ...]] = []
+    for k, ids in enumerate(value):
+        if not isinstance(ids, list) or not all(
+            i is None or (isinstance(i, int) and not isinstance(i, bool) and 0 <= i <= MAX_ID)
+            for i in ids
+        ):
+            raise InputError(path, 1, f"{expected}; scan {k + 1} is {json.dumps(ids)[:40]}")
+        scans.append(tuple(ids))
+    return tuple(scans)
 
 
 def _finite_numbers(value: object, count: int) -> bool:
@@ -124,7 +144,14 @@ def _finite_numbers(value: object, count: int) -> bool:
 
 def truth_json(truth: GroundTruth, **extra: object) -> str:
     """A truth file's JSON text, one landmark and one pose a line, ``extra`` keys first."""
-    lines = [f"  {json.dumps(key)}: {json.dumps(value)}," for key, value in extra.items()]
+    lines = [
+        f"  {json.dumps(key)}: {json.dumps(value)},"
+        for key, value in extra.items()
+        if key != "scan_ids"
+    ]
+    if "scan_ids" in extra:  # one scan a line
+        scans = ",\n".join(f"    {json.dumps(ids)}" for ids in extra["scan_ids"])  # type: ignore[attr-defined]
+        lines.append('  "scan_ids": [\n' + scans + "\n  ],")
     order = np.argsort(truth.ids, kind="stable")
     landmarks = [
         f'    "{int(truth.ids[i])}": {json.dumps(truth.landmarks_xy[i].tolist())}' for i in order

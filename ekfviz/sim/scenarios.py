@@ -18,6 +18,7 @@ import numpy as np
 from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.sim.simulate import (
     CLASSIC_LANDMARKS_XY,
+    Detection,
     Noise,
     Sensor,
     Simulation,
@@ -48,25 +49,30 @@ class Scenario:
         noise: Noise | None = None,
         seed: int = 0,
         init_pose_sigma: tuple[float, float, float] | None = None,
+        detection: Detection = Detection(),
+        laps: int = 1,
     ) -> Simulation:
         """Simulate the scenario; the true start is drawn from N(0, diag(init_pose_sigma^2)),
         the prior a filter starting at (0, 0, 0) with that covariance assumes.
 
         :param noise: the true noise; default the scenario's own
         :param init_pose_sigma: the prior of the start; default the scenario's own
+        :param detection: misses, clutter, id-less scans
+        :param laps: drive the route this many times
         """
         if init_pose_sigma is None:
             init_pose_sigma = self.init_pose_sigma
         rng = np.random.default_rng([seed, 0x5EED])  # a stream apart from the run's noise
         start = rng.normal(0.0, 1.0, 3) * np.asarray(init_pose_sigma, dtype=np.float64)
         return simulate(
-            self.controls,
+            np.tile(self.controls, (laps, 1)),
             self.landmarks_xy,
             self.noise if noise is None else noise,
             seed=seed,
             start_xytheta=start,
             sensor=self.sensor,
             landmark_ids=self.landmark_ids,
+            detection=detection,
         )
 
 

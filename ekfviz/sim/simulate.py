@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ekfviz.core.records import Control, LogEvent, Sighting
+from ekfviz.core.records import Control, LogEvent, Scan, Sighting
 from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.models.angles import wrap_angles
 from ekfviz.models.classic import motion
@@ -59,6 +59,25 @@ class Sensor:
         return math.isinf(self.max_range) and self.fov >= 2 * math.pi
 
 
+# Where a sensor of unlimited range puts its clutter: within this many metres.
+CLUTTER_RANGE_UNLIMITED = 20.0
+
+
+@dataclass(frozen=True, slots=True)
+class Detection:
+    """What the sensor misses and invents, and whether the log names the landmarks.
+
+    :param unknown_ids: write id-less scans (the truth keeps each measurement's id)
+    :param clutter: mean number of false alarms per observation (Poisson), uniform over
+        the sensor's field (its area)
+    :param probability: of detecting a landmark in reach
+    """
+
+    unknown_ids: bool = False
+    clutter: float = 0.0
+    probability: float = 1.0
+
+
 @dataclass(frozen=True, slots=True)
 class Simulation:
     """A simulated run: the log's events and the truth behind them.
@@ -67,12 +86,15 @@ class Simulation:
     :param poses_xytheta: (T+1, 3) true poses, at the start and after every control
     :param landmark_ids: (N,) ids of the true landmarks
     :param landmarks_xy: (N, 2) true landmark positions
+    :param scan_ids: with unknown ids, per scan the true id of each measurement (None
+        for clutter)
     """
 
     events: tuple[LogEvent, ...]
     poses_xytheta: FloatArray
     landmark_ids: IntArray
     landmarks_xy: FloatArray
+    scan_ids: tuple[tuple[int | None, ...], ...] | None = None
 
 
 def simulate(
@@ -83,14 +105,19 @@ def simulate(
     start_xytheta: tuple[float, float, float] | FloatArray = (0.0, 0.0, 0.0),
     sensor: Sensor = Sensor(),
     landmark_ids: IntArray | None = None,
+    detection: Detection = Detection(),
 ) -> Simulation:
     """Drive the controls from ``start_xytheta`` and observe after the start and each control.
 
     :param controls: (T, 2) commanded (d, alpha)
     :param landmarks_xy: (N, 2) true landmark positions
     :param landmark_ids: (N,) their ids; default 1..N
+    :param detection: misses, clutter and id-less scans; drawn from a random stream of
+        their own, so that without them the run is the same draw for draw
     """
     rng = np.random.default_rng(seed)
+    rng_detection = np.random.default_rng([seed, 0xC1077E])
+    scan_ids: list[tuple[int | None, ...]] = []
     landmarks_xy = np.asarray(landmarks_xy, dtype=np.float64).reshape(-1, 2)
     if landmark_ids is None:
         landmark_ids = np.arange(1, len(landmarks_xy) + 1, dtype=np.int64)
@@ -98,7 +125,7 @@ def simulate(
     poses = [pose]
     line = 1
 
-    def sight() -> Sighting:
+    def sight() -> Sighting | Scan:
         d_xy = landmarks_xy - pose[:2]
         ranges = np.hypot(d_xy[:, 0], d_xy[:, 1])
         bearings = wrap_angles(np.arctan2(d_xy[:, 1], d_xy[:, 0]) - pose[2])
@@ -111,7 +138,30 @@ def simulate(
         z = np.empty((m, 2))
         z[:, 0] = wrap_angles(bearings[seen] + n_bearing[seen])
         z[:, 1] = np.abs(ranges[seen] + n_range[seen])  # a range is never negative
-        return Sighting(line=line, ids=landmark_ids[seen], z=z)
+        ids = landmark_ids[seen]
+        if detection.probability < 1.0:
+            detected = rng_detection.random(len(ranges))[seen] < detection.probability
+            z, ids = z[detected], ids[detected]
+        if not detection.unknown_ids:
+            return Sighting(line=line, ids=ids, z=z)
+        truth: list[int | None] = [int(i) for i in ids]
+        if detection.clutter > 0.0:
+            # false alarms uniform over the field's area, each at a random place in the scan
+            count = int(rng_detection.poisson(detection.clutter))
+            reach = (
+                sensor.max_range if math.isfinite(sensor.max_range) else CLUTTER_RANGE_UNLIMITED
+            )
+            half = min(sensor.fov, 2 * math.pi) / 2
+            rows = list(z)
+            for _ in range(count):
+                bearing, u, at = rng_detection.random(3).tolist()
+                rng_clutter = reach * math.sqrt(u)
+                place = int(at * (len(rows) + 1))
+                rows.insert(place, np.array([(2 * bearing - 1) * half, max(rng_clutter, 1e-3)]))
+                truth.insert(place, None)
+            z = np.array(rows).reshape(-1, 2)
+        scan_ids.append(tuple(truth))
+        return Scan(line=line, z=z)
 
     events: list[LogEvent] = [sight()]
     for d, alpha in controls:
@@ -126,4 +176,10 @@ def simulate(
         events.append(Control(line=line, d=float(d), alpha=float(alpha)))
         line += 1
         events.append(sight())
-    return Simulation(tuple(events), np.array(poses), landmark_ids.copy(), landmarks_xy.copy())
+    return Simulation(
+        tuple(events),
+        np.array(poses),
+        landmark_ids.copy(),
+        landmarks_xy.copy(),
+        tuple(scan_ids) if detection.unknown_ids else None,
+    )

@@ -59,7 +59,9 @@ from ekfviz.core.records import EventKind, EventRecord, Observations, snapshot
 from ekfviz.core.truth import GroundTruth
 from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.models.angles import wrap_angles
+from ekfviz.models.range_bearing import RangeBearing
 from ekfviz.viz import style
+from ekfviz.viz.association import AssociationView
 from ekfviz.viz.blueprint import default_blueprint
 from ekfviz.viz.ellipses import ellipse_outlines, outline_points
 
@@ -156,25 +158,38 @@ class _Index:
         return self.times
 
 
-def _times(steps: IntArray, events: IntArray) -> list[rr.TimeColumnLike]:
-    """Both timelines of some rows, in Arrow."""
-    return [_Index(style.STEP, pa.array(steps)), _Index(style.EVENT, pa.array(events))]
+def _times(
+    steps: IntArray, events: IntArray, times: FloatArray | None = None
+) -> list[rr.TimeColumnLike]:
+    """Both timelines of some rows, in Arrow, and the log's ``time`` (seconds) when every
+    row has one."""
+    columns: list[rr.TimeColumnLike] = [
+        _Index(style.STEP, pa.array(steps)), _Index(style.EVENT, pa.array(events))
+    ]  # fmt: skip
+    if times is not None and len(times) and bool(np.isfinite(times).all()):
+        columns.append(rr.TimeColumn(style.TIME, duration=times))
+    return columns
 
 
 class _Rows:
     """The step and event of each buffered record, to pick the time columns of a send."""
 
-    def __init__(self, steps: IntArray, events: IntArray) -> None:
+    def __init__(
+        self, steps: IntArray, events: IntArray, times: FloatArray | None = None
+    ) -> None:
         self.steps = steps
         self.events = events
-        self.all = _times(steps, events)  # most sends have a row per record: once
+        self.times = times
+        self.all = _times(steps, events, times)  # most sends have a row per record: once
 
     def __len__(self) -> int:
         return len(self.steps)
 
     def pick(self, rows: Sequence[int] | IntArray) -> list[rr.TimeColumnLike]:
         index = np.asarray(rows, dtype=np.int64)
-        return _times(self.steps[index], self.events[index])
+        return _times(
+            self.steps[index], self.events[index], None if self.times is None else self.times[index]
+        )
 
 
 def _landmark_rows(record: EventRecord, which: str | None) -> IntArray:
@@ -301,6 +316,7 @@ class Recorder:
         that several runs share one recording; the default layout then does not fit
     :param detail: log every landmark's ellipse (and, with truth, its errors) at every
         update, however large the map (see the module for what is logged otherwise)
+    :param sensor: the measurement model, to draw id-less scans from the sensor's position
     """
 
     def __init__(
@@ -314,8 +330,11 @@ class Recorder:
         heading_length: float = HEADING_LENGTH,
         prefix: str = "",
         detail: bool = False,
+        sensor: RangeBearing | None = None,
     ) -> None:
         self._rec = _Entities(rec, prefix)
+        self._sensor = sensor if sensor is not None else RangeBearing()
+        self.association: AssociationView | None = None  # made at the first scan
         self._detail = detail
         self._truth = truth
         self._heading_length = heading_length
@@ -448,6 +467,8 @@ class Recorder:
                 style.LANDMARK_ELLIPSES, rows, [(0, record, _landmark_rows(record, None))]
             )
         self._series.flush()
+        if self.association is not None:
+            self.association.flush()
         if evaluation is not None:
             self._rec.log(
                 style.RUN_EVALUATION,
@@ -500,6 +521,12 @@ class Recorder:
             if whole_map:
                 self._map_step = record.step
             self._last_update = (record, whole_map)
+        if record.association is not None:
+            if self.association is None:  # association ids are not the truth's ids
+                self.association = AssociationView(
+                    self._rec.rec, self._rec.path, self._sensor, self._truth
+                )
+            self.association.log(record)
         if self._truth is not None:
             self._log_metrics(record, whole_map)
         self._pending.append((record, whole_map))
@@ -520,6 +547,11 @@ class Recorder:
         rows = _Rows(
             np.fromiter((record.step for record in records), np.int64, count),
             np.fromiter((record.event for record in records), np.int64, count),
+            np.fromiter(
+                (math.nan if record.time is None else record.time for record in records),
+                np.float64,
+                count,
+            ),
         )
         poses = np.stack([record.pose for record in records])
         pose_covs = np.stack([record.pose_cov for record in records])
@@ -822,7 +854,7 @@ class Recorder:
 
     def _log_landmark_errors(self, record: EventRecord, which: str | None) -> None:
         """Euclidean error and Mahalanobis distance of the landmarks (see _landmark_rows)."""
-        if self._truth is None:
+        if self._truth is None or self.association is not None:
             return
         rows = _landmark_rows(record, which)
         ids = record.landmark_ids[rows]

@@ -32,6 +32,7 @@ from ekfviz.core.records import EventRecord
 from ekfviz.core.truth import GroundTruth
 from ekfviz.io.errors import InputError
 from ekfviz.viz import style
+from ekfviz.models.range_bearing import RangeBearing
 from ekfviz.viz.recorder import Recorder
 
 APPLICATION_ID = "ekfviz"
@@ -333,7 +334,9 @@ def open_recording(info: RunInfo, sinks: Sinks) -> Iterator[Recording]:
 
 
 @contextmanager
-def open_run(info: RunInfo, sinks: Sinks, *, detail: bool = False) -> Iterator[RunLogger]:
+def open_run(
+    info: RunInfo, sinks: Sinks, *, detail: bool = False, sensor: RangeBearing | None = None
+) -> Iterator[RunLogger]:
     """A recording of one replay (see :func:`open_recording`), logged by a RunLogger.
 
     :param detail: log every landmark's ellipse and error at every update (see
@@ -341,7 +344,9 @@ def open_run(info: RunInfo, sinks: Sinks, *, detail: bool = False) -> Iterator[R
         only every ``MAP_EVERY_STEPS`` steps
     """
     with open_recording(info, sinks) as recording:
-        recorder = Recorder(recording.rec, truth=info.truth, run_documents=True, detail=detail)
+        recorder = Recorder(
+            recording.rec, truth=info.truth, run_documents=True, detail=detail, sensor=sensor
+        )
         yield RunLogger(recorder, recording)
 
 

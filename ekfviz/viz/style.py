@@ -51,6 +51,7 @@ ACCUMULATED = (TRAJECTORY, LANDMARK_INITIAL)
 
 STEP = "step"
 EVENT = "event"
+TIME = "time"  # the log's own time stamps (seconds), where every event has one
 
 # -- colours (RGB) and sizes -----------------------------------------------------------
 

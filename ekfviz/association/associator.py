@@ -1,0 +1,261 @@
+"""One scan through the association: gate, pair, fold into the filter, confirm, remove.
+
+The :class:`Associator` is what the runner calls once per :class:`~ekfviz.core.records.Scan`.
+It reads the filter's x and P, predicts every landmark's measurement with ekfviz's own
+sensor model, pairs the scan's measurements with landmarks (``nn`` or ``jcbb``), then
+hands the filter the pairing as an ordinary observation (ids and measurements in file
+order, the new landmarks last: see :meth:`EkfSlam.observe`), and finally asks it to
+remove the tentative landmarks whose window ended unconfirmed.
+
+A measurement paired with no landmark is *new* when no landmark's gate at
+``new_probability`` (wider than the pairing gate) holds it, and otherwise *rejected*:
+it is near a landmark but left out of the best pairing, so it is taken for clutter
+rather than start a duplicate of that landmark.
+"""
+
+from __future__ import annotations
+
+import enum
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from ekfviz.association.gating import (
+    compatible,
+    gate_threshold,
+    innovations,
+    mahalanobis2,
+    predict_landmarks,
+)
+from ekfviz.association.jcbb import DEFAULT_BUDGET, jcbb
+from ekfviz.association.nn import nearest_neighbour
+from ekfviz.association.tentative import TentativeBook
+from ekfviz.core.records import Fate, Observations, Scan, ScanAssociation, frozen
+from ekfviz.core.types import FloatArray, IntArray
+from ekfviz.models.range_bearing import RangeBearing
+
+
+class Method(str, enum.Enum):
+    """How the measurements of a log are paired with landmarks."""
+
+    KNOWN = "known"  # the log names them (observe lines)
+    NN = "nn"
+    JCBB = "jcbb"
+
+
+class AssociationError(ValueError):
+    """The association cannot run as asked (a filter without landmark removal, ...)."""
+
+
+@dataclass(frozen=True, slots=True)
+class AssociationParams:
+    """Options of the association; the defaults are those of ``ekfviz replay``.
+
+    :param method: nn or jcbb (known does not use an associator)
+    :param gate_probability: of the individual gate (chi-square, 2 dof) and of JCBB's
+        joint gate (2p dof)
+    :param confirm: K, compatible sightings (the first included) that confirm a new landmark
+    :param confirm_window: W, scans from its first in which it must get them, or be removed
+    :param new_probability: a measurement inside any landmark's gate at this probability
+        does not start a landmark (it is rejected when it is not paired)
+    :param budget: JCBB's hypotheses per scan (see :mod:`ekfviz.association.jcbb`)
+    """
+
+    method: Method = Method.JCBB
+    gate_probability: float = 0.99
+    confirm: int = 3
+    confirm_window: int = 6
+    new_probability: float = 0.9999
+    budget: int = DEFAULT_BUDGET
+
+    def as_dict(self) -> dict[str, object]:
+        return {
+            "association": self.method.value,
+            "gate_probability": self.gate_probability,
+            "confirm": self.confirm,
+            "confirm_window": self.confirm_window,
+            "new_landmark_gate_probability": self.new_probability,
+            "jcbb_budget": self.budget,
+        }
+
+
+class ScanFilter(Protocol):
+    """What the associator needs of a filter: its state, an update with ids, and removal."""
+
+    @property
+    def x(self) -> FloatArray: ...
+
+    @property
+    def P(self) -> FloatArray: ...
+
+    @property
+    def landmark_ids(self) -> list[int]: ...
+
+    def observe(self, ids: Sequence[int] | IntArray, z: FloatArray) -> Observations: ...
+
+    def remove_landmarks(self, ids: Sequence[int]) -> None: ...
+
+
+_EMPTY_IDS = frozen(np.zeros(0, dtype=np.int64))
+
+
+class Associator:
+    """Associates the scans of one run, keeping the tentative landmarks between them.
+
+    :param sensor: the measurement model the filter uses
+    :param R: (2, 2) measurement noise covariance
+    :param scan_truth: per scan in file order, the true landmark id of each measurement
+        (-1 or None for clutter), to keep in the records for the evaluation
+    """
+
+    def __init__(
+        self,
+        params: AssociationParams,
+        sensor: RangeBearing,
+        R: FloatArray,
+        scan_truth: Sequence[Sequence[int | None]] | None = None,
+    ) -> None:
+        if params.method is Method.KNOWN:
+            raise AssociationError("--association known reads the ids of the log: no associator")
+        self.params = params
+        self._sensor = sensor
+        self._R = np.asarray(R, dtype=np.float64)
+        self._gate = gate_threshold(params.gate_probability)
+        self._new_gate = max(self._gate, gate_threshold(params.new_probability))
+        self._book = TentativeBook(params.confirm, params.confirm_window)
+        self._next_id = 1
+        self._scan_truth = scan_truth
+        self._scans = 0
+
+    @staticmethod
+    def check_filter(slam: object, params: AssociationParams) -> None:
+        """Refuse a filter that cannot drop tentative landmarks, unless none will be
+        (``--confirm 1``)."""
+        if params.confirm > 1 and not callable(getattr(slam, "remove_landmarks", None)):
+            raise AssociationError(
+                f"{type(slam).__name__} has no remove_landmarks(ids), which tentative landmarks"
+                " need: use --confirm 1 (every new landmark kept) with this filter"
+            )
+
+    @property
+    def tentative(self) -> list[int]:
+        return self._book.tentative
+
+    def process(self, slam: ScanFilter, scan: Scan) -> tuple[Observations, ScanAssociation]:
+        """Associate one scan and fold it into ``slam``.
+
+        :return: what the filter did with the measurements it was given, and what the
+            association decided of every measurement of the scan
+        """
+        self._book.next_scan()
+        self._scans += 1
+        z = np.asarray(scan.z, dtype=np.float64).reshape(-1, 2)
+        m = z.shape[0]
+        state_ids = np.asarray(slam.landmark_ids, dtype=np.int64)
+        n_landmarks = state_ids.shape[0]
+        pairing = np.full(m, -1, dtype=np.int64)
+        fate = np.full(m, Fate.NEW, dtype=np.int8)
+        hypotheses, joint_d2, exhausted = 0, 0.0, False
+        gate_rows = np.zeros(0, dtype=np.int64)
+        z_pred = np.zeros((0, 2))
+        S = np.zeros((0, 2, 2))
+        if m and n_landmarks:
+            x, P = np.asarray(slam.x), np.asarray(slam.P)
+            predictions = predict_landmarks(x, P, self._sensor, self._R)
+            nu = innovations(z, predictions.z_pred)
+            d2 = mahalanobis2(nu, predictions.S)
+            ic = compatible(d2, self._gate)
+            gate_rows = np.flatnonzero(ic.any(axis=0))
+            z_pred, S = predictions.z_pred[gate_rows], predictions.S[gate_rows]
+            if gate_rows.size:
+                if self.params.method is Method.NN:
+                    column = nearest_neighbour(d2[:, gate_rows], ic[:, gate_rows])
+                else:
+                    result = jcbb(
+                        nu[:, gate_rows],
+                        d2[:, gate_rows],
+                        ic[:, gate_rows],
+                        _joint_covariance(P, predictions.H[gate_rows], state_rows(gate_rows)),
+                        self._R,
+                        self.params.gate_probability,
+                        self.params.budget,
+                    )
+                    column = result.pairing
+                    hypotheses, joint_d2, exhausted = (
+                        result.hypotheses, result.joint_d2, result.exhausted
+                    )  # fmt: skip
+                paired = column >= 0
+                pairing[paired] = state_ids[gate_rows[column[paired]]]
+                fate[paired] = Fate.MATCHED
+            near = (d2 < self._new_gate).any(axis=1)
+            fate[(pairing < 0) & near] = Fate.REJECTED
+        landmark = pairing.copy()
+        new_ids: list[int] = []
+        for i in np.flatnonzero(fate == Fate.NEW).tolist():
+            landmark[i] = self._next_id
+            new_ids.append(self._next_id)
+            self._next_id += 1
+        used = fate != Fate.REJECTED
+        observations = slam.observe(landmark[used], z[used])
+        matched_ids = pairing[fate == Fate.MATCHED].tolist()
+        confirmed, removed = self._book.settle(matched_ids, new_ids)
+        if removed:
+            slam.remove_landmarks(removed)
+        truth = None
+        if self._scan_truth is not None and self._scans <= len(self._scan_truth):
+            truth = frozen(
+                np.array(
+                    [-1 if t is None else int(t) for t in self._scan_truth[self._scans - 1]],
+                    dtype=np.int64,
+                )
+            )
+        association = ScanAssociation(
+            method=self.params.method.value,
+            z=frozen(z.copy()),
+            fate=frozen(fate),
+            landmark=frozen(landmark),
+            gate_ids=frozen(state_ids[gate_rows]),
+            gate_z=frozen(np.array(z_pred)),
+            gate_S=frozen(np.array(S)),
+            gate_threshold=self._gate,
+            hypotheses=hypotheses,
+            joint_nis=joint_d2,
+            exhausted=exhausted,
+            tentative=frozen(np.array(self._book.tentative, dtype=np.int64)),
+            confirmed=frozen(np.array(confirmed, dtype=np.int64)),
+            removed=frozen(np.array(removed, dtype=np.int64)),
+            diameters=None if scan.diameters is None else frozen(np.array(scan.diameters)),
+            truth=truth if truth is not None and truth.shape[0] == m else None,
+        )
+        return observations, association
+
+    def finish(self, slam: ScanFilter) -> list[int]:
+        """The end of the run: remove the landmarks still tentative; their ids."""
+        removed = self._book.drop_all()
+        if removed:
+            slam.remove_landmarks(removed)
+        return removed
+
+
+def state_rows(rows: IntArray) -> IntArray:
+    """The state indices of the pose and of the landmarks at ``rows`` (of the map)."""
+    return np.concatenate(
+        ([0, 1, 2], np.column_stack([3 + 2 * rows, 4 + 2 * rows]).ravel())
+    ).astype(np.int64)
+
+
+def _joint_covariance(P: FloatArray, H: FloatArray, rows: IntArray) -> FloatArray:
+    """H P H^T of the candidates stacked (2K x 2K), without R.
+
+    :param H: (K, 2, 5) each candidate's Jacobian over the pose and its own rows
+    :param rows: the state rows of the pose then of each candidate (3 + 2K)
+    """
+    k = H.shape[0]
+    H_stacked = np.zeros((2 * k, 3 + 2 * k))
+    H_stacked[:, :3] = H[:, :, :3].reshape(2 * k, 3)
+    for j in range(k):
+        H_stacked[2 * j : 2 * j + 2, 3 + 2 * j : 5 + 2 * j] = H[j, :, 3:]
+    C = H_stacked @ P[np.ix_(rows, rows)] @ H_stacked.T
+    return np.asarray(0.5 * (C + C.T), dtype=np.float64)

@@ -1,0 +1,158 @@
+"""Joint Compatibility Branch and Bound (Neira and Tardos 2001).
+
+The search goes through the scan's measurements in order; each is paired with one of its
+individually compatible landmarks not yet used, or with none. A hypothesis (a partial
+pairing) is kept only while it is jointly compatible: the joint Mahalanobis distance
+squared of all its pairs, with the correlations between them, below the chi-square
+quantile of 2p dof. The answer is the hypothesis with the most pairs, ties broken by
+the smaller joint distance.
+
+The joint distance grows incrementally: with the hypothesis's joint innovation
+covariance S = L L^T and w = L^-1 nu, adding a pair appends B = (L^-1 S_cross^T)^T and
+L_22 = chol(S_new - B B^T), w_2 = L_22^-1 (nu_new - B w); the distance grows by |w_2|^2.
+So it never shrinks, which is what the bound uses: a branch is cut when even pairing
+every remaining measurement could not beat the best hypothesis found (more pairs, or
+as many and a smaller distance).
+
+Bounded in time: a scan's search stops after ``budget`` hypotheses and keeps the best
+found so far (``exhausted`` says so). Measurements compatible with no landmark never
+enter the search, and the candidates of each are tried nearest first, so the first
+hypotheses reached are the greedy ones and the budget is spent improving on them.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ekfviz.core.consistency import chi2_quantile
+from ekfviz.core.types import BoolArray, FloatArray, IntArray
+
+DEFAULT_BUDGET = 10_000  # hypotheses per scan
+
+_QUANTILES: dict[tuple[float, int], float] = {}
+
+
+def joint_threshold(probability: float, dof: int) -> float:
+    """The chi-square quantile of ``dof`` degrees of freedom at ``probability`` (cached)."""
+    key = (probability, dof)
+    value = _QUANTILES.get(key)
+    if value is None:
+        value = _QUANTILES[key] = chi2_quantile(probability, dof)
+    return value
+
+
+@dataclass(frozen=True, slots=True)
+class JcbbResult:
+    """:param pairing: (m,) the candidate column of each measurement, -1 where none
+    :param hypotheses: hypotheses (search nodes) explored
+    :param joint_d2: joint Mahalanobis distance squared of the pairing
+    :param exhausted: the budget ran out before the search was complete"""
+
+    pairing: IntArray
+    hypotheses: int
+    joint_d2: float
+    exhausted: bool
+
+
+def jcbb(
+    nu: FloatArray,
+    d2: FloatArray,
+    compatible: BoolArray,
+    C: FloatArray,
+    R: FloatArray,
+    probability: float,
+    budget: int = DEFAULT_BUDGET,
+) -> JcbbResult:
+    """The largest jointly compatible pairing of one scan.
+
+    :param nu: (m, K, 2) innovation of each measurement against each candidate landmark
+    :param d2: (m, K) their individual Mahalanobis distances squared (to order the search)
+    :param compatible: (m, K) individual compatibility
+    :param C: (2K, 2K) H P H^T of the candidates stacked (their joint covariance of
+        predicted measurements, without R)
+    :param R: (2, 2) measurement noise, added once per pair
+    :param probability: of the joint gate
+    """
+    m = nu.shape[0]
+    order = [i for i in range(m) if compatible[i].any()]
+    candidates = [
+        [int(k) for k in np.flatnonzero(compatible[i])[np.argsort(d2[i, compatible[i]], kind="stable")]]
+        for i in order
+    ]
+    depth_total = len(order)
+    r00, r01, r11 = float(R[0, 0]), float(R[0, 1]), float(R[1, 1])
+    best_pairs = 0
+    best_d2 = 0.0
+    best: list[tuple[int, int]] = []
+    nodes = 0
+    exhausted = False
+    chosen: list[tuple[int, int]] = []
+    used: set[int] = set()
+
+    def search(depth: int, L: FloatArray, w: FloatArray, dist2: float) -> None:
+        nonlocal best_pairs, best_d2, best, nodes, exhausted
+        pairs = len(chosen)
+        if depth == depth_total:
+            if pairs > best_pairs or (pairs == best_pairs and pairs and dist2 < best_d2):
+                best_pairs, best_d2, best = pairs, dist2, list(chosen)
+            return
+        reachable = pairs + depth_total - depth
+        if reachable < best_pairs or (reachable == best_pairs and best_pairs and dist2 >= best_d2):
+            return  # the bound: no completion of this branch can beat the best
+        i = order[depth]
+        cols = np.array([2 * k + t for _, k in chosen for t in (0, 1)], dtype=np.int64)
+        for k in candidates[depth]:
+            if k in used:
+                continue
+            if nodes >= budget:
+                exhausted = True
+                return
+            nodes += 1
+            s = C[2 * k : 2 * k + 2, 2 * k : 2 * k + 2]
+            a00, a01, a11 = float(s[0, 0]) + r00, float(s[0, 1]) + r01, float(s[1, 1]) + r11
+            nu0, nu1 = float(nu[i, k, 0]), float(nu[i, k, 1])
+            if pairs:
+                B = np.linalg.solve(L, C[np.ix_(cols, [2 * k, 2 * k + 1])]).T  # (2, 2p)
+                a00 -= float(B[0] @ B[0])
+                a01 -= float(B[0] @ B[1])
+                a11 -= float(B[1] @ B[1])
+                shift = B @ w
+                nu0 -= float(shift[0])
+                nu1 -= float(shift[1])
+            # 2x2 Cholesky of the Schur complement, in floats
+            if not a00 > 0.0:
+                continue
+            l00 = math.sqrt(a00)
+            l10 = a01 / l00
+            d11 = a11 - l10 * l10
+            if not d11 > 0.0:
+                continue
+            l11 = math.sqrt(d11)
+            w0 = nu0 / l00
+            w1 = (nu1 - l10 * w0) / l11
+            grown = dist2 + w0 * w0 + w1 * w1
+            if not grown < joint_threshold(probability, 2 * (pairs + 1)):
+                continue
+            size = 2 * pairs
+            L_new = np.zeros((size + 2, size + 2))
+            if pairs:
+                L_new[:size, :size] = L
+                L_new[size:, :size] = B
+            L_new[size:, size:] = ((l00, 0.0), (l10, l11))
+            chosen.append((i, k))
+            used.add(k)
+            search(depth + 1, L_new, np.concatenate([w, (w0, w1)]), grown)
+            chosen.pop()
+            used.discard(k)
+            if exhausted:
+                return
+        search(depth + 1, L, w, dist2)  # this measurement paired with nothing
+
+    search(0, np.zeros((0, 0)), np.zeros(0), 0.0)
+    pairing = np.full(m, -1, dtype=np.int64)
+    for i, k in best:
+        pairing[i] = k
+    return JcbbResult(pairing=pairing, hypotheses=nodes, joint_d2=best_d2, exhausted=exhausted)

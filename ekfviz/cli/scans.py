@@ -1,0 +1,258 @@
+"""What ``replay`` needs for id-less scans and the Victoria Park run: options, the filter
+and its models, the associator, the GPS reference and the association report."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated, Any
+
+import numpy as np
+import typer
+from typer._click.core import ParameterSource
+
+from ekfviz.association import AssociationParams, Associator, Method
+from ekfviz.association.evaluation import AssociationTally
+from ekfviz.cli.common import _option, log_events, out, warn
+from ekfviz.core.filter import EkfSlam, FilterParams
+from ekfviz.core.model_filter import ModelEkfSlam
+from ekfviz.core.records import EventRecord, LogEvent
+from ekfviz.core.reference import ReferenceFit, fit_reference
+from ekfviz.core.truth import GroundTruth
+from ekfviz.io.errors import InputError
+from ekfviz.io.text import ProgressCallback
+from ekfviz.io.victoria import MEASUREMENTS, is_victoria, read_gps, read_victoria
+from ekfviz.models.ackermann import Ackermann
+from ekfviz.models.range_bearing import RangeBearing
+
+if TYPE_CHECKING:
+    from ekfviz.viz.run import RunLogger
+
+ASSOCIATION = "Association (id-less scans)"
+VICTORIA = "Victoria Park"
+
+AssociationOption = Annotated[
+    Method | None,
+    _option(
+        "known: the log's ids; nn or jcbb for id-less scans"
+        " [default: known for logs with ids, jcbb for logs with scans].",
+        ASSOCIATION,
+        show_default=False,
+    ),
+]
+GateProbability = Annotated[
+    float,
+    _option("Probability of the chi-square gates (individual and joint).", ASSOCIATION, min=0.5, max=0.999999),
+]
+Confirm = Annotated[
+    int, _option("Sightings (the first included) that confirm a new landmark.", ASSOCIATION, min=1)
+]
+ConfirmWindow = Annotated[
+    int, _option("Scans from a new landmark's first in which to confirm it.", ASSOCIATION, min=1)
+]
+
+
+@dataclass(frozen=True, slots=True)
+class VictoriaDefaults:
+    """The defaults of a Victoria Park replay (every option left at its classic default)."""
+
+    sigma_speed: float = 0.5  # m/s, per input
+    sigma_steering: float = math.radians(3.0)
+    sigma_bearing: float = math.radians(1.0)
+    sigma_range: float = 0.5
+    init_pose_sigma: tuple[float, float, float] = (0.1, 0.1, math.radians(1.0))
+    laser_ahead: float = 3.78  # a, metres ahead of the rear axle
+    laser_left: float = 0.50  # b, metres to the left
+    max_range: float = 30.0  # detections farther than this are not used (laser range, trunk size)
+
+
+VICTORIA = VictoriaDefaults()
+DEFAULT_ASSOCIATION = AssociationParams()
+
+SigmaSpeed = Annotated[
+    float, _option("Sigma of the encoder speed (m/s) per input.", VICTORIA, min=0.0)
+]
+SigmaSteering = Annotated[
+    float, _option("Sigma of the steering angle (rad) per input.", VICTORIA, min=0.0)
+]
+
+
+@dataclass(slots=True)
+class ReplaySetup:
+    """One replay's source, filter, associator and reference."""
+
+    data: Path
+    params: FilterParams
+    truth: GroundTruth | None
+    slam: EkfSlam
+    sensor: RangeBearing
+    associator: Associator | None
+    victoria: bool
+    parameters: dict[str, object]
+    tally: AssociationTally
+    _track: list[tuple[float, int, float, float]] = field(default_factory=list)
+    _scans: bool = False
+
+    @property
+    def input_path(self) -> Path:
+        """The file that describes the input in the recording (a directory's measurements)."""
+        return self.data / MEASUREMENTS if self.victoria else self.data
+
+    @property
+    def recorder_truth(self) -> GroundTruth | None:
+        return self.truth
+
+    def events(
+        self, truth_path: Path | None, progress: ProgressCallback | None
+    ) -> Iterator[LogEvent]:
+        if self.victoria:
+            return _far_dropped(read_victoria(self.data, progress), VICTORIA.max_range)
+        if self.associator is not None and self.truth is not None:
+            # association ids are not the truth's: the log's ids are not checked against it
+            return log_events(self.data, None, None, progress)
+        return log_events(self.data, self.truth, truth_path, progress)
+
+    def add(self, record: EventRecord) -> None:
+        if record.association is not None:
+            self._scans = True
+            self.tally.add(record)
+        if self.victoria and record.time is not None:
+            self._track.append((record.time, record.step, float(record.pose[0]), float(record.pose[1])))
+
+    def truth_of(self, last: EventRecord) -> GroundTruth | None:
+        """The truth under the estimate's ids (the association's pairing for scans)."""
+        if self.truth is None or not self._scans:
+            return self.truth
+        return self.tally.relabelled_truth(last.landmark_ids)
+
+    def finish(self, logger: RunLogger, last: EventRecord) -> dict[str, object]:
+        """The association report and, for Victoria Park, the GPS reference (logged too)."""
+        extra: dict[str, object] = {}
+        if self._scans:
+            extra["association"] = self.tally.report(last.landmark_ids)
+        if self.victoria:
+            fit = self.gps_fit()
+            if fit is not None:
+                from ekfviz.viz.association import log_reference
+
+                track = np.array(self._track)
+                steps = np.interp(fit.times, track[:, 0], track[:, 1])
+                recorder = logger.recorder
+                log_reference(recorder._rec.rec, recorder._rec.path, fit, np.round(steps))
+                extra["gps"] = {
+                    "rmse_m": fit.rmse,
+                    "max_error_m": float(fit.errors.max()),
+                    "points": int(len(fit.times)),
+                }
+        return extra
+
+    def gps_fit(self) -> ReferenceFit | None:
+        try:
+            gps_t, gps_xy = read_gps(self.data)
+        except InputError as error:
+            warn(f"no GPS reference: {error}")
+            return None
+        if len(self._track) < 2:
+            return None
+        track = np.array(self._track)
+        try:
+            return fit_reference(track[:, 0], track[:, 2:4], gps_t, gps_xy)
+        except ValueError as error:
+            warn(f"no GPS reference: {error}")
+            return None
+
+    def print_summary(self, extra: dict[str, object]) -> None:
+        association = extra.get("association")
+        if isinstance(association, dict):
+            text = ", ".join(f"{k} {_fmt(v)}" for k, v in association.items())
+            out.print(f"Association: {text}", soft_wrap=True)
+        gps = extra.get("gps")
+        if isinstance(gps, dict):
+            out.print(
+                f"GPS reference (fitted rigidly): RMSE {gps['rmse_m']:.2f} m,"
+                f" largest error {gps['max_error_m']:.2f} m over {gps['points']} fixes"
+            )
+
+
+def _fmt(value: object) -> str:
+    return f"{value:.3f}" if isinstance(value, float) else str(value)
+
+
+def _far_dropped(events: Iterator[LogEvent], max_range: float) -> Iterator[LogEvent]:
+    """Scans without their detections beyond ``max_range``."""
+    from ekfviz.core.records import Scan
+
+    for event in events:
+        if isinstance(event, Scan):
+            near = event.z[:, 1] <= max_range
+            if not near.all():
+                diameters = None if event.diameters is None else event.diameters[near]
+                event = replace(event, z=event.z[near], diameters=diameters)
+        yield event
+
+
+def replay_setup(
+    ctx: typer.Context,
+    data: Path,
+    params: FilterParams,
+    truth: GroundTruth | None,
+    association: Method | None,
+    gate_probability: float,
+    confirm: int,
+    confirm_window: int,
+    sigma_speed: float,
+    sigma_steering: float,
+) -> ReplaySetup:
+    """The filter, its models and the associator for this input."""
+    victoria = is_victoria(data)
+    if data.is_dir() and not victoria:
+        raise InputError(
+            data, 0, "is a directory, expected a log file or a Victoria Park directory"
+            " (inputs.dat, measurements.dat, gps.dat)"
+        )
+    parameters: dict[str, Any] = {}
+
+    def default(name: str) -> bool:
+        return ctx.get_parameter_source(name) in (ParameterSource.DEFAULT, None)
+
+    sensor = RangeBearing()
+    if victoria:
+        v = VictoriaDefaults()
+        changes: dict[str, Any] = {
+            name: getattr(v, name)
+            for name in ("sigma_bearing", "sigma_range", "init_pose_sigma")
+            if default(name)
+        }
+        params = replace(params, **changes)
+        sensor = RangeBearing(v.laser_ahead, v.laser_left)
+        vehicle = Ackermann(sigma_speed=sigma_speed, sigma_steering=sigma_steering)
+        slam: EkfSlam = ModelEkfSlam(params, vehicle=vehicle, sensor=sensor)
+        parameters.update(
+            sigma_speed=sigma_speed, sigma_steering=sigma_steering,
+            wheelbase=vehicle.wheelbase, encoder_offset=vehicle.encoder_offset,
+            laser_ahead=sensor.a, laser_left=sensor.b, max_range=v.max_range,
+        )  # fmt: skip
+    else:
+        for name in ("sigma_speed", "sigma_steering"):
+            if not default(name):
+                raise InputError(data, 0, f"--{name.replace('_', '-')} is for Victoria Park runs only")
+        slam = EkfSlam(params)
+    associator: Associator | None = None
+    if association is not Method.KNOWN:
+        assoc = AssociationParams(
+            method=Method.JCBB if association is None else association,
+            gate_probability=gate_probability,
+            confirm=confirm,
+            confirm_window=confirm_window,
+        )
+        Associator.check_filter(slam, assoc)
+        associator = Associator(
+            assoc, sensor, params.R, scan_truth=None if truth is None else truth.scan_ids
+        )
+        parameters.update(assoc.as_dict())
+    return ReplaySetup(
+        data=data, params=params, truth=truth, slam=slam, sensor=sensor, associator=associator,
+        victoria=victoria, parameters=parameters, tally=AssociationTally(truth, sensor),
+    )  # fmt: skip

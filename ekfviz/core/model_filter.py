@@ -1,0 +1,163 @@
+"""The built-in EKF-SLAM with pluggable models: a vehicle and a sensor off its origin.
+
+:class:`ModelEkfSlam` is :class:`~ekfviz.core.filter.EkfSlam` (same buffers, records,
+landmark removal) with the measurement model of :mod:`ekfviz.models.range_bearing` (a
+sensor mounted ``a`` ahead and ``b`` left of the pose's origin) and, for :class:`Drive`
+events, the vehicle of :mod:`ekfviz.models.ackermann`. Classic logs keep the classic
+filter and its compiled kernel; these models run on numpy, sequentially (the
+``--update joint`` option does not apply to them).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from ekfviz.core.filter import (
+    MIN_PREDICTED_RANGE,
+    EkfSlam,
+    FilterError,
+    FilterParams,
+    LandmarkInit,
+    _not_definite,
+    _zero_range,
+)
+from ekfviz.core.types import FloatArray
+from ekfviz.models.ackermann import Ackermann
+from ekfviz.models.angles import wrap_angle
+from ekfviz.models.range_bearing import RangeBearing
+
+
+class ModelEkfSlam(EkfSlam):
+    """EKF-SLAM with a vehicle model and an offset range-bearing sensor, on numpy.
+
+    :param vehicle: drives :meth:`drive`; ``None``: only the classic :meth:`predict`
+    :param sensor: the measurement model
+    """
+
+    def __init__(
+        self,
+        params: FilterParams | None = None,
+        *,
+        vehicle: Ackermann | None = None,
+        sensor: RangeBearing | None = None,
+        capacity: int = 0,
+    ) -> None:
+        super().__init__(params, capacity=capacity, compiled=False)
+        self.vehicle = vehicle
+        self.sensor = sensor if sensor is not None else RangeBearing()
+
+    def drive(self, segments: FloatArray) -> None:
+        """Drive the vehicle through (speed, steering, dt) spans in one predict; O(N).
+
+        Each span is linearised at the pose it starts from, as one predict per span
+        would; the pose block is propagated span by span and the cross-covariances
+        with the map once, with the product of the spans' G.
+        """
+        if self.vehicle is None:
+            raise FilterError("this filter has no vehicle model for speed and steering controls")
+        n = self._n
+        x, P = self._x, self._P
+        pose = x[:3].copy()
+        P_rr = P[:3, :3].copy()
+        G_all = np.eye(3)
+        Q = self.vehicle.Q
+        for speed, steering, dt in np.asarray(segments, dtype=np.float64).tolist():
+            if dt <= 0.0:
+                continue
+            G, W = self.vehicle.jacobians(pose, speed, steering, dt)
+            pose = self.vehicle.motion(pose, speed, steering, dt)
+            P_rr = G @ P_rr @ G.T + W @ Q @ W.T
+            G_all = G @ G_all
+        if not (np.isfinite(pose).all() and np.isfinite(P_rr).all()):
+            raise FilterError("the state became non-finite in predict")
+        x[:3] = pose
+        if n > 3:
+            P_rm = G_all @ P[:3, 3:n]
+            P[:3, 3:n] = P_rm
+            P[3:n, :3] = P_rm.T
+        P[:3, :3] = 0.5 * (P_rr + P_rr.T)
+
+    def _update_sequential(
+        self,
+        ids: list[int],
+        z: list[list[float]],
+        known: Sequence[int],
+        table: list[tuple[float, ...]],
+        skipped: list[bool],
+    ) -> None:
+        """EKF updates with the known landmarks one after another, in file order, with
+        the sensor model (H has the 5 non-zero columns 0, 1, 2, j, j+1)."""
+        n = self._n
+        x, P = self._x[:n], self._P[:n, :n]
+        R = self._R
+        for k in known:
+            landmark_id = ids[k]
+            j = self._slot[landmark_id]
+            rows = np.array((0, 1, 2, j, j + 1))
+            pose, landmark = x[:3], x[j : j + 2]
+            z_pred = self.sensor.measure(pose, landmark)
+            if not z_pred[1] > MIN_PREDICTED_RANGE:
+                self._skip(k, landmark_id, skipped, _zero_range(float(z_pred[1])))
+                continue
+            z_D_pose, z_D_landmark = self.sensor.jacobians(pose, landmark)
+            H = np.hstack([z_D_pose, z_D_landmark])
+            HP = H @ P[rows]
+            S = HP[:, rows] @ H.T + R
+            S = 0.5 * (S + S.T)
+            nu = np.array(z[k]) - z_pred
+            nu[0] = wrap_angle(float(nu[0]))
+            s00, s01, s11 = float(S[0, 0]), float(S[0, 1]), float(S[1, 1])
+            if not math.isfinite(s00 + s01 + s11):
+                raise FilterError(f"the covariance became non-finite (S of landmark {landmark_id})")
+            try:
+                L = np.linalg.cholesky(S)
+            except np.linalg.LinAlgError:
+                table[k] = (*z_pred.tolist(), *nu.tolist(), s00, s01, s01, s11, math.nan)
+                self._skip(k, landmark_id, skipped, _not_definite(s00, s01, s11))
+                continue
+            A = np.linalg.solve(L, HP)
+            w = np.linalg.solve(L, nu)
+            x += w @ A
+            P -= A.T @ A
+            x[2] = wrap_angle(float(x[2]))
+            table[k] = (*z_pred.tolist(), *nu.tolist(), s00, s01, s01, s11, float(w @ w))
+
+    def _update_joint(
+        self,
+        ids: list[int],
+        z: FloatArray,
+        known: Sequence[int],
+        table: list[tuple[float, ...]],
+        skipped: list[bool],
+    ) -> None:
+        """The sensor models update sequentially (see the module)."""
+        self._update_sequential(ids, np.asarray(z).tolist(), known, table, skipped)
+
+    def _add_landmark(self, landmark_id: int, z: Sequence[float]) -> None:
+        """Append a landmark seen for the first time, with the sensor's inverse model."""
+        if not math.isfinite(z[0] + z[1]):
+            raise FilterError("the state became non-finite in update")
+        self._reserve(1)
+        n = self._n
+        x, P = self._x, self._P
+        z_arr = np.asarray(z, dtype=np.float64)
+        l_D_pose, l_D_z = self.sensor.inverse_jacobians(x[:3], z_arr)
+        x[n : n + 2] = self.sensor.inverse(x[:3], z_arr)
+        P_ll = l_D_pose @ P[:3, :3] @ l_D_pose.T + l_D_z @ self._R @ l_D_z.T
+        if self.params.landmark_init is LandmarkInit.CORRELATED:
+            P_lx = l_D_pose @ P[:3, :n]
+            P[n : n + 2, :n] = P_lx
+            P[:n, n : n + 2] = P_lx.T
+        else:
+            P[n : n + 2, :n] = 0.0
+            P[:n, n : n + 2] = 0.0
+        P[n : n + 2, n : n + 2] = 0.5 * (P_ll + P_ll.T)
+        if not np.isfinite(P[n : n + 2, : n + 2]).all():
+            raise FilterError(f"the covariance of new landmark {landmark_id} is not finite")
+        self._slot[landmark_id] = n
+        self._ids.append(landmark_id)
+        self._ids_array = None
+        self._n = n + 2
