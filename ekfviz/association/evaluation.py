@@ -75,7 +75,9 @@ class AssociationTally:
             points[:, None, 1] - self.truth.landmarks_xy[None, :, 1],
         )
         nearest = distance.argmin(axis=1) if len(points) else np.zeros(0, dtype=np.int64)
-        close = distance[np.arange(len(points)), nearest] <= NEAREST_TRUE_M if len(points) else nearest
+        close = (
+            distance[np.arange(len(points)), nearest] <= NEAREST_TRUE_M if len(points) else nearest
+        )
         return np.where(close, self.truth.ids[nearest], -1).astype(np.int64)
 
     def add(self, record: EventRecord) -> ScanScore | None:
@@ -149,13 +151,21 @@ class AssociationTally:
             "removed": self.removed,
             "jcbb_hypotheses": self.hypotheses,
             "jcbb_budget_exhausted_scans": self.exhausted,
-            "landmarks": int(len(landmark_ids)),
+            "landmarks": len(landmark_ids),
         }
         if self.truth is not None:
             identities = self.identities(landmark_ids)
             stands_for = Counter(identities.values())
-            precision = self.correct / (self.correct + self.wrong) if self.correct + self.wrong else math.nan
-            recall = self.correct / (self.correct + self.missed) if self.correct + self.missed else math.nan
+            precision = (
+                self.correct / (self.correct + self.wrong)
+                if self.correct + self.wrong
+                else math.nan
+            )
+            recall = (
+                self.correct / (self.correct + self.missed)
+                if self.correct + self.missed
+                else math.nan
+            )
             document.update(
                 {
                     "correct": self.correct,
@@ -163,7 +173,7 @@ class AssociationTally:
                     "missed": self.missed,
                     "precision": precision,
                     "recall": recall,
-                    "spurious_landmarks": int(len(landmark_ids)) - len(identities),
+                    "spurious_landmarks": len(landmark_ids) - len(identities),
                     "duplicate_landmarks": sum(count - 1 for count in stands_for.values()),
                     "true_landmarks_mapped": len(stands_for),
                 }

@@ -41,7 +41,9 @@ class Predictions:
     H: FloatArray
 
 
-def predict_landmarks(x: FloatArray, P: FloatArray, sensor: RangeBearing, R: FloatArray) -> Predictions:
+def predict_landmarks(
+    x: FloatArray, P: FloatArray, sensor: RangeBearing, R: FloatArray
+) -> Predictions:
     """Predicted measurement and innovation covariance of every landmark; O(N).
 
     :param x: (3+2N,) state mean

@@ -79,7 +79,10 @@ def jcbb(
     m = nu.shape[0]
     order = [i for i in range(m) if compatible[i].any()]
     candidates = [
-        [int(k) for k in np.flatnonzero(compatible[i])[np.argsort(d2[i, compatible[i]], kind="stable")]]
+        [
+            int(k)
+            for k in np.flatnonzero(compatible[i])[np.argsort(d2[i, compatible[i]], kind="stable")]
+        ]
         for i in order
     ]
     depth_total = len(order)
@@ -115,7 +118,8 @@ def jcbb(
             a00, a01, a11 = float(s[0, 0]) + r00, float(s[0, 1]) + r01, float(s[1, 1]) + r11
             nu0, nu1 = float(nu[i, k, 0]), float(nu[i, k, 1])
             if pairs:
-                B = np.linalg.solve(L, C[np.ix_(cols, [2 * k, 2 * k + 1])]).T  # (2, 2p)
+                pair = np.array((2 * k, 2 * k + 1), dtype=np.int64)
+                B = np.linalg.solve(L, C[np.ix_(cols, pair)]).T  # (2, 2p)
                 a00 -= float(B[0] @ B[0])
                 a01 -= float(B[0] @ B[1])
                 a11 -= float(B[1] @ B[1])

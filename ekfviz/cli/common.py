@@ -23,7 +23,7 @@ from rich.table import Table
 from ekfviz import __version__, signals
 from ekfviz.core.evaluation import Evaluation
 from ekfviz.core.filter import HAVE_KERNEL, FilterParams, LandmarkInit, UpdateMode
-from ekfviz.core.records import EventRecord, LogEvent
+from ekfviz.core.records import AnyEvent, EventRecord
 from ekfviz.core.replay import FilterLineError
 from ekfviz.core.truth import GroundTruth
 from ekfviz.io.extended import is_extended, read_log
@@ -235,7 +235,7 @@ def log_events(
     truth: GroundTruth | None,
     truth_path: Path | None,
     progress: ProgressCallback | None = None,
-) -> Iterator[LogEvent]:
+) -> Iterator[AnyEvent]:
     """The log's events, checked against the truth's landmarks when there is one."""
     events = read_log(data, progress, warn)
     if truth is not None and truth_path is not None:

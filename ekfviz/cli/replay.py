@@ -10,6 +10,7 @@ from typing import Annotated
 import typer
 
 from ekfviz import signals
+from ekfviz.association import AssociationError
 from ekfviz.cli.common import (
     DEFAULT,
     RECORDINGS_DIR,
@@ -28,7 +29,6 @@ from ekfviz.cli.common import (
     app,
     fail,
     filter_params,
-    log_events,
     mismatch_note,
     open_progress,
     out,
@@ -36,6 +36,17 @@ from ekfviz.cli.common import (
     report_json,
     stop_reason,
     write_json,
+)
+from ekfviz.cli.scans import (
+    DEFAULT_ASSOCIATION,
+    VICTORIA,
+    AssociationOption,
+    Confirm,
+    ConfirmWindow,
+    GateProbability,
+    SigmaSpeed,
+    SigmaSteering,
+    replay_setup,
 )
 from ekfviz.core.consistency import Consistency
 from ekfviz.core.evaluation import evaluate
@@ -45,18 +56,6 @@ from ekfviz.core.replay import FilterLineError
 from ekfviz.core.replay import replay as run_filter
 from ekfviz.io.errors import InputError
 from ekfviz.io.truth import read_truth
-from ekfviz.association import AssociationError
-from ekfviz.cli.scans import (
-    AssociationOption,
-    Confirm,
-    ConfirmWindow,
-    GateProbability,
-    SigmaSpeed,
-    SigmaSteering,
-    DEFAULT_ASSOCIATION,
-    VICTORIA,
-    replay_setup,
-)
 
 
 @app.command()

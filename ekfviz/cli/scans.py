@@ -18,7 +18,7 @@ from ekfviz.association.evaluation import AssociationTally
 from ekfviz.cli.common import _option, log_events, out, warn
 from ekfviz.core.filter import EkfSlam, FilterParams
 from ekfviz.core.model_filter import ModelEkfSlam
-from ekfviz.core.records import EventRecord, LogEvent
+from ekfviz.core.records import AnyEvent, EventRecord
 from ekfviz.core.reference import ReferenceFit, fit_reference
 from ekfviz.core.truth import GroundTruth
 from ekfviz.io.errors import InputError
@@ -30,27 +30,36 @@ from ekfviz.models.range_bearing import RangeBearing
 if TYPE_CHECKING:
     from ekfviz.viz.run import RunLogger
 
-ASSOCIATION = "Association (id-less scans)"
-VICTORIA = "Victoria Park"
+ASSOCIATION_PANEL = "Association (id-less scans)"
+VICTORIA_PANEL = "Victoria Park"
 
 AssociationOption = Annotated[
     Method | None,
     _option(
         "known: the log's ids; nn or jcbb for id-less scans"
         " [default: known for logs with ids, jcbb for logs with scans].",
-        ASSOCIATION,
+        ASSOCIATION_PANEL,
         show_default=False,
     ),
 ]
 GateProbability = Annotated[
     float,
-    _option("Probability of the chi-square gates (individual and joint).", ASSOCIATION, min=0.5, max=0.999999),
+    _option(
+        "Probability of the chi-square gates (individual and joint).",
+        ASSOCIATION_PANEL,
+        min=0.5,
+        max=0.999999,
+    ),
 ]
 Confirm = Annotated[
-    int, _option("Sightings (the first included) that confirm a new landmark.", ASSOCIATION, min=1)
+    int,
+    _option(
+        "Sightings (the first included) that confirm a new landmark.", ASSOCIATION_PANEL, min=1
+    ),
 ]
 ConfirmWindow = Annotated[
-    int, _option("Scans from a new landmark's first in which to confirm it.", ASSOCIATION, min=1)
+    int,
+    _option("Scans from a new landmark's first in which to confirm it.", ASSOCIATION_PANEL, min=1),
 ]
 
 
@@ -72,10 +81,10 @@ VICTORIA = VictoriaDefaults()
 DEFAULT_ASSOCIATION = AssociationParams()
 
 SigmaSpeed = Annotated[
-    float, _option("Sigma of the encoder speed (m/s) per input.", VICTORIA, min=0.0)
+    float, _option("Sigma of the encoder speed (m/s) per input.", VICTORIA_PANEL, min=0.0)
 ]
 SigmaSteering = Annotated[
-    float, _option("Sigma of the steering angle (rad) per input.", VICTORIA, min=0.0)
+    float, _option("Sigma of the steering angle (rad) per input.", VICTORIA_PANEL, min=0.0)
 ]
 
 
@@ -106,7 +115,7 @@ class ReplaySetup:
 
     def events(
         self, truth_path: Path | None, progress: ProgressCallback | None
-    ) -> Iterator[LogEvent]:
+    ) -> Iterator[AnyEvent]:
         if self.victoria:
             return _far_dropped(read_victoria(self.data, progress), VICTORIA.max_range)
         if self.associator is not None and self.truth is not None:
@@ -119,7 +128,9 @@ class ReplaySetup:
             self._scans = True
             self.tally.add(record)
         if self.victoria and record.time is not None:
-            self._track.append((record.time, record.step, float(record.pose[0]), float(record.pose[1])))
+            self._track.append(
+                (record.time, record.step, float(record.pose[0]), float(record.pose[1]))
+            )
 
     def truth_of(self, last: EventRecord) -> GroundTruth | None:
         """The truth under the estimate's ids (the association's pairing for scans)."""
@@ -144,7 +155,7 @@ class ReplaySetup:
                 extra["gps"] = {
                     "rmse_m": fit.rmse,
                     "max_error_m": float(fit.errors.max()),
-                    "points": int(len(fit.times)),
+                    "points": len(fit.times),
                 }
         return extra
 
@@ -180,7 +191,7 @@ def _fmt(value: object) -> str:
     return f"{value:.3f}" if isinstance(value, float) else str(value)
 
 
-def _far_dropped(events: Iterator[LogEvent], max_range: float) -> Iterator[LogEvent]:
+def _far_dropped(events: Iterator[AnyEvent], max_range: float) -> Iterator[AnyEvent]:
     """Scans without their detections beyond ``max_range``."""
     from ekfviz.core.records import Scan
 
@@ -209,8 +220,10 @@ def replay_setup(
     victoria = is_victoria(data)
     if data.is_dir() and not victoria:
         raise InputError(
-            data, 0, "is a directory, expected a log file or a Victoria Park directory"
-            " (inputs.dat, measurements.dat, gps.dat)"
+            data,
+            0,
+            "is a directory, expected a log file or a Victoria Park directory"
+            " (inputs.dat, measurements.dat, gps.dat)",
         )
     parameters: dict[str, Any] = {}
 
@@ -237,7 +250,9 @@ def replay_setup(
     else:
         for name in ("sigma_speed", "sigma_steering"):
             if not default(name):
-                raise InputError(data, 0, f"--{name.replace('_', '-')} is for Victoria Park runs only")
+                raise InputError(
+                    data, 0, f"--{name.replace('_', '-')} is for Victoria Park runs only"
+                )
         slam = EkfSlam(params)
     associator: Associator | None = None
     if association is not Method.KNOWN:

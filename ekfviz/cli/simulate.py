@@ -119,7 +119,7 @@ def simulate(
         text = (
             format_classic(run.events, precision)
             if log_format is LogFormat.CLASSIC
-            else format_extended(run.events, precision)
+            else format_extended(run.scan_events or run.events, precision)
         )
     except ValueError as error:
         fail(f"--format classic: {error}")

@@ -83,7 +83,8 @@ class Drive:
     time: float | None = None
 
 
-LogEvent = Control | Sighting | Scan | Drive
+LogEvent = Control | Sighting  # the events of logs with landmark ids
+AnyEvent = Control | Sighting | Scan | Drive  # and id-less scans, vehicle controls
 
 
 @dataclass(frozen=True, slots=True)
@@ -154,7 +155,7 @@ class ScanAssociation:
     landmark: IntArray
     gate_ids: IntArray
     gate_z: FloatArray
-    gate_S: FloatArray
+    gate_S: FloatArray  # noqa: N815 (S, the textbook symbol)
     gate_threshold: float
     hypotheses: int
     joint_nis: float

@@ -50,7 +50,10 @@ class ReferenceFit:
 
 
 def fit_reference(
-    estimate_t: FloatArray, estimate_xy: FloatArray, reference_t: FloatArray, reference_xy: FloatArray
+    estimate_t: FloatArray,
+    estimate_xy: FloatArray,
+    reference_t: FloatArray,
+    reference_xy: FloatArray,
 ) -> ReferenceFit:
     """Fit the reference to the estimate rigidly and measure the distances.
 
@@ -62,7 +65,10 @@ def fit_reference(
     if times.size < 2:
         raise ValueError("fewer than two reference points fall within the estimate's time span")
     at = np.column_stack(
-        [np.interp(times, estimate_t, estimate_xy[:, 0]), np.interp(times, estimate_t, estimate_xy[:, 1])]
+        [
+            np.interp(times, estimate_t, estimate_xy[:, 0]),
+            np.interp(times, estimate_t, estimate_xy[:, 1]),
+        ]
     )
     R, t = fit_rigid(reference_xy[inside], at)
     moved = reference_xy[inside] @ R.T + t

@@ -13,13 +13,13 @@ from ekfviz.association.associator import Associator
 from ekfviz.core.filter import EkfSlam, FilterError, FilterParams
 from ekfviz.core.health import check_covariance, check_interval
 from ekfviz.core.records import (
+    AnyEvent,
     Control,
     Drive,
     EventKind,
     EventRecord,
-    LogEvent,
-    Scan,
     Observations,
+    Scan,
     ScanAssociation,
     Sighting,
     frozen,
@@ -38,7 +38,7 @@ class FilterLineError(FilterError):
 
 
 def replay(
-    events: Iterable[LogEvent],
+    events: Iterable[AnyEvent],
     params: FilterParams | None = None,
     *,
     full_cov: bool = False,
@@ -95,7 +95,7 @@ def replay(
             event=0, step=0, kind=EventKind.INIT, line=first.line, time=first.time,
             observations=observations, full_cov=full_cov, association=association, **extra,
         )  # fmt: skip
-        pending: list[tuple[LogEvent, bool]] = []
+        pending: list[tuple[AnyEvent, bool]] = []
     else:
         extra = checked(0, ())
         yield ekf.record(event=0, step=0, kind=EventKind.INIT, full_cov=full_cov, **extra)
@@ -119,7 +119,7 @@ def replay(
                 yield ekf.record(
                     event=event, step=step, kind=EventKind.PREDICT, line=log_event.line,
                     time=log_event.time,
-                    control=(log_event.d, log_event.alpha) if isinstance(log_event, Control) else None,
+                    control=_control(log_event),
                     full_cov=full_cov, **extra,
                 )  # fmt: skip
             else:
@@ -161,6 +161,10 @@ def _observe(
     return observations, association
 
 
+def _control(event: Control | Drive) -> tuple[float, float] | None:
+    return (event.d, event.alpha) if isinstance(event, Control) else None
+
+
 def _drive(ekf: EkfSlam, event: Drive) -> None:
     drive = getattr(ekf, "drive", None)
     if drive is None:
@@ -168,7 +172,7 @@ def _drive(ekf: EkfSlam, event: Drive) -> None:
     drive(event.segments)
 
 
-def _with_last(events: Iterable[LogEvent]) -> Iterator[tuple[LogEvent, bool]]:
+def _with_last(events: Iterable[AnyEvent]) -> Iterator[tuple[AnyEvent, bool]]:
     """Each event with whether it is the last one, reading one event ahead.
 
     An error of the stream while reading ahead (bad input, an interrupt) is raised

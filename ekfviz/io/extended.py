@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ekfviz.core.records import Control, Drive, LogEvent, Scan, Sighting
+from ekfviz.core.records import AnyEvent, Control, Drive, Scan, Sighting
 from ekfviz.io.classic import read_classic
 from ekfviz.io.errors import InputError
 from ekfviz.io.text import (
@@ -43,7 +43,7 @@ def read_log(
     path: Path,
     progress: ProgressCallback | None = None,
     warn: WarningCallback | None = None,
-) -> Iterator[LogEvent]:
+) -> Iterator[AnyEvent]:
     """Stream the events of a log in either format, told apart by its first data line.
 
     :param progress: called now and then with the number of bytes read so far
@@ -68,7 +68,7 @@ def read_extended(
     path: Path,
     progress: ProgressCallback | None = None,
     warn: WarningCallback | None = None,
-) -> Iterator[LogEvent]:
+) -> Iterator[AnyEvent]:
     """Stream the events of an extended log (``warn`` as for :func:`read_log`).
 
     :raises InputError: for the first bad line met, naming it and what was expected
@@ -176,7 +176,7 @@ def _scan(
     return Scan(line=line, z=z, time=time)
 
 
-def format_extended(events: Iterable[LogEvent], precision: int | None = 6) -> str:
+def format_extended(events: Iterable[AnyEvent], precision: int | None = 6) -> str:
     """Write events in the extended format, one event a line, with timestamps if given.
 
     :param precision: decimals, or None for the shortest text that reads back exactly

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ekfviz.core.records import LogEvent, Sighting
+from ekfviz.core.records import AnyEvent, Sighting
 from ekfviz.core.truth import GroundTruth
 from ekfviz.io.errors import InputError
 from ekfviz.io.text import numeric_lines
@@ -172,8 +172,8 @@ def _truth(rows: list[list[float]]) -> GroundTruth:
 
 
 def checked_against(
-    events: Iterable[LogEvent], truth: GroundTruth, truth_path: Path, *, every_id: bool
-) -> Iterator[LogEvent]:
+    events: Iterable[AnyEvent], truth: GroundTruth, truth_path: Path, *, every_id: bool
+) -> Iterator[AnyEvent]:
     """Pass events through, stopping at the first landmark the truth does not know.
 
     :param every_id: the log names all its landmarks on its first line (the classic

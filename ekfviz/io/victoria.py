@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ekfviz.core.records import Drive, LogEvent, Scan
+from ekfviz.core.records import AnyEvent, Drive, Scan
 from ekfviz.core.types import FloatArray
 from ekfviz.io.errors import InputError
 from ekfviz.io.text import ProgressCallback, numeric_lines
@@ -38,7 +38,7 @@ def is_victoria(path: Path) -> bool:
     return path.is_dir() and (path / INPUTS).is_file() and (path / MEASUREMENTS).is_file()
 
 
-def read_victoria(path: Path, progress: ProgressCallback | None = None) -> Iterator[LogEvent]:
+def read_victoria(path: Path, progress: ProgressCallback | None = None) -> Iterator[AnyEvent]:
     """Stream the run's events: a Drive before every scan, then the Scan.
 
     :param progress: called now and then with the bytes read so far of both files

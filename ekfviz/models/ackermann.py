@@ -48,7 +48,9 @@ class Ackermann:
         """v_c of the rear axle's centre from the encoder's speed."""
         return speed / (1.0 - math.tan(steering) * self.encoder_offset / self.wheelbase)
 
-    def motion(self, pose_xytheta: FloatArray, speed: float, steering: float, dt: float) -> FloatArray:
+    def motion(
+        self, pose_xytheta: FloatArray, speed: float, steering: float, dt: float
+    ) -> FloatArray:
         """Noise-free motion over ``dt`` seconds.
 
         :return: new pose (3,), theta wrapped to (-pi, pi]

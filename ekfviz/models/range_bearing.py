@@ -61,7 +61,7 @@ class RangeBearing:
         # the sensor moves with the pose: d/ds = -d/dl, and ds/dtheta from the offset
         z_D_pose = np.array(
             [
-                [dy / q, -dx / q, (-dy * sx_D_theta + dx * sy_D_theta) / q - 1.0],
+                [dy / q, -dx / q, (dy * sx_D_theta - dx * sy_D_theta) / q - 1.0],
                 [-dx / r, -dy / r, (-dx * sx_D_theta - dy * sy_D_theta) / r],
             ]
         )
@@ -109,6 +109,6 @@ class RangeBearing:
         z_D_landmark[:, 1, 1] = dy / r
         z_D_pose = np.empty((n, 2, 3))
         z_D_pose[:, :, :2] = -z_D_landmark
-        z_D_pose[:, 0, 2] = (-dy * sx_D_theta + dx * sy_D_theta) / q - 1.0
+        z_D_pose[:, 0, 2] = (dy * sx_D_theta - dx * sy_D_theta) / q - 1.0
         z_D_pose[:, 1, 2] = (-dx * sx_D_theta - dy * sy_D_theta) / r
         return z_pred, z_D_pose, z_D_landmark

@@ -49,7 +49,7 @@ class Scenario:
         noise: Noise | None = None,
         seed: int = 0,
         init_pose_sigma: tuple[float, float, float] | None = None,
-        detection: Detection = Detection(),
+        detection: Detection | None = None,
         laps: int = 1,
     ) -> Simulation:
         """Simulate the scenario; the true start is drawn from N(0, diag(init_pose_sigma^2)),
@@ -72,7 +72,7 @@ class Scenario:
             start_xytheta=start,
             sensor=self.sensor,
             landmark_ids=self.landmark_ids,
-            detection=detection,
+            detection=Detection() if detection is None else detection,
         )
 
 

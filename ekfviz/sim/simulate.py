@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ekfviz.core.records import Control, LogEvent, Scan, Sighting
+from ekfviz.core.records import AnyEvent, Control, LogEvent, Scan, Sighting
 from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.models.angles import wrap_angles
 from ekfviz.models.classic import motion
@@ -95,6 +95,7 @@ class Simulation:
     landmark_ids: IntArray
     landmarks_xy: FloatArray
     scan_ids: tuple[tuple[int | None, ...], ...] | None = None
+    scan_events: tuple[AnyEvent, ...] | None = None  # with unknown ids: the events, id-less
 
 
 def simulate(
@@ -148,9 +149,7 @@ def simulate(
         if detection.clutter > 0.0:
             # false alarms uniform over the field's area, each at a random place in the scan
             count = int(rng_detection.poisson(detection.clutter))
-            reach = (
-                sensor.max_range if math.isfinite(sensor.max_range) else CLUTTER_RANGE_UNLIMITED
-            )
+            reach = sensor.max_range if math.isfinite(sensor.max_range) else CLUTTER_RANGE_UNLIMITED
             half = min(sensor.fov, 2 * math.pi) / 2
             rows = list(z)
             for _ in range(count):
@@ -163,7 +162,7 @@ def simulate(
         scan_ids.append(tuple(truth))
         return Scan(line=line, z=z)
 
-    events: list[LogEvent] = [sight()]
+    events: list[AnyEvent] = [sight()]
     for d, alpha in controls:
         e_x, e_y, e_a = rng.normal(0.0, 1.0, 3) * [noise.sigma_x, noise.sigma_y, noise.sigma_alpha]
         theta = pose[2]
@@ -176,10 +175,14 @@ def simulate(
         events.append(Control(line=line, d=float(d), alpha=float(alpha)))
         line += 1
         events.append(sight())
+    with_ids = tuple(e for e in events if isinstance(e, Control | Sighting))
     return Simulation(
-        tuple(events),
+        with_ids
+        if not detection.unknown_ids
+        else tuple(e for e in with_ids if isinstance(e, Control)),
         np.array(poses),
         landmark_ids.copy(),
         landmarks_xy.copy(),
         tuple(scan_ids) if detection.unknown_ids else None,
+        tuple(events) if detection.unknown_ids else None,
     )

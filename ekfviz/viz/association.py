@@ -4,12 +4,12 @@ At every scan (logged on ``step``, ``event`` and, where the log has times, ``tim
 
 | entity | what |
 |---|---|
-| ``world/association/rays`` | sensor -> each measurement, green matched, orange new (tentative), red rejected |
+| ``world/association/rays`` | sensor -> each measurement: green matched, orange new, red rejected |
 | ``world/association/links`` | each matched measurement -> the landmark it was paired with |
-| ``world/association/gates`` | the gate of every candidate landmark: its innovation ellipse at the gate probability, mapped into the plane |
+| ``world/association/gates`` | each candidate's gate: its innovation ellipse, mapped to the map |
 | ``world/landmarks/tentative`` | the landmarks still tentative (orange crosses) |
-| ``world/landmarks/sizes`` | the landmarks with their objects' size (Victoria Park's trunk diameters) |
-| ``metrics/association/{matched,new,rejected,confirmed,removed,landmarks}`` | per scan |
+| ``world/landmarks/sizes`` | landmarks drawn at their objects' size (trunk diameters) |
+| ``metrics/association/{matched,new,rejected,confirmed,...}`` | per scan |
 | ``metrics/association/{correct,wrong,missed}`` | per scan, with truth |
 | ``log`` | what the association chose and how many JCBB hypotheses it explored |
 """
@@ -89,23 +89,27 @@ class AssociationView:
         where = {int(i): k for k, i in enumerate(record.landmark_ids.tolist())}
         matched = [
             (points[k], record.landmarks_xy[where[i]])
-            for k, (f, i) in enumerate(zip(fate.tolist(), association.landmark.tolist(), strict=True))
+            for k, (f, i) in enumerate(
+                zip(fate.tolist(), association.landmark.tolist(), strict=True)
+            )
             if f == Fate.MATCHED and i in where
         ]
         rec.log(
             path(LINKS),
-            rr.LineStrips2D(np.array(matched).reshape(-1, 2, 2), colors=[LINK_COLOR]),
+            rr.LineStrips2D(list(np.array(matched).reshape(-1, 2, 2)), colors=[LINK_COLOR]),
         )
         if len(association.gate_ids):
             centres = np.array([self._sensor.inverse(pose, z) for z in association.gate_z])
-            jacobians = np.array([self._sensor.inverse_jacobians(pose, z)[1] for z in association.gate_z])
+            jacobians = np.array(
+                [self._sensor.inverse_jacobians(pose, z)[1] for z in association.gate_z]
+            )
             covs = jacobians @ association.gate_S @ jacobians.transpose(0, 2, 1)
             outlines = ellipse_outlines(
                 centres, covs, n_sigma=math.sqrt(association.gate_threshold)
             )
         else:
             outlines = np.zeros((0, 2, 2))
-        rec.log(path(GATES), rr.LineStrips2D(outlines, colors=[GATE_COLOR]))
+        rec.log(path(GATES), rr.LineStrips2D(list(outlines), colors=[GATE_COLOR]))
         tentative = [where[i] for i in association.tentative.tolist() if i in where]
         rec.log(
             path(TENTATIVE),
@@ -118,7 +122,10 @@ class AssociationView:
         )
         if association.diameters is not None:
             for f, i, size in zip(
-                fate.tolist(), association.landmark.tolist(), association.diameters.tolist(), strict=True
+                fate.tolist(),
+                association.landmark.tolist(),
+                association.diameters.tolist(),
+                strict=True,
             ):
                 if f != Fate.REJECTED:
                     old = self._sizes.get(i)
@@ -162,9 +169,8 @@ class AssociationView:
                 + f", joint NIS {association.joint_nis:.2f}"
             )
         if len(association.confirmed) or len(association.removed):
-            text += (
-                f"; confirmed {association.confirmed.tolist()}, removed {association.removed.tolist()}"
-            )
+            confirmed, removed = association.confirmed.tolist(), association.removed.tolist()
+            text += f"; confirmed {confirmed}, removed {removed}"
         rec.log(path(style.LOG), rr.TextLog(text, level=rr.TextLogLevel.DEBUG))
 
     def flush(self) -> None:
@@ -180,7 +186,9 @@ class AssociationView:
             if np.isfinite(table[:, 2]).all():
                 indexes.append(rr.TimeColumn(style.TIME, duration=table[:, 2]))
             self._rec.send_columns(
-                self._path(f"{SERIES}/{name}"), indexes=indexes, columns=rr.Scalars.columns(scalars=table[:, 3])
+                self._path(f"{SERIES}/{name}"),
+                indexes=indexes,
+                columns=rr.Scalars.columns(scalars=table[:, 3]),
             )
         self._series = {name: [] for name in self._series}
 
@@ -198,7 +206,9 @@ def log_reference(
     """
     rec.log(
         path(REFERENCE),
-        rr.LineStrips2D([fit.reference_xy], colors=[REFERENCE_COLOR], radii=rr.Radius.ui_points(1.0)),
+        rr.LineStrips2D(
+            [fit.reference_xy], colors=[REFERENCE_COLOR], radii=rr.Radius.ui_points(1.0)
+        ),
         static=True,
     )
     rec.send_columns(

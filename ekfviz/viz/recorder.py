@@ -174,9 +174,7 @@ def _times(
 class _Rows:
     """The step and event of each buffered record, to pick the time columns of a send."""
 
-    def __init__(
-        self, steps: IntArray, events: IntArray, times: FloatArray | None = None
-    ) -> None:
+    def __init__(self, steps: IntArray, events: IntArray, times: FloatArray | None = None) -> None:
         self.steps = steps
         self.events = events
         self.times = times

@@ -31,8 +31,8 @@ from ekfviz.core.filter import HAVE_KERNEL
 from ekfviz.core.records import EventRecord
 from ekfviz.core.truth import GroundTruth
 from ekfviz.io.errors import InputError
-from ekfviz.viz import style
 from ekfviz.models.range_bearing import RangeBearing
+from ekfviz.viz import style
 from ekfviz.viz.recorder import Recorder
 
 APPLICATION_ID = "ekfviz"

@@ -1,0 +1,151 @@
+"""Association, its models and the Victoria Park reader, on generated data."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ekfviz.association import AssociationParams, Associator
+from ekfviz.core.filter import EkfSlam, FilterParams
+from ekfviz.core.records import Drive, Scan
+from ekfviz.core.replay import replay
+from ekfviz.io.errors import InputError
+from ekfviz.io.victoria import read_victoria
+from ekfviz.models.ackermann import Ackermann
+from ekfviz.models.range_bearing import RangeBearing
+from ekfviz.sim.scenarios import loop
+from ekfviz.sim.simulate import Detection
+
+
+def numeric_jacobian(f, x, eps=1e-6):  # type: ignore[no-untyped-def]
+    x = np.asarray(x, dtype=float)
+    columns = []
+    for k in range(len(x)):
+        step = np.zeros_like(x)
+        step[k] = eps
+        diff = f(x + step) - f(x - step)
+        diff[0] = math.remainder(diff[0], 2 * math.pi) if len(diff) == 2 else diff[0]
+        columns.append(diff / (2 * eps))
+    return np.stack(columns, axis=1)
+
+
+def test_ackermann_jacobians_match_finite_differences() -> None:
+    car = Ackermann()
+    pose, speed, steering, dt = np.array([1.0, -2.0, 0.7]), 3.0, 0.2, 0.025
+    G, W = car.jacobians(pose, speed, steering, dt)
+    assert np.allclose(
+        G, numeric_jacobian(lambda p: car.motion(p, speed, steering, dt), pose), atol=1e-7
+    )
+    W_fd = numeric_jacobian(lambda u: car.motion(pose, u[0], u[1], dt), [speed, steering])
+    assert np.allclose(W, W_fd, atol=1e-7)
+
+
+def test_offset_measurement_jacobians_match_finite_differences() -> None:
+    sensor = RangeBearing(3.78, 0.5)
+    pose, landmark = np.array([1.0, 2.0, 0.4]), np.array([12.0, 9.0])
+    z_D_pose, z_D_landmark = sensor.jacobians(pose, landmark)
+    assert np.allclose(
+        z_D_pose, numeric_jacobian(lambda p: sensor.measure(p, landmark), pose), atol=1e-6
+    )
+    assert np.allclose(
+        z_D_landmark, numeric_jacobian(lambda l: sensor.measure(pose, l), landmark), atol=1e-6
+    )
+    z = sensor.measure(pose, landmark)
+    assert np.allclose(sensor.inverse(pose, z), landmark)
+    l_D_pose, l_D_z = sensor.inverse_jacobians(pose, z)
+    assert np.allclose(l_D_pose, numeric_jacobian(lambda p: sensor.inverse(p, z), pose), atol=1e-6)
+    assert np.allclose(l_D_z, numeric_jacobian(lambda q: sensor.inverse(pose, q), z), atol=1e-6)
+
+
+def test_remove_landmarks_keeps_the_rest_and_p_symmetric_psd() -> None:
+    ekf = EkfSlam()
+    ekf.observe([1, 2, 3], np.array([[0.1, 5.0], [0.5, 7.0], [-0.4, 6.0]]))
+    ekf.predict(1.0, 0.1)
+    ekf.observe([1, 2, 3], np.array([[0.0, 4.1], [0.4, 6.2], [-0.5, 5.2]]))
+    x, P = ekf.x.copy(), ekf.P.copy()
+    ekf.remove_landmarks([2])
+    keep = [0, 1, 2, 3, 4, 7, 8]
+    assert ekf.landmark_ids == [1, 3]
+    assert np.array_equal(ekf.x, x[keep])
+    assert np.array_equal(ekf.P, P[np.ix_(keep, keep)])
+    assert np.array_equal(ekf.P, ekf.P.T)
+    assert np.linalg.eigvalsh(ekf.P).min() > -1e-12
+
+
+def _loop_events(detection: Detection):  # type: ignore[no-untyped-def]
+    world = loop(steps=200, landmarks=60, seed=4)
+    return world, world.run(seed=4, detection=detection)
+
+
+def test_association_without_clutter_equals_known() -> None:
+    world, known = _loop_events(Detection())
+    _, unknown = _loop_events(Detection(unknown_ids=True))
+    params = FilterParams(
+        *[
+            getattr(world.noise, n)
+            for n in ("sigma_x", "sigma_y", "sigma_alpha", "sigma_bearing", "sigma_range")
+        ],
+        init_pose_sigma=world.init_pose_sigma,
+    )  # noqa: E501
+    associator = Associator(
+        AssociationParams(gate_probability=0.999999, confirm=1), RangeBearing(), params.R
+    )
+    a = list(replay(known.events, params))
+    assert unknown.scan_events is not None
+    b = list(replay(unknown.scan_events, params, associator=associator))
+    assert len(a) == len(b)
+    for ra, rb in zip(a, b, strict=True):
+        assert np.array_equal(ra.pose, rb.pose)
+        assert np.array_equal(ra.landmarks_xy, rb.landmarks_xy)
+
+
+def test_tentative_landmarks_are_removed_unless_confirmed() -> None:
+    params = FilterParams()
+    associator = Associator(
+        AssociationParams(confirm=2, confirm_window=2), RangeBearing(), params.R
+    )
+    events = [
+        Scan(line=1, z=np.array([[0.0, 5.0]])),
+        Scan(line=2, z=np.array([[0.0, 5.0], [1.0, 8.0]])),  # 1 confirmed, 2 new
+        Scan(line=3, z=np.array([[0.0, 5.0]])),  # 2 not seen again in its window: removed
+    ]
+    records = list(replay(events, params, associator=associator))
+    assert records[1].association is not None
+    assert records[1].association.confirmed.tolist() == [1]
+    assert records[2].association is not None
+    assert records[2].association.removed.tolist() == [2]
+    assert records[-1].landmark_ids.tolist() == [1]
+
+
+def _victoria(tmp_path: Path, measurements: str) -> Path:
+    (tmp_path / "inputs.dat").write_text("0.0 2.0 0.0\n0.5 2.0 0.1\n1.2 2.0 0.1\n")
+    (tmp_path / "measurements.dat").write_text(measurements)
+    (tmp_path / "gps.dat").write_text("0.0 0.0 0.0\n1.0 2.0 0.0\n")
+    return tmp_path
+
+
+def test_victoria_reader_streams_drives_and_scans(tmp_path: Path) -> None:
+    path = _victoria(tmp_path, "1.0 10.0 1.5707963 0.3\n1.0 12.0 1.0 0.4\n")
+    events = list(read_victoria(path))
+    assert isinstance(events[0], Drive) and isinstance(events[1], Scan)
+    assert np.allclose(events[0].segments, [[2.0, 0.0, 0.5], [2.0, 0.1, 0.5]])
+    assert np.allclose(events[1].z, [[0.0, 10.0], [1.0 - math.pi / 2, 12.0]], atol=1e-6)
+    assert isinstance(events[2], Drive)
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("1.0 10.0 1.5\n", "measurements.dat:1: found 3 numbers, expected 4"),
+        ("1.0 -1.0 1.5 0.2\n", "measurements.dat:1: found range -1"),
+        ("1.0 5.0 4.0 0.2\n", "measurements.dat:1: found bearing 4"),
+        ("2.0 5.0 1.0 0.2\n1.0 5.0 1.0 0.2\n", "measurements.dat:2: found time 1"),
+    ],
+)
+def test_victoria_reader_refuses_malformed_lines(tmp_path: Path, text: str, message: str) -> None:
+    path = _victoria(tmp_path, text)
+    with pytest.raises(InputError, match=message.replace(".", r"\.")):
+        list(read_victoria(path))
