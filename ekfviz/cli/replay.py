@@ -13,6 +13,7 @@ from ekfviz import signals
 from ekfviz.cli.common import (
     DEFAULT,
     RECORDINGS_DIR,
+    FilterOption,
     FilterWarnings,
     InitPoseSigma,
     LandmarkInitOption,
@@ -43,6 +44,7 @@ from ekfviz.core.filter import FilterError
 from ekfviz.core.records import EventRecord
 from ekfviz.core.replay import FilterLineError
 from ekfviz.core.replay import replay as run_filter
+from ekfviz.filters import BUILTIN, FilterSpecError, load_filter
 from ekfviz.io.errors import InputError
 from ekfviz.io.truth import read_truth
 
@@ -62,6 +64,7 @@ def replay(
     init_pose_sigma: InitPoseSigma = DEFAULT.init_pose_sigma,
     landmark_init: LandmarkInitOption = DEFAULT.landmark_init,
     update: UpdateOption = DEFAULT.update,
+    filter_spec: FilterOption = BUILTIN,
     save: Annotated[
         Path | None,
         typer.Option(
@@ -116,6 +119,10 @@ def replay(
         update,
     )
     try:
+        make_filter = load_filter(filter_spec)
+    except FilterSpecError as error:
+        fail(str(error))
+    try:
         truth_xy = read_truth(truth) if truth is not None else None
         sinks, note = viz.resolve_default_sinks(
             viz.Sinks(save=save, spawn=spawn, serve=serve, connect=connect),
@@ -139,7 +146,8 @@ def replay(
             consistency = Consistency(truth_xy)
             warnings = FilterWarnings(data)
             try:
-                for record in run_filter(log_events(data, truth_xy, truth, progress), params):
+                events = log_events(data, truth_xy, truth, progress)
+                for record in run_filter(events, params, make_filter=make_filter, name=filter_spec):
                     logger.log(record)
                     consistency.add(record)
                     if record.warnings:

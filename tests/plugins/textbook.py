@@ -25,7 +25,7 @@ class Textbook:
 
     heading_sign = 1.0  # sign of the heading column of the motion Jacobian
     rotate_noise = True  # motion noise W Q W^T (robot frame) or Q as if in the world frame
-    add_R = True  # S = H P H^T + R
+    add_r = True  # S = H P H^T + R
     wrap_innovation = True  # the bearing innovation wrapped to (-pi, pi]
     cross_covariances = True  # a new landmark correlated with the pose and the map
 
@@ -76,7 +76,7 @@ class Textbook:
         F[:3, :3] = np.eye(3)
         F[3:, j : j + 2] = np.eye(2)
         H = h @ F
-        S = H @ self.P @ H.T + (self.R if self.add_R else 0.0)
+        S = H @ self.P @ H.T + (self.R if self.add_r else 0.0)
         K = self.P @ H.T @ np.linalg.inv(S)
         nu = np.array([bearing, rng]) - z_hat
         if self.wrap_innovation:
@@ -112,7 +112,7 @@ class UnrotatedMotionNoise(Textbook):
 
 
 class NoRInS(Textbook):
-    add_R = False
+    add_r = False
 
 
 class UnwrappedBearing(Textbook):
