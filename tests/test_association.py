@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -12,6 +13,7 @@ from ekfviz.association import AssociationParams, Associator
 from ekfviz.core.filter import EkfSlam, FilterParams
 from ekfviz.core.records import Drive, Scan
 from ekfviz.core.replay import replay
+from ekfviz.core.types import FloatArray
 from ekfviz.io.errors import InputError
 from ekfviz.io.victoria import read_victoria
 from ekfviz.models.ackermann import Ackermann
@@ -20,7 +22,9 @@ from ekfviz.sim.scenarios import loop
 from ekfviz.sim.simulate import Detection
 
 
-def numeric_jacobian(f, x, eps=1e-6):  # type: ignore[no-untyped-def]
+def numeric_jacobian(
+    f: Callable[[FloatArray], FloatArray], x: FloatArray | list[float], eps: float = 1e-6
+) -> FloatArray:
     x = np.asarray(x, dtype=float)
     columns = []
     for k in range(len(x)):
@@ -51,7 +55,7 @@ def test_offset_measurement_jacobians_match_finite_differences() -> None:
         z_D_pose, numeric_jacobian(lambda p: sensor.measure(p, landmark), pose), atol=1e-6
     )
     assert np.allclose(
-        z_D_landmark, numeric_jacobian(lambda l: sensor.measure(pose, l), landmark), atol=1e-6
+        z_D_landmark, numeric_jacobian(lambda lm: sensor.measure(pose, lm), landmark), atol=1e-6
     )
     z = sensor.measure(pose, landmark)
     assert np.allclose(sensor.inverse(pose, z), landmark)
@@ -83,13 +87,12 @@ def _loop_events(detection: Detection):  # type: ignore[no-untyped-def]
 def test_association_without_clutter_equals_known() -> None:
     world, known = _loop_events(Detection())
     _, unknown = _loop_events(Detection(unknown_ids=True))
+    noise = world.noise
     params = FilterParams(
-        *[
-            getattr(world.noise, n)
-            for n in ("sigma_x", "sigma_y", "sigma_alpha", "sigma_bearing", "sigma_range")
-        ],
+        sigma_x=noise.sigma_x, sigma_y=noise.sigma_y, sigma_alpha=noise.sigma_alpha,
+        sigma_bearing=noise.sigma_bearing, sigma_range=noise.sigma_range,
         init_pose_sigma=world.init_pose_sigma,
-    )  # noqa: E501
+    )  # fmt: skip
     associator = Associator(
         AssociationParams(gate_probability=0.999999, confirm=1), RangeBearing(), params.R
     )

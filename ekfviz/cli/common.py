@@ -26,9 +26,7 @@ from ekfviz.core.filter import HAVE_KERNEL, FilterParams, LandmarkInit, UpdateMo
 from ekfviz.core.records import AnyEvent, EventRecord
 from ekfviz.core.replay import FilterLineError
 from ekfviz.core.truth import GroundTruth
-from ekfviz.io.extended import is_extended, read_log
 from ekfviz.io.text import ProgressCallback
-from ekfviz.io.truth import checked_against
 from ekfviz.sim.scenarios import Scenario, ScenarioName
 from ekfviz.sim.simulate import Noise
 
@@ -44,8 +42,8 @@ app = typer.Typer(
     add_completion=False,
     pretty_exceptions_enable=False,
 )
-out = Console(highlight=False)
-err = Console(stderr=True, highlight=False)
+out = Console(highlight=False, emoji=False)
+err = Console(stderr=True, highlight=False, emoji=False)
 
 PROGRESS_MIN_BYTES = 1 << 20  # files under 1 MiB replay in well under a second
 RECORDINGS_DIR = Path("recordings")
@@ -138,6 +136,20 @@ LogArgument = Annotated[
 ]
 TruthOption = Annotated[
     Path | None, _option("True landmark positions: 'x y' per line, or JSON.", show_default=False)
+]
+
+
+FilterOption = Annotated[
+    str,
+    typer.Option(
+        "--filter",
+        help="The filter: ekf (built-in), a registered backend, PATH.py:ClassName or"
+        " package.module:ClassName (a class of the filter protocol, see the README).",
+        rich_help_panel=FILTER_OPTIONS,
+    ),
+]
+Workers = Annotated[
+    int | None, _option("Processes to use [default: one per core].", min=1, show_default=False)
 ]
 
 
@@ -236,11 +248,10 @@ def log_events(
     truth_path: Path | None,
     progress: ProgressCallback | None = None,
 ) -> Iterator[AnyEvent]:
-    """The log's events, checked against the truth's landmarks when there is one."""
-    events = read_log(data, progress, warn)
-    if truth is not None and truth_path is not None:
-        events = checked_against(events, truth, truth_path, every_id=not is_extended(data))
-    return events
+    """The log's events, checked against the truth's landmarks, reader warnings printed."""
+    from ekfviz.pipeline import log_events as events
+
+    return events(data, truth, truth_path, progress, warn)
 
 
 class FilterWarnings:
@@ -291,7 +302,7 @@ def stop_reason(cause: BaseException, data: Path, last: EventRecord | None) -> s
     if isinstance(cause, signals.Terminated):
         return f"{data}: terminated (SIGTERM) {after}"
     if isinstance(cause, FilterLineError):
-        return f"{data}:{cause.line}: {cause}"
+        return f"{data}:{cause.line}: {cause}" if cause.line else f"{data}: {cause}"
     return str(cause)
 
 

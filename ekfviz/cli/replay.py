@@ -14,6 +14,7 @@ from ekfviz.association import AssociationError
 from ekfviz.cli.common import (
     DEFAULT,
     RECORDINGS_DIR,
+    FilterOption,
     FilterWarnings,
     InitPoseSigma,
     LandmarkInitOption,
@@ -50,10 +51,11 @@ from ekfviz.cli.scans import (
 )
 from ekfviz.core.consistency import Consistency
 from ekfviz.core.evaluation import evaluate
-from ekfviz.core.filter import FilterError
+from ekfviz.core.filter import EkfSlam, FilterError
 from ekfviz.core.records import EventRecord
 from ekfviz.core.replay import FilterLineError
 from ekfviz.core.replay import replay as run_filter
+from ekfviz.filters import BUILTIN, FilterSpecError, load_filter
 from ekfviz.io.errors import InputError
 from ekfviz.io.truth import read_truth
 
@@ -74,6 +76,7 @@ def replay(
     init_pose_sigma: InitPoseSigma = DEFAULT.init_pose_sigma,
     landmark_init: LandmarkInitOption = DEFAULT.landmark_init,
     update: UpdateOption = DEFAULT.update,
+    filter_spec: FilterOption = BUILTIN,
     save: Annotated[
         Path | None,
         typer.Option(
@@ -134,6 +137,10 @@ def replay(
         update,
     )
     try:
+        make_filter = load_filter(filter_spec)
+    except FilterSpecError as error:
+        fail(str(error))
+    try:
         truth_xy = read_truth(truth) if truth is not None else None
         setup = replay_setup(
             ctx, data, params, truth_xy, association, gate_probability, confirm, confirm_window,
@@ -162,8 +169,10 @@ def replay(
             consistency = Consistency(truth_xy)
             warnings = FilterWarnings(data)
             try:
+                builtin = make_filter is None or make_filter is EkfSlam
                 for record in run_filter(
-                    setup.events(truth, progress), params, slam=setup.slam,
+                    setup.events(truth, progress), params, make_filter=make_filter,
+                    name=filter_spec, slam=setup.slam if builtin else None,
                     associator=setup.associator,
                 ):  # fmt: skip
                     logger.log(record)

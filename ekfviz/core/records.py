@@ -9,6 +9,7 @@ and a run has many events.
 from __future__ import annotations
 
 import enum
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from typing import TypeVar
 
@@ -85,6 +86,17 @@ class Drive:
 
 LogEvent = Control | Sighting  # the events of logs with landmark ids
 AnyEvent = Control | Sighting | Scan | Drive  # and id-less scans, vehicle controls
+
+
+def with_ids(events: Iterable[AnyEvent]) -> Iterator[LogEvent]:
+    """The events of a log with landmark ids, refusing an id-less scan or vehicle control.
+
+    :raises ValueError: at the first event without ids, naming its line
+    """
+    for event in events:
+        if not isinstance(event, Control | Sighting):
+            raise ValueError(f"line {event.line}: this needs a log with landmark ids and controls")
+        yield event
 
 
 @dataclass(frozen=True, slots=True)

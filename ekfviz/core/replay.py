@@ -12,6 +12,7 @@ import numpy as np
 from ekfviz.association.associator import Associator
 from ekfviz.core.filter import EkfSlam, FilterError, FilterParams
 from ekfviz.core.health import check_covariance, check_interval
+from ekfviz.core.plugged import FilterFactory, Plugged, PluginError
 from ekfviz.core.records import (
     AnyEvent,
     Control,
@@ -20,7 +21,6 @@ from ekfviz.core.records import (
     EventRecord,
     Observations,
     Scan,
-    ScanAssociation,
     Sighting,
     frozen,
 )
@@ -41,11 +41,22 @@ def replay(
     events: Iterable[AnyEvent],
     params: FilterParams | None = None,
     *,
+    make_filter: FilterFactory | None = None,
+    name: str = "ekf",
     full_cov: bool = False,
     slam: EkfSlam | None = None,
     associator: Associator | None = None,
 ) -> Iterator[EventRecord]:
     """Run EKF-SLAM over ``events`` lazily, one record per event.
+
+    The filter is the built-in :class:`~ekfviz.core.filter.EkfSlam` unless
+    ``make_filter`` names another class of the
+    :class:`~ekfviz.core.protocol.SlamFilter` protocol (constructed as
+    ``make_filter(params)``, called ``name`` in messages): its state is checked after
+    every event, and what it saw at an update is derived from its state before it
+    (:class:`~ekfviz.core.plugged.Plugged`). Where such a filter has a ``finish()``
+    method, it is called after the last event and the state after it is one more
+    record (a batch optimum shows there).
 
     Event 0 / step 0 is the initialisation: the prior pose, plus the landmarks of the
     log's first line when that line is an observation. Every control starts a new step
@@ -65,11 +76,27 @@ def replay(
     model (:class:`~ekfviz.core.model_filter.ModelEkfSlam`).
 
     :param full_cov: also keep the full (3+2N)^2 covariance in every record
-    :param slam: the filter to run (default ``EkfSlam(params)``)
+    :param slam: the built-in filter to run, made by the caller (with its models)
     :param associator: for logs with scans
-    :raises FilterLineError: the filter cannot go on at a line (a non-finite state, ...)
+    :raises FilterLineError: the filter cannot go on at a line (a non-finite state, a
+        protocol filter that raised or showed a broken state, ...)
     """
-    ekf = slam if slam is not None else EkfSlam(params)
+    params = params if params is not None else FilterParams()
+    ekf: EkfSlam | Plugged
+    if slam is not None:
+        ekf = slam
+    elif make_filter is None or make_filter is EkfSlam:
+        ekf = EkfSlam(params)
+    else:
+        try:
+            plugin = make_filter(params)
+        except Exception as error:  # the user's constructor: any exception is its fault
+            message = f"filter {name}: construction raised {type(error).__name__}: {error}"
+            raise FilterLineError(0, message) from error
+        try:
+            ekf = Plugged(plugin, name, params)
+        except PluginError as error:
+            raise FilterLineError(0, f"event 0 (init): {error}") from error
     next_check = 0  # the step from which the whole covariance is due for a check
 
     def checked(line: int, warnings: tuple[str, ...]) -> dict[str, Any]:
@@ -88,12 +115,14 @@ def replay(
     if isinstance(first, Sighting | Scan):
         try:
             observations, association = _observe(ekf, first, associator, last)
+        except PluginError as error:
+            raise FilterLineError(first.line, f"event 0 (init): {error}") from error
         except FilterError as error:
             raise FilterLineError(first.line, str(error)) from error
         extra = checked(first.line, ekf.warnings)
         yield ekf.record(
             event=0, step=0, kind=EventKind.INIT, line=first.line, time=first.time,
-            observations=observations, full_cov=full_cov, association=association, **extra,
+            observations=observations, full_cov=full_cov, **association, **extra,
         )  # fmt: skip
         pending: list[tuple[AnyEvent, bool]] = []
     else:
@@ -102,6 +131,7 @@ def replay(
         pending = [] if first is None else [(first, last)]
 
     step_has_update = True  # the initialisation counts as step 0's update
+    event = 0
     no_extra: dict[str, Any] = {}
     for event, (log_event, last) in enumerate(chain(pending, stream), start=1):
         # the filter's own errors name the line; "try" costs nothing until one is raised
@@ -113,7 +143,7 @@ def replay(
                     _drive(ekf, log_event)
                 else:
                     ekf.predict(log_event.d, log_event.alpha)
-                if last and associator is not None:
+                if last and associator is not None and isinstance(ekf, EkfSlam):
                     associator.finish(ekf)
                 extra = checked(log_event.line, ()) if step >= next_check or last else no_extra
                 yield ekf.record(
@@ -136,36 +166,50 @@ def replay(
                 yield ekf.record(
                     event=event, step=step, kind=EventKind.UPDATE, line=log_event.line,
                     time=log_event.time, observations=observations, full_cov=full_cov,
-                    association=association, **extra,
+                    **association, **extra,
                 )  # fmt: skip
         except FilterLineError:
             raise
+        except PluginError as error:
+            kind = "predict" if isinstance(log_event, Control) else "update"
+            raise FilterLineError(log_event.line, f"event {event} ({kind}): {error}") from error
         except FilterError as error:
             raise FilterLineError(log_event.line, str(error)) from error
+    if isinstance(ekf, Plugged):
+        try:
+            finished = ekf.finish()
+        except PluginError as error:
+            raise FilterLineError(0, f"after the last event: {error}") from error
+        if finished:
+            extra = checked(0, ())
+            yield ekf.record(event=event + 1, step=step + 1, kind=EventKind.UPDATE, **extra)
 
 
 def _observe(
-    ekf: EkfSlam, event: Sighting | Scan, associator: Associator | None, last: bool
-) -> tuple[Observations, ScanAssociation | None]:
-    """Fold an observation in: by its ids, or a scan through the association."""
+    ekf: EkfSlam | Plugged, event: Sighting | Scan, associator: Associator | None, last: bool
+) -> tuple[Observations, dict[str, Any]]:
+    """Fold an observation in: by its ids, or a scan through the association (the
+    built-in filter only, for now); the association goes into the record's arguments."""
     if isinstance(event, Sighting):
-        return ekf.observe(event.ids, event.z), None
+        return ekf.observe(event.ids, event.z), {}
     if associator is None:
         raise FilterError("a scan has no landmark ids: it needs --association nn or jcbb")
+    if not isinstance(ekf, EkfSlam):
+        raise FilterError("id-less scans run with the built-in filter only (--filter ekf)")
     observations, association = associator.process(ekf, event)
     if last:  # the end of the run: nothing tentative is left in the map
         removed = associator.finish(ekf)
         if removed:
             both = np.union1d(association.removed, removed)
             association = replace(association, removed=frozen(both), tentative=frozen(both[:0]))
-    return observations, association
+    return observations, {"association": association}
 
 
 def _control(event: Control | Drive) -> tuple[float, float] | None:
     return (event.d, event.alpha) if isinstance(event, Control) else None
 
 
-def _drive(ekf: EkfSlam, event: Drive) -> None:
+def _drive(ekf: EkfSlam | Plugged, event: Drive) -> None:
     drive = getattr(ekf, "drive", None)
     if drive is None:
         raise FilterError("speed and steering controls need a filter with a vehicle model")
