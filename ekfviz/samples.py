@@ -14,6 +14,22 @@ from pathlib import Path
 SAMPLES: dict[str, list[str]] = {
     "classic": ["--scenario", "classic", "--seed", "2", "--precision", "4"],
     "loop": ["--scenario", "loop", "--seed", "1", "--precision", "4"],
+    # id-less scans with clutter and misses, for --association (see README)
+    "scans": [
+        "--scenario",
+        "loop",
+        "--seed",
+        "1",
+        "--landmarks",
+        "120",
+        "--unknown-ids",
+        "--clutter",
+        "1",
+        "--detection-probability",
+        "0.9",
+        "--precision",
+        "4",
+    ],
 }
 
 
