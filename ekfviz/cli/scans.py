@@ -118,9 +118,6 @@ class ReplaySetup:
     ) -> Iterator[AnyEvent]:
         if self.victoria:
             return _far_dropped(read_victoria(self.data, progress), VICTORIA.max_range)
-        if self.associator is not None and self.truth is not None:
-            # association ids are not the truth's: the log's ids are not checked against it
-            return log_events(self.data, None, None, progress)
         return log_events(self.data, self.truth, truth_path, progress)
 
     def add(self, record: EventRecord) -> None:
