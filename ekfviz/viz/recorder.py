@@ -61,19 +61,24 @@ from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.models.angles import wrap_angles
 from ekfviz.viz import style
 from ekfviz.viz.blueprint import default_blueprint
-from ekfviz.viz.ellipses import ellipse_outlines, outline_points
+from ekfviz.viz.ellipses import ellipse_axes, ellipse_outlines, outline_points, unit_circle
 
 # Events between two sends of the buffered data, one chunk per entity: each chunk costs
 # ~0.1 ms in the main thread and as much in Rerun's encoder, whatever its size.
-FLUSH_EVERY = 1024
+FLUSH_EVERY = 4096
 SHAPES_EVERY = 256  # ... but line strips in chunks of at most this many events (_send_strips)
 FLUSH_LANDMARKS = 1 << 20  # ... or sooner, once the buffered records hold this many landmarks
 SMALL_MAP = 32  # up to this many landmarks, every ellipse at every update
 MAP_EVERY_STEPS = 25  # beyond: the whole map every this many steps
+# A small map is logged again only once some landmark's point or outline would move by
+# more than this fraction of its ellipse's semi-major axis (the viewer shows the latest).
+MAP_TOLERANCE = 0.02
+MAP_POINTS = 16  # points of a landmark outline: within 2 % of its radius, as MAP_TOLERANCE
 FLUSH_TIMEOUT_S = 30.0  # how long finish() waits for a slow or absent viewer
 MAX_CLASS_ID = 65535  # Rerun class ids are u16
 HEADING_LENGTH = 1.0  # metres
 CHECK_ALL_DIM = 64  # the array API checks a covariance up to this size at every call
+MIN_AXIS = 1e-9  # metres: the shortest semi-axis a pose ellipse's transform gets
 
 
 def _radius(ui_points: float) -> npt.ArrayLike:
@@ -84,6 +89,9 @@ def _radius(ui_points: float) -> npt.ArrayLike:
 _XY = rr.components.Position2DBatch([[0.0, 0.0]]).as_arrow_array().type
 _VECTOR = rr.components.Vector2DBatch([[0.0, 0.0]]).as_arrow_array().type
 _STRIP = rr.components.LineStrip2DBatch([[[0.0, 0.0], [0.0, 0.0]]]).as_arrow_array().type
+_VEC3 = rr.components.Translation3DBatch([[0.0, 0.0, 0.0]]).as_arrow_array().type
+_MAT3 = rr.components.TransformMat3x3Batch([np.eye(3)]).as_arrow_array().type
+_QUAT = rr.components.RotationQuatBatch([[0.0, 0.0, 0.0, 1.0]]).as_arrow_array().type
 
 
 @dataclass(frozen=True, slots=True)
@@ -113,6 +121,34 @@ def _column(
     return rr.ComponentColumn(descriptor, _Arrow(values), offsets=offsets)
 
 
+def _run_ends(values: npt.NDArray[Any]) -> IntArray:
+    """Indices of the first and last value of every run of equal values.
+
+    A series that only changes now and then (chi-square bounds, counts of skipped
+    observations) plots exactly the same from these alone: the viewer draws straight
+    lines between the points it has, flat along a run.
+    """
+    n = len(values)
+    if n <= 2:
+        return np.arange(n)
+    changes = values[1:] != values[:-1]
+    keep = np.ones(n, dtype=bool)
+    keep[1:-1] = changes[:-1] | changes[1:]  # differs from the one before or after
+    return np.flatnonzero(keep)
+
+
+def _shapes(means_xy: FloatArray, covs: FloatArray) -> FloatArray:
+    """(K, 6) rows [mx, my, 3 sqrt(C) flattened]: a 3-sigma ellipse by its mean and the
+    symmetric square root of its covariance (unique, unlike the eigenvectors' signs),
+    sqrt(C) = (C + sqrt(det C) I) / sqrt(tr C + 2 sqrt(det C)) for 2x2."""
+    root_det = np.sqrt(np.clip(np.linalg.det(covs), 0.0, None))
+    scale = np.sqrt(np.clip(np.trace(covs, axis1=1, axis2=2) + 2.0 * root_det, 0.0, None))
+    roots = (covs + root_det[:, None, None] * np.eye(2)) / np.where(scale > 0, scale, 1.0)[
+        :, None, None
+    ]
+    return np.column_stack([means_xy, 3.0 * roots.reshape(-1, 4)])
+
+
 def _scalars(values: npt.ArrayLike) -> list[rr.ComponentColumn]:
     """One ``Scalars`` value per row."""
     array = pa.array(np.asarray(values, dtype=np.float64))
@@ -136,6 +172,44 @@ def _strips(polylines: FloatArray) -> pa.Array:
         np.arange(0, (k + 1) * n, n, dtype=np.int32) if n else np.zeros(k + 1, np.int32)
     )
     return pa.ListArray.from_arrays(offsets, _xy(polylines.reshape(-1, 2)), type=_STRIP)
+
+
+def _fixed(values: npt.NDArray[Any], arrow_type: pa.DataType) -> pa.Array:
+    """(K, n) values as Rerun's fixed-size lists of n float32."""
+    flat = pa.array(np.ascontiguousarray(values, dtype=np.float32).reshape(-1))
+    return pa.FixedSizeListArray.from_arrays(flat, type=arrow_type)
+
+
+def _robot_frame(poses: FloatArray) -> list[rr.ComponentColumn]:
+    """(K, 3) poses as ``Transform3D`` columns placing the robot frame in the world:
+    translation (x, y, 0) and the rotation theta about z as a quaternion (x, y, z, w)."""
+    k = len(poses)
+    translations = np.zeros((k, 3))
+    translations[:, :2] = poses[:, :2]
+    half = 0.5 * poses[:, 2]
+    quaternions = np.zeros((k, 4))
+    quaternions[:, 2], quaternions[:, 3] = np.sin(half), np.cos(half)
+    return [
+        _column(rr.Transform3D.descriptor_translation(), _fixed(translations, _VEC3)),
+        _column(rr.Transform3D.descriptor_quaternion(), _fixed(quaternions, _QUAT)),
+    ]
+
+
+def _shape_matrices(axes: FloatArray) -> pa.Array:
+    """(K, 2, 2) maps A of the unit circle onto ellipses as 3x3 matrices diag(A, 1),
+    stored by columns as Rerun does.
+
+    A flat ellipse (an axis of 0) would make the matrix singular, which the viewer does
+    not draw: its axes are kept at least ``MIN_AXIS`` long.
+    """
+    k = len(axes)
+    lengths = np.linalg.norm(axes, axis=1, keepdims=True)  # of the columns: the semi-axes
+    unit = np.divide(axes, lengths, out=np.tile(np.eye(2), (k, 1, 1)), where=lengths > 0)
+    axes = unit * np.maximum(lengths, MIN_AXIS)
+    matrices = np.zeros((k, 9))
+    matrices[:, [0, 1, 3, 4]] = axes.transpose(0, 2, 1).reshape(k, 4)  # by columns
+    matrices[:, 8] = 1.0
+    return _fixed(matrices, _MAT3)
 
 
 _NO_ROWS: IntArray = np.zeros(0, dtype=np.int64)
@@ -276,10 +350,13 @@ class _SeriesBuffer:
     def flush(self) -> None:
         for path, (steps, events, values) in self._series.items():
             if values:
+                at = np.arange(len(values))
+                if path.endswith((style.LOWER, style.UPPER)):  # constant along long runs
+                    at = _run_ends(np.array(values))
                 self._rec.send_columns(
                     path,
-                    indexes=_times(np.array(steps), np.array(events)),
-                    columns=_scalars(values),
+                    indexes=_times(np.array(steps)[at], np.array(events)[at]),
+                    columns=_scalars(np.array(values)[at]),
                 )
         self._series.clear()
 
@@ -294,6 +371,8 @@ class Recorder:
         1..N when no ids are ever given
     :param blueprint: send the default layout, at the start and, framing the whole run,
         again at ``finish``
+    :param live_layout: send the layout at the start too, for a viewer watching live; a
+        recording only saved to a file needs it once (each one sent costs some 100 kB)
     :param run_documents: the layout has tabs for the run information, input and
         evaluation documents (what ``open_run`` logs)
     :param heading_length: length in metres of the robot's heading arrow
@@ -310,6 +389,7 @@ class Recorder:
         truth: GroundTruth | None = None,
         landmark_ids: Sequence[int] | None = None,
         blueprint: bool = True,
+        live_layout: bool = True,
         run_documents: bool = False,
         heading_length: float = HEADING_LENGTH,
         prefix: str = "",
@@ -333,16 +413,20 @@ class Recorder:
         self._pending_landmarks = 0
         self._map_step: int | None = None  # step of the last update that logged the whole map
         self._last_update: tuple[EventRecord, bool] | None = None
+        # the small map as last logged: its ids and _shapes rows, and at which event
+        self._map_shown: tuple[IntArray, FloatArray] | None = None
+        self._map_shown_event: int | None = None
         self._last_ids: IntArray | None = None  # landmark ids of the last update, annotated
         self._event = 0
         self._step = 0
         self._step_has_update = True  # the initialisation counts as step 0's update
         self._last_xy: FloatArray | None = None
+        self._last_true_xy: FloatArray | None = None  # (1, 2) the true path's last point
         self._checked_step: int | None = None  # of the last covariance check (array API)
         self._blueprint = blueprint
         self._run_documents = run_documents
         self._bounds_xy: FloatArray | None = None  # [[x_min, y_min], [x_max, y_max]] so far
-        if blueprint:
+        if blueprint and live_layout:
             self._rec.send_blueprint(self._layout())
         self._log_styling()
         seed_ids = list(self._order)
@@ -447,6 +531,14 @@ class Recorder:
             self._send_ellipses(
                 style.LANDMARK_ELLIPSES, rows, [(0, record, _landmark_rows(record, None))]
             )
+        elif self._last_update is not None and self._map_shown_event != self._last_update[0].event:
+            record = self._last_update[0]  # the end exactly, not within MAP_TOLERANCE
+            rows = _Rows(np.array([record.step]), np.array([record.event]))
+            self._send_landmarks(rows.all, [record])
+            self._send_ellipses(
+                style.LANDMARK_ELLIPSES, rows, [(0, record, _landmark_rows(record, None))]
+            )
+            self._map_shown_event = record.event
         self._series.flush()
         if evaluation is not None:
             self._rec.log(
@@ -454,7 +546,7 @@ class Recorder:
                 rr.TextDocument(evaluation.to_markdown(), media_type=rr.MediaType.MARKDOWN),
                 static=True,
             )
-        if self._blueprint and self._bounds_xy is not None:
+        if self._blueprint:
             self._rec.send_blueprint(self._layout(self._bounds_xy))
         self._rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
 
@@ -529,54 +621,56 @@ class Recorder:
         corrected = np.flatnonzero(~is_predict)
         observed = _Observed.of(records, corrected)
 
-        self._send(
-            style.ROBOT, rows.all, [_column(rr.Points2D.descriptor_positions(), _xy(poses[:, :2]))]
-        )
-        heading = self._heading_length * np.column_stack([np.cos(poses[:, 2]), np.sin(poses[:, 2])])
-        self._send(
-            style.HEADING,
-            rows.all,
-            [
-                _column(rr.Arrows2D.descriptor_origins(), _xy(poses[:, :2])),
-                _column(rr.Arrows2D.descriptor_vectors(), _xy(heading, _VECTOR)),
-            ],
-        )
-        self._send_trajectory(rows, poses[:, :2])
+        # the robot frame: the robot's point and heading are static in it, its ellipses
+        # change shape there only slowly (see _pose_ellipses)
+        self._send(style.ROBOT, rows.all, _robot_frame(poses))
+        if self._truth is not None and self._truth.poses_xytheta is not None:
+            self._send_true_path(rows, records, corrected, self._truth.poses_xytheta)
+        self._send_trajectory(rows, poses[:, :2], corrected)
         for path, picked in (
             (style.POSE_PREDICTED, np.flatnonzero(is_predict)),
             (style.POSE_UPDATED, corrected),
         ):
-            if picked.size:
-                outlines = ellipse_outlines(poses[picked, :2], pose_covs[picked, :2, :2])
-                self._send_strips(path, rows, picked, outlines)
-        self._send_rays(rows, poses, observed)
+            self._send_pose_ellipses(path, rows, picked, poses, pose_covs)
+        self._send_rays(rows, observed)
 
         sigma = np.sqrt(np.diagonal(pose_covs, axis1=1, axis2=2))
-        for axis, name in enumerate(("x", "y", "theta")):
-            self._send(f"{style.POSE_SIGMA}/{name}", rows.all, _scalars(sigma[:, axis]))
+        if corrected.size:  # x, y, theta: three series of one entity, a row a step
+            self._send(
+                style.POSE_SIGMA,
+                rows.pick(corrected),
+                [
+                    _column(
+                        rr.Scalars.descriptor_scalars(),
+                        pa.array(sigma[corrected].reshape(-1)),
+                        np.full(corrected.size, 3, dtype=np.int64),
+                    )
+                ],
+            )
         with_nis = np.flatnonzero(observed.nis_used)
         if with_nis.size:  # with the chi-square bounds of 2 dof per landmark used
             used, which = np.unique(observed.nis_used[with_nis], return_inverse=True)
             bounds = np.array([chi2_bounds(2 * int(n)) for n in used])[which]
-            at = rows.pick(with_nis)
+            self._send(style.NIS, rows.pick(with_nis), _scalars(observed.nis_sum[with_nis]))
+            ends = _run_ends(bounds[:, 0])
+            at = rows.pick(with_nis[ends])
             for path, values in (
-                (style.NIS, observed.nis_sum[with_nis]),
-                (f"{style.NIS}/{style.LOWER}", bounds[:, 0]),
-                (f"{style.NIS}/{style.UPPER}", bounds[:, 1]),
+                (f"{style.NIS}/{style.LOWER}", bounds[ends, 0]),
+                (f"{style.NIS}/{style.UPPER}", bounds[ends, 1]),
             ):
                 self._send(path, at, _scalars(values))
 
         if corrected.size:
             updates = [(k, records[k], pending[k][1]) for k in corrected.tolist()]
-            self._send_landmarks(rows.pick(corrected), [record for _, record, _ in updates])
+            shown = self._map_changes(updates)
+            if shown:
+                self._send_landmarks(
+                    rows.pick([k for k, _, _ in shown]), [record for _, record, _ in shown]
+                )
             self._send_ellipses(
                 style.LANDMARK_ELLIPSES,
                 rows,
-                [
-                    (k, record, _landmark_rows(record, None))
-                    for k, record, whole in updates
-                    if whole
-                ],
+                [(k, record, _landmark_rows(record, None)) for k, record, whole in shown if whole],
             )
             # Beyond a small map: the observed landmarks' own ellipses at the updates between
             # two of the whole map's (and an empty row, clearing them, at those).
@@ -601,34 +695,134 @@ class Recorder:
         self._send_health(records, rows, pose_covs, corrected, observed)
         self._send_text(records, rows, observed)
 
-    def _send_trajectory(self, rows: _Rows, ends_xy: FloatArray) -> None:
-        """A segment from the previous position to this one at every event but the first."""
-        starts_xy = np.vstack(
-            [ends_xy[:1] if self._last_xy is None else self._last_xy, ends_xy[:-1]]
+    def _send_pose_ellipses(
+        self, path: str, rows: _Rows, picked: IntArray, poses: FloatArray, pose_covs: FloatArray
+    ) -> None:
+        """The 3-sigma ellipses of the position at the rows ``picked``: the map of the
+        static unit circle onto each, in the robot frame, A = R(theta)^T 3 V sqrt(L)
+        (36 bytes an event instead of an outline's 256)."""
+        if not picked.size:
+            return
+        world = ellipse_axes(np.zeros((len(picked), 2)), pose_covs[picked, :2, :2])[:, :4]
+        cos_t, sin_t = np.cos(poses[picked, 2]), np.sin(poses[picked, 2])
+        rotation_t = np.stack(
+            [np.column_stack([cos_t, sin_t]), np.column_stack([-sin_t, cos_t])], axis=1
         )
-        first = 1 if self._last_xy is None else 0  # the very first event has no segment
-        if len(rows) > first:
-            segments = np.stack([starts_xy[first:], ends_xy[first:]], axis=1)
-            self._send_strips(style.TRAJECTORY, rows, np.arange(first, len(rows)), segments)
+        axes = rotation_t @ world.reshape(-1, 2, 2)
+        self._send(
+            path,
+            rows.pick(picked),
+            [_column(rr.Transform3D.descriptor_mat3x3(), _shape_matrices(axes))],
+        )
+
+    def _map_changes(
+        self, updates: list[tuple[int, EventRecord, bool]]
+    ) -> list[tuple[int, EventRecord, bool]]:
+        """The updates whose landmarks (points and whole-map ellipses) are logged.
+
+        A large map's at every update, as ``--detail``; a small map's only where it grew
+        or where some landmark's point or 3-sigma outline moved by more than
+        ``MAP_TOLERANCE`` of its ellipse's semi-major axis since it was last logged: in
+        between the viewer shows the latest, within that tolerance of the true state.
+        """
+        shown: list[tuple[int, EventRecord, bool]] = []
+        for k, record, whole in updates:
+            if self._detail or record.n_landmarks > SMALL_MAP:
+                shown.append((k, record, whole))
+                self._map_shown = None
+                self._map_shown_event = record.event
+                continue
+            shape = _shapes(record.landmarks_xy, record.landmark_covs)
+            if self._map_shown is not None and np.array_equal(
+                self._map_shown[0], record.landmark_ids
+            ):
+                before = self._map_shown[1]
+                # the point at angle t of an outline, m + 3 sqrt(C) [cos t, sin t], moves by
+                # at most |dm| + 3 ||d sqrt(C)||_F; the semi-major axis is at least
+                # 3 ||sqrt(C)||_F / sqrt(2)
+                moved = np.linalg.norm(shape[:, :2] - before[:, :2], axis=1) + np.linalg.norm(
+                    shape[:, 2:] - before[:, 2:], axis=1
+                )
+                semi_major = np.linalg.norm(shape[:, 2:], axis=1) / math.sqrt(2.0)
+                if np.all(moved <= MAP_TOLERANCE * semi_major):
+                    continue
+            self._map_shown = (record.landmark_ids, shape)
+            self._map_shown_event = record.event
+            shown.append((k, record, whole))
+        return shown
+
+    def _send_true_path(
+        self,
+        rows: _Rows,
+        records: list[EventRecord],
+        corrected: IntArray,
+        true_poses: FloatArray,
+    ) -> None:
+        """The true pose of each step (step 0 = the start) at its update, as a robot frame
+        and a segment of the true path from the step before."""
+        at = np.array([k for k in corrected.tolist() if records[k].step < len(true_poses)])
+        if not at.size:
+            return
+        steps = rows.steps[at]
+        poses = true_poses[steps]
+        self._send(style.TRUTH_ROBOT, rows.pick(at), _robot_frame(poses))
+        starts = np.vstack([poses[:1, :2] if self._last_true_xy is None else self._last_true_xy,
+                            poses[:-1, :2]])  # fmt: skip
+        segments = np.stack([starts, poses[:, :2]], axis=1)
+        self._send_strips(style.TRUTH_TRAJECTORY, rows, at, segments)
+        self._last_true_xy = poses[-1:, :2].copy()
+
+    def _send_trajectory(self, rows: _Rows, ends_xy: FloatArray, corrected: IntArray) -> None:
+        """The path since the last row, through the predicted positions, at every update
+        and at the last event of a send: a row per step rather than per event."""
+        count = len(rows)
+        at = (
+            corrected
+            if corrected.size and corrected[-1] == count - 1
+            else np.append(corrected, count - 1)
+        )
+        shift = 0 if self._last_xy is None else 1
+        points_xy = ends_xy if self._last_xy is None else np.vstack([self._last_xy, ends_xy])
+        ends = at + shift
+        starts = np.concatenate([[0], ends[:-1]])
+        drawn = ends > starts  # the very first event alone is no line yet
+        at, starts, ends = at[drawn], starts[drawn], ends[drawn]
+        if at.size:
+            lengths = ends - starts + 1
+            index = np.repeat(starts - np.cumsum(lengths) + lengths, lengths) + np.arange(
+                int(lengths.sum())
+            )
+            offsets = pa.array(np.concatenate([[0], np.cumsum(lengths)]).astype(np.int32))
+            strips = pa.ListArray.from_arrays(offsets, _xy(points_xy[index]), type=_STRIP)
+            self._send(
+                style.TRAJECTORY,
+                rows.pick(at),
+                [_column(rr.LineStrips2D.descriptor_strips(), strips)],
+            )
         self._last_xy = ends_xy[-1].copy()
         self._grow_bounds(ends_xy)
 
-    def _send_rays(self, rows: _Rows, poses: FloatArray, observed: _Observed) -> None:
-        """Rays from the robot to where each observation puts its landmark; an empty row at
-        a predict clears the previous update's."""
-        pose = np.repeat(poses, observed.seen, axis=0)
-        bearing_world = pose[:, 2] + observed.z[:, 0]
-        seen_xy = pose[:, :2] + observed.z[:, 1:2] * np.column_stack(
-            [np.cos(bearing_world), np.sin(bearing_world)]
+    def _send_rays(self, rows: _Rows, observed: _Observed) -> None:
+        """Arrows from the robot to where each observation puts its landmark, in the robot
+        frame: r [cos b, sin b] (the robot frame supplies the origin); an empty row at a
+        predict clears the previous update's."""
+        vectors = observed.z[:, 1:2] * np.column_stack(
+            [np.cos(observed.z[:, 0]), np.sin(observed.z[:, 0])]
         )
-        rays = np.stack([pose[:, :2], seen_xy], axis=1)
-        self._send_strips(style.OBSERVATIONS, rows, np.arange(len(rows)), rays, observed.seen)
+        self._send(
+            style.OBSERVATIONS,
+            rows.all,
+            [_column(rr.Arrows2D.descriptor_vectors(), _xy(vectors, _VECTOR), observed.seen)],
+        )
 
     def _send_text(self, records: list[EventRecord], rows: _Rows, observed: _Observed) -> None:
-        """A line per event, then one per warning at the same event."""
+        """A line per step: a predict's goes into the line of the update that follows it in
+        the same step, both at the update; then one per warning at the same event."""
         text: list[str] = []
         level: list[str] = []
         line_of: list[int] = []
+        held: tuple[str, tuple[str, ...]] | None = None  # a predict's line and warnings
+        count = len(records)
         for k, (record, seen, new, nis_sum, nis_used) in enumerate(
             zip(
                 records,
@@ -639,10 +833,24 @@ class Recorder:
                 strict=True,
             )
         ):
-            text.append(self._describe(record, seen, new, nis_sum, nis_used))
+            line = self._describe(record, seen, new, nis_sum, nis_used)
+            if (
+                record.kind is EventKind.PREDICT
+                and k + 1 < count
+                and records[k + 1].kind is EventKind.UPDATE
+                and records[k + 1].step == record.step
+            ):
+                held = (line, record.warnings)
+                continue
+            warnings = record.warnings
+            if held is not None:
+                line = f"{held[0]}; {line.split(' ', 2)[2]}"  # "step N predict ...; update ..."
+                warnings = held[1] + warnings
+                held = None
+            text.append(line)
             level.append(_INFO)
             line_of.append(k)
-            for warning in record.warnings:
+            for warning in warnings:
                 text.append(f"step {record.step} line {record.line}: {warning}")
                 level.append(_WARN)
                 line_of.append(k)
@@ -664,7 +872,12 @@ class Recorder:
         observed: _Observed,
     ) -> None:
         """The numerical health series (see ``ekfviz.core.health``)."""
-        self._send(style.HEALTH_POSE_MIN_EIG, rows.all, _scalars(pose_min_eigenvalues(pose_covs)))
+        if corrected.size:  # a predict adds Q: only an update can lose definiteness
+            self._send(
+                style.HEALTH_POSE_MIN_EIG,
+                rows.pick(corrected),
+                _scalars(pose_min_eigenvalues(pose_covs[corrected])),
+            )
         with_map = [k for k in corrected.tolist() if records[k].n_landmarks]
         if with_map:
             counts = np.array([records[k].n_landmarks for k in with_map])
@@ -674,10 +887,10 @@ class Recorder:
             smallest = np.minimum.reduceat(eigenvalues, np.cumsum(counts) - counts)
             self._send(style.HEALTH_LANDMARK_MIN_EIG, rows.pick(with_map), _scalars(smallest))
         if observed.rows.size:
+            skipped = observed.skipped[observed.rows]
+            ends = _run_ends(skipped)
             self._send(
-                style.HEALTH_SKIPPED,
-                rows.pick(observed.rows),
-                _scalars(observed.skipped[observed.rows]),
+                style.HEALTH_SKIPPED, rows.pick(observed.rows[ends]), _scalars(skipped[ends])
             )
         checked = [
             (k, check)
@@ -788,7 +1001,7 @@ class Recorder:
             return
         counts = np.array([len(picked) for _, _, picked in batches])
         # one outline size per send, from the largest batch (see ellipses.outline_points)
-        n_points = outline_points(int(counts.max()))
+        n_points = min(MAP_POINTS, outline_points(int(counts.max())))
         means, covs, ids = [], [], []
         for _, record, picked in batches:
             if len(picked) == record.n_landmarks:  # all of them: no copy
@@ -879,6 +1092,7 @@ class Recorder:
                     rr.SeriesLines(colors=style.BOUND_COLOR, names=label, widths=1.0),
                     static=True,
                 )
+        rec.log(style.POSE_SIGMA, rr.SeriesLines(names=["x", "y", "theta"]), static=True)
         for path, name in (
             (style.HEALTH_POSE_MIN_EIG, "pose block"),
             (style.HEALTH_LANDMARK_MIN_EIG, "landmark blocks"),
@@ -894,14 +1108,23 @@ class Recorder:
         line = _radius(style.LINE_RADIUS_UI)
         rec.log(
             style.ROBOT,
-            rr.Points2D.from_fields(
-                colors=style.ROBOT_COLOR, radii=_radius(style.ROBOT_RADIUS_UI), draw_order=40.0
+            rr.Points2D(
+                [[0.0, 0.0]],
+                colors=style.ROBOT_COLOR,
+                radii=_radius(style.ROBOT_RADIUS_UI),
+                draw_order=40.0,
             ),
             static=True,
         )
         rec.log(
             style.HEADING,
-            rr.Arrows2D.from_fields(colors=style.ROBOT_COLOR, radii=line, draw_order=40.0),
+            rr.Arrows2D(
+                origins=[[0.0, 0.0]],
+                vectors=[[self._heading_length, 0.0]],
+                colors=style.ROBOT_COLOR,
+                radii=line,
+                draw_order=40.0,
+            ),
             static=True,
         )
         rec.log(
@@ -912,6 +1135,17 @@ class Recorder:
         for path, color in (
             (style.POSE_PREDICTED, style.PREDICTED_COLOR),
             (style.POSE_UPDATED, style.UPDATED_COLOR),
+        ):
+            # one unit circle, drawn through each event's transform (see _affine_columns):
+            # a sixth of the bytes of an outline per event
+            rec.log(
+                path,
+                rr.LineStrips2D(
+                    [unit_circle()], colors=color, radii=line, show_labels=False, draw_order=20.0
+                ),
+                static=True,
+            )
+        for path, color in (
             (style.LANDMARK_ELLIPSES, style.LANDMARK_COLOR),
             (style.LANDMARK_ELLIPSES_OBSERVED, style.LANDMARK_COLOR),
             (style.LANDMARK_INITIAL, style.INITIAL_COLOR),
@@ -925,7 +1159,7 @@ class Recorder:
             )
         rec.log(
             style.OBSERVATIONS,
-            rr.LineStrips2D.from_fields(
+            rr.Arrows2D.from_fields(
                 colors=style.OBSERVATION_COLOR,
                 radii=_radius(style.THIN_LINE_RADIUS_UI),
                 draw_order=15.0,
@@ -951,6 +1185,26 @@ class Recorder:
         )
 
     def _log_truth(self, truth: GroundTruth) -> None:
+        if truth.poses_xytheta is not None:  # the true robot (a grey point) and path
+            self._rec.log(
+                style.TRUTH_ROBOT,
+                rr.Points2D(
+                    [[0.0, 0.0]],
+                    colors=style.TRUTH_PATH_COLOR,
+                    radii=_radius(style.TRUTH_RADIUS_UI),
+                    draw_order=36.0,
+                ),
+                static=True,
+            )
+            self._rec.log(
+                style.TRUTH_TRAJECTORY,
+                rr.LineStrips2D.from_fields(
+                    colors=style.TRUTH_PATH_COLOR,
+                    radii=_radius(style.THIN_LINE_RADIUS_UI),
+                    draw_order=5.0,
+                ),
+                static=True,
+            )
         class_ids = truth.ids if self._has_class_ids(truth.ids) else None
         self._rec.log(
             style.TRUTH_LANDMARKS, rr.Points2D(truth.landmarks_xy, class_ids=class_ids), static=True

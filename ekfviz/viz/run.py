@@ -341,7 +341,13 @@ def open_run(info: RunInfo, sinks: Sinks, *, detail: bool = False) -> Iterator[R
         only every ``MAP_EVERY_STEPS`` steps
     """
     with open_recording(info, sinks) as recording:
-        recorder = Recorder(recording.rec, truth=info.truth, run_documents=True, detail=detail)
+        recorder = Recorder(
+            recording.rec,
+            truth=info.truth,
+            run_documents=True,
+            detail=detail,
+            live_layout=sinks.spawn or sinks.serve or sinks.connect is not None,
+        )
         yield RunLogger(recorder, recording)
 
 

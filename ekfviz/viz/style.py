@@ -10,24 +10,32 @@ from __future__ import annotations
 # -- entity paths ----------------------------------------------------------------------
 
 WORLD = "world"
-ROBOT = "world/robot"  # Points2D: the current position
-HEADING = "world/robot/heading"  # Arrows2D: the heading
-POSE_PREDICTED = "world/robot/ellipse/predicted"  # LineStrips2D, at every predict
-POSE_UPDATED = "world/robot/ellipse/updated"  # LineStrips2D, at every update and the init
-TRAJECTORY = "world/trajectory"  # LineStrips2D, one new segment per event
+# The robot frame: Transform3D (translation, rotation) at every event; a Points2D at its
+# origin (static). Everything under it is drawn in the robot frame.
+ROBOT = "world/robot"
+HEADING = "world/robot/heading"  # Arrows2D along the robot's x axis (static)
+# Static unit circle LineStrips2D, mapped onto the 3-sigma ellipse by a Transform3D mat3x3
+POSE_PREDICTED = "world/robot/ellipse/predicted"  # at every predict
+POSE_UPDATED = "world/robot/ellipse/updated"  # at every update and the init
+TRAJECTORY = "world/trajectory"  # LineStrips2D, the path of each step, at its update
 LANDMARKS = "world/landmarks"  # Points2D, class id = landmark id
 LANDMARK_ELLIPSES = "world/landmarks/ellipses"  # LineStrips2D, the whole map (see recorder)
 LANDMARK_ELLIPSES_OBSERVED = "world/landmarks/ellipses/observed"  # LineStrips2D, large maps
 LANDMARK_INITIAL = "world/landmarks/initial"  # LineStrips2D, at first sighting only
-OBSERVATIONS = "world/observations"  # LineStrips2D, robot -> measured landmark position
+# Arrows2D in the robot frame, robot -> measured landmark position, at updates
+OBSERVATIONS = "world/robot/observations"
 TRUTH_LANDMARKS = "world/truth/landmarks"  # Points2D, static
+# With true poses: the true robot frame at every step (Transform3D; a static Points2D at
+# its origin), and the true path, one segment per step
+TRUTH_ROBOT = "world/truth/robot"
+TRUTH_TRAJECTORY = "world/truth/trajectory"  # LineStrips2D
 
 METRICS = "metrics"
 NIS = "metrics/nis"  # with /lower_95 and /upper_95: the chi-square bounds of each update
 NEES = "metrics/nees"  # with true poses; /lower_95 and /upper_95 likewise
 LOWER = "lower_95"
 UPPER = "upper_95"
-POSE_SIGMA = "metrics/pose_sigma"  # /x, /y, /theta
+POSE_SIGMA = "metrics/pose_sigma"  # Scalars x, y, theta (three series), every update
 LANDMARK_ERROR = "metrics/landmark_error"  # /<id>, with truth
 MEAN_LANDMARK_ERROR = "metrics/mean_landmark_error"  # with truth, in sweeps
 MAHALANOBIS = "metrics/mahalanobis"  # /<id>, with truth
@@ -45,7 +53,7 @@ RUN_INPUT = "run/input"  # TextDocument (the input log itself), static
 RUN_EVALUATION = "run/evaluation"  # TextDocument (markdown), static, at the end
 
 # Entities drawn from the infinite past up to the time cursor instead of latest-at.
-ACCUMULATED = (TRAJECTORY, LANDMARK_INITIAL)
+ACCUMULATED = (TRAJECTORY, LANDMARK_INITIAL, TRUTH_TRAJECTORY)
 
 # -- timelines -------------------------------------------------------------------------
 
@@ -67,6 +75,7 @@ OBSERVATION_COLOR: Rgb = (255, 165, 0)
 STATISTIC_COLOR: Rgb = (31, 119, 180)  # NIS and NEES
 BOUND_COLOR: Rgb = (150, 150, 150)  # their chi-square bounds
 TRUTH_COLOR: Rgb = (0, 0, 0)  # "k"
+TRUTH_PATH_COLOR: Rgb = (150, 150, 150)  # the true path and robot, thin and grey
 
 # Negative radii are UI points, so the map looks the same at any scale.
 POINT_RADIUS_UI = 4.0
