@@ -11,17 +11,21 @@ from __future__ import annotations
 import json
 import shlex
 import sys
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from ekfviz import signals
 from ekfviz.core.consistency import Consistency
-from ekfviz.core.evaluation import evaluate
+from ekfviz.core.evaluation import Evaluation, evaluate
 from ekfviz.core.filter import FilterParams
-from ekfviz.core.records import LogEvent
+from ekfviz.core.plugged import FilterFactory
+from ekfviz.core.records import EventRecord, LogEvent
+from ekfviz.core.replay import FilterLineError, replay
 from ekfviz.core.truth import GroundTruth
 from ekfviz.filters import FilterSpec
+from ekfviz.io.errors import InputError
 from ekfviz.io.extended import is_extended, read_log
 from ekfviz.io.text import ProgressCallback, WarningCallback
 from ekfviz.io.truth import checked_against, read_truth
@@ -29,6 +33,7 @@ from ekfviz.studies.runs import Run, RunSpec, Summary, run_specs, summarise
 
 if TYPE_CHECKING:
     from ekfviz.core.check import CheckResult
+    from ekfviz.viz.run import RunLogger
 
 
 def log_events(
@@ -43,6 +48,74 @@ def log_events(
     if truth is not None and truth_path is not None:
         events = checked_against(events, truth, truth_path, every_id=not is_extended(data))
     return events
+
+
+class RunStopped(Exception):
+    """A replay cut short; ``kept`` says whether its recording was kept."""
+
+    def __init__(self, reason: str, cause: BaseException, kept: bool) -> None:
+        super().__init__(reason)
+        self.reason = reason
+        self.kept = kept
+        if isinstance(cause, KeyboardInterrupt):
+            self.exit_code = 130  # 128 + SIGINT, as a shell reports it
+        elif isinstance(cause, signals.Terminated):
+            self.exit_code = 143  # 128 + SIGTERM
+        else:
+            self.exit_code = 2
+
+
+def stop_reason(cause: BaseException, data: Path, last: EventRecord | None) -> str:
+    """One line saying why and where a replay stopped."""
+    after = f"after input line {last.line}" if last is not None and last.line else "at the start"
+    if isinstance(cause, KeyboardInterrupt):
+        return f"{data}: interrupted (SIGINT) {after}"
+    if isinstance(cause, signals.Terminated):
+        return f"{data}: terminated (SIGTERM) {after}"
+    if isinstance(cause, FilterLineError):
+        return f"{data}:{cause.line}: {cause}" if cause.line else f"{data}: {cause}"
+    return str(cause)
+
+
+def replay_log(
+    events: Iterable[LogEvent],
+    params: FilterParams,
+    *,
+    make_filter: FilterFactory | None,
+    name: str,
+    data: Path,
+    truth: GroundTruth | None,
+    logger: RunLogger,
+    on_record: Callable[[EventRecord], None] | None = None,
+) -> Evaluation:
+    """One replay: the events through the filter into the logger, judged at the end.
+
+    Every record goes to the logger (Rerun), the consistency count and ``on_record``.
+    Bad input, a filter that cannot go on, Ctrl-C or SIGTERM stop the replay with the
+    recording of everything before it kept and its last log line saying why.
+
+    :raises RunStopped: the replay was cut short (why, where, and whether it was kept)
+    """
+    last: EventRecord | None = None
+    consistency = Consistency(truth)
+    try:
+        for record in replay(events, params, make_filter=make_filter, name=name):
+            logger.log(record)
+            consistency.add(record)
+            if on_record is not None:
+                on_record(record)
+            last = record
+            if record.event == 0:  # a signal during start-up: stop, with a recording
+                signals.raise_pending()
+    except (InputError, FilterLineError, KeyboardInterrupt, signals.Terminated) as cause:
+        final = None if last is None else evaluate(last, truth, consistency)
+        reason = stop_reason(cause, data, last)
+        kept = logger.stop(reason, final)
+        raise RunStopped(reason, cause, kept) from cause
+    assert last is not None  # replay always yields the initialisation
+    evaluation = evaluate(last, truth, consistency)
+    logger.finish(evaluation)
+    return evaluation
 
 
 @dataclass(frozen=True, slots=True)

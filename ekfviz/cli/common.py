@@ -24,7 +24,6 @@ from ekfviz import __version__, signals
 from ekfviz.core.evaluation import Evaluation
 from ekfviz.core.filter import HAVE_KERNEL, FilterParams, LandmarkInit, UpdateMode
 from ekfviz.core.records import EventRecord, LogEvent
-from ekfviz.core.replay import FilterLineError
 from ekfviz.core.truth import GroundTruth
 from ekfviz.io.text import ProgressCallback
 from ekfviz.sim.scenarios import Scenario, ScenarioName
@@ -277,33 +276,6 @@ class FilterWarnings:
                 f"{self.count - self.PRINTED} more filter warnings"
                 f" ({self.count} in all) are in the recording's log"
             )
-
-
-class RunStopped(Exception):
-    """A replay cut short; ``kept`` says whether its recording was kept."""
-
-    def __init__(self, reason: str, cause: BaseException, kept: bool) -> None:
-        super().__init__(reason)
-        self.reason = reason
-        self.kept = kept
-        if isinstance(cause, KeyboardInterrupt):
-            self.exit_code = 130  # 128 + SIGINT, as a shell reports it
-        elif isinstance(cause, signals.Terminated):
-            self.exit_code = 143  # 128 + SIGTERM
-        else:
-            self.exit_code = 2
-
-
-def stop_reason(cause: BaseException, data: Path, last: EventRecord | None) -> str:
-    """One line saying why and where a replay stopped."""
-    after = f"after input line {last.line}" if last is not None and last.line else "at the start"
-    if isinstance(cause, KeyboardInterrupt):
-        return f"{data}: interrupted (SIGINT) {after}"
-    if isinstance(cause, signals.Terminated):
-        return f"{data}: terminated (SIGTERM) {after}"
-    if isinstance(cause, FilterLineError):
-        return f"{data}:{cause.line}: {cause}" if cause.line else f"{data}: {cause}"
-    return str(cause)
 
 
 @contextmanager
