@@ -95,7 +95,8 @@ def check(
     if first is None:
         out.print(
             f"[green]match:[/] all {result.events_checked} events agree with the reference"
-            f" (largest difference {result.max_difference:.3g}, tolerance {tolerance:g})"
+            f" (largest difference {result.max_difference:.3g}, tolerance {tolerance:g})",
+            soft_wrap=True,
         )
     else:
         landmark = "" if first.landmark_id is None else f" of landmark {first.landmark_id}"
