@@ -104,7 +104,7 @@ def test_no_import_circles_in_the_numpy_only_packages() -> None:
     numpy_only = ("ekfviz.core", "ekfviz.models", "ekfviz.io", "ekfviz.sim", "ekfviz.studies",
                   "ekfviz.filters")  # fmt: skip
     for start in (name for name in graph if name.startswith(numpy_only)):
-        stack, seen = [start], set()
+        stack, seen = [start], set[str]()
         while stack:
             for target in graph[stack.pop()]:
                 assert target != start, f"{start} imports itself through {sorted(seen)}"

@@ -122,7 +122,9 @@ def independent_first_divergence(
                 slam.predict(log_event.d, log_event.alpha)
             else:
                 slam.update(log_event.ids, log_event.z)
-        dx = np.abs(reference.x - buggy_filter.x) / np.maximum(1, np.abs(reference.x))
+        dx = reference.x - buggy_filter.x
+        dx[2] = (dx[2] + np.pi) % (2 * np.pi) - np.pi  # a heading lives on the circle
+        dx = np.abs(dx) / np.maximum(1, np.abs(reference.x))
         dP = np.abs(reference.P - buggy_filter.P) / np.maximum(1, np.abs(reference.P))
         if max(dx.max(), dP.max()) > tolerance:
             return event, kind
@@ -136,6 +138,7 @@ SEEDED = [
     ("NoRInS", "classic", 2, EventKind.UPDATE, Quantity.LANDMARK_MEAN, "R is missing"),
     ("NoCrossCovariances", "classic", 0, EventKind.INIT, Quantity.LANDMARK_LANDMARK, "cross-cov"),
     ("UnwrappedBearing", "behind", 2, EventKind.UPDATE, Quantity.LANDMARK_MEAN, "not wrapped"),
+    ("NothingWrapped", "classic", 18, EventKind.UPDATE, Quantity.LANDMARK_MEAN, "neither"),
 ]
 
 

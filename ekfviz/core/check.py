@@ -354,7 +354,7 @@ def _dense_predict(
 
 def _dense_update(
     params: FilterParams, s: State, ids: IntArray, z: FloatArray, *, add_R: bool = True,
-    wrap: bool = True, init_R: bool = True, init_in_order: bool = False,
+    wrap: bool | str = True, init_R: bool = True, init_in_order: bool = False,
 ) -> State:  # fmt: skip
     x, P, state_ids = s.x.copy(), s.P.copy(), [int(i) for i in s.ids]
     R = params.R
@@ -395,12 +395,13 @@ def _dense_update(
         S = H @ P @ H.T + (R if add_R else 0.0)
         K = np.linalg.solve(S, H @ P).T
         nu = np.array([bearing - (math.atan2(dy, dx) - x[2]), rng - r])
-        if wrap:
+        if wrap is True:
             nu[0] = wrap_angle(float(nu[0]))
-        else:  # the prediction wrapped on its own, as a filter that forgets the innovation does
+        elif wrap == "prediction":  # the prediction wrapped, the innovation not
             nu[0] = bearing - wrap_angle(math.atan2(dy, dx) - x[2])
         x = x + K @ nu
-        x[2] = wrap_angle(float(x[2]))
+        if wrap is not False:  # a filter that wraps nothing keeps its heading unwrapped too
+            x[2] = wrap_angle(float(x[2]))
         I_KH = np.eye(len(x)) - K @ H
         P = I_KH @ P @ I_KH.T + K @ R @ K.T  # Joseph's form: what most course code writes
     for landmark_id, bearing, rng in new:
@@ -454,7 +455,10 @@ UPDATE_MISTAKES: tuple[Mistake, ...] = (
     Mistake("R is missing from the innovation covariance: S = H P H^T + R",
             _update_with(add_R=False)),
     Mistake("the bearing innovation is not wrapped: wrap z - z_pred to (-pi, pi] before"
-            " using it", _update_with(wrap=False)),
+            " using it", _update_with(wrap="prediction")),
+    Mistake("the bearing innovation is not wrapped: wrap z - z_pred to (-pi, pi] before"
+            " using it (here neither the predicted bearing nor the difference is)",
+            _update_with(wrap=False)),
     Mistake("a new landmark is initialised without its cross-covariances to the pose and"
             " the map (P_lx = J_p P_px); --landmark-init independent reproduces this",
             _with(landmark_init=LandmarkInit.INDEPENDENT)),

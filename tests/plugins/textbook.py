@@ -119,6 +119,25 @@ class UnwrappedBearing(Textbook):
     wrap_innovation = False
 
 
+class NothingWrapped(Textbook):
+    """Neither the heading, nor the predicted bearing, nor the innovation is wrapped."""
+
+    wrap_innovation = False
+
+    def predict(self, d: float, alpha: float) -> None:
+        theta = self.x[2] + alpha
+        super().predict(d, alpha)
+        self.x[2] = theta
+
+    def _correct(self, j: int, bearing: float, rng: float) -> None:
+        global _wrap
+        wrap, _wrap = _wrap, lambda angle: float(angle)
+        try:
+            super()._correct(j, bearing, rng)
+        finally:
+            _wrap = wrap
+
+
 class NoCrossCovariances(Textbook):
     cross_covariances = False
 
