@@ -239,9 +239,10 @@ def _record_check(
         first = result.first_divergence
         if first is not None:
             where = next((r.pose[:2] for r in result.records if r.event == first.event), None)
+            worst = first.worst
             mark_event(
                 recording, step=first.step, event=first.event, where_xy=where,
                 text=f"first divergence: event {first.event} ({first.kind.value}), line"
-                f" {first.line}: {first.quantity.value} {first.entry} expected"
-                f" {first.expected:.6g}, got {first.got:.6g}; likely cause: {first.hint}",
+                f" {first.line}: {worst.quantity.value} {worst.entry} expected"
+                f" {worst.expected:.6g}, got {worst.got:.6g}; likely cause: {first.hint}",
             )  # fmt: skip

@@ -99,12 +99,12 @@ def check(
             soft_wrap=True,
         )
     else:
-        landmark = "" if first.landmark_id is None else f" of landmark {first.landmark_id}"
+        landmark = "" if worst.landmark_id is None else f" of landmark {worst.landmark_id}"
         out.print(
             f"[bold red]divergence[/] at event {first.event} (step {first.step},"
-            f" {first.kind.value}, {data}:{first.line}): the {first.quantity.value}{landmark}"
-            f" differs\n  worst entry {first.entry}: expected {first.expected:.9g},"
-            f" got {first.got:.9g} (difference {first.difference:.3g}, tolerance"
+            f" {first.kind.value}, {data}:{first.line}): the {worst.quantity.value}{landmark}"
+            f" differs\n  worst entry {worst.entry}: expected {worst.expected:.9g},"
+            f" got {worst.got:.9g} (difference {worst.difference:.3g}, tolerance"
             f" {tolerance:g})\n  likely cause: {first.hint}",
             soft_wrap=True,
         )

@@ -74,32 +74,31 @@ class Difference:
 
 @dataclass(frozen=True, slots=True)
 class Divergence:
-    """The first event where the filter leaves the reference, and the likely cause."""
+    """The first event where the filter leaves the reference, and the likely cause.
+
+    :param worst: the worst entry of the event's comparison
+    """
 
     event: int
     step: int
     line: int
     kind: EventKind
-    quantity: Quantity
-    landmark_id: int | None
-    entry: str
-    expected: float
-    got: float
-    difference: float
+    worst: Difference
     hint: str
 
     def to_json(self) -> dict[str, object]:
+        worst = self.worst
         return {
             "event": self.event,
             "step": self.step,
             "line": self.line,
             "kind": self.kind.value,
-            "quantity": self.quantity.value,
-            "landmark_id": self.landmark_id,
-            "entry": self.entry,
-            "expected": self.expected,
-            "got": self.got,
-            "difference": self.difference,
+            "quantity": worst.quantity.value,
+            "landmark_id": worst.landmark_id,
+            "entry": worst.entry,
+            "expected": worst.expected,
+            "got": worst.got,
+            "difference": worst.difference,
             "hint": self.hint,
         }
 
@@ -170,7 +169,7 @@ def lockstep(
     before = _state(slam)
     worst = compare(_state(prior), before)
     if worst is not None and worst.difference > tolerance:
-        first = _divergence(0, 0, 0, EventKind.INIT, worst, _PRIOR_HINT)
+        first = Divergence(0, 0, 0, EventKind.INIT, worst, _PRIOR_HINT)
 
     for event, step, kind, log_event in numbered(events):
         if first is not None and stop_at_divergence:
@@ -201,7 +200,7 @@ def lockstep(
         differences.append(0.0 if worst is None else worst.difference)
         if first is None and worst is not None and worst.difference > tolerance:
             hint = explain(params, before, after, log_event, worst, tolerance)
-            first = _divergence(event, step, log_event.line, kind, worst, hint)
+            first = Divergence(event, step, log_event.line, kind, worst, hint)
     return CheckResult(
         events_checked=len(differences),
         max_difference=max(differences, default=0.0),
@@ -300,16 +299,6 @@ def _names(ids: IntArray) -> list[str]:
 
 def _state(slam: EkfSlam | Plugged) -> State:
     return State(np.array(slam.x), np.array(slam.P), np.array(slam.landmark_ids, dtype=np.int64))
-
-
-def _divergence(
-    event: int, step: int, line: int, kind: EventKind, worst: Difference, hint: str
-) -> Divergence:
-    return Divergence(
-        event=event, step=step, line=line, kind=kind, quantity=worst.quantity,
-        landmark_id=worst.landmark_id, entry=worst.entry, expected=worst.expected,
-        got=worst.got, difference=worst.difference, hint=hint,
-    )  # fmt: skip
 
 
 # -- hints ---------------------------------------------------------------------------------
