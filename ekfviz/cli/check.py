@@ -99,6 +99,7 @@ def check(
             soft_wrap=True,
         )
     else:
+        worst = first.worst
         landmark = "" if worst.landmark_id is None else f" of landmark {worst.landmark_id}"
         out.print(
             f"[bold red]divergence[/] at event {first.event} (step {first.step},"
