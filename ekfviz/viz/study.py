@@ -48,11 +48,12 @@ def record_study(
         prefix = f"{root}/{run.spec.key}"
         recorder = Recorder(rec, truth=truth, blueprint=False, prefix=prefix)
         colour = PALETTE[k % len(PALETTE)]
-        rec.log(
-            f"{prefix}/{style.NIS}",
-            rr.SeriesLines(colors=colour, names=run.spec.label),
-            static=True,
-        )
+        for series in (style.NIS, style.NEES):  # one colour and name per run, overlaid
+            rec.log(
+                f"{prefix}/{series}",
+                rr.SeriesLines(colors=colour, names=run.spec.label),
+                static=True,
+            )
         for record in run.records:
             recorder.log_record(record)
         if truth is not None:
