@@ -1,0 +1,1 @@
+"""Filters beyond the built-in EKF; optional backends (GTSAM) are imported lazily."""
