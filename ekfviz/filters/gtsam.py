@@ -250,13 +250,10 @@ class Isam2Slam:
     def __init__(self, params: FilterParams | None = None) -> None:
         self._graph = _FactorGraph(params)
         gt = self._graph.gtsam
-        isam_params = gt.ISAM2Params()
-        isam_params.setRelinearizeThreshold(self.RELINEARIZE_THRESHOLD)
-        isam_params.relinearizeSkip = 1
-        # QR, not Cholesky: Cholesky calls a long stretch of poorly constrained poses
-        # "indeterminate" where the EKF goes on (a loop with few landmarks in view)
-        isam_params.setFactorization("QR")
-        self._isam = gt.ISAM2(isam_params)
+        self._isam = self._new_isam("CHOLESKY")
+        self._factorization = "CHOLESKY"
+        self._factors = gt.NonlinearFactorGraph()  # all of them, for a switch to QR
+        self._estimate = gt.Values()
         self._Q = self._graph.params.Q
         self._x = np.zeros(3)
         self._P: FloatArray | None = None
@@ -301,13 +298,34 @@ class Isam2Slam:
         self._graph.add_observation(ids, z, self._x[:3])
         self._solve()
 
+    def _new_isam(self, factorization: str) -> Any:
+        gt = self._graph.gtsam
+        isam_params = gt.ISAM2Params()
+        isam_params.setRelinearizeThreshold(self.RELINEARIZE_THRESHOLD)
+        isam_params.relinearizeSkip = 1
+        isam_params.setFactorization(factorization)
+        return gt.ISAM2(isam_params)
+
     def _solve(self) -> None:
         factors, values = self._graph.take_new()
+        self._factors.push_back(factors)
         try:
-            self._isam.update(factors, values)
+            try:
+                self._isam.update(factors, values)
+            except RuntimeError:
+                if self._factorization == "QR":
+                    raise
+                # Cholesky calls a long stretch of poorly constrained poses "indeterminate"
+                # where QR (and the EKF) go on: from here on QR, several times slower
+                self._factorization = "QR"
+                self._isam = self._new_isam("QR")
+                start = self._graph.gtsam.Values(self._estimate)
+                start.insert(values)
+                self._isam.update(self._factors, start)
             estimate = self._isam.calculateEstimate()
         except RuntimeError as error:  # GTSAM's exceptions (an indeterminant system, ...)
             raise FilterError(f"iSAM2 failed: {error}") from error
+        self._estimate = estimate
         self._x = self._graph.state(estimate)
         if not np.isfinite(self._x).all():
             raise FilterError("the iSAM2 estimate became non-finite")
