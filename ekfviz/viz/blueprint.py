@@ -136,23 +136,37 @@ def correlation_view(prefix: str = "") -> rrb.Vertical:
 
 
 def sweep_blueprint(
-    variants: list[tuple[str, str]], *, has_truth: bool, bounds_xy: FloatArray | None = None
+    variants: list[tuple[str, str]],
+    *,
+    has_truth: bool,
+    bounds_xy: FloatArray | None = None,
+    what: str = "variant",
+    has_poses: bool = False,
 ) -> rrb.Blueprint:
-    """A grid of maps, one per variant (baseline first), above overlaid metric plots.
+    """A grid of maps, one per run (baseline first), above overlaid metric plots.
 
-    :param variants: (label, prefix) of every variant, in order
+    :param variants: (label, prefix) of every run, in order
+    :param what: what a run is called in the plot titles (``variant``, ``filter``)
+    :param has_poses: the truth has poses: a NEES plot too
     """
     maps = [map_view(bounds_xy, prefix=prefix, name=label) for label, prefix in variants]
     plots = [
         rrb.TimeSeriesView(
-            name="NIS per variant",
+            name=f"NIS per {what}",
             contents=[f"/{prefix}/{style.NIS}" for _, prefix in variants],
         )
     ]
+    if has_poses:
+        plots.append(
+            rrb.TimeSeriesView(
+                name=f"Pose NEES per {what}",
+                contents=[f"/{prefix}/{style.NEES}" for _, prefix in variants],
+            )
+        )
     if has_truth:
         plots.append(
             rrb.TimeSeriesView(
-                name="Mean landmark error [m] per variant",
+                name=f"Mean landmark error [m] per {what}",
                 contents=[f"/{prefix}/{style.MEAN_LANDMARK_ERROR}" for _, prefix in variants],
             )
         )
