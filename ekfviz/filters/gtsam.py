@@ -25,8 +25,8 @@ the smoother's own). :class:`BatchSlam` (``--filter batch``) collects the whole 
 solves it once in :meth:`BatchSlam.finish` with Levenberg-Marquardt and
 ``gtsam.Marginals``: until then it shows the graph's initial guess (see the class).
 
-GTSAM is an optional dependency (``pip install 'ekfviz[gtsam]'``), imported only when one
-of these filters is built.
+GTSAM is an optional dependency (``pip install 'ekfviz[gtsam]'``), imported with this
+module, which only ``--filter isam2|batch`` loads.
 """
 
 from __future__ import annotations
@@ -53,7 +53,7 @@ if TYPE_CHECKING:
 INSTALL_HINT = "pip install 'ekfviz[gtsam]'"
 
 
-class GtsamMissing(ImportError):
+class GtsamMissing(ModuleNotFoundError):
     """GTSAM is not installed; the message says how to install it."""
 
 
@@ -66,9 +66,15 @@ def import_gtsam() -> ModuleType:
         import gtsam
     except ImportError as error:
         raise GtsamMissing(
-            f"the GTSAM filters (isam2, batch) need the gtsam package: {INSTALL_HINT}"
+            f"the GTSAM filters (isam2, batch) need the gtsam package: {INSTALL_HINT}",
+            name="gtsam",
         ) from error
     return gtsam
+
+
+# Imported with this module, which ``--filter isam2|batch`` alone loads: without GTSAM the
+# registry (ekfviz.filters) turns this into one line with the install command.
+import_gtsam()
 
 
 def between_jacobian(alpha: float) -> FloatArray:
