@@ -97,6 +97,15 @@ def replay(
             rich_help_panel="Rerun output",
         ),
     ] = False,
+    history: Annotated[
+        bool,
+        typer.Option(
+            "--history",
+            help="The classic figure: the map keeps every predicted (magenta) and updated"
+            " (blue) robot ellipse up to the time cursor.",
+            rich_help_panel="Rerun output",
+        ),
+    ] = False,
 ) -> None:
     """Replay a log through EKF-SLAM, record it for Rerun and print the evaluation.
 
@@ -132,7 +141,7 @@ def replay(
         )
         with (
             open_progress(data) as progress,
-            viz.open_run(info, sinks, detail=detail) as logger,
+            viz.open_run(info, sinks, detail=detail, history=history) as logger,
             signals.as_exceptions(),
         ):
             warnings = FilterWarnings(data)

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 from collections.abc import Iterable, Iterator
+from dataclasses import replace
 from itertools import chain
 from typing import Any
 
+from ekfviz.core.correlation import CorrelationCadence, correlation_of
 from ekfviz.core.filter import EkfSlam, FilterError, FilterParams
 from ekfviz.core.health import check_covariance, check_interval
 from ekfviz.core.plugged import FilterFactory, Plugged, PluginError
@@ -79,6 +81,15 @@ def replay(
         except PluginError as error:
             raise FilterLineError(0, f"event 0 (init): {error}") from error
     next_check = 0  # the step from which the whole covariance is due for a check
+    cadence = CorrelationCadence()
+
+    def correlated(record: EventRecord, last: bool) -> EventRecord:
+        """The record, with the correlation matrix of P where it is due."""
+        if (record.kind is not EventKind.PREDICT or last) and cadence.due(
+            record.step, record.n_landmarks, last
+        ):
+            return replace(record, correlation=correlation_of(ekf.P, record.landmark_ids))
+        return record
 
     def checked(line: int, warnings: tuple[str, ...]) -> dict[str, Any]:
         """Check the whole covariance; its problems join the event's warnings."""
@@ -101,14 +112,17 @@ def replay(
         except FilterError as error:
             raise FilterLineError(first.line, str(error)) from error
         extra = checked(first.line, ekf.warnings)
-        yield ekf.record(
+        yield correlated(ekf.record(
             event=0, step=0, kind=EventKind.INIT, line=first.line, time=first.time,
             observations=observations, full_cov=full_cov, **extra,
-        )  # fmt: skip
+        ), last)  # fmt: skip
         pending: list[tuple[LogEvent, bool]] = []
     else:
         extra = checked(0, ())
-        yield ekf.record(event=0, step=0, kind=EventKind.INIT, full_cov=full_cov, **extra)
+        yield correlated(
+            ekf.record(event=0, step=0, kind=EventKind.INIT, full_cov=full_cov, **extra),
+            first is None,
+        )
         pending = [] if first is None else [(first, last)]
 
     step_has_update = True  # the initialisation counts as step 0's update
@@ -122,11 +136,11 @@ def replay(
                 step_has_update = False
                 ekf.predict(log_event.d, log_event.alpha)
                 extra = checked(log_event.line, ()) if step >= next_check or last else no_extra
-                yield ekf.record(
+                yield correlated(ekf.record(
                     event=event, step=step, kind=EventKind.PREDICT, line=log_event.line,
                     time=log_event.time, control=(log_event.d, log_event.alpha),
                     full_cov=full_cov, **extra,
-                )  # fmt: skip
+                ), last)  # fmt: skip
             else:
                 if step_has_update:
                     step += 1
@@ -138,11 +152,11 @@ def replay(
                     if step >= next_check or last or warnings
                     else no_extra
                 )
-                yield ekf.record(
+                yield correlated(ekf.record(
                     event=event, step=step, kind=EventKind.UPDATE, line=log_event.line,
                     time=log_event.time, observations=observations, full_cov=full_cov,
                     **extra,
-                )  # fmt: skip
+                ), last)  # fmt: skip
         except FilterLineError:
             raise
         except PluginError as error:
