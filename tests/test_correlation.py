@@ -12,6 +12,7 @@ from conftest import entity_rows
 from ekfviz.cli import app
 from ekfviz.core.correlation import (
     EVERY_STEPS,
+    EVERY_UPDATE_STEPS,
     MAX_SIDE,
     SMALL_MAP,
     CorrelationCadence,
@@ -115,6 +116,16 @@ def test_cadence_every_update_for_small_maps_then_every_25_steps_and_the_last() 
     taken = [step for step in range(10, 100) if cadence.due(step, SMALL_MAP + 1, last=False)]
     assert taken == list(range(9 + EVERY_STEPS, 100, EVERY_STEPS))
     assert cadence.due(101, SMALL_MAP + 1, last=True)
+
+
+def test_cadence_thins_out_a_long_run_of_a_small_map() -> None:
+    cadence = CorrelationCadence()
+    taken = [step for step in range(3 * EVERY_UPDATE_STEPS) if cadence.due(step, 6, False)]
+    assert taken[:EVERY_UPDATE_STEPS] == list(range(EVERY_UPDATE_STEPS))
+    later = taken[EVERY_UPDATE_STEPS:]
+    assert (
+        np.all(np.diff(later) == EVERY_STEPS) and later[0] == EVERY_UPDATE_STEPS - 1 + EVERY_STEPS
+    )
 
 
 def test_history_mode_logs_a_robot_ellipse_per_event_and_accumulates_them(

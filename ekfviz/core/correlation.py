@@ -3,10 +3,11 @@
 The correlation of P, ``C_ij = P_ij / sqrt(P_ii P_jj)``, shows question 3.1's answer: how
 the pose and the landmarks become correlated as the map is built. A state over
 ``MAX_SIDE`` dimensions is block-averaged (means of f x f blocks) to at most ``MAX_SIDE``
-rows and columns. Taking it costs O(n^2) for a state of dimension n, so a replay takes
-it at every update while the map holds at most ``SMALL_MAP`` landmarks and, beyond that,
-every ``EVERY_STEPS`` steps and at the last event (as the recording draws the whole
-map's ellipses).
+rows and columns. Taking it costs O(n^2) for a state of dimension n, and every image
+costs the recording its size, so a replay takes it at every update while the map holds
+at most ``SMALL_MAP`` landmarks and the run is in its first ``EVERY_UPDATE_STEPS``
+steps; beyond either, every ``EVERY_STEPS`` steps; and at the last event (as the
+recording draws the whole map's ellipses).
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from ekfviz.core.types import FloatArray, IntArray
 
 MAX_SIDE = 200  # rows and columns of the largest matrix kept
 SMALL_MAP = 32  # up to this many landmarks, at every update
+EVERY_UPDATE_STEPS = 1000  # ... and in the first this many steps of a run
 EVERY_STEPS = 25  # beyond: every this many steps, and at the last event
 
 
@@ -114,7 +116,7 @@ class CorrelationCadence:
 
     def due(self, step: int, n_landmarks: int, last: bool) -> bool:
         if (
-            n_landmarks <= SMALL_MAP
+            (n_landmarks <= SMALL_MAP and step < EVERY_UPDATE_STEPS)
             or last
             or self._last_step is None
             or step - self._last_step >= EVERY_STEPS

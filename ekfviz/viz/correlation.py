@@ -94,9 +94,19 @@ def log_correlation_styling(rec: _Logger) -> None:
     )
 
 
-def log_correlation(rec: _Logger, correlation: Correlation) -> None:
-    """The image, its block outlines and its description, at the current time."""
+def log_correlation(
+    rec: _Logger, correlation: Correlation, previous: Correlation | None = None
+) -> None:
+    """The image at the current time; its block outlines and description too when they
+    differ from those of the ``previous`` one logged (the map or its averaging changed)."""
     rec.log(style.CORRELATION_MATRIX, rr.Image(colormap(correlation.matrix)))
+    if (
+        previous is not None
+        and previous.dim == correlation.dim
+        and previous.factor == correlation.factor
+        and np.array_equal(previous.landmark_ids, correlation.landmark_ids)
+    ):
+        return
     mins, sizes, labels = block_outlines(correlation)
     rec.log(style.CORRELATION_BLOCKS, rr.Boxes2D(mins=mins, sizes=sizes, labels=labels))
     rec.log(style.CORRELATION_NOTE, rr.TextDocument(correlation.describe()))

@@ -47,7 +47,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from ekfviz.core.consistency import chi2_bounds, pose_nees
-from ekfviz.core.correlation import CorrelationCadence, correlation_of
+from ekfviz.core.correlation import Correlation, CorrelationCadence, correlation_of
 from ekfviz.core.evaluation import Evaluation, landmark_errors
 from ekfviz.core.health import (
     CovarianceCheck,
@@ -323,6 +323,7 @@ class Recorder:
         self._rec = _Entities(rec, prefix)
         self._history = history
         self._correlation = CorrelationCadence()  # of the array API (a replay's records own)
+        self._last_correlation: Correlation | None = None  # the last one logged
         self._detail = detail
         self._truth = truth
         self._heading_length = heading_length
@@ -514,7 +515,8 @@ class Recorder:
         if record.correlation is not None:  # a few per run: logged at once
             self._rec.set_time(style.STEP, sequence=record.step)
             self._rec.set_time(style.EVENT, sequence=record.event)
-            log_correlation(self._rec, record.correlation)
+            log_correlation(self._rec, record.correlation, self._last_correlation)
+            self._last_correlation = record.correlation
         self._pending.append((record, whole_map))
         self._pending_landmarks += len(record.landmark_ids)
         if len(self._pending) >= FLUSH_EVERY or self._pending_landmarks >= FLUSH_LANDMARKS:
