@@ -3,7 +3,18 @@
 Importing this package registers every command on :data:`app`.
 """
 
-from ekfviz.cli import consistency, convert, export, info, replay, simulate, sweep
+from ekfviz.cli import check, compare, consistency, convert, export, info, replay, simulate, sweep
 from ekfviz.cli.common import app
 
-__all__ = ["app", "consistency", "convert", "export", "info", "replay", "simulate", "sweep"]
+__all__ = [
+    "app",
+    "check",
+    "compare",
+    "consistency",
+    "convert",
+    "export",
+    "info",
+    "replay",
+    "simulate",
+    "sweep",
+]

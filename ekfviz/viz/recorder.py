@@ -37,7 +37,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -47,6 +47,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from ekfviz.core.consistency import chi2_bounds, pose_nees
+from ekfviz.core.correlation import Correlation, CorrelationCadence, correlation_of
 from ekfviz.core.evaluation import Evaluation, landmark_errors
 from ekfviz.core.health import (
     CovarianceCheck,
@@ -61,6 +62,7 @@ from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.models.angles import wrap_angles
 from ekfviz.viz import style
 from ekfviz.viz.blueprint import default_blueprint
+from ekfviz.viz.correlation import log_correlation, log_correlation_styling
 from ekfviz.viz.ellipses import ellipse_axes, ellipse_outlines, outline_points, unit_circle
 
 # Events between two sends of the buffered data, one chunk per entity: each chunk costs
@@ -380,6 +382,8 @@ class Recorder:
         that several runs share one recording; the default layout then does not fit
     :param detail: log every landmark's ellipse (and, with truth, its errors) at every
         update, however large the map (see the module for what is logged otherwise)
+    :param history: the layout's map accumulates every predicted and updated robot
+        ellipse up to the time cursor (the classic figure); the data is the same
     """
 
     def __init__(
@@ -394,8 +398,12 @@ class Recorder:
         heading_length: float = HEADING_LENGTH,
         prefix: str = "",
         detail: bool = False,
+        history: bool = False,
     ) -> None:
         self._rec = _Entities(rec, prefix)
+        self._history = history
+        self._correlation = CorrelationCadence()  # of the array API (a replay's records own)
+        self._last_correlation: Correlation | None = None  # the last one logged
         self._detail = detail
         self._truth = truth
         self._heading_length = heading_length
@@ -429,6 +437,7 @@ class Recorder:
         if blueprint and live_layout:
             self._rec.send_blueprint(self._layout())
         self._log_styling()
+        log_correlation_styling(self._rec)
         seed_ids = list(self._order)
         if truth is not None:
             seed_ids += truth.ids.tolist()
@@ -457,11 +466,11 @@ class Recorder:
         self._event = self._step = 0
         self._checked_step = None
         self.log_record(
-            snapshot(
+            self._correlated(snapshot(
                 x, P, event=0, step=0, kind=EventKind.INIT, line=line,
                 landmark_ids=self._state_ids(x), observations=observations,
                 **self._check(P, 0),
-            )
+            ), P)
         )  # fmt: skip
 
     def predict(
@@ -510,11 +519,11 @@ class Recorder:
         observations = self._observations(landmark_ids, z, z_pred, S)
         step = self._step + 1 if self._step_has_update else self._step
         self.log_record(
-            snapshot(
+            self._correlated(snapshot(
                 x, P, event=self._event + 1, step=step, kind=EventKind.UPDATE, line=line,
                 landmark_ids=self._state_ids(x), observations=observations,
                 **self._check(P, step),
-            )
+            ), P)
         )  # fmt: skip
 
     def finish(self, evaluation: Evaluation | None = None) -> None:
@@ -566,6 +575,7 @@ class Recorder:
             has_true_poses=self._truth is not None and self._truth.poses_xytheta is not None,
             has_run_info=self._run_documents,
             bounds_xy=bounds_xy,
+            history=self._history,
         )
 
     # -- records -------------------------------------------------------------------------
@@ -594,6 +604,11 @@ class Recorder:
             self._last_update = (record, whole_map)
         if self._truth is not None:
             self._log_metrics(record, whole_map)
+        if record.correlation is not None:  # a few per run: logged at once
+            self._rec.set_time(style.STEP, sequence=record.step)
+            self._rec.set_time(style.EVENT, sequence=record.event)
+            log_correlation(self._rec, record.correlation, self._last_correlation)
+            self._last_correlation = record.correlation
         self._pending.append((record, whole_map))
         self._pending_landmarks += len(record.landmark_ids)
         if len(self._pending) >= FLUSH_EVERY or self._pending_landmarks >= FLUSH_LANDMARKS:
@@ -627,11 +642,14 @@ class Recorder:
         if self._truth is not None and self._truth.poses_xytheta is not None:
             self._send_true_path(rows, records, corrected, self._truth.poses_xytheta)
         self._send_trajectory(rows, poses[:, :2], corrected)
-        for path, picked in (
-            (style.POSE_PREDICTED, np.flatnonzero(is_predict)),
-            (style.POSE_UPDATED, corrected),
+        for path, history, picked in (
+            (style.POSE_PREDICTED, style.POSE_PREDICTED_HISTORY, np.flatnonzero(is_predict)),
+            (style.POSE_UPDATED, style.POSE_UPDATED_HISTORY, corrected),
         ):
             self._send_pose_ellipses(path, rows, picked, poses, pose_covs)
+            if self._history and picked.size:  # outlines in the world, to accumulate
+                outlines = ellipse_outlines(poses[picked, :2], pose_covs[picked, :2, :2])
+                self._send_strips(history, rows, picked, outlines)
         self._send_rays(rows, observed)
 
         sigma = np.sqrt(np.diagonal(pose_covs, axis1=1, axis2=2))
@@ -1146,6 +1164,8 @@ class Recorder:
                 static=True,
             )
         for path, color in (
+            (style.POSE_PREDICTED_HISTORY, style.PREDICTED_COLOR),
+            (style.POSE_UPDATED_HISTORY, style.UPDATED_COLOR),
             (style.LANDMARK_ELLIPSES, style.LANDMARK_COLOR),
             (style.LANDMARK_ELLIPSES_OBSERVED, style.LANDMARK_COLOR),
             (style.LANDMARK_INITIAL, style.INITIAL_COLOR),
@@ -1258,6 +1278,12 @@ class Recorder:
             self._order += range(start, start + n - len(self._order))
             self._in_order.update(self._order)
         return np.asarray(self._order[:n], dtype=np.int64)
+
+    def _correlated(self, record: EventRecord, P: FloatArray) -> EventRecord:
+        """The record with the correlation matrix of ``P`` where it is due."""
+        if self._correlation.due(record.step, record.n_landmarks, last=False):
+            return replace(record, correlation=correlation_of(P, record.landmark_ids))
+        return record
 
     def _check(self, P: FloatArray, step: int) -> dict[str, Any]:
         """The check of a whole covariance handed in through the array API: at every call

@@ -333,7 +333,9 @@ def open_recording(info: RunInfo, sinks: Sinks) -> Iterator[Recording]:
 
 
 @contextmanager
-def open_run(info: RunInfo, sinks: Sinks, *, detail: bool = False) -> Iterator[RunLogger]:
+def open_run(
+    info: RunInfo, sinks: Sinks, *, detail: bool = False, history: bool = False
+) -> Iterator[RunLogger]:
     """A recording of one replay (see :func:`open_recording`), logged by a RunLogger.
 
     :param detail: log every landmark's ellipse and error at every update (see
@@ -346,6 +348,7 @@ def open_run(info: RunInfo, sinks: Sinks, *, detail: bool = False) -> Iterator[R
             truth=info.truth,
             run_documents=True,
             detail=detail,
+            history=history,
             live_layout=sinks.spawn or sinks.serve or sinks.connect is not None,
         )
         yield RunLogger(recorder, recording)

@@ -47,6 +47,11 @@ HEALTH_P_MIN_EIG = "metrics/health/P_min_eigenvalue"  # where the whole P was ch
 HEALTH_P_ASYMMETRY = "metrics/health/P_asymmetry"  # likewise: max |P - P^T|
 HEALTH_P_LOG10_CONDITION = "metrics/health/P_log10_condition"  # likewise
 
+CORRELATION = "correlation"  # the correlation matrix of P, see ekfviz.viz.correlation
+CORRELATION_MATRIX = "correlation/matrix"  # Image (RGB), where the replay took it
+CORRELATION_BLOCKS = "correlation/blocks"  # Boxes2D: the diagonal blocks, labelled
+CORRELATION_NOTE = "correlation/note"  # TextDocument: what is shown (block-averaged?)
+
 LOG = "log"  # TextLog, one line per event, and one per warning
 RUN_INFO = "run/info"  # TextDocument (markdown), static
 RUN_INPUT = "run/input"  # TextDocument (the input log itself), static
@@ -54,6 +59,12 @@ RUN_EVALUATION = "run/evaluation"  # TextDocument (markdown), static, at the end
 
 # Entities drawn from the infinite past up to the time cursor instead of latest-at.
 ACCUMULATED = (TRAJECTORY, LANDMARK_INITIAL, TRUTH_TRAJECTORY)
+# ... and with --history also every robot ellipse: the classic figure (the robot frame's
+# own ellipses are one unit circle under a transform, which cannot accumulate: with
+# --history each is also logged as an outline in the world)
+POSE_PREDICTED_HISTORY = "world/history/predicted"  # LineStrips2D, with --history
+POSE_UPDATED_HISTORY = "world/history/updated"  # LineStrips2D, with --history
+HISTORY = (POSE_PREDICTED_HISTORY, POSE_UPDATED_HISTORY)
 
 # -- timelines -------------------------------------------------------------------------
 
@@ -76,6 +87,7 @@ STATISTIC_COLOR: Rgb = (31, 119, 180)  # NIS and NEES
 BOUND_COLOR: Rgb = (150, 150, 150)  # their chi-square bounds
 TRUTH_COLOR: Rgb = (0, 0, 0)  # "k"
 TRUTH_PATH_COLOR: Rgb = (150, 150, 150)  # the true path and robot, thin and grey
+CORRELATION_BLOCK_COLOR: Rgb = (60, 60, 60)
 
 # Negative radii are UI points, so the map looks the same at any scale.
 POINT_RADIUS_UI = 4.0
