@@ -29,6 +29,7 @@ from ekfviz.io.errors import InputError
 from ekfviz.io.extended import is_extended, read_log
 from ekfviz.io.text import ProgressCallback, WarningCallback
 from ekfviz.io.truth import checked_against, read_truth
+from ekfviz.studies.executors import Executor
 from ekfviz.studies.runs import Run, RunSpec, Summary, run_specs, summarise
 
 if TYPE_CHECKING:
@@ -139,6 +140,7 @@ def study(
     parameters: dict[str, object],
     markdown: Callable[[list[Summary]], str],
     done: Callable[[], None] | None = None,
+    executor: Executor | None = None,
 ) -> StudyResult:
     """Replay ``data`` with every spec, summarise against the first, save one recording.
 
@@ -157,7 +159,14 @@ def study(
         pass
     for spec in specs:
         spec.filter.load()
-    runs = run_specs(data, specs, truth, workers, done=None if done is None else lambda _: done())
+    runs = run_specs(
+        data,
+        specs,
+        truth,
+        workers,
+        done=None if done is None else lambda _: done(),
+        executor=executor,
+    )
     summaries = [summarise(run, runs[0]) for run in runs]
     info = viz.run_info(
         name=f"{data.stem}-{'sweep' if root == 'variants' else 'compare'}",

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 
-def test_core_io_and_sim_do_not_import_rerun_typer_or_gtsam() -> None:
+def test_core_io_and_sim_do_not_import_rerun_typer_gtsam_or_dask() -> None:
     code = (
         "import sys\n"
         "import ekfviz.core.filter, ekfviz.core.replay, ekfviz.core.evaluation\n"
@@ -16,7 +16,8 @@ def test_core_io_and_sim_do_not_import_rerun_typer_or_gtsam() -> None:
         "import ekfviz.studies.runs, ekfviz.filters, ekfviz.core.check, ekfviz.models.classic\n"
         "import ekfviz.io.classic, ekfviz.io.extended, ekfviz.io.truth, ekfviz.sim.scenarios\n"
         "import ekfviz.models.classic, ekfviz.core.correlation, ekfviz.filters\n"
-        "banned = {'rerun', 'typer', 'rich', 'gtsam'}\n"
+        "import ekfviz.studies.executors, ekfviz.io.trajectory\n"
+        "banned = {'rerun', 'typer', 'rich', 'gtsam', 'dask', 'distributed'}\n"
         "bad = sorted(m for m in sys.modules if m.split('.')[0] in banned)\n"
         "print(','.join(bad))\n"
     )

@@ -28,6 +28,12 @@ from ekfviz.core.truth import GroundTruth
 from ekfviz.io.text import ProgressCallback
 from ekfviz.sim.scenarios import Scenario, ScenarioName
 from ekfviz.sim.simulate import Noise
+from ekfviz.studies.executors import (
+    Executor,
+    ExecutorError,
+    ExecutorName,
+    make_executor,
+)
 
 
 class LogFormat(str, enum.Enum):
@@ -150,6 +156,28 @@ FilterOption = Annotated[
 Workers = Annotated[
     int | None, _option("Processes to use [default: one per core].", min=1, show_default=False)
 ]
+STUDY = "Where the runs execute"
+ExecutorOption = Annotated[
+    ExecutorName,
+    _option("local: processes on this machine; dask: a Dask cluster (--scheduler).", STUDY),
+]
+SchedulerOption = Annotated[
+    str | None,
+    _option(
+        "The Dask scheduler's address, e.g. tcp://10.0.0.5:8786 (pip install 'ekfviz[dask]').",
+        STUDY,
+        metavar="ADDRESS",
+        show_default=False,
+    ),
+]
+
+
+def study_executor(name: ExecutorName, scheduler: str | None, workers: int | None) -> Executor:
+    """The executor of ``--executor``/``--scheduler``/``--workers``, or a one-line error."""
+    try:
+        return make_executor(name, scheduler, workers)
+    except ExecutorError as error:
+        fail(str(error))
 
 
 def _true(what: str) -> Any:

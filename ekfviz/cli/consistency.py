@@ -2,23 +2,27 @@
 
 from __future__ import annotations
 
+import functools
 import json
 from dataclasses import asdict
 from pathlib import Path
 from typing import Annotated
 
+from rich.progress import Progress
 from rich.table import Table
 
 from ekfviz import __version__
 from ekfviz.cli.common import (
     DEFAULT,
     FILTER_OPTIONS,
+    ExecutorOption,
     FilterOption,
     Fov,
     LandmarkInitOption,
     Landmarks,
     MaxRange,
     ScenarioOption,
+    SchedulerOption,
     SigmaAlpha,
     SigmaBearing,
     SigmaRange,
@@ -39,6 +43,7 @@ from ekfviz.cli.common import (
     filter_params,
     out,
     scenario_world,
+    study_executor,
     true_noise,
     write_json,
 )
@@ -46,6 +51,7 @@ from ekfviz.core.consistency import Verdict
 from ekfviz.core.filter import FilterError
 from ekfviz.filters import BUILTIN, FilterSpecError, load_filter
 from ekfviz.sim.scenarios import ScenarioName
+from ekfviz.studies.executors import ExecutorError, ExecutorName
 
 
 @app.command()
@@ -90,13 +96,15 @@ def consistency(
     workers: Annotated[
         int | None, _option("Processes to use [default: one per core].", min=1, show_default=False)
     ] = None,
+    executor: ExecutorOption = ExecutorName.LOCAL,
+    scheduler: SchedulerOption = None,
 ) -> None:
     """Monte-Carlo consistency: average NEES and NIS over many simulated runs, per step.
 
     A consistent filter keeps the averaged NEES inside its 95% chi-square bounds; above
     them it is over-confident, below them too cautious.
     """
-    from ekfviz.sim.montecarlo import Trials, monte_carlo
+    from ekfviz.sim.montecarlo import Trials, average, run_trial
 
     world = scenario_world(scenario, seed, steps, landmarks, max_range, fov)
     prior = world.init_pose_sigma if init_pose_sigma is None else init_pose_sigma
@@ -109,12 +117,21 @@ def consistency(
     trials = Trials(
         scenario=world, true_noise=noise, init_pose_sigma=prior, params=params, filter=filter_spec
     )
+    runner = study_executor(executor, scheduler, workers)
     try:
         load_filter(filter_spec)
-        with err.status(f"{runs} runs of the {scenario.value} scenario..."):
-            result = monte_carlo(trials, runs, seed=seed, workers=workers)
+        with Progress(console=err, transient=True) as bar:
+            task = bar.add_task(f"{runs} runs of the {scenario.value} scenario", total=runs)
+            results = runner.map(
+                functools.partial(run_trial, trials),
+                [seed + k for k in range(runs)],
+                done=lambda _: bar.advance(task),
+            )
+        result = average(results)
     except (FilterSpecError, FilterError) as error:
         fail(f"--scenario {scenario.value}: {error}")
+    except ExecutorError as error:
+        fail(str(error))
 
     table = Table(title=f"Consistency over {runs} runs ({scenario.value})", title_justify="left")
     for column in ("statistic", "inside 95%", "above", "below", "verdict"):

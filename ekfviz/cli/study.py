@@ -19,6 +19,7 @@ from ekfviz.cli.common import err, fail, out, write_json
 from ekfviz.core.filter import FilterError
 from ekfviz.filters import FilterSpecError
 from ekfviz.io.errors import InputError
+from ekfviz.studies.executors import Executor, ExecutorError
 from ekfviz.studies.runs import RunSpec, Summary
 
 
@@ -33,6 +34,7 @@ def run_study(
     root: str,
     parameters: dict[str, object],
     report_extra: dict[str, object],
+    executor: Executor | None = None,
 ) -> None:
     """Run every spec on the log, print the table, save the recording and the report."""
     from ekfviz import pipeline, viz
@@ -44,9 +46,9 @@ def run_study(
             result = pipeline.study(
                 data, truth, specs, target=target, workers=workers, root=root,
                 parameters=parameters, markdown=lambda rows: study_markdown(rows, what),
-                done=lambda: bar.advance(task),
+                done=lambda: bar.advance(task), executor=executor,
             )  # fmt: skip
-    except (InputError, FilterError, FilterSpecError, viz.SinkError) as error:
+    except (InputError, FilterError, FilterSpecError, viz.SinkError, ExecutorError) as error:
         fail(str(error))
     out.print(study_table(result.summaries, result.truth is not None, what))
     if report is not None:

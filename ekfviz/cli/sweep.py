@@ -10,10 +10,12 @@ from typing import Annotated
 from ekfviz.cli.common import (
     DEFAULT,
     RECORDINGS_DIR,
+    ExecutorOption,
     FilterOption,
     InitPoseSigma,
     LandmarkInitOption,
     LogArgument,
+    SchedulerOption,
     SigmaAlpha,
     SigmaBearing,
     SigmaRange,
@@ -26,9 +28,11 @@ from ekfviz.cli.common import (
     app,
     fail,
     filter_params,
+    study_executor,
 )
 from ekfviz.cli.study import run_study
 from ekfviz.filters import BUILTIN, FilterSpec
+from ekfviz.studies.executors import ExecutorName
 
 
 class Preset(str, enum.Enum):
@@ -76,6 +80,8 @@ def sweep(
     update: UpdateOption = DEFAULT.update,
     filter_spec: FilterOption = BUILTIN,
     workers: Workers = None,
+    executor: ExecutorOption = ExecutorName.LOCAL,
+    scheduler: SchedulerOption = None,
 ) -> None:
     """Replay one log with filter parameters varied around a baseline, side by side.
 
@@ -104,6 +110,7 @@ def sweep(
     except SweepError as error:
         fail(str(error))
     variants = [replace(variant, filter=FilterSpec(filter_spec)) for variant in variants]
+    runner = study_executor(executor, scheduler, workers)
     target = save if save is not None else RECORDINGS_DIR / f"{data.stem}-sweep.rrd"
     run_study(
         data,
@@ -119,4 +126,5 @@ def sweep(
             "variants": [variant.label for variant in variants],
         },
         report_extra={"baseline": baseline.as_dict()},
+        executor=runner,
     )

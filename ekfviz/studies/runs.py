@@ -9,10 +9,9 @@ No rerun, no typer.
 
 from __future__ import annotations
 
-import os
+import functools
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -26,6 +25,7 @@ from ekfviz.core.replay import replay
 from ekfviz.core.truth import GroundTruth
 from ekfviz.filters import BUILTIN, FilterSpec
 from ekfviz.io.extended import read_log
+from ekfviz.studies.executors import Executor, LocalExecutor
 
 VARIABLE = ("sigma_x", "sigma_y", "sigma_alpha", "sigma_bearing", "sigma_range")
 
@@ -85,25 +85,16 @@ def run_specs(
     truth: GroundTruth | None,
     workers: int | None = None,
     done: Callable[[Run], None] | None = None,
+    executor: Executor | None = None,
 ) -> list[Run]:
-    """Replay every pipeline over ``workers`` processes; results in the specs' order.
+    """Replay every pipeline on ``executor`` (default: ``workers`` local processes);
+    results in the specs' order.
 
-    The result does not depend on the number of workers: each run is the same replay.
+    The result does not depend on the executor or the number of workers: each run is
+    the same replay.
     """
-    workers = min(len(specs), workers or os.cpu_count() or 1)
-    if workers <= 1:
-        runs = []
-        for spec in specs:
-            runs.append(run_spec(path, spec, truth))
-            if done is not None:
-                done(runs[-1])
-        return runs
-    with ProcessPoolExecutor(max_workers=workers) as pool:
-        futures = [pool.submit(run_spec, path, spec, truth) for spec in specs]
-        for future in futures:
-            if done is not None:
-                done(future.result())
-        return [future.result() for future in futures]
+    executor = LocalExecutor(workers) if executor is None else executor
+    return executor.map(functools.partial(run_spec, path, truth=truth), specs, done=done)
 
 
 @dataclass(frozen=True, slots=True)
