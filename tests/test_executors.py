@@ -54,7 +54,7 @@ def scheduler() -> Iterator[str]:
     """A Dask scheduler and two worker processes on loopback."""
     from distributed import LocalCluster
 
-    with LocalCluster(
+    with LocalCluster(  # type: ignore[no-untyped-call]
         n_workers=2,
         threads_per_worker=1,
         processes=True,
