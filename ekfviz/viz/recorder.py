@@ -1163,9 +1163,14 @@ class Recorder:
                 ),
                 static=True,
             )
+        history = (
+            ((style.POSE_PREDICTED_HISTORY, style.PREDICTED_COLOR),
+             (style.POSE_UPDATED_HISTORY, style.UPDATED_COLOR))
+            if self._history
+            else ()
+        )  # fmt: skip
         for path, color in (
-            (style.POSE_PREDICTED_HISTORY, style.PREDICTED_COLOR),
-            (style.POSE_UPDATED_HISTORY, style.UPDATED_COLOR),
+            *history,
             (style.LANDMARK_ELLIPSES, style.LANDMARK_COLOR),
             (style.LANDMARK_ELLIPSES_OBSERVED, style.LANDMARK_COLOR),
             (style.LANDMARK_INITIAL, style.INITIAL_COLOR),
