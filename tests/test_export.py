@@ -179,3 +179,40 @@ def test_export_of_what_is_not_a_recording_is_a_one_line_error(
 def test_export_needs_something_to_write(tmp_path: Path) -> None:
     result = runner.invoke(app, ["export", str(tmp_path / "x.rrd")])
     assert result.exit_code == 2 and "nothing to export" in result.output
+
+
+def test_time_stamps_come_from_the_time_timeline_where_the_recording_has_one(
+    tmp_path: Path,
+) -> None:
+    """A log with time stamps records a ``time`` timeline (seconds): the export's stamps."""
+    import rerun as rr
+
+    from ekfviz import viz
+
+    rrd = tmp_path / "timed.rrd"
+    rec = rr.RecordingStream("ekfviz")
+    rec.save(rrd)
+    steps, events = np.array([0, 1, 1, 2, 2]), np.arange(5)
+    seconds = np.array([10.0, 10.5, 10.5, 11.25, 11.25])
+    rec.send_columns(
+        f"/{style.ROBOT}",
+        indexes=[
+            rr.TimeColumn("step", sequence=steps),
+            rr.TimeColumn("event", sequence=events),
+            rr.TimeColumn("time", duration=seconds),
+        ],
+        columns=rr.Transform3D.columns(
+            translation=np.column_stack([events, -events, np.zeros(5)]).astype(np.float32),
+            quaternion=np.tile([0.0, 0.0, 0.0, 1.0], (5, 1)).astype(np.float32),
+        ),
+    )
+    rec.disconnect()
+    run = viz.read_recorded_run(rrd)
+    assert run.estimate.steps.tolist() == [0, 1, 2]
+    assert run.estimate.seconds is not None
+    np.testing.assert_allclose(run.estimate.stamps, [10.0, 10.5, 11.25])
+    np.testing.assert_allclose(run.estimate.poses_xytheta[:, 0], [0, 2, 4])  # each step's last
+    out = tmp_path / "timed.tum"
+    invoke("export", str(rrd), "--tum", str(out), "--csv", str(tmp_path / "timed.csv"))
+    assert read_tum(out)[:, 0].tolist() == [10.0, 10.5, 11.25]
+    assert (tmp_path / "timed.csv").read_text().splitlines()[0].startswith("step,time,x,y")
