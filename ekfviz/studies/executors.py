@@ -19,9 +19,11 @@ from __future__ import annotations
 import enum
 import os
 from collections.abc import Callable, Sequence
-from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
-from typing import Any, Protocol, TypeVar
+from typing import TYPE_CHECKING, Any, Protocol, TypeVar
+
+if TYPE_CHECKING:
+    from concurrent.futures import Future
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -67,6 +69,8 @@ class LocalExecutor:
                 if done is not None:
                     done(results[-1])
             return results
+        from concurrent.futures import ProcessPoolExecutor  # not at start-up: 30 ms
+
         with ProcessPoolExecutor(max_workers=workers) as pool:
             futures = [pool.submit(fn, item) for item in items]
             _report(futures, done)
@@ -75,6 +79,8 @@ class LocalExecutor:
 
 def _report(futures: Sequence[Future[R]], done: Callable[[R], None] | None) -> None:
     """``done`` with every result as it completes (the first error is raised)."""
+    from concurrent.futures import as_completed
+
     for future in as_completed(futures):
         result = future.result()
         if done is not None:
