@@ -80,7 +80,13 @@ def replay(
         pending: list[tuple[LogEvent, bool]] = []
     else:
         extra = checked(0, ())
-        yield ekf.record(event=0, step=0, kind=EventKind.INIT, full_cov=full_cov, **extra)
+        # the prior holds when the log's first event begins, when it has a time
+        start = None if first is None else first.time
+        if isinstance(first, Control) and start is not None and first.dt is not None:
+            start -= first.dt
+        yield ekf.record(
+            event=0, step=0, kind=EventKind.INIT, time=start, full_cov=full_cov, **extra
+        )
         pending = [] if first is None else [(first, last)]
 
     step_has_update = True  # the initialisation counts as step 0's update
@@ -91,7 +97,7 @@ def replay(
             if isinstance(log_event, Control):
                 step += 1
                 step_has_update = False
-                ekf.predict(log_event.d, log_event.alpha)
+                ekf.predict(log_event.d, log_event.alpha, log_event.dt)
                 extra = checked(log_event.line, ()) if step >= next_check or last else no_extra
                 yield ekf.record(
                     event=event, step=step, kind=EventKind.PREDICT, line=log_event.line,

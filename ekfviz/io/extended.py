@@ -20,7 +20,6 @@ from pathlib import Path
 import numpy as np
 
 from ekfviz.core.records import Control, LogEvent, Sighting
-from ekfviz.io.classic import read_classic
 from ekfviz.io.errors import InputError
 from ekfviz.io.text import (
     BearingWrapper,
@@ -41,14 +40,16 @@ def read_log(
     progress: ProgressCallback | None = None,
     warn: WarningCallback | None = None,
 ) -> Iterator[LogEvent]:
-    """Stream the events of a log in either format, told apart by its first data line.
+    """Stream the events of a log of any kind: a classic or extended file, told apart by
+    its first data line, or an MRCLAM dataset directory (robot 1); see
+    :mod:`ekfviz.io.detect`, where the formats are told apart.
 
     :param progress: called now and then with the number of bytes read so far
     :param warn: told once when bearings outside (-pi, pi] are wrapped into range
     """
-    if is_extended(path):
-        return read_extended(path, progress, warn)
-    return read_classic(path, progress, warn)
+    from ekfviz.io.detect import read_log as read_any  # detect imports this module
+
+    return read_any(path, progress, warn)
 
 
 def is_extended(path: Path) -> bool:
@@ -71,6 +72,7 @@ def read_extended(
     :raises InputError: for the first bad line met, naming it and what was expected
     """
     last_time = -np.inf
+    previous: float | None = None  # the timestamp of the latest line that had one
     wrap = BearingWrapper(path, warn)
     for line, tokens in token_lines(path, progress):
         time: float | None = None
@@ -94,7 +96,9 @@ def read_extended(
                     path, line, f"found {len(values)} values after 'control', expected 2: d alpha"
                 )
             d, alpha = (parse_number(path, line, token) for token in values)
-            yield Control(line=line, d=d, alpha=alpha, time=time)
+            # a timed control spans the time since the previous timestamp, when there is one
+            dt = None if time is None or previous is None else time - previous
+            yield Control(line=line, d=d, alpha=alpha, time=time, dt=dt)
         elif keyword == "observe":
             yield _observation(path, line, values, time, wrap)
         else:
@@ -105,6 +109,8 @@ def read_extended(
                 f"found {shown!r}, expected a keyword: control or observe"
                 " (after an optional timestamp)",
             )
+        if time is not None:
+            previous = time
 
 
 def _observation(

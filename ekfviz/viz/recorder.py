@@ -62,6 +62,7 @@ from ekfviz.models.angles import wrap_angles
 from ekfviz.viz import style
 from ekfviz.viz.blueprint import default_blueprint
 from ekfviz.viz.ellipses import ellipse_outlines, outline_points
+from ekfviz.viz.thinning import PREDICT_INTERVAL_S, PredictThinning
 
 # Events between two sends of the buffered data, one chunk per entity: each chunk costs
 # ~0.1 ms in the main thread and as much in Rerun's encoder, whatever its size.
@@ -74,6 +75,7 @@ FLUSH_TIMEOUT_S = 30.0  # how long finish() waits for a slow or absent viewer
 MAX_CLASS_ID = 65535  # Rerun class ids are u16
 HEADING_LENGTH = 1.0  # metres
 CHECK_ALL_DIM = 64  # the array API checks a covariance up to this size at every call
+EPOCH_MIN_S = 1e9  # log times from here on are Unix time (see time_is_epoch)
 
 
 def _radius(ui_points: float) -> npt.ArrayLike:
@@ -156,25 +158,52 @@ class _Index:
         return self.times
 
 
-def _times(steps: IntArray, events: IntArray) -> list[rr.TimeColumnLike]:
-    """Both timelines of some rows, in Arrow."""
-    return [_Index(style.STEP, pa.array(steps)), _Index(style.EVENT, pa.array(events))]
+def _times(
+    steps: IntArray, events: IntArray, times: FloatArray | None = None, epoch: bool = False
+) -> list[rr.TimeColumnLike]:
+    """The timelines of some rows, in Arrow: ``step``, ``event`` and, when the records
+    have times, ``time`` (see :func:`time_is_epoch` for its type)."""
+    columns: list[rr.TimeColumnLike] = [
+        _Index(style.STEP, pa.array(steps)),
+        _Index(style.EVENT, pa.array(events)),
+    ]
+    if times is not None:
+        nanos = np.rint(times * 1e9).astype(np.int64)
+        kind = pa.timestamp("ns") if epoch else pa.duration("ns")
+        columns.append(_Index(style.TIME, pa.array(nanos, type=kind)))
+    return columns
+
+
+def time_is_epoch(first_time: float) -> bool:
+    """Whether the ``time`` timeline is a timestamp (Unix time, shown as a date) rather
+    than a duration: decided once per recording by its first time, from 10^9 s
+    (September 2001) on. Either way its value in seconds is the log's time."""
+    return first_time >= EPOCH_MIN_S
 
 
 class _Rows:
-    """The step and event of each buffered record, to pick the time columns of a send."""
+    """The step, event and time of each buffered record, to pick the time columns of a send."""
 
-    def __init__(self, steps: IntArray, events: IntArray) -> None:
+    def __init__(
+        self,
+        steps: IntArray,
+        events: IntArray,
+        times: FloatArray | None = None,
+        epoch: bool = False,
+    ) -> None:
         self.steps = steps
         self.events = events
-        self.all = _times(steps, events)  # most sends have a row per record: once
+        self.times = times
+        self.epoch = epoch
+        self.all = _times(steps, events, times, epoch)  # most sends have a row per record
 
     def __len__(self) -> int:
         return len(self.steps)
 
     def pick(self, rows: Sequence[int] | IntArray) -> list[rr.TimeColumnLike]:
         index = np.asarray(rows, dtype=np.int64)
-        return _times(self.steps[index], self.events[index])
+        times = None if self.times is None else self.times[index]
+        return _times(self.steps[index], self.events[index], times, self.epoch)
 
 
 def _landmark_rows(record: EventRecord, which: str | None) -> IntArray:
@@ -263,25 +292,68 @@ class _Entities:
 class _SeriesBuffer:
     """Scalar series gathered per entity path and sent with ``send_columns`` in chunks."""
 
-    def __init__(self, rec: _Entities) -> None:
+    def __init__(self, rec: _Entities, clock: _Clock) -> None:
         self._rec = rec
-        self._series: dict[str, tuple[list[int], list[int], list[float]]] = {}
+        self._clock = clock
+        self._series: dict[str, tuple[list[int], list[int], list[float], list[float]]] = {}
 
-    def add(self, path: str, step: int, event: int, value: float) -> None:
-        steps, events, values = self._series.setdefault(path, ([], [], []))
+    def add(self, path: str, step: int, event: int, value: float, time: float | None) -> None:
+        steps, events, values, times = self._series.setdefault(path, ([], [], [], []))
         steps.append(step)
         events.append(event)
         values.append(value)
+        times.append(math.nan if time is None else time)
 
     def flush(self) -> None:
-        for path, (steps, events, values) in self._series.items():
+        for path, (steps, events, values, times) in self._series.items():
             if values:
                 self._rec.send_columns(
                     path,
-                    indexes=_times(np.array(steps), np.array(events)),
+                    indexes=self._clock.rows(np.array(steps), np.array(events), times).all,
                     columns=_scalars(values),
                 )
         self._series.clear()
+
+
+class _Clock:
+    """The ``time`` timeline of a recording: its type, and times for records without one.
+
+    A record without a time (an untimed line of an extended log, ...) takes the latest
+    time before it, or the first after it in the same send; a recording without any
+    time has no ``time`` timeline.
+    """
+
+    def __init__(self) -> None:
+        self.epoch: bool | None = None  # decided by the first time met
+        self.last: float | None = None
+        self.span: tuple[float, float] | None = None
+
+    def rows(
+        self, steps: IntArray, events: IntArray, times: Sequence[float] | FloatArray
+    ) -> _Rows:
+        filled = self.fill(np.asarray(times, dtype=np.float64))
+        return _Rows(steps, events, filled, bool(self.epoch))
+
+    def fill(self, times: FloatArray) -> FloatArray | None:
+        known = np.isfinite(times)
+        if not known.any():
+            if self.last is None:
+                return None
+            return np.full(len(times), self.last)
+        if self.epoch is None:
+            self.epoch = time_is_epoch(float(times[known][0]))
+        if not known.all():
+            # carry the latest time forward; before the first, the first of this send
+            index = np.where(known, np.arange(len(times)), -1)
+            np.maximum.accumulate(index, out=index)
+            start = self.last if self.last is not None else float(times[known][0])
+            times = np.where(index >= 0, times[np.maximum(index, 0)], start)
+        self.last = max(float(times[-1]), self.last if self.last is not None else -math.inf)
+        low, high = float(times.min()), float(times.max())
+        self.span = (low, high) if self.span is None else (
+            min(low, self.span[0]), max(high, self.span[1])
+        )  # fmt: skip
+        return times
 
 
 class Recorder:
@@ -300,7 +372,10 @@ class Recorder:
     :param prefix: entity path under which to log everything (e.g. ``variants/a``), so
         that several runs share one recording; the default layout then does not fit
     :param detail: log every landmark's ellipse (and, with truth, its errors) at every
-        update, however large the map (see the module for what is logged otherwise)
+        update, however large the map (see the module for what is logged otherwise),
+        and every predict
+    :param predict_interval_s: log time between two logged predicts of a timestamped
+        log (see :mod:`ekfviz.viz.thinning`); None logs every predict
     """
 
     def __init__(
@@ -314,6 +389,7 @@ class Recorder:
         heading_length: float = HEADING_LENGTH,
         prefix: str = "",
         detail: bool = False,
+        predict_interval_s: float | None = PREDICT_INTERVAL_S,
     ) -> None:
         self._rec = _Entities(rec, prefix)
         self._detail = detail
@@ -327,7 +403,9 @@ class Recorder:
         self._class_extra: set[int] = set()
         self._class_pending: set[int] = set()
         self._class_count = 0
-        self._series = _SeriesBuffer(self._rec)
+        self._clock = _Clock()
+        self._series = _SeriesBuffer(self._rec, self._clock)
+        self._thinning = PredictThinning(None if detail else predict_interval_s)
         # records not sent yet, each with whether it logs the whole map's ellipses
         self._pending: list[tuple[EventRecord, bool]] = []
         self._pending_landmarks = 0
@@ -436,6 +514,8 @@ class Recorder:
     def finish(self, evaluation: Evaluation | None = None) -> None:
         """Send the buffered data, the whole map at the last update, the evaluation document
         if given, the layout framing the whole run, and flush."""
+        for record in self._thinning.drain():
+            self._log_record(record)
         self._send_pending()
         if self._class_pending:
             self._log_classes()
@@ -443,7 +523,11 @@ class Recorder:
             record = self._last_update[0]
             self._last_update = (record, True)
             self._log_landmark_errors(record, None)
-            rows = _Rows(np.array([record.step]), np.array([record.event]))
+            rows = self._clock.rows(
+                np.array([record.step]),
+                np.array([record.event]),
+                [math.nan if record.time is None else record.time],
+            )
             self._send_ellipses(
                 style.LANDMARK_ELLIPSES, rows, [(0, record, _landmark_rows(record, None))]
             )
@@ -460,9 +544,16 @@ class Recorder:
 
     def note(self, text: str, level: str | rr.TextLogLevel = rr.TextLogLevel.WARN) -> None:
         """A line in the text log at the latest event: a warning, or why a run stopped."""
+        for record in self._thinning.drain():
+            self._log_record(record)
         self._send_pending()
         self._rec.set_time(style.STEP, sequence=self._step)
         self._rec.set_time(style.EVENT, sequence=self._event)
+        if self._clock.last is not None:
+            if self._clock.epoch:
+                self._rec.rec.set_time(style.TIME, timestamp=self._clock.last)
+            else:
+                self._rec.rec.set_time(style.TIME, duration=self._clock.last)
         self._rec.log(style.LOG, rr.TextLog(text, level=level))
 
     def _layout(self, bounds_xy: FloatArray | None = None) -> rrb.Blueprint:
@@ -471,15 +562,31 @@ class Recorder:
             bounds_xy = bounds_xy + np.array([[-margin], [margin]])
         return default_blueprint(
             has_truth=self._truth is not None,
-            has_true_poses=self._truth is not None and self._truth.poses_xytheta is not None,
+            has_true_poses=self._truth is not None and self._truth.has_poses,
             has_run_info=self._run_documents,
             bounds_xy=bounds_xy,
+            has_time=self._clock.span is not None,
         )
 
     # -- records -------------------------------------------------------------------------
 
+    @property
+    def time_span(self) -> tuple[float, float] | None:
+        """The first and last log time (seconds) logged, or None for an untimed run."""
+        return self._clock.span
+
+    @property
+    def time_is_epoch(self) -> bool:
+        """Whether the ``time`` timeline is a timestamp (else a duration)."""
+        return bool(self._clock.epoch)
+
     def log_record(self, record: EventRecord) -> None:
-        """Log one record of the core: the map, the metrics and a line of text."""
+        """Log one record of the core: the map, the metrics and a line of text (the
+        predicts of a timestamped log thinned, see :mod:`ekfviz.viz.thinning`)."""
+        for admitted in self._thinning.admit(record):
+            self._log_record(admitted)
+
+    def _log_record(self, record: EventRecord) -> None:
         self._event, self._step = record.event, record.step
         self._step_has_update = record.kind is not EventKind.PREDICT
         whole_map = False
@@ -517,9 +624,14 @@ class Recorder:
         self._pending_landmarks = 0
         records = [record for record, _ in pending]
         count = len(records)
-        rows = _Rows(
+        rows = self._clock.rows(
             np.fromiter((record.step for record in records), np.int64, count),
             np.fromiter((record.event for record in records), np.int64, count),
+            np.fromiter(
+                (math.nan if record.time is None else record.time for record in records),
+                np.float64,
+                count,
+            ),
         )
         poses = np.stack([record.pose for record in records])
         pose_covs = np.stack([record.pose_cov for record in records])
@@ -817,7 +929,7 @@ class Recorder:
             return
         nees = pose_nees(record, self._truth)
         if nees is not None:
-            self._add_statistic(style.NEES, record.step, record.event, nees, chi2_bounds(3))
+            self._add_statistic(style.NEES, record, nees, chi2_bounds(3))
         self._log_landmark_errors(record, None if whole_map else "observed")
 
     def _log_landmark_errors(self, record: EventRecord, which: str | None) -> None:
@@ -830,21 +942,22 @@ class Recorder:
             record.landmarks_xy[rows], record.landmark_covs[rows], self._truth.lookup(ids)
         )
         add = self._series.add
-        step, event = record.step, record.event
+        step, event, time = record.step, record.event, record.time
         for landmark_id, error, distance in zip(
             ids.tolist(), euclidean.tolist(), mahalanobis.tolist(), strict=True
         ):
             if math.isfinite(error):
-                add(f"{style.LANDMARK_ERROR}/{landmark_id}", step, event, error)
-                add(f"{style.MAHALANOBIS}/{landmark_id}", step, event, distance)
+                add(f"{style.LANDMARK_ERROR}/{landmark_id}", step, event, error, time)
+                add(f"{style.MAHALANOBIS}/{landmark_id}", step, event, distance, time)
 
     def _add_statistic(
-        self, path: str, step: int, event: int, value: float, bounds: tuple[float, float]
+        self, path: str, record: EventRecord, value: float, bounds: tuple[float, float]
     ) -> None:
         """A NIS or NEES value with its chi-square bounds, drawn in the same plot."""
-        self._series.add(path, step, event, value)
-        self._series.add(f"{path}/{style.LOWER}", step, event, bounds[0])
-        self._series.add(f"{path}/{style.UPPER}", step, event, bounds[1])
+        at = (record.step, record.event)
+        self._series.add(path, *at, value, record.time)
+        self._series.add(f"{path}/{style.LOWER}", *at, bounds[0], record.time)
+        self._series.add(f"{path}/{style.UPPER}", *at, bounds[1], record.time)
 
     @staticmethod
     def _describe(record: EventRecord, seen: int, new: int, nis: float, nis_used: int) -> str:
