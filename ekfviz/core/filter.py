@@ -84,7 +84,8 @@ class MotionNoise(str, enum.Enum):
 class FilterParams:
     """Noise levels, prior and options of the filter; defaults are the classic ones.
 
-    ``motion_noise`` says how the motion sigmas scale (see :class:`MotionNoise`).
+    ``motion_noise`` says how the motion sigmas scale (see :class:`MotionNoise`);
+    ``gate`` rejects outliers (see :mod:`ekfviz.core.gating`).
     """
 
     sigma_x: float = 0.25
@@ -97,6 +98,9 @@ class FilterParams:
     landmark_init: LandmarkInit = LandmarkInit.CORRELATED
     update: UpdateMode = UpdateMode.SEQUENTIAL
     motion_noise: MotionNoise = MotionNoise.PER_STEP
+    # NIS (2 dof) beyond which an observation of a known landmark is rejected as an
+    # outlier (see ekfviz.core.gating); None: no gate
+    gate: float | None = None
 
     @property
     def Q(self) -> FloatArray:

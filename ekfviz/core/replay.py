@@ -7,6 +7,7 @@ from itertools import chain
 from typing import Any
 
 from ekfviz.core.filter import EkfSlam, FilterError, FilterParams
+from ekfviz.core.gating import gated
 from ekfviz.core.health import check_covariance, check_interval
 from ekfviz.core.records import (
     Control,
@@ -52,6 +53,7 @@ def replay(
     :raises FilterLineError: the filter cannot go on at a line (a non-finite state, ...)
     """
     ekf = EkfSlam(params)
+    gate, R = ekf.params.gate, ekf.params.R
     next_check = 0  # the step from which the whole covariance is due for a check
 
     def checked(line: int, warnings: tuple[str, ...]) -> dict[str, Any]:
@@ -108,8 +110,11 @@ def replay(
                 if step_has_update:
                     step += 1
                 step_has_update = True
+                rejected: tuple[str, ...] = ()
+                if gate is not None:
+                    log_event, rejected = gated(ekf.x, ekf.P, ekf.landmark_ids, log_event, R, gate)
                 observations = ekf.observe(log_event.ids, log_event.z)
-                warnings = ekf.warnings
+                warnings = rejected + ekf.warnings
                 extra = (
                     checked(log_event.line, warnings)
                     if step >= next_check or last or warnings

@@ -41,6 +41,11 @@ class LogSource:
         return [self.path] if self.dataset is None else self.dataset.log_files
 
     @property
+    def progress_path(self) -> Path:
+        """The file whose bytes read measure the progress (a dataset's odometry)."""
+        return self.path if self.dataset is None else self.dataset.odometry
+
+    @property
     def velocity_odometry(self) -> bool:
         """Whether the controls are velocities held over known times (time-scaled noise)."""
         return self.kind is LogKind.MRCLAM

@@ -173,9 +173,7 @@ def read_truth(dataset: MrclamDataset) -> GroundTruth:
     """The dataset's own truth: the surveyed landmarks and the robot's Vicon track."""
     ids, landmarks_xy = read_landmark_truth(dataset.landmarks)
     times, poses = read_track(dataset.groundtruth)
-    return GroundTruth(
-        ids=ids, landmarks_xy=landmarks_xy, track_times=times, track_xytheta=poses
-    )
+    return GroundTruth(ids=ids, landmarks_xy=landmarks_xy, track_times=times, track_xytheta=poses)
 
 
 @dataclass(slots=True)

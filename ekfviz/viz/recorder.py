@@ -27,7 +27,9 @@ landmark positions and a log line at every event. The 3-sigma ellipses of all la
 at every update while the map holds at most ``SMALL_MAP`` landmarks; beyond that, at
 every update only those of the landmarks observed (``world/landmarks/ellipses/observed``)
 and the whole map every ``MAP_EVERY_STEPS`` steps and at the end (the viewer shows the
-latest of each, so every landmark keeps an ellipse at any time). With truth, the error
+latest of each, so every landmark keeps an ellipse at any time). A timestamped log
+(high-rate odometry) logs its predicts thinned (:mod:`ekfviz.viz.thinning`) and its map
+like a large one, the whole map every ``MAP_EVERY_S`` seconds of log time. With truth, the error
 series of a landmark get a value whenever its ellipse is logged. ``detail=True`` logs
 every ellipse and error at every update.
 """
@@ -71,6 +73,7 @@ SHAPES_EVERY = 256  # ... but line strips in chunks of at most this many events 
 FLUSH_LANDMARKS = 1 << 20  # ... or sooner, once the buffered records hold this many landmarks
 SMALL_MAP = 32  # up to this many landmarks, every ellipse at every update
 MAP_EVERY_STEPS = 25  # beyond: the whole map every this many steps
+MAP_EVERY_S = 5.0  # ... and in a thinned timestamped log, every this many seconds of log time
 FLUSH_TIMEOUT_S = 30.0  # how long finish() waits for a slow or absent viewer
 MAX_CLASS_ID = 65535  # Rerun class ids are u16
 HEADING_LENGTH = 1.0  # metres
@@ -328,9 +331,7 @@ class _Clock:
         self.last: float | None = None
         self.span: tuple[float, float] | None = None
 
-    def rows(
-        self, steps: IntArray, events: IntArray, times: Sequence[float] | FloatArray
-    ) -> _Rows:
+    def rows(self, steps: IntArray, events: IntArray, times: Sequence[float] | FloatArray) -> _Rows:
         filled = self.fill(np.asarray(times, dtype=np.float64))
         return _Rows(steps, events, filled, bool(self.epoch))
 
@@ -410,6 +411,7 @@ class Recorder:
         self._pending: list[tuple[EventRecord, bool]] = []
         self._pending_landmarks = 0
         self._map_step: int | None = None  # step of the last update that logged the whole map
+        self._map_time: float | None = None  # and its time
         self._last_update: tuple[EventRecord, bool] | None = None
         self._last_ids: IntArray | None = None  # landmark ids of the last update, annotated
         self._event = 0
@@ -599,13 +601,17 @@ class Recorder:
                 self._annotate(ids)
                 self._last_ids = ids
             whole_map = (
-                self._detail
-                or record.n_landmarks <= SMALL_MAP
+                not self._sparse_map(record)
                 or self._map_step is None
-                or record.step - self._map_step >= MAP_EVERY_STEPS
+                or (
+                    record.time - self._map_time >= MAP_EVERY_S
+                    if record.time is not None and self._map_time is not None
+                    else record.step - self._map_step >= MAP_EVERY_STEPS
+                )
             )
             if whole_map:
                 self._map_step = record.step
+                self._map_time = record.time
             self._last_update = (record, whole_map)
         if self._truth is not None:
             self._log_metrics(record, whole_map)
@@ -698,7 +704,7 @@ class Recorder:
                 [
                     (k, record, _NO_ROWS if whole else _landmark_rows(record, "observed"))
                     for k, record, whole in updates
-                    if record.n_landmarks > SMALL_MAP and not self._detail
+                    if self._sparse_map(record)
                 ],
             )
             self._send_ellipses(
@@ -712,6 +718,16 @@ class Recorder:
             )
         self._send_health(records, rows, pose_covs, corrected, observed)
         self._send_text(records, rows, observed)
+
+    def _sparse_map(self, record: EventRecord) -> bool:
+        """Whether an update logs the whole map's ellipses only now and then (and the
+        observed landmarks' at every update): beyond ``SMALL_MAP`` landmarks, and in a
+        timestamped log whose predicts are thinned (see :mod:`ekfviz.viz.thinning`)."""
+        if self._detail:
+            return False
+        return record.n_landmarks > SMALL_MAP or (
+            record.time is not None and self._thinning.interval_s is not None
+        )
 
     def _send_trajectory(self, rows: _Rows, ends_xy: FloatArray) -> None:
         """A segment from the previous position to this one at every event but the first."""

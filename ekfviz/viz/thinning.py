@@ -8,7 +8,9 @@ inputs): a record of a predict is logged when
 - it has no time (an untimed log, whose controls are steps, not samples), or the
   recording asks for every record (``--detail``).
 
-Every update and the initialisation are logged. So the robot, its ellipse and the
+Every update and the initialisation are logged; the whole map's ellipses of such a log
+every ``MAP_EVERY_S`` seconds of log time, the observed landmarks' at every update (see
+:mod:`ekfviz.viz.recorder`). So the robot, its ellipse and the
 trajectory have a value at most ``PREDICT_INTERVAL_S`` of log time old at any point of
 the timeline, the state each update starts from is in the recording, and the filter
 itself stays exact: only what is logged is thinned, never what is computed.
@@ -18,7 +20,7 @@ from __future__ import annotations
 
 from ekfviz.core.records import EventKind, EventRecord
 
-PREDICT_INTERVAL_S = 0.1  # seconds of log time: 10 poses a second, smooth to the eye
+PREDICT_INTERVAL_S = 0.5  # seconds of log time: 2 poses a second at least (MRCLAM: < 10 cm)
 
 
 class PredictThinning:
@@ -29,14 +31,14 @@ class PredictThinning:
     """
 
     def __init__(self, interval_s: float | None = PREDICT_INTERVAL_S) -> None:
-        self._interval_s = interval_s
+        self.interval_s = interval_s
         self._held: EventRecord | None = None  # the latest predict not logged (yet)
         self._last_time: float | None = None  # of the latest record logged
         self.skipped = 0  # predicts never logged
 
     def admit(self, record: EventRecord) -> list[EventRecord]:
         """The records to log now, in order, given the next one of the run."""
-        interval = self._interval_s
+        interval = self.interval_s
         if record.kind is EventKind.PREDICT and interval is not None and record.time is not None:
             if self._last_time is None or record.time - self._last_time >= interval:
                 if self._held is not None:
