@@ -14,6 +14,8 @@ def test_core_io_and_sim_do_not_import_rerun_or_typer() -> None:
         "import ekfviz.core.health\n"
         "import ekfviz.core.consistency, ekfviz.sim.montecarlo, ekfviz.sweep\n"
         "import ekfviz.io.classic, ekfviz.io.extended, ekfviz.io.truth, ekfviz.sim.scenarios\n"
+        "import ekfviz.io.mrclam, ekfviz.io.detect, ekfviz.sim.mrclam\n"
+        "import ekfviz.core.calibrate, ekfviz.core.gating\n"
         "bad = sorted(m for m in sys.modules if m.split('.')[0] in {'rerun', 'typer', 'rich'})\n"
         "print(','.join(bad))\n"
     )

@@ -35,7 +35,13 @@ from ekfviz.core.records import Control, LogEvent, Sighting
 from ekfviz.core.truth import GroundTruth
 from ekfviz.core.types import FloatArray
 from ekfviz.io.errors import InputError
-from ekfviz.io.text import BearingWrapper, ProgressCallback, WarningCallback, numeric_lines
+from ekfviz.io.text import (
+    BearingWrapper,
+    ProgressCallback,
+    WarningCallback,
+    numeric_blocks,
+    numeric_lines,
+)
 
 BARCODES = "Barcodes.dat"
 LANDMARKS = "Landmark_Groundtruth.dat"
@@ -151,22 +157,16 @@ def read_landmark_truth(path: Path) -> tuple[np.ndarray, FloatArray]:
 
 def read_track(path: Path) -> tuple[FloatArray, FloatArray]:
     """A robot's Vicon track: times (T,) and poses (T, 3), times never decreasing."""
-    times: list[float] = []
-    poses: list[list[float]] = []
+    blocks: list[FloatArray] = []
     last = -math.inf
-    for line, values in numeric_lines(path):
-        if len(values) != 4:
-            raise InputError(
-                path, line, f"found {len(values)} numbers, expected 4: time x y orientation"
-            )
-        if values[0] < last:
-            raise InputError(path, line, _decreasing(values[0], last))
-        last = values[0]
-        times.append(values[0])
-        poses.append(values[1:])
-    if not times:
+    for lines, table in numeric_blocks(path, 4, "time x y orientation"):
+        _check_times(path, lines, table[:, 0], last)
+        last = float(table[-1, 0])
+        blocks.append(table)
+    if not blocks:
         raise InputError(path, 0, "found no data, expected 'time x y orientation' lines")
-    return np.array(times), np.array(poses).reshape(-1, 3)
+    track = np.concatenate(blocks)
+    return np.ascontiguousarray(track[:, 0]), np.ascontiguousarray(track[:, 1:])
 
 
 def read_truth(dataset: MrclamDataset) -> GroundTruth:
@@ -250,18 +250,11 @@ def _odometry(
 ) -> Iterator[tuple[int, float, float, float]]:
     """(line, time, v, omega) of every odometry sample, times never decreasing."""
     last = -math.inf
-    for line, values in numeric_lines(path, progress):
-        if len(values) != 3:
-            raise InputError(
-                path,
-                line,
-                f"found {len(values)} numbers, expected 3: time forward-velocity angular-velocity",
-            )
-        time, v, omega = values
-        if time < last:
-            raise InputError(path, line, _decreasing(time, last))
-        last = time
-        yield line, time, v, omega
+    for lines, table in numeric_blocks(path, 3, "time forward-velocity angular-velocity", progress):
+        _check_times(path, lines, table[:, 0], last)
+        last = float(table[-1, 0])
+        for line, (time, v, omega) in zip(lines, table.tolist(), strict=True):
+            yield line, time, v, omega
 
 
 def _sightings(
@@ -282,11 +275,7 @@ def _sightings(
             time=last,
         )
 
-    for line, values in numeric_lines(path):
-        if len(values) != 4:
-            raise InputError(
-                path, line, f"found {len(values)} numbers, expected 4: time barcode range bearing"
-            )
+    for line, values in _rows(path, 4, "time barcode range bearing"):
         time, barcode, rng, bearing = values
         if not (barcode.is_integer() and barcode >= 0):
             raise InputError(path, line, f"found barcode {barcode:g}, expected an integer >= 0")
@@ -312,6 +301,20 @@ def _sightings(
             z.append((bearing, rng))
     if ids:
         yield sighting()
+
+
+def _rows(path: Path, columns: int, what: str) -> Iterator[tuple[int, list[float]]]:
+    for lines, table in numeric_blocks(path, columns, what):
+        yield from zip(lines, table.tolist(), strict=True)
+
+
+def _check_times(path: Path, lines: list[int], times: FloatArray, last: float) -> None:
+    """Refuse the first time of a block that is earlier than the one before it."""
+    previous = np.concatenate(([last], times[:-1]))
+    back = np.flatnonzero(times < previous)
+    if back.size:
+        k = int(back[0])
+        raise InputError(path, lines[k], _decreasing(float(times[k]), float(previous[k])))
 
 
 def _decreasing(time: float, last: float) -> str:

@@ -35,6 +35,7 @@ from ekfviz.viz import style
 from ekfviz.viz.recorder import Recorder
 
 APPLICATION_ID = "ekfviz"
+TIME_PROPERTY = "time"  # the span of the time timeline: start, end (seconds), kind
 INPUT_TEXT_CAP = 4 * 1024 * 1024  # bytes of input embedded in a recording
 GRPC_PORT = 9876
 WEB_PORT = 9090
@@ -313,8 +314,15 @@ class RunLogger:
         self.logged += 1
 
     def finish(self, evaluation: Evaluation | None) -> None:
-        """Log the evaluation document and send the buffered series: the run is complete."""
+        """Log the evaluation document and send the buffered series: the run is complete;
+        the span of the ``time`` timeline, if any, goes into the properties."""
         finish_recorders(self.recording, [(self.recorder, evaluation)])
+        span = self.recorder.time_span
+        if span is not None:
+            kind = "timestamp" if self.recorder.time_is_epoch else "duration"
+            self.recording.rec.send_property(
+                TIME_PROPERTY, _any_values({"start": span[0], "end": span[1], "kind": kind})
+            )
 
     def stop(self, reason: str, evaluation: Evaluation | None) -> bool:
         """End a run cut short (bad input, a numerical fault, a signal): log why as the

@@ -3,7 +3,8 @@
 The one logging policy for high-rate odometry (MRCLAM's 67 Hz, Victoria Park's 62,000
 inputs): a record of a predict is logged when
 
-- its log time is at least ``PREDICT_INTERVAL_S`` after the last record logged, or
+- its log time is at least ``PREDICT_INTERVAL_S`` after the last record logged (so
+  that logged poses are at most that plus one control's span apart), or
 - it is the last predict before an update, or the last record of the run, or
 - it has no time (an untimed log, whose controls are steps, not samples), or the
   recording asks for every record (``--detail``).
