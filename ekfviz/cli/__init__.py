@@ -3,7 +3,28 @@
 Importing this package registers every command on :data:`app`.
 """
 
-from ekfviz.cli import calibrate, consistency, convert, info, replay, simulate, sweep
+from ekfviz.cli import (
+    calibrate,
+    check,
+    compare,
+    consistency,
+    convert,
+    info,
+    replay,
+    simulate,
+    sweep,
+)
 from ekfviz.cli.common import app
 
-__all__ = ["app", "calibrate", "consistency", "convert", "info", "replay", "simulate", "sweep"]
+__all__ = [
+    "app",
+    "calibrate",
+    "check",
+    "compare",
+    "consistency",
+    "convert",
+    "info",
+    "replay",
+    "simulate",
+    "sweep",
+]

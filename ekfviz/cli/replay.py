@@ -13,11 +13,11 @@ from ekfviz import signals
 from ekfviz.cli.common import (
     DEFAULT,
     RECORDINGS_DIR,
+    FilterOption,
     FilterWarnings,
     InitPoseSigma,
     LandmarkInitOption,
     LogArgument,
-    RunStopped,
     SigmaAlpha,
     SigmaBearing,
     SigmaRange,
@@ -33,7 +33,6 @@ from ekfviz.cli.common import (
     out,
     print_evaluation,
     report_json,
-    stop_reason,
     write_json,
 )
 from ekfviz.cli.sources import (
@@ -47,12 +46,8 @@ from ekfviz.cli.sources import (
     open_log,
     resolve,
 )
-from ekfviz.core.consistency import Consistency
-from ekfviz.core.evaluation import evaluate
 from ekfviz.core.filter import FilterError
-from ekfviz.core.records import EventRecord
-from ekfviz.core.replay import FilterLineError
-from ekfviz.core.replay import replay as run_filter
+from ekfviz.filters import BUILTIN, FilterSpecError, load_filter
 from ekfviz.io.errors import InputError
 
 
@@ -76,6 +71,7 @@ def replay(
     init_pose_sigma: InitPoseSigma = DEFAULT.init_pose_sigma,
     landmark_init: LandmarkInitOption = DEFAULT.landmark_init,
     update: UpdateOption = DEFAULT.update,
+    filter_spec: FilterOption = BUILTIN,
     save: Annotated[
         Path | None,
         typer.Option(
@@ -115,13 +111,22 @@ def replay(
             rich_help_panel="Rerun output",
         ),
     ] = False,
+    history: Annotated[
+        bool,
+        typer.Option(
+            "--history",
+            help="The classic figure: the map keeps every predicted (magenta) and updated"
+            " (blue) robot ellipse up to the time cursor.",
+            rich_help_panel="Rerun output",
+        ),
+    ] = False,
 ) -> None:
     """Replay a log through EKF-SLAM, record it for Rerun and print the evaluation.
 
     With no Rerun output option, the native viewer opens where a display exists;
     otherwise the recording is saved to recordings/<input name>.rrd.
     """
-    from ekfviz import viz  # rerun loads only for commands that record
+    from ekfviz import pipeline, viz  # rerun loads only for commands that record
 
     params = filter_params(
         (sigma_x, sigma_y, sigma_alpha, sigma_bearing, sigma_range),
@@ -129,6 +134,10 @@ def replay(
         landmark_init,
         update,
     )
+    try:
+        make_filter = load_filter(filter_spec)
+    except FilterSpecError as error:
+        fail(str(error))
     try:
         opened = open_log(data, robot, truth, no_truth)
         truth_xy = opened.truth
@@ -145,7 +154,7 @@ def replay(
         info = viz.run_info(
             name=opened.source.name,
             command=shlex.join(["ekfviz", *sys.argv[1:]]),
-            parameters=params.as_dict(),
+            parameters={**params.as_dict(), "filter": filter_spec},
             input_path=data,
             truth=truth_xy,
             truth_path=opened.truth_files[0] if opened.truth_files else None,
@@ -154,35 +163,21 @@ def replay(
         )
         with (
             open_progress(opened.source.progress_path) as progress,
-            viz.open_run(info, sinks, detail=detail) as logger,
+            viz.open_run(info, sinks, detail=detail, history=history) as logger,
             signals.as_exceptions(),
         ):
-            last: EventRecord | None = None
-            consistency = Consistency(truth_xy)
             warnings = FilterWarnings(data)
-            try:
-                if progress is not None:
-                    events = opened.events(progress)  # read from the start, with a bar
-                for record in run_filter(events, params):
-                    logger.log(record)
-                    consistency.add(record)
-                    if record.warnings:
-                        warnings.add(record)
-                    last = record
-                    if record.event == 0:  # a signal during start-up: stop, with a recording
-                        signals.raise_pending()
-            except (InputError, FilterLineError, KeyboardInterrupt, signals.Terminated) as cause:
-                final = None if last is None else evaluate(last, truth_xy, consistency)
-                reason = stop_reason(cause, data, last)
-                kept = logger.stop(reason, final)
-                raise RunStopped(reason, cause, kept) from cause
-            assert last is not None  # replay always yields the initialisation
-            evaluation = evaluate(last, truth_xy, consistency)
-            logger.finish(evaluation)
+            if progress is not None:
+                events = opened.events(progress)  # read from the start, with a bar
+            evaluation = pipeline.replay_log(
+                events, params, make_filter=make_filter, name=filter_spec, data=data,
+                truth=truth_xy, logger=logger, on_record=warnings.add,
+            )  # fmt: skip
             warnings.summarise()
             print_evaluation(evaluation, truth_xy)
             if report is not None:
-                write_json(report, report_json(evaluation, params, data, info.input_sha256))
+                document = report_json(evaluation, params, data, info.input_sha256)
+                write_json(report, {**document, "filter": filter_spec})
             if truth_xy is not None:
                 mismatch_note(params, truth_xy)
             if note:
@@ -190,7 +185,7 @@ def replay(
             if logger.url:
                 out.print(f"Serving the web viewer at [bold]{logger.url}[/] (Ctrl-C to stop)")
             logger.wait_while_serving()
-    except RunStopped as stopped:
+    except pipeline.RunStopped as stopped:
         where = ""
         if stopped.kept and sinks.save is not None:
             where = f"; the recording of everything before it is saved in {sinks.save}"

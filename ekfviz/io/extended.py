@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from ekfviz.core.records import Control, LogEvent, Sighting
+from ekfviz.io.classic import read_classic
 from ekfviz.io.errors import InputError
 from ekfviz.io.text import (
     BearingWrapper,
@@ -40,16 +41,15 @@ def read_log(
     progress: ProgressCallback | None = None,
     warn: WarningCallback | None = None,
 ) -> Iterator[LogEvent]:
-    """Stream the events of a log of any kind: a classic or extended file, told apart by
-    its first data line, or an MRCLAM dataset directory (robot 1); see
-    :mod:`ekfviz.io.detect`, where the formats are told apart.
+    """Stream the events of a log file in either format, told apart by its first data
+    line (:func:`ekfviz.io.detect.read_log` also takes an MRCLAM dataset directory).
 
     :param progress: called now and then with the number of bytes read so far
     :param warn: told once when bearings outside (-pi, pi] are wrapped into range
     """
-    from ekfviz.io.detect import read_log as read_any  # detect imports this module
-
-    return read_any(path, progress, warn)
+    if is_extended(path):
+        return read_extended(path, progress, warn)
+    return read_classic(path, progress, warn)
 
 
 def is_extended(path: Path) -> bool:

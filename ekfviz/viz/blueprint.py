@@ -23,13 +23,19 @@ def accumulated_range() -> rrb.VisibleTimeRanges:
 
 
 def map_view(
-    bounds_xy: FloatArray | None = None, *, prefix: str = "", name: str = "Map"
+    bounds_xy: FloatArray | None = None,
+    *,
+    prefix: str = "",
+    name: str = "Map",
+    history: bool = False,
 ) -> rrb.Spatial2DView:
     """The 2-D map: robot, ellipses, landmarks, observations and the trajectory so far.
 
     :param bounds_xy: (2, 2) [[x_min, y_min], [x_max, y_max]] in world coordinates to
         frame, or None to let the viewer choose
     :param prefix: the entity path the run was logged under (see ``Recorder(prefix=)``)
+    :param history: also accumulate every predicted and updated robot ellipse up to the
+        time cursor (``--history``: the classic figure)
     """
     root = f"/{prefix.strip('/')}/" if prefix.strip("/") else "/"
     visual_bounds = None
@@ -43,7 +49,10 @@ def map_view(
         contents=f"{root}{style.WORLD}/**",
         background=style.BACKGROUND,
         visual_bounds=visual_bounds,
-        overrides={f"{root}{path}": accumulated_range() for path in style.ACCUMULATED},
+        overrides={
+            f"{root}{path}": accumulated_range()
+            for path in style.ACCUMULATED + (style.HISTORY if history else ())
+        },
     )
 
 
@@ -54,15 +63,16 @@ def default_blueprint(
     has_true_poses: bool = False,
     bounds_xy: FloatArray | None = None,
     has_time: bool = False,
+    history: bool = False,
 ) -> rrb.Blueprint:
     """The layout: the map on the left, plots above and documents below on the right.
 
     :param has_time: the run has a ``time`` timeline: the time panel shows it
-
     :param has_truth: add the landmark error and Mahalanobis distance plots
     :param has_run_info: add the run information, input and evaluation documents
     :param has_true_poses: add the NEES plot
     :param bounds_xy: (2, 2) world box the map frames, see :func:`map_view`
+    :param history: the map accumulates every robot ellipse, see :func:`map_view`
     """
     plots: list[rrb.View] = [rrb.TimeSeriesView(name="NIS and 95% bounds", origin=style.NIS)]
     if has_true_poses:
@@ -87,7 +97,10 @@ def default_blueprint(
             rrb.TimeSeriesView(name="Landmark error [m]", origin=style.LANDMARK_ERROR),
             rrb.TimeSeriesView(name="Mahalanobis distance", origin=style.MAHALANOBIS),
         ]
-    texts: list[rrb.View] = [rrb.TextLogView(name="Log", origin=style.LOG)]
+    texts: list[rrb.Container | rrb.View] = [
+        rrb.TextLogView(name="Log", origin=style.LOG),
+        correlation_view(),
+    ]
     if has_run_info:
         texts += [
             rrb.TextDocumentView(name="Run", origin=style.RUN_INFO),
@@ -96,7 +109,7 @@ def default_blueprint(
         ]
     return rrb.Blueprint(
         rrb.Horizontal(
-            map_view(bounds_xy),
+            map_view(bounds_xy, history=history),
             rrb.Vertical(
                 rrb.Grid(*plots, grid_columns=2),
                 rrb.Tabs(*texts),
@@ -113,24 +126,53 @@ def default_blueprint(
     )
 
 
-def sweep_blueprint(
-    variants: list[tuple[str, str]], *, has_truth: bool, bounds_xy: FloatArray | None = None
-) -> rrb.Blueprint:
-    """A grid of maps, one per variant (baseline first), above overlaid metric plots.
+def correlation_view(prefix: str = "") -> rrb.Vertical:
+    """The correlation matrix of P with its labelled blocks, above what it shows."""
+    root = f"/{prefix.strip('/')}/" if prefix.strip("/") else "/"
+    return rrb.Vertical(
+        rrb.Spatial2DView(
+            name="Correlation",
+            origin=f"{root}{style.CORRELATION}",
+            contents=[f"{root}{style.CORRELATION_MATRIX}", f"{root}{style.CORRELATION_BLOCKS}"],
+        ),
+        rrb.TextDocumentView(name="Correlation", origin=f"{root}{style.CORRELATION_NOTE}"),
+        row_shares=[6, 1],
+        name="Correlation",
+    )
 
-    :param variants: (label, prefix) of every variant, in order
+
+def sweep_blueprint(
+    variants: list[tuple[str, str]],
+    *,
+    has_truth: bool,
+    bounds_xy: FloatArray | None = None,
+    what: str = "variant",
+    has_poses: bool = False,
+) -> rrb.Blueprint:
+    """A grid of maps, one per run (baseline first), above overlaid metric plots.
+
+    :param variants: (label, prefix) of every run, in order
+    :param what: what a run is called in the plot titles (``variant``, ``filter``)
+    :param has_poses: the truth has poses: a NEES plot too
     """
     maps = [map_view(bounds_xy, prefix=prefix, name=label) for label, prefix in variants]
     plots = [
         rrb.TimeSeriesView(
-            name="NIS per variant",
+            name=f"NIS per {what}",
             contents=[f"/{prefix}/{style.NIS}" for _, prefix in variants],
         )
     ]
+    if has_poses:
+        plots.append(
+            rrb.TimeSeriesView(
+                name=f"Pose NEES per {what}",
+                contents=[f"/{prefix}/{style.NEES}" for _, prefix in variants],
+            )
+        )
     if has_truth:
         plots.append(
             rrb.TimeSeriesView(
-                name="Mean landmark error [m] per variant",
+                name=f"Mean landmark error [m] per {what}",
                 contents=[f"/{prefix}/{style.MEAN_LANDMARK_ERROR}" for _, prefix in variants],
             )
         )

@@ -39,7 +39,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -49,6 +49,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from ekfviz.core.consistency import chi2_bounds, pose_nees
+from ekfviz.core.correlation import Correlation, CorrelationCadence, correlation_of
 from ekfviz.core.evaluation import Evaluation, landmark_errors
 from ekfviz.core.health import (
     CovarianceCheck,
@@ -63,6 +64,7 @@ from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.models.angles import wrap_angles
 from ekfviz.viz import style
 from ekfviz.viz.blueprint import default_blueprint
+from ekfviz.viz.correlation import log_correlation, log_correlation_styling
 from ekfviz.viz.ellipses import ellipse_outlines, outline_points
 from ekfviz.viz.thinning import PREDICT_INTERVAL_S, PredictThinning
 
@@ -375,6 +377,8 @@ class Recorder:
     :param detail: log every landmark's ellipse (and, with truth, its errors) at every
         update, however large the map (see the module for what is logged otherwise),
         and every predict
+    :param history: the layout's map accumulates every predicted and updated robot
+        ellipse up to the time cursor (the classic figure); the data is the same
     :param predict_interval_s: log time between two logged predicts of a timestamped
         log (see :mod:`ekfviz.viz.thinning`); None logs every predict
     """
@@ -390,9 +394,13 @@ class Recorder:
         heading_length: float = HEADING_LENGTH,
         prefix: str = "",
         detail: bool = False,
+        history: bool = False,
         predict_interval_s: float | None = PREDICT_INTERVAL_S,
     ) -> None:
         self._rec = _Entities(rec, prefix)
+        self._history = history
+        self._correlation = CorrelationCadence()  # of the array API (a replay's records own)
+        self._last_correlation: Correlation | None = None  # the last one logged
         self._detail = detail
         self._truth = truth
         self._heading_length = heading_length
@@ -425,6 +433,7 @@ class Recorder:
         if blueprint:
             self._rec.send_blueprint(self._layout())
         self._log_styling()
+        log_correlation_styling(self._rec)
         seed_ids = list(self._order)
         if truth is not None:
             seed_ids += truth.ids.tolist()
@@ -453,11 +462,11 @@ class Recorder:
         self._event = self._step = 0
         self._checked_step = None
         self.log_record(
-            snapshot(
+            self._correlated(snapshot(
                 x, P, event=0, step=0, kind=EventKind.INIT, line=line,
                 landmark_ids=self._state_ids(x), observations=observations,
                 **self._check(P, 0),
-            )
+            ), P)
         )  # fmt: skip
 
     def predict(
@@ -506,11 +515,11 @@ class Recorder:
         observations = self._observations(landmark_ids, z, z_pred, S)
         step = self._step + 1 if self._step_has_update else self._step
         self.log_record(
-            snapshot(
+            self._correlated(snapshot(
                 x, P, event=self._event + 1, step=step, kind=EventKind.UPDATE, line=line,
                 landmark_ids=self._state_ids(x), observations=observations,
                 **self._check(P, step),
-            )
+            ), P)
         )  # fmt: skip
 
     def finish(self, evaluation: Evaluation | None = None) -> None:
@@ -551,12 +560,19 @@ class Recorder:
         self._send_pending()
         self._rec.set_time(style.STEP, sequence=self._step)
         self._rec.set_time(style.EVENT, sequence=self._event)
-        if self._clock.last is not None:
-            if self._clock.epoch:
-                self._rec.rec.set_time(style.TIME, timestamp=self._clock.last)
-            else:
-                self._rec.rec.set_time(style.TIME, duration=self._clock.last)
+        self._set_time(self._clock.last)
         self._rec.log(style.LOG, rr.TextLog(text, level=level))
+
+    def _set_time(self, time: float | None) -> None:
+        """Set the ``time`` timeline of the stream's next ``log`` calls, if there is one."""
+        if time is None:
+            return
+        if self._clock.epoch is None:
+            self._clock.epoch = time_is_epoch(time)
+        if self._clock.epoch:
+            self._rec.rec.set_time(style.TIME, timestamp=time)
+        else:
+            self._rec.rec.set_time(style.TIME, duration=time)
 
     def _layout(self, bounds_xy: FloatArray | None = None) -> rrb.Blueprint:
         if bounds_xy is not None:
@@ -568,6 +584,7 @@ class Recorder:
             has_run_info=self._run_documents,
             bounds_xy=bounds_xy,
             has_time=self._clock.span is not None,
+            history=self._history,
         )
 
     # -- records -------------------------------------------------------------------------
@@ -615,6 +632,12 @@ class Recorder:
             self._last_update = (record, whole_map)
         if self._truth is not None:
             self._log_metrics(record, whole_map)
+        if record.correlation is not None:  # a few per run: logged at once
+            self._rec.set_time(style.STEP, sequence=record.step)
+            self._rec.set_time(style.EVENT, sequence=record.event)
+            self._set_time(record.time)
+            log_correlation(self._rec, record.correlation, self._last_correlation)
+            self._last_correlation = record.correlation
         self._pending.append((record, whole_map))
         self._pending_landmarks += len(record.landmark_ids)
         if len(self._pending) >= FLUSH_EVERY or self._pending_landmarks >= FLUSH_LANDMARKS:
@@ -1133,6 +1156,12 @@ class Recorder:
             self._order += range(start, start + n - len(self._order))
             self._in_order.update(self._order)
         return np.asarray(self._order[:n], dtype=np.int64)
+
+    def _correlated(self, record: EventRecord, P: FloatArray) -> EventRecord:
+        """The record with the correlation matrix of ``P`` where it is due."""
+        if self._correlation.due(record.step, record.n_landmarks, last=False):
+            return replace(record, correlation=correlation_of(P, record.landmark_ids))
+        return record
 
     def _check(self, P: FloatArray, step: int) -> dict[str, Any]:
         """The check of a whole covariance handed in through the array API: at every call

@@ -39,6 +39,11 @@ HEALTH_P_MIN_EIG = "metrics/health/P_min_eigenvalue"  # where the whole P was ch
 HEALTH_P_ASYMMETRY = "metrics/health/P_asymmetry"  # likewise: max |P - P^T|
 HEALTH_P_LOG10_CONDITION = "metrics/health/P_log10_condition"  # likewise
 
+CORRELATION = "correlation"  # the correlation matrix of P, see ekfviz.viz.correlation
+CORRELATION_MATRIX = "correlation/matrix"  # Image (RGB), where the replay took it
+CORRELATION_BLOCKS = "correlation/blocks"  # Boxes2D: the diagonal blocks, labelled
+CORRELATION_NOTE = "correlation/note"  # TextDocument: what is shown (block-averaged?)
+
 LOG = "log"  # TextLog, one line per event, and one per warning
 RUN_INFO = "run/info"  # TextDocument (markdown), static
 RUN_INPUT = "run/input"  # TextDocument (the input log itself), static
@@ -46,6 +51,8 @@ RUN_EVALUATION = "run/evaluation"  # TextDocument (markdown), static, at the end
 
 # Entities drawn from the infinite past up to the time cursor instead of latest-at.
 ACCUMULATED = (TRAJECTORY, LANDMARK_INITIAL)
+# ... and with --history also every robot ellipse: the classic figure
+HISTORY = (POSE_PREDICTED, POSE_UPDATED)
 
 # -- timelines -------------------------------------------------------------------------
 
@@ -70,6 +77,7 @@ OBSERVATION_COLOR: Rgb = (255, 165, 0)
 STATISTIC_COLOR: Rgb = (31, 119, 180)  # NIS and NEES
 BOUND_COLOR: Rgb = (150, 150, 150)  # their chi-square bounds
 TRUTH_COLOR: Rgb = (0, 0, 0)  # "k"
+CORRELATION_BLOCK_COLOR: Rgb = (60, 60, 60)
 
 # Negative radii are UI points, so the map looks the same at any scale.
 POINT_RADIUS_UI = 4.0

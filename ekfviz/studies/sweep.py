@@ -1,0 +1,122 @@
+"""Parameter sweeps: the same log replayed with filter parameters varied around a baseline.
+
+A sweep is a study (:mod:`ekfviz.studies.runs`) of one filter under several parameter sets.
+
+No rerun, no typer: the variants are built from ``--vary`` texts or a preset, replayed in
+parallel over the machine's cores (each worker reads the log itself) and summarised; the
+command line prints and records them.
+
+A value in ``--vary NAME=V1,V2,...`` is absolute (``0.5``) or a factor of the baseline
+(``x10`` multiplies, ``/10`` divides). Several ``--vary`` options form a grid, or are
+varied one at a time around the baseline.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from typing import Any
+
+from ekfviz.core.filter import FilterParams
+from ekfviz.studies.runs import VARIABLE, RunSpec
+
+_VALUE = re.compile(r"(?P<op>[x*/]?)(?P<number>(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)")
+
+
+class SweepError(ValueError):
+    """A ``--vary`` or preset that cannot be used, with a one-line reason."""
+
+
+@dataclass(frozen=True, slots=True)
+class Change:
+    """One value of a varied parameter: absolute, or a factor of the baseline."""
+
+    name: str
+    op: str  # "" absolute, "x" multiply, "/" divide
+    number: float
+
+    def apply(self, baseline: float) -> float:
+        if self.op == "x":
+            return baseline * self.number
+        if self.op == "/":
+            return baseline / self.number
+        return self.number
+
+    @property
+    def label(self) -> str:
+        """Readable, e.g. ``sigma_x x10``, ``sigma_x /10``, ``sigma_x=0.5``."""
+        number = f"{self.number:g}"
+        return f"{self.name} {self.op}{number}" if self.op else f"{self.name}={number}"
+
+    @property
+    def key(self) -> str:
+        """Safe in an entity path, e.g. ``sigma_x-x10``, ``sigma_x-div10``, ``sigma_x-0.5``."""
+        op = {"x": "x", "/": "div", "": ""}[self.op]
+        return f"{self.name}-{op}{self.number:g}"
+
+
+def parse_vary(text: str) -> list[Change]:
+    """Parse ``NAME=V1,V2,...`` (``NAME`` with ``-`` or ``_``).
+
+    :raises SweepError: naming the option and what was expected
+    """
+    name, sep, values = text.partition("=")
+    name = name.strip().replace("-", "_")
+    if not sep or not values.strip():
+        raise SweepError(f"--vary {text}: expected NAME=V1,V2,... (e.g. sigma_x=x10,/10)")
+    if name not in VARIABLE:
+        raise SweepError(
+            f"--vary {text}: unknown parameter {name!r}, expected one of {', '.join(VARIABLE)}"
+        )
+    changes = []
+    for value in values.split(","):
+        found = _VALUE.fullmatch(value.strip())
+        if found is None:
+            raise SweepError(
+                f"--vary {text}: found {value.strip()!r}, expected a number (0.5) or a factor"
+                " of the baseline (x10, /10)"
+            )
+        op = "x" if found["op"] == "*" else found["op"]
+        number = float(found["number"])
+        if not math.isfinite(number) or (op == "/" and number == 0.0):
+            raise SweepError(f"--vary {text}: {value.strip()!r} is not a usable value")
+        changes.append(Change(name, op, number))
+    return changes
+
+
+def build_variants(
+    baseline: FilterParams, varies: Sequence[Sequence[Change]], *, one_at_a_time: bool
+) -> list[RunSpec]:
+    """The baseline first, then a grid of the varied values or each value on its own."""
+    variants = [RunSpec("baseline", "baseline", baseline)]
+    combinations: list[tuple[Change, ...]]
+    if one_at_a_time or len(varies) == 1:
+        combinations = [(change,) for changes in varies for change in changes]
+    else:
+        combinations = list(itertools.product(*varies))
+    seen = {"baseline"}
+    for combination in combinations:
+        names = [change.name for change in combination]
+        if len(set(names)) != len(names):
+            raise SweepError(f"--vary names {names[0]} twice in one variant")
+        values: dict[str, Any] = {c.name: c.apply(getattr(baseline, c.name)) for c in combination}
+        params = replace(baseline, **values)
+        key = "_".join(change.key for change in combination)
+        if key in seen:
+            continue
+        seen.add(key)
+        variants.append(
+            RunSpec(
+                ", ".join(change.label for change in combination), key, params, changes=combination
+            )
+        )
+    return variants
+
+
+def tuning_preset(baseline: FilterParams) -> list[RunSpec]:
+    """The classic tuning study: each noise parameter x10 and /10, one at a time (11)."""
+    varies = [[Change(name, "x", 10.0), Change(name, "/", 10.0)] for name in VARIABLE]
+    return build_variants(baseline, varies, one_at_a_time=True)
