@@ -88,7 +88,7 @@ def replay(
     def correlated(record: EventRecord, last: bool) -> EventRecord:
         """The record, with the correlation matrix of P where it is due."""
         if (record.kind is not EventKind.PREDICT or last) and cadence.due(
-            record.step, record.n_landmarks, last
+            record.step, record.n_landmarks, last, record.time
         ):
             return replace(record, correlation=correlation_of(ekf.P, record.landmark_ids))
         return record
