@@ -184,7 +184,8 @@ def test_export_needs_something_to_write(tmp_path: Path) -> None:
 def test_time_stamps_come_from_the_time_timeline_where_the_recording_has_one(
     tmp_path: Path,
 ) -> None:
-    """A log with time stamps records a ``time`` timeline (seconds): the export's stamps."""
+    """A log with time stamps records a ``time`` timeline (seconds; a timestamp for Unix
+    times): the export's stamps, to the microsecond."""
     import rerun as rr
 
     from ekfviz import viz
@@ -193,13 +194,13 @@ def test_time_stamps_come_from_the_time_timeline_where_the_recording_has_one(
     rec = rr.RecordingStream("ekfviz")
     rec.save(rrd)
     steps, events = np.array([0, 1, 1, 2, 2]), np.arange(5)
-    seconds = np.array([10.0, 10.5, 10.5, 11.25, 11.25])
+    seconds = 1_248_444_000.0 + np.array([0.0, 0.5, 0.5, 1.257, 1.257])  # Unix times
     rec.send_columns(
         f"/{style.ROBOT}",
         indexes=[
             rr.TimeColumn("step", sequence=steps),
             rr.TimeColumn("event", sequence=events),
-            rr.TimeColumn("time", duration=seconds),
+            rr.TimeColumn("time", timestamp=seconds),
         ],
         columns=rr.Transform3D.columns(
             translation=np.column_stack([events, -events, np.zeros(5)]).astype(np.float32),
@@ -210,9 +211,31 @@ def test_time_stamps_come_from_the_time_timeline_where_the_recording_has_one(
     run = viz.read_recorded_run(rrd)
     assert run.estimate.steps.tolist() == [0, 1, 2]
     assert run.estimate.seconds is not None
-    np.testing.assert_allclose(run.estimate.stamps, [10.0, 10.5, 11.25])
+    np.testing.assert_allclose(run.estimate.stamps - 1_248_444_000.0, [0.0, 0.5, 1.257])
     np.testing.assert_allclose(run.estimate.poses_xytheta[:, 0], [0, 2, 4])  # each step's last
     out = tmp_path / "timed.tum"
     invoke("export", str(rrd), "--tum", str(out), "--csv", str(tmp_path / "timed.csv"))
-    assert read_tum(out)[:, 0].tolist() == [10.0, 10.5, 11.25]
+    # to the microsecond, which a float's %g would round to 1.248444e+09
+    assert [line.split()[0] for line in out.read_text().splitlines()] == [
+        "1248444000",
+        "1248444000.5",
+        "1248444001.257",
+    ]
     assert (tmp_path / "timed.csv").read_text().splitlines()[0].startswith("step,time,x,y")
+
+
+def test_a_timestamped_dataset_exports_its_track_as_the_truth(tmp_path: Path) -> None:
+    """A MRCLAM-layout dataset: the truth is a motion-capture track, the true pose of an
+    update is the track's at its time; both files carry the log's Unix times."""
+    folder, rrd = tmp_path / "mrclam", tmp_path / "mrclam.rrd"
+    invoke("simulate", "--layout", "mrclam", "-o", str(folder))
+    invoke("replay", str(folder), "--robot", "1", "--save", str(rrd))
+    est, true = tmp_path / "e.tum", tmp_path / "t.tum"
+    invoke("export", str(rrd), "--tum", str(est), "--truth-tum", str(true))
+    estimate, truth = read_tum(est), read_tum(true)
+    assert len(truth) > 0.9 * len(estimate)
+    assert np.all(estimate[:, 0] > 1e9) and np.all(np.diff(estimate[:, 0]) > 0)
+    assert set(truth[:, 0].tolist()) <= set(estimate[:, 0].tolist())
+    by_time = {row[0]: row for row in estimate}
+    errors = [np.linalg.norm(by_time[row[0]][1:3] - row[1:3]) for row in truth]
+    assert 0.0 < float(np.sqrt(np.mean(np.square(errors)))) < 1.0

@@ -9,6 +9,7 @@ from typing import Any
 
 from ekfviz.core.correlation import CorrelationCadence, correlation_of
 from ekfviz.core.filter import EkfSlam, FilterError, FilterParams
+from ekfviz.core.gating import gated
 from ekfviz.core.health import check_covariance, check_interval
 from ekfviz.core.plugged import FilterFactory, Plugged, PluginError
 from ekfviz.core.records import (
@@ -81,13 +82,14 @@ def replay(
             ekf = Plugged(slam, name, params)
         except PluginError as error:
             raise FilterLineError(0, f"event 0 (init): {error}") from error
+    gate, R = params.gate, params.R
     next_check = 0  # the step from which the whole covariance is due for a check
     cadence = CorrelationCadence()
 
     def correlated(record: EventRecord, last: bool) -> EventRecord:
         """The record, with the correlation matrix of P where it is due."""
         if (record.kind is not EventKind.PREDICT or last) and cadence.due(
-            record.step, record.n_landmarks, last
+            record.step, record.n_landmarks, last, record.time
         ):
             return replace(record, correlation=correlation_of(ekf.P, record.landmark_ids))
         return record
@@ -120,8 +122,14 @@ def replay(
         pending: list[tuple[LogEvent, bool]] = []
     else:
         extra = checked(0, ())
+        # the prior holds when the log's first event begins, when it has a time
+        start = None if first is None else first.time
+        if isinstance(first, Control) and start is not None and first.dt is not None:
+            start -= first.dt
         yield correlated(
-            ekf.record(event=0, step=0, kind=EventKind.INIT, full_cov=full_cov, **extra),
+            ekf.record(
+                event=0, step=0, kind=EventKind.INIT, time=start, full_cov=full_cov, **extra
+            ),
             first is None,
         )
         pending = [] if first is None else [(first, last)]
@@ -136,7 +144,7 @@ def replay(
             if isinstance(log_event, Control):
                 step += 1
                 step_has_update = False
-                ekf.predict(log_event.d, log_event.alpha)
+                ekf.predict(log_event.d, log_event.alpha, log_event.dt)
                 if offline:
                     continue
                 extra = checked(log_event.line, ()) if step >= next_check or last else no_extra
@@ -149,10 +157,13 @@ def replay(
                 if step_has_update:
                     step += 1
                 step_has_update = True
+                rejected: tuple[str, ...] = ()
+                if gate is not None:
+                    log_event, rejected = gated(ekf.x, ekf.P, ekf.landmark_ids, log_event, R, gate)
                 observations = ekf.observe(log_event.ids, log_event.z)
                 if offline:
                     continue
-                warnings = ekf.warnings
+                warnings = rejected + ekf.warnings
                 extra = (
                     checked(log_event.line, warnings)
                     if step >= next_check or last or warnings

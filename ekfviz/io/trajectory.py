@@ -12,6 +12,12 @@ import numpy as np
 from ekfviz.core.types import FloatArray, IntArray
 
 
+def _stamp(seconds: float) -> str:
+    """A time stamp to the microsecond, without trailing zeros (a step number stays an
+    integer; Unix times keep their digits, which ``%g`` would round away)."""
+    return f"{seconds:.6f}".rstrip("0").rstrip(".")
+
+
 def format_tum(stamps: FloatArray, poses_xytheta: FloatArray) -> str:
     """One TUM line per pose.
 
@@ -20,7 +26,7 @@ def format_tum(stamps: FloatArray, poses_xytheta: FloatArray) -> str:
     """
     half = 0.5 * poses_xytheta[:, 2]
     lines = [
-        f"{t:.9g} {x:.9g} {y:.9g} 0 0 0 {qz:.9g} {qw:.9g}"
+        f"{_stamp(t)} {x:.9g} {y:.9g} 0 0 0 {qz:.9g} {qw:.9g}"
         for t, x, y, qz, qw in zip(
             stamps.tolist(),
             poses_xytheta[:, 0].tolist(),
@@ -51,7 +57,7 @@ def format_poses_csv(
     for k, step in enumerate(steps.tolist()):
         cells = [str(step)]
         if stamps is not None:
-            cells.append(f"{stamps[k]:.9g}")
+            cells.append(_stamp(float(stamps[k])))
         cells += [f"{v:.9g}" for v in poses_xytheta[k].tolist()]
         cells += ["" if not np.isfinite(v) else f"{v:.9g}" for v in sigmas_xytheta[k].tolist()]
         rows.append(",".join(cells))

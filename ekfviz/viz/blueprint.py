@@ -7,9 +7,19 @@ import rerun.blueprint as rrb
 from ekfviz.core.types import FloatArray
 from ekfviz.viz import style
 
+# The x axis of every plot spans the whole run, on whichever timeline is shown. Without it
+# a plot of a timestamped log (MRCLAM's Unix times) opens zoomed to an instant and looks
+# empty; linked to nothing, each plot keeps its own zoom.
+WHOLE_RUN = rrb.archetypes.TimeAxis(
+    link=rrb.components.LinkAxis.Independent,
+    view_range=rrb.TimeRange(
+        start=rrb.TimeRangeBoundary.infinite(), end=rrb.TimeRangeBoundary.infinite()
+    ),
+)
+
 
 def accumulated_range() -> rrb.VisibleTimeRanges:
-    """Show an entity from the infinite past up to the time cursor, on both timelines."""
+    """Show an entity from the infinite past up to the time cursor, on every timeline."""
     return rrb.VisibleTimeRanges(
         [
             rrb.VisibleTimeRange(
@@ -17,7 +27,7 @@ def accumulated_range() -> rrb.VisibleTimeRanges:
                 start=rrb.TimeRangeBoundary.infinite(),
                 end=rrb.TimeRangeBoundary.cursor_relative(),
             )
-            for timeline in (style.STEP, style.EVENT)
+            for timeline in (style.STEP, style.EVENT, style.TIME)
         ]
     )
 
@@ -62,22 +72,29 @@ def default_blueprint(
     has_run_info: bool,
     has_true_poses: bool = False,
     bounds_xy: FloatArray | None = None,
+    has_time: bool = False,
     history: bool = False,
 ) -> rrb.Blueprint:
     """The layout: the map on the left, plots above and documents below on the right.
 
+    :param has_time: the run has a ``time`` timeline: the time panel shows it
     :param has_truth: add the landmark error and Mahalanobis distance plots
     :param has_run_info: add the run information, input and evaluation documents
     :param has_true_poses: add the NEES plot
     :param bounds_xy: (2, 2) world box the map frames, see :func:`map_view`
     :param history: the map accumulates every robot ellipse, see :func:`map_view`
     """
-    plots: list[rrb.View] = [rrb.TimeSeriesView(name="NIS and 95% bounds", origin=style.NIS)]
+    plots: list[rrb.View] = [
+        rrb.TimeSeriesView(axis_x=WHOLE_RUN, name="NIS and 95% bounds", origin=style.NIS)
+    ]
     if has_true_poses:
-        plots.append(rrb.TimeSeriesView(name="NEES and 95% bounds", origin=style.NEES))
-    plots.append(rrb.TimeSeriesView(name="Pose sigma", origin=style.POSE_SIGMA))
+        plots.append(
+            rrb.TimeSeriesView(axis_x=WHOLE_RUN, name="NEES and 95% bounds", origin=style.NEES)
+        )
+    plots.append(rrb.TimeSeriesView(axis_x=WHOLE_RUN, name="Pose sigma", origin=style.POSE_SIGMA))
     plots.append(
         rrb.TimeSeriesView(
+            axis_x=WHOLE_RUN,
             name="Smallest eigenvalue of P",
             origin=style.HEALTH,
             contents=[
@@ -92,8 +109,12 @@ def default_blueprint(
     )
     if has_truth:
         plots += [
-            rrb.TimeSeriesView(name="Landmark error [m]", origin=style.LANDMARK_ERROR),
-            rrb.TimeSeriesView(name="Mahalanobis distance", origin=style.MAHALANOBIS),
+            rrb.TimeSeriesView(
+                axis_x=WHOLE_RUN, name="Landmark error [m]", origin=style.LANDMARK_ERROR
+            ),
+            rrb.TimeSeriesView(
+                axis_x=WHOLE_RUN, name="Mahalanobis distance", origin=style.MAHALANOBIS
+            ),
         ]
     texts: list[rrb.Container | rrb.View] = [
         rrb.TextLogView(name="Log", origin=style.LOG),
@@ -115,7 +136,11 @@ def default_blueprint(
             ),
             column_shares=[3, 2],
         ),
-        rrb.TimePanel(timeline=style.STEP, play_state="following", state="collapsed"),
+        rrb.TimePanel(
+            timeline=style.TIME if has_time else style.STEP,
+            play_state="following",
+            state="collapsed",
+        ),
         collapse_panels=True,
     )
 
@@ -152,6 +177,7 @@ def sweep_blueprint(
     maps = [map_view(bounds_xy, prefix=prefix, name=label) for label, prefix in variants]
     plots = [
         rrb.TimeSeriesView(
+            axis_x=WHOLE_RUN,
             name=f"NIS per {what}",
             contents=[f"/{prefix}/{style.NIS}" for _, prefix in variants],
         )
@@ -159,6 +185,7 @@ def sweep_blueprint(
     if has_poses:
         plots.append(
             rrb.TimeSeriesView(
+                axis_x=WHOLE_RUN,
                 name=f"Pose NEES per {what}",
                 contents=[f"/{prefix}/{style.NEES}" for _, prefix in variants],
             )
@@ -166,6 +193,7 @@ def sweep_blueprint(
     if has_truth:
         plots.append(
             rrb.TimeSeriesView(
+                axis_x=WHOLE_RUN,
                 name=f"Mean landmark error [m] per {what}",
                 contents=[f"/{prefix}/{style.MEAN_LANDMARK_ERROR}" for _, prefix in variants],
             )

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass
+from datetime import datetime, timezone
 from pathlib import Path
 
 import pyarrow as pa  # type: ignore[import-untyped]
@@ -34,6 +35,8 @@ class RecordingInfo:
     input_text: str | None
     evaluation_markdown: str | None
     compiled_kernel: bool | None = None  # None: made before ekfviz recorded it
+    time_span: tuple[float, float] | None = None  # of the time timeline, seconds
+    time_kind: str | None = None  # "timestamp" (Unix time) or "duration"
 
     def summary(self) -> list[tuple[str, str]]:
         """(key, value) rows for a two-column table."""
@@ -48,6 +51,8 @@ class RecordingInfo:
             ("input sha256", self.input_sha256),
             ("input embedded", "yes" if self.input_text is not None else "no"),
         ]
+        if self.time_span is not None:
+            rows.append(("time span", _span(self.time_span, self.time_kind == "timestamp")))
         if self.truth_name is not None:
             rows += [("truth", self.truth_name), ("truth sha256", self.truth_sha256 or "-")]
         rows += [(f"  {key}", json.dumps(value)) for key, value in self.parameters.items()]
@@ -56,6 +61,7 @@ class RecordingInfo:
 
 PROPERTIES = "/__properties"
 EKFVIZ_PROPERTIES = "/__properties/ekfviz"
+TIME_PROPERTIES = "/__properties/time"
 
 
 def read_recording_info(path: Path) -> RecordingInfo:
@@ -67,7 +73,13 @@ def read_recording_info(path: Path) -> RecordingInfo:
     """
     if not path.is_file():
         raise NotARecordingError(f"{path}: no such file")
-    wanted = [PROPERTIES, EKFVIZ_PROPERTIES, f"/{style.RUN_INPUT}", f"/{style.RUN_EVALUATION}"]
+    wanted = [
+        PROPERTIES,
+        EKFVIZ_PROPERTIES,
+        TIME_PROPERTIES,
+        f"/{style.RUN_INPUT}",
+        f"/{style.RUN_EVALUATION}",
+    ]
     latest: dict[str, dict[str, object]] = {}
     try:
         reader = RrdReader(path)
@@ -101,7 +113,26 @@ def read_recording_info(path: Path) -> RecordingInfo:
         compiled_kernel=(
             None if "compiled_kernel" not in properties else bool(properties["compiled_kernel"])
         ),
+        time_span=_time_span(latest.get(TIME_PROPERTIES, {})),
+        time_kind=_optional(latest.get(TIME_PROPERTIES, {}).get("kind")),
     )
+
+
+def _time_span(values: dict[str, object]) -> tuple[float, float] | None:
+    start, end = values.get("start"), values.get("end")
+    if not isinstance(start, (int, float)) or not isinstance(end, (int, float)):
+        return None
+    return float(start), float(end)
+
+
+def _span(span: tuple[float, float], epoch: bool) -> str:
+    """The time span for people: dates for Unix times, seconds otherwise."""
+    start, end = span
+    if epoch:
+        first = datetime.fromtimestamp(start, tz=timezone.utc).isoformat(timespec="milliseconds")
+        last = datetime.fromtimestamp(end, tz=timezone.utc).isoformat(timespec="milliseconds")
+        return f"{first} to {last} ({end - start:.3f} s)"
+    return f"{start:.3f} s to {end:.3f} s ({end - start:.3f} s)"
 
 
 def _last_values(batch: pa.RecordBatch) -> dict[str, object]:

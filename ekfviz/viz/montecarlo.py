@@ -14,6 +14,7 @@ import rerun.blueprint as rrb
 
 from ekfviz.sim.montecarlo import MonteCarlo
 from ekfviz.viz import style
+from ekfviz.viz.blueprint import WHOLE_RUN
 from ekfviz.viz.run import temporary_beside
 
 REPORT = "run/consistency"
@@ -39,8 +40,12 @@ def save_monte_carlo(path: Path, result: MonteCarlo, name: str, markdown: str) -
     blueprint = rrb.Blueprint(
         rrb.Horizontal(
             rrb.Vertical(
-                rrb.TimeSeriesView(name="Mean NEES and 95% bounds", origin=style.NEES),
-                rrb.TimeSeriesView(name="Mean NIS and 95% bounds", origin=style.NIS),
+                rrb.TimeSeriesView(
+                    axis_x=WHOLE_RUN, name="Mean NEES and 95% bounds", origin=style.NEES
+                ),
+                rrb.TimeSeriesView(
+                    axis_x=WHOLE_RUN, name="Mean NIS and 95% bounds", origin=style.NIS
+                ),
             ),
             rrb.TextDocumentView(name="Consistency", origin=REPORT),
             column_shares=[3, 2],

@@ -27,7 +27,9 @@ landmark positions and a log line at every event. The 3-sigma ellipses of all la
 at every update while the map holds at most ``SMALL_MAP`` landmarks; beyond that, at
 every update only those of the landmarks observed (``world/landmarks/ellipses/observed``)
 and the whole map every ``MAP_EVERY_STEPS`` steps and at the end (the viewer shows the
-latest of each, so every landmark keeps an ellipse at any time). With truth, the error
+latest of each, so every landmark keeps an ellipse at any time). A timestamped log
+(high-rate odometry) logs its predicts thinned (:mod:`ekfviz.viz.thinning`) and its map
+like a large one, the whole map every ``MAP_EVERY_S`` seconds of log time. With truth, the error
 series of a landmark get a value whenever its ellipse is logged. ``detail=True`` logs
 every ellipse and error at every update.
 """
@@ -64,6 +66,7 @@ from ekfviz.viz import style
 from ekfviz.viz.blueprint import default_blueprint
 from ekfviz.viz.correlation import log_correlation, log_correlation_styling
 from ekfviz.viz.ellipses import ellipse_axes, ellipse_outlines, outline_points, unit_circle
+from ekfviz.viz.thinning import PREDICT_INTERVAL_S, PredictThinning
 
 # Events between two sends of the buffered data, one chunk per entity: each chunk costs
 # ~0.1 ms in the main thread and as much in Rerun's encoder, whatever its size.
@@ -76,11 +79,13 @@ MAP_EVERY_STEPS = 25  # beyond: the whole map every this many steps
 # more than this fraction of its ellipse's semi-major axis (the viewer shows the latest).
 MAP_TOLERANCE = 0.02
 MAP_POINTS = 16  # points of a landmark outline: within 2 % of its radius, as MAP_TOLERANCE
+MAP_EVERY_S = 5.0  # ... and in a thinned timestamped log, every this many seconds of log time
 FLUSH_TIMEOUT_S = 30.0  # how long finish() waits for a slow or absent viewer
 MAX_CLASS_ID = 65535  # Rerun class ids are u16
 HEADING_LENGTH = 1.0  # metres
 CHECK_ALL_DIM = 64  # the array API checks a covariance up to this size at every call
 MIN_AXIS = 1e-9  # metres: the shortest semi-axis a pose ellipse's transform gets
+EPOCH_MIN_S = 1e9  # log times from here on are Unix time (see time_is_epoch)
 
 
 def _radius(ui_points: float) -> npt.ArrayLike:
@@ -232,25 +237,52 @@ class _Index:
         return self.times
 
 
-def _times(steps: IntArray, events: IntArray) -> list[rr.TimeColumnLike]:
-    """Both timelines of some rows, in Arrow."""
-    return [_Index(style.STEP, pa.array(steps)), _Index(style.EVENT, pa.array(events))]
+def _times(
+    steps: IntArray, events: IntArray, times: FloatArray | None = None, epoch: bool = False
+) -> list[rr.TimeColumnLike]:
+    """The timelines of some rows, in Arrow: ``step``, ``event`` and, when the records
+    have times, ``time`` (see :func:`time_is_epoch` for its type)."""
+    columns: list[rr.TimeColumnLike] = [
+        _Index(style.STEP, pa.array(steps)),
+        _Index(style.EVENT, pa.array(events)),
+    ]
+    if times is not None:
+        nanos = np.rint(times * 1e9).astype(np.int64)
+        kind = pa.timestamp("ns") if epoch else pa.duration("ns")
+        columns.append(_Index(style.TIME, pa.array(nanos, type=kind)))
+    return columns
+
+
+def time_is_epoch(first_time: float) -> bool:
+    """Whether the ``time`` timeline is a timestamp (Unix time, shown as a date) rather
+    than a duration: decided once per recording by its first time, from 10^9 s
+    (September 2001) on. Either way its value in seconds is the log's time."""
+    return first_time >= EPOCH_MIN_S
 
 
 class _Rows:
-    """The step and event of each buffered record, to pick the time columns of a send."""
+    """The step, event and time of each buffered record, to pick the time columns of a send."""
 
-    def __init__(self, steps: IntArray, events: IntArray) -> None:
+    def __init__(
+        self,
+        steps: IntArray,
+        events: IntArray,
+        times: FloatArray | None = None,
+        epoch: bool = False,
+    ) -> None:
         self.steps = steps
         self.events = events
-        self.all = _times(steps, events)  # most sends have a row per record: once
+        self.times = times
+        self.epoch = epoch
+        self.all = _times(steps, events, times, epoch)  # most sends have a row per record
 
     def __len__(self) -> int:
         return len(self.steps)
 
     def pick(self, rows: Sequence[int] | IntArray) -> list[rr.TimeColumnLike]:
         index = np.asarray(rows, dtype=np.int64)
-        return _times(self.steps[index], self.events[index])
+        times = None if self.times is None else self.times[index]
+        return _times(self.steps[index], self.events[index], times, self.epoch)
 
 
 def _landmark_rows(record: EventRecord, which: str | None) -> IntArray:
@@ -339,28 +371,70 @@ class _Entities:
 class _SeriesBuffer:
     """Scalar series gathered per entity path and sent with ``send_columns`` in chunks."""
 
-    def __init__(self, rec: _Entities) -> None:
+    def __init__(self, rec: _Entities, clock: _Clock) -> None:
         self._rec = rec
-        self._series: dict[str, tuple[list[int], list[int], list[float]]] = {}
+        self._clock = clock
+        self._series: dict[str, tuple[list[int], list[int], list[float], list[float]]] = {}
 
-    def add(self, path: str, step: int, event: int, value: float) -> None:
-        steps, events, values = self._series.setdefault(path, ([], [], []))
+    def add(self, path: str, step: int, event: int, value: float, time: float | None) -> None:
+        steps, events, values, times = self._series.setdefault(path, ([], [], [], []))
         steps.append(step)
         events.append(event)
         values.append(value)
+        times.append(math.nan if time is None else time)
 
     def flush(self) -> None:
-        for path, (steps, events, values) in self._series.items():
+        for path, (steps, events, values, times) in self._series.items():
             if values:
                 at = np.arange(len(values))
                 if path.endswith((style.LOWER, style.UPPER)):  # constant along long runs
                     at = _run_ends(np.array(values))
+                rows = self._clock.rows(np.array(steps), np.array(events), times)
                 self._rec.send_columns(
                     path,
-                    indexes=_times(np.array(steps)[at], np.array(events)[at]),
+                    indexes=rows.pick(at),
                     columns=_scalars(np.array(values)[at]),
                 )
         self._series.clear()
+
+
+class _Clock:
+    """The ``time`` timeline of a recording: its type, and times for records without one.
+
+    A record without a time (an untimed line of an extended log, ...) takes the latest
+    time before it, or the first after it in the same send; a recording without any
+    time has no ``time`` timeline.
+    """
+
+    def __init__(self) -> None:
+        self.epoch: bool | None = None  # decided by the first time met
+        self.last: float | None = None
+        self.span: tuple[float, float] | None = None
+
+    def rows(self, steps: IntArray, events: IntArray, times: Sequence[float] | FloatArray) -> _Rows:
+        filled = self.fill(np.asarray(times, dtype=np.float64))
+        return _Rows(steps, events, filled, bool(self.epoch))
+
+    def fill(self, times: FloatArray) -> FloatArray | None:
+        known = np.isfinite(times)
+        if not known.any():
+            if self.last is None:
+                return None
+            return np.full(len(times), self.last)
+        if self.epoch is None:
+            self.epoch = time_is_epoch(float(times[known][0]))
+        if not known.all():
+            # carry the latest time forward; before the first, the first of this send
+            index = np.where(known, np.arange(len(times)), -1)
+            np.maximum.accumulate(index, out=index)
+            start = self.last if self.last is not None else float(times[known][0])
+            times = np.where(index >= 0, times[np.maximum(index, 0)], start)
+        self.last = max(float(times[-1]), self.last if self.last is not None else -math.inf)
+        low, high = float(times.min()), float(times.max())
+        self.span = (low, high) if self.span is None else (
+            min(low, self.span[0]), max(high, self.span[1])
+        )  # fmt: skip
+        return times
 
 
 class Recorder:
@@ -381,9 +455,12 @@ class Recorder:
     :param prefix: entity path under which to log everything (e.g. ``variants/a``), so
         that several runs share one recording; the default layout then does not fit
     :param detail: log every landmark's ellipse (and, with truth, its errors) at every
-        update, however large the map (see the module for what is logged otherwise)
+        update, however large the map (see the module for what is logged otherwise),
+        and every predict
     :param history: the layout's map accumulates every predicted and updated robot
         ellipse up to the time cursor (the classic figure); the data is the same
+    :param predict_interval_s: log time between two logged predicts of a timestamped
+        log (see :mod:`ekfviz.viz.thinning`); None logs every predict
     """
 
     def __init__(
@@ -399,6 +476,7 @@ class Recorder:
         prefix: str = "",
         detail: bool = False,
         history: bool = False,
+        predict_interval_s: float | None = PREDICT_INTERVAL_S,
     ) -> None:
         self._rec = _Entities(rec, prefix)
         self._history = history
@@ -415,11 +493,14 @@ class Recorder:
         self._class_extra: set[int] = set()
         self._class_pending: set[int] = set()
         self._class_count = 0
-        self._series = _SeriesBuffer(self._rec)
+        self._clock = _Clock()
+        self._series = _SeriesBuffer(self._rec, self._clock)
+        self._thinning = PredictThinning(None if detail else predict_interval_s)
         # records not sent yet, each with whether it logs the whole map's ellipses
         self._pending: list[tuple[EventRecord, bool]] = []
         self._pending_landmarks = 0
         self._map_step: int | None = None  # step of the last update that logged the whole map
+        self._map_time: float | None = None  # and its time
         self._last_update: tuple[EventRecord, bool] | None = None
         # the small map as last logged: its ids and _shapes rows, and at which event
         self._map_shown: tuple[IntArray, FloatArray] | None = None
@@ -529,6 +610,8 @@ class Recorder:
     def finish(self, evaluation: Evaluation | None = None) -> None:
         """Send the buffered data, the whole map at the last update, the evaluation document
         if given, the layout framing the whole run, and flush."""
+        for record in self._thinning.drain():
+            self._log_record(record)
         self._send_pending()
         if self._class_pending:
             self._log_classes()
@@ -536,13 +619,21 @@ class Recorder:
             record = self._last_update[0]
             self._last_update = (record, True)
             self._log_landmark_errors(record, None)
-            rows = _Rows(np.array([record.step]), np.array([record.event]))
+            rows = self._clock.rows(
+                np.array([record.step]),
+                np.array([record.event]),
+                [math.nan if record.time is None else record.time],
+            )
             self._send_ellipses(
                 style.LANDMARK_ELLIPSES, rows, [(0, record, _landmark_rows(record, None))]
             )
         elif self._last_update is not None and self._map_shown_event != self._last_update[0].event:
             record = self._last_update[0]  # the end exactly, not within MAP_TOLERANCE
-            rows = _Rows(np.array([record.step]), np.array([record.event]))
+            rows = self._clock.rows(
+                np.array([record.step]),
+                np.array([record.event]),
+                [math.nan if record.time is None else record.time],
+            )
             self._send_landmarks(rows.all, [record])
             self._send_ellipses(
                 style.LANDMARK_ELLIPSES, rows, [(0, record, _landmark_rows(record, None))]
@@ -561,10 +652,24 @@ class Recorder:
 
     def note(self, text: str, level: str | rr.TextLogLevel = rr.TextLogLevel.WARN) -> None:
         """A line in the text log at the latest event: a warning, or why a run stopped."""
+        for record in self._thinning.drain():
+            self._log_record(record)
         self._send_pending()
         self._rec.set_time(style.STEP, sequence=self._step)
         self._rec.set_time(style.EVENT, sequence=self._event)
+        self._set_time(self._clock.last)
         self._rec.log(style.LOG, rr.TextLog(text, level=level))
+
+    def _set_time(self, time: float | None) -> None:
+        """Set the ``time`` timeline of the stream's next ``log`` calls, if there is one."""
+        if time is None:
+            return
+        if self._clock.epoch is None:
+            self._clock.epoch = time_is_epoch(time)
+        if self._clock.epoch:
+            self._rec.rec.set_time(style.TIME, timestamp=time)
+        else:
+            self._rec.rec.set_time(style.TIME, duration=time)
 
     def _layout(self, bounds_xy: FloatArray | None = None) -> rrb.Blueprint:
         if bounds_xy is not None:
@@ -572,16 +677,32 @@ class Recorder:
             bounds_xy = bounds_xy + np.array([[-margin], [margin]])
         return default_blueprint(
             has_truth=self._truth is not None,
-            has_true_poses=self._truth is not None and self._truth.poses_xytheta is not None,
+            has_true_poses=self._truth is not None and self._truth.has_poses,
             has_run_info=self._run_documents,
             bounds_xy=bounds_xy,
+            has_time=self._clock.span is not None,
             history=self._history,
         )
 
     # -- records -------------------------------------------------------------------------
 
+    @property
+    def time_span(self) -> tuple[float, float] | None:
+        """The first and last log time (seconds) logged, or None for an untimed run."""
+        return self._clock.span
+
+    @property
+    def time_is_epoch(self) -> bool:
+        """Whether the ``time`` timeline is a timestamp (else a duration)."""
+        return bool(self._clock.epoch)
+
     def log_record(self, record: EventRecord) -> None:
-        """Log one record of the core: the map, the metrics and a line of text."""
+        """Log one record of the core: the map, the metrics and a line of text (the
+        predicts of a timestamped log thinned, see :mod:`ekfviz.viz.thinning`)."""
+        for admitted in self._thinning.admit(record):
+            self._log_record(admitted)
+
+    def _log_record(self, record: EventRecord) -> None:
         self._event, self._step = record.event, record.step
         self._step_has_update = record.kind is not EventKind.PREDICT
         whole_map = False
@@ -594,19 +715,24 @@ class Recorder:
                 self._annotate(ids)
                 self._last_ids = ids
             whole_map = (
-                self._detail
-                or record.n_landmarks <= SMALL_MAP
+                not self._sparse_map(record)
                 or self._map_step is None
-                or record.step - self._map_step >= MAP_EVERY_STEPS
+                or (
+                    record.time - self._map_time >= MAP_EVERY_S
+                    if record.time is not None and self._map_time is not None
+                    else record.step - self._map_step >= MAP_EVERY_STEPS
+                )
             )
             if whole_map:
                 self._map_step = record.step
+                self._map_time = record.time
             self._last_update = (record, whole_map)
         if self._truth is not None:
             self._log_metrics(record, whole_map)
         if record.correlation is not None:  # a few per run: logged at once
             self._rec.set_time(style.STEP, sequence=record.step)
             self._rec.set_time(style.EVENT, sequence=record.event)
+            self._set_time(record.time)
             log_correlation(self._rec, record.correlation, self._last_correlation)
             self._last_correlation = record.correlation
         self._pending.append((record, whole_map))
@@ -624,9 +750,14 @@ class Recorder:
         self._pending_landmarks = 0
         records = [record for record, _ in pending]
         count = len(records)
-        rows = _Rows(
+        rows = self._clock.rows(
             np.fromiter((record.step for record in records), np.int64, count),
             np.fromiter((record.event for record in records), np.int64, count),
+            np.fromiter(
+                (math.nan if record.time is None else record.time for record in records),
+                np.float64,
+                count,
+            ),
         )
         poses = np.stack([record.pose for record in records])
         pose_covs = np.stack([record.pose_cov for record in records])
@@ -639,8 +770,8 @@ class Recorder:
         # the robot frame: the robot's point and heading are static in it, its ellipses
         # change shape there only slowly (see _pose_ellipses)
         self._send(style.ROBOT, rows.all, _robot_frame(poses))
-        if self._truth is not None and self._truth.poses_xytheta is not None:
-            self._send_true_path(rows, records, corrected, self._truth.poses_xytheta)
+        if self._truth is not None and self._truth.has_poses:
+            self._send_true_path(rows, records, corrected, self._truth)
         self._send_trajectory(rows, poses[:, :2], corrected)
         for path, history, picked in (
             (style.POSE_PREDICTED, style.POSE_PREDICTED_HISTORY, np.flatnonzero(is_predict)),
@@ -698,7 +829,7 @@ class Recorder:
                 [
                     (k, record, _NO_ROWS if whole else _landmark_rows(record, "observed"))
                     for k, record, whole in updates
-                    if record.n_landmarks > SMALL_MAP and not self._detail
+                    if self._sparse_map(record)
                 ],
             )
             self._send_ellipses(
@@ -733,6 +864,16 @@ class Recorder:
             [_column(rr.Transform3D.descriptor_mat3x3(), _shape_matrices(axes))],
         )
 
+    def _sparse_map(self, record: EventRecord) -> bool:
+        """Whether an update logs the whole map's ellipses only now and then (and the
+        observed landmarks' at every update): beyond ``SMALL_MAP`` landmarks, and in a
+        timestamped log whose predicts are thinned (see :mod:`ekfviz.viz.thinning`)."""
+        if self._detail:
+            return False
+        return record.n_landmarks > SMALL_MAP or (
+            record.time is not None and self._thinning.interval_s is not None
+        )
+
     def _map_changes(
         self, updates: list[tuple[int, EventRecord, bool]]
     ) -> list[tuple[int, EventRecord, bool]]:
@@ -745,7 +886,7 @@ class Recorder:
         """
         shown: list[tuple[int, EventRecord, bool]] = []
         for k, record, whole in updates:
-            if self._detail or record.n_landmarks > SMALL_MAP:
+            if self._detail or self._sparse_map(record):
                 shown.append((k, record, whole))
                 self._map_shown = None
                 self._map_shown_event = record.event
@@ -770,19 +911,19 @@ class Recorder:
         return shown
 
     def _send_true_path(
-        self,
-        rows: _Rows,
-        records: list[EventRecord],
-        corrected: IntArray,
-        true_poses: FloatArray,
+        self, rows: _Rows, records: list[EventRecord], corrected: IntArray, truth: GroundTruth
     ) -> None:
-        """The true pose of each step (step 0 = the start) at its update, as a robot frame
-        and a segment of the true path from the step before."""
-        at = np.array([k for k in corrected.tolist() if records[k].step < len(true_poses)])
-        if not at.size:
+        """The true pose of each step at its update (by step, or by time on a track), as
+        a robot frame and a segment of the true path from the step before."""
+        known = [
+            (k, pose)
+            for k in corrected.tolist()
+            if (pose := truth.pose_of(records[k].step, records[k].time)) is not None
+        ]
+        if not known:
             return
-        steps = rows.steps[at]
-        poses = true_poses[steps]
+        at = np.array([k for k, _ in known])
+        poses = np.array([pose for _, pose in known])
         self._send(style.TRUTH_ROBOT, rows.pick(at), _robot_frame(poses))
         starts = np.vstack([poses[:1, :2] if self._last_true_xy is None else self._last_true_xy,
                             poses[:-1, :2]])  # fmt: skip
@@ -1048,7 +1189,7 @@ class Recorder:
             return
         nees = pose_nees(record, self._truth)
         if nees is not None:
-            self._add_statistic(style.NEES, record.step, record.event, nees, chi2_bounds(3))
+            self._add_statistic(style.NEES, record, nees, chi2_bounds(3))
         self._log_landmark_errors(record, None if whole_map else "observed")
 
     def _log_landmark_errors(self, record: EventRecord, which: str | None) -> None:
@@ -1061,21 +1202,22 @@ class Recorder:
             record.landmarks_xy[rows], record.landmark_covs[rows], self._truth.lookup(ids)
         )
         add = self._series.add
-        step, event = record.step, record.event
+        step, event, time = record.step, record.event, record.time
         for landmark_id, error, distance in zip(
             ids.tolist(), euclidean.tolist(), mahalanobis.tolist(), strict=True
         ):
             if math.isfinite(error):
-                add(f"{style.LANDMARK_ERROR}/{landmark_id}", step, event, error)
-                add(f"{style.MAHALANOBIS}/{landmark_id}", step, event, distance)
+                add(f"{style.LANDMARK_ERROR}/{landmark_id}", step, event, error, time)
+                add(f"{style.MAHALANOBIS}/{landmark_id}", step, event, distance, time)
 
     def _add_statistic(
-        self, path: str, step: int, event: int, value: float, bounds: tuple[float, float]
+        self, path: str, record: EventRecord, value: float, bounds: tuple[float, float]
     ) -> None:
         """A NIS or NEES value with its chi-square bounds, drawn in the same plot."""
-        self._series.add(path, step, event, value)
-        self._series.add(f"{path}/{style.LOWER}", step, event, bounds[0])
-        self._series.add(f"{path}/{style.UPPER}", step, event, bounds[1])
+        at = (record.step, record.event)
+        self._series.add(path, *at, value, record.time)
+        self._series.add(f"{path}/{style.LOWER}", *at, bounds[0], record.time)
+        self._series.add(f"{path}/{style.UPPER}", *at, bounds[1], record.time)
 
     @staticmethod
     def _describe(record: EventRecord, seen: int, new: int, nis: float, nis_used: int) -> str:
@@ -1210,7 +1352,7 @@ class Recorder:
         )
 
     def _log_truth(self, truth: GroundTruth) -> None:
-        if truth.poses_xytheta is not None:  # the true robot (a grey point) and path
+        if truth.has_poses:  # the true robot (a grey point) and path
             self._rec.log(
                 style.TRUTH_ROBOT,
                 rr.Points2D(

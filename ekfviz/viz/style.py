@@ -70,6 +70,9 @@ HISTORY = (POSE_PREDICTED_HISTORY, POSE_UPDATED_HISTORY)
 
 STEP = "step"
 EVENT = "event"
+# the log's time in seconds, for timestamped logs: a timestamp for Unix times (MRCLAM),
+# else a duration (see ekfviz.viz.recorder.time_is_epoch)
+TIME = "time"
 
 # -- colours (RGB) and sizes -----------------------------------------------------------
 
