@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import shlex
+import sys
 from dataclasses import asdict
 from pathlib import Path
 from typing import Annotated
@@ -33,6 +35,8 @@ from ekfviz.cli.common import (
     UpdateOption,
     _option,
     app,
+    check_outputs,
+    command_hint,
     err,
     filter_params,
     out,
@@ -93,6 +97,7 @@ def consistency(
     """
     from ekfviz.sim.montecarlo import Trials, monte_carlo
 
+    check_outputs(("--report", report), ("--save", save))
     world = scenario_world(scenario, seed, steps, landmarks, max_range, fov)
     prior = world.init_pose_sigma if init_pose_sigma is None else init_pose_sigma
     params = filter_params(
@@ -139,5 +144,12 @@ def consistency(
         lines += [f"- **{key}** `{json.dumps(value)}`" for key, value in settings.items()]
         if verdict is not None:
             lines += ["", f"**Verdict (NEES):** {verdict.value}"]
-        save_monte_carlo(save, result, f"consistency-{scenario.value}", "\n".join(lines) + "\n")
-        out.print(f"Saved {save}; open it with: rerun {save}")
+        save_monte_carlo(
+            save,
+            result,
+            f"consistency-{scenario.value}",
+            "\n".join(lines) + "\n",
+            command=shlex.join(["ekfviz", *sys.argv[1:]]),
+            settings=settings,
+        )
+        out.print(f"Saved {save}; open it with: {command_hint('rerun')} {save}")

@@ -23,6 +23,8 @@ from ekfviz.cli.common import (
     TrueSigmaY,
     _option,
     app,
+    check_outputs,
+    command_hint,
     fail,
     out,
     scenario_world,
@@ -78,6 +80,7 @@ def simulate(
     from ekfviz.io.extended import format_extended
     from ekfviz.io.truth import truth_json
 
+    check_outputs(("--output", output), ("--truth-out", truth_out))
     world = scenario_world(scenario, seed, steps, landmarks, max_range, fov)
     noise = true_noise(
         world, true_sigma_x, true_sigma_y, true_sigma_alpha, true_sigma_bearing, true_sigma_range
@@ -119,6 +122,15 @@ def simulate(
         replay_noise.append("--init-pose-sigma " + " ".join(f"{v:g}" for v in init_pose_sigma))
     out.print(
         "Replay it with the filter told the true noise:\n  "
-        + " ".join(["ekfviz replay", str(output), "--truth", str(truth_out), *replay_noise]),
+        + " ".join(
+            [
+                command_hint("ekfviz"),
+                "replay",
+                str(output),
+                "--truth",
+                str(truth_out),
+                *replay_noise,
+            ]
+        ),
         soft_wrap=True,
     )

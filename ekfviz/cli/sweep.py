@@ -17,7 +17,6 @@ from rich.table import Table
 from ekfviz import __version__
 from ekfviz.cli.common import (
     DEFAULT,
-    RECORDINGS_DIR,
     InitPoseSigma,
     LandmarkInitOption,
     LogArgument,
@@ -30,6 +29,9 @@ from ekfviz.cli.common import (
     UpdateOption,
     _option,
     app,
+    check_outputs,
+    command_hint,
+    default_output,
     err,
     fail,
     filter_params,
@@ -124,7 +126,8 @@ def sweep(
             raise SweepError("nothing to vary: give --vary NAME=VALUES or --preset tuning")
     except SweepError as error:
         fail(str(error))
-    target = save if save is not None else RECORDINGS_DIR / f"{data.stem}-sweep.rrd"
+    check_outputs(("--save", save), ("--report", report))
+    target = save if save is not None else default_output(f"{data.stem}-sweep.rrd")
     try:
         truth_xy = read_truth(truth) if truth is not None else None
         for _ in log_events(data, truth_xy, truth):
@@ -143,6 +146,7 @@ def sweep(
             input_path=data,
             truth=truth_xy,
             truth_path=truth,
+            kind="sweep",
         )
         table = sweep_table(summaries, truth_xy is not None)
         with viz.open_recording(info, viz.Sinks(save=target)) as recording:
@@ -163,7 +167,7 @@ def sweep(
                 ],
             },
         )
-    out.print(f"Saved {target}; open it with: rerun {target}")
+    out.print(f"Saved {target}; open it with: {command_hint('rerun')} {target}")
 
 
 def sweep_table(summaries: list[Any], has_truth: bool) -> Table:

@@ -46,6 +46,7 @@ import pyarrow as pa  # type: ignore[import-untyped]
 import rerun as rr
 import rerun.blueprint as rrb
 
+from ekfviz import __version__
 from ekfviz.core.consistency import chi2_bounds, pose_nees
 from ekfviz.core.evaluation import Evaluation, landmark_errors
 from ekfviz.core.health import (
@@ -62,6 +63,7 @@ from ekfviz.models.angles import wrap_angles
 from ekfviz.viz import style
 from ekfviz.viz.blueprint import default_blueprint
 from ekfviz.viz.ellipses import ellipse_outlines, outline_points
+from ekfviz.viz.flush import flush_interruptibly
 
 # Events between two sends of the buffered data, one chunk per entity: each chunk costs
 # ~0.1 ms in the main thread and as much in Rerun's encoder, whatever its size.
@@ -257,7 +259,7 @@ class _Entities:
         self.rec.send_blueprint(blueprint)
 
     def flush(self, *, timeout_sec: float) -> None:
-        self.rec.flush(timeout_sec=timeout_sec)
+        flush_interruptibly(self.rec, timeout_sec)
 
 
 class _SeriesBuffer:
@@ -339,11 +341,17 @@ class Recorder:
         self._step_has_update = True  # the initialisation counts as step 0's update
         self._last_xy: FloatArray | None = None
         self._checked_step: int | None = None  # of the last covariance check (array API)
+        self._round_off_said = False  # a round-off asymmetry of P is a warning once a run
         self._blueprint = blueprint
         self._run_documents = run_documents
         self._bounds_xy: FloatArray | None = None  # [[x_min, y_min], [x_max, y_max]] so far
         if blueprint:
             self._rec.send_blueprint(self._layout())
+        if not prefix.strip("/") and not run_documents:  # a filter of the user's own
+            properties = rr.AnyValues()
+            properties.with_component_from_data("version", __version__)
+            properties.with_component_from_data("kind", "recorder")
+            rec.send_property("ekfviz", properties)
         self._log_styling()
         seed_ids = list(self._order)
         if truth is not None:
@@ -1018,7 +1026,9 @@ class Recorder:
             return {}
         self._checked_step = step
         check = check_covariance(P)
-        return {"covariance": check, "warnings": tuple(check.problems())}
+        problems = check.problems(round_off=not self._round_off_said)
+        self._round_off_said |= check.round_off_asymmetry
+        return {"covariance": check, "warnings": tuple(problems)}
 
     def _observations(
         self,

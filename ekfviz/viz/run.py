@@ -13,6 +13,7 @@ import hashlib
 import json
 import os
 import shutil
+import socket
 import sys
 import time
 import uuid
@@ -20,7 +21,7 @@ from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from urllib.parse import quote
+from urllib.parse import quote, urlsplit
 
 import rerun as rr
 from rerun.any_batch_value import ComponentValueLike
@@ -31,7 +32,9 @@ from ekfviz.core.filter import HAVE_KERNEL
 from ekfviz.core.records import EventRecord
 from ekfviz.core.truth import GroundTruth
 from ekfviz.io.errors import InputError
+from ekfviz.io.paths import OutputPathError, check_output_path, unused_path
 from ekfviz.viz import style
+from ekfviz.viz.flush import flush_interruptibly
 from ekfviz.viz.recorder import Recorder
 
 APPLICATION_ID = "ekfviz"
@@ -43,8 +46,55 @@ FLUSH_TIMEOUT_S = 60.0
 RECORDING_NAMESPACE = uuid.UUID("6f1d3c52-8a47-5e0b-9c1e-2b7a4d9e0f31")
 
 
+CONNECT_TIMEOUT_S = 5.0  # how long --connect waits for a viewer to answer
+
+
 class SinkError(Exception):
     """A Rerun output that cannot be used, with a one-line reason and what to do instead."""
+
+
+# The client's HTTP/2 connection preface, and the frame type a server must answer with
+_HTTP2_PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + bytes([0, 0, 0, 4, 0, 0, 0, 0, 0])
+_HTTP2_SETTINGS = 4
+
+
+def viewer_answers(url: str, timeout: float = CONNECT_TIMEOUT_S) -> bool | None:
+    """Whether a gRPC server (a Rerun viewer) answers at ``url`` within ``timeout``.
+
+    Rerun's own client waits about 100 s for an absent viewer, deaf to Ctrl-C, so the
+    address is tried here first: a TCP connection, then the HTTP/2 preface, which a gRPC
+    server answers at once with its SETTINGS frame. A port nobody listens on, or one whose
+    listener never answers, is no viewer.
+
+    :return: None when ``url`` has no host and port to try (Rerun then says what is wrong)
+    """
+    parts = urlsplit(url.removeprefix("rerun+"))
+    try:
+        host, port = parts.hostname, parts.port
+    except ValueError:
+        return None
+    if host is None or port is None or parts.scheme not in ("http", "https"):
+        return None
+    if parts.scheme == "https":  # TLS: a TCP connection is all that can be tried here
+        try:
+            socket.create_connection((host, port), timeout=timeout).close()
+        except OSError:
+            return False
+        return True
+    deadline = time.monotonic() + timeout
+    try:
+        with socket.create_connection((host, port), timeout=timeout) as connection:
+            connection.settimeout(max(0.1, deadline - time.monotonic()))
+            connection.sendall(_HTTP2_PREFACE)
+            header = b""
+            while len(header) < 9:
+                piece = connection.recv(9 - len(header))
+                if not piece:
+                    return False
+                header += piece
+    except OSError:  # refused, unreachable, timed out
+        return False
+    return header[3] == _HTTP2_SETTINGS
 
 
 @dataclass(frozen=True, slots=True)
@@ -67,6 +117,7 @@ class RunInfo:
     truth_path: Path | None = None
     truth_sha256: str | None = None
     version: str = field(default=__version__)
+    kind: str = "replay"  # or "sweep": what ``ekfviz info`` says the recording is
 
     @property
     def recording_id(self) -> str:
@@ -106,6 +157,7 @@ def run_info(
     input_path: Path,
     truth: GroundTruth | None = None,
     truth_path: Path | None = None,
+    kind: str = "replay",
 ) -> RunInfo:
     """Describe a run, reading the input (and truth) file for its size, sha256 and text.
 
@@ -134,6 +186,7 @@ def run_info(
         truth=truth,
         truth_path=truth_path,
         truth_sha256=truth_sha256,
+        kind=kind,
     )
 
 
@@ -197,11 +250,28 @@ def resolve_default_sinks(
         return sinks, None
     if has_display():
         return Sinks(spawn=True), "No Rerun output option given: sent the run to a Rerun viewer."
-    path = recordings_dir / f"{input_path.stem}.rrd"
+    if not recordings_dir.is_dir():
+        try:  # the default folder, in the current one: made when missing (not its parents)
+            recordings_dir.mkdir()
+        except OSError as error:
+            raise SinkError(f"cannot make the folder {recordings_dir} ({error.strerror})") from None
+    path = unused_path(recordings_dir / f"{input_path.stem}.rrd")
     return Sinks(save=path), (
         f"No Rerun output option and no display: saved the recording to {path}"
-        f" (open it with: rerun {path})"
+        f" (open it with: {rerun_hint()} {path})"
     )
+
+
+def rerun_hint() -> str:
+    """How the user's shell runs the viewer: ``rerun`` if that is this installation's,
+    else its path beside this Python (an unactivated virtual environment)."""
+    beside = Path(sys.executable).parent / ("rerun.exe" if sys.platform == "win32" else "rerun")
+    found = shutil.which("rerun")
+    if not beside.is_file() or (found is not None and Path(found).resolve() == beside.resolve()):
+        return "rerun"
+    with contextlib.suppress(ValueError):
+        return str(beside.relative_to(Path.cwd()))
+    return str(beside)
 
 
 def _rerun_executable() -> str | None:
@@ -229,10 +299,13 @@ class Recording:
     :ivar complete: set once everything is logged: only then is a ``--save`` file written
     """
 
-    def __init__(self, rec: rr.RecordingStream, url: str | None) -> None:
+    def __init__(
+        self, rec: rr.RecordingStream, url: str | None, unreachable: str | None = None
+    ) -> None:
         self.rec = rec
         self.url = url
         self.complete = False
+        self.unreachable = unreachable  # a --connect URL without a viewer, when saving too
 
     def wait_while_serving(self) -> None:
         """Block until Ctrl-C while the web viewer is served; return at once otherwise."""
@@ -257,6 +330,7 @@ class RunLogger:
         self.recording = recording
         self.url = recording.url
         self.logged = 0  # records logged so far
+        self.last: EventRecord | None = None  # the last record logged
 
     @property
     def finished(self) -> bool:
@@ -266,6 +340,7 @@ class RunLogger:
         """Log one record of the core."""
         self.recorder.log_record(record)
         self.logged += 1
+        self.last = record
 
     def finish(self, evaluation: Evaluation | None) -> None:
         """Log the evaluation document and send the buffered series: the run is complete."""
@@ -280,7 +355,18 @@ class RunLogger:
         if not self.logged:
             return False
         self.recorder.note(reason, level=rr.TextLogLevel.ERROR)
-        self.finish(evaluation)
+        last = self.last
+        finish_recorders(
+            self.recording,
+            [(self.recorder, evaluation)],
+            status={
+                "state": "stopped",
+                "reason": reason,
+                "event": -1 if last is None else last.event,
+                "step": -1 if last is None else last.step,
+                "line": -1 if last is None else last.line,
+            },
+        )
         return True
 
     def wait_while_serving(self) -> None:
@@ -289,9 +375,14 @@ class RunLogger:
 
 
 def finish_recorders(
-    recording: Recording, recorders: Sequence[tuple[Recorder, Evaluation | None]]
+    recording: Recording,
+    recorders: Sequence[tuple[Recorder, Evaluation | None]],
+    status: Mapping[str, str | int] | None = None,
 ) -> None:
-    """Finish every recorder of a recording (series, evaluation) and mark it complete."""
+    """Finish every recorder of a recording (series, evaluation), record how the run
+    ended (the property ``status``: finished unless told otherwise) and mark it complete.
+    """
+    recording.rec.send_property("status", _any_values(status or {"state": "finished"}))
     try:
         for recorder, evaluation in recorders:
             recorder.finish(evaluation)
@@ -318,18 +409,31 @@ def open_recording(info: RunInfo, sinks: Sinks) -> Iterator[Recording]:
     rec.set_log_time_enabled(False)  # only step and event: the same run gives the same data
     temporary: Path | None = None
     recording: Recording | None = None
+    unreachable: str | None = None
+    if sinks.connect is not None and viewer_answers(sinks.connect) is False:
+        if sinks.save is None and not sinks.spawn and not sinks.serve:
+            raise SinkError(_no_viewer(sinks.connect))
+        unreachable = sinks.connect  # the other outputs go on; said at the end
+        sinks = Sinks(save=sinks.save, spawn=sinks.spawn, serve=sinks.serve)
     try:
         log_sinks, temporary, url = _attach(rec, sinks)
         rec.set_sinks(*log_sinks)
         _describe(rec, info)
-        recording = Recording(rec, url)
+        recording = Recording(rec, url, unreachable)
         yield recording
     finally:
         with contextlib.suppress(Exception):
-            rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
+            flush_interruptibly(rec, FLUSH_TIMEOUT_S)
         rec.disconnect()  # finalises the file (footer) and stops a server
         if temporary is not None:
             _commit_or_remove(temporary, sinks.save, recording is not None and recording.complete)
+    if unreachable is not None:
+        kept = f"; the recording is saved in {sinks.save}" if sinks.save is not None else ""
+        raise SinkError(f"no Rerun viewer at {unreachable}{kept}")
+
+
+def _no_viewer(url: str) -> str:
+    return f"no Rerun viewer at {url} (start one with: {rerun_hint()}; or use --save PATH)"
 
 
 @contextmanager
@@ -383,13 +487,13 @@ def _attach(
         url = web_viewer_url(server.uri)
     if sinks.save is not None:
         target = sinks.save
+        try:  # no folder is made: a path that cannot be written is refused before any work
+            check_output_path(target, "--save")
+        except OutputPathError as error:
+            raise SinkError(str(error)) from None
         # Beside the target (same file system, so os.replace is atomic), made by the
         # FileSink itself so that it gets the usual permissions.
         temporary = temporary_beside(target)
-        try:
-            target.parent.mkdir(parents=True, exist_ok=True)
-        except OSError as error:
-            raise SinkError(f"--save {target}: {error.strerror or error}") from None
         log_sinks.append(rr.FileSink(temporary))
     return log_sinks, temporary, url
 
@@ -413,6 +517,7 @@ def _describe(rec: rr.RecordingStream, info: RunInfo) -> None:
     rec.send_recording_name(info.name)
     values: dict[str, str | int | bool | None] = {
         "version": info.version,
+        "kind": info.kind,
         "command": info.command,
         "parameters": _json(info.parameters),
         "input_name": info.input_path.name,
