@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from ekfviz.core.consistency import Consistency
+from ekfviz.core.consistency import Consistency, reading
 from ekfviz.core.evaluation import Evaluation, evaluate
 from ekfviz.core.filter import FilterParams
 from ekfviz.core.records import EventRecord
@@ -83,6 +83,12 @@ def parse_vary(text: str) -> list[Change]:
     changes = []
     for value in values.split(","):
         found = _VALUE.fullmatch(value.strip())
+        negative = _VALUE.fullmatch(value.strip().replace("-", "", 1))
+        if found is None and negative is not None:
+            raise SweepError(
+                f"--vary {text}: {value.strip()!r} is negative: a sigma (or a factor of one)"
+                " must be positive"
+            )
         if found is None:
             raise SweepError(
                 f"--vary {text}: found {value.strip()!r}, expected a number (0.5) or a factor"
@@ -212,24 +218,18 @@ def summarise(run: VariantRun, baseline: VariantRun) -> Summary:
     ]
     consistency = evaluation.consistency
     count = consistency.nis if consistency is not None else None
-    reading = "no update to judge"
-    if count is not None and count.verdict is not None:
-        reading = count.verdict.value
-        if count.above > count.below and count.fraction_inside < 0.9:
-            reading += f", NIS {count.above / count.total:.0%} high"
-        elif count.below > count.above and count.fraction_inside < 0.9:
-            reading += f", NIS {count.below / count.total:.0%} low"
+    inside = sum(bool(r.inside_3sigma) for r in evaluation.landmarks) if distances else None
     return Summary(
         label=run.variant.label,
         parameters={name: getattr(run.variant.params, name) for name in VARIABLE},
         mean_error=float(np.mean(errors)) if errors else None,
         max_error=float(np.max(errors)) if errors else None,
         mean_mahalanobis=float(np.mean(distances)) if distances else None,
-        inside=sum(bool(r.inside_3sigma) for r in evaluation.landmarks) if distances else None,
+        inside=inside,
         landmarks=len(evaluation.landmarks),
         final_pose=[float(v) for v in evaluation.pose],
         from_baseline=float(np.hypot(*(evaluation.pose[:2] - baseline.evaluation.pose[:2]))),
         mean_nis=float(np.mean(nis)) if nis else None,
         nis_inside=count.fraction_inside if count is not None and count.total else None,
-        reading=reading,
+        reading=reading(consistency, inside, len(distances)),
     )

@@ -297,20 +297,20 @@ TrueSigmaRange = Annotated[float | None, _true("range noise sigma")]
 ScenarioOption = Annotated[ScenarioName, _option("The world and route.")]
 Steps = Annotated[
     int | None,
-    _option("loop: controls in one lap [default: 1000].", LOOP, min=4, show_default=False),
+    _option("loop: controls in one lap \\[default: 1000].", LOOP, min=4, show_default=False),
 ]
 Landmarks = Annotated[
     int | None,
-    _option("loop: number of landmarks [default: 200].", LOOP, min=1, show_default=False),
+    _option("loop: number of landmarks \\[default: 200].", LOOP, min=1, show_default=False),
 ]
 MaxRange = Annotated[
     float | None,
-    _option("loop: sensor range in metres [default: 15].", LOOP, min=0.0, show_default=False),
+    _option("loop: sensor range in metres \\[default: 15].", LOOP, min=0.0, show_default=False),
 ]
 Fov = Annotated[
     float | None,
     _option(
-        "loop: sensor field of view in degrees [default: 180].",
+        "loop: sensor field of view in degrees \\[default: 180].",
         LOOP,
         min=0.0,
         max=360.0,

@@ -62,7 +62,7 @@ def consistency(
         Triple | None,
         _option(
             "The prior the true start is drawn from AND the filter's initial covariance"
-            " [default: the scenario's: classic 0.02 0.02 0.1, loop 0.01 0.01 0.005].",
+            " \\[default: the scenario's: classic 0.02 0.02 0.1, loop 0.01 0.01 0.005].",
             FILTER_OPTIONS,
             metavar="SX SY STHETA",
             show_default=False,
@@ -87,7 +87,8 @@ def consistency(
         Path | None, _option("Write the averaged curves to this .rrd file.", show_default=False)
     ] = None,
     workers: Annotated[
-        int | None, _option("Processes to use [default: one per core].", min=1, show_default=False)
+        int | None,
+        _option("Processes to use \\[default: one per core].", min=1, show_default=False),
     ] = None,
 ) -> None:
     """Monte-Carlo consistency: average NEES and NIS over many simulated runs, per step.
@@ -115,7 +116,9 @@ def consistency(
         table.add_column(column, justify="left" if column in ("statistic", "verdict") else "right")
     for name, count in (("mean NEES per step", result.nees), ("mean NIS per step", result.nis)):
         verdict = count.verdict
-        colour = "green" if verdict is Verdict.CONSISTENT else "bold red"
+        colour = {Verdict.CONSISTENT: "green", Verdict.BORDERLINE: "yellow"}.get(
+            verdict or Verdict.CONSISTENT, "bold red"
+        )
         table.add_row(
             name,
             f"{count.inside}/{count.total} ({count.fraction_inside:.1%})" if count.total else "-",

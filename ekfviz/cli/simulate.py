@@ -69,7 +69,7 @@ def simulate(
         typer.Option(
             metavar="SX SY STHETA",
             help="The true start is drawn from N(0, diag(sigma^2)), the prior a filter should"
-            " assume [default: classic 0.02 0.02 0.1, loop 0.01 0.01 0.005].",
+            " assume \\[default: classic 0.02 0.02 0.1, loop 0.01 0.01 0.005].",
             show_default=False,
         ),
     ] = None,

@@ -9,6 +9,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Annotated, Any
 
+import typer
 from rich import box
 from rich.markup import escape
 from rich.progress import Progress
@@ -55,7 +56,8 @@ def sweep(
     save: Annotated[
         Path | None,
         _option(
-            "Write the recording here [default: recordings/<input>-sweep.rrd].", show_default=False
+            "Write the recording here \\[default: recordings/<input>-sweep.rrd].",
+            show_default=False,
         ),
     ] = None,
     report: Annotated[
@@ -71,7 +73,11 @@ def sweep(
         ),
     ] = None,
     one_at_a_time: Annotated[
-        bool, _option("Vary each --vary on its own around the baseline, not as a grid.")
+        bool,
+        typer.Option(
+            "--one-at-a-time",
+            help="Vary each --vary on its own around the baseline, not as a grid.",
+        ),
     ] = False,
     preset: Annotated[
         Preset | None,
@@ -88,7 +94,8 @@ def sweep(
     landmark_init: LandmarkInitOption = DEFAULT.landmark_init,
     update: UpdateOption = DEFAULT.update,
     workers: Annotated[
-        int | None, _option("Processes to use [default: one per core].", min=1, show_default=False)
+        int | None,
+        _option("Processes to use \\[default: one per core].", min=1, show_default=False),
     ] = None,
 ) -> None:
     """Replay one log with filter parameters varied around a baseline, side by side.
