@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import rerun.blueprint as rrb
 
 from ekfviz.core.types import FloatArray
@@ -47,12 +49,31 @@ def map_view(
     )
 
 
+# Small plots: a legend would hide a third of one; it is shown only where the colours
+# cannot be told from the title, small and in a corner.
+NO_LEGEND = rrb.PlotLegend(visible=False)
+SMALL_LEGEND = rrb.PlotLegend(corner=rrb.components.Corner2D.RightTop, visible=True)
+HIDDEN = rrb.EntityBehavior(visible=False)
+
+
+def summary_plot(name: str, summary: str, per_landmark: str, ids: Sequence[int]) -> rrb.View:
+    """The mean and worst landmark of a per-landmark metric; the landmarks' own series
+    are in the view too, hidden until shown (in the view's entity list)."""
+    return rrb.TimeSeriesView(
+        name=name,
+        contents=[f"/{summary}/**", f"/{per_landmark}/**"],
+        plot_legend=SMALL_LEGEND,
+        overrides={f"/{per_landmark}/{i}": HIDDEN for i in ids},
+    )
+
+
 def default_blueprint(
     *,
     has_truth: bool,
     has_run_info: bool,
     has_true_poses: bool = False,
     bounds_xy: FloatArray | None = None,
+    landmark_ids: Sequence[int] = (),
 ) -> rrb.Blueprint:
     """The layout: the map on the left, plots above and documents below on the right.
 
@@ -60,11 +81,23 @@ def default_blueprint(
     :param has_run_info: add the run information, input and evaluation documents
     :param has_true_poses: add the NEES plot
     :param bounds_xy: (2, 2) world box the map frames, see :func:`map_view`
+    :param landmark_ids: the landmarks whose own error series the plots hide (they show
+        the mean and the worst landmark)
     """
-    plots: list[rrb.View] = [rrb.TimeSeriesView(name="NIS and 95% bounds", origin=style.NIS)]
+    plots: list[rrb.View] = [
+        rrb.TimeSeriesView(
+            name="NIS (blue) and 95% bounds", origin=style.NIS, plot_legend=NO_LEGEND
+        )
+    ]
     if has_true_poses:
-        plots.append(rrb.TimeSeriesView(name="NEES and 95% bounds", origin=style.NEES))
-    plots.append(rrb.TimeSeriesView(name="Pose sigma", origin=style.POSE_SIGMA))
+        plots.append(
+            rrb.TimeSeriesView(
+                name="NEES (blue) and 95% bounds", origin=style.NEES, plot_legend=NO_LEGEND
+            )
+        )
+    plots.append(
+        rrb.TimeSeriesView(name="Pose sigma", origin=style.POSE_SIGMA, plot_legend=SMALL_LEGEND)
+    )
     plots.append(
         rrb.TimeSeriesView(
             name="Smallest eigenvalue of P",
@@ -77,14 +110,43 @@ def default_blueprint(
                     style.HEALTH_P_MIN_EIG,
                 )
             ],
+            plot_legend=SMALL_LEGEND,
         )
     )
     if has_truth:
         plots += [
-            rrb.TimeSeriesView(name="Landmark error [m]", origin=style.LANDMARK_ERROR),
-            rrb.TimeSeriesView(name="Mahalanobis distance", origin=style.MAHALANOBIS),
+            summary_plot(
+                "Landmark error [m]",
+                style.LANDMARK_ERROR_SUMMARY,
+                style.LANDMARK_ERROR,
+                landmark_ids,
+            ),
+            summary_plot(
+                "Mahalanobis distance",
+                style.MAHALANOBIS_SUMMARY,
+                style.MAHALANOBIS,
+                landmark_ids,
+            ),
         ]
-    texts: list[rrb.View] = [rrb.TextLogView(name="Log", origin=style.LOG)]
+    texts: list[rrb.View] = [
+        rrb.TextLogView(
+            name="Log",
+            origin=style.LOG,
+            # level and text only: a line starts with its step, which a narrow timeline
+            # column would cut ("#9..."); no entity path
+            columns=rrb.TextLogColumns(
+                timeline_columns=[
+                    rrb.encodings.TimelineColumn(style.STEP, visible=False),
+                    rrb.encodings.TimelineColumn(style.EVENT, visible=False),
+                ],
+                text_log_columns=[
+                    rrb.encodings.TextLogColumn("EntityPath", visible=False),
+                    rrb.encodings.TextLogColumn("LogLevel"),
+                    rrb.encodings.TextLogColumn("Body"),
+                ],
+            ),
+        )
+    ]
     if has_run_info:
         texts += [
             rrb.TextDocumentView(name="Run", origin=style.RUN_INFO),
@@ -107,17 +169,31 @@ def default_blueprint(
 
 
 def sweep_blueprint(
-    variants: list[tuple[str, str]], *, has_truth: bool, bounds_xy: FloatArray | None = None
+    variants: list[tuple[str, str]],
+    *,
+    has_truth: bool,
+    bounds_xy: FloatArray | None = None,
+    nis_range: tuple[float, float] | None = None,
 ) -> rrb.Blueprint:
-    """A grid of maps, one per variant (baseline first), above overlaid metric plots.
+    """A grid of maps, one per variant (baseline first), beside overlaid metric plots
+    tall enough for a legend entry per variant.
 
     :param variants: (label, prefix) of every variant, in order
+    :param nis_range: the NIS axis to show (a few times the baseline's 95% bounds): the
+        few wild variants would otherwise flatten every sensible one
     """
     maps = [map_view(bounds_xy, prefix=prefix, name=label) for label, prefix in variants]
+    baseline = variants[0][1]
     plots = [
         rrb.TimeSeriesView(
-            name="NIS per variant",
-            contents=[f"/{prefix}/{style.NIS}" for _, prefix in variants],
+            name="NIS per variant (grey: baseline's 95% bounds)",
+            contents=[
+                *(f"/{prefix}/{style.NIS}" for _, prefix in variants),
+                f"/{baseline}/{style.NIS}/{style.LOWER}",
+                f"/{baseline}/{style.NIS}/{style.UPPER}",
+            ],
+            axis_y=None if nis_range is None else rrb.ScalarAxis(range=nis_range),
+            plot_legend=SMALL_LEGEND,
         )
     ]
     if has_truth:
@@ -125,13 +201,14 @@ def sweep_blueprint(
             rrb.TimeSeriesView(
                 name="Mean landmark error [m] per variant",
                 contents=[f"/{prefix}/{style.MEAN_LANDMARK_ERROR}" for _, prefix in variants],
+                plot_legend=SMALL_LEGEND,
             )
         )
     return rrb.Blueprint(
-        rrb.Vertical(
+        rrb.Horizontal(
             rrb.Grid(*maps),
-            rrb.Horizontal(*plots),
-            row_shares=[3, 1],
+            rrb.Vertical(*plots),
+            column_shares=[5, 2],
         ),
         rrb.TimePanel(timeline=style.STEP, play_state="following", state="collapsed"),
         collapse_panels=True,

@@ -51,12 +51,21 @@ def save_monte_carlo(
     blueprint = rrb.Blueprint(
         rrb.Horizontal(
             rrb.Vertical(
-                rrb.TimeSeriesView(name="Mean NEES and 95% bounds", origin=style.NEES),
-                rrb.TimeSeriesView(name="Mean NIS and 95% bounds", origin=style.NIS),
+                rrb.TimeSeriesView(
+                    name="Mean NEES (blue) and 95% bounds",
+                    origin=style.NEES,
+                    plot_legend=rrb.PlotLegend(visible=False),
+                ),
+                rrb.TimeSeriesView(
+                    name="Mean NIS (blue) and 95% bounds",
+                    origin=style.NIS,
+                    plot_legend=rrb.PlotLegend(visible=False),
+                ),
             ),
             rrb.TextDocumentView(name="Consistency", origin=REPORT),
             column_shares=[3, 2],
         ),
+        rrb.TimePanel(timeline=style.STEP, state="collapsed"),
         collapse_panels=True,
     )
     with atomic_rrd(path) as temporary:

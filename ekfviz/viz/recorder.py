@@ -324,6 +324,10 @@ class Recorder:
         self._order: list[int] = [int(i) for i in landmark_ids] if landmark_ids else []
         self._in_order: set[int] = set(self._order)
         self._seen: set[int] = set()  # ids observed so far through the array API
+        self._seen_ids: set[int] = set()  # every landmark id in the map so far (for the layout)
+        # labels below the outlines, not in the small maps of a sweep (prefix) nor in a
+        # large map, where they would cover it (the viewer shows a label on hover)
+        self._labels_off = bool(prefix.strip("/"))
         # landmark classes (see _annotate): ids 0.._class_top and _class_extra are logged
         self._class_top = -1
         self._class_extra: set[int] = set()
@@ -478,6 +482,7 @@ class Recorder:
             margin = 0.05 * max(float(np.max(bounds_xy[1] - bounds_xy[0])), 1.0)
             bounds_xy = bounds_xy + np.array([[-margin], [margin]])
         return default_blueprint(
+            landmark_ids=sorted(self._seen_ids) if self._truth is not None else (),
             has_truth=self._truth is not None,
             has_true_poses=self._truth is not None and self._truth.poses_xytheta is not None,
             has_run_info=self._run_documents,
@@ -499,6 +504,7 @@ class Recorder:
             ):
                 self._annotate(ids)
                 self._last_ids = ids
+                self._seen_ids.update(ids.tolist())
             whole_map = (
                 self._detail
                 or record.n_landmarks <= SMALL_MAP
@@ -750,6 +756,28 @@ class Recorder:
                 self._identify(rr.Points2D, ids, counts),
             ],
         )
+        # the labels just below each 3-sigma outline (y - 3 sigma_y, y up), clear of it; in a
+        # large map they would cover it: there the viewer shows a landmark's label on hover
+        if self._labels_off or max(record.n_landmarks for record in updates) > SMALL_MAP:
+            if not self._labels_off:  # empty rows from here on: the labels are gone
+                self._labels_off = True
+                empty = np.zeros(len(updates), dtype=np.int64)
+                self._send(
+                    style.LANDMARK_LABELS,
+                    times,
+                    [_column(rr.Points2D.descriptor_positions(), _xy(np.zeros((0, 2))), empty)],
+                )
+            return
+        sigma_y = np.sqrt(np.concatenate([record.landmark_covs[:, 1, 1] for record in updates]))
+        below = positions - np.column_stack([np.zeros(len(positions)), 3.0 * sigma_y])
+        self._send(
+            style.LANDMARK_LABELS,
+            times,
+            [
+                _column(rr.Points2D.descriptor_positions(), _xy(below), counts),
+                self._identify(rr.Points2D, ids, counts),
+            ],
+        )
 
     def _send_strips(
         self,
@@ -839,6 +867,14 @@ class Recorder:
         )
         add = self._series.add
         step, event = record.step, record.event
+        known = np.isfinite(euclidean)
+        if which is None and known.any():  # the whole map: its mean and worst landmark
+            for root, values in (
+                (style.LANDMARK_ERROR_SUMMARY, euclidean[known]),
+                (style.MAHALANOBIS_SUMMARY, mahalanobis[known]),
+            ):
+                add(f"{root}/{style.MEAN}", step, event, float(values.mean()))
+                add(f"{root}/{style.WORST}", step, event, float(values.max()))
         for landmark_id, error, distance in zip(
             ids.tolist(), euclidean.tolist(), mahalanobis.tolist(), strict=True
         ):
@@ -896,6 +932,21 @@ class Recorder:
             (style.HEALTH_SKIPPED, "skipped observations"),
         ):
             rec.log(path, rr.SeriesLines(names=name), static=True)
+        for axis, color in style.POSE_SIGMA_COLORS.items():
+            unit = "rad" if axis == "theta" else "m"
+            rec.log(
+                f"{style.POSE_SIGMA}/{axis}",
+                rr.SeriesLines(colors=color, names=f"{axis} ({unit})"),
+                static=True,
+            )
+        if self._truth is not None:
+            for root in (style.LANDMARK_ERROR_SUMMARY, style.MAHALANOBIS_SUMMARY):
+                for which, color in style.SUMMARY_COLORS.items():
+                    rec.log(
+                        f"{root}/{which}",
+                        rr.SeriesLines(colors=color, names=f"{which} landmark", widths=2.0),
+                        static=True,
+                    )
         # A 2-D view draws y down; mirroring "world" in the root frame shows the map y up
         # as in the classic plots, while every entity keeps its true world coordinates.
         rec.log(style.WORLD, rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)
@@ -943,7 +994,20 @@ class Recorder:
         rec.log(
             style.LANDMARKS,
             rr.Points2D.from_fields(
-                colors=style.LANDMARK_COLOR, radii=_radius(style.POINT_RADIUS_UI), draw_order=30.0
+                colors=style.LANDMARK_COLOR,
+                radii=_radius(style.POINT_RADIUS_UI),
+                show_labels=False,
+                draw_order=30.0,
+            ),
+            static=True,
+        )
+        rec.log(
+            style.LANDMARK_LABELS,
+            rr.Points2D.from_fields(
+                colors=style.LANDMARK_COLOR,
+                radii=_radius(style.LABEL_ANCHOR_RADIUS_UI),
+                show_labels=True,
+                draw_order=31.0,
             ),
             static=True,
         )
