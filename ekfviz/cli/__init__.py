@@ -3,10 +3,20 @@
 Importing this package registers every command on :data:`app`.
 """
 
-from ekfviz.cli import consistency, convert, info, replay, simulate, sweep
+from ekfviz.cli import check, compare, consistency, convert, info, replay, simulate, sweep
 from ekfviz.cli.common import app
 from ekfviz.cli.help import polish
 
 polish(app)
 
-__all__ = ["app", "consistency", "convert", "info", "replay", "simulate", "sweep"]
+__all__ = [
+    "app",
+    "check",
+    "compare",
+    "consistency",
+    "convert",
+    "info",
+    "replay",
+    "simulate",
+    "sweep",
+]

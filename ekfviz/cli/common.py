@@ -25,12 +25,9 @@ from ekfviz import __version__, signals
 from ekfviz.core.evaluation import Evaluation
 from ekfviz.core.filter import HAVE_KERNEL, FilterParams, LandmarkInit, UpdateMode
 from ekfviz.core.records import EventRecord, LogEvent
-from ekfviz.core.replay import FilterLineError
 from ekfviz.core.truth import GroundTruth
-from ekfviz.io.extended import is_extended, read_log
 from ekfviz.io.paths import OutputPathError, check_output_path, distinct_paths, unused_path
 from ekfviz.io.text import ProgressCallback
-from ekfviz.io.truth import checked_against
 from ekfviz.sim.scenarios import Scenario, ScenarioName
 from ekfviz.sim.simulate import Noise
 
@@ -88,8 +85,8 @@ class _Unpadded:
 
 
 OUT_STREAM = _Unpadded()
-out = Console(file=OUT_STREAM, highlight=False)  # type: ignore[arg-type]
-err = Console(stderr=True, highlight=False)
+out = Console(file=OUT_STREAM, highlight=False, emoji=False)  # type: ignore[arg-type]
+err = Console(stderr=True, highlight=False, emoji=False)
 NO_TERMINAL_WIDTH = 10_000  # piped output: full lines, nothing cut
 
 
@@ -285,6 +282,20 @@ TruthOption = Annotated[
 ]
 
 
+FilterOption = Annotated[
+    str,
+    typer.Option(
+        "--filter",
+        help="The filter: ekf (built-in), a registered backend, PATH.py:ClassName or"
+        " package.module:ClassName (a class of the filter protocol, see the README).",
+        rich_help_panel=FILTER_OPTIONS,
+    ),
+]
+Workers = Annotated[
+    int | None, _option("Processes to use [default: one per core].", min=1, show_default=False)
+]
+
+
 def _true(what: str) -> Any:
     return _option(f"True {what}.", TRUE_NOISE, min=0.0, show_default=False)
 
@@ -380,11 +391,10 @@ def log_events(
     truth_path: Path | None,
     progress: ProgressCallback | None = None,
 ) -> Iterator[LogEvent]:
-    """The log's events, checked against the truth's landmarks when there is one."""
-    events = read_log(data, progress, warn)
-    if truth is not None and truth_path is not None:
-        events = checked_against(events, truth, truth_path, every_id=not is_extended(data))
-    return events
+    """The log's events, checked against the truth's landmarks, reader warnings printed."""
+    from ekfviz.pipeline import log_events as events
+
+    return events(data, truth, truth_path, progress, warn)
 
 
 class FilterWarnings:
@@ -410,33 +420,6 @@ class FilterWarnings:
                 f"{self.count - self.PRINTED} more filter warnings"
                 f" ({self.count} in all) are in the recording's log"
             )
-
-
-class RunStopped(Exception):
-    """A replay cut short; ``kept`` says whether its recording was kept."""
-
-    def __init__(self, reason: str, cause: BaseException, kept: bool) -> None:
-        super().__init__(reason)
-        self.reason = reason
-        self.kept = kept
-        if isinstance(cause, KeyboardInterrupt):
-            self.exit_code = 130  # 128 + SIGINT, as a shell reports it
-        elif isinstance(cause, signals.Terminated):
-            self.exit_code = 143  # 128 + SIGTERM
-        else:
-            self.exit_code = 2
-
-
-def stop_reason(cause: BaseException, data: Path, last: EventRecord | None) -> str:
-    """One line saying why and where a replay stopped."""
-    after = f"after input line {last.line}" if last is not None and last.line else "at the start"
-    if isinstance(cause, KeyboardInterrupt):
-        return f"{data}: interrupted (SIGINT) {after}"
-    if isinstance(cause, signals.Terminated):
-        return f"{data}: terminated (SIGTERM) {after}"
-    if isinstance(cause, FilterLineError):
-        return f"{data}:{cause.line}: {cause}"
-    return str(cause)
 
 
 @contextmanager

@@ -15,6 +15,7 @@ from ekfviz import __version__
 from ekfviz.cli.common import (
     DEFAULT,
     FILTER_OPTIONS,
+    FilterOption,
     Fov,
     LandmarkInitOption,
     Landmarks,
@@ -38,6 +39,7 @@ from ekfviz.cli.common import (
     check_outputs,
     command_hint,
     err,
+    fail,
     filter_params,
     out,
     scenario_world,
@@ -45,6 +47,8 @@ from ekfviz.cli.common import (
     write_json,
 )
 from ekfviz.core.consistency import Verdict
+from ekfviz.core.filter import FilterError
+from ekfviz.filters import BUILTIN, FilterSpecError, load_filter
 from ekfviz.sim.scenarios import ScenarioName
 
 
@@ -70,6 +74,7 @@ def consistency(
     ] = None,
     landmark_init: LandmarkInitOption = DEFAULT.landmark_init,
     update: UpdateOption = DEFAULT.update,
+    filter_spec: FilterOption = BUILTIN,
     true_sigma_x: TrueSigmaX = None,
     true_sigma_y: TrueSigmaY = None,
     true_sigma_alpha: TrueSigmaAlpha = None,
@@ -107,9 +112,15 @@ def consistency(
     noise = true_noise(
         world, true_sigma_x, true_sigma_y, true_sigma_alpha, true_sigma_bearing, true_sigma_range
     )
-    trials = Trials(scenario=world, true_noise=noise, init_pose_sigma=prior, params=params)
-    with err.status(f"{runs} runs of the {scenario.value} scenario..."):
-        result = monte_carlo(trials, runs, seed=seed, workers=workers)
+    trials = Trials(
+        scenario=world, true_noise=noise, init_pose_sigma=prior, params=params, filter=filter_spec
+    )
+    try:
+        load_filter(filter_spec)
+        with err.status(f"{runs} runs of the {scenario.value} scenario..."):
+            result = monte_carlo(trials, runs, seed=seed, workers=workers)
+    except (FilterSpecError, FilterError) as error:
+        fail(f"--scenario {scenario.value}: {error}")
 
     table = Table(title=f"Consistency over {runs} runs ({scenario.value})", title_justify="left")
     for column in ("statistic", "inside 95%", "above", "below", "verdict"):
@@ -135,6 +146,7 @@ def consistency(
         "runs": runs,
         "seed": seed,
         "filter": params.as_dict(),
+        "filter_class": filter_spec,
         "true_noise": asdict(noise),
         "init_pose_sigma": list(prior),
     }

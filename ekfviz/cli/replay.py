@@ -13,11 +13,11 @@ from ekfviz import signals
 from ekfviz.cli.common import (
     DEFAULT,
     RECORDINGS_DIR,
+    FilterOption,
     FilterWarnings,
     InitPoseSigma,
     LandmarkInitOption,
     LogArgument,
-    RunStopped,
     SigmaAlpha,
     SigmaBearing,
     SigmaRange,
@@ -34,15 +34,10 @@ from ekfviz.cli.common import (
     out,
     print_evaluation,
     report_json,
-    stop_reason,
     write_json,
 )
-from ekfviz.core.consistency import Consistency
-from ekfviz.core.evaluation import evaluate
 from ekfviz.core.filter import FilterError
-from ekfviz.core.records import EventRecord
-from ekfviz.core.replay import FilterLineError
-from ekfviz.core.replay import replay as run_filter
+from ekfviz.filters import BUILTIN, FilterSpecError, load_filter
 from ekfviz.io.errors import InputError
 from ekfviz.io.truth import read_truth
 
@@ -62,6 +57,7 @@ def replay(
     init_pose_sigma: InitPoseSigma = DEFAULT.init_pose_sigma,
     landmark_init: LandmarkInitOption = DEFAULT.landmark_init,
     update: UpdateOption = DEFAULT.update,
+    filter_spec: FilterOption = BUILTIN,
     save: Annotated[
         Path | None,
         typer.Option(
@@ -101,13 +97,22 @@ def replay(
             rich_help_panel="Rerun output",
         ),
     ] = False,
+    history: Annotated[
+        bool,
+        typer.Option(
+            "--history",
+            help="The classic figure: the map keeps every predicted (magenta) and updated"
+            " (blue) robot ellipse up to the time cursor.",
+            rich_help_panel="Rerun output",
+        ),
+    ] = False,
 ) -> None:
     """Replay a log through EKF-SLAM, record it for Rerun and print the evaluation.
 
     With no Rerun output option, the native viewer opens where a display exists;
     otherwise the recording is saved to recordings/<input name>.rrd.
     """
-    from ekfviz import viz  # rerun loads only for commands that record
+    from ekfviz import pipeline, viz  # rerun loads only for commands that record
 
     params = filter_params(
         (sigma_x, sigma_y, sigma_alpha, sigma_bearing, sigma_range),
@@ -115,6 +120,10 @@ def replay(
         landmark_init,
         update,
     )
+    try:
+        make_filter = load_filter(filter_spec)
+    except FilterSpecError as error:
+        fail(str(error))
     try:
         truth_xy = read_truth(truth) if truth is not None else None
         sinks, note = viz.resolve_default_sinks(
@@ -125,40 +134,27 @@ def replay(
         info = viz.run_info(
             name=data.stem,
             command=shlex.join(["ekfviz", *sys.argv[1:]]),
-            parameters=params.as_dict(),
+            parameters={**params.as_dict(), "filter": filter_spec},
             input_path=data,
             truth=truth_xy,
             truth_path=truth,
         )
         with (
             open_progress(data) as progress,
-            viz.open_run(info, sinks, detail=detail) as logger,
+            viz.open_run(info, sinks, detail=detail, history=history) as logger,
             signals.as_exceptions(),
         ):
-            last: EventRecord | None = None
-            consistency = Consistency(truth_xy)
             warnings = FilterWarnings(data)
-            try:
-                for record in run_filter(log_events(data, truth_xy, truth, progress), params):
-                    logger.log(record)
-                    consistency.add(record)
-                    if record.warnings:
-                        warnings.add(record)
-                    last = record
-                    if record.event == 0:  # a signal during start-up: stop, with a recording
-                        signals.raise_pending()
-            except (InputError, FilterLineError, KeyboardInterrupt, signals.Terminated) as cause:
-                final = None if last is None else evaluate(last, truth_xy, consistency)
-                reason = stop_reason(cause, data, last)
-                kept = logger.stop(reason, final)
-                raise RunStopped(reason, cause, kept) from cause
-            assert last is not None  # replay always yields the initialisation
-            evaluation = evaluate(last, truth_xy, consistency)
-            logger.finish(evaluation)
+            evaluation = pipeline.replay_log(
+                log_events(data, truth_xy, truth, progress), params, make_filter=make_filter,
+                name=filter_spec, data=data, truth=truth_xy, logger=logger,
+                on_record=warnings.add,
+            )  # fmt: skip
             warnings.summarise()
             print_evaluation(evaluation, truth_xy)
             if report is not None:
-                write_json(report, report_json(evaluation, params, data, info.input_sha256))
+                document = report_json(evaluation, params, data, info.input_sha256)
+                write_json(report, {**document, "filter": filter_spec})
             if truth_xy is not None:
                 mismatch_note(params, truth_xy)
             if note:
@@ -166,7 +162,7 @@ def replay(
             if logger.url:
                 out.print(f"Serving the web viewer at [bold]{logger.url}[/] (Ctrl-C to stop)")
             logger.wait_while_serving()
-    except RunStopped as stopped:
+    except pipeline.RunStopped as stopped:
         where = ""
         if stopped.kept and sinks.save is not None:
             where = f"; the recording of everything before it is saved in {sinks.save}"

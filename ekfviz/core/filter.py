@@ -149,6 +149,34 @@ class EkfSlam:
             np.zeros((0, 2, 2), dtype=np.int64),
         )
 
+    @classmethod
+    def from_state(
+        cls,
+        params: FilterParams,
+        x: FloatArray,
+        P: FloatArray,
+        landmark_ids: Sequence[int] | IntArray,
+        *,
+        compiled: bool = True,
+    ) -> EkfSlam:
+        """A filter that starts from a given state instead of the prior (``ekfviz check``
+        starts the reference from the checked filter's own state before every event).
+
+        :param x: (3+2N,) mean, ``P`` (3+2N, 3+2N) covariance, ``landmark_ids`` (N,)
+        """
+        ids = [int(i) for i in landmark_ids]
+        n = 3 + 2 * len(ids)
+        if x.shape != (n,) or P.shape != (n, n) or len(set(ids)) != len(ids):
+            raise ValueError(f"expected x ({n},), P ({n}, {n}) and {len(ids)} distinct ids")
+        ekf = cls(params, capacity=len(ids), compiled=compiled)
+        ekf._x[:n] = x
+        ekf._x[2] = wrap_angle(float(x[2]))
+        ekf._P[:n, :n] = P
+        ekf._n = n
+        ekf._ids = ids
+        ekf._slot = {landmark_id: 3 + 2 * k for k, landmark_id in enumerate(ids)}
+        return ekf
+
     # -- views -------------------------------------------------------------------------
 
     @property
@@ -344,6 +372,10 @@ class EkfSlam:
             initialised=frozen(np.array(new, dtype=bool)),
             skipped=frozen(np.asarray(skipped, dtype=bool)),
         )
+
+    def update(self, ids: Sequence[int] | IntArray, z: FloatArray) -> None:
+        """:meth:`observe` as the :class:`~ekfviz.core.protocol.SlamFilter` protocol has it."""
+        self.observe(ids, z)
 
     def _update_compiled(self, ids: list[int], z: FloatArray) -> tuple[FloatArray, BoolArray]:
         """:meth:`_update_sequential` in the compiled kernel; its table and skipped flags."""

@@ -14,6 +14,7 @@ from typing import TypeVar
 
 import numpy as np
 
+from ekfviz.core.correlation import Correlation
 from ekfviz.core.health import CovarianceCheck
 from ekfviz.core.types import BoolArray, FloatArray, IntArray
 
@@ -108,6 +109,8 @@ class EventRecord:
     :param warnings: what went wrong at this event without stopping the run, one
         sentence each (a skipped observation, a covariance that lost definiteness)
     :param covariance: the check of the whole covariance, at the events where it ran
+    :param correlation: the correlation matrix of the whole covariance, at the events
+        where the replay took it (see :mod:`ekfviz.core.correlation`)
     """
 
     event: int
@@ -125,6 +128,7 @@ class EventRecord:
     time: float | None = None
     warnings: tuple[str, ...] = ()
     covariance: CovarianceCheck | None = None
+    correlation: Correlation | None = None
 
     @property
     def n_landmarks(self) -> int:

@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 from collections.abc import Iterable, Iterator
+from dataclasses import replace
 from itertools import chain
 from typing import Any
 
+from ekfviz.core.correlation import CorrelationCadence, correlation_of
 from ekfviz.core.filter import EkfSlam, FilterError, FilterParams
 from ekfviz.core.health import check_covariance, check_interval
+from ekfviz.core.plugged import FilterFactory, Plugged, PluginError
 from ekfviz.core.records import (
     Control,
     EventKind,
@@ -32,9 +35,20 @@ def replay(
     events: Iterable[LogEvent],
     params: FilterParams | None = None,
     *,
+    make_filter: FilterFactory | None = None,
+    name: str = "ekf",
     full_cov: bool = False,
 ) -> Iterator[EventRecord]:
     """Run EKF-SLAM over ``events`` lazily, one record per event.
+
+    The filter is the built-in :class:`~ekfviz.core.filter.EkfSlam` unless
+    ``make_filter`` names another class of the
+    :class:`~ekfviz.core.protocol.SlamFilter` protocol (constructed as
+    ``make_filter(params)``, called ``name`` in messages): its state is checked after
+    every event, and what it saw at an update is derived from its state before it
+    (:class:`~ekfviz.core.plugged.Plugged`). Where such a filter has a ``finish()``
+    method, it is called after the last event and the state after it is one more
+    record (a batch optimum shows there).
 
     Event 0 / step 0 is the initialisation: the prior pose, plus the landmarks of the
     log's first line when that line is an observation. Every control starts a new step
@@ -49,10 +63,33 @@ def replay(
     after the record of the last good event, checked, has been yielded.
 
     :param full_cov: also keep the full (3+2N)^2 covariance in every record
-    :raises FilterLineError: the filter cannot go on at a line (a non-finite state, ...)
+    :raises FilterLineError: the filter cannot go on at a line (a non-finite state, a
+        protocol filter that raised or showed a broken state, ...)
     """
-    ekf = EkfSlam(params)
+    params = params if params is not None else FilterParams()
+    ekf: EkfSlam | Plugged
+    if make_filter is None or make_filter is EkfSlam:
+        ekf = EkfSlam(params)
+    else:
+        try:
+            slam = make_filter(params)
+        except Exception as error:  # the user's constructor: any exception is its fault
+            message = f"filter {name}: construction raised {type(error).__name__}: {error}"
+            raise FilterLineError(0, message) from error
+        try:
+            ekf = Plugged(slam, name, params)
+        except PluginError as error:
+            raise FilterLineError(0, f"event 0 (init): {error}") from error
     next_check = 0  # the step from which the whole covariance is due for a check
+    cadence = CorrelationCadence()
+
+    def correlated(record: EventRecord, last: bool) -> EventRecord:
+        """The record, with the correlation matrix of P where it is due."""
+        if (record.kind is not EventKind.PREDICT or last) and cadence.due(
+            record.step, record.n_landmarks, last
+        ):
+            return replace(record, correlation=correlation_of(ekf.P, record.landmark_ids))
+        return record
 
     def checked(line: int, warnings: tuple[str, ...]) -> dict[str, Any]:
         """Check the whole covariance; its problems join the event's warnings."""
@@ -70,20 +107,26 @@ def replay(
     if isinstance(first, Sighting):
         try:
             observations = ekf.observe(first.ids, first.z)
+        except PluginError as error:
+            raise FilterLineError(first.line, f"event 0 (init): {error}") from error
         except FilterError as error:
             raise FilterLineError(first.line, str(error)) from error
         extra = checked(first.line, ekf.warnings)
-        yield ekf.record(
+        yield correlated(ekf.record(
             event=0, step=0, kind=EventKind.INIT, line=first.line, time=first.time,
             observations=observations, full_cov=full_cov, **extra,
-        )  # fmt: skip
+        ), last)  # fmt: skip
         pending: list[tuple[LogEvent, bool]] = []
     else:
         extra = checked(0, ())
-        yield ekf.record(event=0, step=0, kind=EventKind.INIT, full_cov=full_cov, **extra)
+        yield correlated(
+            ekf.record(event=0, step=0, kind=EventKind.INIT, full_cov=full_cov, **extra),
+            first is None,
+        )
         pending = [] if first is None else [(first, last)]
 
     step_has_update = True  # the initialisation counts as step 0's update
+    event = 0
     no_extra: dict[str, Any] = {}
     for event, (log_event, last) in enumerate(chain(pending, stream), start=1):
         # the filter's own errors name the line; "try" costs nothing until one is raised
@@ -93,11 +136,11 @@ def replay(
                 step_has_update = False
                 ekf.predict(log_event.d, log_event.alpha)
                 extra = checked(log_event.line, ()) if step >= next_check or last else no_extra
-                yield ekf.record(
+                yield correlated(ekf.record(
                     event=event, step=step, kind=EventKind.PREDICT, line=log_event.line,
                     time=log_event.time, control=(log_event.d, log_event.alpha),
                     full_cov=full_cov, **extra,
-                )  # fmt: skip
+                ), last)  # fmt: skip
             else:
                 if step_has_update:
                     step += 1
@@ -109,15 +152,26 @@ def replay(
                     if step >= next_check or last or warnings
                     else no_extra
                 )
-                yield ekf.record(
+                yield correlated(ekf.record(
                     event=event, step=step, kind=EventKind.UPDATE, line=log_event.line,
                     time=log_event.time, observations=observations, full_cov=full_cov,
                     **extra,
-                )  # fmt: skip
+                ), last)  # fmt: skip
         except FilterLineError:
             raise
+        except PluginError as error:
+            kind = "predict" if isinstance(log_event, Control) else "update"
+            raise FilterLineError(log_event.line, f"event {event} ({kind}): {error}") from error
         except FilterError as error:
             raise FilterLineError(log_event.line, str(error)) from error
+    if isinstance(ekf, Plugged):
+        try:
+            finished = ekf.finish()
+        except PluginError as error:
+            raise FilterLineError(0, f"after the last event: {error}") from error
+        if finished:
+            extra = checked(0, ())
+            yield ekf.record(event=event + 1, step=step + 1, kind=EventKind.UPDATE, **extra)
 
 
 def _with_last(events: Iterable[LogEvent]) -> Iterator[tuple[LogEvent, bool]]:

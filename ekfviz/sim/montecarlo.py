@@ -20,6 +20,7 @@ from ekfviz.core.records import EventKind
 from ekfviz.core.replay import replay
 from ekfviz.core.truth import GroundTruth
 from ekfviz.core.types import FloatArray, IntArray
+from ekfviz.filters import BUILTIN, load_filter
 from ekfviz.sim.scenarios import Scenario
 from ekfviz.sim.simulate import Noise
 
@@ -32,6 +33,7 @@ class Trials:
     true_noise: Noise
     init_pose_sigma: tuple[float, float, float]
     params: FilterParams
+    filter: str = BUILTIN  # a --filter value (see ekfviz.filters)
 
 
 @dataclass(frozen=True, slots=True)
@@ -52,7 +54,8 @@ def run_trial(trials: Trials, seed: int) -> TrialResult:
     nees = np.full(steps, np.nan)
     nis = np.full(steps, np.nan)
     nis_dof = np.zeros(steps, dtype=np.int64)
-    for record in replay(run.events, trials.params):
+    make_filter = load_filter(trials.filter)
+    for record in replay(run.events, trials.params, make_filter=make_filter, name=trials.filter):
         if record.kind is EventKind.PREDICT:
             continue
         value = pose_nees(record, truth)

@@ -25,13 +25,19 @@ def accumulated_range() -> rrb.VisibleTimeRanges:
 
 
 def map_view(
-    bounds_xy: FloatArray | None = None, *, prefix: str = "", name: str = "Map"
+    bounds_xy: FloatArray | None = None,
+    *,
+    prefix: str = "",
+    name: str = "Map",
+    history: bool = False,
 ) -> rrb.Spatial2DView:
     """The 2-D map: robot, ellipses, landmarks, observations and the trajectory so far.
 
     :param bounds_xy: (2, 2) [[x_min, y_min], [x_max, y_max]] in world coordinates to
         frame, or None to let the viewer choose
     :param prefix: the entity path the run was logged under (see ``Recorder(prefix=)``)
+    :param history: also accumulate every predicted and updated robot ellipse up to the
+        time cursor (``--history``: the classic figure)
     """
     root = f"/{prefix.strip('/')}/" if prefix.strip("/") else "/"
     visual_bounds = None
@@ -45,7 +51,10 @@ def map_view(
         contents=f"{root}{style.WORLD}/**",
         background=style.BACKGROUND,
         visual_bounds=visual_bounds,
-        overrides={f"{root}{path}": accumulated_range() for path in style.ACCUMULATED},
+        overrides={
+            f"{root}{path}": accumulated_range()
+            for path in style.ACCUMULATED + (style.HISTORY if history else ())
+        },
     )
 
 
@@ -73,6 +82,7 @@ def default_blueprint(
     has_run_info: bool,
     has_true_poses: bool = False,
     bounds_xy: FloatArray | None = None,
+    history: bool = False,
     landmark_ids: Sequence[int] = (),
 ) -> rrb.Blueprint:
     """The layout: the map on the left, plots above and documents below on the right.
@@ -81,6 +91,7 @@ def default_blueprint(
     :param has_run_info: add the run information, input and evaluation documents
     :param has_true_poses: add the NEES plot
     :param bounds_xy: (2, 2) world box the map frames, see :func:`map_view`
+    :param history: the map accumulates every robot ellipse, see :func:`map_view`
     :param landmark_ids: the landmarks whose own error series the plots hide (they show
         the mean and the worst landmark)
     """
@@ -128,7 +139,7 @@ def default_blueprint(
                 landmark_ids,
             ),
         ]
-    texts: list[rrb.View] = [
+    texts: list[rrb.Container | rrb.View] = [
         rrb.TextLogView(
             name="Log",
             origin=style.LOG,
@@ -145,7 +156,8 @@ def default_blueprint(
                     rrb.encodings.TextLogColumn("Body"),
                 ],
             ),
-        )
+        ),
+        correlation_view(),
     ]
     if has_run_info:
         texts += [
@@ -155,7 +167,7 @@ def default_blueprint(
         ]
     return rrb.Blueprint(
         rrb.Horizontal(
-            map_view(bounds_xy),
+            map_view(bounds_xy, history=history),
             rrb.Vertical(
                 rrb.Grid(*plots, grid_columns=2),
                 rrb.Tabs(*texts),
@@ -168,38 +180,65 @@ def default_blueprint(
     )
 
 
+def correlation_view(prefix: str = "") -> rrb.Vertical:
+    """The correlation matrix of P with its labelled blocks, above what it shows."""
+    root = f"/{prefix.strip('/')}/" if prefix.strip("/") else "/"
+    return rrb.Vertical(
+        rrb.Spatial2DView(
+            name="Correlation",
+            origin=f"{root}{style.CORRELATION}",
+            contents=[f"{root}{style.CORRELATION_MATRIX}", f"{root}{style.CORRELATION_BLOCKS}"],
+        ),
+        rrb.TextDocumentView(name="Correlation", origin=f"{root}{style.CORRELATION_NOTE}"),
+        row_shares=[6, 1],
+        name="Correlation",
+    )
+
+
 def sweep_blueprint(
     variants: list[tuple[str, str]],
     *,
     has_truth: bool,
     bounds_xy: FloatArray | None = None,
+    what: str = "variant",
+    has_poses: bool = False,
     nis_range: tuple[float, float] | None = None,
 ) -> rrb.Blueprint:
-    """A grid of maps, one per variant (baseline first), beside overlaid metric plots
-    tall enough for a legend entry per variant.
+    """A grid of maps, one per run (baseline first), beside overlaid metric plots tall
+    enough for a legend entry per run.
 
-    :param variants: (label, prefix) of every variant, in order
-    :param nis_range: the NIS axis to show (a few times the baseline's 95% bounds): the
-        few wild variants would otherwise flatten every sensible one
+    :param variants: (label, prefix) of every run, in order
+    :param what: what a run is called in the plot titles (``variant``, ``filter``)
+    :param has_poses: the truth has poses: a NEES plot too
+    :param nis_range: the NIS axis to show (a few times the first run's 95% bounds): the
+        few wild runs would otherwise flatten every sensible one
     """
     maps = [map_view(bounds_xy, prefix=prefix, name=label) for label, prefix in variants]
-    baseline = variants[0][1]
+    first = variants[0][1]
     plots = [
         rrb.TimeSeriesView(
-            name="NIS per variant (grey: baseline's 95% bounds)",
+            name=f"NIS per {what} (grey: {variants[0][0]}'s 95% bounds)",
             contents=[
                 *(f"/{prefix}/{style.NIS}" for _, prefix in variants),
-                f"/{baseline}/{style.NIS}/{style.LOWER}",
-                f"/{baseline}/{style.NIS}/{style.UPPER}",
+                f"/{first}/{style.NIS}/{style.LOWER}",
+                f"/{first}/{style.NIS}/{style.UPPER}",
             ],
             axis_y=None if nis_range is None else rrb.ScalarAxis(range=nis_range),
             plot_legend=SMALL_LEGEND,
         )
     ]
+    if has_poses:
+        plots.append(
+            rrb.TimeSeriesView(
+                name=f"Pose NEES per {what}",
+                contents=[f"/{prefix}/{style.NEES}" for _, prefix in variants],
+                plot_legend=SMALL_LEGEND,
+            )
+        )
     if has_truth:
         plots.append(
             rrb.TimeSeriesView(
-                name="Mean landmark error [m] per variant",
+                name=f"Mean landmark error [m] per {what}",
                 contents=[f"/{prefix}/{style.MEAN_LANDMARK_ERROR}" for _, prefix in variants],
                 plot_legend=SMALL_LEGEND,
             )

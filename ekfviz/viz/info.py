@@ -28,6 +28,7 @@ class NotARecordingError(Exception):
 KINDS = {
     "replay": "a replay of a log (ekfviz replay)",
     "sweep": "a parameter sweep (ekfviz sweep)",
+    "compare": "a comparison of filters (ekfviz compare)",
     "consistency": "a Monte-Carlo consistency study (ekfviz consistency)",
     "recorder": "a filter of your own, recorded through the Recorder API",
 }

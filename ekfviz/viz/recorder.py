@@ -37,7 +37,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -48,6 +48,7 @@ import rerun.blueprint as rrb
 
 from ekfviz import __version__
 from ekfviz.core.consistency import chi2_bounds, pose_nees
+from ekfviz.core.correlation import Correlation, CorrelationCadence, correlation_of
 from ekfviz.core.evaluation import Evaluation, landmark_errors
 from ekfviz.core.health import (
     CovarianceCheck,
@@ -62,6 +63,7 @@ from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.models.angles import wrap_angles
 from ekfviz.viz import style
 from ekfviz.viz.blueprint import default_blueprint
+from ekfviz.viz.correlation import log_correlation, log_correlation_styling
 from ekfviz.viz.ellipses import ellipse_outlines, outline_points
 from ekfviz.viz.flush import flush_interruptibly
 
@@ -303,6 +305,8 @@ class Recorder:
         that several runs share one recording; the default layout then does not fit
     :param detail: log every landmark's ellipse (and, with truth, its errors) at every
         update, however large the map (see the module for what is logged otherwise)
+    :param history: the layout's map accumulates every predicted and updated robot
+        ellipse up to the time cursor (the classic figure); the data is the same
     """
 
     def __init__(
@@ -316,8 +320,12 @@ class Recorder:
         heading_length: float = HEADING_LENGTH,
         prefix: str = "",
         detail: bool = False,
+        history: bool = False,
     ) -> None:
         self._rec = _Entities(rec, prefix)
+        self._history = history
+        self._correlation = CorrelationCadence()  # of the array API (a replay's records own)
+        self._last_correlation: Correlation | None = None  # the last one logged
         self._detail = detail
         self._truth = truth
         self._heading_length = heading_length
@@ -357,6 +365,7 @@ class Recorder:
             properties.with_component_from_data("kind", "recorder")
             rec.send_property("ekfviz", properties)
         self._log_styling()
+        log_correlation_styling(self._rec)
         seed_ids = list(self._order)
         if truth is not None:
             seed_ids += truth.ids.tolist()
@@ -385,11 +394,11 @@ class Recorder:
         self._event = self._step = 0
         self._checked_step = None
         self.log_record(
-            snapshot(
+            self._correlated(snapshot(
                 x, P, event=0, step=0, kind=EventKind.INIT, line=line,
                 landmark_ids=self._state_ids(x), observations=observations,
                 **self._check(P, 0),
-            )
+            ), P)
         )  # fmt: skip
 
     def predict(
@@ -438,11 +447,11 @@ class Recorder:
         observations = self._observations(landmark_ids, z, z_pred, S)
         step = self._step + 1 if self._step_has_update else self._step
         self.log_record(
-            snapshot(
+            self._correlated(snapshot(
                 x, P, event=self._event + 1, step=step, kind=EventKind.UPDATE, line=line,
                 landmark_ids=self._state_ids(x), observations=observations,
                 **self._check(P, step),
-            )
+            ), P)
         )  # fmt: skip
 
     def finish(self, evaluation: Evaluation | None = None) -> None:
@@ -487,6 +496,7 @@ class Recorder:
             has_true_poses=self._truth is not None and self._truth.poses_xytheta is not None,
             has_run_info=self._run_documents,
             bounds_xy=bounds_xy,
+            history=self._history,
         )
 
     # -- records -------------------------------------------------------------------------
@@ -516,6 +526,11 @@ class Recorder:
             self._last_update = (record, whole_map)
         if self._truth is not None:
             self._log_metrics(record, whole_map)
+        if record.correlation is not None:  # a few per run: logged at once
+            self._rec.set_time(style.STEP, sequence=record.step)
+            self._rec.set_time(style.EVENT, sequence=record.event)
+            log_correlation(self._rec, record.correlation, self._last_correlation)
+            self._last_correlation = record.correlation
         self._pending.append((record, whole_map))
         self._pending_landmarks += len(record.landmark_ids)
         if len(self._pending) >= FLUSH_EVERY or self._pending_landmarks >= FLUSH_LANDMARKS:
@@ -1076,6 +1091,12 @@ class Recorder:
             self._order += range(start, start + n - len(self._order))
             self._in_order.update(self._order)
         return np.asarray(self._order[:n], dtype=np.int64)
+
+    def _correlated(self, record: EventRecord, P: FloatArray) -> EventRecord:
+        """The record with the correlation matrix of ``P`` where it is due."""
+        if self._correlation.due(record.step, record.n_landmarks, last=False):
+            return replace(record, correlation=correlation_of(P, record.landmark_ids))
+        return record
 
     def _check(self, P: FloatArray, step: int) -> dict[str, Any]:
         """The check of a whole covariance handed in through the array API: at every call

@@ -437,7 +437,9 @@ def _no_viewer(url: str) -> str:
 
 
 @contextmanager
-def open_run(info: RunInfo, sinks: Sinks, *, detail: bool = False) -> Iterator[RunLogger]:
+def open_run(
+    info: RunInfo, sinks: Sinks, *, detail: bool = False, history: bool = False
+) -> Iterator[RunLogger]:
     """A recording of one replay (see :func:`open_recording`), logged by a RunLogger.
 
     :param detail: log every landmark's ellipse and error at every update (see
@@ -445,7 +447,9 @@ def open_run(info: RunInfo, sinks: Sinks, *, detail: bool = False) -> Iterator[R
         only every ``MAP_EVERY_STEPS`` steps
     """
     with open_recording(info, sinks) as recording:
-        recorder = Recorder(recording.rec, truth=info.truth, run_documents=True, detail=detail)
+        recorder = Recorder(
+            recording.rec, truth=info.truth, run_documents=True, detail=detail, history=history
+        )
         yield RunLogger(recorder, recording)
 
 

@@ -44,6 +44,11 @@ HEALTH_P_MIN_EIG = "metrics/health/P_min_eigenvalue"  # where the whole P was ch
 HEALTH_P_ASYMMETRY = "metrics/health/P_asymmetry"  # likewise: max |P - P^T|
 HEALTH_P_LOG10_CONDITION = "metrics/health/P_log10_condition"  # likewise
 
+CORRELATION = "correlation"  # the correlation matrix of P, see ekfviz.viz.correlation
+CORRELATION_MATRIX = "correlation/matrix"  # Image (RGB), where the replay took it
+CORRELATION_BLOCKS = "correlation/blocks"  # Boxes2D: the diagonal blocks, labelled
+CORRELATION_NOTE = "correlation/note"  # TextDocument: what is shown (block-averaged?)
+
 LOG = "log"  # TextLog, one line per event, and one per warning
 RUN_INFO = "run/info"  # TextDocument (markdown), static
 RUN_INPUT = "run/input"  # TextDocument (the input log itself), static
@@ -51,6 +56,8 @@ RUN_EVALUATION = "run/evaluation"  # TextDocument (markdown), static, at the end
 
 # Entities drawn from the infinite past up to the time cursor instead of latest-at.
 ACCUMULATED = (TRAJECTORY, LANDMARK_INITIAL)
+# ... and with --history also every robot ellipse: the classic figure
+HISTORY = (POSE_PREDICTED, POSE_UPDATED)
 
 # -- timelines -------------------------------------------------------------------------
 
@@ -79,6 +86,7 @@ POSE_SIGMA_COLORS: dict[str, Rgb] = {
     "theta": (44, 160, 44),
 }
 SUMMARY_COLORS: dict[str, Rgb] = {"mean": (31, 119, 180), "worst": (214, 39, 40)}
+CORRELATION_BLOCK_COLOR: Rgb = (60, 60, 60)
 
 # Negative radii are UI points, so the map looks the same at any scale.
 POINT_RADIUS_UI = 4.0

@@ -1,6 +1,7 @@
-"""A parameter sweep in one recording: every variant under ``variants/<key>/``.
+"""A study in one recording: every run under ``variants/<key>/`` (a sweep) or
+``filters/<key>/`` (a comparison).
 
-Rerun does not synchronise timelines across recordings, so the variants share one
+Rerun does not synchronise timelines across recordings, so the runs share one
 recording and its ``step`` and ``event`` timelines: scrubbing moves them all together.
 """
 
@@ -13,13 +14,14 @@ from ekfviz.core.consistency import chi2_bounds, update_nis
 from ekfviz.core.evaluation import landmark_errors
 from ekfviz.core.records import EventKind
 from ekfviz.core.truth import GroundTruth
-from ekfviz.sweep import VariantRun
+from ekfviz.core.types import FloatArray
+from ekfviz.studies.runs import Run
 from ekfviz.viz import style
 from ekfviz.viz.blueprint import sweep_blueprint
 from ekfviz.viz.recorder import Recorder
 from ekfviz.viz.run import Recording, finish_recorders
 
-SUMMARY = "run/sweep"
+SUMMARY = "run/summary"
 # matplotlib's tab10 and a few more: one colour per variant in the overlaid plots
 PALETTE: tuple[style.Rgb, ...] = (
     (31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
@@ -28,29 +30,31 @@ PALETTE: tuple[style.Rgb, ...] = (
 )  # fmt: skip
 
 
-def variant_prefix(run: VariantRun) -> str:
-    return f"variants/{run.variant.key}"
-
-
-def record_sweep(
-    recording: Recording, runs: list[VariantRun], truth: GroundTruth | None, summary: str
+def record_study(
+    recording: Recording,
+    runs: list[Run],
+    truth: GroundTruth | None,
+    summary: str,
+    root: str = "variants",
 ) -> None:
-    """Log every variant's run under its own subtree, the layout and the summary table.
+    """Log every run under its own subtree ``<root>/<key>``, the layout and the summary.
 
-    :param summary: the sweep table as markdown
+    :param summary: the study's table as markdown
+    :param root: ``variants`` for a sweep, ``filters`` for a comparison
     """
     rec = recording.rec
     recorders = []
     bounds: list[np.ndarray] = []
     for k, run in enumerate(runs):
-        prefix = variant_prefix(run)
+        prefix = f"{root}/{run.spec.key}"
         recorder = Recorder(rec, truth=truth, blueprint=False, prefix=prefix)
         colour = PALETTE[k % len(PALETTE)]
-        rec.log(
-            f"{prefix}/{style.NIS}",
-            rr.SeriesLines(colors=colour, names=run.variant.label),
-            static=True,
-        )
+        for series in (style.NIS, style.NEES):  # one colour and name per run, overlaid
+            rec.log(
+                f"{prefix}/{series}",
+                rr.SeriesLines(colors=colour, names=run.spec.label),
+                static=True,
+            )
         for record in run.records:
             recorder.log_record(record)
         if truth is not None:
@@ -64,9 +68,11 @@ def record_sweep(
     margin = 0.05 * max(float(np.max(box[1] - box[0])), 1.0)
     rec.send_blueprint(
         sweep_blueprint(
-            [(run.variant.label, variant_prefix(run)) for run in runs],
+            [(run.spec.label, f"{root}/{run.spec.key}") for run in runs],
             has_truth=truth is not None,
             bounds_xy=box + np.array([[-margin], [margin]]),
+            what="variant" if root == "variants" else "filter",
+            has_poses=truth is not None and truth.poses_xytheta is not None,
             nis_range=nis_axis(runs[0]),
         )
     )
@@ -74,7 +80,7 @@ def record_sweep(
     finish_recorders(recording, recorders)
 
 
-def nis_axis(baseline: VariantRun) -> tuple[float, float] | None:
+def nis_axis(baseline: Run) -> tuple[float, float] | None:
     """The NIS axis of a sweep: from 0 to three times the baseline's largest 95% upper
     bound, or to its largest NIS if that is higher (None without an update)."""
     uppers, values = [], []
@@ -89,7 +95,7 @@ def nis_axis(baseline: VariantRun) -> tuple[float, float] | None:
 
 
 def _log_mean_error(
-    rec: rr.RecordingStream, prefix: str, run: VariantRun, truth: GroundTruth, colour: style.Rgb
+    rec: rr.RecordingStream, prefix: str, run: Run, truth: GroundTruth, colour: style.Rgb
 ) -> None:
     """The mean Euclidean landmark error after every update, as one column send."""
     steps, events, means = [], [], []
@@ -104,7 +110,7 @@ def _log_mean_error(
             events.append(record.event)
             means.append(float(np.nanmean(euclidean)))
     path = f"{prefix}/{style.MEAN_LANDMARK_ERROR}"
-    rec.log(path, rr.SeriesLines(colors=colour, names=run.variant.label), static=True)
+    rec.log(path, rr.SeriesLines(colors=colour, names=run.spec.label), static=True)
     rec.send_columns(
         path,
         indexes=[
@@ -113,3 +119,21 @@ def _log_mean_error(
         ],
         columns=rr.Scalars.columns(scalars=means),
     )
+
+
+def mark_event(
+    recording: Recording, *, step: int, event: int, text: str, where_xy: FloatArray | None
+) -> None:
+    """Mark one event of a study on the timeline: an ERROR line in the log and, on the
+    maps, a red cross where it happened (``ekfviz check``'s first divergence)."""
+    rec = recording.rec
+    rec.set_time(style.STEP, sequence=step)
+    rec.set_time(style.EVENT, sequence=event)
+    rec.log(style.LOG, rr.TextLog(text, level=rr.TextLogLevel.ERROR))
+    rec.log(f"{style.LOG}/divergence", rr.TextLog(text, level=rr.TextLogLevel.ERROR))
+    if where_xy is not None:
+        rec.log(
+            "world/divergence",
+            rr.Points2D([where_xy], colors=[(220, 0, 0)], radii=rr.Radius.ui_points(8.0),
+                        labels=["first divergence"], show_labels=True),
+        )  # fmt: skip

@@ -1,0 +1,102 @@
+"""``ekfviz compare``: several filters on one log, side by side in one recording."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from ekfviz.cli.common import (
+    DEFAULT,
+    InitPoseSigma,
+    LandmarkInitOption,
+    LogArgument,
+    SigmaAlpha,
+    SigmaBearing,
+    SigmaRange,
+    SigmaX,
+    SigmaY,
+    TruthOption,
+    UpdateOption,
+    Workers,
+    _option,
+    app,
+    fail,
+    filter_params,
+)
+from ekfviz.cli.study import run_study
+from ekfviz.filters import FilterSpec
+
+
+@app.command()
+def compare(
+    data: LogArgument,
+    filters: Annotated[
+        list[str],
+        typer.Option(
+            "--filter",
+            help="A filter to compare (ekf, a registered backend, PATH.py:ClassName,"
+            " package.module:ClassName); repeat for each, the first is the baseline.",
+            show_default=False,
+        ),
+    ],
+    truth: TruthOption = None,
+    save: Annotated[
+        Path | None,
+        _option(
+            "Write the recording here [default: recordings/<input>-compare.rrd].",
+            show_default=False,
+        ),
+    ] = None,
+    report: Annotated[
+        Path | None, _option("Write the summary as JSON here.", show_default=False)
+    ] = None,
+    sigma_x: SigmaX = DEFAULT.sigma_x,
+    sigma_y: SigmaY = DEFAULT.sigma_y,
+    sigma_alpha: SigmaAlpha = DEFAULT.sigma_alpha,
+    sigma_bearing: SigmaBearing = DEFAULT.sigma_bearing,
+    sigma_range: SigmaRange = DEFAULT.sigma_range,
+    init_pose_sigma: InitPoseSigma = DEFAULT.init_pose_sigma,
+    landmark_init: LandmarkInitOption = DEFAULT.landmark_init,
+    update: UpdateOption = DEFAULT.update,
+    workers: Workers = None,
+) -> None:
+    """Replay one log with several filters, each under filters/<name>/ in one recording.
+
+    The filters share the step and event timelines, so that scrubbing moves them all
+    together; a grid of maps sits above overlaid NIS (and NEES, landmark error) plots,
+    and a table compares them, the first filter being the baseline.
+    """
+    from ekfviz.studies.runs import RunSpec
+
+    params = filter_params(
+        (sigma_x, sigma_y, sigma_alpha, sigma_bearing, sigma_range),
+        init_pose_sigma,
+        landmark_init,
+        update,
+    )
+    specs: list[RunSpec] = []
+    keys: set[str] = set()
+    for text in filters:
+        spec = FilterSpec(text)
+        key = spec.key
+        for count in range(2, len(filters) + 2):  # the same filter twice: ekf, ekf-2
+            if key not in keys:
+                break
+            key = f"{spec.key}-{count}"
+        keys.add(key)
+        specs.append(RunSpec(label=key, key=key, params=params, filter=spec))
+    if not specs:
+        fail("give at least one --filter")
+    run_study(
+        data,
+        truth,
+        specs,
+        target=save,
+        report=report,
+        workers=workers,
+        root="filters",
+        parameters={"filters": filters, "parameters": params.as_dict()},
+        report_extra={"parameters": params.as_dict()},
+    )

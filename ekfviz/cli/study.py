@@ -1,0 +1,128 @@
+"""What ``sweep`` and ``compare`` share: run a study, print and save its table, record it.
+
+A sweep is a comparison of one filter under several parameter sets; both are a list of
+:class:`~ekfviz.studies.runs.RunSpec` run by :func:`ekfviz.pipeline.study`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict
+from pathlib import Path
+
+from rich import box
+from rich.markup import escape
+from rich.progress import Progress
+from rich.table import Table
+
+from ekfviz import __version__
+from ekfviz.cli.common import (
+    check_outputs,
+    command_hint,
+    default_output,
+    err,
+    fail,
+    out,
+    write_json,
+)
+from ekfviz.core.filter import FilterError
+from ekfviz.filters import FilterSpecError
+from ekfviz.io.errors import InputError
+from ekfviz.studies.runs import RunSpec, Summary
+
+
+def run_study(
+    data: Path,
+    truth: Path | None,
+    specs: list[RunSpec],
+    *,
+    target: Path | None,
+    report: Path | None,
+    workers: int | None,
+    root: str,
+    parameters: dict[str, object],
+    report_extra: dict[str, object],
+) -> None:
+    """Run every spec on the log, print the table, save the recording and the report.
+
+    :param target: where to save the recording; None: ``recordings/<log>-sweep.rrd`` (or
+        ``-compare``), under a new name if that one is taken
+    """
+    from ekfviz import pipeline, viz
+
+    what = "variant" if root == "variants" else "filter"
+    check_outputs(("--save", target), ("--report", report))
+    if target is None:
+        target = default_output(f"{data.stem}-{'sweep' if root == 'variants' else 'compare'}.rrd")
+    try:
+        with Progress(console=err, transient=True) as bar:
+            task = bar.add_task(f"{len(specs)} {what}s", total=len(specs))
+            result = pipeline.study(
+                data, truth, specs, target=target, workers=workers, root=root,
+                parameters=parameters, markdown=lambda rows: study_markdown(rows, what),
+                done=lambda: bar.advance(task),
+            )  # fmt: skip
+    except (InputError, FilterError, FilterSpecError, viz.SinkError) as error:
+        fail(str(error))
+    out.print(study_table(result.summaries, result.truth is not None, what))
+    if report is not None:
+        write_json(
+            report,
+            {
+                "ekfviz_version": __version__,
+                "input": {"name": data.name, "sha256": result.input_sha256},
+                **report_extra,
+                f"{what}s": [
+                    {**asdict(summary), **run.evaluation.to_json()}
+                    for summary, run in zip(result.summaries, result.runs, strict=True)
+                ],
+            },
+        )
+    out.print(f"Saved {target}; open it with: {command_hint('rerun')} {target}")
+
+
+def study_table(summaries: list[Summary], has_truth: bool, what: str) -> Table:
+    """The study's table for the terminal (the report has every column)."""
+    table = Table(
+        title=f"{what.capitalize()}s", title_justify="left", box=box.SIMPLE_HEAD, padding=(0, 1)
+    )
+    columns = [what]
+    if has_truth:
+        columns += ["mean err", "Mahal.", "in 3σ"]
+    columns += ["Δ base", "NIS in", "ms/step", "reading"]
+    for column in columns:
+        table.add_column(column, justify="left" if column in (what, "reading") else "right")
+    for s in summaries:
+        cells = [s.label]
+        if has_truth:
+            inside = "-" if s.inside is None else f"{s.inside}/{s.landmarks}"
+            cells += [_num(s.mean_error, 3), _num(s.mean_mahalanobis, 2), inside]
+        nis_inside = "-" if s.nis_inside is None else f"{s.nis_inside:.0%}"
+        cells += [f"{s.from_baseline:.3f}", nis_inside, _num(s.ms_per_step, 3), s.reading]
+        table.add_row(*(escape(c) for c in cells))
+    return table
+
+
+def study_markdown(summaries: list[Summary], what: str) -> str:
+    """The study's table as markdown, for the recording."""
+    columns = [what, "mean error", "max error", "mean Mahalanobis", "in 3σ", "final pose",
+               "Δ baseline", "mean NIS", "NIS in 95%", "ms per step", "reading"]  # fmt: skip
+    rows = [
+        "# Sweep" if what == "variant" else "# Comparison",
+        "",
+        "| " + " | ".join(columns) + " |",
+        "|" + "---|" * len(columns),
+    ]
+    for s in summaries:
+        pose = ", ".join(f"{v:.3f}" for v in s.final_pose)
+        inside = "-" if s.inside is None else f"{s.inside}/{s.landmarks}"
+        nis_inside = "-" if s.nis_inside is None else f"{s.nis_inside:.0%}"
+        rows.append(
+            f"| {s.label} | {_num(s.mean_error, 3)} | {_num(s.max_error, 3)} |"
+            f" {_num(s.mean_mahalanobis, 2)} | {inside} | {pose} | {s.from_baseline:.3f} |"
+            f" {_num(s.mean_nis, 2)} | {nis_inside} | {_num(s.ms_per_step, 3)} | {s.reading} |"
+        )
+    return "\n".join(rows) + "\n"
+
+
+def _num(value: float | None, digits: int) -> str:
+    return "-" if value is None else f"{value:.{digits}f}"

@@ -1,0 +1,222 @@
+"""Run any :class:`~ekfviz.core.protocol.SlamFilter` as the runner runs the built-in EKF.
+
+A protocol filter only shows its state. :class:`Plugged` wraps it, checks what it shows
+after every event (shapes, finiteness, symmetry, landmark ids) and derives what the
+built-in filter reports itself: for every observation of an update, the prediction,
+innovation, innovation covariance S = H P H^T + R and NIS, by running ekfviz's own update
+(:class:`~ekfviz.core.filter.EkfSlam`, with the run's parameters: sequential or joint)
+from the filter's state just before the update. A correct filter thus gets the very
+numbers the built-in one reports, and a wrong one the numbers its prior state implies.
+"""
+
+from __future__ import annotations
+
+import inspect
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+from ekfviz.core.filter import EkfSlam, FilterError, FilterParams
+from ekfviz.core.health import CovarianceCheck
+from ekfviz.core.protocol import SlamFilter, state_of
+from ekfviz.core.records import EventKind, EventRecord, Observations, frozen, snapshot
+from ekfviz.core.types import FloatArray, IntArray
+
+# P counts as symmetric when |P - P^T| <= SYMMETRY_TOLERANCE * max |P|
+SYMMETRY_TOLERANCE = 1e-9
+
+FilterFactory = Callable[[FilterParams], SlamFilter]
+
+
+class PluginError(FilterError):
+    """A protocol filter raised, or showed a state that is not one; says which and why."""
+
+
+class Plugged:
+    """A protocol filter behind the interface the runner uses for the built-in EKF.
+
+    :param slam: the filter, already constructed
+    :param name: how messages name it (``--filter`` as given)
+    :param params: its parameters (R for the derived innovation covariances)
+    """
+
+    def __init__(self, slam: SlamFilter, name: str, params: FilterParams) -> None:
+        self.slam = slam
+        self.name = name
+        self._params = params
+        self._warnings: tuple[str, ...] = ()
+        self._predict_takes_dt = _takes_dt(getattr(slam, "predict", None))
+        self._x, self._P, self._ids = self._state("construction")
+
+    # -- what the runner reads ----------------------------------------------------------
+
+    @property
+    def x(self) -> FloatArray:
+        return self._x
+
+    @property
+    def P(self) -> FloatArray:
+        return self._P
+
+    @property
+    def dim(self) -> int:
+        return int(self._x.shape[0])
+
+    @property
+    def landmark_ids(self) -> list[int]:
+        return [int(i) for i in self._ids]
+
+    @property
+    def warnings(self) -> tuple[str, ...]:
+        """Why ekfviz's own update from the filter's prior state skipped observations (a
+        landmark at zero range, an S not positive definite), one sentence each."""
+        return self._warnings
+
+    def _derive(self, ids: IntArray, z: FloatArray) -> Observations:
+        """The observations as ekfviz's update sees them from the filter's prior state."""
+        reference = EkfSlam.from_state(self._params, self._x, self._P, self._ids)
+        try:
+            observations = reference.observe(ids, z)
+        except FilterError:  # the filter's own update is judged after it runs
+            self._warnings = ()
+            return _unjudged(ids, z, self._ids)
+        self._warnings = reference.warnings
+        return observations
+
+    # -- events -------------------------------------------------------------------------
+
+    def predict(self, d: float, alpha: float, dt: float | None = None) -> None:
+        """The filter's predict, its state checked after it."""
+        if self._predict_takes_dt:
+            self._call("predict", lambda: self.slam.predict(d, alpha, dt))  # type: ignore[call-arg]
+        else:
+            self._call("predict", lambda: self.slam.predict(d, alpha))
+        self._x, self._P, self._ids = self._state("predict")
+
+    def observe(self, ids: Sequence[int] | IntArray, z: FloatArray) -> Observations:
+        """The filter's update; what it saw derived from the state before it."""
+        ids_arr = np.array(ids, dtype=np.int64).reshape(-1)
+        z = np.array(z, dtype=np.float64).reshape(-1, 2)
+        if len(set(ids_arr.tolist())) != len(ids_arr):
+            raise FilterError("an observation names the same landmark twice")
+        observations = self._derive(ids_arr, z)
+        self._call("update", lambda: self.slam.update(ids_arr.copy(), z.copy()))
+        x, P, state_ids = self._state("update")
+        missing = set(ids_arr.tolist()) - set(state_ids.tolist())
+        if missing:
+            raise PluginError(
+                f"filter {self.name}: after update, landmark_ids lacks the observed"
+                f" landmark(s) {sorted(missing)}"
+            )
+        self._x, self._P, self._ids = x, P, state_ids
+        return observations
+
+    def finish(self) -> bool:
+        """Call the filter's optional ``finish()``; whether it has one."""
+        finish = getattr(self.slam, "finish", None)
+        if not callable(finish):
+            return False
+        self._call("finish", finish)
+        self._x, self._P, self._ids = self._state("finish")
+        return True
+
+    def record(
+        self,
+        *,
+        event: int,
+        step: int,
+        kind: EventKind,
+        line: int = 0,
+        control: FloatArray | tuple[float, float] | None = None,
+        observations: Observations | None = None,
+        full_cov: bool = False,
+        time: float | None = None,
+        warnings: tuple[str, ...] = (),
+        covariance: CovarianceCheck | None = None,
+    ) -> EventRecord:
+        return snapshot(
+            self._x, self._P, event=event, step=step, kind=kind, line=line,
+            landmark_ids=self._ids, control=None if control is None else np.asarray(control),
+            observations=observations, full_cov=full_cov, time=time, warnings=warnings,
+            covariance=covariance,
+        )  # fmt: skip
+
+    # -- checks -------------------------------------------------------------------------
+
+    def _call(self, what: str, action: Callable[[], object]) -> None:
+        try:
+            action()
+        except Exception as error:  # the user's code: any exception is its fault
+            raise PluginError(
+                f"filter {self.name}: {what} raised {type(error).__name__}: {error}"
+            ) from error
+
+    def _state(self, after: str) -> tuple[FloatArray, FloatArray, IntArray]:
+        """The filter's x, P, landmark ids after ``after``, checked."""
+        where = f"filter {self.name}: after {after},"
+        try:
+            x, P, ids = state_of(self.slam)
+        except Exception as error:
+            raise PluginError(
+                f"{where} reading x, P and landmark_ids failed ({type(error).__name__}: {error})"
+            ) from error
+        x, P = check_state(x, P, ids, where)
+        return x, P, ids
+
+
+def check_state(
+    x: FloatArray, P: FloatArray, ids: IntArray, where: str
+) -> tuple[FloatArray, FloatArray]:
+    """Refuse a state that is not one: wrong shapes, non-finite, P not symmetric, ids off.
+
+    :param where: how the message starts (which filter, after what)
+    :return: x and P, P made exactly symmetric (its rounding is not the filter's fault)
+    :raises PluginError: naming the first problem found
+    """
+    n = x.shape[0]
+    if n < 3 or (n - 3) % 2:
+        raise PluginError(f"{where} x has {n} entries, expected 3 + 2N")
+    if P.shape != (n, n):
+        raise PluginError(f"{where} P has shape {P.shape}, expected ({n}, {n}) to match x")
+    if len(ids) != (n - 3) // 2:
+        raise PluginError(
+            f"{where} landmark_ids has {len(ids)} ids but x holds {(n - 3) // 2} landmarks"
+        )
+    if len(set(ids.tolist())) != len(ids):
+        raise PluginError(f"{where} landmark_ids names a landmark twice")
+    if not np.isfinite(x).all():
+        raise PluginError(f"{where} x is not finite (entry {int(np.argmin(np.isfinite(x)))})")
+    if not np.isfinite(P).all():
+        raise PluginError(f"{where} P is not finite")
+    scale = float(np.abs(P).max()) if n else 0.0
+    asymmetry = float(np.abs(P - P.T).max())
+    if asymmetry > SYMMETRY_TOLERANCE * scale:
+        raise PluginError(
+            f"{where} P is not symmetric (|P - P^T| up to {asymmetry:.3g},"
+            f" {asymmetry / scale:.3g} of its largest entry; at most {SYMMETRY_TOLERANCE:g})"
+        )
+    return x, 0.5 * (P + P.T) if asymmetry else P
+
+
+def _unjudged(ids: IntArray, z: FloatArray, state_ids: IntArray) -> Observations:
+    """Observations with no prediction (NaN rows), new landmarks flagged."""
+    m = len(ids)
+    nan = np.full((m, 2), np.nan)
+    new = ~np.isin(ids, state_ids)
+    return Observations(
+        ids=frozen(ids.copy()), z=frozen(z.copy()), z_pred=frozen(nan),
+        innovation=frozen(nan.copy()), S=frozen(np.full((m, 2, 2), np.nan)),
+        nis=frozen(np.full(m, np.nan)), initialised=frozen(new), skipped=frozen(~new),
+    )  # fmt: skip
+
+
+def _takes_dt(predict: object) -> bool:
+    """Whether a filter's ``predict`` takes a third argument (the time the control spans)."""
+    if not callable(predict):
+        return False
+    try:
+        parameters = inspect.signature(predict).parameters.values()
+    except (TypeError, ValueError):
+        return False
+    positional = [p for p in parameters if p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD)]
+    return len(positional) >= 3 or any(p.kind is p.VAR_POSITIONAL for p in parameters)

@@ -1,0 +1,249 @@
+"""Orchestration: a log from its source through filters to its consumers.
+
+The commands of :mod:`ekfviz.cli` parse options and print; what happens between reading
+a log and writing a recording lives here, so that a newcomer reads the steps of a study
+in one place: read and check the input, run every pipeline (in parallel), summarise,
+record. Rerun is imported only when a recording is made.
+"""
+
+from __future__ import annotations
+
+import json
+import shlex
+import sys
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from ekfviz import signals
+from ekfviz.core.consistency import Consistency
+from ekfviz.core.evaluation import Evaluation, evaluate
+from ekfviz.core.filter import FilterParams
+from ekfviz.core.plugged import FilterFactory
+from ekfviz.core.records import EventRecord, LogEvent
+from ekfviz.core.replay import FilterLineError, replay
+from ekfviz.core.truth import GroundTruth
+from ekfviz.filters import FilterSpec
+from ekfviz.io.errors import InputError
+from ekfviz.io.extended import is_extended, read_log
+from ekfviz.io.text import ProgressCallback, WarningCallback
+from ekfviz.io.truth import checked_against, read_truth
+from ekfviz.studies.runs import Run, RunSpec, Summary, run_specs, summarise
+
+if TYPE_CHECKING:
+    from ekfviz.core.check import CheckResult
+    from ekfviz.viz.run import RunLogger
+
+
+def log_events(
+    data: Path,
+    truth: GroundTruth | None,
+    truth_path: Path | None,
+    progress: ProgressCallback | None = None,
+    warn: WarningCallback | None = None,
+) -> Iterator[LogEvent]:
+    """The log's events, checked against the truth's landmarks when there is one."""
+    events = read_log(data, progress, warn)
+    if truth is not None and truth_path is not None:
+        events = checked_against(events, truth, truth_path, every_id=not is_extended(data))
+    return events
+
+
+class RunStopped(Exception):
+    """A replay cut short; ``kept`` says whether its recording was kept."""
+
+    def __init__(self, reason: str, cause: BaseException, kept: bool) -> None:
+        super().__init__(reason)
+        self.reason = reason
+        self.kept = kept
+        if isinstance(cause, KeyboardInterrupt):
+            self.exit_code = 130  # 128 + SIGINT, as a shell reports it
+        elif isinstance(cause, signals.Terminated):
+            self.exit_code = 143  # 128 + SIGTERM
+        else:
+            self.exit_code = 2
+
+
+def stop_reason(cause: BaseException, data: Path, last: EventRecord | None) -> str:
+    """One line saying why and where a replay stopped."""
+    after = f"after input line {last.line}" if last is not None and last.line else "at the start"
+    if isinstance(cause, KeyboardInterrupt):
+        return f"{data}: interrupted (SIGINT) {after}"
+    if isinstance(cause, signals.Terminated):
+        return f"{data}: terminated (SIGTERM) {after}"
+    if isinstance(cause, FilterLineError):
+        return f"{data}:{cause.line}: {cause}" if cause.line else f"{data}: {cause}"
+    return str(cause)
+
+
+def replay_log(
+    events: Iterable[LogEvent],
+    params: FilterParams,
+    *,
+    make_filter: FilterFactory | None,
+    name: str,
+    data: Path,
+    truth: GroundTruth | None,
+    logger: RunLogger,
+    on_record: Callable[[EventRecord], None] | None = None,
+) -> Evaluation:
+    """One replay: the events through the filter into the logger, judged at the end.
+
+    Every record goes to the logger (Rerun), the consistency count and ``on_record``.
+    Bad input, a filter that cannot go on, Ctrl-C or SIGTERM stop the replay with the
+    recording of everything before it kept and its last log line saying why.
+
+    :raises RunStopped: the replay was cut short (why, where, and whether it was kept)
+    """
+    last: EventRecord | None = None
+    consistency = Consistency(truth)
+    try:
+        for record in replay(events, params, make_filter=make_filter, name=name):
+            logger.log(record)
+            consistency.add(record)
+            if on_record is not None:
+                on_record(record)
+            last = record
+            if record.event == 0:  # a signal during start-up: stop, with a recording
+                signals.raise_pending()
+    except (InputError, FilterLineError, KeyboardInterrupt, signals.Terminated) as cause:
+        final = None if last is None else evaluate(last, truth, consistency)
+        reason = stop_reason(cause, data, last)
+        kept = logger.stop(reason, final)
+        raise RunStopped(reason, cause, kept) from cause
+    assert last is not None  # replay always yields the initialisation
+    evaluation = evaluate(last, truth, consistency)
+    logger.finish(evaluation)
+    return evaluation
+
+
+@dataclass(frozen=True, slots=True)
+class StudyResult:
+    """A study run and recorded: its runs in order, their summaries, the input's digest."""
+
+    runs: list[Run]
+    summaries: list[Summary]
+    truth: GroundTruth | None
+    input_sha256: str
+
+
+def study(
+    data: Path,
+    truth_path: Path | None,
+    specs: list[RunSpec],
+    *,
+    target: Path,
+    workers: int | None,
+    root: str,
+    parameters: dict[str, object],
+    markdown: Callable[[list[Summary]], str],
+    done: Callable[[], None] | None = None,
+) -> StudyResult:
+    """Replay ``data`` with every spec, summarise against the first, save one recording.
+
+    The log is read whole once before any work, so that bad input stops the study early;
+    every filter is loaded once here for the same reason.
+
+    :param root: ``variants`` (a sweep) or ``filters`` (a comparison)
+    :param markdown: the summary table as markdown, for the recording
+    :raises InputError, FilterLineError, FilterSpecError, SinkError: one line each
+    """
+    from ekfviz import viz
+    from ekfviz.viz.study import record_study
+
+    truth = read_truth(truth_path) if truth_path is not None else None
+    for _ in log_events(data, truth, truth_path):
+        pass
+    for spec in specs:
+        spec.filter.load()
+    runs = run_specs(data, specs, truth, workers, done=None if done is None else lambda _: done())
+    summaries = [summarise(run, runs[0]) for run in runs]
+    info = viz.run_info(
+        name=f"{data.stem}-{'sweep' if root == 'variants' else 'compare'}",
+        command=shlex.join(["ekfviz", *sys.argv[1:]]),
+        parameters=parameters,
+        input_path=data,
+        truth=truth,
+        truth_path=truth_path,
+        kind="sweep" if root == "variants" else "compare",
+    )
+    with viz.open_recording(info, viz.Sinks(save=target)) as recording:
+        record_study(recording, runs, truth, markdown(summaries), root=root)
+    return StudyResult(runs, summaries, truth, info.input_sha256)
+
+
+def check(
+    data: Path,
+    truth_path: Path | None,
+    filter_spec: str,
+    params: FilterParams,
+    *,
+    tolerance: float,
+    save: Path | None,
+) -> CheckResult:
+    """Check a protocol filter against the reference in lockstep over ``data``; with
+    ``save``, one recording of both side by side, the first divergence marked.
+
+    :raises InputError, FilterLineError, FilterSpecError, SinkError: one line each
+    """
+    from ekfviz.core.check import lockstep
+
+    spec = FilterSpec(filter_spec)
+    make_filter = spec.load()
+    truth = read_truth(truth_path) if truth_path is not None else None
+    result = lockstep(
+        log_events(data, truth, truth_path), params, make_filter, name=spec.text,
+        tolerance=tolerance,
+    )  # fmt: skip
+    if save is not None:
+        _record_check(data, truth, truth_path, spec, params, result, save)
+    return result
+
+
+def _record_check(
+    data: Path,
+    truth: GroundTruth | None,
+    truth_path: Path | None,
+    spec: FilterSpec,
+    params: FilterParams,
+    result: CheckResult,
+    save: Path,
+) -> None:
+    from ekfviz import viz
+    from ekfviz.viz.study import mark_event, record_study
+
+    runs = []
+    for label, key, records in (
+        ("reference (ekf)", "reference", result.reference),
+        (spec.label, spec.key if spec.key != "reference" else "checked", result.records),
+    ):
+        if not records:
+            continue
+        consistency = Consistency(truth)
+        for record in records:
+            consistency.add(record)
+        evaluation = evaluate(records[-1], truth, consistency)
+        runs.append(Run(RunSpec(label, key, params), records, evaluation, 0.0))
+    info = viz.run_info(
+        name=f"{data.stem}-check",
+        command=shlex.join(["ekfviz", *sys.argv[1:]]),
+        parameters={"filter": spec.text, "tolerance": result.tolerance, **params.as_dict()},
+        input_path=data,
+        truth=truth,
+        truth_path=truth_path,
+    )
+    verdict = json.dumps(result.to_json(), indent=2)
+    summary = f"# Check of {spec.text} against the reference\n\n```json\n{verdict}\n```\n"
+    with viz.open_recording(info, viz.Sinks(save=save)) as recording:
+        record_study(recording, runs, truth, summary, root="filters")
+        first = result.first_divergence
+        if first is not None:
+            where = next((r.pose[:2] for r in result.records if r.event == first.event), None)
+            worst = first.worst
+            mark_event(
+                recording, step=first.step, event=first.event, where_xy=where,
+                text=f"first divergence: event {first.event} ({first.kind.value}), line"
+                f" {first.line}: {worst.quantity.value} {worst.entry} expected"
+                f" {worst.expected:.6g}, got {worst.got:.6g}; likely cause: {first.hint}",
+            )  # fmt: skip

@@ -1,0 +1,159 @@
+"""Studies: one log replayed by several pipelines at once, side by side.
+
+A sweep (one filter, parameters varied) and a comparison (several filters, the same
+parameters) are the same thing here: a list of :class:`RunSpec`, each replayed in a
+process of its own (each reads the log itself), summarised against the first. The
+command line prints them and :mod:`ekfviz.viz.study` records them in one recording.
+No rerun, no typer.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ekfviz.core.consistency import Consistency, reading
+from ekfviz.core.evaluation import Evaluation, evaluate
+from ekfviz.core.filter import FilterParams
+from ekfviz.core.records import EventRecord
+from ekfviz.core.replay import replay
+from ekfviz.core.truth import GroundTruth
+from ekfviz.filters import BUILTIN, FilterSpec
+from ekfviz.io.extended import read_log
+
+VARIABLE = ("sigma_x", "sigma_y", "sigma_alpha", "sigma_bearing", "sigma_range")
+
+
+@dataclass(frozen=True, slots=True)
+class RunSpec:
+    """One pipeline of a study: a filter, its parameters, how the study names it.
+
+    :param key: safe in an entity path (``variants/<key>`` or ``filters/<key>``)
+    :param changes: how the parameters differ from the baseline's (sweeps)
+    """
+
+    label: str
+    key: str
+    params: FilterParams
+    filter: FilterSpec = field(default_factory=lambda: FilterSpec(BUILTIN))
+    changes: tuple[object, ...] = ()
+
+
+@dataclass(frozen=True, slots=True)
+class Run:
+    """One pipeline replayed: every record, the final evaluation with consistency, and
+    the wall time of the filter and evaluation (reading the log included)."""
+
+    spec: RunSpec
+    records: tuple[EventRecord, ...]
+    evaluation: Evaluation
+    seconds: float
+
+    @property
+    def steps(self) -> int:
+        return self.records[-1].step if self.records else 0
+
+
+def run_spec(path: Path, spec: RunSpec, truth: GroundTruth | None) -> Run:
+    """Replay the log at ``path`` with one pipeline's filter and parameters.
+
+    :raises FilterSpecError: the filter cannot be loaded
+    :raises FilterLineError: the filter cannot go on at a line of the log
+    """
+    started = time.perf_counter()
+    make_filter = spec.filter.load()
+    consistency = Consistency(truth)
+    records = []
+    for record in replay(
+        read_log(path), spec.params, make_filter=make_filter, name=spec.filter.text
+    ):
+        consistency.add(record)
+        records.append(record)
+    evaluation = evaluate(records[-1], truth, consistency)
+    return Run(spec, tuple(records), evaluation, time.perf_counter() - started)
+
+
+def run_specs(
+    path: Path,
+    specs: Sequence[RunSpec],
+    truth: GroundTruth | None,
+    workers: int | None = None,
+    done: Callable[[Run], None] | None = None,
+) -> list[Run]:
+    """Replay every pipeline over ``workers`` processes; results in the specs' order.
+
+    The result does not depend on the number of workers: each run is the same replay.
+    """
+    workers = min(len(specs), workers or os.cpu_count() or 1)
+    if workers <= 1:
+        runs = []
+        for spec in specs:
+            runs.append(run_spec(path, spec, truth))
+            if done is not None:
+                done(runs[-1])
+        return runs
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        futures = [pool.submit(run_spec, path, spec, truth) for spec in specs]
+        for future in futures:
+            if done is not None:
+                done(future.result())
+        return [future.result() for future in futures]
+
+
+@dataclass(frozen=True, slots=True)
+class Summary:
+    """What the study table says of one run."""
+
+    label: str
+    parameters: dict[str, float]
+    mean_error: float | None
+    max_error: float | None
+    mean_mahalanobis: float | None
+    inside: int | None
+    landmarks: int
+    final_pose: list[float]
+    from_baseline: float
+    mean_nis: float | None
+    nis_inside: float | None
+    reading: str
+    filter: str
+    seconds: float
+    ms_per_step: float | None
+
+
+def summarise(run: Run, baseline: Run) -> Summary:
+    """The row of one run, compared with the first (baseline) run's final pose."""
+    evaluation = run.evaluation
+    errors = [r.euclidean for r in evaluation.landmarks if r.euclidean is not None]
+    distances = [r.mahalanobis for r in evaluation.landmarks if r.mahalanobis is not None]
+    nis = [
+        float(r.observations.nis[np.isfinite(r.observations.nis)].sum())
+        for r in run.records
+        if r.observations is not None and np.isfinite(r.observations.nis).any()
+    ]
+    consistency = evaluation.consistency
+    count = consistency.nis if consistency is not None else None
+    inside = sum(bool(r.inside_3sigma) for r in evaluation.landmarks) if distances else None
+    return Summary(
+        label=run.spec.label,
+        parameters={name: getattr(run.spec.params, name) for name in VARIABLE},
+        mean_error=float(np.mean(errors)) if errors else None,
+        max_error=float(np.max(errors)) if errors else None,
+        mean_mahalanobis=float(np.mean(distances)) if distances else None,
+        inside=inside,
+        landmarks=len(evaluation.landmarks),
+        final_pose=[float(v) for v in evaluation.pose],
+        from_baseline=float(np.hypot(*(evaluation.pose[:2] - baseline.evaluation.pose[:2]))),
+        mean_nis=float(np.mean(nis)) if nis else None,
+        nis_inside=count.fraction_inside if count is not None and count.total else None,
+        reading=reading(consistency, inside, len(distances)),
+        filter=run.spec.filter.text,
+        seconds=run.seconds,
+        ms_per_step=1000.0 * run.seconds / run.steps if run.steps else None,
+    )

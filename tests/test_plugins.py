@@ -1,0 +1,371 @@
+"""Your own filter in ekfviz: the protocol, --filter, check, compare, the course skeleton."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from conftest import entity_rows
+from typer.testing import CliRunner
+
+from ekfviz.cli import app
+from ekfviz.core.check import Quantity, lockstep, numbered
+from ekfviz.core.filter import FilterParams, LandmarkInit, UpdateMode
+from ekfviz.core.records import Control, EventKind, LogEvent
+from ekfviz.core.replay import replay
+from ekfviz.filters import FilterSpecError, load_filter
+from ekfviz.io.extended import read_log
+
+ROOT = Path(__file__).parents[1]
+DATA = ROOT / "data"
+CLASSIC, TRUTH, LOOP = DATA / "classic.txt", DATA / "classic_truth.json", DATA / "loop.txt"
+PLUGINS = Path(__file__).parent / "plugins" / "textbook.py"
+SKELETON = ROOT / "examples" / "course_skeleton"
+runner = CliRunner()
+
+# a landmark straight behind the robot: its bearing innovation needs the wrap
+BEHIND = """\
+observe 1 3.1400 5.0 2 0.8 4.0
+control 0.5 0.0
+observe 1 -3.1410 5.5 2 0.85 3.7
+control 0.5 0.0
+observe 1 3.1405 6.0 2 0.9 3.4
+"""
+
+
+def plugin(name: str) -> str:
+    return f"{PLUGINS}:{name}"
+
+
+def head(path: Path, lines: int, tmp_path: Path) -> Path:
+    """The first ``lines`` lines of a log, as a log of their own."""
+    short = tmp_path / f"{path.stem}-{lines}.txt"
+    short.write_text("".join(path.read_text().splitlines(keepends=True)[:lines]))
+    return short
+
+
+@pytest.mark.parametrize("lines", [None, 300], ids=["classic", "loop-head"])
+def test_a_dense_textbook_plugin_ends_on_the_builtin_pose(
+    tmp_path: Path, lines: int | None
+) -> None:
+    # the whole classic log, and the first 150 steps of the loop (landmarks enter and
+    # leave view, the map grows to dozens): the dense filter is O(n^3) per event
+    log = CLASSIC if lines is None else head(LOOP, lines, tmp_path)
+    builtin = list(replay(read_log(log), FilterParams()))
+    plugged = list(
+        replay(read_log(log), FilterParams(), make_filter=load_filter(plugin("Textbook")))
+    )
+    assert len(plugged) == len(builtin)
+    assert [r.kind for r in plugged] == [r.kind for r in builtin]
+    assert np.abs(plugged[-1].pose - builtin[-1].pose).max() < 1e-9
+    assert list(plugged[-1].landmark_ids) == list(builtin[-1].landmark_ids)
+    assert np.abs(plugged[-1].landmarks_xy - builtin[-1].landmarks_xy).max() < 1e-9
+    assert np.abs(plugged[-1].landmark_covs - builtin[-1].landmark_covs).max() < 1e-9
+    if lines is not None:
+        assert builtin[-1].n_landmarks > 10
+
+
+@pytest.mark.parametrize("mode", [UpdateMode.SEQUENTIAL, UpdateMode.JOINT])
+def test_a_correct_plugin_gets_the_builtin_observations(mode: UpdateMode) -> None:
+    # what a protocol filter saw is ekfviz's own update from its prior state: a correct
+    # filter gets the very predictions, S and NIS the built-in reports
+    params = FilterParams(update=mode)
+    builtin = list(replay(read_log(CLASSIC), params))
+    plugin_cls = load_filter(plugin("Textbook" if mode is UpdateMode.SEQUENTIAL else "Joint"))
+    plugged = list(replay(read_log(CLASSIC), params, make_filter=plugin_cls))
+    updates = 0
+    for a, b in zip(builtin, plugged, strict=True):
+        if a.kind is EventKind.UPDATE:
+            assert a.observations is not None and b.observations is not None
+            np.testing.assert_allclose(b.observations.z_pred, a.observations.z_pred, atol=1e-9)
+            np.testing.assert_allclose(b.observations.S, a.observations.S, rtol=1e-6)
+            np.testing.assert_allclose(b.observations.nis, a.observations.nis, rtol=1e-5)
+            updates += 1
+    assert updates == 29
+
+
+def test_replay_with_a_plugin_makes_the_same_recording_entities(tmp_path: Path) -> None:
+    save = tmp_path / "plugged.rrd"
+    result = runner.invoke(
+        app, ["replay", str(CLASSIC), "--truth", str(TRUTH), "--filter", plugin("Textbook"),
+              "--save", str(save)],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert len(entity_rows(save, "/world/robot")) == 59
+    assert len(entity_rows(save, "/metrics/nis")) == 29
+    assert "6 of 6 landmarks inside" in result.output
+
+
+# -- check ---------------------------------------------------------------------------------
+
+
+def independent_first_divergence(
+    events: list[LogEvent], buggy: str, tolerance: float = 1e-6
+) -> tuple[int, EventKind] | None:
+    """The first divergent event found with the dense textbook filter as the reference:
+    before every event, a deep copy of the buggy filter's state in a correct filter."""
+    correct_cls = load_filter(plugin("Textbook"))
+    buggy_filter: Any = load_filter(plugin(buggy))(FilterParams())
+    reference: Any = correct_cls(FilterParams())
+    if np.abs(np.asarray(reference.P) - buggy_filter.P).max() > tolerance:
+        return 0, EventKind.INIT
+    for event, _, kind, log_event in numbered(events):
+        reference = correct_cls(FilterParams())
+        reference.x, reference.P = buggy_filter.x.copy(), buggy_filter.P.copy()
+        reference.landmark_ids = list(buggy_filter.landmark_ids)
+        for slam in (reference, buggy_filter):
+            if isinstance(log_event, Control):
+                slam.predict(log_event.d, log_event.alpha)
+            else:
+                slam.update(log_event.ids, log_event.z)
+        dx = reference.x - buggy_filter.x
+        dx[2] = (dx[2] + np.pi) % (2 * np.pi) - np.pi  # a heading lives on the circle
+        dx = np.abs(dx) / np.maximum(1, np.abs(reference.x))
+        dP = np.abs(reference.P - buggy_filter.P) / np.maximum(1, np.abs(reference.P))
+        if max(dx.max(), dP.max()) > tolerance:
+            return event, kind
+    return None
+
+
+SEEDED = [
+    # (class, log, event, kind, quantity, a word of the hint)
+    ("WrongJacobianSign", "classic", 1, EventKind.PREDICT, Quantity.POSE_LANDMARK, "wrong sign"),
+    ("UnrotatedMotionNoise", "classic", 3, EventKind.PREDICT, Quantity.POSE_COVARIANCE, "rotated"),
+    ("NoRInS", "classic", 2, EventKind.UPDATE, Quantity.LANDMARK_MEAN, "R is missing"),
+    ("NoCrossCovariances", "classic", 0, EventKind.INIT, Quantity.LANDMARK_LANDMARK, "cross-cov"),
+    ("UnwrappedBearing", "behind", 2, EventKind.UPDATE, Quantity.LANDMARK_MEAN, "not wrapped"),
+    ("Joint", "classic", 2, EventKind.UPDATE, Quantity.LANDMARK_MEAN, "all at once"),
+    ("NothingWrapped", "classic", 18, EventKind.UPDATE, Quantity.LANDMARK_MEAN, "neither"),
+]
+
+
+@pytest.fixture
+def behind(tmp_path: Path) -> Path:
+    path = tmp_path / "behind.txt"
+    path.write_text(BEHIND)
+    return path
+
+
+@pytest.mark.parametrize(("name", "log", "event", "kind", "quantity", "hint"), SEEDED)
+def test_check_finds_each_seeded_bug(
+    tmp_path: Path, behind: Path, name: str, log: str, event: int, kind: EventKind,
+    quantity: Quantity, hint: str,
+) -> None:  # fmt: skip
+    data = CLASSIC if log == "classic" else behind
+    report = tmp_path / "check.json"
+    result = runner.invoke(
+        app, ["check", str(data), "--filter", plugin(name), "--report", str(report)]
+    )
+    assert result.exit_code == 1, result.output
+    found = json.loads(report.read_text())
+    assert found["match"] is False
+    first = found["first_divergence"]
+    assert (first["event"], first["kind"], first["quantity"]) == (event, kind.value, quantity.value)
+    assert hint in first["hint"]
+    assert "divergence at event" in result.output
+    # the same event as a lockstep that shares no code with ekfviz
+    assert independent_first_divergence(list(read_log(data)), name) == (event, kind)
+
+
+@pytest.mark.parametrize("log", ["classic", "behind"])
+def test_check_passes_a_correct_filter(tmp_path: Path, behind: Path, log: str) -> None:
+    data = CLASSIC if log == "classic" else behind
+    report = tmp_path / "check.json"
+    result = runner.invoke(
+        app, ["check", str(data), "--filter", plugin("Textbook"), "--report", str(report)]
+    )
+    assert result.exit_code == 0, result.output
+    found = json.loads(report.read_text())
+    assert found["match"] is True and found["first_divergence"] is None
+    assert found["events_checked"] == len(list(read_log(data)))
+    assert found["max_difference"] < 1e-9
+
+
+def test_check_uses_the_given_options() -> None:
+    # a filter without cross-covariances is what --landmark-init independent asks for
+    params = FilterParams(landmark_init=LandmarkInit.INDEPENDENT)
+    result = lockstep(
+        read_log(CLASSIC), params, load_filter(plugin("NoCrossCovariances")), name="x"
+    )
+    assert result.match
+
+
+def test_check_saves_both_filters_and_marks_the_divergence(tmp_path: Path) -> None:
+    save = tmp_path / "check.rrd"
+    result = runner.invoke(
+        app, ["check", str(CLASSIC), "--filter", plugin("NoRInS"), "--save", str(save)]
+    )
+    assert result.exit_code == 1, result.output
+    assert len(entity_rows(save, "/filters/reference/world/robot")) == 3  # events 0..2
+    assert len(entity_rows(save, "/filters/NoRInS/world/robot")) == 3
+    marks = entity_rows(save, "/log/divergence")
+    assert len(marks) == 1 and marks[0]["event"] == 2
+    verify = subprocess.run(
+        [str(Path(sys.executable).with_name("rerun")), "rrd", "verify", str(save)],
+        capture_output=True, text=True,
+    )  # fmt: skip
+    assert verify.returncode == 0, verify.stderr
+
+
+# -- faults of a plugin ------------------------------------------------------------------
+
+FAULTS = [
+    ("Raises", ":6: event 5 (predict)", "predict raised ZeroDivisionError", True),
+    ("WrongShape", ":1: event 0 (init)", "x has 14 entries, expected 3 + 2N", False),
+    ("NotFinite", ":2: event 1 (predict)", "x is not finite", True),
+    ("Asymmetric", ":2: event 1 (predict)", "P is not symmetric", True),
+    ("LosesIds", ":1: event 0 (init)", "landmark_ids has 5 ids but x holds 6", False),
+    ("BadConstructor", "", "construction raised RuntimeError: cannot start", False),
+]
+
+
+@pytest.mark.parametrize(("name", "where", "what", "kept"), FAULTS)
+def test_a_faulty_plugin_is_one_line_and_keeps_the_recording(
+    tmp_path: Path, name: str, where: str, what: str, kept: bool
+) -> None:
+    save = tmp_path / "run.rrd"
+    command = [sys.executable, "-m", "ekfviz", "replay", str(CLASSIC), "--filter", plugin(name),
+               "--save", str(save)]  # fmt: skip
+    done = subprocess.run(command, capture_output=True, text=True)
+    assert done.returncode == 2
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1, done.stderr
+    assert f"{CLASSIC}{where}" in lines[0] and what in lines[0] and name in lines[0]
+    assert "Traceback" not in done.stderr
+    assert save.exists() is kept
+    if kept:
+        assert entity_rows(save, "/world/robot")
+    debug = subprocess.run([*command[:3], "--debug", *command[3:]], capture_output=True, text=True)
+    assert "Traceback" in debug.stderr
+    if name == "Raises":  # the user's own frame is in it
+        assert "division by zero in my predict" in debug.stderr and "textbook.py" in debug.stderr
+
+
+@pytest.mark.parametrize(
+    ("spec", "message"),
+    [
+        ("nope", "expected one of ekf"),
+        ("missing.py:Filter", "missing.py: no such file"),
+        (f"{PLUGINS}:Nope", "has no class Nope"),
+        ("no_such_module_xyz:Filter", "no module named 'no_such_module_xyz'"),
+        ("BROKEN:Filter", "importing"),
+    ],
+)
+def test_a_filter_that_cannot_be_loaded_is_one_line(
+    tmp_path: Path, spec: str, message: str
+) -> None:
+    if spec.startswith("BROKEN"):
+        broken = tmp_path / "broken.py"
+        broken.write_text("import numpy\nraise ImportError('my module is broken')\n")
+        spec = f"{broken}:Filter"
+    with pytest.raises(FilterSpecError, match=message):
+        load_filter(spec)
+    result = runner.invoke(app, ["replay", str(CLASSIC), "--filter", spec, "--save",
+                                 str(tmp_path / "x.rrd")])  # fmt: skip
+    assert result.exit_code == 2
+    assert message in result.output and "Traceback" not in result.output
+    assert not (tmp_path / "x.rrd").exists()
+
+
+def test_a_plugin_in_a_package_module() -> None:
+    assert load_filter("ekfviz.core.filter:EkfSlam").__name__ == "EkfSlam"
+
+
+# -- compare and sweep ---------------------------------------------------------------------
+
+
+def test_compare_of_the_builtin_with_itself_is_identical(tmp_path: Path) -> None:
+    report, save = tmp_path / "cmp.json", tmp_path / "cmp.rrd"
+    result = runner.invoke(
+        app, ["compare", str(CLASSIC), "--filter", "ekf", "--filter", "ekf", "--filter",
+              plugin("Textbook"), "--truth", str(TRUTH), "--save", str(save), "--report",
+              str(report)],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    filters = json.loads(report.read_text())["filters"]
+    assert [f["label"] for f in filters] == ["ekf", "ekf-2", "Textbook"]
+    for entry in filters:
+        for volatile in ("seconds", "ms_per_step", "label", "filter"):
+            entry.pop(volatile)
+    assert filters[0] == filters[1]
+    np.testing.assert_allclose(filters[2]["final_pose"], filters[0]["final_pose"], atol=1e-9)
+    assert {"landmarks", "final_pose", "consistency"} <= set(filters[0])
+    for key in ("ekf", "ekf-2", "Textbook"):
+        assert len(entity_rows(save, f"/filters/{key}/world/robot")) == 59
+
+
+def test_compare_and_sweep_share_one_mechanism() -> None:
+    import ekfviz.cli.compare as compare_command
+    import ekfviz.cli.sweep as sweep_command
+    from ekfviz.cli import study
+
+    shared = study.run_study
+    assert vars(compare_command)["run_study"] is shared is vars(sweep_command)["run_study"]
+
+
+def test_sweep_takes_a_plugin(tmp_path: Path) -> None:
+    report = tmp_path / "sweep.json"
+    result = runner.invoke(
+        app, ["sweep", str(CLASSIC), "--vary", "sigma_x=x2", "--filter", plugin("Textbook"),
+              "--save", str(tmp_path / "s.rrd"), "--report", str(report)],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert all(
+        v["filter"].endswith(":Textbook") for v in json.loads(report.read_text())["variants"]
+    )
+
+
+def test_consistency_takes_a_plugin(tmp_path: Path) -> None:
+    reports = []
+    for spec in ("ekf", plugin("Textbook")):
+        report = tmp_path / "mc.json"
+        result = runner.invoke(
+            app, ["consistency", "--runs", "4", "--workers", "1", "--filter", spec,
+                  "--init-pose-sigma", "0.001", "0.001", "0.001", "--report", str(report)],
+        )  # fmt: skip
+        assert result.exit_code == 0, result.output
+        reports.append(json.loads(report.read_text()))
+    np.testing.assert_allclose(reports[1]["mean_nees"], reports[0]["mean_nees"], rtol=1e-6)
+
+
+# -- the course skeleton --------------------------------------------------------------------
+
+
+def test_the_course_skeleton_passes_check() -> None:
+    result = runner.invoke(
+        app, ["check", str(CLASSIC), "--filter", f"{SKELETON / 'adapter.py'}:Skeleton"]
+    )
+    assert result.exit_code == 0, result.output
+
+
+BROKEN_SKELETONS = [
+    # (what to replace in ekf_slam.py, by what, the kind of the first divergent event)
+    ("P[:3, :3] += W @ control_cov @ W.T", "P[:3, :3] += control_cov", "predict"),
+    ("G[1, 2] = d * np.cos(theta)", "G[1, 2] = -d * np.cos(theta)", "predict"),
+    ("S = H @ P @ H.T + measure_cov", "S = H @ P @ H.T", "update"),
+    ("def init_cross_covariance(", "def _unused_init_cross_covariance(", "init"),
+]
+
+
+@pytest.mark.parametrize(("old", "new", "kind"), BROKEN_SKELETONS)
+def test_check_finds_bugs_in_a_broken_skeleton(
+    tmp_path: Path, old: str, new: str, kind: str
+) -> None:
+    for name in ("adapter.py", "ekf_slam.py"):
+        shutil.copy(SKELETON / name, tmp_path / name)
+    source = (tmp_path / "ekf_slam.py").read_text()
+    assert old in source
+    (tmp_path / "ekf_slam.py").write_text(source.replace(old, new))
+    report = tmp_path / "check.json"
+    result = runner.invoke(
+        app, ["check", str(CLASSIC), "--filter", f"{tmp_path / 'adapter.py'}:Skeleton",
+              "--report", str(report)],
+    )  # fmt: skip
+    assert result.exit_code == 1, result.output
+    assert json.loads(report.read_text())["first_divergence"]["kind"] == kind
