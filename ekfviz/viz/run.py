@@ -15,6 +15,7 @@ import os
 import shutil
 import socket
 import sys
+import threading
 import time
 import uuid
 from collections.abc import Iterator, Mapping, Sequence
@@ -26,7 +27,7 @@ from urllib.parse import quote, urlsplit
 import rerun as rr
 from rerun.any_batch_value import ComponentValueLike
 
-from ekfviz import __version__
+from ekfviz import __version__, signals
 from ekfviz.core.evaluation import Evaluation
 from ekfviz.core.filter import HAVE_KERNEL
 from ekfviz.core.records import EventRecord
@@ -64,10 +65,24 @@ def viewer_answers(url: str, timeout: float = CONNECT_TIMEOUT_S) -> bool | None:
     Rerun's own client waits about 100 s for an absent viewer, deaf to Ctrl-C, so the
     address is tried here first: a TCP connection, then the HTTP/2 preface, which a gRPC
     server answers at once with its SETTINGS frame. A port nobody listens on, or one whose
-    listener never answers, is no viewer.
+    listener never answers, is no viewer. Ctrl-C and SIGTERM are honoured while it waits,
+    also while a replay still holds them back (see :mod:`ekfviz.signals`).
 
     :return: None when ``url`` has no host and port to try (Rerun then says what is wrong)
     """
+    found: list[bool | None] = []
+    helper = threading.Thread(
+        target=lambda: found.append(_try_viewer(url, timeout)), name="ekfviz-probe", daemon=True
+    )
+    helper.start()
+    while helper.is_alive():
+        helper.join(0.1)
+        signals.raise_pending()
+    return found[0] if found else False
+
+
+def _try_viewer(url: str, timeout: float) -> bool | None:
+    """See :func:`viewer_answers`."""
     parts = urlsplit(url.removeprefix("rerun+"))
     try:
         host, port = parts.hostname, parts.port
