@@ -292,7 +292,7 @@ FilterOption = Annotated[
     ),
 ]
 Workers = Annotated[
-    int | None, _option("Processes to use [default: one per core].", min=1, show_default=False)
+    int | None, _option("Processes to use \\[default: one per core].", min=1, show_default=False)
 ]
 
 

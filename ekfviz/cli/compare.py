@@ -45,7 +45,7 @@ def compare(
     save: Annotated[
         Path | None,
         _option(
-            "Write the recording here [default: recordings/<input>-compare.rrd].",
+            "Write the recording here \\[default: recordings/<input>-compare.rrd].",
             show_default=False,
         ),
     ] = None,

@@ -7,6 +7,8 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Annotated
 
+import typer
+
 from ekfviz.cli.common import (
     DEFAULT,
     FilterOption,
@@ -41,7 +43,8 @@ def sweep(
     save: Annotated[
         Path | None,
         _option(
-            "Write the recording here [default: recordings/<input>-sweep.rrd].", show_default=False
+            "Write the recording here \\[default: recordings/<input>-sweep.rrd].",
+            show_default=False,
         ),
     ] = None,
     report: Annotated[
@@ -57,7 +60,11 @@ def sweep(
         ),
     ] = None,
     one_at_a_time: Annotated[
-        bool, _option("Vary each --vary on its own around the baseline, not as a grid.")
+        bool,
+        typer.Option(
+            "--one-at-a-time",
+            help="Vary each --vary on its own around the baseline, not as a grid.",
+        ),
     ] = False,
     preset: Annotated[
         Preset | None,

@@ -47,7 +47,7 @@ FLUSH_TIMEOUT_S = 60.0
 RECORDING_NAMESPACE = uuid.UUID("6f1d3c52-8a47-5e0b-9c1e-2b7a4d9e0f31")
 
 
-CONNECT_TIMEOUT_S = 5.0  # how long --connect waits for a viewer to answer
+CONNECT_TIMEOUT_S = 3.0  # how long --connect waits for a viewer to answer
 
 
 class SinkError(Exception):
