@@ -135,10 +135,10 @@ def recordings(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
 def test_info_reads_every_kind_of_recording_ekfviz_writes(
     recordings: dict[str, Path], kind: str, words: str
 ) -> None:
-    result = ekfviz("info", str(recordings[kind]))
-    assert result.returncode == 0, result.stderr
+    result = runner.invoke(app, ["info", str(recordings[kind])])
+    assert result.exit_code == 0, result.output
     assert re.search(rf"^kind +.*{re.escape(words)}", result.stdout, re.MULTILINE), result.stdout
-    document = json.loads(ekfviz("info", str(recordings[kind]), "--json").stdout)
+    document = json.loads(runner.invoke(app, ["info", str(recordings[kind]), "--json"]).stdout)
     assert document["kind"] == kind
 
 
@@ -171,8 +171,8 @@ def test_info_on_what_is_not_a_whole_ekfviz_recording_is_one_line(
         "folder": recordings["replay"].parent,
         "text": SAMPLE,
     }.get(which) or recordings[which]
-    result = ekfviz("info", str(path))
-    assert result.returncode == 2
+    result = runner.invoke(app, ["info", str(path)])
+    assert result.exit_code == 2
     assert result.stderr.count("\n") == 1 and message in result.stderr, result.stderr
     if which == "truncated":
         assert f"truncated after {path.stat().st_size} bytes" in result.stderr

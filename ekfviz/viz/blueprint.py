@@ -6,6 +6,7 @@ from collections.abc import Sequence
 
 import rerun.blueprint as rrb
 
+from ekfviz.core.consistency import chi2_bounds
 from ekfviz.core.types import FloatArray
 from ekfviz.viz import style
 
@@ -230,23 +231,24 @@ def sweep_blueprint(
     if has_poses:
         plots.append(
             rrb.TimeSeriesView(
-                name=f"Pose NEES per {what}",
+                name=f"Pose NEES per {what} (colours as above)",
                 contents=[f"/{prefix}/{style.NEES}" for _, prefix in variants],
-                plot_legend=SMALL_LEGEND,
+                axis_y=rrb.ScalarAxis(range=(0.0, 3.0 * chi2_bounds(3)[1])),
+                plot_legend=NO_LEGEND,
             )
         )
     if has_truth:
         plots.append(
             rrb.TimeSeriesView(
-                name=f"Mean landmark error [m] per {what}",
+                name=f"Mean landmark error [m] per {what} (colours as above)",
                 contents=[f"/{prefix}/{style.MEAN_LANDMARK_ERROR}" for _, prefix in variants],
-                plot_legend=SMALL_LEGEND,
+                plot_legend=NO_LEGEND,
             )
         )
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Grid(*maps),
-            rrb.Vertical(*plots),
+            rrb.Vertical(*plots, row_shares=[2] + [1] * (len(plots) - 1)),  # room for the legend
             column_shares=[5, 2],
         ),
         rrb.TimePanel(timeline=style.STEP, play_state="following", state="collapsed"),
