@@ -25,8 +25,9 @@ from ekfviz.core.records import EventRecord, LogEvent
 from ekfviz.core.replay import FilterLineError, replay
 from ekfviz.core.truth import GroundTruth
 from ekfviz.filters import FilterSpec
+from ekfviz.io.detect import read_log
 from ekfviz.io.errors import InputError
-from ekfviz.io.extended import is_extended, read_log
+from ekfviz.io.extended import is_extended
 from ekfviz.io.text import ProgressCallback, WarningCallback
 from ekfviz.io.truth import checked_against, read_truth
 from ekfviz.studies.runs import Run, RunSpec, Summary, run_specs, summarise

@@ -15,6 +15,8 @@ def test_core_io_and_sim_do_not_import_rerun_typer_or_gtsam() -> None:
         "import ekfviz.core.consistency, ekfviz.sim.montecarlo, ekfviz.studies.sweep\n"
         "import ekfviz.studies.runs, ekfviz.filters, ekfviz.core.check, ekfviz.models.classic\n"
         "import ekfviz.io.classic, ekfviz.io.extended, ekfviz.io.truth, ekfviz.sim.scenarios\n"
+        "import ekfviz.io.mrclam, ekfviz.io.detect, ekfviz.sim.mrclam\n"
+        "import ekfviz.core.calibrate, ekfviz.core.gating\n"
         "import ekfviz.models.classic, ekfviz.core.correlation, ekfviz.filters\n"
         "banned = {'rerun', 'typer', 'rich', 'gtsam'}\n"
         "bad = sorted(m for m in sys.modules if m.split('.')[0] in banned)\n"

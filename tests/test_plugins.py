@@ -102,6 +102,19 @@ def test_replay_with_a_plugin_makes_the_same_recording_entities(tmp_path: Path) 
     assert "6 of 6 landmarks inside" in result.output
 
 
+def test_an_offline_filter_is_recorded_after_finish() -> None:
+    online = list(
+        replay(read_log(CLASSIC), FilterParams(), make_filter=load_filter(plugin("Textbook")))
+    )
+    offline = list(
+        replay(read_log(CLASSIC), FilterParams(), make_filter=load_filter(plugin("Offline")))
+    )
+    assert [r.kind for r in offline] == [EventKind.INIT, EventKind.UPDATE]
+    assert offline[-1].step == online[-1].step and offline[-1].event == online[-1].event + 1
+    assert offline[-1].observations is None
+    np.testing.assert_allclose(offline[-1].pose, online[-1].pose, atol=1e-12)
+
+
 # -- check ---------------------------------------------------------------------------------
 
 

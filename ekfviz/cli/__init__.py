@@ -3,7 +3,17 @@
 Importing this package registers every command on :data:`app`.
 """
 
-from ekfviz.cli import check, compare, consistency, convert, info, replay, simulate, sweep
+from ekfviz.cli import (
+    calibrate,
+    check,
+    compare,
+    consistency,
+    convert,
+    info,
+    replay,
+    simulate,
+    sweep,
+)
 from ekfviz.cli.common import app
 from ekfviz.cli.help import polish
 
@@ -11,6 +21,7 @@ polish(app)
 
 __all__ = [
     "app",
+    "calibrate",
     "check",
     "compare",
     "consistency",

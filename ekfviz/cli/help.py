@@ -22,11 +22,26 @@ def reflow(doc: str) -> str:
     return "\n\n".join(" ".join(p.split()) for p in paragraphs if p.strip())
 
 
+_UNESCAPED_DEFAULT = re.compile(r"(?<!\\)\[default:")
+
+
+def escape_defaults(callback: Any) -> None:
+    """Escape a "[default: ...]" written into an option's help: rich help reads it as
+    markup and drops it, leaving "text ." behind."""
+    for parameter in inspect.signature(callback, eval_str=True).parameters.values():
+        for info in getattr(parameter.annotation, "__metadata__", ()):
+            text = getattr(info, "help", None)
+            if isinstance(text, str) and _UNESCAPED_DEFAULT.search(text):
+                info.help = _UNESCAPED_DEFAULT.sub(r"\\[default:", text)
+
+
 def polish(app: typer.Typer) -> None:
     """Reflow every command's help and tidy typer's placeholders (see the module)."""
     for command in app.registered_commands:
         if command.help is None and command.callback is not None and command.callback.__doc__:
             command.help = reflow(command.callback.__doc__)
+        if command.callback is not None:
+            escape_defaults(command.callback)
     try:
         from typer import core
     except ImportError:  # pragma: no cover - a typer without the module: keep its pages

@@ -30,7 +30,6 @@ from ekfviz.cli.common import (
     fail,
     filter_params,
     human_output_to_stderr,
-    log_events,
     mismatch_note,
     open_progress,
     out,
@@ -39,16 +38,28 @@ from ekfviz.cli.common import (
     report_json,
     write_json,
 )
+from ekfviz.cli.sources import (
+    GateOption,
+    InitPoseOption,
+    MotionNoiseChoice,
+    MotionNoiseOption,
+    NoTruthOption,
+    RobotOption,
+    first_time,
+    open_log,
+    resolve,
+)
 from ekfviz.core.filter import FilterError
 from ekfviz.filters import BUILTIN, FilterSpecError, load_filter
 from ekfviz.io.errors import InputError
-from ekfviz.io.truth import read_truth
 
 
 @app.command()
 def replay(
     data: LogArgument,
     truth: TruthOption = None,
+    robot: RobotOption = None,
+    no_truth: NoTruthOption = False,
     report: Annotated[
         Path | None, typer.Option(help="Write the evaluation as JSON here.", show_default=False)
     ] = None,
@@ -63,6 +74,9 @@ def replay(
     sigma_alpha: SigmaAlpha = DEFAULT.sigma_alpha,
     sigma_bearing: SigmaBearing = DEFAULT.sigma_bearing,
     sigma_range: SigmaRange = DEFAULT.sigma_range,
+    motion_noise: MotionNoiseOption = MotionNoiseChoice.AUTO,
+    init_pose: InitPoseOption = None,
+    gate: GateOption = None,
     init_pose_sigma: InitPoseSigma = DEFAULT.init_pose_sigma,
     landmark_init: LandmarkInitOption = DEFAULT.landmark_init,
     update: UpdateOption = DEFAULT.update,
@@ -137,30 +151,39 @@ def replay(
     except FilterSpecError as error:
         fail(str(error))
     try:
-        truth_xy = read_truth(truth) if truth is not None else None
+        opened = open_log(data, robot, truth, no_truth)
+        truth_xy = opened.truth
+        start, events = first_time(opened.events())
+        params, notes = resolve(params, opened, start, init_pose, motion_noise, gate)
+        for text in notes:
+            out.print(text, soft_wrap=True)
         sinks, note = viz.resolve_default_sinks(
             viz.Sinks(save=save, spawn=spawn, serve=serve, connect=connect),
             data,
             RECORDINGS_DIR,
+            name=opened.source.name,
         )
         info = viz.run_info(
-            name=data.stem,
+            name=opened.source.name,
             command=shlex.join(["ekfviz", *sys.argv[1:]]),
             parameters={**params.as_dict(), "filter": filter_spec},
             input_path=data,
             truth=truth_xy,
-            truth_path=truth,
+            truth_path=opened.truth_files[0] if opened.truth_files else None,
+            input_files=opened.source.files,
+            truth_files=opened.truth_files,
         )
         with (
-            open_progress(data) as progress,
+            open_progress(opened.source.progress_path) as progress,
             viz.open_run(info, sinks, detail=detail, history=history) as logger,
             signals.as_exceptions(),
         ):
             warnings = FilterWarnings(data)
+            if progress is not None:
+                events = opened.events(progress)  # read from the start, with a bar
             evaluation = pipeline.replay_log(
-                log_events(data, truth_xy, truth, progress), params, make_filter=make_filter,
-                name=filter_spec, data=data, truth=truth_xy, logger=logger,
-                on_record=warnings.add,
+                events, params, make_filter=make_filter, name=filter_spec, data=data,
+                truth=truth_xy, logger=logger, on_record=warnings.add,
             )  # fmt: skip
             warnings.summarise()
             print_evaluation(evaluation, truth_xy)

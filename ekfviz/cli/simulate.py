@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import enum
 import math
 from dataclasses import asdict
 from pathlib import Path
@@ -33,18 +34,44 @@ from ekfviz.cli.common import (
 )
 from ekfviz.core.filter import FilterParams
 from ekfviz.core.truth import GroundTruth
+from ekfviz.sim.mrclam import MrclamNoise, MrclamWorld
 from ekfviz.sim.scenarios import ScenarioName
+
+
+class Layout(str, enum.Enum):
+    FILE = "file"
+    MRCLAM = "mrclam"
 
 
 @app.command()
 def simulate(
     output: Annotated[
-        Path, typer.Option("-o", "--output", help="Where to write the log.", show_default=False)
+        Path,
+        typer.Option(
+            "-o",
+            "--output",
+            help="Where to write the log (with --layout mrclam: the dataset directory).",
+            show_default=False,
+        ),
     ],
     truth_out: Annotated[
-        Path,
-        typer.Option(help="Where to write the truth (JSON: landmarks, poses).", show_default=False),
-    ],
+        Path | None,
+        typer.Option(
+            help="Where to write the truth (JSON: landmarks, poses); not for --layout mrclam.",
+            show_default=False,
+        ),
+    ] = None,
+    layout: Annotated[
+        Layout,
+        typer.Option(
+            help="file: one log (and --truth-out); mrclam: a UTIAS MRCLAM dataset directory"
+            " (robot 1, odometry at 50 Hz, camera at 5 Hz, Vicon-like truth), noise per"
+            " sqrt(s) for the motion.",
+        ),
+    ] = Layout.FILE,
+    duration: Annotated[
+        float, typer.Option(help="mrclam: seconds of the run.", min=1.0)
+    ] = MrclamWorld().duration_s,
     scenario: ScenarioOption = ScenarioName.CLASSIC,
     seed: Annotated[int, _option("Seed of the noise (and of the loop's landmark field).")] = 0,
     log_format: Annotated[
@@ -76,6 +103,14 @@ def simulate(
     precision: Annotated[int, typer.Option(min=1, max=17, help="Decimals written.")] = 6,
 ) -> None:
     """Simulate a run with known truth and write its log and truth files (deterministic)."""
+    if layout is Layout.MRCLAM:
+        _simulate_mrclam(
+            output, seed, duration, truth_out,
+            (true_sigma_x, true_sigma_y, true_sigma_alpha, true_sigma_bearing, true_sigma_range),
+        )  # fmt: skip
+        return
+    if truth_out is None:
+        fail("--truth-out FILE is needed (except with --layout mrclam)")
     from ekfviz.io.classic import format_classic
     from ekfviz.io.extended import format_extended
     from ekfviz.io.truth import truth_json
@@ -132,5 +167,43 @@ def simulate(
                 *replay_noise,
             ]
         ),
+        soft_wrap=True,
+    )
+
+
+def _simulate_mrclam(
+    output: Path,
+    seed: int,
+    duration: float,
+    truth_out: Path | None,
+    sigmas: tuple[float | None, ...],
+) -> None:
+    """Write a simulated MRCLAM dataset directory (see :mod:`ekfviz.sim.mrclam`)."""
+    from ekfviz.sim.mrclam import simulate_mrclam
+
+    if truth_out is not None:
+        fail("--truth-out: with --layout mrclam the truth is in the dataset directory")
+    default = asdict(MrclamNoise())
+    noise = MrclamNoise(
+        **{
+            name: d if g is None else g
+            for (name, d), g in zip(default.items(), sigmas, strict=True)
+        }
+    )
+    files = simulate_mrclam(seed=seed, world=MrclamWorld(duration_s=duration), noise=noise)
+    if output.exists() and not output.is_dir():
+        fail(f"{output}: exists and is not a directory, expected a dataset directory")
+    try:
+        output.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        fail(f"{output}: cannot make the directory ({error.strerror})")
+    for name, text in files.items():
+        write_bytes_atomic(output / name, text.encode("utf-8"))
+    out.print(f"Wrote the MRCLAM-layout dataset {output} ({len(files)} files, robot 1)")
+    flags = " ".join(f"--sigma-{n.removeprefix('sigma_').replace('_', '-')} {v:g}"
+                     for n, v in asdict(noise).items())  # fmt: skip
+    out.print(
+        "Replay it with the filter told the true noise:\n  "
+        + f"ekfviz replay {output} --motion-noise per-sqrt-second {flags}",
         soft_wrap=True,
     )

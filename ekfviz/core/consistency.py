@@ -102,10 +102,10 @@ def chi2_bounds(dof: float, runs: int = 1, confidence: float = CONFIDENCE) -> tu
 
 def pose_nees(record: EventRecord, truth: GroundTruth) -> float | None:
     """NEES e^T P^-1 e of the pose at the record's step, or None without a true pose."""
-    poses = truth.poses_xytheta
-    if poses is None or record.step >= len(poses):
+    true_pose = truth.pose_of(record.step, record.time)
+    if true_pose is None:
         return None
-    e = record.pose - poses[record.step]
+    e = record.pose - true_pose
     e[2] = wrap_angle(float(e[2]))
     return float(e @ np.linalg.solve(record.pose_cov, e))
 

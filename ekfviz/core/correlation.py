@@ -23,6 +23,9 @@ MAX_SIDE = 200  # rows and columns of the largest matrix kept
 SMALL_MAP = 32  # up to this many landmarks, at every update
 EVERY_UPDATE_STEPS = 1000  # ... and in the first this many steps of a run
 EVERY_STEPS = 25  # beyond: every this many steps, and at the last event
+# ... or, for timestamped events (high-rate odometry, whose steps are samples), every
+# this many seconds of log time (as the recorder's whole map, ekfviz.viz.thinning)
+EVERY_S = 5.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -113,14 +116,18 @@ class CorrelationCadence:
 
     def __init__(self) -> None:
         self._last_step: int | None = None
+        self._last_time: float | None = None
 
-    def due(self, step: int, n_landmarks: int, last: bool) -> bool:
-        if (
-            (n_landmarks <= SMALL_MAP and step < EVERY_UPDATE_STEPS)
-            or last
-            or self._last_step is None
-            or step - self._last_step >= EVERY_STEPS
-        ):
-            self._last_step = step
-            return True
-        return False
+    def due(self, step: int, n_landmarks: int, last: bool, time: float | None = None) -> bool:
+        """Whether the record of this update (or the last event) takes the matrix."""
+        if last or self._last_step is None:
+            due = True
+        elif time is not None and self._last_time is not None:
+            due = time - self._last_time >= EVERY_S
+        else:
+            due = (n_landmarks <= SMALL_MAP and step < EVERY_UPDATE_STEPS) or (
+                step - self._last_step >= EVERY_STEPS
+            )
+        if due:
+            self._last_step, self._last_time = step, time
+        return due

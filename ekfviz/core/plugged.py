@@ -99,7 +99,9 @@ class Plugged:
         z = np.array(z, dtype=np.float64).reshape(-1, 2)
         if len(set(ids_arr.tolist())) != len(ids_arr):
             raise FilterError("an observation names the same landmark twice")
-        observations = self._derive(ids_arr, z)
+        observations = (
+            _unjudged(ids_arr, z, self._ids) if self.offline else self._derive(ids_arr, z)
+        )
         self._call("update", lambda: self.slam.update(ids_arr.copy(), z.copy()))
         x, P, state_ids = self._state("update")
         missing = set(ids_arr.tolist()) - set(state_ids.tolist())
@@ -111,14 +113,16 @@ class Plugged:
         self._x, self._P, self._ids = x, P, state_ids
         return observations
 
-    def finish(self) -> bool:
-        """Call the filter's optional ``finish()``; whether it has one."""
-        finish = getattr(self.slam, "finish", None)
-        if not callable(finish):
-            return False
-        self._call("finish", finish)
+    @property
+    def offline(self) -> bool:
+        """Whether the filter has a ``finish()``: it estimates the whole run at the end
+        (a batch smoother), so its state before then is not an estimate to record."""
+        return callable(getattr(self.slam, "finish", None))
+
+    def finish(self) -> None:
+        """Call the filter's ``finish()`` and take its state after it."""
+        self._call("finish", self.slam.finish)  # type: ignore[attr-defined]
         self._x, self._P, self._ids = self._state("finish")
-        return True
 
     def record(
         self,

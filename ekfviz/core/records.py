@@ -31,13 +31,18 @@ class EventKind(str, enum.Enum):
 class Control:
     """A control read from a log: drive ``d`` metres, then turn ``alpha`` radians.
 
-    ``time`` is the log's timestamp in seconds, when it has one.
+    ``time`` is the log's timestamp in seconds, when it has one: for a control that
+    spans a known time, the time at its end (where the predict leaves the state).
+    ``dt`` is the time in seconds the control spans, when known (velocity odometry held
+    for ``dt``; the time since the previous timestamp of an extended log): the
+    time-scaled motion noise needs it.
     """
 
     line: int
     d: float
     alpha: float
     time: float | None = None
+    dt: float | None = None
 
 
 @dataclass(frozen=True, slots=True)

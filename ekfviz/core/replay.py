@@ -9,6 +9,7 @@ from typing import Any
 
 from ekfviz.core.correlation import CorrelationCadence, correlation_of
 from ekfviz.core.filter import EkfSlam, FilterError, FilterParams
+from ekfviz.core.gating import gated
 from ekfviz.core.health import check_covariance, check_interval
 from ekfviz.core.plugged import FilterFactory, Plugged, PluginError
 from ekfviz.core.records import (
@@ -46,9 +47,10 @@ def replay(
     :class:`~ekfviz.core.protocol.SlamFilter` protocol (constructed as
     ``make_filter(params)``, called ``name`` in messages): its state is checked after
     every event, and what it saw at an update is derived from its state before it
-    (:class:`~ekfviz.core.plugged.Plugged`). Where such a filter has a ``finish()``
-    method, it is called after the last event and the state after it is one more
-    record (a batch optimum shows there).
+    (:class:`~ekfviz.core.plugged.Plugged`). A filter with a ``finish()`` method works
+    offline (a batch smoother): it takes every event, ``finish()`` is called after the
+    last, and its records are the initialisation and the state after ``finish()``, at the
+    last step.
 
     Event 0 / step 0 is the initialisation: the prior pose, plus the landmarks of the
     log's first line when that line is an observation. Every control starts a new step
@@ -80,13 +82,14 @@ def replay(
             ekf = Plugged(slam, name, params)
         except PluginError as error:
             raise FilterLineError(0, f"event 0 (init): {error}") from error
+    gate, R = params.gate, params.R
     next_check = 0  # the step from which the whole covariance is due for a check
     cadence = CorrelationCadence()
 
     def correlated(record: EventRecord, last: bool) -> EventRecord:
         """The record, with the correlation matrix of P where it is due."""
         if (record.kind is not EventKind.PREDICT or last) and cadence.due(
-            record.step, record.n_landmarks, last
+            record.step, record.n_landmarks, last, record.time
         ):
             return replace(record, correlation=correlation_of(ekf.P, record.landmark_ids))
         return record
@@ -119,8 +122,14 @@ def replay(
         pending: list[tuple[LogEvent, bool]] = []
     else:
         extra = checked(0, ())
+        # the prior holds when the log's first event begins, when it has a time
+        start = None if first is None else first.time
+        if isinstance(first, Control) and start is not None and first.dt is not None:
+            start -= first.dt
         yield correlated(
-            ekf.record(event=0, step=0, kind=EventKind.INIT, full_cov=full_cov, **extra),
+            ekf.record(
+                event=0, step=0, kind=EventKind.INIT, time=start, full_cov=full_cov, **extra
+            ),
             first is None,
         )
         pending = [] if first is None else [(first, last)]
@@ -128,13 +137,16 @@ def replay(
     step_has_update = True  # the initialisation counts as step 0's update
     event = 0
     no_extra: dict[str, Any] = {}
+    offline = isinstance(ekf, Plugged) and ekf.offline  # records only after finish()
     for event, (log_event, last) in enumerate(chain(pending, stream), start=1):
         # the filter's own errors name the line; "try" costs nothing until one is raised
         try:
             if isinstance(log_event, Control):
                 step += 1
                 step_has_update = False
-                ekf.predict(log_event.d, log_event.alpha)
+                ekf.predict(log_event.d, log_event.alpha, log_event.dt)
+                if offline:
+                    continue
                 extra = checked(log_event.line, ()) if step >= next_check or last else no_extra
                 yield correlated(ekf.record(
                     event=event, step=step, kind=EventKind.PREDICT, line=log_event.line,
@@ -145,8 +157,13 @@ def replay(
                 if step_has_update:
                     step += 1
                 step_has_update = True
+                rejected: tuple[str, ...] = ()
+                if gate is not None:
+                    log_event, rejected = gated(ekf.x, ekf.P, ekf.landmark_ids, log_event, R, gate)
                 observations = ekf.observe(log_event.ids, log_event.z)
-                warnings = ekf.warnings
+                if offline:
+                    continue
+                warnings = rejected + ekf.warnings
                 extra = (
                     checked(log_event.line, warnings)
                     if step >= next_check or last or warnings
@@ -164,14 +181,16 @@ def replay(
             raise FilterLineError(log_event.line, f"event {event} ({kind}): {error}") from error
         except FilterError as error:
             raise FilterLineError(log_event.line, str(error)) from error
-    if isinstance(ekf, Plugged):
+    if offline:
+        assert isinstance(ekf, Plugged)
         try:
-            finished = ekf.finish()
+            ekf.finish()
         except PluginError as error:
             raise FilterLineError(0, f"after the last event: {error}") from error
-        if finished:
-            extra = checked(0, ())
-            yield ekf.record(event=event + 1, step=step + 1, kind=EventKind.UPDATE, **extra)
+        # the estimate of the whole run, at its last step (where the truth's last pose is)
+        yield correlated(
+            ekf.record(event=event + 1, step=step, kind=EventKind.UPDATE, **checked(0, ())), True
+        )
 
 
 def _with_last(events: Iterable[LogEvent]) -> Iterator[tuple[LogEvent, bool]]:

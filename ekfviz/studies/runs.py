@@ -25,7 +25,7 @@ from ekfviz.core.records import EventRecord
 from ekfviz.core.replay import replay
 from ekfviz.core.truth import GroundTruth
 from ekfviz.filters import BUILTIN, FilterSpec
-from ekfviz.io.extended import read_log
+from ekfviz.io.detect import read_log
 
 VARIABLE = ("sigma_x", "sigma_y", "sigma_alpha", "sigma_bearing", "sigma_range")
 

@@ -12,7 +12,7 @@ from ekfviz.viz import style
 
 
 def accumulated_range() -> rrb.VisibleTimeRanges:
-    """Show an entity from the infinite past up to the time cursor, on both timelines."""
+    """Show an entity from the infinite past up to the time cursor, on every timeline."""
     return rrb.VisibleTimeRanges(
         [
             rrb.VisibleTimeRange(
@@ -20,7 +20,7 @@ def accumulated_range() -> rrb.VisibleTimeRanges:
                 start=rrb.TimeRangeBoundary.infinite(),
                 end=rrb.TimeRangeBoundary.cursor_relative(),
             )
-            for timeline in (style.STEP, style.EVENT)
+            for timeline in (style.STEP, style.EVENT, style.TIME)
         ]
     )
 
@@ -83,11 +83,13 @@ def default_blueprint(
     has_run_info: bool,
     has_true_poses: bool = False,
     bounds_xy: FloatArray | None = None,
+    has_time: bool = False,
     history: bool = False,
     landmark_ids: Sequence[int] = (),
 ) -> rrb.Blueprint:
     """The layout: the map on the left, plots above and documents below on the right.
 
+    :param has_time: the run has a ``time`` timeline: the time panel shows it
     :param has_truth: add the landmark error and Mahalanobis distance plots
     :param has_run_info: add the run information, input and evaluation documents
     :param has_true_poses: add the NEES plot
@@ -176,7 +178,11 @@ def default_blueprint(
             ),
             column_shares=[3, 2],
         ),
-        rrb.TimePanel(timeline=style.STEP, play_state="following", state="collapsed"),
+        rrb.TimePanel(
+            timeline=style.TIME if has_time else style.STEP,
+            play_state="following",
+            state="collapsed",
+        ),
         collapse_panels=True,
     )
 

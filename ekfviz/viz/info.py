@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import warnings
 from dataclasses import dataclass, field
+from datetime import datetime, timezone
 from pathlib import Path
 
 import pyarrow as pa  # type: ignore[import-untyped]
@@ -92,6 +93,8 @@ class RecordingInfo:
     input_text: str | None
     evaluation_markdown: str | None
     compiled_kernel: bool | None = None  # None: made before ekfviz recorded it
+    time_span: tuple[float, float] | None = None  # of the time timeline, seconds
+    time_kind: str | None = None  # "timestamp" (Unix time) or "duration"
     kind: str = "replay"
     application_id: str = "ekfviz"
     status: RunStatus | None = None  # None: not recorded (not a replay, or an older one)
@@ -122,6 +125,8 @@ class RecordingInfo:
                 ("input sha256", self.input_sha256),
                 ("input embedded", "yes" if self.input_text is not None else "no"),
             ]
+        if self.time_span is not None:
+            rows.append(("time span", _span(self.time_span, self.time_kind == "timestamp")))
         if self.truth_name is not None:
             rows += [("truth", self.truth_name), ("truth sha256", self.truth_sha256 or "-")]
         rows += [(f"  {key}", json.dumps(value)) for key, value in self.parameters.items()]
@@ -156,6 +161,8 @@ class RecordingInfo:
                 else {"name": self.truth_name, "sha256": self.truth_sha256}
             ),
             "parameters": self.parameters,
+            "time_span": None if self.time_span is None else list(self.time_span),
+            "time_kind": self.time_kind,
             "evaluation_markdown": self.evaluation_markdown,
             "notes": self.notes,
         }
@@ -164,6 +171,7 @@ class RecordingInfo:
 PROPERTIES = "/__properties"
 EKFVIZ_PROPERTIES = "/__properties/ekfviz"
 STATUS_PROPERTIES = "/__properties/status"
+TIME_PROPERTIES = "/__properties/time"
 CONSISTENCY_DOCUMENT = "/run/consistency"
 SWEEP_DOCUMENT = "/run/sweep"
 # entities every Recorder writes: how a recording of an older ekfviz is recognised
@@ -187,6 +195,7 @@ def read_recording_info(path: Path) -> RecordingInfo:
         PROPERTIES,
         EKFVIZ_PROPERTIES,
         STATUS_PROPERTIES,
+        TIME_PROPERTIES,
         f"/{style.RUN_INPUT}",
         f"/{style.RUN_EVALUATION}",
         CONSISTENCY_DOCUMENT,
@@ -257,11 +266,30 @@ def read_recording_info(path: Path) -> RecordingInfo:
         compiled_kernel=(
             None if "compiled_kernel" not in properties else bool(properties["compiled_kernel"])
         ),
+        time_span=_time_span(latest.get(TIME_PROPERTIES, {})),
+        time_kind=_optional(latest.get(TIME_PROPERTIES, {}).get("kind")),
         kind=kind,
         application_id=entry.application_id,
         status=_status(latest.get(STATUS_PROPERTIES)),
         notes=notes,
     )
+
+
+def _time_span(values: dict[str, object]) -> tuple[float, float] | None:
+    start, end = values.get("start"), values.get("end")
+    if not isinstance(start, (int, float)) or not isinstance(end, (int, float)):
+        return None
+    return float(start), float(end)
+
+
+def _span(span: tuple[float, float], epoch: bool) -> str:
+    """The time span for people: dates for Unix times, seconds otherwise."""
+    start, end = span
+    if epoch:
+        first = datetime.fromtimestamp(start, tz=timezone.utc).isoformat(timespec="milliseconds")
+        last = datetime.fromtimestamp(end, tz=timezone.utc).isoformat(timespec="milliseconds")
+        return f"{first} to {last} ({end - start:.3f} s)"
+    return f"{start:.3f} s to {end:.3f} s ({end - start:.3f} s)"
 
 
 def _rrd_header(path: Path) -> bool:

@@ -27,7 +27,9 @@ landmark positions and a log line at every event. The 3-sigma ellipses of all la
 at every update while the map holds at most ``SMALL_MAP`` landmarks; beyond that, at
 every update only those of the landmarks observed (``world/landmarks/ellipses/observed``)
 and the whole map every ``MAP_EVERY_STEPS`` steps and at the end (the viewer shows the
-latest of each, so every landmark keeps an ellipse at any time). With truth, the error
+latest of each, so every landmark keeps an ellipse at any time). A timestamped log
+(high-rate odometry) logs its predicts thinned (:mod:`ekfviz.viz.thinning`) and its map
+like a large one, the whole map every ``MAP_EVERY_S`` seconds of log time. With truth, the error
 series of a landmark get a value whenever its ellipse is logged. ``detail=True`` logs
 every ellipse and error at every update.
 """
@@ -66,6 +68,7 @@ from ekfviz.viz.blueprint import default_blueprint
 from ekfviz.viz.correlation import log_correlation, log_correlation_styling
 from ekfviz.viz.ellipses import ellipse_outlines, outline_points
 from ekfviz.viz.flush import flush_interruptibly
+from ekfviz.viz.thinning import PREDICT_INTERVAL_S, PredictThinning
 
 # Events between two sends of the buffered data, one chunk per entity: each chunk costs
 # ~0.1 ms in the main thread and as much in Rerun's encoder, whatever its size.
@@ -74,10 +77,12 @@ SHAPES_EVERY = 256  # ... but line strips in chunks of at most this many events 
 FLUSH_LANDMARKS = 1 << 20  # ... or sooner, once the buffered records hold this many landmarks
 SMALL_MAP = 32  # up to this many landmarks, every ellipse at every update
 MAP_EVERY_STEPS = 25  # beyond: the whole map every this many steps
+MAP_EVERY_S = 5.0  # ... and in a thinned timestamped log, every this many seconds of log time
 FLUSH_TIMEOUT_S = 30.0  # how long finish() waits for a slow or absent viewer
 MAX_CLASS_ID = 65535  # Rerun class ids are u16
 HEADING_LENGTH = 1.0  # metres
 CHECK_ALL_DIM = 64  # the array API checks a covariance up to this size at every call
+EPOCH_MIN_S = 1e9  # log times from here on are Unix time (see time_is_epoch)
 
 
 def _radius(ui_points: float) -> npt.ArrayLike:
@@ -160,25 +165,52 @@ class _Index:
         return self.times
 
 
-def _times(steps: IntArray, events: IntArray) -> list[rr.TimeColumnLike]:
-    """Both timelines of some rows, in Arrow."""
-    return [_Index(style.STEP, pa.array(steps)), _Index(style.EVENT, pa.array(events))]
+def _times(
+    steps: IntArray, events: IntArray, times: FloatArray | None = None, epoch: bool = False
+) -> list[rr.TimeColumnLike]:
+    """The timelines of some rows, in Arrow: ``step``, ``event`` and, when the records
+    have times, ``time`` (see :func:`time_is_epoch` for its type)."""
+    columns: list[rr.TimeColumnLike] = [
+        _Index(style.STEP, pa.array(steps)),
+        _Index(style.EVENT, pa.array(events)),
+    ]
+    if times is not None:
+        nanos = np.rint(times * 1e9).astype(np.int64)
+        kind = pa.timestamp("ns") if epoch else pa.duration("ns")
+        columns.append(_Index(style.TIME, pa.array(nanos, type=kind)))
+    return columns
+
+
+def time_is_epoch(first_time: float) -> bool:
+    """Whether the ``time`` timeline is a timestamp (Unix time, shown as a date) rather
+    than a duration: decided once per recording by its first time, from 10^9 s
+    (September 2001) on. Either way its value in seconds is the log's time."""
+    return first_time >= EPOCH_MIN_S
 
 
 class _Rows:
-    """The step and event of each buffered record, to pick the time columns of a send."""
+    """The step, event and time of each buffered record, to pick the time columns of a send."""
 
-    def __init__(self, steps: IntArray, events: IntArray) -> None:
+    def __init__(
+        self,
+        steps: IntArray,
+        events: IntArray,
+        times: FloatArray | None = None,
+        epoch: bool = False,
+    ) -> None:
         self.steps = steps
         self.events = events
-        self.all = _times(steps, events)  # most sends have a row per record: once
+        self.times = times
+        self.epoch = epoch
+        self.all = _times(steps, events, times, epoch)  # most sends have a row per record
 
     def __len__(self) -> int:
         return len(self.steps)
 
     def pick(self, rows: Sequence[int] | IntArray) -> list[rr.TimeColumnLike]:
         index = np.asarray(rows, dtype=np.int64)
-        return _times(self.steps[index], self.events[index])
+        times = None if self.times is None else self.times[index]
+        return _times(self.steps[index], self.events[index], times, self.epoch)
 
 
 def _landmark_rows(record: EventRecord, which: str | None) -> IntArray:
@@ -267,25 +299,66 @@ class _Entities:
 class _SeriesBuffer:
     """Scalar series gathered per entity path and sent with ``send_columns`` in chunks."""
 
-    def __init__(self, rec: _Entities) -> None:
+    def __init__(self, rec: _Entities, clock: _Clock) -> None:
         self._rec = rec
-        self._series: dict[str, tuple[list[int], list[int], list[float]]] = {}
+        self._clock = clock
+        self._series: dict[str, tuple[list[int], list[int], list[float], list[float]]] = {}
 
-    def add(self, path: str, step: int, event: int, value: float) -> None:
-        steps, events, values = self._series.setdefault(path, ([], [], []))
+    def add(self, path: str, step: int, event: int, value: float, time: float | None) -> None:
+        steps, events, values, times = self._series.setdefault(path, ([], [], [], []))
         steps.append(step)
         events.append(event)
         values.append(value)
+        times.append(math.nan if time is None else time)
 
     def flush(self) -> None:
-        for path, (steps, events, values) in self._series.items():
+        for path, (steps, events, values, times) in self._series.items():
             if values:
                 self._rec.send_columns(
                     path,
-                    indexes=_times(np.array(steps), np.array(events)),
+                    indexes=self._clock.rows(np.array(steps), np.array(events), times).all,
                     columns=_scalars(values),
                 )
         self._series.clear()
+
+
+class _Clock:
+    """The ``time`` timeline of a recording: its type, and times for records without one.
+
+    A record without a time (an untimed line of an extended log, ...) takes the latest
+    time before it, or the first after it in the same send; a recording without any
+    time has no ``time`` timeline.
+    """
+
+    def __init__(self) -> None:
+        self.epoch: bool | None = None  # decided by the first time met
+        self.last: float | None = None
+        self.span: tuple[float, float] | None = None
+
+    def rows(self, steps: IntArray, events: IntArray, times: Sequence[float] | FloatArray) -> _Rows:
+        filled = self.fill(np.asarray(times, dtype=np.float64))
+        return _Rows(steps, events, filled, bool(self.epoch))
+
+    def fill(self, times: FloatArray) -> FloatArray | None:
+        known = np.isfinite(times)
+        if not known.any():
+            if self.last is None:
+                return None
+            return np.full(len(times), self.last)
+        if self.epoch is None:
+            self.epoch = time_is_epoch(float(times[known][0]))
+        if not known.all():
+            # carry the latest time forward; before the first, the first of this send
+            index = np.where(known, np.arange(len(times)), -1)
+            np.maximum.accumulate(index, out=index)
+            start = self.last if self.last is not None else float(times[known][0])
+            times = np.where(index >= 0, times[np.maximum(index, 0)], start)
+        self.last = max(float(times[-1]), self.last if self.last is not None else -math.inf)
+        low, high = float(times.min()), float(times.max())
+        self.span = (low, high) if self.span is None else (
+            min(low, self.span[0]), max(high, self.span[1])
+        )  # fmt: skip
+        return times
 
 
 class Recorder:
@@ -304,9 +377,12 @@ class Recorder:
     :param prefix: entity path under which to log everything (e.g. ``variants/a``), so
         that several runs share one recording; the default layout then does not fit
     :param detail: log every landmark's ellipse (and, with truth, its errors) at every
-        update, however large the map (see the module for what is logged otherwise)
+        update, however large the map (see the module for what is logged otherwise),
+        and every predict
     :param history: the layout's map accumulates every predicted and updated robot
         ellipse up to the time cursor (the classic figure); the data is the same
+    :param predict_interval_s: log time between two logged predicts of a timestamped
+        log (see :mod:`ekfviz.viz.thinning`); None logs every predict
     """
 
     def __init__(
@@ -321,6 +397,7 @@ class Recorder:
         prefix: str = "",
         detail: bool = False,
         history: bool = False,
+        predict_interval_s: float | None = PREDICT_INTERVAL_S,
     ) -> None:
         self._rec = _Entities(rec, prefix)
         self._history = history
@@ -341,11 +418,14 @@ class Recorder:
         self._class_extra: set[int] = set()
         self._class_pending: set[int] = set()
         self._class_count = 0
-        self._series = _SeriesBuffer(self._rec)
+        self._clock = _Clock()
+        self._series = _SeriesBuffer(self._rec, self._clock)
+        self._thinning = PredictThinning(None if detail else predict_interval_s)
         # records not sent yet, each with whether it logs the whole map's ellipses
         self._pending: list[tuple[EventRecord, bool]] = []
         self._pending_landmarks = 0
         self._map_step: int | None = None  # step of the last update that logged the whole map
+        self._map_time: float | None = None  # and its time
         self._last_update: tuple[EventRecord, bool] | None = None
         self._last_ids: IntArray | None = None  # landmark ids of the last update, annotated
         self._event = 0
@@ -457,6 +537,8 @@ class Recorder:
     def finish(self, evaluation: Evaluation | None = None) -> None:
         """Send the buffered data, the whole map at the last update, the evaluation document
         if given, the layout framing the whole run, and flush."""
+        for record in self._thinning.drain():
+            self._log_record(record)
         self._send_pending()
         if self._class_pending:
             self._log_classes()
@@ -464,7 +546,11 @@ class Recorder:
             record = self._last_update[0]
             self._last_update = (record, True)
             self._log_landmark_errors(record, None)
-            rows = _Rows(np.array([record.step]), np.array([record.event]))
+            rows = self._clock.rows(
+                np.array([record.step]),
+                np.array([record.event]),
+                [math.nan if record.time is None else record.time],
+            )
             self._send_ellipses(
                 style.LANDMARK_ELLIPSES, rows, [(0, record, _landmark_rows(record, None))]
             )
@@ -481,10 +567,24 @@ class Recorder:
 
     def note(self, text: str, level: str | rr.TextLogLevel = rr.TextLogLevel.WARN) -> None:
         """A line in the text log at the latest event: a warning, or why a run stopped."""
+        for record in self._thinning.drain():
+            self._log_record(record)
         self._send_pending()
         self._rec.set_time(style.STEP, sequence=self._step)
         self._rec.set_time(style.EVENT, sequence=self._event)
+        self._set_time(self._clock.last)
         self._rec.log(style.LOG, rr.TextLog(text, level=level))
+
+    def _set_time(self, time: float | None) -> None:
+        """Set the ``time`` timeline of the stream's next ``log`` calls, if there is one."""
+        if time is None:
+            return
+        if self._clock.epoch is None:
+            self._clock.epoch = time_is_epoch(time)
+        if self._clock.epoch:
+            self._rec.rec.set_time(style.TIME, timestamp=time)
+        else:
+            self._rec.rec.set_time(style.TIME, duration=time)
 
     def _layout(self, bounds_xy: FloatArray | None = None) -> rrb.Blueprint:
         if bounds_xy is not None:
@@ -493,16 +593,32 @@ class Recorder:
         return default_blueprint(
             landmark_ids=sorted(self._seen_ids) if self._truth is not None else (),
             has_truth=self._truth is not None,
-            has_true_poses=self._truth is not None and self._truth.poses_xytheta is not None,
+            has_true_poses=self._truth is not None and self._truth.has_poses,
             has_run_info=self._run_documents,
             bounds_xy=bounds_xy,
+            has_time=self._clock.span is not None,
             history=self._history,
         )
 
     # -- records -------------------------------------------------------------------------
 
+    @property
+    def time_span(self) -> tuple[float, float] | None:
+        """The first and last log time (seconds) logged, or None for an untimed run."""
+        return self._clock.span
+
+    @property
+    def time_is_epoch(self) -> bool:
+        """Whether the ``time`` timeline is a timestamp (else a duration)."""
+        return bool(self._clock.epoch)
+
     def log_record(self, record: EventRecord) -> None:
-        """Log one record of the core: the map, the metrics and a line of text."""
+        """Log one record of the core: the map, the metrics and a line of text (the
+        predicts of a timestamped log thinned, see :mod:`ekfviz.viz.thinning`)."""
+        for admitted in self._thinning.admit(record):
+            self._log_record(admitted)
+
+    def _log_record(self, record: EventRecord) -> None:
         self._event, self._step = record.event, record.step
         self._step_has_update = record.kind is not EventKind.PREDICT
         whole_map = False
@@ -516,19 +632,24 @@ class Recorder:
                 self._last_ids = ids
                 self._seen_ids.update(ids.tolist())
             whole_map = (
-                self._detail
-                or record.n_landmarks <= SMALL_MAP
+                not self._sparse_map(record)
                 or self._map_step is None
-                or record.step - self._map_step >= MAP_EVERY_STEPS
+                or (
+                    record.time - self._map_time >= MAP_EVERY_S
+                    if record.time is not None and self._map_time is not None
+                    else record.step - self._map_step >= MAP_EVERY_STEPS
+                )
             )
             if whole_map:
                 self._map_step = record.step
+                self._map_time = record.time
             self._last_update = (record, whole_map)
         if self._truth is not None:
             self._log_metrics(record, whole_map)
         if record.correlation is not None:  # a few per run: logged at once
             self._rec.set_time(style.STEP, sequence=record.step)
             self._rec.set_time(style.EVENT, sequence=record.event)
+            self._set_time(record.time)
             log_correlation(self._rec, record.correlation, self._last_correlation)
             self._last_correlation = record.correlation
         self._pending.append((record, whole_map))
@@ -546,9 +667,14 @@ class Recorder:
         self._pending_landmarks = 0
         records = [record for record, _ in pending]
         count = len(records)
-        rows = _Rows(
+        rows = self._clock.rows(
             np.fromiter((record.step for record in records), np.int64, count),
             np.fromiter((record.event for record in records), np.int64, count),
+            np.fromiter(
+                (math.nan if record.time is None else record.time for record in records),
+                np.float64,
+                count,
+            ),
         )
         poses = np.stack([record.pose for record in records])
         pose_covs = np.stack([record.pose_cov for record in records])
@@ -615,7 +741,7 @@ class Recorder:
                 [
                     (k, record, _NO_ROWS if whole else _landmark_rows(record, "observed"))
                     for k, record, whole in updates
-                    if record.n_landmarks > SMALL_MAP and not self._detail
+                    if self._sparse_map(record)
                 ],
             )
             self._send_ellipses(
@@ -629,6 +755,16 @@ class Recorder:
             )
         self._send_health(records, rows, pose_covs, corrected, observed)
         self._send_text(records, rows, observed)
+
+    def _sparse_map(self, record: EventRecord) -> bool:
+        """Whether an update logs the whole map's ellipses only now and then (and the
+        observed landmarks' at every update): beyond ``SMALL_MAP`` landmarks, and in a
+        timestamped log whose predicts are thinned (see :mod:`ekfviz.viz.thinning`)."""
+        if self._detail:
+            return False
+        return record.n_landmarks > SMALL_MAP or (
+            record.time is not None and self._thinning.interval_s is not None
+        )
 
     def _send_trajectory(self, rows: _Rows, ends_xy: FloatArray) -> None:
         """A segment from the previous position to this one at every event but the first."""
@@ -868,7 +1004,7 @@ class Recorder:
             return
         nees = pose_nees(record, self._truth)
         if nees is not None:
-            self._add_statistic(style.NEES, record.step, record.event, nees, chi2_bounds(3))
+            self._add_statistic(style.NEES, record, nees, chi2_bounds(3))
         self._log_landmark_errors(record, None if whole_map else "observed")
 
     def _log_landmark_errors(self, record: EventRecord, which: str | None) -> None:
@@ -881,29 +1017,30 @@ class Recorder:
             record.landmarks_xy[rows], record.landmark_covs[rows], self._truth.lookup(ids)
         )
         add = self._series.add
-        step, event = record.step, record.event
+        step, event, time = record.step, record.event, record.time
         known = np.isfinite(euclidean)
         if which is None and known.any():  # the whole map: its mean and worst landmark
             for root, values in (
                 (style.LANDMARK_ERROR_SUMMARY, euclidean[known]),
                 (style.MAHALANOBIS_SUMMARY, mahalanobis[known]),
             ):
-                add(f"{root}/{style.MEAN}", step, event, float(values.mean()))
-                add(f"{root}/{style.WORST}", step, event, float(values.max()))
+                add(f"{root}/{style.MEAN}", step, event, float(values.mean()), time)
+                add(f"{root}/{style.WORST}", step, event, float(values.max()), time)
         for landmark_id, error, distance in zip(
             ids.tolist(), euclidean.tolist(), mahalanobis.tolist(), strict=True
         ):
             if math.isfinite(error):
-                add(f"{style.LANDMARK_ERROR}/{landmark_id}", step, event, error)
-                add(f"{style.MAHALANOBIS}/{landmark_id}", step, event, distance)
+                add(f"{style.LANDMARK_ERROR}/{landmark_id}", step, event, error, time)
+                add(f"{style.MAHALANOBIS}/{landmark_id}", step, event, distance, time)
 
     def _add_statistic(
-        self, path: str, step: int, event: int, value: float, bounds: tuple[float, float]
+        self, path: str, record: EventRecord, value: float, bounds: tuple[float, float]
     ) -> None:
         """A NIS or NEES value with its chi-square bounds, drawn in the same plot."""
-        self._series.add(path, step, event, value)
-        self._series.add(f"{path}/{style.LOWER}", step, event, bounds[0])
-        self._series.add(f"{path}/{style.UPPER}", step, event, bounds[1])
+        at = (record.step, record.event)
+        self._series.add(path, *at, value, record.time)
+        self._series.add(f"{path}/{style.LOWER}", *at, bounds[0], record.time)
+        self._series.add(f"{path}/{style.UPPER}", *at, bounds[1], record.time)
 
     @staticmethod
     def _describe(record: EventRecord, seen: int, new: int, nis: float, nis_used: int) -> str:

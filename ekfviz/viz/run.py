@@ -20,7 +20,7 @@ import time
 import uuid
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from urllib.parse import quote, urlsplit
 
@@ -39,6 +39,7 @@ from ekfviz.viz.flush import flush_interruptibly
 from ekfviz.viz.recorder import Recorder
 
 APPLICATION_ID = "ekfviz"
+TIME_PROPERTY = "time"  # the span of the time timeline: start, end (seconds), kind
 INPUT_TEXT_CAP = 4 * 1024 * 1024  # bytes of input embedded in a recording
 GRPC_PORT = 9876
 WEB_PORT = 9090
@@ -172,12 +173,26 @@ def run_info(
     input_path: Path,
     truth: GroundTruth | None = None,
     truth_path: Path | None = None,
+    input_files: Sequence[Path] | None = None,
+    truth_files: Sequence[Path] | None = None,
     kind: str = "replay",
 ) -> RunInfo:
     """Describe a run, reading the input (and truth) file for its size, sha256 and text.
 
+    :param input_files: the files an input directory is read from (an MRCLAM dataset's
+        robot): their size and sha256 together, the text of none
+    :param truth_files: likewise for the truth, instead of ``truth_path`` alone
     :raises InputError: when the input or truth file cannot be read
     """
+    if input_files is not None and input_path.is_dir():
+        size, sha256 = _digest_files(input_files)
+        return replace(
+            _described(
+                name, command, parameters, input_path, size, sha256, None,
+                "not embedded: a dataset directory", truth, truth_path, truth_files,
+            ),
+            kind=kind,
+        )  # fmt: skip
     size, sha256, data = _digest(input_path, keep_up_to=INPUT_TEXT_CAP)
     text: str | None = None
     note: str | None = None
@@ -188,7 +203,33 @@ def run_info(
             text = data.decode("utf-8")
         except UnicodeDecodeError:
             note = "not embedded: not UTF-8 text"
-    truth_sha256 = None if truth_path is None else _digest(truth_path, keep_up_to=0)[1]
+    return replace(
+        _described(
+            name, command, parameters, input_path, size, sha256, text, note, truth, truth_path,
+            truth_files,
+        ),
+        kind=kind,
+    )  # fmt: skip
+
+
+def _described(
+    name: str,
+    command: str,
+    parameters: dict[str, object],
+    input_path: Path,
+    size: int,
+    sha256: str,
+    text: str | None,
+    note: str | None,
+    truth: GroundTruth | None,
+    truth_path: Path | None,
+    truth_files: Sequence[Path] | None,
+) -> RunInfo:
+    truth_sha256 = None
+    if truth_files:
+        truth_sha256 = _digest_files(truth_files)[1]
+    elif truth_path is not None:
+        truth_sha256 = _digest(truth_path, keep_up_to=0)[1]
     return RunInfo(
         name=name,
         command=command,
@@ -201,8 +242,18 @@ def run_info(
         truth=truth,
         truth_path=truth_path,
         truth_sha256=truth_sha256,
-        kind=kind,
     )
+
+
+def _digest_files(paths: Sequence[Path]) -> tuple[int, str]:
+    """Total size and the sha256 of several files, each named and hashed in turn."""
+    sha = hashlib.sha256()
+    total = 0
+    for path in paths:
+        size, digest, _ = _digest(path, keep_up_to=0)
+        total += size
+        sha.update(f"{path.name}\0{digest}\n".encode())
+    return total, sha.hexdigest()
 
 
 def _digest(path: Path, *, keep_up_to: int) -> tuple[int, str, bytes | None]:
@@ -255,7 +306,7 @@ def has_display() -> bool:
 
 
 def resolve_default_sinks(
-    sinks: Sinks, input_path: Path, recordings_dir: Path
+    sinks: Sinks, input_path: Path, recordings_dir: Path, name: str | None = None
 ) -> tuple[Sinks, str | None]:
     """The sinks asked for or, when none: a viewer where a display exists, else a file.
 
@@ -270,7 +321,7 @@ def resolve_default_sinks(
             recordings_dir.mkdir()
         except OSError as error:
             raise SinkError(f"cannot make the folder {recordings_dir} ({error.strerror})") from None
-    path = unused_path(recordings_dir / f"{input_path.stem}.rrd")
+    path = unused_path(recordings_dir / f"{name or input_path.stem}.rrd")
     return Sinks(save=path), (
         f"No Rerun output option and no display: saved the recording to {path}"
         f" (open it with: {rerun_hint()} {path})"
@@ -358,8 +409,15 @@ class RunLogger:
         self.last = record
 
     def finish(self, evaluation: Evaluation | None) -> None:
-        """Log the evaluation document and send the buffered series: the run is complete."""
+        """Log the evaluation document and send the buffered series: the run is complete;
+        the span of the ``time`` timeline, if any, goes into the properties."""
         finish_recorders(self.recording, [(self.recorder, evaluation)])
+        span = self.recorder.time_span
+        if span is not None:
+            kind = "timestamp" if self.recorder.time_is_epoch else "duration"
+            self.recording.rec.send_property(
+                TIME_PROPERTY, _any_values({"start": span[0], "end": span[1], "kind": kind})
+            )
 
     def stop(self, reason: str, evaluation: Evaluation | None) -> bool:
         """End a run cut short (bad input, a numerical fault, a signal): log why as the

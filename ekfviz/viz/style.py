@@ -63,6 +63,9 @@ HISTORY = (POSE_PREDICTED, POSE_UPDATED)
 
 STEP = "step"
 EVENT = "event"
+# the log's time in seconds, for timestamped logs: a timestamp for Unix times (MRCLAM),
+# else a duration (see ekfviz.viz.recorder.time_is_epoch)
+TIME = "time"
 
 # -- colours (RGB) and sizes -----------------------------------------------------------
 

@@ -209,6 +209,15 @@ class LosesIds(Textbook):
         self.landmark_ids = self.landmark_ids[:-1]
 
 
+class Offline(Textbook):
+    """An offline filter (it has finish()): only its state after finish() is recorded."""
+
+    finished = False
+
+    def finish(self) -> None:
+        self.finished = True
+
+
 class BadConstructor:
     def __init__(self, params: Any) -> None:
         raise RuntimeError("cannot start")
