@@ -67,6 +67,9 @@ def _command(name: str, path: str, place: Path) -> list[str]:
         "consistency --report": ["consistency", "--runs", "2", "--report", path],
         "convert": ["convert", str(SAMPLE), path],
         "info --extract-input": ["info", str(recording), "--extract-input", path],
+        "compare --save": ["compare", str(SAMPLE), "--filter", "ekf", "--save", path],
+        "check --report": ["check", str(SAMPLE), "--filter", "ekf", "--report", path],
+        "check --save": ["check", str(SAMPLE), "--filter", "ekf", "--save", path],
         "simulate -o": ["simulate", "-o", path, "--truth-out", str(place / "t.json")],
         "simulate --truth-out": ["simulate", "-o", str(place / "l.txt"), "--truth-out", path],
     }[name]  # fmt: skip
@@ -75,6 +78,7 @@ def _command(name: str, path: str, place: Path) -> list[str]:
 COMMANDS = [
     "replay --save", "replay --report", "sweep --save", "sweep --report",
     "consistency --save", "consistency --report", "convert", "info --extract-input",
+    "compare --save", "check --report", "check --save",
     "simulate -o", "simulate --truth-out",
 ]  # fmt: skip
 
@@ -120,6 +124,18 @@ def test_an_output_path_refused_in_a_process_of_its_own(place: Path) -> None:
         == f"error: --save {place / 'folder'}: is a folder, expected a file name"
     )
     assert not list(place.rglob("*.part")) and time.monotonic() - started < 30
+
+
+def test_a_dataset_folder_needs_its_parent(place: Path) -> None:
+    """``simulate --layout mrclam`` writes a folder: it may exist, its parent must."""
+    before = _snapshot(place)
+    for path, message in (
+        (place / "missing" / "ds", "does not exist"),
+        (place / "file.txt", "exists and is not a folder"),
+    ):
+        result = runner.invoke(app, ["simulate", "--layout", "mrclam", "-o", str(path)])
+        assert result.exit_code == 2 and message in result.stderr, result.stderr
+        assert _snapshot(place) == before
 
 
 def test_two_outputs_of_one_command_must_be_two_files(place: Path) -> None:

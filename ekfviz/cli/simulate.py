@@ -34,6 +34,7 @@ from ekfviz.cli.common import (
 )
 from ekfviz.core.filter import FilterParams
 from ekfviz.core.truth import GroundTruth
+from ekfviz.io.paths import OutputPathError, check_output_folder
 from ekfviz.sim.mrclam import MrclamNoise, MrclamWorld
 from ekfviz.sim.scenarios import ScenarioName
 
@@ -183,6 +184,10 @@ def _simulate_mrclam(
 
     if truth_out is not None:
         fail("--truth-out: with --layout mrclam the truth is in the dataset directory")
+    try:
+        check_output_folder(output, "--output")
+    except OutputPathError as error:
+        fail(str(error))
     default = asdict(MrclamNoise())
     noise = MrclamNoise(
         **{
@@ -191,10 +196,8 @@ def _simulate_mrclam(
         }
     )
     files = simulate_mrclam(seed=seed, world=MrclamWorld(duration_s=duration), noise=noise)
-    if output.exists() and not output.is_dir():
-        fail(f"{output}: exists and is not a directory, expected a dataset directory")
     try:
-        output.mkdir(parents=True, exist_ok=True)
+        output.mkdir(exist_ok=True)  # its parent was checked: no folders made above it
     except OSError as error:
         fail(f"{output}: cannot make the directory ({error.strerror})")
     for name, text in files.items():
@@ -204,6 +207,6 @@ def _simulate_mrclam(
                      for n, v in asdict(noise).items())  # fmt: skip
     out.print(
         "Replay it with the filter told the true noise:\n  "
-        + f"ekfviz replay {output} --motion-noise per-sqrt-second {flags}",
+        + f"{command_hint('ekfviz')} replay {output} --motion-noise per-sqrt-second {flags}",
         soft_wrap=True,
     )

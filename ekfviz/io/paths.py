@@ -92,3 +92,27 @@ def unused_path(path: Path) -> Path:
         k += 1
         candidate = path.with_name(f"{path.stem}-{k}{path.suffix}")
     return candidate
+
+
+def check_output_folder(path: Path | str, option_name: str) -> Path:
+    """Like :func:`check_output_path`, for a folder a command fills with files: an
+    existing folder that takes new files, or a new one whose parent exists (it is made
+    by the command, once its work is done; not here).
+
+    :raises OutputPathError: naming the option, the path and the problem
+    """
+    path = Path(path)
+    if not path.exists():
+        return check_output_path(path, option_name)
+    where = f"{option_name} {path}".strip()
+    if not path.is_dir():
+        raise OutputPathError(f"{where}: exists and is not a folder")
+    try:
+        fd, probe = tempfile.mkstemp(dir=path, prefix=".ekfviz.", suffix=".probe")
+    except OSError as error:
+        raise OutputPathError(
+            f"{where}: cannot write in it ({error.strerror or type(error).__name__})"
+        ) from None
+    os.close(fd)
+    os.unlink(probe)
+    return path
