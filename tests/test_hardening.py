@@ -374,3 +374,15 @@ def test_every_docs_file_the_project_cites_exists() -> None:
     assert cited, "the check found nothing to check"
     missing = sorted(name for name in cited if not (ROOT / name).is_file())
     assert missing == []
+
+
+def test_info_says_a_run_stopped_by_bad_input_stopped_there(tmp_path: Path) -> None:
+    lines = SAMPLE.read_text().splitlines()
+    log = tmp_path / "bad.txt"
+    log.write_text("\n".join([*lines[:9], "1.0 oops", *lines[9:]]) + "\n")
+    rrd = tmp_path / "bad.rrd"
+    result = runner.invoke(app, ["replay", str(log), "--save", str(rrd)])
+    assert result.exit_code == 2 and f"{log}:10:" in result.stderr
+    status = json.loads(runner.invoke(app, ["info", str(rrd), "--json"]).stdout)["status"]
+    assert status["state"] == "stopped" and status["line"] == 9 and status["event"] == 8
+    assert status["reason"].startswith(f"{log}:10: ")
