@@ -20,6 +20,8 @@
 6. Real data (``mrclam_bench.py``): MRCLAM dataset 6, robots 1-3, calibrated and replayed
    as the issue's check does; skipped with a note when the dataset is not found.
    ``--mrclam-only`` runs just this and replaces its section of RESULTS.md.
+7. Smoothers (``smoother_bench.py``): GTSAM's iSAM2 and the batch optimum against the EKF,
+   end to end on the bundled samples; ``--smoother-only`` runs just this.
 
 It prints the tables and writes them, with the machine, the date and the command, to
 ``benchmarks/RESULTS.md``. Timings are medians (bounds: best) of repeated runs; where
@@ -59,6 +61,7 @@ from ekfviz.sim.simulate import CLASSIC_LANDMARKS_XY, Noise, classic_controls, s
 
 sys.path.insert(0, str(Path(__file__).parent))
 from mrclam_bench import mrclam_section, splice
+from smoother_bench import smoother_section
 from textbook_ekf import TextbookEkfSlam
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -746,11 +749,15 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument(
         "--mrclam-only", action="store_true", help="only the MRCLAM section of RESULTS.md"
     )
+    parser.add_argument(
+        "--smoother-only", action="store_true", help="only the smoother section of RESULTS.md"
+    )
     args = parser.parse_args(argv)
     started = time.perf_counter()
-    if args.mrclam_only:
+    if args.mrclam_only or args.smoother_only:
         with tempfile.TemporaryDirectory() as tmp:
-            section = mrclam_section(Path(tmp))
+            make = mrclam_section if args.mrclam_only else smoother_section
+            section = make(Path(tmp))
         old = args.out.read_text() if args.out.exists() else ""
         args.out.write_text(splice(old, section))
         print(section)
@@ -769,6 +776,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         )
         print("MRCLAM dataset 6", flush=True)
         mrclam = mrclam_section(Path(tmp))
+        smoothers = smoother_section(Path(tmp), args.quick)
     print("core against dense (one BLAS thread)", flush=True)
     rows = core_rows(args.quick)
     flops = dgemm_flops()
@@ -776,7 +784,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     text = report(
         rows, e2e, memory, phases, interpreter_s, imports_s, kernel_import_us(), flops, args.quick
     )
-    text = splice(text, mrclam)
+    text = splice(splice(text, mrclam), smoothers)
     args.out.write_text(text)
     print()
     print(text)

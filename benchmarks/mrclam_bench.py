@@ -162,8 +162,10 @@ def mrclam_section(folder: Path) -> str:
 
 
 def splice(text: str, section: str) -> str:
-    """``text`` with its MRCLAM section replaced (or appended)."""
-    if BEGIN in text and END in text:
-        head, rest = text.split(BEGIN, 1)
-        return head + section + rest.split(END, 1)[1]
+    """``text`` with the section between the markers that open and close ``section``
+    (its first and last lines) replaced, or appended."""
+    begin, end = section.splitlines()[0], section.splitlines()[-1]
+    if begin in text and end in text:
+        head, rest = text.split(begin, 1)
+        return head + section + rest.split(end, 1)[1]
     return text.rstrip("\n") + "\n\n" + section + "\n"

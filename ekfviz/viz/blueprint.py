@@ -10,6 +10,16 @@ from ekfviz.core.consistency import chi2_bounds
 from ekfviz.core.types import FloatArray
 from ekfviz.viz import style
 
+# The x axis of every plot spans the whole run, on whichever timeline is shown. Without it
+# a plot of a timestamped log (MRCLAM's Unix times) opens zoomed to an instant and looks
+# empty; linked to nothing, each plot keeps its own zoom.
+WHOLE_RUN = rrb.archetypes.TimeAxis(
+    link=rrb.components.LinkAxis.Independent,
+    view_range=rrb.TimeRange(
+        start=rrb.TimeRangeBoundary.infinite(), end=rrb.TimeRangeBoundary.infinite()
+    ),
+)
+
 
 def accumulated_range() -> rrb.VisibleTimeRanges:
     """Show an entity from the infinite past up to the time cursor, on every timeline."""
@@ -70,6 +80,7 @@ def summary_plot(name: str, summary: str, per_landmark: str, ids: Sequence[int])
     """The mean and worst landmark of a per-landmark metric; the landmarks' own series
     are in the view too, hidden until shown (in the view's entity list)."""
     return rrb.TimeSeriesView(
+        axis_x=WHOLE_RUN,
         name=name,
         contents=[f"/{summary}/**", f"/{per_landmark}/**"],
         plot_legend=SMALL_LEGEND,
@@ -100,20 +111,29 @@ def default_blueprint(
     """
     plots: list[rrb.View] = [
         rrb.TimeSeriesView(
-            name="NIS (blue) and 95% bounds", origin=style.NIS, plot_legend=NO_LEGEND
+            axis_x=WHOLE_RUN,
+            name="NIS (blue) and 95% bounds",
+            origin=style.NIS,
+            plot_legend=NO_LEGEND,
         )
     ]
     if has_true_poses:
         plots.append(
             rrb.TimeSeriesView(
-                name="NEES (blue) and 95% bounds", origin=style.NEES, plot_legend=NO_LEGEND
+                axis_x=WHOLE_RUN,
+                name="NEES (blue) and 95% bounds",
+                origin=style.NEES,
+                plot_legend=NO_LEGEND,
             )
         )
     plots.append(
-        rrb.TimeSeriesView(name="Pose sigma", origin=style.POSE_SIGMA, plot_legend=SMALL_LEGEND)
+        rrb.TimeSeriesView(
+            axis_x=WHOLE_RUN, name="Pose sigma", origin=style.POSE_SIGMA, plot_legend=SMALL_LEGEND
+        )
     )
     plots.append(
         rrb.TimeSeriesView(
+            axis_x=WHOLE_RUN,
             name="Smallest eigenvalue of P",
             origin=style.HEALTH,
             contents=[
@@ -224,6 +244,7 @@ def sweep_blueprint(
     first = variants[0][1]
     plots = [
         rrb.TimeSeriesView(
+            axis_x=WHOLE_RUN,
             name=f"NIS per {what} (grey: {variants[0][0]}'s 95% bounds)",
             contents=[
                 *(f"/{prefix}/{style.NIS}" for _, prefix in variants),
@@ -237,6 +258,7 @@ def sweep_blueprint(
     if has_poses:
         plots.append(
             rrb.TimeSeriesView(
+                axis_x=WHOLE_RUN,
                 name=f"Pose NEES per {what} (colours as above)",
                 contents=[f"/{prefix}/{style.NEES}" for _, prefix in variants],
                 axis_y=rrb.ScalarAxis(range=(0.0, 3.0 * chi2_bounds(3)[1])),
@@ -246,6 +268,7 @@ def sweep_blueprint(
     if has_truth:
         plots.append(
             rrb.TimeSeriesView(
+                axis_x=WHOLE_RUN,
                 name=f"Mean landmark error [m] per {what} (colours as above)",
                 contents=[f"/{prefix}/{style.MEAN_LANDMARK_ERROR}" for _, prefix in variants],
                 plot_legend=NO_LEGEND,
