@@ -176,6 +176,7 @@ def study(
         input_path=data,
         truth=truth,
         truth_path=truth_path,
+        kind="sweep" if root == "variants" else "compare",
     )
     with viz.open_recording(info, viz.Sinks(save=target)) as recording:
         record_study(recording, runs, truth, markdown(summaries), root=root)

@@ -316,7 +316,7 @@ def test_blueprint_and_properties_are_in_the_file(run: Run) -> None:
         }
         assert {
             "Map",
-            "NIS and 95% bounds",
+            "NIS (blue) and 95% bounds",
             "Pose sigma",
             "Log",
             "Run",

@@ -16,6 +16,9 @@ from ekfviz.cli import (
     sweep,
 )
 from ekfviz.cli.common import app
+from ekfviz.cli.help import polish
+
+polish(app)
 
 __all__ = [
     "app",

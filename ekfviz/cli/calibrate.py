@@ -8,7 +8,7 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from ekfviz.cli.common import LogArgument, TruthOption, app, fail, out, warn
+from ekfviz.cli.common import LogArgument, TruthOption, app, command_hint, fail, out, warn
 from ekfviz.cli.sources import MotionNoiseChoice, RobotOption, first_time, open_log, resolve
 from ekfviz.core.calibrate import (
     HEAVY_TAIL_SHARE,
@@ -72,7 +72,7 @@ def calibrate_command(
     except InputError as error:
         fail(str(error))
     _print_scaling(scaling, gate)
-    command = ["ekfviz", "replay", str(data)]
+    command = [command_hint("ekfviz"), "replay", str(data)]
     if opened.source.dataset is not None and robot is not None:
         command += ["--robot", str(robot)]
     if truth is not None:

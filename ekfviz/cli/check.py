@@ -22,6 +22,8 @@ from ekfviz.cli.common import (
     UpdateOption,
     _option,
     app,
+    check_outputs,
+    command_hint,
     fail,
     filter_params,
     out,
@@ -77,6 +79,7 @@ def check(
     """
     from ekfviz import pipeline, viz
 
+    check_outputs(("--report", report), ("--save", save))
     params = filter_params(
         (sigma_x, sigma_y, sigma_alpha, sigma_bearing, sigma_range),
         init_pose_sigma,
@@ -110,6 +113,6 @@ def check(
             soft_wrap=True,
         )
     if save is not None:
-        out.print(f"Saved {save}; open it with: rerun {save}")
+        out.print(f"Saved {save}; open it with: {command_hint('rerun')} {save}")
     if first is not None:
         raise typer.Exit(1)

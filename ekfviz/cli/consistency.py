@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import functools
 import json
+import shlex
+import sys
 from dataclasses import asdict
 from pathlib import Path
 from typing import Annotated
@@ -38,6 +40,8 @@ from ekfviz.cli.common import (
     UpdateOption,
     _option,
     app,
+    check_outputs,
+    command_hint,
     err,
     fail,
     filter_params,
@@ -68,7 +72,7 @@ def consistency(
         Triple | None,
         _option(
             "The prior the true start is drawn from AND the filter's initial covariance"
-            " [default: the scenario's: classic 0.02 0.02 0.1, loop 0.01 0.01 0.005].",
+            " \\[default: the scenario's: classic 0.02 0.02 0.1, loop 0.01 0.01 0.005].",
             FILTER_OPTIONS,
             metavar="SX SY STHETA",
             show_default=False,
@@ -94,7 +98,8 @@ def consistency(
         Path | None, _option("Write the averaged curves to this .rrd file.", show_default=False)
     ] = None,
     workers: Annotated[
-        int | None, _option("Processes to use [default: one per core].", min=1, show_default=False)
+        int | None,
+        _option("Processes to use \\[default: one per core].", min=1, show_default=False),
     ] = None,
     executor: ExecutorOption = ExecutorName.LOCAL,
     scheduler: SchedulerOption = None,
@@ -106,6 +111,7 @@ def consistency(
     """
     from ekfviz.sim.montecarlo import Trials, average, run_trial
 
+    check_outputs(("--report", report), ("--save", save))
     world = scenario_world(scenario, seed, steps, landmarks, max_range, fov)
     prior = world.init_pose_sigma if init_pose_sigma is None else init_pose_sigma
     params = filter_params(
@@ -138,7 +144,9 @@ def consistency(
         table.add_column(column, justify="left" if column in ("statistic", "verdict") else "right")
     for name, count in (("mean NEES per step", result.nees), ("mean NIS per step", result.nis)):
         verdict = count.verdict
-        colour = "green" if verdict is Verdict.CONSISTENT else "bold red"
+        colour = {Verdict.CONSISTENT: "green", Verdict.BORDERLINE: "yellow"}.get(
+            verdict or Verdict.CONSISTENT, "bold red"
+        )
         table.add_row(
             name,
             f"{count.inside}/{count.total} ({count.fraction_inside:.1%})" if count.total else "-",
@@ -168,5 +176,12 @@ def consistency(
         lines += [f"- **{key}** `{json.dumps(value)}`" for key, value in settings.items()]
         if verdict is not None:
             lines += ["", f"**Verdict (NEES):** {verdict.value}"]
-        save_monte_carlo(save, result, f"consistency-{scenario.value}", "\n".join(lines) + "\n")
-        out.print(f"Saved {save}; open it with: rerun {save}")
+        save_monte_carlo(
+            save,
+            result,
+            f"consistency-{scenario.value}",
+            "\n".join(lines) + "\n",
+            command=shlex.join(["ekfviz", *sys.argv[1:]]),
+            settings=settings,
+        )
+        out.print(f"Saved {save}; open it with: {command_hint('rerun')} {save}")

@@ -26,12 +26,15 @@ from ekfviz.cli.common import (
     TruthOption,
     UpdateOption,
     app,
+    check_outputs,
     fail,
     filter_params,
+    human_output_to_stderr,
     mismatch_note,
     open_progress,
     out,
     print_evaluation,
+    print_json,
     report_json,
     write_json,
 )
@@ -60,6 +63,12 @@ def replay(
     report: Annotated[
         Path | None, typer.Option(help="Write the evaluation as JSON here.", show_default=False)
     ] = None,
+    as_json: Annotated[
+        bool,
+        typer.Option(
+            "--json", help="Print the evaluation as JSON on stdout (the rest goes to stderr)."
+        ),
+    ] = False,
     sigma_x: SigmaX = DEFAULT.sigma_x,
     sigma_y: SigmaY = DEFAULT.sigma_y,
     sigma_alpha: SigmaAlpha = DEFAULT.sigma_alpha,
@@ -128,6 +137,9 @@ def replay(
     """
     from ekfviz import pipeline, viz  # rerun loads only for commands that record
 
+    check_outputs(("--save", save), ("--report", report))
+    if as_json:
+        human_output_to_stderr()
     params = filter_params(
         (sigma_x, sigma_y, sigma_alpha, sigma_bearing, sigma_range),
         init_pose_sigma,
@@ -175,9 +187,14 @@ def replay(
             )  # fmt: skip
             warnings.summarise()
             print_evaluation(evaluation, truth_xy)
+            document = {
+                **report_json(evaluation, params, data, info.input_sha256),
+                "filter": filter_spec,
+            }
             if report is not None:
-                document = report_json(evaluation, params, data, info.input_sha256)
-                write_json(report, {**document, "filter": filter_spec})
+                write_json(report, document)
+            if as_json:
+                print_json(document)
             if truth_xy is not None:
                 mismatch_note(params, truth_xy)
             if note:

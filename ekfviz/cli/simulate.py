@@ -24,6 +24,8 @@ from ekfviz.cli.common import (
     TrueSigmaY,
     _option,
     app,
+    check_outputs,
+    command_hint,
     fail,
     out,
     scenario_world,
@@ -32,6 +34,7 @@ from ekfviz.cli.common import (
 )
 from ekfviz.core.filter import FilterParams
 from ekfviz.core.truth import GroundTruth
+from ekfviz.io.paths import OutputPathError, check_output_folder
 from ekfviz.sim.mrclam import MrclamNoise, MrclamWorld
 from ekfviz.sim.scenarios import ScenarioName
 
@@ -94,7 +97,7 @@ def simulate(
         typer.Option(
             metavar="SX SY STHETA",
             help="The true start is drawn from N(0, diag(sigma^2)), the prior a filter should"
-            " assume [default: classic 0.02 0.02 0.1, loop 0.01 0.01 0.005].",
+            " assume \\[default: classic 0.02 0.02 0.1, loop 0.01 0.01 0.005].",
             show_default=False,
         ),
     ] = None,
@@ -113,6 +116,7 @@ def simulate(
     from ekfviz.io.extended import format_extended
     from ekfviz.io.truth import truth_json
 
+    check_outputs(("--output", output), ("--truth-out", truth_out))
     world = scenario_world(scenario, seed, steps, landmarks, max_range, fov)
     noise = true_noise(
         world, true_sigma_x, true_sigma_y, true_sigma_alpha, true_sigma_bearing, true_sigma_range
@@ -154,7 +158,16 @@ def simulate(
         replay_noise.append("--init-pose-sigma " + " ".join(f"{v:g}" for v in init_pose_sigma))
     out.print(
         "Replay it with the filter told the true noise:\n  "
-        + " ".join(["ekfviz replay", str(output), "--truth", str(truth_out), *replay_noise]),
+        + " ".join(
+            [
+                command_hint("ekfviz"),
+                "replay",
+                str(output),
+                "--truth",
+                str(truth_out),
+                *replay_noise,
+            ]
+        ),
         soft_wrap=True,
     )
 
@@ -171,6 +184,10 @@ def _simulate_mrclam(
 
     if truth_out is not None:
         fail("--truth-out: with --layout mrclam the truth is in the dataset directory")
+    try:
+        check_output_folder(output, "--output")
+    except OutputPathError as error:
+        fail(str(error))
     default = asdict(MrclamNoise())
     noise = MrclamNoise(
         **{
@@ -179,10 +196,8 @@ def _simulate_mrclam(
         }
     )
     files = simulate_mrclam(seed=seed, world=MrclamWorld(duration_s=duration), noise=noise)
-    if output.exists() and not output.is_dir():
-        fail(f"{output}: exists and is not a directory, expected a dataset directory")
     try:
-        output.mkdir(parents=True, exist_ok=True)
+        output.mkdir(exist_ok=True)  # its parent was checked: no folders made above it
     except OSError as error:
         fail(f"{output}: cannot make the directory ({error.strerror})")
     for name, text in files.items():
@@ -192,6 +207,6 @@ def _simulate_mrclam(
                      for n, v in asdict(noise).items())  # fmt: skip
     out.print(
         "Replay it with the filter told the true noise:\n  "
-        + f"ekfviz replay {output} --motion-noise per-sqrt-second {flags}",
+        + f"{command_hint('ekfviz')} replay {output} --motion-noise per-sqrt-second {flags}",
         soft_wrap=True,
     )

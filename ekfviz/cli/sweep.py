@@ -7,9 +7,10 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Annotated
 
+import typer
+
 from ekfviz.cli.common import (
     DEFAULT,
-    RECORDINGS_DIR,
     ExecutorOption,
     FilterOption,
     InitPoseSigma,
@@ -46,7 +47,8 @@ def sweep(
     save: Annotated[
         Path | None,
         _option(
-            "Write the recording here [default: recordings/<input>-sweep.rrd].", show_default=False
+            "Write the recording here \\[default: recordings/<input>-sweep.rrd].",
+            show_default=False,
         ),
     ] = None,
     report: Annotated[
@@ -62,7 +64,11 @@ def sweep(
         ),
     ] = None,
     one_at_a_time: Annotated[
-        bool, _option("Vary each --vary on its own around the baseline, not as a grid.")
+        bool,
+        typer.Option(
+            "--one-at-a-time",
+            help="Vary each --vary on its own around the baseline, not as a grid.",
+        ),
     ] = False,
     preset: Annotated[
         Preset | None,
@@ -111,12 +117,11 @@ def sweep(
         fail(str(error))
     variants = [replace(variant, filter=FilterSpec(filter_spec)) for variant in variants]
     runner = study_executor(executor, scheduler, workers)
-    target = save if save is not None else RECORDINGS_DIR / f"{data.stem}-sweep.rrd"
     run_study(
         data,
         truth,
         variants,
-        target=target,
+        target=save,
         report=report,
         workers=workers,
         root="variants",

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ekfviz.core.consistency import Consistency
+from ekfviz.core.consistency import Consistency, reading
 from ekfviz.core.evaluation import Evaluation, evaluate
 from ekfviz.core.filter import FilterParams
 from ekfviz.core.records import EventRecord
@@ -130,26 +130,20 @@ def summarise(run: Run, baseline: Run) -> Summary:
     ]
     consistency = evaluation.consistency
     count = consistency.nis if consistency is not None else None
-    reading = "no update to judge"
-    if count is not None and count.verdict is not None:
-        reading = count.verdict.value
-        if count.above > count.below and count.fraction_inside < 0.9:
-            reading += f", NIS {count.above / count.total:.0%} high"
-        elif count.below > count.above and count.fraction_inside < 0.9:
-            reading += f", NIS {count.below / count.total:.0%} low"
+    inside = sum(bool(r.inside_3sigma) for r in evaluation.landmarks) if distances else None
     return Summary(
         label=run.spec.label,
         parameters={name: getattr(run.spec.params, name) for name in VARIABLE},
         mean_error=float(np.mean(errors)) if errors else None,
         max_error=float(np.max(errors)) if errors else None,
         mean_mahalanobis=float(np.mean(distances)) if distances else None,
-        inside=sum(bool(r.inside_3sigma) for r in evaluation.landmarks) if distances else None,
+        inside=inside,
         landmarks=len(evaluation.landmarks),
         final_pose=[float(v) for v in evaluation.pose],
         from_baseline=float(np.hypot(*(evaluation.pose[:2] - baseline.evaluation.pose[:2]))),
         mean_nis=float(np.mean(nis)) if nis else None,
         nis_inside=count.fraction_inside if count is not None and count.total else None,
-        reading=reading,
+        reading=reading(consistency, inside, len(distances)),
         filter=run.spec.filter.text,
         seconds=run.seconds,
         ms_per_step=1000.0 * run.seconds / run.steps if run.steps else None,

@@ -48,6 +48,7 @@ import pyarrow as pa  # type: ignore[import-untyped]
 import rerun as rr
 import rerun.blueprint as rrb
 
+from ekfviz import __version__
 from ekfviz.core.consistency import chi2_bounds, pose_nees
 from ekfviz.core.correlation import Correlation, CorrelationCadence, correlation_of
 from ekfviz.core.evaluation import Evaluation, landmark_errors
@@ -66,6 +67,7 @@ from ekfviz.viz import style
 from ekfviz.viz.blueprint import default_blueprint
 from ekfviz.viz.correlation import log_correlation, log_correlation_styling
 from ekfviz.viz.ellipses import ellipse_axes, ellipse_outlines, outline_points, unit_circle
+from ekfviz.viz.flush import flush_interruptibly
 from ekfviz.viz.thinning import PREDICT_INTERVAL_S, PredictThinning
 
 # Events between two sends of the buffered data, one chunk per entity: each chunk costs
@@ -365,7 +367,7 @@ class _Entities:
         self.rec.send_blueprint(blueprint)
 
     def flush(self, *, timeout_sec: float) -> None:
-        self.rec.flush(timeout_sec=timeout_sec)
+        flush_interruptibly(self.rec, timeout_sec)
 
 
 class _SeriesBuffer:
@@ -488,6 +490,10 @@ class Recorder:
         self._order: list[int] = [int(i) for i in landmark_ids] if landmark_ids else []
         self._in_order: set[int] = set(self._order)
         self._seen: set[int] = set()  # ids observed so far through the array API
+        self._seen_ids: set[int] = set()  # every landmark id in the map so far (for the layout)
+        # labels below the outlines, not in the small maps of a sweep (prefix) nor in a
+        # large map, where they would cover it (the viewer shows a label on hover)
+        self._labels_off = bool(prefix.strip("/"))
         # landmark classes (see _annotate): ids 0.._class_top and _class_extra are logged
         self._class_top = -1
         self._class_extra: set[int] = set()
@@ -512,11 +518,17 @@ class Recorder:
         self._last_xy: FloatArray | None = None
         self._last_true_xy: FloatArray | None = None  # (1, 2) the true path's last point
         self._checked_step: int | None = None  # of the last covariance check (array API)
+        self._round_off_said = False  # a round-off asymmetry of P is a warning once a run
         self._blueprint = blueprint
         self._run_documents = run_documents
         self._bounds_xy: FloatArray | None = None  # [[x_min, y_min], [x_max, y_max]] so far
         if blueprint and live_layout:
             self._rec.send_blueprint(self._layout())
+        if not prefix.strip("/") and not run_documents:  # a filter of the user's own
+            properties = rr.AnyValues()
+            properties.with_component_from_data("version", __version__)
+            properties.with_component_from_data("kind", "recorder")
+            rec.send_property("ekfviz", properties)
         self._log_styling()
         log_correlation_styling(self._rec)
         seed_ids = list(self._order)
@@ -676,6 +688,7 @@ class Recorder:
             margin = 0.05 * max(float(np.max(bounds_xy[1] - bounds_xy[0])), 1.0)
             bounds_xy = bounds_xy + np.array([[-margin], [margin]])
         return default_blueprint(
+            landmark_ids=sorted(self._seen_ids) if self._truth is not None else (),
             has_truth=self._truth is not None,
             has_true_poses=self._truth is not None and self._truth.has_poses,
             has_run_info=self._run_documents,
@@ -714,6 +727,7 @@ class Recorder:
             ):
                 self._annotate(ids)
                 self._last_ids = ids
+                self._seen_ids.update(ids.tolist())
             whole_map = (
                 not self._sparse_map(record)
                 or self._map_step is None
@@ -1114,6 +1128,28 @@ class Recorder:
                 self._identify(rr.Points2D, ids, counts),
             ],
         )
+        # the labels just below each 3-sigma outline (y - 3 sigma_y, y up), clear of it; in a
+        # large map they would cover it: there the viewer shows a landmark's label on hover
+        if self._labels_off or max(record.n_landmarks for record in updates) > SMALL_MAP:
+            if not self._labels_off:  # empty rows from here on: the labels are gone
+                self._labels_off = True
+                empty = np.zeros(len(updates), dtype=np.int64)
+                self._send(
+                    style.LANDMARK_LABELS,
+                    times,
+                    [_column(rr.Points2D.descriptor_positions(), _xy(np.zeros((0, 2))), empty)],
+                )
+            return
+        sigma_y = np.sqrt(np.concatenate([record.landmark_covs[:, 1, 1] for record in updates]))
+        below = positions - np.column_stack([np.zeros(len(positions)), 3.0 * sigma_y])
+        self._send(
+            style.LANDMARK_LABELS,
+            times,
+            [
+                _column(rr.Points2D.descriptor_positions(), _xy(below), counts),
+                self._identify(rr.Points2D, ids, counts),
+            ],
+        )
 
     def _send_strips(
         self,
@@ -1203,6 +1239,14 @@ class Recorder:
         )
         add = self._series.add
         step, event, time = record.step, record.event, record.time
+        known = np.isfinite(euclidean)
+        if which is None and known.any():  # the whole map: its mean and worst landmark
+            for root, values in (
+                (style.LANDMARK_ERROR_SUMMARY, euclidean[known]),
+                (style.MAHALANOBIS_SUMMARY, mahalanobis[known]),
+            ):
+                add(f"{root}/{style.MEAN}", step, event, float(values.mean()), time)
+                add(f"{root}/{style.WORST}", step, event, float(values.max()), time)
         for landmark_id, error, distance in zip(
             ids.tolist(), euclidean.tolist(), mahalanobis.tolist(), strict=True
         ):
@@ -1262,6 +1306,21 @@ class Recorder:
             (style.HEALTH_SKIPPED, "skipped observations"),
         ):
             rec.log(path, rr.SeriesLines(names=name), static=True)
+        for axis, color in style.POSE_SIGMA_COLORS.items():
+            unit = "rad" if axis == "theta" else "m"
+            rec.log(
+                f"{style.POSE_SIGMA}/{axis}",
+                rr.SeriesLines(colors=color, names=f"{axis} ({unit})"),
+                static=True,
+            )
+        if self._truth is not None:
+            for root in (style.LANDMARK_ERROR_SUMMARY, style.MAHALANOBIS_SUMMARY):
+                for which, color in style.SUMMARY_COLORS.items():
+                    rec.log(
+                        f"{root}/{which}",
+                        rr.SeriesLines(colors=color, names=f"{which} landmark", widths=2.0),
+                        static=True,
+                    )
         # A 2-D view draws y down; mirroring "world" in the root frame shows the map y up
         # as in the classic plots, while every entity keeps its true world coordinates.
         rec.log(style.WORLD, rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)
@@ -1336,7 +1395,20 @@ class Recorder:
         rec.log(
             style.LANDMARKS,
             rr.Points2D.from_fields(
-                colors=style.LANDMARK_COLOR, radii=_radius(style.POINT_RADIUS_UI), draw_order=30.0
+                colors=style.LANDMARK_COLOR,
+                radii=_radius(style.POINT_RADIUS_UI),
+                show_labels=False,
+                draw_order=30.0,
+            ),
+            static=True,
+        )
+        rec.log(
+            style.LANDMARK_LABELS,
+            rr.Points2D.from_fields(
+                colors=style.LANDMARK_COLOR,
+                radii=_radius(style.LABEL_ANCHOR_RADIUS_UI),
+                show_labels=True,
+                draw_order=31.0,
             ),
             static=True,
         )
@@ -1445,7 +1517,9 @@ class Recorder:
             return {}
         self._checked_step = step
         check = check_covariance(P)
-        return {"covariance": check, "warnings": tuple(check.problems())}
+        problems = check.problems(round_off=not self._round_off_said)
+        self._round_off_said |= check.round_off_asymmetry
+        return {"covariance": check, "warnings": tuple(problems)}
 
     def _observations(
         self,

@@ -19,6 +19,7 @@ POSE_PREDICTED = "world/robot/ellipse/predicted"  # at every predict
 POSE_UPDATED = "world/robot/ellipse/updated"  # at every update and the init
 TRAJECTORY = "world/trajectory"  # LineStrips2D, the path of each step, at its update
 LANDMARKS = "world/landmarks"  # Points2D, class id = landmark id
+LANDMARK_LABELS = "world/landmarks/labels"  # Points2D: "L<id>" just below each 3-sigma outline
 LANDMARK_ELLIPSES = "world/landmarks/ellipses"  # LineStrips2D, the whole map (see recorder)
 LANDMARK_ELLIPSES_OBSERVED = "world/landmarks/ellipses/observed"  # LineStrips2D, large maps
 LANDMARK_INITIAL = "world/landmarks/initial"  # LineStrips2D, at first sighting only
@@ -39,6 +40,10 @@ POSE_SIGMA = "metrics/pose_sigma"  # Scalars x, y, theta (three series), every u
 LANDMARK_ERROR = "metrics/landmark_error"  # /<id>, with truth
 MEAN_LANDMARK_ERROR = "metrics/mean_landmark_error"  # with truth, in sweeps
 MAHALANOBIS = "metrics/mahalanobis"  # /<id>, with truth
+# mean and worst over the map, with truth, wherever the whole map's errors are logged
+LANDMARK_ERROR_SUMMARY = "metrics/landmark_error_summary"  # /mean, /worst
+MAHALANOBIS_SUMMARY = "metrics/mahalanobis_summary"  # /mean, /worst
+MEAN, WORST = "mean", "worst"
 HEALTH = "metrics/health"  # numerical health, see ekfviz.core.health
 HEALTH_POSE_MIN_EIG = "metrics/health/pose_min_eigenvalue"  # every event
 HEALTH_LANDMARK_MIN_EIG = "metrics/health/landmark_min_eigenvalue"  # every update
@@ -90,6 +95,13 @@ STATISTIC_COLOR: Rgb = (31, 119, 180)  # NIS and NEES
 BOUND_COLOR: Rgb = (150, 150, 150)  # their chi-square bounds
 TRUTH_COLOR: Rgb = (0, 0, 0)  # "k"
 TRUTH_PATH_COLOR: Rgb = (150, 150, 150)  # the true path and robot, thin and grey
+# one colour per pose-sigma series (matplotlib's tab10 blue, orange, green)
+POSE_SIGMA_COLORS: dict[str, Rgb] = {
+    "x": (31, 119, 180),
+    "y": (255, 127, 14),
+    "theta": (44, 160, 44),
+}
+SUMMARY_COLORS: dict[str, Rgb] = {"mean": (31, 119, 180), "worst": (214, 39, 40)}
 CORRELATION_BLOCK_COLOR: Rgb = (60, 60, 60)
 
 # Negative radii are UI points, so the map looks the same at any scale.
@@ -98,3 +110,4 @@ TRUTH_RADIUS_UI = 3.0
 ROBOT_RADIUS_UI = 6.0
 LINE_RADIUS_UI = 1.0
 THIN_LINE_RADIUS_UI = 0.5
+LABEL_ANCHOR_RADIUS_UI = 0.5  # the point a landmark's label hangs from
