@@ -1296,7 +1296,17 @@ class Recorder:
                     rr.SeriesLines(colors=style.BOUND_COLOR, names=label, widths=1.0),
                     static=True,
                 )
-        rec.log(style.POSE_SIGMA, rr.SeriesLines(names=["x", "y", "theta"]), static=True)
+        rec.log(  # one entity, three series: one colour each, the unit in the name
+            style.POSE_SIGMA,
+            rr.SeriesLines(
+                colors=list(style.POSE_SIGMA_COLORS.values()),
+                names=[
+                    f"{axis} ({'rad' if axis == 'theta' else 'm'})"
+                    for axis in style.POSE_SIGMA_COLORS
+                ],
+            ),
+            static=True,
+        )
         for path, name in (
             (style.HEALTH_POSE_MIN_EIG, "pose block"),
             (style.HEALTH_LANDMARK_MIN_EIG, "landmark blocks"),
@@ -1306,13 +1316,6 @@ class Recorder:
             (style.HEALTH_SKIPPED, "skipped observations"),
         ):
             rec.log(path, rr.SeriesLines(names=name), static=True)
-        for axis, color in style.POSE_SIGMA_COLORS.items():
-            unit = "rad" if axis == "theta" else "m"
-            rec.log(
-                f"{style.POSE_SIGMA}/{axis}",
-                rr.SeriesLines(colors=color, names=f"{axis} ({unit})"),
-                static=True,
-            )
         if self._truth is not None:
             for root in (style.LANDMARK_ERROR_SUMMARY, style.MAHALANOBIS_SUMMARY):
                 for which, color in style.SUMMARY_COLORS.items():
