@@ -17,6 +17,11 @@
    the logging (in the main thread, and the CPU of Rerun's own threads with it).
 5. The interpreter plus ``import rerun, numpy, typer``, which every replay pays, and the
    import of the compiled kernel.
+6. Real data (``mrclam_bench.py``): MRCLAM dataset 6, robots 1-3, calibrated and replayed
+   as the issue's check does; skipped with a note when the dataset is not found.
+   ``--mrclam-only`` runs just this and replaces its section of RESULTS.md.
+7. Smoothers (``smoother_bench.py``): GTSAM's iSAM2 and the batch optimum against the EKF,
+   end to end on the bundled samples; ``--smoother-only`` runs just this.
 
 It prints the tables and writes them, with the machine, the date and the command, to
 ``benchmarks/RESULTS.md``. Timings are medians (bounds: best) of repeated runs; where
@@ -55,6 +60,8 @@ from ekfviz.io.classic import format_classic, read_classic
 from ekfviz.sim.simulate import CLASSIC_LANDMARKS_XY, Noise, classic_controls, simulate
 
 sys.path.insert(0, str(Path(__file__).parent))
+from mrclam_bench import mrclam_section, splice
+from smoother_bench import smoother_section
 from textbook_ekf import TextbookEkfSlam
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -355,6 +362,52 @@ def end_to_end(folder: Path, quick: bool) -> list[EndToEnd]:
     return rows
 
 
+# Recording sizes before the size work (issue 17), same commands, commit 9b3d7d7:
+# bytes of the bundled samples replayed with their truth, MB of the 100,000-step log.
+SIZE_BEFORE = {"classic": 475_318, "loop": 7_791_198}
+LONG_RRD_MB_BEFORE = 287.0
+
+
+@dataclass(frozen=True, slots=True)
+class Size:
+    """A recording's size now and before, and where its bytes go."""
+
+    name: str
+    bytes_now: int
+    bytes_before: int
+
+
+def sample_sizes(folder: Path) -> list[Size]:
+    """`ekfviz replay data/<sample>.txt --truth data/<sample>_truth.json --save`."""
+    sizes = []
+    for stem, before in SIZE_BEFORE.items():
+        truth = ROOT / "data" / f"{stem}_truth.json"
+        recording = folder / f"sample_{stem}.rrd"
+        subprocess.run(
+            [str(BIN / "ekfviz"), "replay", str(ROOT / "data" / f"{stem}.txt"), "--truth",
+             str(truth), "--save", str(recording)],
+            check=True, stdout=subprocess.DEVNULL,
+            env=dict(os.environ, CI="1", XDG_CONFIG_HOME=str(folder), XDG_DATA_HOME=str(folder)),
+        )  # fmt: skip
+        sizes.append(Size(f"data/{stem}.txt with truth", recording.stat().st_size, before))
+    return sizes
+
+
+def bytes_by_entity(recording: Path, top: int = 12) -> list[tuple[str, float]]:
+    """Uncompressed MB of each entity's chunks (data, row ids and time columns), largest
+    first: where a recording's bytes go (`rerun rrd stats` gives the totals only)."""
+    from collections import Counter
+
+    from rerun.chunk import RrdReader
+
+    reader = RrdReader(recording)
+    sizes: Counter[str] = Counter()
+    for chunk in reader.stream(store=reader.recordings()[0]):
+        batch = chunk.to_record_batch()
+        sizes[chunk.entity_path] += sum(column.nbytes for column in batch.columns)
+    return [(entity, size / 1e6) for entity, size in sizes.most_common(top)]
+
+
 @dataclass(frozen=True, slots=True)
 class Memory:
     """Peak resident memory of a replay of the first ``steps`` steps of the long log."""
@@ -560,6 +613,8 @@ def report(
     e2e: list[EndToEnd],
     memory: list[Memory],
     phases: list[Phases],
+    sizes: list[Size],
+    long_entities: list[tuple[str, float]],
     interpreter_s: float,
     imports_s: float,
     kernel_us: float | None,
@@ -702,18 +757,55 @@ def report(
             ("loop 10,000 x 300: .rrd <= 250 MB", f"{loop.rrd_mb:.0f} MB", loop.rrd_mb <= 250),
             ("100,000-step classic-size log end to end: <= 20 s", f"{long.wall_s:.1f} s",
              long.wall_s <= 20),
+            ("100,000-step classic-size log: .rrd <= 50 MB", f"{long.rrd_mb:.1f} MB",
+             long.rrd_mb <= 50),
         ]  # fmt: skip
+    targets += [
+        (f"{size.name}: .rrd >= 3x smaller than before",
+         f"{size.bytes_before / size.bytes_now:.2f}x", size.bytes_before >= 3 * size.bytes_now)
+        for size in sizes
+    ]  # fmt: skip
     for name, measured, ok in targets:
         lines.append(f"| {name} | {measured} | {verdict(ok)} |")
     lines += [
         "",
-        "What a default recording holds (see `ekfviz/viz/recorder.py`): the robot, its"
-        " ellipses, the observation rays, every landmark position and a log line at every"
-        " event; every landmark's ellipse at every update up to 32 landmarks, beyond that"
-        " the observed landmarks' ellipses at every update and the whole map every 25 steps"
-        " and at the end. `detail=True` (`--detail`) logs every ellipse at every update.",
+        "What a default recording holds (see `ekfviz/viz/recorder.py`): at every event the"
+        " robot frame and its predicted or updated ellipse (a transform of one static unit"
+        " circle), at every update the observations (arrows in the robot frame), the text"
+        " line, the trajectory and the pose sigmas of the step; the landmarks and their"
+        " ellipses of a small map (up to 32) wherever some landmark moved by over 2 % of its"
+        " ellipse's size, of a larger one at every update the observed landmarks' ellipses"
+        " and every 25 steps the whole map's; the end exactly. `--detail` logs every"
+        " landmark and ellipse at every update.",
         "",
     ]
+    if sizes or long_entities:
+        lines += [
+            "## Recording size",
+            "",
+            "`ekfviz replay LOG --truth TRUTH --save RUN.rrd` of the bundled samples, against"
+            " the same command before the size work (commit 9b3d7d7; the 100,000-step log"
+            f" gave {LONG_RRD_MB_BEFORE:.0f} MB then).",
+            "",
+            "| recording | before bytes | now bytes | smaller by |",
+            "|---|---:|---:|---:|",
+        ]
+        lines += [
+            f"| {size.name} | {size.bytes_before:,} | {size.bytes_now:,}"
+            f" | {size.bytes_before / size.bytes_now:.2f}x |"
+            for size in sizes
+        ]
+        if long_entities:
+            lines += [
+                "",
+                "Where the bytes of the 100,000-step recording go, uncompressed MB per entity"
+                " (data, row ids and both timelines; the file is LZ4-compressed):",
+                "",
+                "| entity | MB |",
+                "|---|---:|",
+            ]
+            lines += [f"| `{entity}` | {mb:.1f} |" for entity, mb in long_entities]
+        lines.append("")
     if memory:
         lines += [
             "## Memory against the length of the log",
@@ -739,8 +831,22 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
     parser.add_argument("--quick", action="store_true", help="small cases, for a smoke test")
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "RESULTS.md")
+    parser.add_argument(
+        "--mrclam-only", action="store_true", help="only the MRCLAM section of RESULTS.md"
+    )
+    parser.add_argument(
+        "--smoother-only", action="store_true", help="only the smoother section of RESULTS.md"
+    )
     args = parser.parse_args(argv)
     started = time.perf_counter()
+    if args.mrclam_only or args.smoother_only:
+        with tempfile.TemporaryDirectory() as tmp:
+            make = mrclam_section if args.mrclam_only else smoother_section
+            section = make(Path(tmp))
+        old = args.out.read_text() if args.out.exists() else ""
+        args.out.write_text(splice(old, section))
+        print(section)
+        return
     # end to end first: a child's peak resident memory counts the pages it shares with
     # this process when forked, so this process must still be small
     print("end to end", flush=True)
@@ -748,18 +854,26 @@ def main(argv: Sequence[str] | None = None) -> None:
         e2e = end_to_end(Path(tmp), args.quick)
         print("memory against log length", flush=True)
         memory = memory_rows(Path(tmp), Path(tmp) / "classic_long.txt")
+        print("recording sizes", flush=True)
+        sizes = sample_sizes(Path(tmp))
+        long_entities = bytes_by_entity(Path(tmp) / "classic_long.rrd")
         print("where the time goes", flush=True)
         phases = phase_rows(
             Path(tmp),
             [(e2e[1].name, Path(tmp) / "loop.txt"), (e2e[2].name, Path(tmp) / "classic_long.txt")],
         )
+        print("MRCLAM dataset 6", flush=True)
+        mrclam = mrclam_section(Path(tmp))
+        smoothers = smoother_section(Path(tmp), args.quick)
     print("core against dense (one BLAS thread)", flush=True)
     rows = core_rows(args.quick)
     flops = dgemm_flops()
     interpreter_s, imports_s = startup()
     text = report(
-        rows, e2e, memory, phases, interpreter_s, imports_s, kernel_import_us(), flops, args.quick
-    )
+        rows, e2e, memory, phases, sizes, long_entities, interpreter_s, imports_s,
+        kernel_import_us(), flops, args.quick,
+    )  # fmt: skip
+    text = splice(splice(text, mrclam), smoothers)
     args.out.write_text(text)
     print()
     print(text)

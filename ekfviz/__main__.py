@@ -6,9 +6,18 @@ from ekfviz import signals
 def main() -> None:
     """Defer SIGINT and SIGTERM before the slow imports (see ``ekfviz.signals``), then run."""
     signals.defer()
-    from ekfviz.cli import app
+    import sys
 
-    app(prog_name="ekfviz")
+    import typer
+
+    from ekfviz.cli import app
+    from ekfviz.cli.common import prepare_argv
+
+    try:
+        argv = prepare_argv(sys.argv[1:])
+    except typer.Exit as stop:  # outside the app: exit with the code it carries
+        raise SystemExit(stop.exit_code) from None
+    app(args=argv, prog_name="ekfviz")
 
 
 if __name__ == "__main__":

@@ -11,24 +11,33 @@ from __future__ import annotations
 import json
 import shlex
 import sys
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
+from ekfviz import signals
 from ekfviz.core.consistency import Consistency
-from ekfviz.core.evaluation import evaluate
+from ekfviz.core.evaluation import Evaluation, evaluate
 from ekfviz.core.filter import FilterParams
-from ekfviz.core.records import AnyEvent, with_ids
+from ekfviz.core.plugged import FilterFactory
+from ekfviz.core.records import AnyEvent, EventRecord, with_ids
+from ekfviz.core.replay import FilterLineError, replay
 from ekfviz.core.truth import GroundTruth
 from ekfviz.filters import FilterSpec
-from ekfviz.io.extended import is_extended, read_log
+from ekfviz.io.detect import read_log
+from ekfviz.io.errors import InputError
+from ekfviz.io.extended import is_extended
 from ekfviz.io.text import ProgressCallback, WarningCallback
 from ekfviz.io.truth import checked_against, read_truth
+from ekfviz.studies.executors import Executor
 from ekfviz.studies.runs import Run, RunSpec, Summary, run_specs, summarise
 
 if TYPE_CHECKING:
+    from ekfviz.association.associator import Associator
     from ekfviz.core.check import CheckResult
+    from ekfviz.core.filter import EkfSlam
+    from ekfviz.viz.run import RunLogger
 
 
 def log_events(
@@ -43,6 +52,104 @@ def log_events(
     if truth is not None and truth_path is not None:
         events = checked_against(events, truth, truth_path, every_id=not is_extended(data))
     return events
+
+
+class ScanHooks(Protocol):
+    """What a replay of id-less scans adds (see :mod:`ekfviz.cli.scans`): the built-in
+    filter with its models, the associator, a look at every record and the truth under
+    the association's pairing."""
+
+    @property
+    def slam(self) -> EkfSlam | None: ...
+
+    @property
+    def associator(self) -> Associator | None: ...
+
+    def add(self, record: EventRecord) -> None: ...
+
+    def truth_of(self, last: EventRecord) -> GroundTruth | None: ...
+
+
+class RunStopped(Exception):
+    """A replay cut short; ``kept`` says whether its recording was kept."""
+
+    def __init__(self, reason: str, cause: BaseException, kept: bool) -> None:
+        super().__init__(reason)
+        self.reason = reason
+        self.kept = kept
+        if isinstance(cause, KeyboardInterrupt):
+            self.exit_code = 130  # 128 + SIGINT, as a shell reports it
+        elif isinstance(cause, signals.Terminated):
+            self.exit_code = 143  # 128 + SIGTERM
+        else:
+            self.exit_code = 2
+
+
+def stop_reason(cause: BaseException, data: Path, last: EventRecord | None) -> str:
+    """One line saying why and where a replay stopped."""
+    after = f"after input line {last.line}" if last is not None and last.line else "at the start"
+    if isinstance(cause, KeyboardInterrupt):
+        return f"{data}: interrupted (SIGINT) {after}"
+    if isinstance(cause, signals.Terminated):
+        return f"{data}: terminated (SIGTERM) {after}"
+    if isinstance(cause, FilterLineError):
+        return f"{data}:{cause.line}: {cause}" if cause.line else f"{data}: {cause}"
+    return str(cause)
+
+
+def replay_log(
+    events: Iterable[AnyEvent],
+    params: FilterParams,
+    *,
+    make_filter: FilterFactory | None,
+    name: str,
+    data: Path,
+    truth: GroundTruth | None,
+    logger: RunLogger,
+    on_record: Callable[[EventRecord], None] | None = None,
+    scans: ScanHooks | None = None,
+) -> Evaluation:
+    """One replay: the events through the filter into the logger, judged at the end.
+
+    Every record goes to the logger (Rerun), the consistency count and ``on_record``.
+    Bad input, a filter that cannot go on, Ctrl-C or SIGTERM stop the replay with the
+    recording of everything before it kept and its last log line saying why.
+
+    :param scans: the built-in filter with its models and the associator, for logs with
+        id-less scans (Victoria Park); the evaluation then sees the truth under the
+        association's pairing
+    :raises RunStopped: the replay was cut short (why, where, and whether it was kept)
+    """
+    last: EventRecord | None = None
+    consistency = Consistency(truth)
+    slam = None if scans is None else scans.slam
+    associator = None if scans is None else scans.associator
+    try:
+        for record in replay(
+            events, params, make_filter=make_filter, name=name, slam=slam, associator=associator
+        ):
+            logger.log(record)
+            consistency.add(record)
+            if on_record is not None:
+                on_record(record)
+            last = record
+            if record.event == 0:  # a signal during start-up: stop, with a recording
+                signals.raise_pending()
+            if scans is not None:
+                scans.add(record)
+    except (InputError, FilterLineError, KeyboardInterrupt, signals.Terminated) as cause:
+        if scans is not None and last is not None:
+            truth = scans.truth_of(last)
+        final = None if last is None else evaluate(last, truth, consistency)
+        reason = stop_reason(cause, data, last)
+        kept = logger.stop(reason, final)
+        raise RunStopped(reason, cause, kept) from cause
+    assert last is not None  # replay always yields the initialisation
+    if scans is not None:
+        truth = scans.truth_of(last)
+    evaluation = evaluate(last, truth, consistency)
+    logger.finish(evaluation)
+    return evaluation
 
 
 @dataclass(frozen=True, slots=True)
@@ -66,6 +173,7 @@ def study(
     parameters: dict[str, object],
     markdown: Callable[[list[Summary]], str],
     done: Callable[[], None] | None = None,
+    executor: Executor | None = None,
 ) -> StudyResult:
     """Replay ``data`` with every spec, summarise against the first, save one recording.
 
@@ -84,7 +192,14 @@ def study(
         pass
     for spec in specs:
         spec.filter.load()
-    runs = run_specs(data, specs, truth, workers, done=None if done is None else lambda _: done())
+    runs = run_specs(
+        data,
+        specs,
+        truth,
+        workers,
+        done=None if done is None else lambda _: done(),
+        executor=executor,
+    )
     summaries = [summarise(run, runs[0]) for run in runs]
     info = viz.run_info(
         name=f"{data.stem}-{'sweep' if root == 'variants' else 'compare'}",
@@ -93,6 +208,7 @@ def study(
         input_path=data,
         truth=truth,
         truth_path=truth_path,
+        kind="sweep" if root == "variants" else "compare",
     )
     with viz.open_recording(info, viz.Sinks(save=target)) as recording:
         record_study(recording, runs, truth, markdown(summaries), root=root)
@@ -166,9 +282,10 @@ def _record_check(
         first = result.first_divergence
         if first is not None:
             where = next((r.pose[:2] for r in result.records if r.event == first.event), None)
+            worst = first.worst
             mark_event(
                 recording, step=first.step, event=first.event, where_xy=where,
                 text=f"first divergence: event {first.event} ({first.kind.value}), line"
-                f" {first.line}: {first.quantity.value} {first.entry} expected"
-                f" {first.expected:.6g}, got {first.got:.6g}; likely cause: {first.hint}",
+                f" {first.line}: {worst.quantity.value} {worst.entry} expected"
+                f" {worst.expected:.6g}, got {worst.got:.6g}; likely cause: {first.hint}",
             )  # fmt: skip

@@ -80,6 +80,8 @@ def test_replay_saves_reports_and_prints_the_table(tmp_path: Path) -> None:
         "init_pose_sigma": [0.02, 0.02, 0.1],
         "landmark_init": "correlated",
         "update": "sequential",
+        "motion_noise": "per-step",
+        "gate": None,
     }
     assert "Mahalanobis" in result.output and "Final pose" in result.output
     assert "6 of 6 landmarks inside their 3-sigma ellipse" in result.output

@@ -16,7 +16,7 @@ from typer.testing import CliRunner
 
 from ekfviz.cli import app
 from ekfviz.core.check import Quantity, lockstep, numbered
-from ekfviz.core.filter import EkfSlam, FilterParams, LandmarkInit, UpdateMode
+from ekfviz.core.filter import FilterParams, LandmarkInit, UpdateMode
 from ekfviz.core.records import Control, EventKind, LogEvent, with_ids
 from ekfviz.core.replay import replay
 from ekfviz.filters import FilterSpecError, load_filter
@@ -71,21 +71,23 @@ def test_a_dense_textbook_plugin_ends_on_the_builtin_pose(
         assert builtin[-1].n_landmarks > 10
 
 
-def test_derived_observations_match_the_builtin_joint_update() -> None:
-    # a protocol filter's NIS is derived from its state before the update, as a joint
-    # update linearises: the built-in joint update reports the same numbers
-    class Builtin(EkfSlam):  # not EkfSlam itself: it runs as any protocol filter does
-        pass
-
-    params = FilterParams(update=UpdateMode.JOINT)
+@pytest.mark.parametrize("mode", [UpdateMode.SEQUENTIAL, UpdateMode.JOINT])
+def test_a_correct_plugin_gets_the_builtin_observations(mode: UpdateMode) -> None:
+    # what a protocol filter saw is ekfviz's own update from its prior state: a correct
+    # filter gets the very predictions, S and NIS the built-in reports
+    params = FilterParams(update=mode)
     builtin = list(replay(read_log(CLASSIC), params))
-    plugged = list(replay(read_log(CLASSIC), params, make_filter=Builtin))
+    plugin_cls = load_filter(plugin("Textbook" if mode is UpdateMode.SEQUENTIAL else "Joint"))
+    plugged = list(replay(read_log(CLASSIC), params, make_filter=plugin_cls))
+    updates = 0
     for a, b in zip(builtin, plugged, strict=True):
         if a.kind is EventKind.UPDATE:
             assert a.observations is not None and b.observations is not None
             np.testing.assert_allclose(b.observations.z_pred, a.observations.z_pred, atol=1e-9)
             np.testing.assert_allclose(b.observations.S, a.observations.S, rtol=1e-6)
             np.testing.assert_allclose(b.observations.nis, a.observations.nis, rtol=1e-5)
+            updates += 1
+    assert updates == 29
 
 
 def test_replay_with_a_plugin_makes_the_same_recording_entities(tmp_path: Path) -> None:
@@ -98,6 +100,19 @@ def test_replay_with_a_plugin_makes_the_same_recording_entities(tmp_path: Path) 
     assert len(entity_rows(save, "/world/robot")) == 59
     assert len(entity_rows(save, "/metrics/nis")) == 29
     assert "6 of 6 landmarks inside" in result.output
+
+
+def test_an_offline_filter_is_recorded_after_finish() -> None:
+    online = list(
+        replay(read_log(CLASSIC), FilterParams(), make_filter=load_filter(plugin("Textbook")))
+    )
+    offline = list(
+        replay(read_log(CLASSIC), FilterParams(), make_filter=load_filter(plugin("Offline")))
+    )
+    assert [r.kind for r in offline] == [EventKind.INIT, EventKind.UPDATE]
+    assert offline[-1].step == online[-1].step and offline[-1].event == online[-1].event + 1
+    assert offline[-1].observations is None
+    np.testing.assert_allclose(offline[-1].pose, online[-1].pose, atol=1e-12)
 
 
 # -- check ---------------------------------------------------------------------------------
@@ -122,7 +137,9 @@ def independent_first_divergence(
                 slam.predict(log_event.d, log_event.alpha)
             else:
                 slam.update(log_event.ids, log_event.z)
-        dx = np.abs(reference.x - buggy_filter.x) / np.maximum(1, np.abs(reference.x))
+        dx = reference.x - buggy_filter.x
+        dx[2] = (dx[2] + np.pi) % (2 * np.pi) - np.pi  # a heading lives on the circle
+        dx = np.abs(dx) / np.maximum(1, np.abs(reference.x))
         dP = np.abs(reference.P - buggy_filter.P) / np.maximum(1, np.abs(reference.P))
         if max(dx.max(), dP.max()) > tolerance:
             return event, kind
@@ -136,6 +153,8 @@ SEEDED = [
     ("NoRInS", "classic", 2, EventKind.UPDATE, Quantity.LANDMARK_MEAN, "R is missing"),
     ("NoCrossCovariances", "classic", 0, EventKind.INIT, Quantity.LANDMARK_LANDMARK, "cross-cov"),
     ("UnwrappedBearing", "behind", 2, EventKind.UPDATE, Quantity.LANDMARK_MEAN, "not wrapped"),
+    ("Joint", "classic", 2, EventKind.UPDATE, Quantity.LANDMARK_MEAN, "all at once"),
+    ("NothingWrapped", "classic", 18, EventKind.UPDATE, Quantity.LANDMARK_MEAN, "neither"),
 ]
 
 

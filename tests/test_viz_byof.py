@@ -89,7 +89,7 @@ def test_your_filters_covariance_is_checked_and_its_faults_logged(tmp_path: Path
         if row["TextLog:level"] == ["WARN"]
     ]
     assert [event for event, _ in warned] == [2, 3]
-    assert "not symmetric (|P - P^T| up to 0.002)" in warned[0][1]
+    assert "not symmetric (|P - P^T| up to 0.002," in warned[0][1]
     assert "not positive semi-definite" in warned[1][1]
     asymmetry = entity_rows(out, f"/{style.HEALTH_P_ASYMMETRY}")
     assert [row["Scalars:scalars"] for row in asymmetry] == [[0.0], [0.0], [0.002], [0.0]]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import subprocess
@@ -76,18 +77,60 @@ def mahalanobis(outline: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> np.nd
     return d
 
 
+def robot_frames(rrd: Path) -> dict[int, np.ndarray]:
+    """The robot frame of every event: {event: (x, y, theta)}."""
+    frames = {}
+    for row in entity_rows(rrd, f"/{style.ROBOT}"):
+        (x, y, z) = row["Transform3D:translation"][0]  # type: ignore[index]
+        (qx, qy, qz, qw) = row["Transform3D:quaternion"][0]  # type: ignore[index]
+        assert z == qx == qy == 0.0
+        frames[int(str(row["event"]))] = np.array([x, y, 2 * np.arctan2(qz, qw)])
+    return frames
+
+
+def in_world(frame: np.ndarray, points_xy: np.ndarray) -> np.ndarray:
+    """Points of the robot frame ``frame`` (x, y, theta) in world coordinates."""
+    c, s = np.cos(frame[2]), np.sin(frame[2])
+    out: np.ndarray = points_xy @ np.array([[c, s], [-s, c]]) + frame[:2]
+    return out
+
+
+def pose_outline(rrd: Path, path: str, row: dict[str, object]) -> np.ndarray:
+    """A pose ellipse as drawn: the static unit circle through the row's matrix, in the
+    robot frame of the row's event."""
+    (circle,) = [
+        r["LineStrips2D:strips"][0]  # type: ignore[index]
+        for r in entity_rows(rrd, f"/{path}", static=True)
+        if "LineStrips2D:strips" in r
+    ]
+    flat = np.asarray(row["Transform3D:mat3x3"], dtype=np.float64)[0]
+    matrix = flat.reshape(3, 3).T  # Rerun stores it by columns
+    assert matrix[2].tolist() == [0, 0, 1] and matrix[:2, 2].tolist() == [0, 0]
+    local = np.asarray(circle, dtype=np.float64) @ matrix[:2, :2].T
+    return in_world(robot_frames(rrd)[int(str(row["event"]))], local)
+
+
 def float32_tolerance(mean: np.ndarray, cov: np.ndarray) -> float:
     """How far from 3 a float32-rounded outline point may be: rounding / smallest sigma."""
     scale = float(np.abs(mean).max() + 3 * np.sqrt(cov.max()))
     return 10 * F32 * scale / float(np.sqrt(np.linalg.eigvalsh(cov).min())) + 1e-6
 
 
-def test_robot_position_at_every_event_is_the_cores(run: Run) -> None:
+def test_robot_frame_at_every_event_is_the_cores_pose(run: Run) -> None:
     rows = entity_rows(run.rrd, f"/{style.ROBOT}")
-    assert [row["event"] for row in rows] == [r.event for r in run.records]
-    for row, record in zip(rows, run.records, strict=True):
-        assert row["step"] == record.step
-        np.testing.assert_allclose(points(row, "Points2D:positions")[0], record.pose[:2], rtol=F32)
+    assert [(row["event"], row["step"]) for row in rows] == [(r.event, r.step) for r in run.records]
+    frames = robot_frames(run.rrd)
+    for record in run.records:
+        frame = frames[record.event]
+        np.testing.assert_allclose(frame[:2], record.pose[:2], rtol=F32, atol=1e-6)
+        assert abs(np.angle(np.exp(1j * (frame[2] - record.pose[2])))) < 1e-6
+    # the robot's point and heading are static in its frame
+    static = entity_rows(run.rrd, f"/{style.ROBOT}", static=True)
+    (robot,) = [r for r in static if "Points2D:positions" in r]
+    assert robot["Points2D:positions"] == [[0.0, 0.0]]
+    static = entity_rows(run.rrd, f"/{style.HEADING}", static=True)
+    (heading,) = [r for r in static if "Arrows2D:vectors" in r]
+    assert heading["Arrows2D:vectors"] == [[1.0, 0.0]]
 
 
 def test_pose_ellipses_sit_at_mahalanobis_3(run: Run) -> None:
@@ -99,9 +142,9 @@ def test_pose_ellipses_sit_at_mahalanobis_3(run: Run) -> None:
         records = [r for r in run.records if r.kind in kinds]
         assert [row["event"] for row in rows] == [r.event for r in records]
         for row, record in zip(rows, records, strict=True):
-            (outline,) = points(row, "LineStrips2D:strips")
+            outline = pose_outline(run.rrd, path, row)
             cov = record.pose_cov[:2, :2]
-            np.testing.assert_array_equal(outline[0], outline[-1])
+            np.testing.assert_allclose(outline[0], outline[-1], atol=1e-9)
             d = mahalanobis(outline, record.pose[:2], cov)
             np.testing.assert_allclose(d, 3.0, atol=float32_tolerance(record.pose[:2], cov))
 
@@ -109,7 +152,7 @@ def test_pose_ellipses_sit_at_mahalanobis_3(run: Run) -> None:
 def test_landmark_ellipses_sit_at_mahalanobis_3(run: Run) -> None:
     rows = entity_rows(run.rrd, f"/{style.LANDMARK_ELLIPSES}")
     records = {r.event: r for r in run.records if r.kind is not EventKind.PREDICT}
-    assert len(rows) == len(records)
+    assert rows[0]["event"] == 0 and rows[-1]["event"] == max(records)
     for row in rows:
         record = records[int(str(row["event"]))]
         outlines = points(row, "LineStrips2D:strips")
@@ -122,11 +165,38 @@ def test_landmark_ellipses_sit_at_mahalanobis_3(run: Run) -> None:
             np.testing.assert_allclose(d, 3.0, atol=float32_tolerance(mean, cov))
 
 
+def test_the_map_shown_at_every_update_is_within_the_tolerance(run: Run) -> None:
+    """Between two rows the viewer shows the latest: at every update, each landmark's
+    point and outline as shown lie within MAP_TOLERANCE of its ellipse's semi-major axis
+    of the true ones (a point moved by delta changes the Mahalanobis distance by at most
+    delta / sigma_min)."""
+    from ekfviz.viz.recorder import MAP_TOLERANCE
+
+    ellipses = entity_rows(run.rrd, f"/{style.LANDMARK_ELLIPSES}")
+    landmarks = entity_rows(run.rrd, f"/{style.LANDMARKS}")
+    assert [row["event"] for row in landmarks] == [row["event"] for row in ellipses]
+    shown_at = [int(str(row["event"])) for row in ellipses]
+    for record in (r for r in run.records if r.kind is not EventKind.PREDICT):
+        k = int(np.searchsorted(shown_at, record.event, side="right")) - 1
+        outlines = points(ellipses[k], "LineStrips2D:strips")
+        shown_xy = points(landmarks[k], "Points2D:positions")
+        for outline, shown, mean, cov in zip(
+            outlines, shown_xy, record.landmarks_xy, record.landmark_covs, strict=True
+        ):
+            sigmas = np.sqrt(np.linalg.eigvalsh(cov))
+            slack = MAP_TOLERANCE * 3 * sigmas[1]
+            assert np.linalg.norm(shown - mean) <= slack + 1e-5
+            d = mahalanobis(outline, mean, cov)
+            bound = slack / sigmas[0] + float32_tolerance(mean, cov)
+            assert np.all(np.abs(d - 3.0) <= bound)
+
+
 def test_landmarks_are_one_batch_with_their_ids_as_classes(run: Run) -> None:
     rows = entity_rows(run.rrd, f"/{style.LANDMARKS}")
-    updates = [r for r in run.records if r.kind is not EventKind.PREDICT]
-    assert len(rows) == len(updates)
-    for row, record in zip(rows, updates, strict=True):
+    updates = {r.event: r for r in run.records if r.kind is not EventKind.PREDICT}
+    assert rows[-1]["event"] == max(updates)  # the end exactly
+    for row in rows:
+        record = updates[int(str(row["event"]))]
         np.testing.assert_allclose(points(row, "Points2D:positions"), record.landmarks_xy, rtol=F32)
         assert row["Points2D:class_ids"] == record.landmark_ids.tolist()
     contexts = [
@@ -145,26 +215,39 @@ def test_initial_ellipses_only_at_first_sighting(run: Run) -> None:
     assert rows[0]["LineStrips2D:class_ids"] == [1, 2, 3, 4, 5, 6]
 
 
-def test_trajectory_grows_one_segment_per_event(run: Run) -> None:
-    rows = entity_rows(run.rrd, f"/{style.TRAJECTORY}")
-    assert [row["event"] for row in rows] == [r.event for r in run.records[1:]]
-    for row, before, after in zip(rows, run.records[:-1], run.records[1:], strict=True):
-        (segment,) = points(row, "LineStrips2D:strips")
-        np.testing.assert_allclose(segment, [before.pose[:2], after.pose[:2]], rtol=F32)
+def trajectory_points(rrd: Path) -> tuple[list[int], np.ndarray]:
+    """The events of the trajectory's rows, and its strips joined into one path."""
+    rows = entity_rows(rrd, f"/{style.TRAJECTORY}")
+    strips = [points(row, "LineStrips2D:strips")[0] for row in rows]
+    for before, after in itertools.pairwise(strips):  # each goes on from the last
+        np.testing.assert_array_equal(before[-1], after[0])
+    path = np.concatenate([strips[0], *(strip[1:] for strip in strips[1:])])
+    return [int(str(row["event"])) for row in rows], path
+
+
+def test_trajectory_grows_at_every_update_through_the_predicted_position(run: Run) -> None:
+    events, path = trajectory_points(run.rrd)
+    assert events == [r.event for r in run.records if r.kind is EventKind.UPDATE]
+    np.testing.assert_allclose(path, [r.pose[:2] for r in run.records], rtol=F32, atol=1e-6)
 
 
 def test_observation_rays_at_updates_and_cleared_at_predicts(run: Run) -> None:
     rows = entity_rows(run.rrd, f"/{style.OBSERVATIONS}")
     assert [row["event"] for row in rows] == [r.event for r in run.records]
+    frames = robot_frames(run.rrd)
     for row, record in zip(rows, run.records, strict=True):
-        rays = points(row, "LineStrips2D:strips")
+        rays = points(row, "Arrows2D:vectors")
         if record.kind is EventKind.PREDICT:
             assert rays.size == 0
             continue
         assert record.observations is not None
-        assert rays.shape == (len(record.observations), 2, 2)
-        lengths = np.linalg.norm(rays[:, 1] - rays[:, 0], axis=1)
-        np.testing.assert_allclose(lengths, record.observations.z[:, 1], rtol=1e-5)
+        z = record.observations.z
+        assert rays.shape == (len(record.observations), 2)
+        np.testing.assert_allclose(np.linalg.norm(rays, axis=1), z[:, 1], rtol=1e-5)
+        # in the world: where the measurement puts each landmark from the pose
+        bearing = record.pose[2] + z[:, 0]
+        seen = record.pose[:2] + z[:, 1:2] * np.column_stack([np.cos(bearing), np.sin(bearing)])
+        np.testing.assert_allclose(in_world(frames[record.event], rays), seen, atol=1e-4)
 
 
 def test_both_timelines_on_every_temporal_chunk(run: Run) -> None:
@@ -189,8 +272,12 @@ def test_metric_series(run: Run) -> None:
     for row, record in zip(nis, updates, strict=True):
         assert record.observations is not None
         assert row["Scalars:scalars"] == [pytest.approx(float(record.observations.nis.sum()))]
-    sigma_x = entity_rows(run.rrd, f"/{style.POSE_SIGMA}/x")
-    assert len(sigma_x) == len(run.records)
+    sigma = entity_rows(run.rrd, f"/{style.POSE_SIGMA}")  # x, y, theta at every update
+    corrected = [r for r in run.records if r.kind is not EventKind.PREDICT]
+    assert [row["event"] for row in sigma] == [r.event for r in corrected]
+    for row, record in zip(sigma, corrected, strict=True):
+        expected = np.sqrt(np.diag(record.pose_cov))
+        np.testing.assert_allclose(points(row, "Scalars:scalars"), expected, rtol=1e-12)
     final = evaluate(run.records[-1], run.truth)
     for landmark in final.landmarks:
         error = entity_rows(run.rrd, f"/{style.LANDMARK_ERROR}/{landmark.id}")
@@ -199,11 +286,15 @@ def test_metric_series(run: Run) -> None:
         assert distance[-1]["Scalars:scalars"] == [pytest.approx(landmark.mahalanobis)]
 
 
-def test_text_log_line_per_event(run: Run) -> None:
+def test_text_log_line_per_step(run: Run) -> None:
     rows = entity_rows(run.rrd, f"/{style.LOG}")
-    assert len(rows) == len(run.records)
-    assert rows[2]["TextLog:text"] == [
-        f"step 1 update line 3: 6 landmarks, NIS {run.records[2].observations.nis.sum():.2f}"  # type: ignore[union-attr]
+    assert [row["event"] for row in rows] == [
+        r.event for r in run.records if r.kind is not EventKind.PREDICT
+    ]
+    d, alpha = run.records[1].control.tolist()  # type: ignore[union-attr]
+    assert rows[1]["TextLog:text"] == [
+        f"step 1 predict line 2: d {d:.3f}, alpha {alpha:.4f}; update line 3: 6 landmarks,"
+        f" NIS {run.records[2].observations.nis.sum():.2f}"  # type: ignore[union-attr]
     ]
 
 
@@ -213,9 +304,9 @@ def test_blueprint_and_properties_are_in_the_file(run: Run) -> None:
     reader = RrdReader(run.rrd)
     (recording,) = reader.recordings()
     assert recording.application_id == "ekfviz"
-    # the layout at the start, and again at the end framing the whole run
+    # saved to a file only: the layout once, at the end, framing the whole run
     blueprints = reader.blueprints()
-    assert len(blueprints) == 2
+    assert len(blueprints) == 1
     for blueprint in blueprints:
         chunks = list(reader.stream(store=blueprint))
         names = {
@@ -225,7 +316,7 @@ def test_blueprint_and_properties_are_in_the_file(run: Run) -> None:
         }
         assert {
             "Map",
-            "NIS and 95% bounds",
+            "NIS (blue) and 95% bounds",
             "Pose sigma",
             "Log",
             "Run",
@@ -237,7 +328,7 @@ def test_blueprint_and_properties_are_in_the_file(run: Run) -> None:
             for c in chunks
             if "VisibleTimeRanges:ranges" in c.to_record_batch().schema.names
         }
-        assert accumulated == {style.TRAJECTORY, style.LANDMARK_INITIAL}
+        assert accumulated == {style.TRAJECTORY, style.LANDMARK_INITIAL, style.TRUTH_TRAJECTORY}
     (name,) = entity_rows(run.rrd, "/__properties", static=True)
     assert name["RecordingInfo:name"] == ["run"]
     (properties,) = entity_rows(run.rrd, "/__properties/ekfviz", static=True)
@@ -430,7 +521,8 @@ def test_a_long_run_across_flushes_keeps_every_row_and_small_strip_chunks(
     tmp_path: Path,
 ) -> None:
     """Past a flush (FLUSH_EVERY events) and several chunks of line strips (SHAPES_EVERY):
-    a row per event or update everywhere, the trajectory unbroken between two sends."""
+    a row per event or update everywhere, the trajectory unbroken between two sends, and
+    the map logged again only where it moved visibly."""
     from rerun.chunk import RrdReader
 
     from ekfviz.viz.recorder import FLUSH_EVERY, SHAPES_EVERY
@@ -441,31 +533,26 @@ def test_a_long_run_across_flushes_keeps_every_row_and_small_strip_chunks(
     rrd, records = save_run(tmp_path, sim.events, None, name="long")
     assert len(records) > FLUSH_EVERY + SHAPES_EVERY
     updates = [r for r in records if r.kind is not EventKind.PREDICT]
-    trajectory = entity_rows(rrd, f"/{style.TRAJECTORY}")
-    assert [row["event"] for row in trajectory] == [r.event for r in records[1:]]
-    for row, before, after in zip(trajectory, records[:-1], records[1:], strict=True):
-        np.testing.assert_allclose(
-            points(row, "LineStrips2D:strips")[0], [before.pose[:2], after.pose[:2]], rtol=F32
-        )
+    assert [row["event"] for row in entity_rows(rrd, f"/{style.ROBOT}")] == [
+        r.event for r in records
+    ]
+    events, path = trajectory_points(rrd)
+    assert {r.event for r in updates[1:]} <= set(events)
+    np.testing.assert_allclose(path, [r.pose[:2] for r in records], rtol=F32, atol=1e-5)
     rays = entity_rows(rrd, f"/{style.OBSERVATIONS}")
-    assert [len(points(row, "LineStrips2D:strips")) for row in rays] == [
+    assert [len(points(row, "Arrows2D:vectors")) for row in rays] == [
         0 if r.observations is None else len(r.observations) for r in records
     ]
     ellipses = entity_rows(rrd, f"/{style.LANDMARK_ELLIPSES}")
-    assert [row["event"] for row in ellipses] == [r.event for r in updates]
+    shown = [row["event"] for row in ellipses]
+    assert shown[0] == 0 and shown[-1] == updates[-1].event
+    assert len(shown) < len(updates) / 2  # a converged map moves little
     assert all(row["LineStrips2D:class_ids"] == [1, 2, 3, 4, 5, 6] for row in ellipses)
-    assert [row["event"] for row in entity_rows(rrd, f"/{style.LOG}")] == [r.event for r in records]
-    strips = {
-        f"/{path}"
-        for path in (
-            style.TRAJECTORY,
-            style.OBSERVATIONS,
-            style.POSE_PREDICTED,
-            style.POSE_UPDATED,
-            style.LANDMARK_ELLIPSES,
-            style.LANDMARK_INITIAL,
-        )
-    }
+    # a line a step, at its update; a predict that ends a send keeps a line of its own
+    logged = [row["event"] for row in entity_rows(rrd, f"/{style.LOG}")]
+    assert {r.event for r in updates} <= set(logged)
+    assert len(logged) - len(updates) <= len(records) // FLUSH_EVERY
+    strips = {f"/{path}" for path in (style.LANDMARK_ELLIPSES, style.LANDMARK_INITIAL)}
     for chunk in RrdReader(rrd).stream().filter(is_static=False):
         if chunk.entity_path in strips:
             assert chunk.to_record_batch().num_rows <= SHAPES_EVERY, chunk.entity_path

@@ -3,15 +3,31 @@
 Importing this package registers every command on :data:`app`.
 """
 
-from ekfviz.cli import check, compare, consistency, convert, info, replay, simulate, sweep
+from ekfviz.cli import (
+    calibrate,
+    check,
+    compare,
+    consistency,
+    convert,
+    export,
+    info,
+    replay,
+    simulate,
+    sweep,
+)
 from ekfviz.cli.common import app
+from ekfviz.cli.help import polish
+
+polish(app)
 
 __all__ = [
     "app",
+    "calibrate",
     "check",
     "compare",
     "consistency",
     "convert",
+    "export",
     "info",
     "replay",
     "simulate",

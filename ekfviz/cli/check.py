@@ -22,6 +22,8 @@ from ekfviz.cli.common import (
     UpdateOption,
     _option,
     app,
+    check_outputs,
+    command_hint,
     fail,
     filter_params,
     out,
@@ -77,6 +79,7 @@ def check(
     """
     from ekfviz import pipeline, viz
 
+    check_outputs(("--report", report), ("--save", save))
     params = filter_params(
         (sigma_x, sigma_y, sigma_alpha, sigma_bearing, sigma_range),
         init_pose_sigma,
@@ -95,19 +98,21 @@ def check(
     if first is None:
         out.print(
             f"[green]match:[/] all {result.events_checked} events agree with the reference"
-            f" (largest difference {result.max_difference:.3g}, tolerance {tolerance:g})"
+            f" (largest difference {result.max_difference:.3g}, tolerance {tolerance:g})",
+            soft_wrap=True,
         )
     else:
-        landmark = "" if first.landmark_id is None else f" of landmark {first.landmark_id}"
+        worst = first.worst
+        landmark = "" if worst.landmark_id is None else f" of landmark {worst.landmark_id}"
         out.print(
             f"[bold red]divergence[/] at event {first.event} (step {first.step},"
-            f" {first.kind.value}, {data}:{first.line}): the {first.quantity.value}{landmark}"
-            f" differs\n  worst entry {first.entry}: expected {first.expected:.9g},"
-            f" got {first.got:.9g} (difference {first.difference:.3g}, tolerance"
+            f" {first.kind.value}, {data}:{first.line}): the {worst.quantity.value}{landmark}"
+            f" differs\n  worst entry {worst.entry}: expected {worst.expected:.9g},"
+            f" got {worst.got:.9g} (difference {worst.difference:.3g}, tolerance"
             f" {tolerance:g})\n  likely cause: {first.hint}",
             soft_wrap=True,
         )
     if save is not None:
-        out.print(f"Saved {save}; open it with: rerun {save}")
+        out.print(f"Saved {save}; open it with: {command_hint('rerun')} {save}")
     if first is not None:
         raise typer.Exit(1)

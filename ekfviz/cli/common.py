@@ -5,6 +5,7 @@ from __future__ import annotations
 import enum
 import json
 import os
+import shutil
 import sys
 import tempfile
 from collections.abc import Iterator
@@ -24,11 +25,17 @@ from ekfviz import __version__, signals
 from ekfviz.core.evaluation import Evaluation
 from ekfviz.core.filter import HAVE_KERNEL, FilterParams, LandmarkInit, UpdateMode
 from ekfviz.core.records import AnyEvent, EventRecord
-from ekfviz.core.replay import FilterLineError
 from ekfviz.core.truth import GroundTruth
+from ekfviz.io.paths import OutputPathError, check_output_path, distinct_paths, unused_path
 from ekfviz.io.text import ProgressCallback
 from ekfviz.sim.scenarios import Scenario, ScenarioName
 from ekfviz.sim.simulate import Noise
+from ekfviz.studies.executors import (
+    Executor,
+    ExecutorError,
+    ExecutorName,
+    make_executor,
+)
 
 
 class LogFormat(str, enum.Enum):
@@ -42,8 +49,69 @@ app = typer.Typer(
     add_completion=False,
     pretty_exceptions_enable=False,
 )
-out = Console(highlight=False, emoji=False)
+
+
+class _Unpadded:
+    """A text stream for a console: stdout (or, for ``--json``, stderr) looked up at every
+    write, so that test runners can swap it, with the trailing spaces of every line
+    dropped where there is no terminal (rich pads table cells and wrapped lines)."""
+
+    def __init__(self) -> None:
+        self.to_stderr = False
+        self._partial = ""
+
+    @property
+    def _stream(self) -> Any:
+        return sys.stderr if self.to_stderr else sys.stdout
+
+    def isatty(self) -> bool:
+        return bool(self._stream.isatty())
+
+    def fileno(self) -> int:
+        return int(self._stream.fileno())
+
+    @property
+    def encoding(self) -> str:
+        return str(getattr(self._stream, "encoding", None) or "utf-8")
+
+    def write(self, text: str) -> int:
+        if self.isatty():
+            return int(self._stream.write(text))
+        lines = (self._partial + text).split("\n")
+        self._partial = lines.pop()
+        if lines:
+            self._stream.write("".join(line.rstrip(" ") + "\n" for line in lines))
+        return len(text)
+
+    def flush(self) -> None:
+        if self._partial:
+            self._stream.write(self._partial.rstrip(" "))
+            self._partial = ""
+        self._stream.flush()
+
+
+OUT_STREAM = _Unpadded()
+out = Console(file=OUT_STREAM, highlight=False, emoji=False)  # type: ignore[arg-type]
 err = Console(stderr=True, highlight=False, emoji=False)
+NO_TERMINAL_WIDTH = 10_000  # piped output: full lines, nothing cut
+
+
+def fit_consoles() -> None:
+    """Full-width lines and nothing truncated where a console has no terminal."""
+    for console in (out, err):
+        console.width = NO_TERMINAL_WIDTH if not console.is_terminal else None  # type: ignore[assignment]
+
+
+def human_output_to_stderr() -> None:
+    """Keep stdout for a JSON document: what is printed for people goes to stderr."""
+    OUT_STREAM.to_stderr = True
+
+
+def print_json(document: object) -> None:
+    """A JSON document on stdout, for scripts."""
+    sys.stdout.write(json.dumps(document, indent=2) + "\n")
+    sys.stdout.flush()
+
 
 PROGRESS_MIN_BYTES = 1 << 20  # files under 1 MiB replay in well under a second
 RECORDINGS_DIR = Path("recordings")
@@ -56,6 +124,85 @@ def fail(message: str, code: int = 2) -> NoReturn:
         raise
     err.print(f"[bold red]error:[/] {escape(message)}", soft_wrap=True)
     raise typer.Exit(code)
+
+
+def check_outputs(*outputs: tuple[str, Path | None]) -> None:
+    """Check every output path of a command before any work starts (see
+    :func:`ekfviz.io.paths.check_output_path`); two outputs must be two files.
+
+    :param outputs: (how the path was given, e.g. ``--save``; the path or None)
+    """
+    for option, path in outputs:
+        if path is not None:
+            try:
+                check_output_path(path, option)
+            except OutputPathError as error:
+                fail(str(error))
+    clash = distinct_paths(dict(outputs))
+    if clash is not None:
+        fail(clash)
+
+
+def default_output(name: str) -> Path:
+    """A default output path under ``recordings/`` (made here if missing), never one
+    that already holds a file (see :func:`ekfviz.io.paths.unused_path`)."""
+    try:
+        RECORDINGS_DIR.mkdir(exist_ok=True)
+    except OSError as error:
+        fail(f"{RECORDINGS_DIR}: cannot make the folder for recordings ({error.strerror})")
+    return unused_path(RECORDINGS_DIR / name)
+
+
+def command_hint(program: str) -> str:
+    """How to run ``program`` (``rerun``, ``ekfviz``) from the user's shell: its bare name
+    when the shell finds this installation's, else its path beside this Python (an
+    unactivated virtual environment)."""
+    beside = Path(sys.executable).parent / program
+    found = shutil.which(program)
+    if not beside.is_file():
+        return program
+    if found is not None and Path(found).resolve() == beside.resolve():
+        return program
+    try:
+        return str(beside.relative_to(Path.cwd()))
+    except ValueError:
+        return str(beside)
+
+
+# Options taking several values: a value that is not a number is a missing value.
+NUMBER_OPTIONS = {"--init-pose-sigma": ("SX SY STHETA", 3)}
+GLOBAL_FLAGS = ("--debug",)
+
+
+def prepare_argv(argv: list[str]) -> list[str]:
+    """The command line as typer should see it: ``--debug`` moved before the command
+    (where the app takes it) from wherever it was given; a multi-value option followed by
+    too few numbers refused with one line (typer would take the next option as a value).
+
+    :raises typer.Exit: (code 2) after printing what is missing
+    """
+    end = argv.index("--") if "--" in argv else len(argv)
+    head, tail = argv[:end], argv[end:]
+    hoisted = [a for a in head if a in GLOBAL_FLAGS]
+    rest = [a for a in head if a not in GLOBAL_FLAGS]
+    for k, token in enumerate(rest):
+        name = token.split("=", 1)[0]
+        if name in NUMBER_OPTIONS:
+            metavar, count = NUMBER_OPTIONS[name]
+            values = rest[k + 1 : k + 1 + count]
+            if len(values) < count or not all(_is_number(v) for v in values):
+                found = next((v for v in values if not _is_number(v)), None)
+                what = f", found {found!r}" if found is not None else ", found fewer"
+                fail(f"{name} needs {count} numbers ({metavar}){what}")
+    return hoisted + rest + tail
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
 
 
 def _version(value: bool) -> None:
@@ -81,6 +228,8 @@ def main(
 ) -> None:
     """Replay a 2-D EKF-SLAM run and explore it in Rerun."""
     DEBUG["traceback"] = debug
+    OUT_STREAM.to_stderr = False
+    fit_consoles()
     if ctx.invoked_subcommand != "replay":  # only a replay keeps signals for later
         signals.restore()
 
@@ -149,8 +298,30 @@ FilterOption = Annotated[
     ),
 ]
 Workers = Annotated[
-    int | None, _option("Processes to use [default: one per core].", min=1, show_default=False)
+    int | None, _option("Processes to use \\[default: one per core].", min=1, show_default=False)
 ]
+STUDY = "Where the runs execute"
+ExecutorOption = Annotated[
+    ExecutorName,
+    _option("local: processes on this machine; dask: a Dask cluster (--scheduler).", STUDY),
+]
+SchedulerOption = Annotated[
+    str | None,
+    _option(
+        "The Dask scheduler's address, e.g. tcp://10.0.0.5:8786 (pip install 'ekfviz[dask]').",
+        STUDY,
+        metavar="ADDRESS",
+        show_default=False,
+    ),
+]
+
+
+def study_executor(name: ExecutorName, scheduler: str | None, workers: int | None) -> Executor:
+    """The executor of ``--executor``/``--scheduler``/``--workers``, or a one-line error."""
+    try:
+        return make_executor(name, scheduler, workers)
+    except ExecutorError as error:
+        fail(str(error))
 
 
 def _true(what: str) -> Any:
@@ -165,20 +336,20 @@ TrueSigmaRange = Annotated[float | None, _true("range noise sigma")]
 ScenarioOption = Annotated[ScenarioName, _option("The world and route.")]
 Steps = Annotated[
     int | None,
-    _option("loop: controls in one lap [default: 1000].", LOOP, min=4, show_default=False),
+    _option("loop: controls in one lap \\[default: 1000].", LOOP, min=4, show_default=False),
 ]
 Landmarks = Annotated[
     int | None,
-    _option("loop: number of landmarks [default: 200].", LOOP, min=1, show_default=False),
+    _option("loop: number of landmarks \\[default: 200].", LOOP, min=1, show_default=False),
 ]
 MaxRange = Annotated[
     float | None,
-    _option("loop: sensor range in metres [default: 15].", LOOP, min=0.0, show_default=False),
+    _option("loop: sensor range in metres \\[default: 15].", LOOP, min=0.0, show_default=False),
 ]
 Fov = Annotated[
     float | None,
     _option(
-        "loop: sensor field of view in degrees [default: 180].",
+        "loop: sensor field of view in degrees \\[default: 180].",
         LOOP,
         min=0.0,
         max=360.0,
@@ -277,33 +448,6 @@ class FilterWarnings:
                 f"{self.count - self.PRINTED} more filter warnings"
                 f" ({self.count} in all) are in the recording's log"
             )
-
-
-class RunStopped(Exception):
-    """A replay cut short; ``kept`` says whether its recording was kept."""
-
-    def __init__(self, reason: str, cause: BaseException, kept: bool) -> None:
-        super().__init__(reason)
-        self.reason = reason
-        self.kept = kept
-        if isinstance(cause, KeyboardInterrupt):
-            self.exit_code = 130  # 128 + SIGINT, as a shell reports it
-        elif isinstance(cause, signals.Terminated):
-            self.exit_code = 143  # 128 + SIGTERM
-        else:
-            self.exit_code = 2
-
-
-def stop_reason(cause: BaseException, data: Path, last: EventRecord | None) -> str:
-    """One line saying why and where a replay stopped."""
-    after = f"after input line {last.line}" if last is not None and last.line else "at the start"
-    if isinstance(cause, KeyboardInterrupt):
-        return f"{data}: interrupted (SIGINT) {after}"
-    if isinstance(cause, signals.Terminated):
-        return f"{data}: terminated (SIGTERM) {after}"
-    if isinstance(cause, FilterLineError):
-        return f"{data}:{cause.line}: {cause}" if cause.line else f"{data}: {cause}"
-    return str(cause)
 
 
 @contextmanager

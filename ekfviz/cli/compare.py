@@ -9,7 +9,6 @@ import typer
 
 from ekfviz.cli.common import (
     DEFAULT,
-    RECORDINGS_DIR,
     InitPoseSigma,
     LandmarkInitOption,
     LogArgument,
@@ -46,7 +45,7 @@ def compare(
     save: Annotated[
         Path | None,
         _option(
-            "Write the recording here [default: recordings/<input>-compare.rrd].",
+            "Write the recording here \\[default: recordings/<input>-compare.rrd].",
             show_default=False,
         ),
     ] = None,
@@ -94,7 +93,7 @@ def compare(
         data,
         truth,
         specs,
-        target=save if save is not None else RECORDINGS_DIR / f"{data.stem}-compare.rrd",
+        target=save,
         report=report,
         workers=workers,
         root="filters",

@@ -2,23 +2,29 @@
 
 from __future__ import annotations
 
+import functools
 import json
+import shlex
+import sys
 from dataclasses import asdict
 from pathlib import Path
 from typing import Annotated
 
+from rich.progress import Progress
 from rich.table import Table
 
 from ekfviz import __version__
 from ekfviz.cli.common import (
     DEFAULT,
     FILTER_OPTIONS,
+    ExecutorOption,
     FilterOption,
     Fov,
     LandmarkInitOption,
     Landmarks,
     MaxRange,
     ScenarioOption,
+    SchedulerOption,
     SigmaAlpha,
     SigmaBearing,
     SigmaRange,
@@ -34,11 +40,14 @@ from ekfviz.cli.common import (
     UpdateOption,
     _option,
     app,
+    check_outputs,
+    command_hint,
     err,
     fail,
     filter_params,
     out,
     scenario_world,
+    study_executor,
     true_noise,
     write_json,
 )
@@ -46,6 +55,7 @@ from ekfviz.core.consistency import Verdict
 from ekfviz.core.filter import FilterError
 from ekfviz.filters import BUILTIN, FilterSpecError, load_filter
 from ekfviz.sim.scenarios import ScenarioName
+from ekfviz.studies.executors import ExecutorError, ExecutorName
 
 
 @app.command()
@@ -62,7 +72,7 @@ def consistency(
         Triple | None,
         _option(
             "The prior the true start is drawn from AND the filter's initial covariance"
-            " [default: the scenario's: classic 0.02 0.02 0.1, loop 0.01 0.01 0.005].",
+            " \\[default: the scenario's: classic 0.02 0.02 0.1, loop 0.01 0.01 0.005].",
             FILTER_OPTIONS,
             metavar="SX SY STHETA",
             show_default=False,
@@ -88,16 +98,20 @@ def consistency(
         Path | None, _option("Write the averaged curves to this .rrd file.", show_default=False)
     ] = None,
     workers: Annotated[
-        int | None, _option("Processes to use [default: one per core].", min=1, show_default=False)
+        int | None,
+        _option("Processes to use \\[default: one per core].", min=1, show_default=False),
     ] = None,
+    executor: ExecutorOption = ExecutorName.LOCAL,
+    scheduler: SchedulerOption = None,
 ) -> None:
     """Monte-Carlo consistency: average NEES and NIS over many simulated runs, per step.
 
     A consistent filter keeps the averaged NEES inside its 95% chi-square bounds; above
     them it is over-confident, below them too cautious.
     """
-    from ekfviz.sim.montecarlo import Trials, monte_carlo
+    from ekfviz.sim.montecarlo import Trials, average, run_trial
 
+    check_outputs(("--report", report), ("--save", save))
     world = scenario_world(scenario, seed, steps, landmarks, max_range, fov)
     prior = world.init_pose_sigma if init_pose_sigma is None else init_pose_sigma
     params = filter_params(
@@ -109,19 +123,30 @@ def consistency(
     trials = Trials(
         scenario=world, true_noise=noise, init_pose_sigma=prior, params=params, filter=filter_spec
     )
+    runner = study_executor(executor, scheduler, workers)
     try:
         load_filter(filter_spec)
-        with err.status(f"{runs} runs of the {scenario.value} scenario..."):
-            result = monte_carlo(trials, runs, seed=seed, workers=workers)
+        with Progress(console=err, transient=True) as bar:
+            task = bar.add_task(f"{runs} runs of the {scenario.value} scenario", total=runs)
+            results = runner.map(
+                functools.partial(run_trial, trials),
+                [seed + k for k in range(runs)],
+                done=lambda _: bar.advance(task),
+            )
+        result = average(results)
     except (FilterSpecError, FilterError) as error:
         fail(f"--scenario {scenario.value}: {error}")
+    except ExecutorError as error:
+        fail(str(error))
 
     table = Table(title=f"Consistency over {runs} runs ({scenario.value})", title_justify="left")
     for column in ("statistic", "inside 95%", "above", "below", "verdict"):
         table.add_column(column, justify="left" if column in ("statistic", "verdict") else "right")
     for name, count in (("mean NEES per step", result.nees), ("mean NIS per step", result.nis)):
         verdict = count.verdict
-        colour = "green" if verdict is Verdict.CONSISTENT else "bold red"
+        colour = {Verdict.CONSISTENT: "green", Verdict.BORDERLINE: "yellow"}.get(
+            verdict or Verdict.CONSISTENT, "bold red"
+        )
         table.add_row(
             name,
             f"{count.inside}/{count.total} ({count.fraction_inside:.1%})" if count.total else "-",
@@ -151,5 +176,12 @@ def consistency(
         lines += [f"- **{key}** `{json.dumps(value)}`" for key, value in settings.items()]
         if verdict is not None:
             lines += ["", f"**Verdict (NEES):** {verdict.value}"]
-        save_monte_carlo(save, result, f"consistency-{scenario.value}", "\n".join(lines) + "\n")
-        out.print(f"Saved {save}; open it with: rerun {save}")
+        save_monte_carlo(
+            save,
+            result,
+            f"consistency-{scenario.value}",
+            "\n".join(lines) + "\n",
+            command=shlex.join(["ekfviz", *sys.argv[1:]]),
+            settings=settings,
+        )
+        out.print(f"Saved {save}; open it with: {command_hint('rerun')} {save}")

@@ -9,6 +9,7 @@ import typer
 
 from ekfviz.cli.common import (
     app,
+    check_outputs,
     fail,
     out,
     write_bytes_atomic,
@@ -25,13 +26,15 @@ def convert(
         Path, typer.Argument(help="Where to write the extended log.", show_default=False)
     ],
 ) -> None:
-    """Rewrite a classic log in the extended format, every number exactly as read."""
-    from ekfviz.io.classic import read_classic
-    from ekfviz.io.extended import format_extended
+    """Rewrite a classic log in the extended format, every number exactly as written."""
+    from ekfviz.io.convert import classic_to_extended
 
+    check_outputs(("TARGET", target))
+    if target.resolve() == source.resolve():
+        fail(f"TARGET {target}: is the source itself: give another file")
     try:
-        events = list(read_classic(source))
+        text, events = classic_to_extended(source)
     except InputError as error:
         fail(str(error))
-    write_bytes_atomic(target, format_extended(events, precision=None).encode("utf-8"))
-    out.print(f"Wrote {target} ({len(events)} events)")
+    write_bytes_atomic(target, text.encode("utf-8"))
+    out.print(f"Wrote {target} ({events} events)")

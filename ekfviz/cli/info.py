@@ -1,4 +1,4 @@
-"""``ekfviz info``: how a recording was made, and its result."""
+"""``ekfviz info``: what a recording is, how it was made, how it ended, and its result."""
 
 from __future__ import annotations
 
@@ -10,8 +10,11 @@ from rich.table import Table
 
 from ekfviz.cli.common import (
     app,
+    check_outputs,
     fail,
+    human_output_to_stderr,
     out,
+    print_json,
     write_bytes_atomic,
 )
 
@@ -25,26 +28,39 @@ def info(
         Path | None,
         typer.Option(help="Write the embedded input log here, byte for byte.", show_default=False),
     ] = None,
+    as_json: Annotated[
+        bool,
+        typer.Option("--json", help="Print the information as JSON on stdout, for scripts."),
+    ] = False,
 ) -> None:
-    """Print how a recording was made (version, command, parameters, input) and its result."""
+    """Print what a recording is (replay, sweep, consistency study, your own filter's),
+    how it was made (version, command, parameters, input), whether the run finished or
+    stopped early (where and why), and its result."""
     from ekfviz import viz
 
+    check_outputs(("--extract-input", extract_input))
+    if as_json:
+        human_output_to_stderr()
     try:
         found = viz.read_recording_info(recording)
     except viz.NotARecordingError as error:
         fail(str(error))
-    table = Table(show_header=False, box=None, pad_edge=False)
-    table.add_column(style="bold")
-    table.add_column(overflow="fold")
-    for key, value in found.summary():
-        table.add_row(key, value)
-    out.print(table)
-    if found.evaluation_markdown:
-        from rich.markdown import Markdown
+    if extract_input is not None and found.input_text is None:
+        reason = "it was over the size cap" if found.has_input else "this kind has no input"
+        fail(f"{recording}: the input is not embedded ({reason})")
+    if as_json:
+        print_json(found.to_json())
+    else:
+        table = Table(show_header=False, box=None, pad_edge=False)
+        table.add_column(style="bold", no_wrap=True)
+        table.add_column(overflow="fold")
+        for key, value in found.summary():
+            table.add_row(key, value)
+        out.print(table)
+        if found.evaluation_markdown:
+            from rich.markdown import Markdown
 
-        out.print(Markdown(found.evaluation_markdown))
-    if extract_input is not None:
-        if found.input_text is None:
-            fail(f"{recording}: the input is not embedded (it was over the size cap)")
+            out.print(Markdown(found.evaluation_markdown))
+    if extract_input is not None and found.input_text is not None:
         write_bytes_atomic(extract_input, found.input_text.encode("utf-8"))
         out.print(f"Wrote the input to {extract_input}")

@@ -19,7 +19,6 @@ from ekfviz.cli.common import (
     InitPoseSigma,
     LandmarkInitOption,
     LogArgument,
-    RunStopped,
     SigmaAlpha,
     SigmaBearing,
     SigmaRange,
@@ -28,14 +27,16 @@ from ekfviz.cli.common import (
     TruthOption,
     UpdateOption,
     app,
+    check_outputs,
     fail,
     filter_params,
+    human_output_to_stderr,
     mismatch_note,
     open_progress,
     out,
     print_evaluation,
+    print_json,
     report_json,
-    stop_reason,
     write_json,
 )
 from ekfviz.cli.scans import (
@@ -49,15 +50,20 @@ from ekfviz.cli.scans import (
     SigmaSteering,
     replay_setup,
 )
-from ekfviz.core.consistency import Consistency
-from ekfviz.core.evaluation import evaluate
+from ekfviz.cli.sources import (
+    GateOption,
+    InitPoseOption,
+    MotionNoiseChoice,
+    MotionNoiseOption,
+    NoTruthOption,
+    RobotOption,
+    first_time,
+    open_log,
+    resolve,
+)
 from ekfviz.core.filter import EkfSlam, FilterError
-from ekfviz.core.records import EventRecord
-from ekfviz.core.replay import FilterLineError
-from ekfviz.core.replay import replay as run_filter
 from ekfviz.filters import BUILTIN, FilterSpecError, load_filter
 from ekfviz.io.errors import InputError
-from ekfviz.io.truth import read_truth
 
 
 @app.command()
@@ -65,14 +71,25 @@ def replay(
     ctx: typer.Context,
     data: LogArgument,
     truth: TruthOption = None,
+    robot: RobotOption = None,
+    no_truth: NoTruthOption = False,
     report: Annotated[
         Path | None, typer.Option(help="Write the evaluation as JSON here.", show_default=False)
     ] = None,
+    as_json: Annotated[
+        bool,
+        typer.Option(
+            "--json", help="Print the evaluation as JSON on stdout (the rest goes to stderr)."
+        ),
+    ] = False,
     sigma_x: SigmaX = DEFAULT.sigma_x,
     sigma_y: SigmaY = DEFAULT.sigma_y,
     sigma_alpha: SigmaAlpha = DEFAULT.sigma_alpha,
     sigma_bearing: SigmaBearing = DEFAULT.sigma_bearing,
     sigma_range: SigmaRange = DEFAULT.sigma_range,
+    motion_noise: MotionNoiseOption = MotionNoiseChoice.AUTO,
+    init_pose: InitPoseOption = None,
+    gate: GateOption = None,
     init_pose_sigma: InitPoseSigma = DEFAULT.init_pose_sigma,
     landmark_init: LandmarkInitOption = DEFAULT.landmark_init,
     update: UpdateOption = DEFAULT.update,
@@ -122,14 +139,26 @@ def replay(
             rich_help_panel="Rerun output",
         ),
     ] = False,
+    history: Annotated[
+        bool,
+        typer.Option(
+            "--history",
+            help="The classic figure: the map keeps every predicted (magenta) and updated"
+            " (blue) robot ellipse up to the time cursor.",
+            rich_help_panel="Rerun output",
+        ),
+    ] = False,
 ) -> None:
     """Replay a log through EKF-SLAM, record it for Rerun and print the evaluation.
 
     With no Rerun output option, the native viewer opens where a display exists;
     otherwise the recording is saved to recordings/<input name>.rrd.
     """
-    from ekfviz import viz  # rerun loads only for commands that record
+    from ekfviz import pipeline, viz  # rerun loads only for commands that record
 
+    check_outputs(("--save", save), ("--report", report))
+    if as_json:
+        human_output_to_stderr()
     params = filter_params(
         (sigma_x, sigma_y, sigma_alpha, sigma_bearing, sigma_range),
         init_pose_sigma,
@@ -141,65 +170,62 @@ def replay(
     except FilterSpecError as error:
         fail(str(error))
     try:
-        truth_xy = read_truth(truth) if truth is not None else None
+        opened = open_log(data, robot, truth, no_truth)
+        truth_xy = opened.truth
+        start, events = first_time(opened.events())
+        params, notes = resolve(params, opened, start, init_pose, motion_noise, gate)
+        for text in notes:
+            out.print(text, soft_wrap=True)
         setup = replay_setup(
-            ctx, data, params, truth_xy, association, gate_probability, confirm, confirm_window,
-            sigma_speed, sigma_steering,
+            ctx, opened, params, make_filter is None or make_filter is EkfSlam, truth_xy,
+            association, gate_probability, confirm, confirm_window, sigma_speed, sigma_steering,
         )  # fmt: skip
         params = setup.params
+        if setup.victoria:
+            events = setup.events(opened, None)
         sinks, note = viz.resolve_default_sinks(
             viz.Sinks(save=save, spawn=spawn, serve=serve, connect=connect),
             data,
             RECORDINGS_DIR,
+            name=opened.source.name,
         )
         info = viz.run_info(
-            name=data.stem,
+            name=opened.source.name,
             command=shlex.join(["ekfviz", *sys.argv[1:]]),
-            parameters={**params.as_dict(), **setup.parameters},
-            input_path=setup.input_path,
-            truth=setup.recorder_truth,
-            truth_path=truth,
+            parameters={**params.as_dict(), "filter": filter_spec, **setup.parameters},
+            input_path=data,
+            truth=truth_xy,
+            truth_path=opened.truth_files[0] if opened.truth_files else None,
+            input_files=opened.source.files,
+            truth_files=opened.truth_files,
         )
         with (
-            open_progress(data) as progress,
-            viz.open_run(info, sinks, detail=detail, sensor=setup.sensor) as logger,
+            open_progress(opened.source.progress_path) as progress,
+            viz.open_run(
+                info, sinks, detail=detail, history=history, sensor=setup.sensor
+            ) as logger,
             signals.as_exceptions(),
         ):
-            last: EventRecord | None = None
-            consistency = Consistency(truth_xy)
             warnings = FilterWarnings(data)
-            try:
-                builtin = make_filter is None or make_filter is EkfSlam
-                for record in run_filter(
-                    setup.events(truth, progress), params, make_filter=make_filter,
-                    name=filter_spec, slam=setup.slam if builtin else None,
-                    associator=setup.associator,
-                ):  # fmt: skip
-                    logger.log(record)
-                    setup.add(record)
-                    consistency.add(record)
-                    if record.warnings:
-                        warnings.add(record)
-                    last = record
-                    if record.event == 0:  # a signal during start-up: stop, with a recording
-                        signals.raise_pending()
-            except (InputError, FilterLineError, KeyboardInterrupt, signals.Terminated) as cause:
-                final = None if last is None else evaluate(last, setup.truth_of(last), consistency)
-                reason = stop_reason(cause, data, last)
-                kept = logger.stop(reason, final)
-                raise RunStopped(reason, cause, kept) from cause
-            assert last is not None  # replay always yields the initialisation
-            evaluation = evaluate(last, setup.truth_of(last), consistency)
-            extra = setup.finish(logger, last)
-            logger.finish(evaluation)
+            if progress is not None:
+                events = setup.events(opened, progress)  # read from the start, with a bar
+            evaluation = pipeline.replay_log(
+                events, params, make_filter=make_filter, name=filter_spec, data=data,
+                truth=truth_xy, logger=logger, on_record=warnings.add, scans=setup,
+            )  # fmt: skip
+            extra = setup.finish(logger)
             warnings.summarise()
-            print_evaluation(evaluation, setup.truth_of(last))
+            print_evaluation(evaluation, setup.truth_of_last())
             setup.print_summary(extra)
+            document = {
+                **report_json(evaluation, params, data, info.input_sha256),
+                "filter": filter_spec,
+                **extra,
+            }
             if report is not None:
-                write_json(
-                    report,
-                    {**report_json(evaluation, params, data, info.input_sha256), **extra},
-                )
+                write_json(report, document)
+            if as_json:
+                print_json(document)
             if truth_xy is not None:
                 mismatch_note(params, truth_xy)
             if note:
@@ -207,7 +233,7 @@ def replay(
             if logger.url:
                 out.print(f"Serving the web viewer at [bold]{logger.url}[/] (Ctrl-C to stop)")
             logger.wait_while_serving()
-    except RunStopped as stopped:
+    except pipeline.RunStopped as stopped:
         where = ""
         if stopped.kept and sinks.save is not None:
             where = f"; the recording of everything before it is saved in {sinks.save}"

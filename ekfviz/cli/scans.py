@@ -15,15 +15,17 @@ from typer._click.core import ParameterSource
 
 from ekfviz.association import AssociationParams, Associator, Method
 from ekfviz.association.evaluation import AssociationTally
-from ekfviz.cli.common import _option, log_events, out, warn
+from ekfviz.cli.common import _option, out, warn
+from ekfviz.cli.sources import OpenedLog
 from ekfviz.core.filter import EkfSlam, FilterParams
 from ekfviz.core.model_filter import ModelEkfSlam
 from ekfviz.core.records import AnyEvent, EventRecord
 from ekfviz.core.reference import ReferenceFit, fit_reference
 from ekfviz.core.truth import GroundTruth
+from ekfviz.io.detect import LogKind
 from ekfviz.io.errors import InputError
 from ekfviz.io.text import ProgressCallback
-from ekfviz.io.victoria import MEASUREMENTS, is_victoria, read_gps, read_victoria
+from ekfviz.io.victoria import read_gps
 from ekfviz.models.ackermann import Ackermann
 from ekfviz.models.range_bearing import RangeBearing
 
@@ -90,12 +92,13 @@ SigmaSteering = Annotated[
 
 @dataclass(slots=True)
 class ReplaySetup:
-    """One replay's source, filter, associator and reference."""
+    """One replay's filter (the built-in one, with its models), associator and reference;
+    ``slam`` is None for a protocol filter (which cannot replay scans)."""
 
     data: Path
     params: FilterParams
     truth: GroundTruth | None
-    slam: EkfSlam
+    slam: EkfSlam | None
     sensor: RangeBearing
     associator: Associator | None
     victoria: bool
@@ -103,24 +106,16 @@ class ReplaySetup:
     tally: AssociationTally
     _track: list[tuple[float, int, float, float]] = field(default_factory=list)
     _scans: bool = False
+    _last: EventRecord | None = None
 
-    @property
-    def input_path(self) -> Path:
-        """The file that describes the input in the recording (a directory's measurements)."""
-        return self.data / MEASUREMENTS if self.victoria else self.data
-
-    @property
-    def recorder_truth(self) -> GroundTruth | None:
-        return self.truth
-
-    def events(
-        self, truth_path: Path | None, progress: ProgressCallback | None
-    ) -> Iterator[AnyEvent]:
+    def events(self, opened: OpenedLog, progress: ProgressCallback | None) -> Iterator[AnyEvent]:
+        """The log's events; for Victoria Park without the detections beyond the range used."""
         if self.victoria:
-            return _far_dropped(read_victoria(self.data, progress), VICTORIA.max_range)
-        return log_events(self.data, self.truth, truth_path, progress)
+            return _far_dropped(opened.events(progress), VICTORIA.max_range)
+        return opened.events(progress)
 
     def add(self, record: EventRecord) -> None:
+        self._last = record
         if record.association is not None:
             self._scans = True
             self.tally.add(record)
@@ -135,9 +130,16 @@ class ReplaySetup:
             return self.truth
         return self.tally.relabelled_truth(last.landmark_ids)
 
-    def finish(self, logger: RunLogger, last: EventRecord) -> dict[str, object]:
+    def truth_of_last(self) -> GroundTruth | None:
+        """The truth as the evaluation of the last record saw it."""
+        return self.truth if self._last is None else self.truth_of(self._last)
+
+    def finish(self, logger: RunLogger) -> dict[str, object]:
         """The association report and, for Victoria Park, the GPS reference (logged too)."""
         extra: dict[str, object] = {}
+        last = self._last
+        if last is None:
+            return extra
         if self._scans:
             extra["association"] = self.tally.report(last.landmark_ids)
         if self.victoria:
@@ -203,8 +205,9 @@ def _far_dropped(events: Iterator[AnyEvent], max_range: float) -> Iterator[AnyEv
 
 def replay_setup(
     ctx: typer.Context,
-    data: Path,
+    opened: OpenedLog,
     params: FilterParams,
+    builtin: bool,
     truth: GroundTruth | None,
     association: Method | None,
     gate_probability: float,
@@ -214,20 +217,16 @@ def replay_setup(
     sigma_steering: float,
 ) -> ReplaySetup:
     """The filter, its models and the associator for this input."""
-    victoria = is_victoria(data)
-    if data.is_dir() and not victoria:
-        raise InputError(
-            data,
-            0,
-            "is a directory, expected a log file or a Victoria Park directory"
-            " (inputs.dat, measurements.dat, gps.dat)",
-        )
+    data = opened.source.path
+    victoria = opened.source.kind is LogKind.VICTORIA
     parameters: dict[str, Any] = {}
 
     def default(name: str) -> bool:
         return ctx.get_parameter_source(name) in (ParameterSource.DEFAULT, None)
 
     sensor = RangeBearing()
+    if victoria and not builtin:
+        raise InputError(data, 0, "the Victoria Park run needs the built-in filter (--filter ekf)")
     if victoria:
         v = VictoriaDefaults()
         changes: dict[str, Any] = {
@@ -265,6 +264,7 @@ def replay_setup(
         )
         parameters.update(assoc.as_dict())
     return ReplaySetup(
-        data=data, params=params, truth=truth, slam=slam, sensor=sensor, associator=associator,
-        victoria=victoria, parameters=parameters, tally=AssociationTally(truth, sensor),
+        data=data, params=params, truth=truth, slam=slam if builtin else None, sensor=sensor,
+        associator=associator, victoria=victoria, parameters=parameters,
+        tally=AssociationTally(truth, sensor),
     )  # fmt: skip

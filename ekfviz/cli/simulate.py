@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import enum
 import math
 from dataclasses import asdict
 from pathlib import Path
@@ -23,6 +24,8 @@ from ekfviz.cli.common import (
     TrueSigmaY,
     _option,
     app,
+    check_outputs,
+    command_hint,
     fail,
     out,
     scenario_world,
@@ -31,21 +34,48 @@ from ekfviz.cli.common import (
 )
 from ekfviz.core.filter import FilterParams
 from ekfviz.core.truth import GroundTruth
+from ekfviz.io.paths import OutputPathError, check_output_folder
+from ekfviz.sim.mrclam import MrclamNoise, MrclamWorld
 from ekfviz.sim.scenarios import ScenarioName
 from ekfviz.sim.simulate import Detection
 
 SENSOR = "Detection"
 
 
+class Layout(str, enum.Enum):
+    FILE = "file"
+    MRCLAM = "mrclam"
+
+
 @app.command()
 def simulate(
     output: Annotated[
-        Path, typer.Option("-o", "--output", help="Where to write the log.", show_default=False)
+        Path,
+        typer.Option(
+            "-o",
+            "--output",
+            help="Where to write the log (with --layout mrclam: the dataset directory).",
+            show_default=False,
+        ),
     ],
     truth_out: Annotated[
-        Path,
-        typer.Option(help="Where to write the truth (JSON: landmarks, poses).", show_default=False),
-    ],
+        Path | None,
+        typer.Option(
+            help="Where to write the truth (JSON: landmarks, poses); not for --layout mrclam.",
+            show_default=False,
+        ),
+    ] = None,
+    layout: Annotated[
+        Layout,
+        typer.Option(
+            help="file: one log (and --truth-out); mrclam: a UTIAS MRCLAM dataset directory"
+            " (robot 1, odometry at 50 Hz, camera at 5 Hz, Vicon-like truth), noise per"
+            " sqrt(s) for the motion.",
+        ),
+    ] = Layout.FILE,
+    duration: Annotated[
+        float, typer.Option(help="mrclam: seconds of the run.", min=1.0)
+    ] = MrclamWorld().duration_s,
     scenario: ScenarioOption = ScenarioName.CLASSIC,
     seed: Annotated[int, _option("Seed of the noise (and of the loop's landmark field).")] = 0,
     log_format: Annotated[
@@ -70,40 +100,61 @@ def simulate(
         typer.Option(
             metavar="SX SY STHETA",
             help="The true start is drawn from N(0, diag(sigma^2)), the prior a filter should"
-            " assume [default: classic 0.02 0.02 0.1, loop 0.01 0.01 0.005].",
+            " assume \\[default: classic 0.02 0.02 0.1, loop 0.01 0.01 0.005].",
             show_default=False,
         ),
     ] = None,
     precision: Annotated[int, typer.Option(min=1, max=17, help="Decimals written.")] = 6,
     unknown_ids: Annotated[
         bool,
-        _option(
-            "Write id-less 'scan' lines (extended format); the truth's scan_ids keep each"
-            " measurement's landmark (null for clutter).",
-            SENSOR,
+        typer.Option(
+            "--unknown-ids",
+            help="Write id-less 'scan' lines (extended format); the truth's scan_ids keep"
+            " each measurement's landmark (null for clutter).",
+            rich_help_panel=SENSOR,
         ),
     ] = False,
     clutter: Annotated[
         float,
-        _option("Mean false alarms per scan (Poisson), uniform over the field.", SENSOR, min=0.0),
+        _option(
+            "Mean false alarms per scan (Poisson), uniform over the field.",
+            SENSOR,
+            min=0.0,
+            metavar="RATE",
+        ),
     ] = 0.0,
     detection_probability: Annotated[
         float,
-        _option("Probability of detecting a landmark in reach.", SENSOR, min=0.0, max=1.0),
+        _option(
+            "Probability of detecting a landmark in reach (0 to 1).",
+            SENSOR,
+            metavar="P",
+        ),
     ] = 1.0,
     laps: Annotated[int, _option("Drive the route this many times.", min=1)] = 1,
 ) -> None:
     """Simulate a run with known truth and write its log and truth files (deterministic)."""
+    if layout is Layout.MRCLAM:
+        _simulate_mrclam(
+            output, seed, duration, truth_out,
+            (true_sigma_x, true_sigma_y, true_sigma_alpha, true_sigma_bearing, true_sigma_range),
+        )  # fmt: skip
+        return
+    if truth_out is None:
+        fail("--truth-out FILE is needed (except with --layout mrclam)")
     from ekfviz.io.classic import format_classic
     from ekfviz.io.extended import format_extended
     from ekfviz.io.truth import truth_json
 
+    check_outputs(("--output", output), ("--truth-out", truth_out))
     world = scenario_world(scenario, seed, steps, landmarks, max_range, fov)
     noise = true_noise(
         world, true_sigma_x, true_sigma_y, true_sigma_alpha, true_sigma_bearing, true_sigma_range
     )
     if init_pose_sigma is None:
         init_pose_sigma = world.init_pose_sigma
+    if not 0.0 <= detection_probability <= 1.0:
+        fail(f"--detection-probability: {detection_probability:g} is not between 0 and 1")
     if clutter > 0 and not unknown_ids:
         fail("--clutter: only with --unknown-ids (a log with ids names no false alarms)")
     if unknown_ids and log_format is LogFormat.CLASSIC:
@@ -155,6 +206,55 @@ def simulate(
         replay_noise.append("--init-pose-sigma " + " ".join(f"{v:g}" for v in init_pose_sigma))
     out.print(
         "Replay it with the filter told the true noise:\n  "
-        + " ".join(["ekfviz replay", str(output), "--truth", str(truth_out), *replay_noise]),
+        + " ".join(
+            [
+                command_hint("ekfviz"),
+                "replay",
+                str(output),
+                "--truth",
+                str(truth_out),
+                *replay_noise,
+            ]
+        ),
+        soft_wrap=True,
+    )
+
+
+def _simulate_mrclam(
+    output: Path,
+    seed: int,
+    duration: float,
+    truth_out: Path | None,
+    sigmas: tuple[float | None, ...],
+) -> None:
+    """Write a simulated MRCLAM dataset directory (see :mod:`ekfviz.sim.mrclam`)."""
+    from ekfviz.sim.mrclam import simulate_mrclam
+
+    if truth_out is not None:
+        fail("--truth-out: with --layout mrclam the truth is in the dataset directory")
+    try:
+        check_output_folder(output, "--output")
+    except OutputPathError as error:
+        fail(str(error))
+    default = asdict(MrclamNoise())
+    noise = MrclamNoise(
+        **{
+            name: d if g is None else g
+            for (name, d), g in zip(default.items(), sigmas, strict=True)
+        }
+    )
+    files = simulate_mrclam(seed=seed, world=MrclamWorld(duration_s=duration), noise=noise)
+    try:
+        output.mkdir(exist_ok=True)  # its parent was checked: no folders made above it
+    except OSError as error:
+        fail(f"{output}: cannot make the directory ({error.strerror})")
+    for name, text in files.items():
+        write_bytes_atomic(output / name, text.encode("utf-8"))
+    out.print(f"Wrote the MRCLAM-layout dataset {output} ({len(files)} files, robot 1)")
+    flags = " ".join(f"--sigma-{n.removeprefix('sigma_').replace('_', '-')} {v:g}"
+                     for n, v in asdict(noise).items())  # fmt: skip
+    out.print(
+        "Replay it with the filter told the true noise:\n  "
+        + f"{command_hint('ekfviz')} replay {output} --motion-noise per-sqrt-second {flags}",
         soft_wrap=True,
     )

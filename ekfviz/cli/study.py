@@ -15,10 +15,19 @@ from rich.progress import Progress
 from rich.table import Table
 
 from ekfviz import __version__
-from ekfviz.cli.common import err, fail, out, write_json
+from ekfviz.cli.common import (
+    check_outputs,
+    command_hint,
+    default_output,
+    err,
+    fail,
+    out,
+    write_json,
+)
 from ekfviz.core.filter import FilterError
 from ekfviz.filters import FilterSpecError
 from ekfviz.io.errors import InputError
+from ekfviz.studies.executors import Executor, ExecutorError
 from ekfviz.studies.runs import RunSpec, Summary
 
 
@@ -27,26 +36,34 @@ def run_study(
     truth: Path | None,
     specs: list[RunSpec],
     *,
-    target: Path,
+    target: Path | None,
     report: Path | None,
     workers: int | None,
     root: str,
     parameters: dict[str, object],
     report_extra: dict[str, object],
+    executor: Executor | None = None,
 ) -> None:
-    """Run every spec on the log, print the table, save the recording and the report."""
+    """Run every spec on the log, print the table, save the recording and the report.
+
+    :param target: where to save the recording; None: ``recordings/<log>-sweep.rrd`` (or
+        ``-compare``), under a new name if that one is taken
+    """
     from ekfviz import pipeline, viz
 
     what = "variant" if root == "variants" else "filter"
+    check_outputs(("--save", target), ("--report", report))
+    if target is None:
+        target = default_output(f"{data.stem}-{'sweep' if root == 'variants' else 'compare'}.rrd")
     try:
         with Progress(console=err, transient=True) as bar:
             task = bar.add_task(f"{len(specs)} {what}s", total=len(specs))
             result = pipeline.study(
                 data, truth, specs, target=target, workers=workers, root=root,
                 parameters=parameters, markdown=lambda rows: study_markdown(rows, what),
-                done=lambda: bar.advance(task),
+                done=lambda: bar.advance(task), executor=executor,
             )  # fmt: skip
-    except (InputError, FilterError, FilterSpecError, viz.SinkError) as error:
+    except (InputError, FilterError, FilterSpecError, viz.SinkError, ExecutorError) as error:
         fail(str(error))
     out.print(study_table(result.summaries, result.truth is not None, what))
     if report is not None:
@@ -62,7 +79,7 @@ def run_study(
                 ],
             },
         )
-    out.print(f"Saved {target}; open it with: rerun {target}")
+    out.print(f"Saved {target}; open it with: {command_hint('rerun')} {target}")
 
 
 def study_table(summaries: list[Summary], has_truth: bool, what: str) -> Table:

@@ -7,13 +7,16 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Annotated
 
+import typer
+
 from ekfviz.cli.common import (
     DEFAULT,
-    RECORDINGS_DIR,
+    ExecutorOption,
     FilterOption,
     InitPoseSigma,
     LandmarkInitOption,
     LogArgument,
+    SchedulerOption,
     SigmaAlpha,
     SigmaBearing,
     SigmaRange,
@@ -26,9 +29,11 @@ from ekfviz.cli.common import (
     app,
     fail,
     filter_params,
+    study_executor,
 )
 from ekfviz.cli.study import run_study
 from ekfviz.filters import BUILTIN, FilterSpec
+from ekfviz.studies.executors import ExecutorName
 
 
 class Preset(str, enum.Enum):
@@ -42,7 +47,8 @@ def sweep(
     save: Annotated[
         Path | None,
         _option(
-            "Write the recording here [default: recordings/<input>-sweep.rrd].", show_default=False
+            "Write the recording here \\[default: recordings/<input>-sweep.rrd].",
+            show_default=False,
         ),
     ] = None,
     report: Annotated[
@@ -58,7 +64,11 @@ def sweep(
         ),
     ] = None,
     one_at_a_time: Annotated[
-        bool, _option("Vary each --vary on its own around the baseline, not as a grid.")
+        bool,
+        typer.Option(
+            "--one-at-a-time",
+            help="Vary each --vary on its own around the baseline, not as a grid.",
+        ),
     ] = False,
     preset: Annotated[
         Preset | None,
@@ -76,6 +86,8 @@ def sweep(
     update: UpdateOption = DEFAULT.update,
     filter_spec: FilterOption = BUILTIN,
     workers: Workers = None,
+    executor: ExecutorOption = ExecutorName.LOCAL,
+    scheduler: SchedulerOption = None,
 ) -> None:
     """Replay one log with filter parameters varied around a baseline, side by side.
 
@@ -104,12 +116,12 @@ def sweep(
     except SweepError as error:
         fail(str(error))
     variants = [replace(variant, filter=FilterSpec(filter_spec)) for variant in variants]
-    target = save if save is not None else RECORDINGS_DIR / f"{data.stem}-sweep.rrd"
+    runner = study_executor(executor, scheduler, workers)
     run_study(
         data,
         truth,
         variants,
-        target=target,
+        target=save,
         report=report,
         workers=workers,
         root="variants",
@@ -119,4 +131,5 @@ def sweep(
             "variants": [variant.label for variant in variants],
         },
         report_extra={"baseline": baseline.as_dict()},
+        executor=runner,
     )

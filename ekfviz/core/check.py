@@ -74,32 +74,31 @@ class Difference:
 
 @dataclass(frozen=True, slots=True)
 class Divergence:
-    """The first event where the filter leaves the reference, and the likely cause."""
+    """The first event where the filter leaves the reference, and the likely cause.
+
+    :param worst: the worst entry of the event's comparison
+    """
 
     event: int
     step: int
     line: int
     kind: EventKind
-    quantity: Quantity
-    landmark_id: int | None
-    entry: str
-    expected: float
-    got: float
-    difference: float
+    worst: Difference
     hint: str
 
     def to_json(self) -> dict[str, object]:
+        worst = self.worst
         return {
             "event": self.event,
             "step": self.step,
             "line": self.line,
             "kind": self.kind.value,
-            "quantity": self.quantity.value,
-            "landmark_id": self.landmark_id,
-            "entry": self.entry,
-            "expected": self.expected,
-            "got": self.got,
-            "difference": self.difference,
+            "quantity": worst.quantity.value,
+            "landmark_id": worst.landmark_id,
+            "entry": worst.entry,
+            "expected": worst.expected,
+            "got": worst.got,
+            "difference": worst.difference,
             "hint": self.hint,
         }
 
@@ -170,7 +169,7 @@ def lockstep(
     before = _state(slam)
     worst = compare(_state(prior), before)
     if worst is not None and worst.difference > tolerance:
-        first = _divergence(0, 0, 0, EventKind.INIT, worst, _PRIOR_HINT)
+        first = Divergence(0, 0, 0, EventKind.INIT, worst, _PRIOR_HINT)
 
     for event, step, kind, log_event in numbered(events):
         if first is not None and stop_at_divergence:
@@ -201,7 +200,7 @@ def lockstep(
         differences.append(0.0 if worst is None else worst.difference)
         if first is None and worst is not None and worst.difference > tolerance:
             hint = explain(params, before, after, log_event, worst, tolerance)
-            first = _divergence(event, step, log_event.line, kind, worst, hint)
+            first = Divergence(event, step, log_event.line, kind, worst, hint)
     return CheckResult(
         events_checked=len(differences),
         max_difference=max(differences, default=0.0),
@@ -302,16 +301,6 @@ def _state(slam: EkfSlam | Plugged) -> State:
     return State(np.array(slam.x), np.array(slam.P), np.array(slam.landmark_ids, dtype=np.int64))
 
 
-def _divergence(
-    event: int, step: int, line: int, kind: EventKind, worst: Difference, hint: str
-) -> Divergence:
-    return Divergence(
-        event=event, step=step, line=line, kind=kind, quantity=worst.quantity,
-        landmark_id=worst.landmark_id, entry=worst.entry, expected=worst.expected,
-        got=worst.got, difference=worst.difference, hint=hint,
-    )  # fmt: skip
-
-
 # -- hints ---------------------------------------------------------------------------------
 
 _PRIOR_HINT = (
@@ -354,7 +343,7 @@ def _dense_predict(
 
 def _dense_update(
     params: FilterParams, s: State, ids: IntArray, z: FloatArray, *, add_R: bool = True,
-    wrap: bool = True, init_R: bool = True, init_in_order: bool = False,
+    wrap: bool | str = True, init_R: bool = True, init_in_order: bool = False,
 ) -> State:  # fmt: skip
     x, P, state_ids = s.x.copy(), s.P.copy(), [int(i) for i in s.ids]
     R = params.R
@@ -395,12 +384,13 @@ def _dense_update(
         S = H @ P @ H.T + (R if add_R else 0.0)
         K = np.linalg.solve(S, H @ P).T
         nu = np.array([bearing - (math.atan2(dy, dx) - x[2]), rng - r])
-        if wrap:
+        if wrap is True:
             nu[0] = wrap_angle(float(nu[0]))
-        else:  # the prediction wrapped on its own, as a filter that forgets the innovation does
+        elif wrap == "prediction":  # the prediction wrapped, the innovation not
             nu[0] = bearing - wrap_angle(math.atan2(dy, dx) - x[2])
         x = x + K @ nu
-        x[2] = wrap_angle(float(x[2]))
+        if wrap is not False:  # a filter that wraps nothing keeps its heading unwrapped too
+            x[2] = wrap_angle(float(x[2]))
         I_KH = np.eye(len(x)) - K @ H
         P = I_KH @ P @ I_KH.T + K @ R @ K.T  # Joseph's form: what most course code writes
     for landmark_id, bearing, rng in new:
@@ -454,7 +444,10 @@ UPDATE_MISTAKES: tuple[Mistake, ...] = (
     Mistake("R is missing from the innovation covariance: S = H P H^T + R",
             _update_with(add_R=False)),
     Mistake("the bearing innovation is not wrapped: wrap z - z_pred to (-pi, pi] before"
-            " using it", _update_with(wrap=False)),
+            " using it", _update_with(wrap="prediction")),
+    Mistake("the bearing innovation is not wrapped: wrap z - z_pred to (-pi, pi] before"
+            " using it (here neither the predicted bearing nor the difference is)",
+            _update_with(wrap=False)),
     Mistake("a new landmark is initialised without its cross-covariances to the pose and"
             " the map (P_lx = J_p P_px); --landmark-init independent reproduces this",
             _with(landmark_init=LandmarkInit.INDEPENDENT)),

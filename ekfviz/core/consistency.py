@@ -21,6 +21,12 @@ from ekfviz.models.angles import wrap_angle
 
 CONFIDENCE = 0.95
 INSIDE_FOR_CONSISTENT = 0.9  # share of steps inside the bounds to call a run consistent
+# Below that, down to this share, a run is "borderline": a step more or less inside must
+# not flip a reading from consistent to over-confident or too cautious.
+INSIDE_BORDERLINE = 0.8
+# A consistent map has 98.9 % of its landmarks within 3 sigma (chi-square, 2 dof); a
+# share below this one is a map visibly off, whatever the NIS says.
+MAP_INSIDE_FOR_CONSISTENT = 0.9
 
 
 def chi2_cdf(x: float, dof: float) -> float:
@@ -96,10 +102,10 @@ def chi2_bounds(dof: float, runs: int = 1, confidence: float = CONFIDENCE) -> tu
 
 def pose_nees(record: EventRecord, truth: GroundTruth) -> float | None:
     """NEES e^T P^-1 e of the pose at the record's step, or None without a true pose."""
-    poses = truth.poses_xytheta
-    if poses is None or record.step >= len(poses):
+    true_pose = truth.pose_of(record.step, record.time)
+    if true_pose is None:
         return None
-    e = record.pose - poses[record.step]
+    e = record.pose - true_pose
     e[2] = wrap_angle(float(e[2]))
     return float(e @ np.linalg.solve(record.pose_cov, e))
 
@@ -117,6 +123,7 @@ def update_nis(record: EventRecord) -> tuple[float, int] | None:
 
 class Verdict(str, enum.Enum):
     CONSISTENT = "consistent"
+    BORDERLINE = "borderline"
     OVER_CONFIDENT = "over-confident"
     TOO_CAUTIOUS = "too cautious"
 
@@ -147,11 +154,24 @@ class BoundCount:
 
     @property
     def verdict(self) -> Verdict | None:
+        """Consistent with at least ``INSIDE_FOR_CONSISTENT`` of the values inside,
+        borderline down to ``INSIDE_BORDERLINE``, else over-confident (more above than
+        below) or too cautious."""
         if not self.total:
             return None
         if self.fraction_inside >= INSIDE_FOR_CONSISTENT:
             return Verdict.CONSISTENT
+        if self.fraction_inside >= INSIDE_BORDERLINE:
+            return Verdict.BORDERLINE
         return Verdict.OVER_CONFIDENT if self.above >= self.below else Verdict.TOO_CAUTIOUS
+
+    def leaning(self) -> str:
+        """Where the values outside the bounds lie, e.g. ``12% high``; empty if none."""
+        if not self.total or self.inside == self.total:
+            return ""
+        if self.above >= self.below:
+            return f"{self.above / self.total:.0%} high"
+        return f"{self.below / self.total:.0%} low"
 
     def to_json(self) -> dict[str, object]:
         verdict = self.verdict
@@ -172,6 +192,7 @@ class Consistency:
     truth: GroundTruth | None = None
     nees: BoundCount = field(default_factory=BoundCount)
     nis: BoundCount = field(default_factory=BoundCount)
+    without_true_pose: int = 0  # corrected states past the truth's last pose
 
     def add(self, record: EventRecord) -> None:
         """Count a record: its NIS if an update used landmarks, its NEES if it ends a step."""
@@ -182,6 +203,8 @@ class Consistency:
             nees = pose_nees(record, self.truth)
             if nees is not None:
                 self.nees.add(nees, chi2_bounds(3))
+            elif self.truth.poses_xytheta is not None:
+                self.without_true_pose += 1
 
     def summary(self) -> list[str]:
         """One sentence per statistic, for the terminal and the evaluation document."""
@@ -193,12 +216,65 @@ class Consistency:
             verdict = count.verdict
             if verdict is None:
                 continue
+            looks = (
+                "the filter looks consistent only just (borderline)"
+                if verdict is Verdict.BORDERLINE
+                else f"the filter looks {verdict.value}"
+            )
             lines.append(
                 f"{name}: {count.inside} of {count.total} {what} ({count.fraction_inside:.1%})"
                 f" inside the {CONFIDENCE:.0%} chi-square bounds, {count.above} above,"
-                f" {count.below} below: the filter looks {verdict.value}"
+                f" {count.below} below: {looks}"
             )
+            if name == "NEES" and self.without_true_pose:
+                judged = count.total + self.without_true_pose
+                lines.append(
+                    f"NEES: only {count.total} of {judged} corrected states have a true pose:"
+                    " the truth file ends before the run does; the rest are not judged"
+                )
         return lines
 
     def to_json(self) -> dict[str, object]:
-        return {"nees": self.nees.to_json(), "nis": self.nis.to_json(), "confidence": CONFIDENCE}
+        return {
+            "nees": self.nees.to_json(),
+            "nis": self.nis.to_json(),
+            "steps_without_true_pose": self.without_true_pose,
+            "confidence": CONFIDENCE,
+        }
+
+
+def reading(consistency: Consistency | None, inside: int | None, landmarks: int) -> str:
+    """A one-line reading of a run: by its NEES where there are true poses, else by its
+    NIS; never "consistent" while its map is visibly off (fewer than
+    ``MAP_INSIDE_FOR_CONSISTENT`` of the landmarks inside their 3-sigma ellipses).
+
+    :param inside: landmarks with truth inside their 3-sigma ellipse (None: no truth)
+    :param landmarks: landmarks with truth
+    """
+    counts = []
+    if consistency is not None:
+        counts = [
+            (n, c) for n, c in (("NEES", consistency.nees), ("NIS", consistency.nis)) if c.total
+        ]
+    map_off = (
+        inside is not None and landmarks > 0 and inside < MAP_INSIDE_FOR_CONSISTENT * landmarks
+    )
+    if not counts and not map_off:
+        return "no update to judge"
+    verdict = counts[0][1].verdict if counts else None
+    if map_off and verdict in (
+        None,
+        Verdict.CONSISTENT,
+        Verdict.BORDERLINE,
+        Verdict.OVER_CONFIDENT,
+    ):
+        verdict = Verdict.OVER_CONFIDENT
+    assert verdict is not None
+    details = [
+        f"{name} {count.leaning()}"
+        for name, count in counts
+        if count.verdict is not Verdict.CONSISTENT and count.leaning()
+    ]
+    if map_off:
+        details.append(f"{inside}/{landmarks} landmarks in 3σ")
+    return verdict.value + (": " + ", ".join(details) if details else "")

@@ -70,9 +70,23 @@ class UpdateMode(str, enum.Enum):
     JOINT = "joint"  # all at once, linearised at the predicted state
 
 
+class MotionNoise(str, enum.Enum):
+    """What the motion noise sigmas (``sigma_x``, ``sigma_y``, ``sigma_alpha``) mean."""
+
+    # per control, whatever time it spans: Q = diag(sigma^2), sigmas in m and rad (classic)
+    PER_STEP = "per-step"
+    # per square-root second of the time dt a control spans: Q = diag(sigma^2) * dt,
+    # sigmas in m/sqrt(s) and rad/sqrt(s): a random walk, whatever the logging rate
+    PER_SQRT_SECOND = "per-sqrt-second"
+
+
 @dataclass(frozen=True, slots=True)
 class FilterParams:
-    """Noise levels, prior and options of the filter; defaults are the classic ones."""
+    """Noise levels, prior and options of the filter; defaults are the classic ones.
+
+    ``motion_noise`` says how the motion sigmas scale (see :class:`MotionNoise`);
+    ``gate`` rejects outliers (see :mod:`ekfviz.core.gating`).
+    """
 
     sigma_x: float = 0.25
     sigma_y: float = 0.1
@@ -83,11 +97,23 @@ class FilterParams:
     init_pose_sigma: tuple[float, float, float] = (0.02, 0.02, 0.1)
     landmark_init: LandmarkInit = LandmarkInit.CORRELATED
     update: UpdateMode = UpdateMode.SEQUENTIAL
+    motion_noise: MotionNoise = MotionNoise.PER_STEP
+    # NIS (2 dof) beyond which an observation of a known landmark is rejected as an
+    # outlier (see ekfviz.core.gating); None: no gate
+    gate: float | None = None
 
     @property
     def Q(self) -> FloatArray:
-        """Motion noise covariance (3x3) in the robot frame."""
+        """Motion noise covariance (3x3) in the robot frame: per control, or per second
+        with the time-scaled model (then Q * dt is that of a control spanning dt)."""
         return np.diag(np.square([self.sigma_x, self.sigma_y, self.sigma_alpha]))
+
+    def Q_of(self, dt: float | None) -> FloatArray:
+        """The motion noise covariance (3x3) of a control spanning ``dt`` seconds.
+
+        :raises FilterError: the time-scaled model and a control without a known dt
+        """
+        return self.Q * _noise_scale(self.motion_noise, dt)
 
     @property
     def R(self) -> FloatArray:
@@ -101,6 +127,7 @@ class FilterParams:
         values["init_pose_sigma"] = list(self.init_pose_sigma)
         values["landmark_init"] = self.landmark_init.value
         values["update"] = self.update.value
+        values["motion_noise"] = self.motion_noise.value
         return values
 
 
@@ -111,6 +138,20 @@ class FilterError(ValueError):
     innovation covariance that is not positive definite) are not errors: the
     observation is skipped and :attr:`EkfSlam.warnings` says why.
     """
+
+
+def _noise_scale(model: MotionNoise, dt: float | None) -> float:
+    """The factor of diag(sigma^2) in a control's Q: 1 per step, dt per second."""
+    if model is MotionNoise.PER_STEP:
+        return 1.0
+    if dt is None:
+        raise FilterError(
+            "the motion noise is per square-root second (--motion-noise per-sqrt-second),"
+            " but this control has no time span: use --motion-noise per-step"
+        )
+    if not dt >= 0.0:
+        raise FilterError(f"a control spans {dt:g} s, expected a time span >= 0")
+    return dt
 
 
 class EkfSlam:
@@ -273,18 +314,26 @@ class EkfSlam:
 
     # -- predict -----------------------------------------------------------------------
 
-    def predict(self, d: float, alpha: float) -> None:
+    def predict(self, d: float, alpha: float, dt: float | None = None) -> None:
         """Drive ``d`` along the heading, then turn ``alpha``; O(N).
 
         P' = F P F^T + F_r^T W Q W^T F_r changes only the robot rows and columns:
         P_rr' = G P_rr G^T + W Q W^T and P_rm' = G P_rm. G is the identity but for
         G[0, 2] = -d sin(theta) and G[1, 2] = d cos(theta), and Q is diagonal, so the
-        3x3 block is written out in floats (symmetric by construction).
+        3x3 block is written out in floats (symmetric by construction). With the
+        time-scaled motion noise, Q = diag(sigma^2) * dt (see :class:`MotionNoise`).
+
+        :param dt: the time in seconds the control spans; needed by the time-scaled model
+        :raises FilterError: a non-finite state, or a time-scaled Q without ``dt``
         """
         n = self._n
         x, P = self._x, self._P
+        q = self._q
+        if self.params.motion_noise is not MotionNoise.PER_STEP:
+            scale = _noise_scale(self.params.motion_noise, dt)
+            q = (q[0] * scale, q[1] * scale, q[2] * scale)
         if self._compiled:  # the same algebra in C (O(n) either way)
-            if not _kernel.predict(x, P, n, d, alpha, *self._q):
+            if not _kernel.predict(x, P, n, d, alpha, *q):
                 raise FilterError("the state became non-finite in predict")
             return
         px, py, theta = x[:3].tolist()
@@ -297,7 +346,7 @@ class EkfSlam:
             P_rm = np.array(((1.0, 0.0, a), (0.0, 1.0, b))).dot(P[:3, :n])
             P[:2, :n] = P_rm
             P[:n, :2] = P_rm.T
-        qx, qy, qa = self._q
+        qx, qy, qa = q
         r02 = p02 + a * p22
         r12 = p12 + b * p22
         m00 = p00 + a * p02 + a * r02 + c * c * qx + s * s * qy

@@ -3,24 +3,24 @@
 A protocol filter only shows its state. :class:`Plugged` wraps it, checks what it shows
 after every event (shapes, finiteness, symmetry, landmark ids) and derives what the
 built-in filter reports itself: for every observation of an update, the prediction,
-innovation, innovation covariance S = H P H^T + R and NIS, from the state just before
-the update with ekfviz's own measurement model (what a joint update linearises at).
+innovation, innovation covariance S = H P H^T + R and NIS, by running ekfviz's own update
+(:class:`~ekfviz.core.filter.EkfSlam`, with the run's parameters: sequential or joint)
+from the filter's state just before the update. A correct filter thus gets the very
+numbers the built-in one reports, and a wrong one the numbers its prior state implies.
 """
 
 from __future__ import annotations
 
 import inspect
-import math
 from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from ekfviz.core.filter import FilterError, FilterParams
+from ekfviz.core.filter import EkfSlam, FilterError, FilterParams
 from ekfviz.core.health import CovarianceCheck
 from ekfviz.core.protocol import SlamFilter, state_of
 from ekfviz.core.records import EventKind, EventRecord, Observations, frozen, snapshot
 from ekfviz.core.types import FloatArray, IntArray
-from ekfviz.models.angles import wrap_angles
 
 # P counts as symmetric when |P - P^T| <= SYMMETRY_TOLERANCE * max |P|
 SYMMETRY_TOLERANCE = 1e-9
@@ -43,7 +43,7 @@ class Plugged:
     def __init__(self, slam: SlamFilter, name: str, params: FilterParams) -> None:
         self.slam = slam
         self.name = name
-        self._R = params.R
+        self._params = params
         self._warnings: tuple[str, ...] = ()
         self._predict_takes_dt = _takes_dt(getattr(slam, "predict", None))
         self._x, self._P, self._ids = self._state("construction")
@@ -68,8 +68,20 @@ class Plugged:
 
     @property
     def warnings(self) -> tuple[str, ...]:
-        """Protocol filters report no per-observation warnings of their own."""
+        """Why ekfviz's own update from the filter's prior state skipped observations (a
+        landmark at zero range, an S not positive definite), one sentence each."""
         return self._warnings
+
+    def _derive(self, ids: IntArray, z: FloatArray) -> Observations:
+        """The observations as ekfviz's update sees them from the filter's prior state."""
+        reference = EkfSlam.from_state(self._params, self._x, self._P, self._ids)
+        try:
+            observations = reference.observe(ids, z)
+        except FilterError:  # the filter's own update is judged after it runs
+            self._warnings = ()
+            return _unjudged(ids, z, self._ids)
+        self._warnings = reference.warnings
+        return observations
 
     # -- events -------------------------------------------------------------------------
 
@@ -87,7 +99,9 @@ class Plugged:
         z = np.array(z, dtype=np.float64).reshape(-1, 2)
         if len(set(ids_arr.tolist())) != len(ids_arr):
             raise FilterError("an observation names the same landmark twice")
-        observations = derive_observations(self._x, self._P, self._ids, ids_arr, z, self._R)
+        observations = (
+            _unjudged(ids_arr, z, self._ids) if self.offline else self._derive(ids_arr, z)
+        )
         self._call("update", lambda: self.slam.update(ids_arr.copy(), z.copy()))
         x, P, state_ids = self._state("update")
         missing = set(ids_arr.tolist()) - set(state_ids.tolist())
@@ -99,14 +113,16 @@ class Plugged:
         self._x, self._P, self._ids = x, P, state_ids
         return observations
 
-    def finish(self) -> bool:
-        """Call the filter's optional ``finish()``; whether it has one."""
-        finish = getattr(self.slam, "finish", None)
-        if not callable(finish):
-            return False
-        self._call("finish", finish)
+    @property
+    def offline(self) -> bool:
+        """Whether the filter has a ``finish()``: it estimates the whole run at the end
+        (a batch smoother), so its state before then is not an estimate to record."""
+        return callable(getattr(self.slam, "finish", None))
+
+    def finish(self) -> None:
+        """Call the filter's ``finish()`` and take its state after it."""
+        self._call("finish", self.slam.finish)  # type: ignore[attr-defined]
         self._x, self._P, self._ids = self._state("finish")
-        return True
 
     def record(
         self,
@@ -186,54 +202,15 @@ def check_state(
     return x, 0.5 * (P + P.T) if asymmetry else P
 
 
-def derive_observations(
-    x: FloatArray,
-    P: FloatArray,
-    state_ids: IntArray,
-    ids: IntArray,
-    z: FloatArray,
-    R: FloatArray,
-) -> Observations:
-    """Predictions, innovations, S and NIS of an observation, from the state before it.
-
-    :param x: (3+2N,) and ``P`` (3+2N, 3+2N): the state the update starts from
-    :param state_ids: (N,) its landmark ids; observed ids not among them are new
-    :param ids: (m,) observed ids, ``z`` (m, 2) their (bearing, range)
-    :return: the observations in file order; new landmarks' rows NaN, ``initialised``
-    """
+def _unjudged(ids: IntArray, z: FloatArray, state_ids: IntArray) -> Observations:
+    """Observations with no prediction (NaN rows), new landmarks flagged."""
     m = len(ids)
-    slot = {int(i): 3 + 2 * k for k, i in enumerate(state_ids.tolist())}
-    rows = np.array([slot.get(int(i), -1) for i in ids], dtype=np.int64)
-    new = rows < 0
-    z_pred = np.full((m, 2), np.nan)
-    innovation = np.full((m, 2), np.nan)
-    S = np.full((m, 2, 2), np.nan)
-    nis = np.full(m, np.nan)
-    skipped = np.zeros(m, dtype=bool)
-    for k in np.flatnonzero(~new):
-        j = int(rows[k])
-        dx, dy = x[j] - x[0], x[j + 1] - x[1]
-        q = dx * dx + dy * dy
-        if q < 1e-12:  # the measurement Jacobian divides by the range
-            skipped[k] = True
-            continue
-        r = math.sqrt(q)
-        z_pred[k] = (math.remainder(math.atan2(dy, dx) - x[2], 2 * math.pi), r)
-        H_pose = np.array([[dy / q, -dx / q, -1.0], [-dx / r, -dy / r, 0.0]])
-        H_landmark = np.array([[-dy / q, dx / q], [dx / r, dy / r]])
-        index = [0, 1, 2, j, j + 1]
-        H = np.hstack([H_pose, H_landmark])
-        S[k] = H @ P[np.ix_(index, index)] @ H.T + R
-        innovation[k] = z[k] - z_pred[k]
-        try:
-            nis[k] = float(innovation[k] @ np.linalg.solve(S[k], innovation[k]))
-        except np.linalg.LinAlgError:
-            skipped[k] = True
-    innovation[:, 0] = wrap_angles(innovation[:, 0])
+    nan = np.full((m, 2), np.nan)
+    new = ~np.isin(ids, state_ids)
     return Observations(
-        ids=frozen(ids.copy()), z=frozen(z.copy()), z_pred=frozen(z_pred),
-        innovation=frozen(innovation), S=frozen(S), nis=frozen(nis),
-        initialised=frozen(new), skipped=frozen(skipped),
+        ids=frozen(ids.copy()), z=frozen(z.copy()), z_pred=frozen(nan),
+        innovation=frozen(nan.copy()), S=frozen(np.full((m, 2, 2), np.nan)),
+        nis=frozen(np.full(m, np.nan)), initialised=frozen(new), skipped=frozen(~new),
     )  # fmt: skip
 
 

@@ -15,6 +15,7 @@ from typing import TypeVar
 
 import numpy as np
 
+from ekfviz.core.correlation import Correlation
 from ekfviz.core.health import CovarianceCheck
 from ekfviz.core.types import BoolArray, FloatArray, Int8Array, IntArray
 
@@ -31,13 +32,18 @@ class EventKind(str, enum.Enum):
 class Control:
     """A control read from a log: drive ``d`` metres, then turn ``alpha`` radians.
 
-    ``time`` is the log's timestamp in seconds, when it has one.
+    ``time`` is the log's timestamp in seconds, when it has one: for a control that
+    spans a known time, the time at its end (where the predict leaves the state).
+    ``dt`` is the time in seconds the control spans, when known (velocity odometry held
+    for ``dt``; the time since the previous timestamp of an extended log): the
+    time-scaled motion noise needs it.
     """
 
     line: int
     d: float
     alpha: float
     time: float | None = None
+    dt: float | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -202,6 +208,8 @@ class EventRecord:
     :param warnings: what went wrong at this event without stopping the run, one
         sentence each (a skipped observation, a covariance that lost definiteness)
     :param covariance: the check of the whole covariance, at the events where it ran
+    :param correlation: the correlation matrix of the whole covariance, at the events
+        where the replay took it (see :mod:`ekfviz.core.correlation`)
     :param association: what the association decided, at the update of a scan
     """
 
@@ -220,6 +228,7 @@ class EventRecord:
     time: float | None = None
     warnings: tuple[str, ...] = ()
     covariance: CovarianceCheck | None = None
+    correlation: Correlation | None = None
     association: ScanAssociation | None = None
 
     @property

@@ -10,7 +10,9 @@ from typing import Any
 import numpy as np
 
 from ekfviz.association.associator import Associator
+from ekfviz.core.correlation import CorrelationCadence, correlation_of
 from ekfviz.core.filter import EkfSlam, FilterError, FilterParams
+from ekfviz.core.gating import gated
 from ekfviz.core.health import check_covariance, check_interval
 from ekfviz.core.plugged import FilterFactory, Plugged, PluginError
 from ekfviz.core.records import (
@@ -54,9 +56,10 @@ def replay(
     :class:`~ekfviz.core.protocol.SlamFilter` protocol (constructed as
     ``make_filter(params)``, called ``name`` in messages): its state is checked after
     every event, and what it saw at an update is derived from its state before it
-    (:class:`~ekfviz.core.plugged.Plugged`). Where such a filter has a ``finish()``
-    method, it is called after the last event and the state after it is one more
-    record (a batch optimum shows there).
+    (:class:`~ekfviz.core.plugged.Plugged`). A filter with a ``finish()`` method works
+    offline (a batch smoother): it takes every event, ``finish()`` is called after the
+    last, and its records are the initialisation and the state after ``finish()``, at the
+    last step.
 
     Event 0 / step 0 is the initialisation: the prior pose, plus the landmarks of the
     log's first line when that line is an observation. Every control starts a new step
@@ -97,7 +100,17 @@ def replay(
             ekf = Plugged(plugin, name, params)
         except PluginError as error:
             raise FilterLineError(0, f"event 0 (init): {error}") from error
+    gate, R = params.gate, params.R
     next_check = 0  # the step from which the whole covariance is due for a check
+    cadence = CorrelationCadence()
+
+    def correlated(record: EventRecord, last: bool) -> EventRecord:
+        """The record, with the correlation matrix of P where it is due."""
+        if (record.kind is not EventKind.PREDICT or last) and cadence.due(
+            record.step, record.n_landmarks, last, record.time
+        ):
+            return replace(record, correlation=correlation_of(ekf.P, record.landmark_ids))
+        return record
 
     def checked(line: int, warnings: tuple[str, ...]) -> dict[str, Any]:
         """Check the whole covariance; its problems join the event's warnings."""
@@ -120,19 +133,29 @@ def replay(
         except FilterError as error:
             raise FilterLineError(first.line, str(error)) from error
         extra = checked(first.line, ekf.warnings)
-        yield ekf.record(
+        yield correlated(ekf.record(
             event=0, step=0, kind=EventKind.INIT, line=first.line, time=first.time,
             observations=observations, full_cov=full_cov, **association, **extra,
-        )  # fmt: skip
+        ), last)  # fmt: skip
         pending: list[tuple[AnyEvent, bool]] = []
     else:
         extra = checked(0, ())
-        yield ekf.record(event=0, step=0, kind=EventKind.INIT, full_cov=full_cov, **extra)
+        # the prior holds when the log's first event begins, when it has a time
+        start = None if first is None else first.time
+        if isinstance(first, Control) and start is not None and first.dt is not None:
+            start -= first.dt
+        yield correlated(
+            ekf.record(
+                event=0, step=0, kind=EventKind.INIT, time=start, full_cov=full_cov, **extra
+            ),
+            first is None,
+        )
         pending = [] if first is None else [(first, last)]
 
     step_has_update = True  # the initialisation counts as step 0's update
     event = 0
     no_extra: dict[str, Any] = {}
+    offline = isinstance(ekf, Plugged) and ekf.offline  # records only after finish()
     for event, (log_event, last) in enumerate(chain(pending, stream), start=1):
         # the filter's own errors name the line; "try" costs nothing until one is raised
         try:
@@ -142,32 +165,39 @@ def replay(
                 if isinstance(log_event, Drive):
                     _drive(ekf, log_event)
                 else:
-                    ekf.predict(log_event.d, log_event.alpha)
+                    ekf.predict(log_event.d, log_event.alpha, log_event.dt)
                 if last and associator is not None and isinstance(ekf, EkfSlam):
                     associator.finish(ekf)
+                if offline:
+                    continue
                 extra = checked(log_event.line, ()) if step >= next_check or last else no_extra
-                yield ekf.record(
+                yield correlated(ekf.record(
                     event=event, step=step, kind=EventKind.PREDICT, line=log_event.line,
                     time=log_event.time,
                     control=_control(log_event),
                     full_cov=full_cov, **extra,
-                )  # fmt: skip
+                ), last)  # fmt: skip
             else:
                 if step_has_update:
                     step += 1
                 step_has_update = True
+                rejected: tuple[str, ...] = ()
+                if gate is not None and isinstance(log_event, Sighting):
+                    log_event, rejected = gated(ekf.x, ekf.P, ekf.landmark_ids, log_event, R, gate)
                 observations, association = _observe(ekf, log_event, associator, last)
-                warnings = ekf.warnings
+                if offline:
+                    continue
+                warnings = rejected + ekf.warnings
                 extra = (
                     checked(log_event.line, warnings)
                     if step >= next_check or last or warnings
                     else no_extra
                 )
-                yield ekf.record(
+                yield correlated(ekf.record(
                     event=event, step=step, kind=EventKind.UPDATE, line=log_event.line,
                     time=log_event.time, observations=observations, full_cov=full_cov,
                     **association, **extra,
-                )  # fmt: skip
+                ), last)  # fmt: skip
         except FilterLineError:
             raise
         except PluginError as error:
@@ -175,14 +205,16 @@ def replay(
             raise FilterLineError(log_event.line, f"event {event} ({kind}): {error}") from error
         except FilterError as error:
             raise FilterLineError(log_event.line, str(error)) from error
-    if isinstance(ekf, Plugged):
+    if offline:
+        assert isinstance(ekf, Plugged)
         try:
-            finished = ekf.finish()
+            ekf.finish()
         except PluginError as error:
             raise FilterLineError(0, f"after the last event: {error}") from error
-        if finished:
-            extra = checked(0, ())
-            yield ekf.record(event=event + 1, step=step + 1, kind=EventKind.UPDATE, **extra)
+        # the estimate of the whole run, at its last step (where the truth's last pose is)
+        yield correlated(
+            ekf.record(event=event + 1, step=step, kind=EventKind.UPDATE, **checked(0, ())), True
+        )
 
 
 def _observe(

@@ -29,6 +29,8 @@ BUILTIN = "ekf"
 # name -> ("module:Class", the extra that provides its dependency, or None)
 REGISTRY: dict[str, tuple[str, str | None]] = {
     BUILTIN: ("ekfviz.core.filter:EkfSlam", None),
+    "isam2": ("ekfviz.filters.gtsam:Isam2Slam", "gtsam"),
+    "batch": ("ekfviz.filters.gtsam:BatchSlam", "gtsam"),
 }
 
 

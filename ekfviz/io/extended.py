@@ -44,7 +44,8 @@ def read_log(
     progress: ProgressCallback | None = None,
     warn: WarningCallback | None = None,
 ) -> Iterator[AnyEvent]:
-    """Stream the events of a log in either format, told apart by its first data line.
+    """Stream the events of a log file in either format, told apart by its first data
+    line (:func:`ekfviz.io.detect.read_log` also takes an MRCLAM dataset directory).
 
     :param progress: called now and then with the number of bytes read so far
     :param warn: told once when bearings outside (-pi, pi] are wrapped into range
@@ -74,6 +75,7 @@ def read_extended(
     :raises InputError: for the first bad line met, naming it and what was expected
     """
     last_time = -np.inf
+    previous: float | None = None  # the timestamp of the latest line that had one
     wrap = BearingWrapper(path, warn)
     for line, tokens in token_lines(path, progress):
         time: float | None = None
@@ -97,7 +99,9 @@ def read_extended(
                     path, line, f"found {len(values)} values after 'control', expected 2: d alpha"
                 )
             d, alpha = (parse_number(path, line, token) for token in values)
-            yield Control(line=line, d=d, alpha=alpha, time=time)
+            # a timed control spans the time since the previous timestamp, when there is one
+            dt = None if time is None or previous is None else time - previous
+            yield Control(line=line, d=d, alpha=alpha, time=time, dt=dt)
         elif keyword == "observe":
             yield _observation(path, line, values, time, wrap)
         elif keyword == "scan":
@@ -110,6 +114,8 @@ def read_extended(
                 f"found {shown!r}, expected a keyword: control, observe or scan"
                 " (after an optional timestamp)",
             )
+        if time is not None:
+            previous = time
 
 
 def _observation(

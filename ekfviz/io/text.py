@@ -7,6 +7,8 @@ import re
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
+import numpy as np
+
 from ekfviz.core.types import FloatArray
 from ekfviz.io.errors import InputError
 from ekfviz.models.angles import wrap_angles
@@ -97,6 +99,77 @@ def numeric_lines(
                 yield number, values
                 continue
         yield number, [parse_number(path, number, token) for token in tokens]
+
+
+BLOCK_BYTES = 1 << 18  # bytes read per block by numeric_blocks
+
+
+def numeric_blocks(
+    path: Path, columns: int, what: str, progress: ProgressCallback | None = None
+) -> Iterator[tuple[list[int], FloatArray]]:
+    """Stream a table of ``columns`` numbers a line in blocks: (line numbers, (k, columns)).
+
+    For long, regular files (MRCLAM's tens of thousands of lines): a block is converted
+    in one go, and only a block that does not convert is read line by line, to name the
+    first bad line as :func:`numeric_lines` would (``what`` says what a line holds).
+
+    :raises InputError: as :func:`numeric_lines`, and for a line of another length
+    """
+    try:
+        handle = path.open("rb")
+    except FileNotFoundError:
+        raise InputError(path, 0, "no such file") from None
+    except IsADirectoryError:
+        raise InputError(path, 0, "is a directory, expected a text file") from None
+    except OSError as error:
+        raise InputError(path, 0, f"cannot be read ({error.strerror})") from None
+    with handle:
+        number = 0
+        done = 0
+        while raw := handle.readlines(BLOCK_BYTES):
+            first = number + 1
+            number += len(raw)
+            done += sum(map(len, raw))
+            lines: list[int] = []
+            data: list[bytes] = []
+            for k, text in enumerate(raw, start=first):
+                body = text.split(b"#", 1)[0] if b"#" in text else text
+                if body.strip():
+                    lines.append(k)
+                    data.append(body)
+            try:
+                values = list(map(float, b" ".join(data).split()))
+                table = np.array(values, dtype=np.float64)
+                good = len(values) == columns * len(data) and bool(np.isfinite(table).all())
+            except ValueError:
+                good = False
+            if not good:
+                # the slow way, to name the line at fault
+                table = np.array(_checked_rows(path, first, raw, columns, what), dtype=np.float64)
+            if progress is not None:
+                progress(done)
+            if lines:
+                yield lines, table.reshape(len(lines), columns)
+
+
+def _checked_rows(
+    path: Path, first: int, raw: list[bytes], columns: int, what: str
+) -> list[list[float]]:
+    rows = []
+    for number, text in enumerate(raw, start=first):
+        try:
+            body = text.decode("utf-8")
+        except UnicodeDecodeError:
+            raise InputError(path, number, "found bytes that are not UTF-8 text") from None
+        tokens = body.split("#", 1)[0].split()
+        if not tokens:
+            continue
+        if len(tokens) != columns:
+            raise InputError(
+                path, number, f"found {len(tokens)} numbers, expected {columns}: {what}"
+            )
+        rows.append([parse_number(path, number, token) for token in tokens])
+    return rows
 
 
 def parse_number(path: Path, line: int, token: str) -> float:

@@ -9,23 +9,23 @@ No rerun, no typer.
 
 from __future__ import annotations
 
-import os
+import functools
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from ekfviz.core.consistency import Consistency
+from ekfviz.core.consistency import Consistency, reading
 from ekfviz.core.evaluation import Evaluation, evaluate
 from ekfviz.core.filter import FilterParams
 from ekfviz.core.records import EventRecord
 from ekfviz.core.replay import replay
 from ekfviz.core.truth import GroundTruth
 from ekfviz.filters import BUILTIN, FilterSpec
-from ekfviz.io.extended import read_log
+from ekfviz.io.detect import read_log
+from ekfviz.studies.executors import Executor, LocalExecutor
 
 VARIABLE = ("sigma_x", "sigma_y", "sigma_alpha", "sigma_bearing", "sigma_range")
 
@@ -85,25 +85,16 @@ def run_specs(
     truth: GroundTruth | None,
     workers: int | None = None,
     done: Callable[[Run], None] | None = None,
+    executor: Executor | None = None,
 ) -> list[Run]:
-    """Replay every pipeline over ``workers`` processes; results in the specs' order.
+    """Replay every pipeline on ``executor`` (default: ``workers`` local processes);
+    results in the specs' order.
 
-    The result does not depend on the number of workers: each run is the same replay.
+    The result does not depend on the executor or the number of workers: each run is
+    the same replay.
     """
-    workers = min(len(specs), workers or os.cpu_count() or 1)
-    if workers <= 1:
-        runs = []
-        for spec in specs:
-            runs.append(run_spec(path, spec, truth))
-            if done is not None:
-                done(runs[-1])
-        return runs
-    with ProcessPoolExecutor(max_workers=workers) as pool:
-        futures = [pool.submit(run_spec, path, spec, truth) for spec in specs]
-        for future in futures:
-            if done is not None:
-                done(future.result())
-        return [future.result() for future in futures]
+    executor = LocalExecutor(workers) if executor is None else executor
+    return executor.map(functools.partial(run_spec, path, truth=truth), specs, done=done)
 
 
 @dataclass(frozen=True, slots=True)
@@ -139,26 +130,20 @@ def summarise(run: Run, baseline: Run) -> Summary:
     ]
     consistency = evaluation.consistency
     count = consistency.nis if consistency is not None else None
-    reading = "no update to judge"
-    if count is not None and count.verdict is not None:
-        reading = count.verdict.value
-        if count.above > count.below and count.fraction_inside < 0.9:
-            reading += f", NIS {count.above / count.total:.0%} high"
-        elif count.below > count.above and count.fraction_inside < 0.9:
-            reading += f", NIS {count.below / count.total:.0%} low"
+    inside = sum(bool(r.inside_3sigma) for r in evaluation.landmarks) if distances else None
     return Summary(
         label=run.spec.label,
         parameters={name: getattr(run.spec.params, name) for name in VARIABLE},
         mean_error=float(np.mean(errors)) if errors else None,
         max_error=float(np.max(errors)) if errors else None,
         mean_mahalanobis=float(np.mean(distances)) if distances else None,
-        inside=sum(bool(r.inside_3sigma) for r in evaluation.landmarks) if distances else None,
+        inside=inside,
         landmarks=len(evaluation.landmarks),
         final_pose=[float(v) for v in evaluation.pose],
         from_baseline=float(np.hypot(*(evaluation.pose[:2] - baseline.evaluation.pose[:2]))),
         mean_nis=float(np.mean(nis)) if nis else None,
         nis_inside=count.fraction_inside if count is not None and count.total else None,
-        reading=reading,
+        reading=reading(consistency, inside, len(distances)),
         filter=run.spec.filter.text,
         seconds=run.seconds,
         ms_per_step=1000.0 * run.seconds / run.steps if run.steps else None,

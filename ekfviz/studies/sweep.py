@@ -74,6 +74,12 @@ def parse_vary(text: str) -> list[Change]:
     changes = []
     for value in values.split(","):
         found = _VALUE.fullmatch(value.strip())
+        negative = _VALUE.fullmatch(value.strip().replace("-", "", 1))
+        if found is None and negative is not None:
+            raise SweepError(
+                f"--vary {text}: {value.strip()!r} is negative: a sigma (or a factor of one)"
+                " must be positive"
+            )
         if found is None:
             raise SweepError(
                 f"--vary {text}: found {value.strip()!r}, expected a number (0.5) or a factor"

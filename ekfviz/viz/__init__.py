@@ -7,7 +7,8 @@
 - :mod:`ekfviz.viz.style` -- entity paths and colours;
 - :mod:`ekfviz.viz.blueprint` -- the default viewer layout;
 - :mod:`ekfviz.viz.run` -- one ``ekfviz replay`` run: properties, sinks, atomic save;
-- :mod:`ekfviz.viz.info` -- reading a recording's properties and documents back.
+- :mod:`ekfviz.viz.info` -- reading a recording's properties and documents back;
+- :mod:`ekfviz.viz.export` -- reading its trajectories and map back (``ekfviz export``).
 
 Bring your own filter::
 
@@ -29,6 +30,7 @@ See ``examples/byof_minimal.py`` for a complete, runnable loop.
 from __future__ import annotations
 
 from ekfviz.viz.ellipses import ellipse_outlines
+from ekfviz.viz.export import RecordedRun, Trajectory, read_recorded_run
 from ekfviz.viz.info import NotARecordingError, RecordingInfo, read_recording_info
 from ekfviz.viz.recorder import Recorder
 from ekfviz.viz.run import (
@@ -45,6 +47,7 @@ from ekfviz.viz.run import (
 
 __all__ = [
     "NotARecordingError",
+    "RecordedRun",
     "Recorder",
     "Recording",
     "RecordingInfo",
@@ -52,9 +55,11 @@ __all__ = [
     "RunLogger",
     "SinkError",
     "Sinks",
+    "Trajectory",
     "ellipse_outlines",
     "open_recording",
     "open_run",
+    "read_recorded_run",
     "read_recording_info",
     "resolve_default_sinks",
     "run_info",

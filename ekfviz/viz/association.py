@@ -79,7 +79,10 @@ class AssociationView:
         rec.set_time(style.STEP, sequence=record.step)
         rec.set_time(style.EVENT, sequence=record.event)
         if record.time is not None:
-            rec.set_time(style.TIME, duration=record.time)
+            if time_is_epoch(record.time):
+                rec.set_time(style.TIME, timestamp=record.time)
+            else:
+                rec.set_time(style.TIME, duration=record.time)
         pose = record.pose
         sx, sy, _, _ = self._sensor.sensor(pose)
         points = _points(self._sensor, pose, association.z)
@@ -184,13 +187,28 @@ class AssociationView:
                 rr.TimeColumn(style.EVENT, sequence=table[:, 1].astype(np.int64)),
             ]
             if np.isfinite(table[:, 2]).all():
-                indexes.append(rr.TimeColumn(style.TIME, duration=table[:, 2]))
+                indexes.append(_time_column(table[:, 2]))
             self._rec.send_columns(
                 self._path(f"{SERIES}/{name}"),
                 indexes=indexes,
                 columns=rr.Scalars.columns(scalars=table[:, 3]),
             )
         self._series = {name: [] for name in self._series}
+
+
+def time_is_epoch(time: float) -> bool:
+    """The recorder's choice of the ``time`` timeline's type (see
+    :func:`ekfviz.viz.recorder.time_is_epoch`)."""
+    from ekfviz.viz.recorder import time_is_epoch as recorder_choice
+
+    return recorder_choice(time)
+
+
+def _time_column(times: FloatArray) -> rr.TimeColumn:
+    """The ``time`` timeline of some rows, of the type the recorder chose for the log."""
+    if len(times) and time_is_epoch(float(times[0])):
+        return rr.TimeColumn(style.TIME, timestamp=times)
+    return rr.TimeColumn(style.TIME, duration=times)
 
 
 def _points(sensor: RangeBearing, pose: FloatArray, z: FloatArray) -> FloatArray:
@@ -214,7 +232,7 @@ def log_reference(
     rec.send_columns(
         path(REFERENCE_ERROR),
         indexes=[
-            rr.TimeColumn(style.TIME, duration=fit.times),
+            _time_column(fit.times),
             rr.TimeColumn(style.STEP, sequence=steps.astype(np.int64)),
         ],
         columns=rr.Scalars.columns(scalars=fit.errors),
@@ -223,7 +241,7 @@ def log_reference(
     rec.send_columns(
         path(REFERENCE_RMSE),
         indexes=[
-            rr.TimeColumn(style.TIME, duration=fit.times),
+            _time_column(fit.times),
             rr.TimeColumn(style.STEP, sequence=steps.astype(np.int64)),
         ],
         columns=rr.Scalars.columns(scalars=rmse),

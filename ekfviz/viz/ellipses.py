@@ -44,6 +44,50 @@ def _unit_circle_map(n_points: int) -> FloatArray:
     return circle_map
 
 
+def ellipse_axes(means_xy: FloatArray, covs: FloatArray, *, n_sigma: float = N_SIGMA) -> FloatArray:
+    """The affine maps of the unit circle onto the ``n_sigma`` ellipses of many Gaussians.
+
+    :param means_xy: (K, 2) means
+    :param covs: (K, 2, 2) covariances (symmetric PSD; negative eigenvalues from round-off
+        are clamped to 0, giving a flat ellipse rather than NaN)
+    :return: (K, 6) rows [A00, A01, A10, A11, mx, my]: the ellipse is
+        mean + A [cos t, sin t] with A = n_sigma V sqrt(L), C = V L V^T
+    """
+    means_xy = np.asarray(means_xy, dtype=np.float64).reshape(-1, 2)
+    covs = np.asarray(covs, dtype=np.float64).reshape(-1, 2, 2)
+    # The eigen-decomposition of [[a, b], [b, c]] in closed form, for all at once (a
+    # batched eigh costs ten times as much): the larger eigenvalue (a+c)/2 + r with
+    # r = hypot((a-c)/2, b), the smaller as det / larger (no cancellation), the major
+    # axis at angle atan2(b, (a-c)/2) / 2.
+    a, c = covs[:, 0, 0], covs[:, 1, 1]
+    b = 0.5 * (covs[:, 0, 1] + covs[:, 1, 0])
+    half_difference = 0.5 * (a - c)
+    major = 0.5 * (a + c) + np.hypot(half_difference, b)
+    minor = np.divide(a * c - b * b, major, out=np.zeros_like(major), where=major > 0.0)
+    major_axis = n_sigma * np.sqrt(np.clip(major, 0.0, None))
+    minor_axis = n_sigma * np.sqrt(np.clip(minor, 0.0, None))
+    angle = 0.5 * np.arctan2(b, half_difference)
+    cos_angle, sin_angle = np.cos(angle), np.sin(angle)
+    coefficients: FloatArray = np.column_stack(
+        [
+            cos_angle * major_axis,
+            -sin_angle * minor_axis,
+            sin_angle * major_axis,
+            cos_angle * minor_axis,
+            means_xy,
+        ]
+    )
+    return coefficients
+
+
+def unit_circle(n_points: int = N_POINTS) -> FloatArray:
+    """(n_points, 2) the closed unit circle that ``ellipse_axes`` maps onto an ellipse."""
+    t = np.linspace(0.0, 2.0 * np.pi, n_points)
+    circle: FloatArray = np.column_stack([np.cos(t), np.sin(t)])
+    circle[-1] = circle[0]
+    return circle
+
+
 def ellipse_outlines(
     means_xy: FloatArray,
     covs: FloatArray,
@@ -61,31 +105,7 @@ def ellipse_outlines(
     """
     if n_points < 3:
         raise ValueError(f"an outline needs at least 3 points, got {n_points}")
-    means_xy = np.asarray(means_xy, dtype=np.float64).reshape(-1, 2)
-    covs = np.asarray(covs, dtype=np.float64).reshape(-1, 2, 2)
-    # The eigen-decomposition of [[a, b], [b, c]] in closed form, for all at once (a
-    # batched eigh costs ten times as much): the larger eigenvalue (a+c)/2 + r with
-    # r = hypot((a-c)/2, b), the smaller as det / larger (no cancellation), the major
-    # axis at angle atan2(b, (a-c)/2) / 2.
-    a, c = covs[:, 0, 0], covs[:, 1, 1]
-    b = 0.5 * (covs[:, 0, 1] + covs[:, 1, 0])
-    half_difference = 0.5 * (a - c)
-    major = 0.5 * (a + c) + np.hypot(half_difference, b)
-    minor = np.divide(a * c - b * b, major, out=np.zeros_like(major), where=major > 0.0)
-    major_axis = n_sigma * np.sqrt(np.clip(major, 0.0, None))
-    minor_axis = n_sigma * np.sqrt(np.clip(minor, 0.0, None))
-    angle = 0.5 * np.arctan2(b, half_difference)
-    cos_angle, sin_angle = np.cos(angle), np.sin(angle)
-    # A = n_sigma V sqrt(L), row by row, then the mean
-    coefficients = np.column_stack(
-        [
-            cos_angle * major_axis,
-            -sin_angle * minor_axis,
-            sin_angle * major_axis,
-            cos_angle * minor_axis,
-            means_xy,
-        ]
-    )
+    coefficients = ellipse_axes(means_xy, covs, n_sigma=n_sigma)
     outlines: FloatArray = (coefficients @ _unit_circle_map(n_points)).reshape(-1, n_points, 2)
     outlines[:, -1] = outlines[:, 0]  # cos(2 pi) is not exactly 1: close the loop exactly
     return outlines

@@ -1,9 +1,19 @@
-"""Read back how an ekfviz recording was made: its properties, input and evaluation."""
+"""Read back how an ekfviz recording was made: its kind, properties, input, result, status.
+
+Every recording ekfviz writes carries the property ``ekfviz`` (version, kind, command,
+parameters, input): a ``replay``, a ``sweep``, a ``consistency`` study, or a recording
+made through the :class:`~ekfviz.viz.recorder.Recorder` API by a filter of the user's
+own (``recorder``). A replay also carries ``status``: finished, or stopped early (where
+and why). Recordings made before these properties existed are still recognised by their
+entities.
+"""
 
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+import warnings
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
 from pathlib import Path
 
 import pyarrow as pa  # type: ignore[import-untyped]
@@ -16,9 +26,58 @@ class NotARecordingError(Exception):
     """A file that is not an ekfviz recording, with a one-line reason."""
 
 
+KINDS = {
+    "replay": "a replay of a log (ekfviz replay)",
+    "sweep": "a parameter sweep (ekfviz sweep)",
+    "compare": "a comparison of filters (ekfviz compare)",
+    "consistency": "a Monte-Carlo consistency study (ekfviz consistency)",
+    "recorder": "a filter of your own, recorded through the Recorder API",
+}
+
+
+@dataclass(frozen=True, slots=True)
+class RunStatus:
+    """How a run ended: ``finished``, or ``stopped`` early with where and why."""
+
+    state: str
+    reason: str | None = None
+    event: int | None = None
+    step: int | None = None
+    line: int | None = None
+
+    @property
+    def stopped(self) -> bool:
+        return self.state == "stopped"
+
+    def describe(self) -> str:
+        if not self.stopped:
+            return self.state
+        where = [f"event {self.event}"] if self.event is not None else []
+        if self.step is not None:
+            where.append(f"step {self.step}")
+        if self.line:
+            where.append(f"input line {self.line}")
+        at = f" after {', '.join(where)}" if where else ""
+        return f"stopped early{at}: {self.reason or 'no reason recorded'}"
+
+    def to_json(self) -> dict[str, object]:
+        return {
+            "state": self.state,
+            "stopped_early": self.stopped,
+            "reason": self.reason,
+            "event": self.event,
+            "step": self.step,
+            "line": self.line,
+        }
+
+
 @dataclass(frozen=True, slots=True)
 class RecordingInfo:
-    """What ``ekfviz info`` shows; ``input_text`` is the input exactly as replayed."""
+    """What ``ekfviz info`` shows; ``input_text`` is the input exactly as replayed.
+
+    Fields a kind of recording does not have (a consistency study has no input) are
+    empty.
+    """
 
     path: Path
     recording_id: str
@@ -34,85 +93,251 @@ class RecordingInfo:
     input_text: str | None
     evaluation_markdown: str | None
     compiled_kernel: bool | None = None  # None: made before ekfviz recorded it
+    time_span: tuple[float, float] | None = None  # of the time timeline, seconds
+    time_kind: str | None = None  # "timestamp" (Unix time) or "duration"
+    kind: str = "replay"
+    application_id: str = "ekfviz"
+    status: RunStatus | None = None  # None: not recorded (not a replay, or an older one)
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def has_input(self) -> bool:
+        return bool(self.input_sha256)
 
     def summary(self) -> list[tuple[str, str]]:
         """(key, value) rows for a two-column table."""
         rows = [
             ("recording", str(self.path)),
+            ("kind", KINDS.get(self.kind, self.kind)),
+            ("status", self.status.describe() if self.status is not None else "-"),
             ("name", self.name or "-"),
+            ("application id", self.application_id),
             ("recording id", self.recording_id),
-            ("ekfviz", self.version),
-            ("filter kernel", {True: "compiled", False: "numpy", None: "-"}[self.compiled_kernel]),
-            ("command", self.command),
-            ("input", f"{self.input_name} ({self.input_size} bytes)"),
-            ("input sha256", self.input_sha256),
-            ("input embedded", "yes" if self.input_text is not None else "no"),
+            ("ekfviz", self.version or "-"),
         ]
+        if self.compiled_kernel is not None:
+            rows.append(("filter kernel", "compiled" if self.compiled_kernel else "numpy"))
+        if self.command:
+            rows.append(("command", self.command))
+        if self.has_input:
+            rows += [
+                ("input", f"{self.input_name} ({self.input_size} bytes)"),
+                ("input sha256", self.input_sha256),
+                ("input embedded", "yes" if self.input_text is not None else "no"),
+            ]
+        if self.time_span is not None:
+            rows.append(("time span", _span(self.time_span, self.time_kind == "timestamp")))
         if self.truth_name is not None:
             rows += [("truth", self.truth_name), ("truth sha256", self.truth_sha256 or "-")]
         rows += [(f"  {key}", json.dumps(value)) for key, value in self.parameters.items()]
+        rows += [("note", note) for note in self.notes]
         return rows
+
+    def to_json(self) -> dict[str, object]:
+        """Everything shown, as plain JSON values (the input text itself left out)."""
+        return {
+            "recording": str(self.path),
+            "kind": self.kind,
+            "status": None if self.status is None else self.status.to_json(),
+            "name": self.name,
+            "application_id": self.application_id,
+            "recording_id": self.recording_id,
+            "ekfviz_version": self.version or None,
+            "compiled_kernel": self.compiled_kernel,
+            "command": self.command or None,
+            "input": (
+                {
+                    "name": self.input_name,
+                    "size": self.input_size,
+                    "sha256": self.input_sha256,
+                    "embedded": self.input_text is not None,
+                }
+                if self.has_input
+                else None
+            ),
+            "truth": (
+                None
+                if self.truth_name is None
+                else {"name": self.truth_name, "sha256": self.truth_sha256}
+            ),
+            "parameters": self.parameters,
+            "time_span": None if self.time_span is None else list(self.time_span),
+            "time_kind": self.time_kind,
+            "evaluation_markdown": self.evaluation_markdown,
+            "notes": self.notes,
+        }
 
 
 PROPERTIES = "/__properties"
 EKFVIZ_PROPERTIES = "/__properties/ekfviz"
+STATUS_PROPERTIES = "/__properties/status"
+TIME_PROPERTIES = "/__properties/time"
+CONSISTENCY_DOCUMENT = "/run/consistency"
+SWEEP_DOCUMENT = "/run/sweep"
+# entities every Recorder writes: how a recording of an older ekfviz is recognised
+RECORDER_ENTITIES = [f"/{style.ROBOT}", f"/{style.LOG}"]
 
 
 def read_recording_info(path: Path) -> RecordingInfo:
-    """Read the properties, the embedded input and the evaluation of a recording.
+    """Read the kind, properties, embedded input, evaluation and status of a recording.
 
     Only the chunks of the properties and the run documents are decoded.
 
-    :raises NotARecordingError: when ``path`` is not an ``.rrd`` written by ekfviz
+    :raises NotARecordingError: with a one-line reason, when ``path`` is missing, a
+        folder, not a Rerun file, cut short, or a recording ekfviz did not write
     """
+    if path.is_dir():
+        raise NotARecordingError(f"{path}: is a folder, expected a recording (.rrd)")
     if not path.is_file():
         raise NotARecordingError(f"{path}: no such file")
-    wanted = [PROPERTIES, EKFVIZ_PROPERTIES, f"/{style.RUN_INPUT}", f"/{style.RUN_EVALUATION}"]
+    size = path.stat().st_size
+    wanted = [
+        PROPERTIES,
+        EKFVIZ_PROPERTIES,
+        STATUS_PROPERTIES,
+        TIME_PROPERTIES,
+        f"/{style.RUN_INPUT}",
+        f"/{style.RUN_EVALUATION}",
+        CONSISTENCY_DOCUMENT,
+        SWEEP_DOCUMENT,
+    ]
     latest: dict[str, dict[str, object]] = {}
+    notes: list[str] = []
     try:
-        reader = RrdReader(path)
-        recordings = reader.recordings()
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            reader = RrdReader(path)
+            recordings = [entry for entry in reader.recordings() if entry.kind == "recording"]
+        if any("no footer" in str(w.message) for w in caught):
+            notes.append("the file has no footer: its writer did not close it")
         if not recordings:
             raise NotARecordingError(f"{path}: a Rerun file without a recording")
         for chunk in reader.stream(store=recordings[0]).filter(content=wanted):
-            latest.setdefault(chunk.entity_path, {}).update(_last_values(chunk.to_record_batch()))
+            values = latest.setdefault(chunk.entity_path, {})
+            values.update(_last_values(chunk.to_record_batch()))
+        if EKFVIZ_PROPERTIES not in latest:  # an older ekfviz's? look for the Recorder's
+            for chunk in reader.stream(store=recordings[0]).filter(content=RECORDER_ENTITIES):
+                latest.setdefault(chunk.entity_path, {})
+                if all(entity in latest for entity in RECORDER_ENTITIES):
+                    break
     except (RuntimeError, ValueError, OSError) as error:
-        reason = str(error).splitlines()[0] if str(error) else type(error).__name__
+        text = str(error)
+        if "exceeds file size" in text or ("too small" in text and _rrd_header(path)):
+            raise NotARecordingError(
+                f"{path}: truncated after {size} bytes (a recording cut short, e.g. by an"
+                " interrupted copy)"
+            ) from None
+        if "too small" in text or "not an rrd" in text.lower():
+            raise NotARecordingError(f"{path}: not a Rerun recording (.rrd)") from None
+        reason = text.splitlines()[0] if text else type(error).__name__
         raise NotARecordingError(f"{path}: not a Rerun recording (.rrd): {reason}") from None
+    entry = recordings[0]
     properties = latest.get(EKFVIZ_PROPERTIES)
-    if properties is None or "version" not in properties:
-        raise NotARecordingError(f"{path}: a Rerun recording, but not one written by ekfviz")
     documents = {key: values.get("TextDocument:text") for key, values in latest.items()}
+    name = _optional(latest.get(PROPERTIES, {}).get("RecordingInfo:name"))
+    if properties is None or "version" not in properties:
+        kind = _kind_by_entities(latest)
+        if kind is None:
+            raise NotARecordingError(
+                f"{path}: a Rerun recording (application id {entry.application_id!r}),"
+                " but not one written by ekfviz"
+            )
+        notes.append("made by an older ekfviz: it does not say its version or command")
+        properties = {"kind": kind}
+    kind = str(properties.get("kind") or _kind_by_entities(latest) or "replay")
     embedded = bool(properties.get("input_embedded", False))
+    evaluation = documents.get(f"/{style.RUN_EVALUATION}") or documents.get(
+        CONSISTENCY_DOCUMENT if kind == "consistency" else SWEEP_DOCUMENT
+    )
     return RecordingInfo(
         path=path,
-        recording_id=recordings[0].recording_id,
-        name=_optional(latest.get(PROPERTIES, {}).get("RecordingInfo:name")),
-        version=str(properties["version"]),
-        command=str(properties.get("command", "")),
-        parameters=json.loads(str(properties.get("parameters", "{}"))),
-        input_name=str(properties.get("input_name", "")),
-        input_size=int(str(properties.get("input_size", 0))),
-        input_sha256=str(properties.get("input_sha256", "")),
+        recording_id=entry.recording_id,
+        name=name,
+        version=str(properties.get("version", "")),
+        command=str(properties.get("command", "") or ""),
+        parameters=json.loads(str(properties.get("parameters", "{}") or "{}")),
+        input_name=str(properties.get("input_name", "") or ""),
+        input_size=int(str(properties.get("input_size", 0) or 0)),
+        input_sha256=str(properties.get("input_sha256", "") or ""),
         truth_name=_optional(properties.get("truth_name")),
         truth_sha256=_optional(properties.get("truth_sha256")),
         input_text=_optional(documents.get(f"/{style.RUN_INPUT}")) if embedded else None,
-        evaluation_markdown=_optional(documents.get(f"/{style.RUN_EVALUATION}")),
+        evaluation_markdown=_optional(evaluation),
         compiled_kernel=(
             None if "compiled_kernel" not in properties else bool(properties["compiled_kernel"])
         ),
+        time_span=_time_span(latest.get(TIME_PROPERTIES, {})),
+        time_kind=_optional(latest.get(TIME_PROPERTIES, {}).get("kind")),
+        kind=kind,
+        application_id=entry.application_id,
+        status=_status(latest.get(STATUS_PROPERTIES)),
+        notes=notes,
+    )
+
+
+def _time_span(values: dict[str, object]) -> tuple[float, float] | None:
+    start, end = values.get("start"), values.get("end")
+    if not isinstance(start, (int, float)) or not isinstance(end, (int, float)):
+        return None
+    return float(start), float(end)
+
+
+def _span(span: tuple[float, float], epoch: bool) -> str:
+    """The time span for people: dates for Unix times, seconds otherwise."""
+    start, end = span
+    if epoch:
+        first = datetime.fromtimestamp(start, tz=timezone.utc).isoformat(timespec="milliseconds")
+        last = datetime.fromtimestamp(end, tz=timezone.utc).isoformat(timespec="milliseconds")
+        return f"{first} to {last} ({end - start:.3f} s)"
+    return f"{start:.3f} s to {end:.3f} s ({end - start:.3f} s)"
+
+
+def _rrd_header(path: Path) -> bool:
+    """Whether a file starts like a Rerun file (its four-character code)."""
+    with path.open("rb") as file:
+        head = file.read(4)
+    return bool(head) and b"RRF2".startswith(head)
+
+
+def _kind_by_entities(latest: dict[str, dict[str, object]]) -> str | None:
+    """The kind of a recording without ekfviz properties, from what it holds."""
+    if CONSISTENCY_DOCUMENT in latest:
+        return "consistency"
+    if SWEEP_DOCUMENT in latest:
+        return "sweep"
+    if f"/{style.RUN_INPUT}" in latest:
+        return "replay"
+    if all(entity in latest for entity in RECORDER_ENTITIES):
+        return "recorder"
+    return None
+
+
+def _status(values: dict[str, object] | None) -> RunStatus | None:
+    if not values or "state" not in values:
+        return None
+
+    def number(key: str) -> int | None:
+        value = values.get(key)
+        return None if value is None or int(str(value)) < 0 else int(str(value))
+
+    return RunStatus(
+        state=str(values["state"]),
+        reason=_optional(values.get("reason")) or None,
+        event=number("event"),
+        step=number("step"),
+        line=number("line"),
     )
 
 
 def _last_values(batch: pa.RecordBatch) -> dict[str, object]:
     """The last non-null single value of every data column of a chunk."""
     values: dict[str, object] = {}
-    for field, column in zip(batch.schema, batch.columns, strict=True):
-        if (field.metadata or {}).get(b"rerun:kind") != b"data":
+    for field_, column in zip(batch.schema, batch.columns, strict=True):
+        if (field_.metadata or {}).get(b"rerun:kind") != b"data":
             continue
         for cell in reversed(column.to_pylist()):
             if cell:
-                values[field.name] = cell[0]
+                values[field_.name] = cell[0]
                 break
     return values
 

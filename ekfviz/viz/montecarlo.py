@@ -3,17 +3,20 @@
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import uuid
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from ekfviz import __version__
 from ekfviz.sim.montecarlo import MonteCarlo
 from ekfviz.viz import style
+from ekfviz.viz.blueprint import WHOLE_RUN
 from ekfviz.viz.run import temporary_beside
 
 REPORT = "run/consistency"
@@ -31,20 +34,41 @@ def atomic_rrd(path: Path) -> Iterator[Path]:
         temporary.unlink(missing_ok=True)
 
 
-def save_monte_carlo(path: Path, result: MonteCarlo, name: str, markdown: str) -> None:
+def save_monte_carlo(
+    path: Path,
+    result: MonteCarlo,
+    name: str,
+    markdown: str,
+    *,
+    command: str = "",
+    settings: Mapping[str, object] | None = None,
+) -> None:
     """Write the averaged curves, their bounds and the verdict document to ``path``.
 
     :param markdown: the study's settings and verdict, shown beside the plots
+    :param command: the command line that made it, for ``ekfviz info``
+    :param settings: the study's settings (scenario, runs, filter, ...), likewise
     """
     blueprint = rrb.Blueprint(
         rrb.Horizontal(
             rrb.Vertical(
-                rrb.TimeSeriesView(name="Mean NEES and 95% bounds", origin=style.NEES),
-                rrb.TimeSeriesView(name="Mean NIS and 95% bounds", origin=style.NIS),
+                rrb.TimeSeriesView(
+                    axis_x=WHOLE_RUN,
+                    name="Mean NEES (blue) and 95% bounds",
+                    origin=style.NEES,
+                    plot_legend=rrb.PlotLegend(visible=False),
+                ),
+                rrb.TimeSeriesView(
+                    axis_x=WHOLE_RUN,
+                    name="Mean NIS (blue) and 95% bounds",
+                    origin=style.NIS,
+                    plot_legend=rrb.PlotLegend(visible=False),
+                ),
             ),
             rrb.TextDocumentView(name="Consistency", origin=REPORT),
             column_shares=[3, 2],
         ),
+        rrb.TimePanel(timeline=style.STEP, state="collapsed"),
         collapse_panels=True,
     )
     with atomic_rrd(path) as temporary:
@@ -52,6 +76,15 @@ def save_monte_carlo(path: Path, result: MonteCarlo, name: str, markdown: str) -
         rec.set_log_time_enabled(False)
         rec.save(temporary, default_blueprint=blueprint)
         rec.send_recording_name(name)
+        properties = rr.AnyValues()
+        for key, value in (
+            ("version", __version__),
+            ("kind", "consistency"),
+            ("command", command),
+            ("parameters", json.dumps(dict(settings or {}))),
+        ):
+            properties.with_component_from_data(key, value)
+        rec.send_property("ekfviz", properties)
         rec.log(REPORT, rr.TextDocument(markdown, media_type=rr.MediaType.MARKDOWN), static=True)
         steps = np.arange(len(result.mean_nees))
         for path_, label, mean, bounds in (

@@ -27,7 +27,9 @@ landmark positions and a log line at every event. The 3-sigma ellipses of all la
 at every update while the map holds at most ``SMALL_MAP`` landmarks; beyond that, at
 every update only those of the landmarks observed (``world/landmarks/ellipses/observed``)
 and the whole map every ``MAP_EVERY_STEPS`` steps and at the end (the viewer shows the
-latest of each, so every landmark keeps an ellipse at any time). With truth, the error
+latest of each, so every landmark keeps an ellipse at any time). A timestamped log
+(high-rate odometry) logs its predicts thinned (:mod:`ekfviz.viz.thinning`) and its map
+like a large one, the whole map every ``MAP_EVERY_S`` seconds of log time. With truth, the error
 series of a landmark get a value whenever its ellipse is logged. ``detail=True`` logs
 every ellipse and error at every update.
 """
@@ -37,7 +39,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -46,7 +48,9 @@ import pyarrow as pa  # type: ignore[import-untyped]
 import rerun as rr
 import rerun.blueprint as rrb
 
+from ekfviz import __version__
 from ekfviz.core.consistency import chi2_bounds, pose_nees
+from ekfviz.core.correlation import Correlation, CorrelationCadence, correlation_of
 from ekfviz.core.evaluation import Evaluation, landmark_errors
 from ekfviz.core.health import (
     CovarianceCheck,
@@ -63,19 +67,29 @@ from ekfviz.models.range_bearing import RangeBearing
 from ekfviz.viz import style
 from ekfviz.viz.association import AssociationView
 from ekfviz.viz.blueprint import default_blueprint
-from ekfviz.viz.ellipses import ellipse_outlines, outline_points
+from ekfviz.viz.correlation import log_correlation, log_correlation_styling
+from ekfviz.viz.ellipses import ellipse_axes, ellipse_outlines, outline_points, unit_circle
+from ekfviz.viz.flush import flush_interruptibly
+from ekfviz.viz.thinning import PREDICT_INTERVAL_S, PredictThinning
 
 # Events between two sends of the buffered data, one chunk per entity: each chunk costs
 # ~0.1 ms in the main thread and as much in Rerun's encoder, whatever its size.
-FLUSH_EVERY = 1024
+FLUSH_EVERY = 4096
 SHAPES_EVERY = 256  # ... but line strips in chunks of at most this many events (_send_strips)
 FLUSH_LANDMARKS = 1 << 20  # ... or sooner, once the buffered records hold this many landmarks
 SMALL_MAP = 32  # up to this many landmarks, every ellipse at every update
 MAP_EVERY_STEPS = 25  # beyond: the whole map every this many steps
+# A small map is logged again only once some landmark's point or outline would move by
+# more than this fraction of its ellipse's semi-major axis (the viewer shows the latest).
+MAP_TOLERANCE = 0.02
+MAP_POINTS = 16  # points of a landmark outline: within 2 % of its radius, as MAP_TOLERANCE
+MAP_EVERY_S = 5.0  # ... and in a thinned timestamped log, every this many seconds of log time
 FLUSH_TIMEOUT_S = 30.0  # how long finish() waits for a slow or absent viewer
 MAX_CLASS_ID = 65535  # Rerun class ids are u16
 HEADING_LENGTH = 1.0  # metres
 CHECK_ALL_DIM = 64  # the array API checks a covariance up to this size at every call
+MIN_AXIS = 1e-9  # metres: the shortest semi-axis a pose ellipse's transform gets
+EPOCH_MIN_S = 1e9  # log times from here on are Unix time (see time_is_epoch)
 
 
 def _radius(ui_points: float) -> npt.ArrayLike:
@@ -86,6 +100,9 @@ def _radius(ui_points: float) -> npt.ArrayLike:
 _XY = rr.components.Position2DBatch([[0.0, 0.0]]).as_arrow_array().type
 _VECTOR = rr.components.Vector2DBatch([[0.0, 0.0]]).as_arrow_array().type
 _STRIP = rr.components.LineStrip2DBatch([[[0.0, 0.0], [0.0, 0.0]]]).as_arrow_array().type
+_VEC3 = rr.components.Translation3DBatch([[0.0, 0.0, 0.0]]).as_arrow_array().type
+_MAT3 = rr.components.TransformMat3x3Batch([np.eye(3)]).as_arrow_array().type
+_QUAT = rr.components.RotationQuatBatch([[0.0, 0.0, 0.0, 1.0]]).as_arrow_array().type
 
 
 @dataclass(frozen=True, slots=True)
@@ -115,6 +132,34 @@ def _column(
     return rr.ComponentColumn(descriptor, _Arrow(values), offsets=offsets)
 
 
+def _run_ends(values: npt.NDArray[Any]) -> IntArray:
+    """Indices of the first and last value of every run of equal values.
+
+    A series that only changes now and then (chi-square bounds, counts of skipped
+    observations) plots exactly the same from these alone: the viewer draws straight
+    lines between the points it has, flat along a run.
+    """
+    n = len(values)
+    if n <= 2:
+        return np.arange(n)
+    changes = values[1:] != values[:-1]
+    keep = np.ones(n, dtype=bool)
+    keep[1:-1] = changes[:-1] | changes[1:]  # differs from the one before or after
+    return np.flatnonzero(keep)
+
+
+def _shapes(means_xy: FloatArray, covs: FloatArray) -> FloatArray:
+    """(K, 6) rows [mx, my, 3 sqrt(C) flattened]: a 3-sigma ellipse by its mean and the
+    symmetric square root of its covariance (unique, unlike the eigenvectors' signs),
+    sqrt(C) = (C + sqrt(det C) I) / sqrt(tr C + 2 sqrt(det C)) for 2x2."""
+    root_det = np.sqrt(np.clip(np.linalg.det(covs), 0.0, None))
+    scale = np.sqrt(np.clip(np.trace(covs, axis1=1, axis2=2) + 2.0 * root_det, 0.0, None))
+    roots = (covs + root_det[:, None, None] * np.eye(2)) / np.where(scale > 0, scale, 1.0)[
+        :, None, None
+    ]
+    return np.column_stack([means_xy, 3.0 * roots.reshape(-1, 4)])
+
+
 def _scalars(values: npt.ArrayLike) -> list[rr.ComponentColumn]:
     """One ``Scalars`` value per row."""
     array = pa.array(np.asarray(values, dtype=np.float64))
@@ -140,6 +185,44 @@ def _strips(polylines: FloatArray) -> pa.Array:
     return pa.ListArray.from_arrays(offsets, _xy(polylines.reshape(-1, 2)), type=_STRIP)
 
 
+def _fixed(values: npt.NDArray[Any], arrow_type: pa.DataType) -> pa.Array:
+    """(K, n) values as Rerun's fixed-size lists of n float32."""
+    flat = pa.array(np.ascontiguousarray(values, dtype=np.float32).reshape(-1))
+    return pa.FixedSizeListArray.from_arrays(flat, type=arrow_type)
+
+
+def _robot_frame(poses: FloatArray) -> list[rr.ComponentColumn]:
+    """(K, 3) poses as ``Transform3D`` columns placing the robot frame in the world:
+    translation (x, y, 0) and the rotation theta about z as a quaternion (x, y, z, w)."""
+    k = len(poses)
+    translations = np.zeros((k, 3))
+    translations[:, :2] = poses[:, :2]
+    half = 0.5 * poses[:, 2]
+    quaternions = np.zeros((k, 4))
+    quaternions[:, 2], quaternions[:, 3] = np.sin(half), np.cos(half)
+    return [
+        _column(rr.Transform3D.descriptor_translation(), _fixed(translations, _VEC3)),
+        _column(rr.Transform3D.descriptor_quaternion(), _fixed(quaternions, _QUAT)),
+    ]
+
+
+def _shape_matrices(axes: FloatArray) -> pa.Array:
+    """(K, 2, 2) maps A of the unit circle onto ellipses as 3x3 matrices diag(A, 1),
+    stored by columns as Rerun does.
+
+    A flat ellipse (an axis of 0) would make the matrix singular, which the viewer does
+    not draw: its axes are kept at least ``MIN_AXIS`` long.
+    """
+    k = len(axes)
+    lengths = np.linalg.norm(axes, axis=1, keepdims=True)  # of the columns: the semi-axes
+    unit = np.divide(axes, lengths, out=np.tile(np.eye(2), (k, 1, 1)), where=lengths > 0)
+    axes = unit * np.maximum(lengths, MIN_AXIS)
+    matrices = np.zeros((k, 9))
+    matrices[:, [0, 1, 3, 4]] = axes.transpose(0, 2, 1).reshape(k, 4)  # by columns
+    matrices[:, 8] = 1.0
+    return _fixed(matrices, _MAT3)
+
+
 _NO_ROWS: IntArray = np.zeros(0, dtype=np.int64)
 _INFO, _WARN = str(rr.TextLogLevel.INFO), str(rr.TextLogLevel.WARN)  # as Arrow strings
 
@@ -159,35 +242,51 @@ class _Index:
 
 
 def _times(
-    steps: IntArray, events: IntArray, times: FloatArray | None = None
+    steps: IntArray, events: IntArray, times: FloatArray | None = None, epoch: bool = False
 ) -> list[rr.TimeColumnLike]:
-    """Both timelines of some rows, in Arrow, and the log's ``time`` (seconds) when every
-    row has one."""
+    """The timelines of some rows, in Arrow: ``step``, ``event`` and, when the records
+    have times, ``time`` (see :func:`time_is_epoch` for its type)."""
     columns: list[rr.TimeColumnLike] = [
-        _Index(style.STEP, pa.array(steps)), _Index(style.EVENT, pa.array(events))
-    ]  # fmt: skip
-    if times is not None and len(times) and bool(np.isfinite(times).all()):
-        columns.append(rr.TimeColumn(style.TIME, duration=times))
+        _Index(style.STEP, pa.array(steps)),
+        _Index(style.EVENT, pa.array(events)),
+    ]
+    if times is not None:
+        nanos = np.rint(times * 1e9).astype(np.int64)
+        kind = pa.timestamp("ns") if epoch else pa.duration("ns")
+        columns.append(_Index(style.TIME, pa.array(nanos, type=kind)))
     return columns
 
 
-class _Rows:
-    """The step and event of each buffered record, to pick the time columns of a send."""
+def time_is_epoch(first_time: float) -> bool:
+    """Whether the ``time`` timeline is a timestamp (Unix time, shown as a date) rather
+    than a duration: decided once per recording by its first time, from 10^9 s
+    (September 2001) on. Either way its value in seconds is the log's time."""
+    return first_time >= EPOCH_MIN_S
 
-    def __init__(self, steps: IntArray, events: IntArray, times: FloatArray | None = None) -> None:
+
+class _Rows:
+    """The step, event and time of each buffered record, to pick the time columns of a send."""
+
+    def __init__(
+        self,
+        steps: IntArray,
+        events: IntArray,
+        times: FloatArray | None = None,
+        epoch: bool = False,
+    ) -> None:
         self.steps = steps
         self.events = events
         self.times = times
-        self.all = _times(steps, events, times)  # most sends have a row per record: once
+        self.epoch = epoch
+        self.all = _times(steps, events, times, epoch)  # most sends have a row per record
 
     def __len__(self) -> int:
         return len(self.steps)
 
     def pick(self, rows: Sequence[int] | IntArray) -> list[rr.TimeColumnLike]:
         index = np.asarray(rows, dtype=np.int64)
-        return _times(
-            self.steps[index], self.events[index], None if self.times is None else self.times[index]
-        )
+        times = None if self.times is None else self.times[index]
+        return _times(self.steps[index], self.events[index], times, self.epoch)
 
 
 def _landmark_rows(record: EventRecord, which: str | None) -> IntArray:
@@ -270,31 +369,76 @@ class _Entities:
         self.rec.send_blueprint(blueprint)
 
     def flush(self, *, timeout_sec: float) -> None:
-        self.rec.flush(timeout_sec=timeout_sec)
+        flush_interruptibly(self.rec, timeout_sec)
 
 
 class _SeriesBuffer:
     """Scalar series gathered per entity path and sent with ``send_columns`` in chunks."""
 
-    def __init__(self, rec: _Entities) -> None:
+    def __init__(self, rec: _Entities, clock: _Clock) -> None:
         self._rec = rec
-        self._series: dict[str, tuple[list[int], list[int], list[float]]] = {}
+        self._clock = clock
+        self._series: dict[str, tuple[list[int], list[int], list[float], list[float]]] = {}
 
-    def add(self, path: str, step: int, event: int, value: float) -> None:
-        steps, events, values = self._series.setdefault(path, ([], [], []))
+    def add(self, path: str, step: int, event: int, value: float, time: float | None) -> None:
+        steps, events, values, times = self._series.setdefault(path, ([], [], [], []))
         steps.append(step)
         events.append(event)
         values.append(value)
+        times.append(math.nan if time is None else time)
 
     def flush(self) -> None:
-        for path, (steps, events, values) in self._series.items():
+        for path, (steps, events, values, times) in self._series.items():
             if values:
+                at = np.arange(len(values))
+                if path.endswith((style.LOWER, style.UPPER)):  # constant along long runs
+                    at = _run_ends(np.array(values))
+                rows = self._clock.rows(np.array(steps), np.array(events), times)
                 self._rec.send_columns(
                     path,
-                    indexes=_times(np.array(steps), np.array(events)),
-                    columns=_scalars(values),
+                    indexes=rows.pick(at),
+                    columns=_scalars(np.array(values)[at]),
                 )
         self._series.clear()
+
+
+class _Clock:
+    """The ``time`` timeline of a recording: its type, and times for records without one.
+
+    A record without a time (an untimed line of an extended log, ...) takes the latest
+    time before it, or the first after it in the same send; a recording without any
+    time has no ``time`` timeline.
+    """
+
+    def __init__(self) -> None:
+        self.epoch: bool | None = None  # decided by the first time met
+        self.last: float | None = None
+        self.span: tuple[float, float] | None = None
+
+    def rows(self, steps: IntArray, events: IntArray, times: Sequence[float] | FloatArray) -> _Rows:
+        filled = self.fill(np.asarray(times, dtype=np.float64))
+        return _Rows(steps, events, filled, bool(self.epoch))
+
+    def fill(self, times: FloatArray) -> FloatArray | None:
+        known = np.isfinite(times)
+        if not known.any():
+            if self.last is None:
+                return None
+            return np.full(len(times), self.last)
+        if self.epoch is None:
+            self.epoch = time_is_epoch(float(times[known][0]))
+        if not known.all():
+            # carry the latest time forward; before the first, the first of this send
+            index = np.where(known, np.arange(len(times)), -1)
+            np.maximum.accumulate(index, out=index)
+            start = self.last if self.last is not None else float(times[known][0])
+            times = np.where(index >= 0, times[np.maximum(index, 0)], start)
+        self.last = max(float(times[-1]), self.last if self.last is not None else -math.inf)
+        low, high = float(times.min()), float(times.max())
+        self.span = (low, high) if self.span is None else (
+            min(low, self.span[0]), max(high, self.span[1])
+        )  # fmt: skip
+        return times
 
 
 class Recorder:
@@ -307,13 +451,20 @@ class Recorder:
         1..N when no ids are ever given
     :param blueprint: send the default layout, at the start and, framing the whole run,
         again at ``finish``
+    :param live_layout: send the layout at the start too, for a viewer watching live; a
+        recording only saved to a file needs it once (each one sent costs some 100 kB)
     :param run_documents: the layout has tabs for the run information, input and
         evaluation documents (what ``open_run`` logs)
     :param heading_length: length in metres of the robot's heading arrow
     :param prefix: entity path under which to log everything (e.g. ``variants/a``), so
         that several runs share one recording; the default layout then does not fit
     :param detail: log every landmark's ellipse (and, with truth, its errors) at every
-        update, however large the map (see the module for what is logged otherwise)
+        update, however large the map (see the module for what is logged otherwise),
+        and every predict
+    :param history: the layout's map accumulates every predicted and updated robot
+        ellipse up to the time cursor (the classic figure); the data is the same
+    :param predict_interval_s: log time between two logged predicts of a timestamped
+        log (see :mod:`ekfviz.viz.thinning`); None logs every predict
     :param sensor: the measurement model, to draw id-less scans from the sensor's position
     """
 
@@ -324,44 +475,68 @@ class Recorder:
         truth: GroundTruth | None = None,
         landmark_ids: Sequence[int] | None = None,
         blueprint: bool = True,
+        live_layout: bool = True,
         run_documents: bool = False,
         heading_length: float = HEADING_LENGTH,
         prefix: str = "",
         detail: bool = False,
+        history: bool = False,
+        predict_interval_s: float | None = PREDICT_INTERVAL_S,
         sensor: RangeBearing | None = None,
     ) -> None:
         self._rec = _Entities(rec, prefix)
         self._sensor = sensor if sensor is not None else RangeBearing()
         self.association: AssociationView | None = None  # made at the first scan
+        self._history = history
+        self._correlation = CorrelationCadence()  # of the array API (a replay's records own)
+        self._last_correlation: Correlation | None = None  # the last one logged
         self._detail = detail
         self._truth = truth
         self._heading_length = heading_length
         self._order: list[int] = [int(i) for i in landmark_ids] if landmark_ids else []
         self._in_order: set[int] = set(self._order)
         self._seen: set[int] = set()  # ids observed so far through the array API
+        self._seen_ids: set[int] = set()  # every landmark id in the map so far (for the layout)
+        # labels below the outlines, not in the small maps of a sweep (prefix) nor in a
+        # large map, where they would cover it (the viewer shows a label on hover)
+        self._labels_off = bool(prefix.strip("/"))
         # landmark classes (see _annotate): ids 0.._class_top and _class_extra are logged
         self._class_top = -1
         self._class_extra: set[int] = set()
         self._class_pending: set[int] = set()
         self._class_count = 0
-        self._series = _SeriesBuffer(self._rec)
+        self._clock = _Clock()
+        self._series = _SeriesBuffer(self._rec, self._clock)
+        self._thinning = PredictThinning(None if detail else predict_interval_s)
         # records not sent yet, each with whether it logs the whole map's ellipses
         self._pending: list[tuple[EventRecord, bool]] = []
         self._pending_landmarks = 0
         self._map_step: int | None = None  # step of the last update that logged the whole map
+        self._map_time: float | None = None  # and its time
         self._last_update: tuple[EventRecord, bool] | None = None
+        # the small map as last logged: its ids and _shapes rows, and at which event
+        self._map_shown: tuple[IntArray, FloatArray] | None = None
+        self._map_shown_event: int | None = None
         self._last_ids: IntArray | None = None  # landmark ids of the last update, annotated
         self._event = 0
         self._step = 0
         self._step_has_update = True  # the initialisation counts as step 0's update
         self._last_xy: FloatArray | None = None
+        self._last_true_xy: FloatArray | None = None  # (1, 2) the true path's last point
         self._checked_step: int | None = None  # of the last covariance check (array API)
+        self._round_off_said = False  # a round-off asymmetry of P is a warning once a run
         self._blueprint = blueprint
         self._run_documents = run_documents
         self._bounds_xy: FloatArray | None = None  # [[x_min, y_min], [x_max, y_max]] so far
-        if blueprint:
+        if blueprint and live_layout:
             self._rec.send_blueprint(self._layout())
+        if not prefix.strip("/") and not run_documents:  # a filter of the user's own
+            properties = rr.AnyValues()
+            properties.with_component_from_data("version", __version__)
+            properties.with_component_from_data("kind", "recorder")
+            rec.send_property("ekfviz", properties)
         self._log_styling()
+        log_correlation_styling(self._rec)
         seed_ids = list(self._order)
         if truth is not None:
             seed_ids += truth.ids.tolist()
@@ -390,11 +565,11 @@ class Recorder:
         self._event = self._step = 0
         self._checked_step = None
         self.log_record(
-            snapshot(
+            self._correlated(snapshot(
                 x, P, event=0, step=0, kind=EventKind.INIT, line=line,
                 landmark_ids=self._state_ids(x), observations=observations,
                 **self._check(P, 0),
-            )
+            ), P)
         )  # fmt: skip
 
     def predict(
@@ -443,16 +618,18 @@ class Recorder:
         observations = self._observations(landmark_ids, z, z_pred, S)
         step = self._step + 1 if self._step_has_update else self._step
         self.log_record(
-            snapshot(
+            self._correlated(snapshot(
                 x, P, event=self._event + 1, step=step, kind=EventKind.UPDATE, line=line,
                 landmark_ids=self._state_ids(x), observations=observations,
                 **self._check(P, step),
-            )
+            ), P)
         )  # fmt: skip
 
     def finish(self, evaluation: Evaluation | None = None) -> None:
         """Send the buffered data, the whole map at the last update, the evaluation document
         if given, the layout framing the whole run, and flush."""
+        for record in self._thinning.drain():
+            self._log_record(record)
         self._send_pending()
         if self._class_pending:
             self._log_classes()
@@ -460,10 +637,26 @@ class Recorder:
             record = self._last_update[0]
             self._last_update = (record, True)
             self._log_landmark_errors(record, None)
-            rows = _Rows(np.array([record.step]), np.array([record.event]))
+            rows = self._clock.rows(
+                np.array([record.step]),
+                np.array([record.event]),
+                [math.nan if record.time is None else record.time],
+            )
             self._send_ellipses(
                 style.LANDMARK_ELLIPSES, rows, [(0, record, _landmark_rows(record, None))]
             )
+        elif self._last_update is not None and self._map_shown_event != self._last_update[0].event:
+            record = self._last_update[0]  # the end exactly, not within MAP_TOLERANCE
+            rows = self._clock.rows(
+                np.array([record.step]),
+                np.array([record.event]),
+                [math.nan if record.time is None else record.time],
+            )
+            self._send_landmarks(rows.all, [record])
+            self._send_ellipses(
+                style.LANDMARK_ELLIPSES, rows, [(0, record, _landmark_rows(record, None))]
+            )
+            self._map_shown_event = record.event
         self._series.flush()
         if self.association is not None:
             self.association.flush()
@@ -473,32 +666,64 @@ class Recorder:
                 rr.TextDocument(evaluation.to_markdown(), media_type=rr.MediaType.MARKDOWN),
                 static=True,
             )
-        if self._blueprint and self._bounds_xy is not None:
+        if self._blueprint:
             self._rec.send_blueprint(self._layout(self._bounds_xy))
         self._rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
 
     def note(self, text: str, level: str | rr.TextLogLevel = rr.TextLogLevel.WARN) -> None:
         """A line in the text log at the latest event: a warning, or why a run stopped."""
+        for record in self._thinning.drain():
+            self._log_record(record)
         self._send_pending()
         self._rec.set_time(style.STEP, sequence=self._step)
         self._rec.set_time(style.EVENT, sequence=self._event)
+        self._set_time(self._clock.last)
         self._rec.log(style.LOG, rr.TextLog(text, level=level))
+
+    def _set_time(self, time: float | None) -> None:
+        """Set the ``time`` timeline of the stream's next ``log`` calls, if there is one."""
+        if time is None:
+            return
+        if self._clock.epoch is None:
+            self._clock.epoch = time_is_epoch(time)
+        if self._clock.epoch:
+            self._rec.rec.set_time(style.TIME, timestamp=time)
+        else:
+            self._rec.rec.set_time(style.TIME, duration=time)
 
     def _layout(self, bounds_xy: FloatArray | None = None) -> rrb.Blueprint:
         if bounds_xy is not None:
             margin = 0.05 * max(float(np.max(bounds_xy[1] - bounds_xy[0])), 1.0)
             bounds_xy = bounds_xy + np.array([[-margin], [margin]])
         return default_blueprint(
+            landmark_ids=sorted(self._seen_ids) if self._truth is not None else (),
             has_truth=self._truth is not None,
-            has_true_poses=self._truth is not None and self._truth.poses_xytheta is not None,
+            has_true_poses=self._truth is not None and self._truth.has_poses,
             has_run_info=self._run_documents,
             bounds_xy=bounds_xy,
+            has_time=self._clock.span is not None,
+            history=self._history,
         )
 
     # -- records -------------------------------------------------------------------------
 
+    @property
+    def time_span(self) -> tuple[float, float] | None:
+        """The first and last log time (seconds) logged, or None for an untimed run."""
+        return self._clock.span
+
+    @property
+    def time_is_epoch(self) -> bool:
+        """Whether the ``time`` timeline is a timestamp (else a duration)."""
+        return bool(self._clock.epoch)
+
     def log_record(self, record: EventRecord) -> None:
-        """Log one record of the core: the map, the metrics and a line of text."""
+        """Log one record of the core: the map, the metrics and a line of text (the
+        predicts of a timestamped log thinned, see :mod:`ekfviz.viz.thinning`)."""
+        for admitted in self._thinning.admit(record):
+            self._log_record(admitted)
+
+    def _log_record(self, record: EventRecord) -> None:
         self._event, self._step = record.event, record.step
         self._step_has_update = record.kind is not EventKind.PREDICT
         whole_map = False
@@ -510,14 +735,19 @@ class Recorder:
             ):
                 self._annotate(ids)
                 self._last_ids = ids
+                self._seen_ids.update(ids.tolist())
             whole_map = (
-                self._detail
-                or record.n_landmarks <= SMALL_MAP
+                not self._sparse_map(record)
                 or self._map_step is None
-                or record.step - self._map_step >= MAP_EVERY_STEPS
+                or (
+                    record.time - self._map_time >= MAP_EVERY_S
+                    if record.time is not None and self._map_time is not None
+                    else record.step - self._map_step >= MAP_EVERY_STEPS
+                )
             )
             if whole_map:
                 self._map_step = record.step
+                self._map_time = record.time
             self._last_update = (record, whole_map)
         if record.association is not None:
             if self.association is None:  # association ids are not the truth's ids
@@ -527,6 +757,12 @@ class Recorder:
             self.association.log(record)
         if self._truth is not None:
             self._log_metrics(record, whole_map)
+        if record.correlation is not None:  # a few per run: logged at once
+            self._rec.set_time(style.STEP, sequence=record.step)
+            self._rec.set_time(style.EVENT, sequence=record.event)
+            self._set_time(record.time)
+            log_correlation(self._rec, record.correlation, self._last_correlation)
+            self._last_correlation = record.correlation
         self._pending.append((record, whole_map))
         self._pending_landmarks += len(record.landmark_ids)
         if len(self._pending) >= FLUSH_EVERY or self._pending_landmarks >= FLUSH_LANDMARKS:
@@ -542,7 +778,7 @@ class Recorder:
         self._pending_landmarks = 0
         records = [record for record, _ in pending]
         count = len(records)
-        rows = _Rows(
+        rows = self._clock.rows(
             np.fromiter((record.step for record in records), np.int64, count),
             np.fromiter((record.event for record in records), np.int64, count),
             np.fromiter(
@@ -559,54 +795,59 @@ class Recorder:
         corrected = np.flatnonzero(~is_predict)
         observed = _Observed.of(records, corrected)
 
-        self._send(
-            style.ROBOT, rows.all, [_column(rr.Points2D.descriptor_positions(), _xy(poses[:, :2]))]
-        )
-        heading = self._heading_length * np.column_stack([np.cos(poses[:, 2]), np.sin(poses[:, 2])])
-        self._send(
-            style.HEADING,
-            rows.all,
-            [
-                _column(rr.Arrows2D.descriptor_origins(), _xy(poses[:, :2])),
-                _column(rr.Arrows2D.descriptor_vectors(), _xy(heading, _VECTOR)),
-            ],
-        )
-        self._send_trajectory(rows, poses[:, :2])
-        for path, picked in (
-            (style.POSE_PREDICTED, np.flatnonzero(is_predict)),
-            (style.POSE_UPDATED, corrected),
+        # the robot frame: the robot's point and heading are static in it, its ellipses
+        # change shape there only slowly (see _pose_ellipses)
+        self._send(style.ROBOT, rows.all, _robot_frame(poses))
+        if self._truth is not None and self._truth.has_poses:
+            self._send_true_path(rows, records, corrected, self._truth)
+        self._send_trajectory(rows, poses[:, :2], corrected)
+        for path, history, picked in (
+            (style.POSE_PREDICTED, style.POSE_PREDICTED_HISTORY, np.flatnonzero(is_predict)),
+            (style.POSE_UPDATED, style.POSE_UPDATED_HISTORY, corrected),
         ):
-            if picked.size:
+            self._send_pose_ellipses(path, rows, picked, poses, pose_covs)
+            if self._history and picked.size:  # outlines in the world, to accumulate
                 outlines = ellipse_outlines(poses[picked, :2], pose_covs[picked, :2, :2])
-                self._send_strips(path, rows, picked, outlines)
-        self._send_rays(rows, poses, observed)
+                self._send_strips(history, rows, picked, outlines)
+        self._send_rays(rows, observed)
 
         sigma = np.sqrt(np.diagonal(pose_covs, axis1=1, axis2=2))
-        for axis, name in enumerate(("x", "y", "theta")):
-            self._send(f"{style.POSE_SIGMA}/{name}", rows.all, _scalars(sigma[:, axis]))
+        if corrected.size:  # x, y, theta: three series of one entity, a row a step
+            self._send(
+                style.POSE_SIGMA,
+                rows.pick(corrected),
+                [
+                    _column(
+                        rr.Scalars.descriptor_scalars(),
+                        pa.array(sigma[corrected].reshape(-1)),
+                        np.full(corrected.size, 3, dtype=np.int64),
+                    )
+                ],
+            )
         with_nis = np.flatnonzero(observed.nis_used)
         if with_nis.size:  # with the chi-square bounds of 2 dof per landmark used
             used, which = np.unique(observed.nis_used[with_nis], return_inverse=True)
             bounds = np.array([chi2_bounds(2 * int(n)) for n in used])[which]
-            at = rows.pick(with_nis)
+            self._send(style.NIS, rows.pick(with_nis), _scalars(observed.nis_sum[with_nis]))
+            ends = _run_ends(bounds[:, 0])
+            at = rows.pick(with_nis[ends])
             for path, values in (
-                (style.NIS, observed.nis_sum[with_nis]),
-                (f"{style.NIS}/{style.LOWER}", bounds[:, 0]),
-                (f"{style.NIS}/{style.UPPER}", bounds[:, 1]),
+                (f"{style.NIS}/{style.LOWER}", bounds[ends, 0]),
+                (f"{style.NIS}/{style.UPPER}", bounds[ends, 1]),
             ):
                 self._send(path, at, _scalars(values))
 
         if corrected.size:
             updates = [(k, records[k], pending[k][1]) for k in corrected.tolist()]
-            self._send_landmarks(rows.pick(corrected), [record for _, record, _ in updates])
+            shown = self._map_changes(updates)
+            if shown:
+                self._send_landmarks(
+                    rows.pick([k for k, _, _ in shown]), [record for _, record, _ in shown]
+                )
             self._send_ellipses(
                 style.LANDMARK_ELLIPSES,
                 rows,
-                [
-                    (k, record, _landmark_rows(record, None))
-                    for k, record, whole in updates
-                    if whole
-                ],
+                [(k, record, _landmark_rows(record, None)) for k, record, whole in shown if whole],
             )
             # Beyond a small map: the observed landmarks' own ellipses at the updates between
             # two of the whole map's (and an empty row, clearing them, at those).
@@ -616,7 +857,7 @@ class Recorder:
                 [
                     (k, record, _NO_ROWS if whole else _landmark_rows(record, "observed"))
                     for k, record, whole in updates
-                    if record.n_landmarks > SMALL_MAP and not self._detail
+                    if self._sparse_map(record)
                 ],
             )
             self._send_ellipses(
@@ -631,34 +872,144 @@ class Recorder:
         self._send_health(records, rows, pose_covs, corrected, observed)
         self._send_text(records, rows, observed)
 
-    def _send_trajectory(self, rows: _Rows, ends_xy: FloatArray) -> None:
-        """A segment from the previous position to this one at every event but the first."""
-        starts_xy = np.vstack(
-            [ends_xy[:1] if self._last_xy is None else self._last_xy, ends_xy[:-1]]
+    def _send_pose_ellipses(
+        self, path: str, rows: _Rows, picked: IntArray, poses: FloatArray, pose_covs: FloatArray
+    ) -> None:
+        """The 3-sigma ellipses of the position at the rows ``picked``: the map of the
+        static unit circle onto each, in the robot frame, A = R(theta)^T 3 V sqrt(L)
+        (36 bytes an event instead of an outline's 256)."""
+        if not picked.size:
+            return
+        world = ellipse_axes(np.zeros((len(picked), 2)), pose_covs[picked, :2, :2])[:, :4]
+        cos_t, sin_t = np.cos(poses[picked, 2]), np.sin(poses[picked, 2])
+        rotation_t = np.stack(
+            [np.column_stack([cos_t, sin_t]), np.column_stack([-sin_t, cos_t])], axis=1
         )
-        first = 1 if self._last_xy is None else 0  # the very first event has no segment
-        if len(rows) > first:
-            segments = np.stack([starts_xy[first:], ends_xy[first:]], axis=1)
-            self._send_strips(style.TRAJECTORY, rows, np.arange(first, len(rows)), segments)
+        axes = rotation_t @ world.reshape(-1, 2, 2)
+        self._send(
+            path,
+            rows.pick(picked),
+            [_column(rr.Transform3D.descriptor_mat3x3(), _shape_matrices(axes))],
+        )
+
+    def _sparse_map(self, record: EventRecord) -> bool:
+        """Whether an update logs the whole map's ellipses only now and then (and the
+        observed landmarks' at every update): beyond ``SMALL_MAP`` landmarks, and in a
+        timestamped log whose predicts are thinned (see :mod:`ekfviz.viz.thinning`)."""
+        if self._detail:
+            return False
+        return record.n_landmarks > SMALL_MAP or (
+            record.time is not None and self._thinning.interval_s is not None
+        )
+
+    def _map_changes(
+        self, updates: list[tuple[int, EventRecord, bool]]
+    ) -> list[tuple[int, EventRecord, bool]]:
+        """The updates whose landmarks (points and whole-map ellipses) are logged.
+
+        A large map's at every update, as ``--detail``; a small map's only where it grew
+        or where some landmark's point or 3-sigma outline moved by more than
+        ``MAP_TOLERANCE`` of its ellipse's semi-major axis since it was last logged: in
+        between the viewer shows the latest, within that tolerance of the true state.
+        """
+        shown: list[tuple[int, EventRecord, bool]] = []
+        for k, record, whole in updates:
+            if self._detail or self._sparse_map(record):
+                shown.append((k, record, whole))
+                self._map_shown = None
+                self._map_shown_event = record.event
+                continue
+            shape = _shapes(record.landmarks_xy, record.landmark_covs)
+            if self._map_shown is not None and np.array_equal(
+                self._map_shown[0], record.landmark_ids
+            ):
+                before = self._map_shown[1]
+                # the point at angle t of an outline, m + 3 sqrt(C) [cos t, sin t], moves by
+                # at most |dm| + 3 ||d sqrt(C)||_F; the semi-major axis is at least
+                # 3 ||sqrt(C)||_F / sqrt(2)
+                moved = np.linalg.norm(shape[:, :2] - before[:, :2], axis=1) + np.linalg.norm(
+                    shape[:, 2:] - before[:, 2:], axis=1
+                )
+                semi_major = np.linalg.norm(shape[:, 2:], axis=1) / math.sqrt(2.0)
+                if np.all(moved <= MAP_TOLERANCE * semi_major):
+                    continue
+            self._map_shown = (record.landmark_ids, shape)
+            self._map_shown_event = record.event
+            shown.append((k, record, whole))
+        return shown
+
+    def _send_true_path(
+        self, rows: _Rows, records: list[EventRecord], corrected: IntArray, truth: GroundTruth
+    ) -> None:
+        """The true pose of each step at its update (by step, or by time on a track), as
+        a robot frame and a segment of the true path from the step before."""
+        known = [
+            (k, pose)
+            for k in corrected.tolist()
+            if (pose := truth.pose_of(records[k].step, records[k].time)) is not None
+        ]
+        if not known:
+            return
+        at = np.array([k for k, _ in known])
+        poses = np.array([pose for _, pose in known])
+        self._send(style.TRUTH_ROBOT, rows.pick(at), _robot_frame(poses))
+        starts = np.vstack([poses[:1, :2] if self._last_true_xy is None else self._last_true_xy,
+                            poses[:-1, :2]])  # fmt: skip
+        segments = np.stack([starts, poses[:, :2]], axis=1)
+        self._send_strips(style.TRUTH_TRAJECTORY, rows, at, segments)
+        self._last_true_xy = poses[-1:, :2].copy()
+
+    def _send_trajectory(self, rows: _Rows, ends_xy: FloatArray, corrected: IntArray) -> None:
+        """The path since the last row, through the predicted positions, at every update
+        and at the last event of a send: a row per step rather than per event."""
+        count = len(rows)
+        at = (
+            corrected
+            if corrected.size and corrected[-1] == count - 1
+            else np.append(corrected, count - 1)
+        )
+        shift = 0 if self._last_xy is None else 1
+        points_xy = ends_xy if self._last_xy is None else np.vstack([self._last_xy, ends_xy])
+        ends = at + shift
+        starts = np.concatenate([[0], ends[:-1]])
+        drawn = ends > starts  # the very first event alone is no line yet
+        at, starts, ends = at[drawn], starts[drawn], ends[drawn]
+        if at.size:
+            lengths = ends - starts + 1
+            index = np.repeat(starts - np.cumsum(lengths) + lengths, lengths) + np.arange(
+                int(lengths.sum())
+            )
+            offsets = pa.array(np.concatenate([[0], np.cumsum(lengths)]).astype(np.int32))
+            strips = pa.ListArray.from_arrays(offsets, _xy(points_xy[index]), type=_STRIP)
+            self._send(
+                style.TRAJECTORY,
+                rows.pick(at),
+                [_column(rr.LineStrips2D.descriptor_strips(), strips)],
+            )
         self._last_xy = ends_xy[-1].copy()
         self._grow_bounds(ends_xy)
 
-    def _send_rays(self, rows: _Rows, poses: FloatArray, observed: _Observed) -> None:
-        """Rays from the robot to where each observation puts its landmark; an empty row at
-        a predict clears the previous update's."""
-        pose = np.repeat(poses, observed.seen, axis=0)
-        bearing_world = pose[:, 2] + observed.z[:, 0]
-        seen_xy = pose[:, :2] + observed.z[:, 1:2] * np.column_stack(
-            [np.cos(bearing_world), np.sin(bearing_world)]
+    def _send_rays(self, rows: _Rows, observed: _Observed) -> None:
+        """Arrows from the robot to where each observation puts its landmark, in the robot
+        frame: r [cos b, sin b] (the robot frame supplies the origin); an empty row at a
+        predict clears the previous update's."""
+        vectors = observed.z[:, 1:2] * np.column_stack(
+            [np.cos(observed.z[:, 0]), np.sin(observed.z[:, 0])]
         )
-        rays = np.stack([pose[:, :2], seen_xy], axis=1)
-        self._send_strips(style.OBSERVATIONS, rows, np.arange(len(rows)), rays, observed.seen)
+        self._send(
+            style.OBSERVATIONS,
+            rows.all,
+            [_column(rr.Arrows2D.descriptor_vectors(), _xy(vectors, _VECTOR), observed.seen)],
+        )
 
     def _send_text(self, records: list[EventRecord], rows: _Rows, observed: _Observed) -> None:
-        """A line per event, then one per warning at the same event."""
+        """A line per step: a predict's goes into the line of the update that follows it in
+        the same step, both at the update; then one per warning at the same event."""
         text: list[str] = []
         level: list[str] = []
         line_of: list[int] = []
+        held: tuple[str, tuple[str, ...]] | None = None  # a predict's line and warnings
+        count = len(records)
         for k, (record, seen, new, nis_sum, nis_used) in enumerate(
             zip(
                 records,
@@ -669,10 +1020,24 @@ class Recorder:
                 strict=True,
             )
         ):
-            text.append(self._describe(record, seen, new, nis_sum, nis_used))
+            line = self._describe(record, seen, new, nis_sum, nis_used)
+            if (
+                record.kind is EventKind.PREDICT
+                and k + 1 < count
+                and records[k + 1].kind is EventKind.UPDATE
+                and records[k + 1].step == record.step
+            ):
+                held = (line, record.warnings)
+                continue
+            warnings = record.warnings
+            if held is not None:
+                line = f"{held[0]}; {line.split(' ', 2)[2]}"  # "step N predict ...; update ..."
+                warnings = held[1] + warnings
+                held = None
+            text.append(line)
             level.append(_INFO)
             line_of.append(k)
-            for warning in record.warnings:
+            for warning in warnings:
                 text.append(f"step {record.step} line {record.line}: {warning}")
                 level.append(_WARN)
                 line_of.append(k)
@@ -694,7 +1059,12 @@ class Recorder:
         observed: _Observed,
     ) -> None:
         """The numerical health series (see ``ekfviz.core.health``)."""
-        self._send(style.HEALTH_POSE_MIN_EIG, rows.all, _scalars(pose_min_eigenvalues(pose_covs)))
+        if corrected.size:  # a predict adds Q: only an update can lose definiteness
+            self._send(
+                style.HEALTH_POSE_MIN_EIG,
+                rows.pick(corrected),
+                _scalars(pose_min_eigenvalues(pose_covs[corrected])),
+            )
         with_map = [k for k in corrected.tolist() if records[k].n_landmarks]
         if with_map:
             counts = np.array([records[k].n_landmarks for k in with_map])
@@ -704,10 +1074,10 @@ class Recorder:
             smallest = np.minimum.reduceat(eigenvalues, np.cumsum(counts) - counts)
             self._send(style.HEALTH_LANDMARK_MIN_EIG, rows.pick(with_map), _scalars(smallest))
         if observed.rows.size:
+            skipped = observed.skipped[observed.rows]
+            ends = _run_ends(skipped)
             self._send(
-                style.HEALTH_SKIPPED,
-                rows.pick(observed.rows),
-                _scalars(observed.skipped[observed.rows]),
+                style.HEALTH_SKIPPED, rows.pick(observed.rows[ends]), _scalars(skipped[ends])
             )
         checked = [
             (k, check)
@@ -772,6 +1142,28 @@ class Recorder:
                 self._identify(rr.Points2D, ids, counts),
             ],
         )
+        # the labels just below each 3-sigma outline (y - 3 sigma_y, y up), clear of it; in a
+        # large map they would cover it: there the viewer shows a landmark's label on hover
+        if self._labels_off or max(record.n_landmarks for record in updates) > SMALL_MAP:
+            if not self._labels_off:  # empty rows from here on: the labels are gone
+                self._labels_off = True
+                empty = np.zeros(len(updates), dtype=np.int64)
+                self._send(
+                    style.LANDMARK_LABELS,
+                    times,
+                    [_column(rr.Points2D.descriptor_positions(), _xy(np.zeros((0, 2))), empty)],
+                )
+            return
+        sigma_y = np.sqrt(np.concatenate([record.landmark_covs[:, 1, 1] for record in updates]))
+        below = positions - np.column_stack([np.zeros(len(positions)), 3.0 * sigma_y])
+        self._send(
+            style.LANDMARK_LABELS,
+            times,
+            [
+                _column(rr.Points2D.descriptor_positions(), _xy(below), counts),
+                self._identify(rr.Points2D, ids, counts),
+            ],
+        )
 
     def _send_strips(
         self,
@@ -818,7 +1210,7 @@ class Recorder:
             return
         counts = np.array([len(picked) for _, _, picked in batches])
         # one outline size per send, from the largest batch (see ellipses.outline_points)
-        n_points = outline_points(int(counts.max()))
+        n_points = min(MAP_POINTS, outline_points(int(counts.max())))
         means, covs, ids = [], [], []
         for _, record, picked in batches:
             if len(picked) == record.n_landmarks:  # all of them: no copy
@@ -847,7 +1239,7 @@ class Recorder:
             return
         nees = pose_nees(record, self._truth)
         if nees is not None:
-            self._add_statistic(style.NEES, record.step, record.event, nees, chi2_bounds(3))
+            self._add_statistic(style.NEES, record, nees, chi2_bounds(3))
         self._log_landmark_errors(record, None if whole_map else "observed")
 
     def _log_landmark_errors(self, record: EventRecord, which: str | None) -> None:
@@ -860,21 +1252,30 @@ class Recorder:
             record.landmarks_xy[rows], record.landmark_covs[rows], self._truth.lookup(ids)
         )
         add = self._series.add
-        step, event = record.step, record.event
+        step, event, time = record.step, record.event, record.time
+        known = np.isfinite(euclidean)
+        if which is None and known.any():  # the whole map: its mean and worst landmark
+            for root, values in (
+                (style.LANDMARK_ERROR_SUMMARY, euclidean[known]),
+                (style.MAHALANOBIS_SUMMARY, mahalanobis[known]),
+            ):
+                add(f"{root}/{style.MEAN}", step, event, float(values.mean()), time)
+                add(f"{root}/{style.WORST}", step, event, float(values.max()), time)
         for landmark_id, error, distance in zip(
             ids.tolist(), euclidean.tolist(), mahalanobis.tolist(), strict=True
         ):
             if math.isfinite(error):
-                add(f"{style.LANDMARK_ERROR}/{landmark_id}", step, event, error)
-                add(f"{style.MAHALANOBIS}/{landmark_id}", step, event, distance)
+                add(f"{style.LANDMARK_ERROR}/{landmark_id}", step, event, error, time)
+                add(f"{style.MAHALANOBIS}/{landmark_id}", step, event, distance, time)
 
     def _add_statistic(
-        self, path: str, step: int, event: int, value: float, bounds: tuple[float, float]
+        self, path: str, record: EventRecord, value: float, bounds: tuple[float, float]
     ) -> None:
         """A NIS or NEES value with its chi-square bounds, drawn in the same plot."""
-        self._series.add(path, step, event, value)
-        self._series.add(f"{path}/{style.LOWER}", step, event, bounds[0])
-        self._series.add(f"{path}/{style.UPPER}", step, event, bounds[1])
+        at = (record.step, record.event)
+        self._series.add(path, *at, value, record.time)
+        self._series.add(f"{path}/{style.LOWER}", *at, bounds[0], record.time)
+        self._series.add(f"{path}/{style.UPPER}", *at, bounds[1], record.time)
 
     @staticmethod
     def _describe(record: EventRecord, seen: int, new: int, nis: float, nis_used: int) -> str:
@@ -909,6 +1310,17 @@ class Recorder:
                     rr.SeriesLines(colors=style.BOUND_COLOR, names=label, widths=1.0),
                     static=True,
                 )
+        rec.log(  # one entity, three series: one colour each, the unit in the name
+            style.POSE_SIGMA,
+            rr.SeriesLines(
+                colors=list(style.POSE_SIGMA_COLORS.values()),
+                names=[
+                    f"{axis} ({'rad' if axis == 'theta' else 'm'})"
+                    for axis in style.POSE_SIGMA_COLORS
+                ],
+            ),
+            static=True,
+        )
         for path, name in (
             (style.HEALTH_POSE_MIN_EIG, "pose block"),
             (style.HEALTH_LANDMARK_MIN_EIG, "landmark blocks"),
@@ -918,20 +1330,37 @@ class Recorder:
             (style.HEALTH_SKIPPED, "skipped observations"),
         ):
             rec.log(path, rr.SeriesLines(names=name), static=True)
+        if self._truth is not None:
+            for root in (style.LANDMARK_ERROR_SUMMARY, style.MAHALANOBIS_SUMMARY):
+                for which, color in style.SUMMARY_COLORS.items():
+                    rec.log(
+                        f"{root}/{which}",
+                        rr.SeriesLines(colors=color, names=f"{which} landmark", widths=2.0),
+                        static=True,
+                    )
         # A 2-D view draws y down; mirroring "world" in the root frame shows the map y up
         # as in the classic plots, while every entity keeps its true world coordinates.
         rec.log(style.WORLD, rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)
         line = _radius(style.LINE_RADIUS_UI)
         rec.log(
             style.ROBOT,
-            rr.Points2D.from_fields(
-                colors=style.ROBOT_COLOR, radii=_radius(style.ROBOT_RADIUS_UI), draw_order=40.0
+            rr.Points2D(
+                [[0.0, 0.0]],
+                colors=style.ROBOT_COLOR,
+                radii=_radius(style.ROBOT_RADIUS_UI),
+                draw_order=40.0,
             ),
             static=True,
         )
         rec.log(
             style.HEADING,
-            rr.Arrows2D.from_fields(colors=style.ROBOT_COLOR, radii=line, draw_order=40.0),
+            rr.Arrows2D(
+                origins=[[0.0, 0.0]],
+                vectors=[[self._heading_length, 0.0]],
+                colors=style.ROBOT_COLOR,
+                radii=line,
+                draw_order=40.0,
+            ),
             static=True,
         )
         rec.log(
@@ -942,6 +1371,24 @@ class Recorder:
         for path, color in (
             (style.POSE_PREDICTED, style.PREDICTED_COLOR),
             (style.POSE_UPDATED, style.UPDATED_COLOR),
+        ):
+            # one unit circle, drawn through each event's transform (see _affine_columns):
+            # a sixth of the bytes of an outline per event
+            rec.log(
+                path,
+                rr.LineStrips2D(
+                    [unit_circle()], colors=color, radii=line, show_labels=False, draw_order=20.0
+                ),
+                static=True,
+            )
+        history = (
+            ((style.POSE_PREDICTED_HISTORY, style.PREDICTED_COLOR),
+             (style.POSE_UPDATED_HISTORY, style.UPDATED_COLOR))
+            if self._history
+            else ()
+        )  # fmt: skip
+        for path, color in (
+            *history,
             (style.LANDMARK_ELLIPSES, style.LANDMARK_COLOR),
             (style.LANDMARK_ELLIPSES_OBSERVED, style.LANDMARK_COLOR),
             (style.LANDMARK_INITIAL, style.INITIAL_COLOR),
@@ -955,7 +1402,7 @@ class Recorder:
             )
         rec.log(
             style.OBSERVATIONS,
-            rr.LineStrips2D.from_fields(
+            rr.Arrows2D.from_fields(
                 colors=style.OBSERVATION_COLOR,
                 radii=_radius(style.THIN_LINE_RADIUS_UI),
                 draw_order=15.0,
@@ -965,7 +1412,20 @@ class Recorder:
         rec.log(
             style.LANDMARKS,
             rr.Points2D.from_fields(
-                colors=style.LANDMARK_COLOR, radii=_radius(style.POINT_RADIUS_UI), draw_order=30.0
+                colors=style.LANDMARK_COLOR,
+                radii=_radius(style.POINT_RADIUS_UI),
+                show_labels=False,
+                draw_order=30.0,
+            ),
+            static=True,
+        )
+        rec.log(
+            style.LANDMARK_LABELS,
+            rr.Points2D.from_fields(
+                colors=style.LANDMARK_COLOR,
+                radii=_radius(style.LABEL_ANCHOR_RADIUS_UI),
+                show_labels=True,
+                draw_order=31.0,
             ),
             static=True,
         )
@@ -981,6 +1441,26 @@ class Recorder:
         )
 
     def _log_truth(self, truth: GroundTruth) -> None:
+        if truth.has_poses:  # the true robot (a grey point) and path
+            self._rec.log(
+                style.TRUTH_ROBOT,
+                rr.Points2D(
+                    [[0.0, 0.0]],
+                    colors=style.TRUTH_PATH_COLOR,
+                    radii=_radius(style.TRUTH_RADIUS_UI),
+                    draw_order=36.0,
+                ),
+                static=True,
+            )
+            self._rec.log(
+                style.TRUTH_TRAJECTORY,
+                rr.LineStrips2D.from_fields(
+                    colors=style.TRUTH_PATH_COLOR,
+                    radii=_radius(style.THIN_LINE_RADIUS_UI),
+                    draw_order=5.0,
+                ),
+                static=True,
+            )
         class_ids = truth.ids if self._has_class_ids(truth.ids) else None
         self._rec.log(
             style.TRUTH_LANDMARKS, rr.Points2D(truth.landmarks_xy, class_ids=class_ids), static=True
@@ -1035,6 +1515,12 @@ class Recorder:
             self._in_order.update(self._order)
         return np.asarray(self._order[:n], dtype=np.int64)
 
+    def _correlated(self, record: EventRecord, P: FloatArray) -> EventRecord:
+        """The record with the correlation matrix of ``P`` where it is due."""
+        if self._correlation.due(record.step, record.n_landmarks, last=False):
+            return replace(record, correlation=correlation_of(P, record.landmark_ids))
+        return record
+
     def _check(self, P: FloatArray, step: int) -> dict[str, Any]:
         """The check of a whole covariance handed in through the array API: at every call
         while it is small (``CHECK_ALL_DIM``), else as often as a replay checks its own."""
@@ -1048,7 +1534,9 @@ class Recorder:
             return {}
         self._checked_step = step
         check = check_covariance(P)
-        return {"covariance": check, "warnings": tuple(check.problems())}
+        problems = check.problems(round_off=not self._round_off_said)
+        self._round_off_said |= check.round_off_asymmetry
+        return {"covariance": check, "warnings": tuple(problems)}
 
     def _observations(
         self,

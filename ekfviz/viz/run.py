@@ -13,29 +13,34 @@ import hashlib
 import json
 import os
 import shutil
+import socket
 import sys
+import threading
 import time
 import uuid
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from urllib.parse import quote
+from urllib.parse import quote, urlsplit
 
 import rerun as rr
 from rerun.any_batch_value import ComponentValueLike
 
-from ekfviz import __version__
+from ekfviz import __version__, signals
 from ekfviz.core.evaluation import Evaluation
 from ekfviz.core.filter import HAVE_KERNEL
 from ekfviz.core.records import EventRecord
 from ekfviz.core.truth import GroundTruth
 from ekfviz.io.errors import InputError
+from ekfviz.io.paths import OutputPathError, check_output_path, unused_path
 from ekfviz.models.range_bearing import RangeBearing
 from ekfviz.viz import style
+from ekfviz.viz.flush import flush_interruptibly
 from ekfviz.viz.recorder import Recorder
 
 APPLICATION_ID = "ekfviz"
+TIME_PROPERTY = "time"  # the span of the time timeline: start, end (seconds), kind
 INPUT_TEXT_CAP = 4 * 1024 * 1024  # bytes of input embedded in a recording
 GRPC_PORT = 9876
 WEB_PORT = 9090
@@ -44,8 +49,69 @@ FLUSH_TIMEOUT_S = 60.0
 RECORDING_NAMESPACE = uuid.UUID("6f1d3c52-8a47-5e0b-9c1e-2b7a4d9e0f31")
 
 
+CONNECT_TIMEOUT_S = 3.0  # how long --connect waits for a viewer to answer
+
+
 class SinkError(Exception):
     """A Rerun output that cannot be used, with a one-line reason and what to do instead."""
+
+
+# The client's HTTP/2 connection preface, and the frame type a server must answer with
+_HTTP2_PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + bytes([0, 0, 0, 4, 0, 0, 0, 0, 0])
+_HTTP2_SETTINGS = 4
+
+
+def viewer_answers(url: str, timeout: float = CONNECT_TIMEOUT_S) -> bool | None:
+    """Whether a gRPC server (a Rerun viewer) answers at ``url`` within ``timeout``.
+
+    Rerun's own client waits about 100 s for an absent viewer, deaf to Ctrl-C, so the
+    address is tried here first: a TCP connection, then the HTTP/2 preface, which a gRPC
+    server answers at once with its SETTINGS frame. A port nobody listens on, or one whose
+    listener never answers, is no viewer. Ctrl-C and SIGTERM are honoured while it waits,
+    also while a replay still holds them back (see :mod:`ekfviz.signals`).
+
+    :return: None when ``url`` has no host and port to try (Rerun then says what is wrong)
+    """
+    found: list[bool | None] = []
+    helper = threading.Thread(
+        target=lambda: found.append(_try_viewer(url, timeout)), name="ekfviz-probe", daemon=True
+    )
+    helper.start()
+    while helper.is_alive():
+        helper.join(0.1)
+        signals.raise_pending()
+    return found[0] if found else False
+
+
+def _try_viewer(url: str, timeout: float) -> bool | None:
+    """See :func:`viewer_answers`."""
+    parts = urlsplit(url.removeprefix("rerun+"))
+    try:
+        host, port = parts.hostname, parts.port
+    except ValueError:
+        return None
+    if host is None or port is None or parts.scheme not in ("http", "https"):
+        return None
+    if parts.scheme == "https":  # TLS: a TCP connection is all that can be tried here
+        try:
+            socket.create_connection((host, port), timeout=timeout).close()
+        except OSError:
+            return False
+        return True
+    deadline = time.monotonic() + timeout
+    try:
+        with socket.create_connection((host, port), timeout=timeout) as connection:
+            connection.settimeout(max(0.1, deadline - time.monotonic()))
+            connection.sendall(_HTTP2_PREFACE)
+            header = b""
+            while len(header) < 9:
+                piece = connection.recv(9 - len(header))
+                if not piece:
+                    return False
+                header += piece
+    except OSError:  # refused, unreachable, timed out
+        return False
+    return header[3] == _HTTP2_SETTINGS
 
 
 @dataclass(frozen=True, slots=True)
@@ -68,6 +134,7 @@ class RunInfo:
     truth_path: Path | None = None
     truth_sha256: str | None = None
     version: str = field(default=__version__)
+    kind: str = "replay"  # or "sweep": what ``ekfviz info`` says the recording is
 
     @property
     def recording_id(self) -> str:
@@ -107,11 +174,26 @@ def run_info(
     input_path: Path,
     truth: GroundTruth | None = None,
     truth_path: Path | None = None,
+    input_files: Sequence[Path] | None = None,
+    truth_files: Sequence[Path] | None = None,
+    kind: str = "replay",
 ) -> RunInfo:
     """Describe a run, reading the input (and truth) file for its size, sha256 and text.
 
+    :param input_files: the files an input directory is read from (an MRCLAM dataset's
+        robot): their size and sha256 together, the text of none
+    :param truth_files: likewise for the truth, instead of ``truth_path`` alone
     :raises InputError: when the input or truth file cannot be read
     """
+    if input_files is not None and input_path.is_dir():
+        size, sha256 = _digest_files(input_files)
+        return replace(
+            _described(
+                name, command, parameters, input_path, size, sha256, None,
+                "not embedded: a dataset directory", truth, truth_path, truth_files,
+            ),
+            kind=kind,
+        )  # fmt: skip
     size, sha256, data = _digest(input_path, keep_up_to=INPUT_TEXT_CAP)
     text: str | None = None
     note: str | None = None
@@ -122,7 +204,33 @@ def run_info(
             text = data.decode("utf-8")
         except UnicodeDecodeError:
             note = "not embedded: not UTF-8 text"
-    truth_sha256 = None if truth_path is None else _digest(truth_path, keep_up_to=0)[1]
+    return replace(
+        _described(
+            name, command, parameters, input_path, size, sha256, text, note, truth, truth_path,
+            truth_files,
+        ),
+        kind=kind,
+    )  # fmt: skip
+
+
+def _described(
+    name: str,
+    command: str,
+    parameters: dict[str, object],
+    input_path: Path,
+    size: int,
+    sha256: str,
+    text: str | None,
+    note: str | None,
+    truth: GroundTruth | None,
+    truth_path: Path | None,
+    truth_files: Sequence[Path] | None,
+) -> RunInfo:
+    truth_sha256 = None
+    if truth_files:
+        truth_sha256 = _digest_files(truth_files)[1]
+    elif truth_path is not None:
+        truth_sha256 = _digest(truth_path, keep_up_to=0)[1]
     return RunInfo(
         name=name,
         command=command,
@@ -136,6 +244,17 @@ def run_info(
         truth_path=truth_path,
         truth_sha256=truth_sha256,
     )
+
+
+def _digest_files(paths: Sequence[Path]) -> tuple[int, str]:
+    """Total size and the sha256 of several files, each named and hashed in turn."""
+    sha = hashlib.sha256()
+    total = 0
+    for path in paths:
+        size, digest, _ = _digest(path, keep_up_to=0)
+        total += size
+        sha.update(f"{path.name}\0{digest}\n".encode())
+    return total, sha.hexdigest()
 
 
 def _digest(path: Path, *, keep_up_to: int) -> tuple[int, str, bytes | None]:
@@ -188,7 +307,7 @@ def has_display() -> bool:
 
 
 def resolve_default_sinks(
-    sinks: Sinks, input_path: Path, recordings_dir: Path
+    sinks: Sinks, input_path: Path, recordings_dir: Path, name: str | None = None
 ) -> tuple[Sinks, str | None]:
     """The sinks asked for or, when none: a viewer where a display exists, else a file.
 
@@ -198,11 +317,28 @@ def resolve_default_sinks(
         return sinks, None
     if has_display():
         return Sinks(spawn=True), "No Rerun output option given: sent the run to a Rerun viewer."
-    path = recordings_dir / f"{input_path.stem}.rrd"
+    if not recordings_dir.is_dir():
+        try:  # the default folder, in the current one: made when missing (not its parents)
+            recordings_dir.mkdir()
+        except OSError as error:
+            raise SinkError(f"cannot make the folder {recordings_dir} ({error.strerror})") from None
+    path = unused_path(recordings_dir / f"{name or input_path.stem}.rrd")
     return Sinks(save=path), (
         f"No Rerun output option and no display: saved the recording to {path}"
-        f" (open it with: rerun {path})"
+        f" (open it with: {rerun_hint()} {path})"
     )
+
+
+def rerun_hint() -> str:
+    """How the user's shell runs the viewer: ``rerun`` if that is this installation's,
+    else its path beside this Python (an unactivated virtual environment)."""
+    beside = Path(sys.executable).parent / ("rerun.exe" if sys.platform == "win32" else "rerun")
+    found = shutil.which("rerun")
+    if not beside.is_file() or (found is not None and Path(found).resolve() == beside.resolve()):
+        return "rerun"
+    with contextlib.suppress(ValueError):
+        return str(beside.relative_to(Path.cwd()))
+    return str(beside)
 
 
 def _rerun_executable() -> str | None:
@@ -230,10 +366,13 @@ class Recording:
     :ivar complete: set once everything is logged: only then is a ``--save`` file written
     """
 
-    def __init__(self, rec: rr.RecordingStream, url: str | None) -> None:
+    def __init__(
+        self, rec: rr.RecordingStream, url: str | None, unreachable: str | None = None
+    ) -> None:
         self.rec = rec
         self.url = url
         self.complete = False
+        self.unreachable = unreachable  # a --connect URL without a viewer, when saving too
 
     def wait_while_serving(self) -> None:
         """Block until Ctrl-C while the web viewer is served; return at once otherwise."""
@@ -258,6 +397,7 @@ class RunLogger:
         self.recording = recording
         self.url = recording.url
         self.logged = 0  # records logged so far
+        self.last: EventRecord | None = None  # the last record logged
 
     @property
     def finished(self) -> bool:
@@ -267,10 +407,18 @@ class RunLogger:
         """Log one record of the core."""
         self.recorder.log_record(record)
         self.logged += 1
+        self.last = record
 
     def finish(self, evaluation: Evaluation | None) -> None:
-        """Log the evaluation document and send the buffered series: the run is complete."""
+        """Log the evaluation document and send the buffered series: the run is complete;
+        the span of the ``time`` timeline, if any, goes into the properties."""
         finish_recorders(self.recording, [(self.recorder, evaluation)])
+        span = self.recorder.time_span
+        if span is not None:
+            kind = "timestamp" if self.recorder.time_is_epoch else "duration"
+            self.recording.rec.send_property(
+                TIME_PROPERTY, _any_values({"start": span[0], "end": span[1], "kind": kind})
+            )
 
     def stop(self, reason: str, evaluation: Evaluation | None) -> bool:
         """End a run cut short (bad input, a numerical fault, a signal): log why as the
@@ -281,7 +429,18 @@ class RunLogger:
         if not self.logged:
             return False
         self.recorder.note(reason, level=rr.TextLogLevel.ERROR)
-        self.finish(evaluation)
+        last = self.last
+        finish_recorders(
+            self.recording,
+            [(self.recorder, evaluation)],
+            status={
+                "state": "stopped",
+                "reason": reason,
+                "event": -1 if last is None else last.event,
+                "step": -1 if last is None else last.step,
+                "line": -1 if last is None else last.line,
+            },
+        )
         return True
 
     def wait_while_serving(self) -> None:
@@ -290,9 +449,14 @@ class RunLogger:
 
 
 def finish_recorders(
-    recording: Recording, recorders: Sequence[tuple[Recorder, Evaluation | None]]
+    recording: Recording,
+    recorders: Sequence[tuple[Recorder, Evaluation | None]],
+    status: Mapping[str, str | int] | None = None,
 ) -> None:
-    """Finish every recorder of a recording (series, evaluation) and mark it complete."""
+    """Finish every recorder of a recording (series, evaluation), record how the run
+    ended (the property ``status``: finished unless told otherwise) and mark it complete.
+    """
+    recording.rec.send_property("status", _any_values(status or {"state": "finished"}))
     try:
         for recorder, evaluation in recorders:
             recorder.finish(evaluation)
@@ -319,23 +483,41 @@ def open_recording(info: RunInfo, sinks: Sinks) -> Iterator[Recording]:
     rec.set_log_time_enabled(False)  # only step and event: the same run gives the same data
     temporary: Path | None = None
     recording: Recording | None = None
+    unreachable: str | None = None
+    if sinks.connect is not None and viewer_answers(sinks.connect) is False:
+        if sinks.save is None and not sinks.spawn and not sinks.serve:
+            raise SinkError(_no_viewer(sinks.connect))
+        unreachable = sinks.connect  # the other outputs go on; said at the end
+        sinks = Sinks(save=sinks.save, spawn=sinks.spawn, serve=sinks.serve)
     try:
         log_sinks, temporary, url = _attach(rec, sinks)
         rec.set_sinks(*log_sinks)
         _describe(rec, info)
-        recording = Recording(rec, url)
+        recording = Recording(rec, url, unreachable)
         yield recording
     finally:
         with contextlib.suppress(Exception):
-            rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
+            flush_interruptibly(rec, FLUSH_TIMEOUT_S)
         rec.disconnect()  # finalises the file (footer) and stops a server
         if temporary is not None:
             _commit_or_remove(temporary, sinks.save, recording is not None and recording.complete)
+    if unreachable is not None:
+        kept = f"; the recording is saved in {sinks.save}" if sinks.save is not None else ""
+        raise SinkError(f"no Rerun viewer at {unreachable}{kept}")
+
+
+def _no_viewer(url: str) -> str:
+    return f"no Rerun viewer at {url} (start one with: {rerun_hint()}; or use --save PATH)"
 
 
 @contextmanager
 def open_run(
-    info: RunInfo, sinks: Sinks, *, detail: bool = False, sensor: RangeBearing | None = None
+    info: RunInfo,
+    sinks: Sinks,
+    *,
+    detail: bool = False,
+    history: bool = False,
+    sensor: RangeBearing | None = None,
 ) -> Iterator[RunLogger]:
     """A recording of one replay (see :func:`open_recording`), logged by a RunLogger.
 
@@ -345,7 +527,13 @@ def open_run(
     """
     with open_recording(info, sinks) as recording:
         recorder = Recorder(
-            recording.rec, truth=info.truth, run_documents=True, detail=detail, sensor=sensor
+            recording.rec,
+            truth=info.truth,
+            run_documents=True,
+            detail=detail,
+            history=history,
+            live_layout=sinks.spawn or sinks.serve or sinks.connect is not None,
+            sensor=sensor,
         )
         yield RunLogger(recorder, recording)
 
@@ -388,13 +576,13 @@ def _attach(
         url = web_viewer_url(server.uri)
     if sinks.save is not None:
         target = sinks.save
+        try:  # no folder is made: a path that cannot be written is refused before any work
+            check_output_path(target, "--save")
+        except OutputPathError as error:
+            raise SinkError(str(error)) from None
         # Beside the target (same file system, so os.replace is atomic), made by the
         # FileSink itself so that it gets the usual permissions.
         temporary = temporary_beside(target)
-        try:
-            target.parent.mkdir(parents=True, exist_ok=True)
-        except OSError as error:
-            raise SinkError(f"--save {target}: {error.strerror or error}") from None
         log_sinks.append(rr.FileSink(temporary))
     return log_sinks, temporary, url
 
@@ -418,6 +606,7 @@ def _describe(rec: rr.RecordingStream, info: RunInfo) -> None:
     rec.send_recording_name(info.name)
     values: dict[str, str | int | bool | None] = {
         "version": info.version,
+        "kind": info.kind,
         "command": info.command,
         "parameters": _json(info.parameters),
         "input_name": info.input_path.name,

@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 import rerun as rr
 
+from ekfviz.core.consistency import chi2_bounds, update_nis
 from ekfviz.core.evaluation import landmark_errors
 from ekfviz.core.records import EventKind
 from ekfviz.core.truth import GroundTruth
@@ -25,7 +26,7 @@ SUMMARY = "run/summary"
 PALETTE: tuple[style.Rgb, ...] = (
     (31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
     (140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207),
-    (0, 0, 0), (174, 199, 232), (255, 187, 120), (152, 223, 138),
+    (255, 215, 0), (174, 199, 232), (255, 187, 120), (152, 223, 138),
 )  # fmt: skip
 
 
@@ -48,11 +49,12 @@ def record_study(
         prefix = f"{root}/{run.spec.key}"
         recorder = Recorder(rec, truth=truth, blueprint=False, prefix=prefix)
         colour = PALETTE[k % len(PALETTE)]
-        rec.log(
-            f"{prefix}/{style.NIS}",
-            rr.SeriesLines(colors=colour, names=run.spec.label),
-            static=True,
-        )
+        for series in (style.NIS, style.NEES):  # one colour and name per run, overlaid
+            rec.log(
+                f"{prefix}/{series}",
+                rr.SeriesLines(colors=colour, names=run.spec.label),
+                static=True,
+            )
         for record in run.records:
             recorder.log_record(record)
         if truth is not None:
@@ -71,10 +73,25 @@ def record_study(
             bounds_xy=box + np.array([[-margin], [margin]]),
             what="variant" if root == "variants" else "filter",
             has_poses=truth is not None and truth.poses_xytheta is not None,
+            nis_range=nis_axis(runs[0]),
         )
     )
     rec.log(SUMMARY, rr.TextDocument(summary, media_type=rr.MediaType.MARKDOWN), static=True)
     finish_recorders(recording, recorders)
+
+
+def nis_axis(baseline: Run) -> tuple[float, float] | None:
+    """The NIS axis of a sweep: from 0 to three times the baseline's largest 95% upper
+    bound, or to its largest NIS if that is higher (None without an update)."""
+    uppers, values = [], []
+    for record in baseline.records:
+        found = update_nis(record)
+        if found is not None:
+            values.append(found[0])
+            uppers.append(chi2_bounds(found[1])[1])
+    if not uppers:
+        return None
+    return 0.0, max(3.0 * max(uppers), max(values))
 
 
 def _log_mean_error(

@@ -10,27 +10,40 @@ from __future__ import annotations
 # -- entity paths ----------------------------------------------------------------------
 
 WORLD = "world"
-ROBOT = "world/robot"  # Points2D: the current position
-HEADING = "world/robot/heading"  # Arrows2D: the heading
-POSE_PREDICTED = "world/robot/ellipse/predicted"  # LineStrips2D, at every predict
-POSE_UPDATED = "world/robot/ellipse/updated"  # LineStrips2D, at every update and the init
-TRAJECTORY = "world/trajectory"  # LineStrips2D, one new segment per event
+# The robot frame: Transform3D (translation, rotation) at every event; a Points2D at its
+# origin (static). Everything under it is drawn in the robot frame.
+ROBOT = "world/robot"
+HEADING = "world/robot/heading"  # Arrows2D along the robot's x axis (static)
+# Static unit circle LineStrips2D, mapped onto the 3-sigma ellipse by a Transform3D mat3x3
+POSE_PREDICTED = "world/robot/ellipse/predicted"  # at every predict
+POSE_UPDATED = "world/robot/ellipse/updated"  # at every update and the init
+TRAJECTORY = "world/trajectory"  # LineStrips2D, the path of each step, at its update
 LANDMARKS = "world/landmarks"  # Points2D, class id = landmark id
+LANDMARK_LABELS = "world/landmarks/labels"  # Points2D: "L<id>" just below each 3-sigma outline
 LANDMARK_ELLIPSES = "world/landmarks/ellipses"  # LineStrips2D, the whole map (see recorder)
 LANDMARK_ELLIPSES_OBSERVED = "world/landmarks/ellipses/observed"  # LineStrips2D, large maps
 LANDMARK_INITIAL = "world/landmarks/initial"  # LineStrips2D, at first sighting only
-OBSERVATIONS = "world/observations"  # LineStrips2D, robot -> measured landmark position
+# Arrows2D in the robot frame, robot -> measured landmark position, at updates
+OBSERVATIONS = "world/robot/observations"
 TRUTH_LANDMARKS = "world/truth/landmarks"  # Points2D, static
+# With true poses: the true robot frame at every step (Transform3D; a static Points2D at
+# its origin), and the true path, one segment per step
+TRUTH_ROBOT = "world/truth/robot"
+TRUTH_TRAJECTORY = "world/truth/trajectory"  # LineStrips2D
 
 METRICS = "metrics"
 NIS = "metrics/nis"  # with /lower_95 and /upper_95: the chi-square bounds of each update
 NEES = "metrics/nees"  # with true poses; /lower_95 and /upper_95 likewise
 LOWER = "lower_95"
 UPPER = "upper_95"
-POSE_SIGMA = "metrics/pose_sigma"  # /x, /y, /theta
+POSE_SIGMA = "metrics/pose_sigma"  # Scalars x, y, theta (three series), every update
 LANDMARK_ERROR = "metrics/landmark_error"  # /<id>, with truth
 MEAN_LANDMARK_ERROR = "metrics/mean_landmark_error"  # with truth, in sweeps
 MAHALANOBIS = "metrics/mahalanobis"  # /<id>, with truth
+# mean and worst over the map, with truth, wherever the whole map's errors are logged
+LANDMARK_ERROR_SUMMARY = "metrics/landmark_error_summary"  # /mean, /worst
+MAHALANOBIS_SUMMARY = "metrics/mahalanobis_summary"  # /mean, /worst
+MEAN, WORST = "mean", "worst"
 HEALTH = "metrics/health"  # numerical health, see ekfviz.core.health
 HEALTH_POSE_MIN_EIG = "metrics/health/pose_min_eigenvalue"  # every event
 HEALTH_LANDMARK_MIN_EIG = "metrics/health/landmark_min_eigenvalue"  # every update
@@ -39,19 +52,32 @@ HEALTH_P_MIN_EIG = "metrics/health/P_min_eigenvalue"  # where the whole P was ch
 HEALTH_P_ASYMMETRY = "metrics/health/P_asymmetry"  # likewise: max |P - P^T|
 HEALTH_P_LOG10_CONDITION = "metrics/health/P_log10_condition"  # likewise
 
+CORRELATION = "correlation"  # the correlation matrix of P, see ekfviz.viz.correlation
+CORRELATION_MATRIX = "correlation/matrix"  # Image (RGB), where the replay took it
+CORRELATION_BLOCKS = "correlation/blocks"  # Boxes2D: the diagonal blocks, labelled
+CORRELATION_NOTE = "correlation/note"  # TextDocument: what is shown (block-averaged?)
+
 LOG = "log"  # TextLog, one line per event, and one per warning
 RUN_INFO = "run/info"  # TextDocument (markdown), static
 RUN_INPUT = "run/input"  # TextDocument (the input log itself), static
 RUN_EVALUATION = "run/evaluation"  # TextDocument (markdown), static, at the end
 
 # Entities drawn from the infinite past up to the time cursor instead of latest-at.
-ACCUMULATED = (TRAJECTORY, LANDMARK_INITIAL)
+ACCUMULATED = (TRAJECTORY, LANDMARK_INITIAL, TRUTH_TRAJECTORY)
+# ... and with --history also every robot ellipse: the classic figure (the robot frame's
+# own ellipses are one unit circle under a transform, which cannot accumulate: with
+# --history each is also logged as an outline in the world)
+POSE_PREDICTED_HISTORY = "world/history/predicted"  # LineStrips2D, with --history
+POSE_UPDATED_HISTORY = "world/history/updated"  # LineStrips2D, with --history
+HISTORY = (POSE_PREDICTED_HISTORY, POSE_UPDATED_HISTORY)
 
 # -- timelines -------------------------------------------------------------------------
 
 STEP = "step"
 EVENT = "event"
-TIME = "time"  # the log's own time stamps (seconds), where every event has one
+# the log's time in seconds, for timestamped logs: a timestamp for Unix times (MRCLAM),
+# else a duration (see ekfviz.viz.recorder.time_is_epoch)
+TIME = "time"
 
 # -- colours (RGB) and sizes -----------------------------------------------------------
 
@@ -68,6 +94,15 @@ OBSERVATION_COLOR: Rgb = (255, 165, 0)
 STATISTIC_COLOR: Rgb = (31, 119, 180)  # NIS and NEES
 BOUND_COLOR: Rgb = (150, 150, 150)  # their chi-square bounds
 TRUTH_COLOR: Rgb = (0, 0, 0)  # "k"
+TRUTH_PATH_COLOR: Rgb = (150, 150, 150)  # the true path and robot, thin and grey
+# one colour per pose-sigma series (matplotlib's tab10 blue, orange, green)
+POSE_SIGMA_COLORS: dict[str, Rgb] = {
+    "x": (31, 119, 180),
+    "y": (255, 127, 14),
+    "theta": (44, 160, 44),
+}
+SUMMARY_COLORS: dict[str, Rgb] = {"mean": (31, 119, 180), "worst": (214, 39, 40)}
+CORRELATION_BLOCK_COLOR: Rgb = (60, 60, 60)
 
 # Negative radii are UI points, so the map looks the same at any scale.
 POINT_RADIUS_UI = 4.0
@@ -75,3 +110,4 @@ TRUTH_RADIUS_UI = 3.0
 ROBOT_RADIUS_UI = 6.0
 LINE_RADIUS_UI = 1.0
 THIN_LINE_RADIUS_UI = 0.5
+LABEL_ANCHOR_RADIUS_UI = 0.5  # the point a landmark's label hangs from

@@ -103,6 +103,37 @@ class Textbook:
         self.landmark_ids.append(int(landmark_id))
 
 
+class Joint(Textbook):
+    """All known landmarks of a line in one step, linearised at the predicted state."""
+
+    def update(self, ids: Any, z: Any) -> None:
+        z = np.asarray(z, dtype=float).reshape(-1, 2)
+        known = [(i, zk) for i, zk in zip(np.asarray(ids).tolist(), z, strict=True)
+                 if i in self.landmark_ids]  # fmt: skip
+        if known:
+            n = len(self.x)
+            H = np.zeros((2 * len(known), n))
+            nu = np.zeros(2 * len(known))
+            for k, (landmark_id, (bearing, rng)) in enumerate(known):
+                j = 3 + 2 * self.landmark_ids.index(landmark_id)
+                dx, dy = self.x[j] - self.x[0], self.x[j + 1] - self.x[1]
+                q = dx * dx + dy * dy
+                sq = np.sqrt(q)
+                H[2 * k : 2 * k + 2, :3] = [[dy / q, -dx / q, -1], [-dx / sq, -dy / sq, 0]]
+                H[2 * k : 2 * k + 2, j : j + 2] = [[-dy / q, dx / q], [dx / sq, dy / sq]]
+                nu[2 * k : 2 * k + 2] = [_wrap(bearing - np.arctan2(dy, dx) + self.x[2]), rng - sq]
+            R = np.kron(np.eye(len(known)), self.R)
+            S = H @ self.P @ H.T + R
+            K = self.P @ H.T @ np.linalg.inv(S)
+            self.x = self.x + K @ nu
+            self.x[2] = _wrap(self.x[2])
+            I_KH = np.eye(n) - K @ H
+            self.P = I_KH @ self.P @ I_KH.T + K @ R @ K.T
+        for landmark_id, (bearing, rng) in zip(np.asarray(ids).tolist(), z, strict=True):
+            if landmark_id not in self.landmark_ids:
+                self._add(landmark_id, bearing, rng)
+
+
 class WrongJacobianSign(Textbook):
     heading_sign = -1.0
 
@@ -117,6 +148,25 @@ class NoRInS(Textbook):
 
 class UnwrappedBearing(Textbook):
     wrap_innovation = False
+
+
+class NothingWrapped(Textbook):
+    """Neither the heading, nor the predicted bearing, nor the innovation is wrapped."""
+
+    wrap_innovation = False
+
+    def predict(self, d: float, alpha: float) -> None:
+        theta = self.x[2] + alpha
+        super().predict(d, alpha)
+        self.x[2] = theta
+
+    def _correct(self, j: int, bearing: float, rng: float) -> None:
+        global _wrap
+        wrap, _wrap = _wrap, lambda angle: float(angle)
+        try:
+            super()._correct(j, bearing, rng)
+        finally:
+            _wrap = wrap
 
 
 class NoCrossCovariances(Textbook):
@@ -157,6 +207,15 @@ class LosesIds(Textbook):
     def update(self, ids: Any, z: Any) -> None:
         super().update(ids, z)
         self.landmark_ids = self.landmark_ids[:-1]
+
+
+class Offline(Textbook):
+    """An offline filter (it has finish()): only its state after finish() is recorded."""
+
+    finished = False
+
+    def finish(self) -> None:
+        self.finished = True
 
 
 class BadConstructor:

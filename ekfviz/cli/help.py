@@ -1,0 +1,68 @@
+"""The ``--help`` pages as a reader expects them: whole sentences, no stray placeholders.
+
+Typer keeps the line breaks of a docstring in its rich help (sentences broken where the
+source wraps), shows ``<bool>`` after every flag and ``{data}`` for a required argument.
+:func:`polish` reflows the commands' docstrings into paragraphs and, where the installed
+typer has the hooks (they are looked up, never assumed), drops the flag placeholder and
+writes arguments in capitals.
+"""
+
+from __future__ import annotations
+
+import inspect
+import re
+from typing import Any
+
+import typer
+
+
+def reflow(doc: str) -> str:
+    """A docstring's paragraphs, each on one line (blank lines separate paragraphs)."""
+    paragraphs = re.split(r"\n\s*\n", inspect.cleandoc(doc))
+    return "\n\n".join(" ".join(p.split()) for p in paragraphs if p.strip())
+
+
+_UNESCAPED_DEFAULT = re.compile(r"(?<!\\)\[default:")
+
+
+def escape_defaults(callback: Any) -> None:
+    """Escape a "[default: ...]" written into an option's help: rich help reads it as
+    markup and drops it, leaving "text ." behind."""
+    for parameter in inspect.signature(callback, eval_str=True).parameters.values():
+        for info in getattr(parameter.annotation, "__metadata__", ()):
+            text = getattr(info, "help", None)
+            if isinstance(text, str) and _UNESCAPED_DEFAULT.search(text):
+                info.help = _UNESCAPED_DEFAULT.sub(r"\\[default:", text)
+
+
+def polish(app: typer.Typer) -> None:
+    """Reflow every command's help and tidy typer's placeholders (see the module)."""
+    for command in app.registered_commands:
+        if command.help is None and command.callback is not None and command.callback.__doc__:
+            command.help = reflow(command.callback.__doc__)
+        if command.callback is not None:
+            escape_defaults(command.callback)
+    try:
+        from typer import core
+    except ImportError:  # pragma: no cover - a typer without the module: keep its pages
+        return
+    option = getattr(core, "TyperOption", None)
+    argument = getattr(core, "TyperArgument", None)
+    if option is not None and hasattr(option, "display_type_rich"):
+        shown = option.display_type_rich
+
+        def display_type_rich(self: Any, ctx: Any) -> str | None:
+            if getattr(self, "is_flag", False) and getattr(self, "metavar", None) is None:
+                return None  # a flag takes no value: no "<bool>"
+            result: str | None = shown(self, ctx)
+            return result
+
+        option.display_type_rich = display_type_rich
+    if argument is not None and hasattr(argument, "_usage_display_name"):
+        usage = argument._usage_display_name
+
+        def usage_display_name(self: Any) -> str:
+            name = str(usage(self))
+            return re.sub(r"\{([^}]*)\}", lambda m: m.group(1).upper(), name)
+
+        argument._usage_display_name = usage_display_name

@@ -1,0 +1,118 @@
+"""Output paths checked before any work: a run must not fail at its very end on its path.
+
+:func:`check_output_path` says in one line what is wrong with a path a command is told to
+write (a folder, a missing or unwritable folder, a file where a folder should be) and
+creates nothing: no folder, no file left behind.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import tempfile
+from pathlib import Path
+
+
+class OutputPathError(ValueError):
+    """An output path that cannot be written, as ``OPTION PATH: what is wrong``."""
+
+
+def check_output_path(path: Path | str, option_name: str) -> Path:
+    """Check that a file can be written at ``path``, before any work starts.
+
+    The file's folder must exist (it is never created here) and take a new file; the path
+    must not name a folder. An existing file at ``path`` is fine: it is replaced, whole,
+    when the command is done.
+
+    :param option_name: how the user gave the path (``--save``, ``TARGET``), for the message
+    :return: ``path`` as a ``Path``
+    :raises OutputPathError: naming the option, the path and the problem
+    """
+    text = str(path)
+    path = Path(path)
+    where = f"{option_name} {text}".strip()
+    if text == "" or text.endswith(os.sep) or path.name in ("", ".", ".."):
+        raise OutputPathError(f"{where}: names a folder, expected a file name")
+    if path.is_dir():
+        raise OutputPathError(f"{where}: is a folder, expected a file name")
+    parent = path.parent
+    if not parent.exists():
+        blocker = _file_ancestor(parent)
+        if blocker is not None:
+            raise OutputPathError(f"{where}: {blocker} is a file, not a folder")
+        raise OutputPathError(f"{where}: the folder {parent} does not exist")
+    if not parent.is_dir():
+        raise OutputPathError(f"{where}: {parent} is a file, not a folder")
+    if path.exists() and not path.is_file():
+        raise OutputPathError(f"{where}: exists and is not a regular file")
+    try:  # the only sure test of a folder taking a new file: make one, remove it at once
+        fd, probe = tempfile.mkstemp(dir=parent, prefix=f".{path.name}.", suffix=".probe")
+    except OSError as error:
+        reason = error.strerror or type(error).__name__
+        if error.errno in (errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOENT):
+            reason = {
+                errno.EROFS: "read-only file system",
+                errno.ENOENT: "cannot create files there",
+            }.get(error.errno or 0, "permission denied")
+        raise OutputPathError(f"{where}: cannot write in {parent} ({reason})") from None
+    os.close(fd)
+    os.unlink(probe)
+    return path
+
+
+def _file_ancestor(folder: Path) -> Path | None:
+    """The nearest existing ancestor of a missing folder, if it is a file."""
+    for ancestor in (folder, *folder.parents):
+        if ancestor.exists():
+            return None if ancestor.is_dir() else ancestor
+    return None
+
+
+def distinct_paths(paths: dict[str, Path | None]) -> str | None:
+    """A one-line complaint when two outputs of one command are the same file, else None.
+
+    :param paths: option name -> path given (None: not given)
+    """
+    seen: dict[Path, str] = {}
+    for option, path in paths.items():
+        if path is None:
+            continue
+        key = path.resolve()
+        if key in seen:
+            return f"{seen[key]} and {option} are the same file ({path}): give two paths"
+        seen[key] = option
+    return None
+
+
+def unused_path(path: Path) -> Path:
+    """``path`` if no file is there, else the first free ``STEM-2.SUFFIX``, ``STEM-3``, ...:
+    a default output name never replaces an earlier run's file."""
+    candidate, k = path, 1
+    while candidate.exists():
+        k += 1
+        candidate = path.with_name(f"{path.stem}-{k}{path.suffix}")
+    return candidate
+
+
+def check_output_folder(path: Path | str, option_name: str) -> Path:
+    """Like :func:`check_output_path`, for a folder a command fills with files: an
+    existing folder that takes new files, or a new one whose parent exists (it is made
+    by the command, once its work is done; not here).
+
+    :raises OutputPathError: naming the option, the path and the problem
+    """
+    path = Path(path)
+    if not path.exists():
+        return check_output_path(path, option_name)
+    where = f"{option_name} {path}".strip()
+    if not path.is_dir():
+        raise OutputPathError(f"{where}: exists and is not a folder")
+    try:
+        fd, probe = tempfile.mkstemp(dir=path, prefix=".ekfviz.", suffix=".probe")
+    except OSError as error:
+        raise OutputPathError(
+            f"{where}: cannot write in it ({error.strerror or type(error).__name__})"
+        ) from None
+    os.close(fd)
+    os.unlink(probe)
+    return path

@@ -1,0 +1,112 @@
+"""The correlation matrix of P as an image: a fixed diverging colour map, labelled blocks.
+
+Each matrix a replay took (see :mod:`ekfviz.core.correlation`) is logged at its event
+under ``correlation/``: the image (``matrix``, -1 blue, 0 white, +1 red, whatever the
+run: the colours are fixed to [-1, 1] so that images of different events and runs
+compare), an outline per block along the diagonal labelled ``pose`` and ``L<id>``
+(groups of consecutive landmarks beyond ``MAX_LABELLED_BLOCKS``), and one sentence on
+what is shown, which says when the matrix was block-averaged.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Protocol
+
+import numpy as np
+import numpy.typing as npt
+import rerun as rr
+
+from ekfviz.core.correlation import Correlation
+from ekfviz.core.types import FloatArray
+from ekfviz.viz import style
+
+MAX_LABELLED_BLOCKS = 32  # landmark blocks (or groups of them) outlined and labelled
+NAN_RGB = (160, 160, 160)  # a correlation with a zero variance: undefined
+
+# ColorBrewer's RdBu, from -1 (dark blue) through 0 (near white) to +1 (dark red)
+_ANCHORS = np.array(
+    [
+        (5, 48, 97), (33, 102, 172), (67, 147, 195), (146, 197, 222), (209, 229, 240),
+        (247, 247, 247),
+        (253, 219, 199), (244, 165, 130), (214, 96, 77), (178, 24, 43), (103, 0, 31),
+    ],
+    dtype=np.float64,
+)  # fmt: skip
+LUT_SIZE = 256
+_LUT: npt.NDArray[np.uint8] = np.rint(
+    np.column_stack(
+        [
+            np.interp(
+                np.linspace(0.0, 1.0, LUT_SIZE), np.linspace(0.0, 1.0, len(_ANCHORS)), channel
+            )
+            for channel in _ANCHORS.T
+        ]
+    )
+).astype(np.uint8)
+
+
+def colormap(C: FloatArray) -> npt.NDArray[np.uint8]:
+    """RGB of correlations, the colour scale fixed to [-1, 1]; NaN grey.
+
+    :param C: (m, k) values in [-1, 1]
+    :return: (m, k, 3) uint8
+    """
+    finite = np.isfinite(C)
+    index = np.rint((np.clip(np.where(finite, C, 0.0), -1.0, 1.0) + 1.0) * 0.5 * (LUT_SIZE - 1))
+    rgb = _LUT[index.astype(np.intp)]
+    rgb[~finite] = NAN_RGB
+    return rgb
+
+
+def block_outlines(correlation: Correlation) -> tuple[FloatArray, FloatArray, list[str]]:
+    """The diagonal blocks (pose, then landmarks or groups of them) in image pixels.
+
+    :return: (mins (B, 2), sizes (B, 2), labels)
+    """
+    ids = correlation.landmark_ids.tolist()
+    per_group = max(1, math.ceil(len(ids) / MAX_LABELLED_BLOCKS))
+    spans: list[tuple[int, int, str]] = [(0, 3, "pose")]
+    for first in range(0, len(ids), per_group):
+        group = ids[first : first + per_group]
+        label = f"L{group[0]}" if len(group) == 1 else f"L{group[0]}-L{group[-1]}"
+        spans.append((3 + 2 * first, 3 + 2 * (first + len(group)), label))
+    f = correlation.factor
+    starts = np.array([start / f for start, _, _ in spans])
+    sizes = np.array([(end - start) / f for start, end, _ in spans])
+    return (
+        np.column_stack([starts, starts]),
+        np.column_stack([sizes, sizes]),
+        [label for _, _, label in spans],
+    )
+
+
+class _Logger(Protocol):
+    def log(self, entity: str, data: rr.AsComponents, *, static: bool = False) -> None: ...
+
+
+def log_correlation_styling(rec: _Logger) -> None:
+    """The blocks' outline colour, once (static)."""
+    rec.log(
+        style.CORRELATION_BLOCKS,
+        rr.Boxes2D.from_fields(colors=style.CORRELATION_BLOCK_COLOR, draw_order=10.0),
+        static=True,
+    )
+
+
+def log_correlation(
+    rec: _Logger, correlation: Correlation, previous: Correlation | None = None
+) -> None:
+    """The image at the current time; its block outlines and description too when they
+    differ from those of the ``previous`` one logged (the map or its averaging changed)."""
+    rec.log(style.CORRELATION_MATRIX, rr.Image(colormap(correlation.matrix)))
+    if (
+        previous is not None
+        and previous.dim == correlation.dim
+        and previous.factor == correlation.factor
+        and np.array_equal(previous.landmark_ids, correlation.landmark_ids)
+    ):
+        return
+    mins, sizes, labels = block_outlines(correlation)
+    rec.log(style.CORRELATION_BLOCKS, rr.Boxes2D(mins=mins, sizes=sizes, labels=labels))
+    rec.log(style.CORRELATION_NOTE, rr.TextDocument(correlation.describe()))

@@ -1,0 +1,201 @@
+"""Read an ekfviz recording back as trajectories and a map: the estimated pose of every
+step, the true pose where the recording holds it, the latest landmark estimates.
+
+The estimated pose of a step is the robot frame (``world/robot``) at the step's last
+event, its corrected state; the true one is ``world/truth/robot``, logged by a replay
+with true poses. Time stamps come from the ``time`` timeline where the recording has one
+(a log with time stamps), else they are the step numbers.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa  # type: ignore[import-untyped]
+from rerun.chunk import RrdReader
+
+from ekfviz.core.types import FloatArray, IntArray
+from ekfviz.models.angles import wrap_angles
+from ekfviz.viz import style
+from ekfviz.viz.info import NotARecordingError
+
+TIME = "time"  # the timeline of a log's own time stamps, in seconds
+
+
+@dataclass(frozen=True, slots=True)
+class Trajectory:
+    """One pose per step: ``steps`` (T,), ``poses_xytheta`` (T, 3), and ``seconds`` (T,)
+    from the ``time`` timeline, None where the recording has none."""
+
+    steps: IntArray
+    poses_xytheta: FloatArray
+    seconds: FloatArray | None
+
+    @property
+    def stamps(self) -> FloatArray:
+        """Seconds where known, else the step numbers."""
+        if self.seconds is not None:
+            return self.seconds
+        return self.steps.astype(np.float64)
+
+
+@dataclass(frozen=True, slots=True)
+class RecordedRun:
+    """What ``ekfviz export`` writes: the estimate, the truth, the pose's standard
+    deviations (T, 3) (NaN where not logged) and the last landmark estimates."""
+
+    estimate: Trajectory
+    truth: Trajectory | None
+    sigmas_xytheta: FloatArray
+    landmark_ids: IntArray
+    landmarks_xy: FloatArray
+
+
+@dataclass
+class _Rows:
+    """The rows of one entity: timelines and data columns, as numpy."""
+
+    steps: list[IntArray]
+    events: list[IntArray]
+    seconds: list[FloatArray | None]
+    columns: dict[str, list[list[Any]]]
+
+    def add(self, batch: pa.RecordBatch) -> None:
+        names = batch.schema.names
+        self.steps.append(np.asarray(batch.column("step").to_numpy(), dtype=np.int64))
+        self.events.append(np.asarray(batch.column("event").to_numpy(), dtype=np.int64))
+        self.seconds.append(_seconds(batch.column(TIME)) if TIME in names else None)
+        for field, column in zip(batch.schema, batch.columns, strict=True):
+            if (field.metadata or {}).get(b"rerun:kind") == b"data":
+                self.columns.setdefault(field.name, []).append(column.to_pylist())
+        for values in self.columns.values():  # a column missing from this chunk: nulls
+            if len(values) < len(self.steps):
+                values.append([None] * batch.num_rows)
+
+    def table(self) -> tuple[IntArray, IntArray, FloatArray | None, dict[str, list[Any]]]:
+        """All rows by event: steps, events, seconds (None unless every row has one),
+        and each data column."""
+        steps = np.concatenate(self.steps)
+        events = np.concatenate(self.events)
+        order = np.argsort(events, kind="stable")
+        seconds = None
+        if all(s is not None for s in self.seconds):
+            seconds = np.concatenate([s for s in self.seconds if s is not None])[order]
+            if not np.isfinite(seconds).all():
+                seconds = None
+        columns = {
+            name: [cell for part in parts for cell in part] for name, parts in self.columns.items()
+        }
+        return (
+            steps[order],
+            events[order],
+            seconds,
+            {name: [cells[i] for i in order.tolist()] for name, cells in columns.items()},
+        )
+
+
+def _seconds(column: pa.Array) -> FloatArray:
+    """A time column in seconds: durations and timestamps are in nanoseconds."""
+    if pa.types.is_duration(column.type) or pa.types.is_timestamp(column.type):
+        nanoseconds = column.cast(pa.int64()).to_numpy(zero_copy_only=False)
+        return np.asarray(nanoseconds, dtype=np.float64) / 1e9
+    return np.asarray(column.to_numpy(zero_copy_only=False), dtype=np.float64)
+
+
+def read_recorded_run(path: Path) -> RecordedRun:
+    """The trajectories, pose standard deviations and map of one replay's recording.
+
+    :raises NotARecordingError: when ``path`` is not a recording of a replay with
+        estimated poses
+    """
+    if not path.is_file():
+        raise NotARecordingError(f"{path}: no such file")
+    wanted = {
+        f"/{style.ROBOT}": "robot",
+        f"/{style.TRUTH_ROBOT}": "truth",
+        f"/{style.POSE_SIGMA}": "sigma",
+        f"/{style.LANDMARKS}": "landmarks",
+    }
+    rows = {name: _Rows([], [], [], {}) for name in wanted.values()}
+    try:
+        reader = RrdReader(path)
+        recordings = reader.recordings()
+        if not recordings:
+            raise NotARecordingError(f"{path}: a Rerun file without a recording")
+        chunks = reader.stream(store=recordings[0]).filter(content=list(wanted), is_static=False)
+        for chunk in chunks:
+            name = wanted.get(chunk.entity_path)
+            if name is not None:
+                rows[name].add(chunk.to_record_batch())
+    except (RuntimeError, ValueError, OSError) as error:
+        reason = str(error).splitlines()[0] if str(error) else type(error).__name__
+        raise NotARecordingError(f"{path}: not a Rerun recording (.rrd): {reason}") from None
+    estimate = _trajectory(rows["robot"])
+    if estimate is None:
+        raise NotARecordingError(
+            f"{path}: no estimated poses ({style.ROBOT}): not a recording of an ekfviz replay"
+        )
+    ids, landmarks_xy = _last_landmarks(rows["landmarks"])
+    return RecordedRun(
+        estimate=estimate,
+        truth=_trajectory(rows["truth"]),
+        sigmas_xytheta=_sigmas(rows["sigma"], estimate.steps),
+        landmark_ids=ids,
+        landmarks_xy=landmarks_xy,
+    )
+
+
+def _last_per_step(steps: IntArray) -> IntArray:
+    """Indices of the last row of each step, rows sorted by event."""
+    last = np.flatnonzero(np.append(steps[1:] != steps[:-1], True))
+    return last
+
+
+def _trajectory(rows: _Rows) -> Trajectory | None:
+    if not rows.steps:
+        return None
+    steps, _, seconds, columns = rows.table()
+    translations = columns.get("Transform3D:translation")
+    quaternions = columns.get("Transform3D:quaternion")
+    if translations is None or quaternions is None:
+        return None
+    at = _last_per_step(steps)
+    poses = np.empty((len(at), 3))
+    for k, i in enumerate(at.tolist()):
+        (x, y, _), (_, _, qz, qw) = translations[i][0], quaternions[i][0]
+        poses[k] = x, y, 2.0 * math.atan2(qz, qw)
+    poses[:, 2] = wrap_angles(poses[:, 2])
+    return Trajectory(steps[at], poses, None if seconds is None else seconds[at])
+
+
+def _sigmas(rows: _Rows, steps: IntArray) -> FloatArray:
+    sigmas = np.full((len(steps), 3), np.nan)
+    if not rows.steps:
+        return sigmas
+    logged_steps, _, _, columns = rows.table()
+    values = columns.get("Scalars:scalars", [])
+    at = _last_per_step(logged_steps)
+    where = np.searchsorted(steps, logged_steps[at])
+    for k, i in zip(where.tolist(), at.tolist(), strict=True):
+        cell = values[i]
+        if k < len(steps) and steps[k] == logged_steps[i] and cell is not None:
+            sigmas[k] = np.asarray(cell, dtype=np.float64)[:3]
+    return sigmas
+
+
+def _last_landmarks(rows: _Rows) -> tuple[IntArray, FloatArray]:
+    if not rows.steps:
+        return np.zeros(0, dtype=np.int64), np.zeros((0, 2))
+    _, _, _, columns = rows.table()
+    positions = np.asarray(columns["Points2D:positions"][-1], dtype=np.float64).reshape(-1, 2)
+    class_ids = columns.get("Points2D:class_ids")
+    if class_ids is not None and class_ids[-1] is not None:
+        ids = np.asarray(class_ids[-1], dtype=np.int64)
+    else:  # ids that do not fit a class id are labels "L<id>"
+        labels = columns["Points2D:labels"][-1]
+        ids = np.array([int(str(label)[1:]) for label in labels], dtype=np.int64)
+    return ids, positions

@@ -1,0 +1,241 @@
+"""``ekfviz export``: a replay's recording back as TUM trajectories (read by evo itself),
+CSV poses and a CSV map; the true path of a replay with true poses."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import entity_rows
+from typer.testing import CliRunner
+
+from ekfviz.cli import app
+from ekfviz.core.filter import FilterParams
+from ekfviz.core.records import EventKind, EventRecord
+from ekfviz.core.replay import replay
+from ekfviz.io.extended import read_log
+from ekfviz.io.truth import read_truth
+from ekfviz.viz import style
+
+runner = CliRunner()
+
+
+@dataclass(frozen=True, slots=True)
+class Exported:
+    folder: Path
+    rrd: Path
+    log: Path
+    truth: Path
+
+
+def invoke(*args: str) -> str:
+    result = runner.invoke(app, list(args))
+    assert result.exit_code == 0, result.output
+    return result.output
+
+
+@pytest.fixture(scope="module")
+def loop_run(tmp_path_factory: pytest.TempPathFactory) -> Exported:
+    """A simulated loop replayed with the true noise and prior, and its truth."""
+    folder = tmp_path_factory.mktemp("export")
+    log, truth, rrd = folder / "loop.txt", folder / "truth.json", folder / "loop.rrd"
+    invoke(
+        "simulate", "--scenario", "loop", "--steps", "200", "--landmarks", "80", "--seed", "3",
+        "-o", str(log), "--truth-out", str(truth),
+    )  # fmt: skip
+    document = json.loads(truth.read_text())
+    noise = document["noise"]
+    invoke(
+        "replay", str(log), "--truth", str(truth), "--save", str(rrd),
+        *(a for key, value in noise.items() for a in (f"--{key.replace('_', '-')}", str(value))),
+        "--init-pose-sigma", *(str(v) for v in document["init_pose_sigma"]),
+    )  # fmt: skip
+    return Exported(folder, rrd, log, truth)
+
+
+def replayed(run: Exported) -> list[EventRecord]:
+    """The records of the replay, with the parameters it was recorded with."""
+    document = json.loads(run.truth.read_text())
+    params = FilterParams(**document["noise"], init_pose_sigma=tuple(document["init_pose_sigma"]))
+    return list(replay(read_log(run.log), params))
+
+
+def read_tum(path: Path) -> np.ndarray:
+    table: np.ndarray = np.loadtxt(path, ndmin=2)
+    return table
+
+
+def test_the_true_path_is_recorded_at_every_step(loop_run: Exported) -> None:
+    truth = read_truth(loop_run.truth)
+    assert truth.poses_xytheta is not None
+    rows = entity_rows(loop_run.rrd, f"/{style.TRUTH_ROBOT}")
+    assert [row["step"] for row in rows] == list(range(len(truth.poses_xytheta)))
+    for row, pose in zip(rows, truth.poses_xytheta, strict=True):
+        translation = np.asarray(row["Transform3D:translation"], dtype=np.float64)
+        np.testing.assert_allclose(translation[0, :2], pose[:2], atol=1e-4)
+    path = entity_rows(loop_run.rrd, f"/{style.TRUTH_TRAJECTORY}")
+    assert len(path) == len(truth.poses_xytheta)
+    last = np.asarray(path[-1]["LineStrips2D:strips"], dtype=np.float64)
+    np.testing.assert_allclose(last[0, 1], truth.poses_xytheta[-1, :2], atol=1e-4)
+
+
+def test_export_gives_back_the_estimate_and_the_truth_of_every_step(loop_run: Exported) -> None:
+    est, true, poses, landmarks = (
+        loop_run.folder / n for n in ("e.tum", "t.tum", "p.csv", "l.csv")
+    )
+    invoke(
+        "export", str(loop_run.rrd), "--tum", str(est), "--truth-tum", str(true),
+        "--csv", str(poses), "--landmarks", str(landmarks),
+    )  # fmt: skip
+    records = replayed(loop_run)
+    corrected = {r.step: r for r in records if r.kind is not EventKind.PREDICT}
+    table = read_tum(est)
+    assert table[:, 0].tolist() == sorted(corrected)  # no time stamps in the log: steps
+    expected = np.array([corrected[int(step)].pose for step in table[:, 0]])
+    np.testing.assert_allclose(table[:, 1:3], expected[:, :2], atol=1e-4)
+    theta = 2 * np.arctan2(table[:, 6], table[:, 7])
+    np.testing.assert_allclose(np.angle(np.exp(1j * (theta - expected[:, 2]))), 0.0, atol=1e-5)
+    assert np.all(table[:, [3, 4, 5]] == 0.0)
+    truth = read_truth(loop_run.truth)
+    assert truth.poses_xytheta is not None
+    np.testing.assert_allclose(read_tum(true)[:, 1:3], truth.poses_xytheta[:, :2], atol=1e-4)
+    csv = np.genfromtxt(poses, delimiter=",", names=True)
+    assert csv.dtype.names == ("step", "x", "y", "theta", "sigma_x", "sigma_y", "sigma_theta")
+    np.testing.assert_allclose(csv["theta"], expected[:, 2], atol=1e-5)
+    sigmas = np.sqrt([np.diag(corrected[int(s)].pose_cov) for s in table[:, 0]])
+    np.testing.assert_allclose(csv["sigma_x"], sigmas[:, 0], rtol=1e-6)
+    last = records[-1]
+    lm = np.genfromtxt(landmarks, delimiter=",", names=True)
+    assert lm["id"].astype(int).tolist() == last.landmark_ids.tolist()
+    np.testing.assert_allclose(np.column_stack([lm["x"], lm["y"]]), last.landmarks_xy, atol=1e-4)
+
+
+def test_evo_ape_on_the_export_matches_ekfviz_position_errors(loop_run: Exported) -> None:
+    """evo itself reads both files; its RMSE (no alignment) is that of the position
+    errors ekfviz computes from the same poses, and below 1 m for a matched filter."""
+    est, true = loop_run.folder / "evo_est.tum", loop_run.folder / "evo_truth.tum"
+    invoke("export", str(loop_run.rrd), "--tum", str(est), "--truth-tum", str(true))
+    home = loop_run.folder / "home"  # evo writes its settings under ~/.evo
+    home.mkdir(exist_ok=True)
+    results = loop_run.folder / "ape.zip"
+    evo = subprocess.run(
+        [str(Path(sys.executable).parent / "evo_ape"), "tum", str(true), str(est),
+         "--save_results", str(results), "--no_warnings"],
+        capture_output=True, text=True, timeout=300,
+        env={**os.environ, "HOME": str(home), "MPLBACKEND": "Agg"},
+    )  # fmt: skip
+    assert evo.returncode == 0, evo.stdout + evo.stderr
+    import zipfile
+
+    with zipfile.ZipFile(results) as archive:
+        stats = json.loads(archive.read("stats.json"))
+    records = replayed(loop_run)
+    truth = read_truth(loop_run.truth)
+    assert truth.poses_xytheta is not None
+    corrected = {r.step: r for r in records if r.kind is not EventKind.PREDICT}
+    errors = [
+        np.linalg.norm(corrected[step].pose[:2] - truth.poses_xytheta[step, :2])
+        for step in sorted(corrected)
+    ]
+    rmse = float(np.sqrt(np.mean(np.square(errors))))
+    assert np.isfinite(stats["rmse"]) and stats["rmse"] < 1.0
+    assert stats["rmse"] == pytest.approx(rmse, rel=1e-4, abs=1e-5)
+    assert stats["max"] == pytest.approx(max(errors), rel=1e-4, abs=1e-5)
+
+
+def test_truth_tum_without_true_poses_is_a_one_line_error(tmp_path: Path) -> None:
+    rrd = tmp_path / "classic.rrd"
+    data = Path(__file__).parents[1] / "data"
+    invoke("replay", str(data / "classic.txt"), "--save", str(rrd))
+    est, true = tmp_path / "e.tum", tmp_path / "t.tum"
+    result = runner.invoke(app, ["export", str(rrd), "--tum", str(est), "--truth-tum", str(true)])
+    assert result.exit_code == 2
+    assert result.output.count("\n") == 1 and "holds no true poses" in result.output
+    assert not est.exists() and not true.exists()  # nothing half-written
+
+
+@pytest.mark.parametrize(
+    ("make", "message"),
+    [
+        (lambda p: p, "no such file"),
+        (lambda p: (p.write_text("not a recording\n"), p)[1], "not a Rerun recording"),
+    ],
+)
+def test_export_of_what_is_not_a_recording_is_a_one_line_error(
+    tmp_path: Path, make: object, message: str
+) -> None:
+    target = make(tmp_path / "x.rrd")  # type: ignore[operator]
+    result = runner.invoke(app, ["export", str(target), "--tum", str(tmp_path / "e.tum")])
+    assert result.exit_code == 2 and message in result.output
+    assert result.output.count("\n") == 1
+
+
+def test_export_needs_something_to_write(tmp_path: Path) -> None:
+    result = runner.invoke(app, ["export", str(tmp_path / "x.rrd")])
+    assert result.exit_code == 2 and "nothing to export" in result.output
+
+
+def test_time_stamps_come_from_the_time_timeline_where_the_recording_has_one(
+    tmp_path: Path,
+) -> None:
+    """A log with time stamps records a ``time`` timeline (seconds; a timestamp for Unix
+    times): the export's stamps, to the microsecond."""
+    import rerun as rr
+
+    from ekfviz import viz
+
+    rrd = tmp_path / "timed.rrd"
+    rec = rr.RecordingStream("ekfviz")
+    rec.save(rrd)
+    steps, events = np.array([0, 1, 1, 2, 2]), np.arange(5)
+    seconds = 1_248_444_000.0 + np.array([0.0, 0.5, 0.5, 1.257, 1.257])  # Unix times
+    rec.send_columns(
+        f"/{style.ROBOT}",
+        indexes=[
+            rr.TimeColumn("step", sequence=steps),
+            rr.TimeColumn("event", sequence=events),
+            rr.TimeColumn("time", timestamp=seconds),
+        ],
+        columns=rr.Transform3D.columns(
+            translation=np.column_stack([events, -events, np.zeros(5)]).astype(np.float32),
+            quaternion=np.tile([0.0, 0.0, 0.0, 1.0], (5, 1)).astype(np.float32),
+        ),
+    )
+    rec.disconnect()
+    run = viz.read_recorded_run(rrd)
+    assert run.estimate.steps.tolist() == [0, 1, 2]
+    assert run.estimate.seconds is not None
+    np.testing.assert_allclose(run.estimate.stamps - 1_248_444_000.0, [0.0, 0.5, 1.257])
+    np.testing.assert_allclose(run.estimate.poses_xytheta[:, 0], [0, 2, 4])  # each step's last
+    out = tmp_path / "timed.tum"
+    invoke("export", str(rrd), "--tum", str(out), "--csv", str(tmp_path / "timed.csv"))
+    # to the microsecond, which a float's %g would round to 1.248444e+09
+    assert [line.split()[0] for line in out.read_text().splitlines()] == [
+        "1248444000",
+        "1248444000.5",
+        "1248444001.257",
+    ]
+    assert (tmp_path / "timed.csv").read_text().splitlines()[0].startswith("step,time,x,y")
+
+
+def test_a_timestamped_dataset_exports_its_track_as_the_truth(tmp_path: Path) -> None:
+    """A MRCLAM-layout dataset: the truth is a motion-capture track, the true pose of an
+    update is the track's at its time; both files carry the log's Unix times."""
+    folder, rrd = tmp_path / "mrclam", tmp_path / "mrclam.rrd"
+    invoke("simulate", "--layout", "mrclam", "-o", str(folder))
+    invoke("replay", str(folder), "--robot", "1", "--save", str(rrd))
+    est, true = tmp_path / "e.tum", tmp_path / "t.tum"
+    invoke("export", str(rrd), "--tum", str(est), "--truth-tum", str(true))
+    estimate, truth = read_tum(est), read_tum(true)
+    assert len(truth) > 0.9 * len(estimate)
+    assert np.all(estimate[:, 0] > 1e9) and np.all(np.diff(estimate[:, 0]) > 0)
+    assert set(truth[:, 0].tolist()) <= set(estimate[:, 0].tolist())
+    by_time = {row[0]: row for row in estimate}
+    errors = [np.linalg.norm(by_time[row[0]][1:3] - row[1:3]) for row in truth]
+    assert 0.0 < float(np.sqrt(np.mean(np.square(errors)))) < 1.0

@@ -1,0 +1,232 @@
+"""Every way a user can give an unusable output path, for every command that writes one,
+and a ``--connect`` to where no viewer answers: one line, exit 2, nothing left behind.
+
+Script-style: the matrix below is tried in turn. Paths are checked in-process (they are
+refused before any work, so a real process would show nothing more); the ``--connect``
+cases and one path case run ``python -m ekfviz`` in a process of its own, as a user does.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from ekfviz.cli import app
+
+DATA = Path(__file__).parents[1] / "data"
+SAMPLE = DATA / "classic.txt"
+runner = CliRunner()
+
+
+def _snapshot(root: Path) -> set[Path]:
+    return {p.relative_to(root) for p in root.rglob("*")}
+
+
+@pytest.fixture
+def place(tmp_path: Path) -> Path:
+    """A working folder with an existing folder and an existing file in it."""
+    (tmp_path / "folder").mkdir()
+    (tmp_path / "file.txt").write_text("a file\n")
+    return tmp_path
+
+
+# (name, how the bad path is made from the working folder, what the message says)
+PATHS: list[tuple[str, Callable[[Path], str], str]] = [
+    ("not writable", lambda _: "/proc/x.rrd", "cannot write in /proc"),
+    ("dot", lambda _: ".", "names a folder"),
+    ("existing folder", lambda root: str(root / "folder"), "is a folder"),
+    ("folder with a slash", lambda root: str(root / "folder") + "/", "folder"),
+    ("under a file", lambda root: str(root / "file.txt" / "run.rrd"), "is a file, not a folder"),
+    ("missing parent", lambda root: str(root / "missing" / "run.rrd"), "does not exist"),
+    ("missing under /", lambda _: "/ekfviz-no-such-folder/run.rrd", "does not exist"),
+]
+
+
+def _command(name: str, path: str, place: Path) -> list[str]:
+    """The command line of ``name`` with ``path`` as its output."""
+    recording = place / "made.rrd"
+    return {
+        "replay --save": ["replay", str(SAMPLE), "--save", path],
+        "replay --report": ["replay", str(SAMPLE), "--save", str(recording), "--report", path],
+        "sweep --save": ["sweep", str(SAMPLE), "--vary", "sigma_x=x10", "--save", path],
+        "sweep --report": [
+            "sweep", str(SAMPLE), "--vary", "sigma_x=x10", "--save", str(recording),
+            "--report", path,
+        ],
+        "consistency --save": ["consistency", "--runs", "2", "--save", path],
+        "consistency --report": ["consistency", "--runs", "2", "--report", path],
+        "convert": ["convert", str(SAMPLE), path],
+        "info --extract-input": ["info", str(recording), "--extract-input", path],
+        "compare --save": ["compare", str(SAMPLE), "--filter", "ekf", "--save", path],
+        "check --report": ["check", str(SAMPLE), "--filter", "ekf", "--report", path],
+        "check --save": ["check", str(SAMPLE), "--filter", "ekf", "--save", path],
+        "simulate -o": ["simulate", "-o", path, "--truth-out", str(place / "t.json")],
+        "simulate --truth-out": ["simulate", "-o", str(place / "l.txt"), "--truth-out", path],
+    }[name]  # fmt: skip
+
+
+COMMANDS = [
+    "replay --save", "replay --report", "sweep --save", "sweep --report",
+    "consistency --save", "consistency --report", "convert", "info --extract-input",
+    "compare --save", "check --report", "check --save",
+    "simulate -o", "simulate --truth-out",
+]  # fmt: skip
+
+
+@pytest.mark.parametrize("command", COMMANDS)
+def test_every_unusable_output_path_is_one_line_before_any_work(
+    place: Path, command: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(place)
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    if command.startswith("info"):  # a recording to read the input from
+        made = runner.invoke(app, ["replay", str(SAMPLE), "--save", str(place / "made.rrd")])
+        assert made.exit_code == 0, made.output
+    before = _snapshot(place)
+    for case, make, message in PATHS:
+        path = make(place)
+        result = runner.invoke(app, _command(command, path, place))
+        where = f"{command} {case} ({path})"
+        assert result.exit_code == 2, f"{where}: {result.output}"
+        lines = result.stderr.strip().splitlines()
+        assert 1 <= len(lines) <= 3, f"{where}: {result.stderr}"
+        assert message in result.stderr and path.rstrip("/") in result.stderr, where
+        assert "Traceback" not in result.stderr, where
+        assert result.stdout == "", f"{where}: work was done: {result.stdout}"
+        assert _snapshot(place) == before, f"{where}: left {_snapshot(place) - before}"
+        assert not Path("/ekfviz-no-such-folder").exists()
+    assert not [p for p in Path("/proc").iterdir() if p.name.endswith((".part", ".probe"))]
+
+
+def test_an_output_path_refused_in_a_process_of_its_own(place: Path) -> None:
+    """As the user sees it: the whole replay is not run first, no .part is left."""
+    started = time.monotonic()
+    result = subprocess.run(
+        [sys.executable, "-m", "ekfviz", "replay", str(SAMPLE), "--save", str(place / "folder")],
+        capture_output=True,
+        text=True,
+        cwd=place,
+    )
+    assert result.returncode == 2
+    assert (
+        result.stderr.strip()
+        == f"error: --save {place / 'folder'}: is a folder, expected a file name"
+    )
+    assert not list(place.rglob("*.part")) and time.monotonic() - started < 30
+
+
+def test_a_dataset_folder_needs_its_parent(place: Path) -> None:
+    """``simulate --layout mrclam`` writes a folder: it may exist, its parent must."""
+    before = _snapshot(place)
+    for path, message in (
+        (place / "missing" / "ds", "does not exist"),
+        (place / "file.txt", "exists and is not a folder"),
+    ):
+        result = runner.invoke(app, ["simulate", "--layout", "mrclam", "-o", str(path)])
+        assert result.exit_code == 2 and message in result.stderr, result.stderr
+        assert _snapshot(place) == before
+
+
+def test_two_outputs_of_one_command_must_be_two_files(place: Path) -> None:
+    same = str(place / "same.json")
+    result = runner.invoke(app, ["replay", str(SAMPLE), "--save", same, "--report", same])
+    assert result.exit_code == 2 and "are the same file" in result.stderr
+
+
+def _free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return int(probe.getsockname()[1])
+
+
+@pytest.fixture
+def deaf_listener() -> Iterator[int]:
+    """A port that accepts connections and never answers: no viewer, yet no refusal."""
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(8)
+    accepted: list[socket.socket] = []
+    stop = threading.Event()
+
+    def accept() -> None:
+        server.settimeout(0.2)
+        while not stop.is_set():
+            try:
+                accepted.append(server.accept()[0])
+            except OSError:
+                continue
+
+    thread = threading.Thread(target=accept, daemon=True)
+    thread.start()
+    yield int(server.getsockname()[1])
+    stop.set()
+    thread.join()
+    for connection in accepted:
+        connection.close()
+    server.close()
+
+
+def _ekfviz(*args: str, cwd: Path) -> subprocess.Popen[str]:
+    return subprocess.Popen(
+        [sys.executable, "-m", "ekfviz", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=cwd,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
+
+
+@pytest.mark.parametrize("kind", ["closed", "deaf"])
+def test_connect_where_no_viewer_answers_is_one_line_and_exit_2(
+    tmp_path: Path, kind: str, request: pytest.FixtureRequest
+) -> None:
+    port = _free_port() if kind == "closed" else request.getfixturevalue("deaf_listener")
+    url = f"rerun+http://127.0.0.1:{port}/proxy"
+    process = _ekfviz("replay", str(SAMPLE), "--connect", url, cwd=tmp_path)
+    _, stderr = process.communicate(timeout=15)  # the issue's limit; it takes a few seconds
+    assert process.returncode == 2
+    assert stderr.strip().splitlines() == [
+        f"error: no Rerun viewer at {url} (start one with: rerun; or use --save PATH)"
+    ] or (len(stderr.strip().splitlines()) == 1 and f"no Rerun viewer at {url}" in stderr), stderr
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_connect_without_a_viewer_still_saves_and_says_so(tmp_path: Path) -> None:
+    url = f"rerun+http://127.0.0.1:{_free_port()}/proxy"
+    process = _ekfviz("replay", str(SAMPLE), "--connect", url, "--save", "run.rrd", cwd=tmp_path)
+    _, stderr = process.communicate(timeout=30)
+    assert process.returncode == 2
+    assert stderr.strip() == f"error: no Rerun viewer at {url}; the recording is saved in run.rrd"
+    from ekfviz import viz
+
+    assert viz.read_recording_info(tmp_path / "run.rrd").status.state == "finished"  # type: ignore[union-attr]
+    assert not list(tmp_path.glob(".*.part"))
+
+
+def test_ctrl_c_while_connecting_to_a_deaf_port_ends_the_run_with_130(
+    tmp_path: Path, deaf_listener: int
+) -> None:
+    url = f"rerun+http://127.0.0.1:{deaf_listener}/proxy"
+    process = _ekfviz("replay", str(SAMPLE), "--connect", url, cwd=tmp_path)
+    time.sleep(1.5)  # started, trying the port
+    process.send_signal(signal.SIGINT)
+    try:
+        _, stderr = process.communicate(timeout=3)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        process.communicate()
+        pytest.fail("SIGINT did not end the run within 3 s")
+    assert process.returncode == 130, stderr
+    assert "Traceback" not in stderr
