@@ -22,6 +22,10 @@
    ``--mrclam-only`` runs just this and replaces its section of RESULTS.md.
 7. Smoothers (``smoother_bench.py``): GTSAM's iSAM2 and the batch optimum against the EKF,
    end to end on the bundled samples; ``--smoother-only`` runs just this.
+8. Association (``association_bench.py``): the Victoria Park run end to end (time,
+   landmarks, RMSE against GPS read back from the recording) and simulated id-less
+   two-lap runs with clutter judged as the hidden check is; ``--association-only`` runs
+   just this.
 
 It prints the tables and writes them, with the machine, the date and the command, to
 ``benchmarks/RESULTS.md``. Timings are medians (bounds: best) of repeated runs; where
@@ -60,6 +64,7 @@ from ekfviz.io.classic import format_classic, read_classic
 from ekfviz.sim.simulate import CLASSIC_LANDMARKS_XY, Noise, classic_controls, simulate
 
 sys.path.insert(0, str(Path(__file__).parent))
+from association_bench import association_section
 from mrclam_bench import mrclam_section, splice
 from smoother_bench import smoother_section
 from textbook_ekf import TextbookEkfSlam
@@ -837,12 +842,20 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument(
         "--smoother-only", action="store_true", help="only the smoother section of RESULTS.md"
     )
+    parser.add_argument(
+        "--association-only",
+        action="store_true",
+        help="only the association section (Victoria Park, simulated clutter) of RESULTS.md",
+    )
     args = parser.parse_args(argv)
     started = time.perf_counter()
-    if args.mrclam_only or args.smoother_only:
+    if args.mrclam_only or args.smoother_only or args.association_only:
         with tempfile.TemporaryDirectory() as tmp:
-            make = mrclam_section if args.mrclam_only else smoother_section
-            section = make(Path(tmp))
+            if args.association_only:
+                section = association_section(Path(tmp), args.quick)
+            else:
+                make = mrclam_section if args.mrclam_only else smoother_section
+                section = make(Path(tmp))
         old = args.out.read_text() if args.out.exists() else ""
         args.out.write_text(splice(old, section))
         print(section)
@@ -865,6 +878,8 @@ def main(argv: Sequence[str] | None = None) -> None:
         print("MRCLAM dataset 6", flush=True)
         mrclam = mrclam_section(Path(tmp))
         smoothers = smoother_section(Path(tmp), args.quick)
+        print("association: Victoria Park, simulated clutter", flush=True)
+        association = association_section(Path(tmp), args.quick)
     print("core against dense (one BLAS thread)", flush=True)
     rows = core_rows(args.quick)
     flops = dgemm_flops()
@@ -873,7 +888,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         rows, e2e, memory, phases, sizes, long_entities, interpreter_s, imports_s,
         kernel_import_us(), flops, args.quick,
     )  # fmt: skip
-    text = splice(splice(text, mrclam), smoothers)
+    text = splice(splice(splice(text, mrclam), smoothers), association)
     args.out.write_text(text)
     print()
     print(text)

@@ -94,7 +94,10 @@ def test_association_without_clutter_equals_known() -> None:
         init_pose_sigma=world.init_pose_sigma,
     )  # fmt: skip
     associator = Associator(
-        AssociationParams(gate_probability=0.999999, confirm=1), RangeBearing(), params.R
+        # every landmark paired on its own too, however wide its gate (as known ids are)
+        AssociationParams(gate_probability=0.999999, confirm=1, single_gate_area=math.inf),
+        RangeBearing(),
+        params.R,
     )
     a = list(replay(known.events, params))
     assert unknown.scan_events is not None

@@ -7,6 +7,15 @@ hands the filter the pairing as an ordinary observation (ids and measurements in
 order, the new landmarks last: see :meth:`EkfSlam.observe`), and finally asks it to
 remove the tentative landmarks whose window ended unconfirmed.
 
+A landmark whose gate is wide (its area in the plane, bearings scaled by the predicted
+range, over ``single_gate_area``) is paired by JCBB only together with another wide one.
+One measurement alone cannot tell a landmark from clutter or from a new landmark that
+fell in a wide gate (the pose is uncertain before a loop closes: a gate of tens of
+square metres holds a false alarm as often as not), and pairs with landmarks mapped
+just before (narrow gates, correlated with the pose) add no evidence; two wide pairs
+must also agree in their geometry, and the joint gate of the second given the first is
+small. So a loop closes at a scan that sees two or more of the old landmarks.
+
 A measurement paired with no landmark is *new* when no landmark's gate at
 ``new_probability`` (wider than the pairing gate) holds it, and otherwise *rejected*:
 it is near a landmark but left out of the best pairing, so it is taken for clutter
@@ -16,6 +25,7 @@ rather than start a duplicate of that landmark.
 from __future__ import annotations
 
 import enum
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Protocol
@@ -23,6 +33,7 @@ from typing import Protocol
 import numpy as np
 
 from ekfviz.association.gating import (
+    Predictions,
     compatible,
     gate_threshold,
     innovations,
@@ -61,6 +72,9 @@ class AssociationParams:
     :param new_probability: a measurement inside any landmark's gate at this probability
         does not start a landmark (it is rejected when it is not paired)
     :param budget: JCBB's hypotheses per scan (see :mod:`ekfviz.association.jcbb`)
+    :param single_gate_area: m^2, the largest gate (at ``gate_probability``, in the
+        plane) of a landmark that JCBB may pair on its own, one measurement in the scan's
+        pairing; larger gates need a joint pairing of two or more
     """
 
     method: Method = Method.JCBB
@@ -69,6 +83,7 @@ class AssociationParams:
     confirm_window: int = 6
     new_probability: float = 0.9999
     budget: int = DEFAULT_BUDGET
+    single_gate_area: float = 20.0
 
     def as_dict(self) -> dict[str, object]:
         return {
@@ -78,6 +93,7 @@ class AssociationParams:
             "confirm_window": self.confirm_window,
             "new_landmark_gate_probability": self.new_probability,
             "jcbb_budget": self.budget,
+            "single_gate_area_m2": self.single_gate_area,
         }
 
 
@@ -186,6 +202,7 @@ class Associator:
                     hypotheses, joint_d2, exhausted = (
                         result.hypotheses, result.joint_d2, result.exhausted
                     )  # fmt: skip
+                    column = self._without_a_lone_wide_pair(column, gate_rows, predictions)
                 paired = column >= 0
                 pairing[paired] = state_ids[gate_rows[column[paired]]]
                 fate[paired] = Fate.MATCHED
@@ -231,12 +248,38 @@ class Associator:
         )
         return observations, association
 
+    def _without_a_lone_wide_pair(
+        self, column: IntArray, gate_rows: IntArray, predictions: Predictions
+    ) -> IntArray:
+        """The pairing without its one pair with a wide gate, when it has only one."""
+        paired = np.flatnonzero(column >= 0)
+        rows = gate_rows[column[paired]]
+        areas = np.array(
+            [
+                gate_area(predictions.S[k], predictions.z_pred[k, 1], self._gate)
+                for k in rows.tolist()
+            ]
+        )
+        wide = paired[areas > self.params.single_gate_area]
+        if wide.size != 1:
+            return column
+        kept: IntArray = column.copy()
+        kept[wide] = -1
+        return kept
+
     def finish(self, slam: ScanFilter) -> list[int]:
         """The end of the run: remove the landmarks still tentative; their ids."""
         removed = self._book.drop_all()
         if removed:
             slam.remove_landmarks(removed)
         return removed
+
+
+def gate_area(S: FloatArray, range_m: float, threshold: float) -> float:
+    """The area (m^2) in the plane of a landmark's gate: the ellipse d^2 <= threshold of
+    its (bearing, range) innovation covariance ``S``, bearings scaled by the range."""
+    det = float(np.linalg.det(S))
+    return math.pi * threshold * math.sqrt(max(det, 0.0)) * max(range_m, 0.0)
 
 
 def state_rows(rows: IntArray) -> IntArray:
