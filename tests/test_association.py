@@ -2,16 +2,20 @@
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import entity_rows
+from typer.testing import CliRunner
 
-from ekfviz.association import AssociationParams, Associator
+from ekfviz.association import AssociationParams, Associator, Method
+from ekfviz.cli import app
 from ekfviz.core.filter import EkfSlam, FilterParams
-from ekfviz.core.records import Drive, Scan
+from ekfviz.core.records import Drive, Fate, Scan
 from ekfviz.core.replay import replay
 from ekfviz.core.types import FloatArray
 from ekfviz.io.errors import InputError
@@ -20,6 +24,8 @@ from ekfviz.models.ackermann import Ackermann
 from ekfviz.models.range_bearing import RangeBearing
 from ekfviz.sim.scenarios import loop
 from ekfviz.sim.simulate import Detection
+
+runner = CliRunner()
 
 
 def numeric_jacobian(
@@ -155,3 +161,63 @@ def test_victoria_reader_refuses_malformed_lines(tmp_path: Path, text: str, mess
     path = _victoria(tmp_path, text)
     with pytest.raises(InputError, match=message.replace(".", r"\.")):
         list(read_victoria(path))
+
+
+def _z_of(pose: tuple[float, float, float], points: list[tuple[float, float]]) -> FloatArray:
+    x, y, theta = pose
+    return np.array(
+        [[math.atan2(py - y, px - x) - theta, math.hypot(px - x, py - y)] for px, py in points]
+    )
+
+
+@pytest.mark.parametrize("method", [Method.NN, Method.JCBB])
+def test_jcbb_beats_nn_on_two_close_landmarks(method: Method) -> None:
+    # two landmarks 1.2 m apart, known well; the pose then uncertain sideways by 1 m, and
+    # truly 0.9 m to the right: both measurements appear shifted left by 0.9 m. Nearest
+    # neighbour pairs the right landmark's measurement with the left landmark (and the
+    # left one's with nothing); only the joint pairing of both explains the common shift.
+    left, right = (10.0, 0.6), (10.0, -0.6)
+    params = FilterParams(
+        sigma_x=0.05, sigma_y=1.0, sigma_alpha=0.001, sigma_bearing=0.002, sigma_range=0.02,
+        init_pose_sigma=(0.01, 0.01, 0.001),
+    )  # fmt: skip
+    ekf = EkfSlam(params)
+    ekf.observe([1, 2], _z_of((0.0, 0.0, 0.0), [left, right]))
+    ekf.predict(0.0, 0.0)
+    associator = Associator(AssociationParams(method=method, confirm=1), RangeBearing(), params.R)
+    _, association = associator.process(ekf, Scan(line=1, z=_z_of((0.0, -0.9, 0.0), [left, right])))
+    if method is Method.JCBB:
+        assert association.landmark.tolist() == [1, 2]
+        assert association.fate.tolist() == [Fate.MATCHED, Fate.MATCHED]
+        assert abs(ekf.x[1] - -0.9) < 0.05
+    else:
+        assert association.landmark.tolist() == [-1, 1]  # the wrong landmark
+        assert association.fate.tolist() == [Fate.REJECTED, Fate.MATCHED]
+        assert ekf.x[1] > 0.0  # pulled the wrong way
+
+
+def test_association_statistics_read_back_from_the_recording(tmp_path: Path) -> None:
+    log, truth = tmp_path / "scans.txt", tmp_path / "scans.json"
+    simulated = runner.invoke(app, [
+        "simulate", "--scenario", "loop", "--steps", "120", "--landmarks", "60",
+        "--unknown-ids", "--clutter", "1", "--detection-probability", "0.9", "--seed", "3",
+        "-o", str(log), "--truth-out", str(truth),
+    ])  # fmt: skip
+    assert simulated.exit_code == 0, simulated.output
+    rrd, report = tmp_path / "scans.rrd", tmp_path / "report.json"
+    replayed = runner.invoke(app, [
+        "replay", str(log), "--truth", str(truth), "--save", str(rrd), "--report", str(report),
+    ])  # fmt: skip
+    assert replayed.exit_code == 0, replayed.output
+    totals = json.loads(report.read_text())["association"]
+    scan_ids = json.loads(truth.read_text())["scan_ids"]
+    assert totals["scans"] == len(scan_ids)
+    recorded = {}
+    for name in ("matched", "new", "rejected", "confirmed", "removed", "correct", "wrong"):
+        rows = entity_rows(rrd, f"/metrics/association/{name}")
+        assert len(rows) == len(scan_ids)  # one value per scan
+        recorded[name] = sum(row["Scalars:scalars"][0] for row in rows)  # type: ignore[index]
+        assert recorded[name] == totals[name], name
+    # every measurement of every scan has one fate
+    assert recorded["matched"] + recorded["new"] + recorded["rejected"] == sum(map(len, scan_ids))
+    assert recorded["correct"] > 0.9 * recorded["matched"]
