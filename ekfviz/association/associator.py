@@ -8,7 +8,8 @@ order, the new landmarks last: see :meth:`EkfSlam.observe`), and finally asks it
 remove the tentative landmarks whose window ended unconfirmed.
 
 A landmark whose gate is wide (its area in the plane, bearings scaled by the predicted
-range, over ``single_gate_area``) is paired by JCBB only together with another wide one.
+range, over ``single_gate_area``) is paired by JCBB only together with other wide ones,
+``wide_pairs`` (3) in all.
 One measurement alone cannot tell a landmark from clutter or from a new landmark that
 fell in a wide gate (the pose is uncertain before a loop closes: a gate of tens of
 square metres holds a false alarm as often as not), and pairs with landmarks mapped
@@ -75,6 +76,7 @@ class AssociationParams:
     :param single_gate_area: m^2, the largest gate (at ``gate_probability``, in the
         plane) of a landmark that JCBB may pair on its own, one measurement in the scan's
         pairing; larger gates need a joint pairing of two or more
+    :param wide_pairs: how many pairs with wide gates a pairing needs to keep them
     """
 
     method: Method = Method.JCBB
@@ -84,6 +86,7 @@ class AssociationParams:
     new_probability: float = 0.9999
     budget: int = DEFAULT_BUDGET
     single_gate_area: float = 20.0
+    wide_pairs: int = 3
 
     def as_dict(self) -> dict[str, object]:
         return {
@@ -94,6 +97,7 @@ class AssociationParams:
             "new_landmark_gate_probability": self.new_probability,
             "jcbb_budget": self.budget,
             "single_gate_area_m2": self.single_gate_area,
+            "wide_pairs": self.wide_pairs,
         }
 
 
@@ -251,7 +255,8 @@ class Associator:
     def _without_a_lone_wide_pair(
         self, column: IntArray, gate_rows: IntArray, predictions: Predictions
     ) -> IntArray:
-        """The pairing without its one pair with a wide gate, when it has only one."""
+        """The pairing without its pairs with a wide gate, when it has fewer than
+        ``wide_pairs`` of them."""
         paired = np.flatnonzero(column >= 0)
         rows = gate_rows[column[paired]]
         areas = np.array(
@@ -261,7 +266,7 @@ class Associator:
             ]
         )
         wide = paired[areas > self.params.single_gate_area]
-        if wide.size != 1:
+        if wide.size == 0 or wide.size >= self.params.wide_pairs:
             return column
         kept: IntArray = column.copy()
         kept[wide] = -1
