@@ -102,6 +102,29 @@ def test_sweep_on_a_dask_cluster_equals_the_local_run(tmp_path: Path, scheduler:
     assert len(variants(local)) == 3 and variants(dask) == variants(local)
 
 
+def test_compare_on_a_dask_cluster_equals_the_local_run(tmp_path: Path, scheduler: str) -> None:
+    root = Path(__file__).parents[1]
+    args = [
+        "compare", str(root / "data" / "classic.txt"), "--filter", "ekf", "--filter",
+        f"{root / 'tests' / 'plugins' / 'textbook.py'}:Textbook",
+    ]  # fmt: skip
+
+    def filters(document: dict[str, object]) -> list[dict[str, object]]:
+        rows = document["filters"]
+        assert isinstance(rows, list)
+        return [
+            {k: v for k, v in row.items() if k not in ("seconds", "ms_per_step")} for row in rows
+        ]
+
+    local = report_of(tmp_path, "local", *args, "--save", str(tmp_path / "l.rrd"))
+    dask = report_of(
+        tmp_path, "dask", *args, "--save", str(tmp_path / "d.rrd"),
+        "--executor", "dask", "--scheduler", scheduler,
+    )  # fmt: skip
+    assert [row["label"] for row in filters(dask)] == ["ekf", "Textbook"]
+    assert filters(dask) == filters(local)
+
+
 def test_dask_without_a_scheduler_is_a_one_line_error() -> None:
     result = runner.invoke(app, ["consistency", "--runs", "2", "--executor", "dask"])
     assert result.exit_code == 2
