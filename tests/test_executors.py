@@ -72,6 +72,13 @@ def report_of(tmp_path: Path, name: str, *args: str) -> dict[str, object]:
     return document
 
 
+def untimed(document: dict[str, object], key: str) -> list[dict[str, object]]:
+    """The rows of a study's report without their wall times, the one thing that differs."""
+    rows = document[key]
+    assert isinstance(rows, list)
+    return [{k: v for k, v in row.items() if k not in ("seconds", "ms_per_step")} for row in rows]
+
+
 def test_consistency_on_a_dask_cluster_equals_the_local_run(tmp_path: Path, scheduler: str) -> None:
     args = ["consistency", "--scenario", "classic", "--runs", "6", "--seed", "4"]
     local = report_of(tmp_path, "local", *args, "--workers", "2")
@@ -87,19 +94,29 @@ def test_sweep_on_a_dask_cluster_equals_the_local_run(tmp_path: Path, scheduler:
         "--vary", "sigma_x=x10,/10",
     ]  # fmt: skip
 
-    def variants(document: dict[str, object]) -> list[dict[str, object]]:
-        rows = document["variants"]
-        assert isinstance(rows, list)
-        return [
-            {k: v for k, v in row.items() if k not in ("seconds", "ms_per_step")} for row in rows
-        ]
+    local = report_of(tmp_path, "local", *args, "--save", str(tmp_path / "l.rrd"))
+    dask = report_of(
+        tmp_path, "dask", *args, "--save", str(tmp_path / "d.rrd"),
+        "--executor", "dask", "--scheduler", scheduler,
+    )  # fmt: skip
+    assert len(untimed(local, "variants")) == 3
+    assert untimed(dask, "variants") == untimed(local, "variants")
+
+
+def test_compare_on_a_dask_cluster_equals_the_local_run(tmp_path: Path, scheduler: str) -> None:
+    root = Path(__file__).parents[1]
+    args = [
+        "compare", str(root / "data" / "classic.txt"), "--filter", "ekf", "--filter",
+        f"{root / 'tests' / 'plugins' / 'textbook.py'}:Textbook",
+    ]  # fmt: skip
 
     local = report_of(tmp_path, "local", *args, "--save", str(tmp_path / "l.rrd"))
     dask = report_of(
         tmp_path, "dask", *args, "--save", str(tmp_path / "d.rrd"),
         "--executor", "dask", "--scheduler", scheduler,
     )  # fmt: skip
-    assert len(variants(local)) == 3 and variants(dask) == variants(local)
+    assert [row["label"] for row in untimed(dask, "filters")] == ["ekf", "Textbook"]
+    assert untimed(dask, "filters") == untimed(local, "filters")
 
 
 def test_dask_without_a_scheduler_is_a_one_line_error() -> None:

@@ -233,6 +233,10 @@ def test_a_run_is_never_read_consistent_while_its_map_is_off() -> None:
     assert off.startswith("over-confident") and "0/200 landmarks in 3σ" in off
     with_nees = Consistency(nees=_count(40, 60, 0), nis=_count(97, 2, 1))
     assert reading(with_nees, 200, 200) == "over-confident: NEES 60% high"
+    # a batch optimum has no per-step statistics: its map is read alone
+    assert reading(Consistency(), 6, 6) == "no NEES or NIS; map: 6/6 landmarks in 3σ"
+    assert reading(Consistency(), 2, 6).startswith("over-confident")
+    assert reading(Consistency(), None, 0) == "no update to judge"
 
 
 def test_a_truth_with_fewer_poses_than_steps_says_how_many_were_judged() -> None:

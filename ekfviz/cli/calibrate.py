@@ -75,7 +75,8 @@ def calibrate_command(
     except ValueError as error:  # an id-less scan or a vehicle's controls
         fail(f"{data}: {error}")
     _print_scaling(scaling, gate)
-    command = [command_hint("ekfviz"), "replay", str(data)]
+    # the line starts with "ekfviz replay", whatever runs here: scripts look for it
+    command = ["ekfviz", "replay", str(data)]
     if opened.source.dataset is not None and robot is not None:
         command += ["--robot", str(robot)]
     if truth is not None:
@@ -89,6 +90,9 @@ def calibrate_command(
     if gate is not None:
         command += ["--gate", f"{gate:g}"]
     out.print("Replay with these estimates:")
+    program = command_hint("ekfviz")
+    if program != "ekfviz":
+        out.print(f"(ekfviz is not on your PATH: run it as {program})", markup=False)
     out.print(shlex.join(command), soft_wrap=True, markup=False, highlight=False)
 
 

@@ -9,9 +9,11 @@ import typer
 
 from ekfviz.cli.common import (
     DEFAULT,
+    ExecutorOption,
     InitPoseSigma,
     LandmarkInitOption,
     LogArgument,
+    SchedulerOption,
     SigmaAlpha,
     SigmaBearing,
     SigmaRange,
@@ -24,9 +26,11 @@ from ekfviz.cli.common import (
     app,
     fail,
     filter_params,
+    study_executor,
 )
 from ekfviz.cli.study import run_study
 from ekfviz.filters import FilterSpec
+from ekfviz.studies.executors import ExecutorName
 
 
 @app.command()
@@ -61,6 +65,8 @@ def compare(
     landmark_init: LandmarkInitOption = DEFAULT.landmark_init,
     update: UpdateOption = DEFAULT.update,
     workers: Workers = None,
+    executor: ExecutorOption = ExecutorName.LOCAL,
+    scheduler: SchedulerOption = None,
 ) -> None:
     """Replay one log with several filters, each under filters/<name>/ in one recording.
 
@@ -99,4 +105,5 @@ def compare(
         root="filters",
         parameters={"filters": filters, "parameters": params.as_dict()},
         report_extra={"parameters": params.as_dict()},
+        executor=study_executor(executor, scheduler, workers),
     )

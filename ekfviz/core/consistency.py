@@ -260,6 +260,8 @@ def reading(consistency: Consistency | None, inside: int | None, landmarks: int)
         inside is not None and landmarks > 0 and inside < MAP_INSIDE_FOR_CONSISTENT * landmarks
     )
     if not counts and not map_off:
+        if inside is not None and landmarks > 0:  # an offline filter: its map alone
+            return f"no NEES or NIS; map: {inside}/{landmarks} landmarks in 3σ"
         return "no update to judge"
     verdict = counts[0][1].verdict if counts else None
     if map_off and verdict in (
