@@ -701,6 +701,15 @@ class EkfSlam:
         P[: self._n, : self._n] = self._P[: self._n, : self._n]
         self._x, self._P = x, P
 
+    def _initial_landmark(
+        self, pose_xytheta: FloatArray, z: FloatArray
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Where a landmark first seen at ``z`` lies, and the Jacobians of that with respect
+        to the pose and to ``z`` (the inverse measurement model; a filter with another
+        sensor model overrides this alone)."""
+        l_D_pose, l_D_z = landmark_init_jacobians(pose_xytheta, z)
+        return landmark_from_measurement(pose_xytheta, z), l_D_pose, l_D_z
+
     def _add_landmark(self, landmark_id: int, z: Sequence[float]) -> None:
         """Append a landmark seen for the first time at ``z`` = (bearing, range).
 
@@ -714,8 +723,7 @@ class EkfSlam:
         n = self._n
         x, P = self._x, self._P
         z_arr = np.asarray(z, dtype=np.float64)
-        l_D_pose, l_D_z = landmark_init_jacobians(x[:3], z_arr)
-        x[n : n + 2] = landmark_from_measurement(x[:3], z_arr)
+        x[n : n + 2], l_D_pose, l_D_z = self._initial_landmark(x[:3], z_arr)
         P_ll = l_D_pose @ P[:3, :3] @ l_D_pose.T + l_D_z @ self._R @ l_D_z.T
         if self.params.landmark_init is LandmarkInit.CORRELATED:
             P_lx = l_D_pose @ P[:3, :n]

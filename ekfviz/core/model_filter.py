@@ -20,7 +20,6 @@ from ekfviz.core.filter import (
     EkfSlam,
     FilterError,
     FilterParams,
-    LandmarkInit,
     _not_definite,
     _zero_range,
 )
@@ -136,28 +135,9 @@ class ModelEkfSlam(EkfSlam):
         """The sensor models update sequentially (see the module)."""
         self._update_sequential(ids, np.asarray(z).tolist(), known, table, skipped)
 
-    def _add_landmark(self, landmark_id: int, z: Sequence[float]) -> None:
-        """Append a landmark seen for the first time, with the sensor's inverse model."""
-        if not math.isfinite(z[0] + z[1]):
-            raise FilterError("the state became non-finite in update")
-        self._reserve(1)
-        n = self._n
-        x, P = self._x, self._P
-        z_arr = np.asarray(z, dtype=np.float64)
-        l_D_pose, l_D_z = self.sensor.inverse_jacobians(x[:3], z_arr)
-        x[n : n + 2] = self.sensor.inverse(x[:3], z_arr)
-        P_ll = l_D_pose @ P[:3, :3] @ l_D_pose.T + l_D_z @ self._R @ l_D_z.T
-        if self.params.landmark_init is LandmarkInit.CORRELATED:
-            P_lx = l_D_pose @ P[:3, :n]
-            P[n : n + 2, :n] = P_lx
-            P[:n, n : n + 2] = P_lx.T
-        else:
-            P[n : n + 2, :n] = 0.0
-            P[:n, n : n + 2] = 0.0
-        P[n : n + 2, n : n + 2] = 0.5 * (P_ll + P_ll.T)
-        if not np.isfinite(P[n : n + 2, : n + 2]).all():
-            raise FilterError(f"the covariance of new landmark {landmark_id} is not finite")
-        self._slot[landmark_id] = n
-        self._ids.append(landmark_id)
-        self._ids_array = None
-        self._n = n + 2
+    def _initial_landmark(
+        self, pose_xytheta: FloatArray, z: FloatArray
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """The sensor's inverse model and its Jacobians (the rest is the built-in's)."""
+        l_D_pose, l_D_z = self.sensor.inverse_jacobians(pose_xytheta, z)
+        return self.sensor.inverse(pose_xytheta, z), l_D_pose, l_D_z
