@@ -269,6 +269,7 @@ def _record_check(
         runs.append(Run(RunSpec(label, key, params), records, evaluation, 0.0))
     info = viz.run_info(
         name=f"{data.stem}-check",
+        kind="check",
         command=shlex.join(["ekfviz", *sys.argv[1:]]),
         parameters={"filter": spec.text, "tolerance": result.tolerance, **params.as_dict()},
         input_path=data,

@@ -219,6 +219,8 @@ def test_check_saves_both_filters_and_marks_the_divergence(tmp_path: Path) -> No
     assert len(entity_rows(save, "/filters/NoRInS/world/robot")) == 3
     marks = entity_rows(save, "/log/divergence")
     assert len(marks) == 1 and marks[0]["event"] == 2
+    described = runner.invoke(app, ["info", str(save)])
+    assert described.exit_code == 0 and "checked against the reference" in described.output
     verify = subprocess.run(
         [str(Path(sys.executable).with_name("rerun")), "rrd", "verify", str(save)],
         capture_output=True, text=True,

@@ -30,6 +30,7 @@ KINDS = {
     "replay": "a replay of a log (ekfviz replay)",
     "sweep": "a parameter sweep (ekfviz sweep)",
     "compare": "a comparison of filters (ekfviz compare)",
+    "check": "a filter checked against the reference, event by event (ekfviz check)",
     "consistency": "a Monte-Carlo consistency study (ekfviz consistency)",
     "recorder": "a filter of your own, recorded through the Recorder API",
 }
