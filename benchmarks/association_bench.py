@@ -31,6 +31,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from reference import find_reference
 
 from ekfviz.viz.export import read_recorded_run
 
@@ -42,15 +43,8 @@ LANDMARKS = (40, 80, 120)
 
 
 def find_dataset() -> Path | None:
-    """``$VICTORIA_PARK``, else ``shared/reference/VictoriaPark`` in a folder above."""
-    given = os.environ.get("VICTORIA_PARK")
-    if given:
-        return Path(given) if Path(given).is_dir() else None
-    for parent in Path(__file__).resolve().parents:
-        candidate = parent / "shared" / "reference" / DATASET
-        if candidate.is_dir():
-            return candidate
-    return None
+    """``$VICTORIA_PARK``, else the shared reference copy (:func:`find_reference`)."""
+    return find_reference(DATASET, "VICTORIA_PARK")
 
 
 def _run(command: Sequence[str], folder: Path) -> tuple[float, str]:

@@ -20,6 +20,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from reference import find_reference
+
 BIN = Path(sys.executable).parent
 DATASET = "MRCLAM_Dataset6"
 BEGIN, END = "<!-- mrclam:begin -->", "<!-- mrclam:end -->"
@@ -27,15 +29,8 @@ REPEATS = 3
 
 
 def find_dataset() -> Path | None:
-    """``$MRCLAM_DATASET``, else ``shared/reference/MRCLAM_Dataset6`` in a folder above."""
-    given = os.environ.get("MRCLAM_DATASET")
-    if given:
-        return Path(given) if Path(given).is_dir() else None
-    for parent in Path(__file__).resolve().parents:
-        candidate = parent / "shared" / "reference" / DATASET
-        if candidate.is_dir():
-            return candidate
-    return None
+    """``$MRCLAM_DATASET``, else the shared reference copy (:func:`find_reference`)."""
+    return find_reference(DATASET, "MRCLAM_DATASET")
 
 
 @dataclass(frozen=True, slots=True)
