@@ -10,9 +10,10 @@ from ekfviz.core.consistency import chi2_bounds
 from ekfviz.core.types import FloatArray
 from ekfviz.viz import style
 
-# The x axis of every plot spans the whole run, on whichever timeline is shown. Without it
-# a plot of a timestamped log (MRCLAM's Unix times) opens zoomed to an instant and looks
-# empty; linked to nothing, each plot keeps its own zoom.
+# The x axis of a plot on the ``time`` timeline spans the whole run. Without it a plot of
+# a timestamped log (MRCLAM's Unix times) opens zoomed to an instant and looks empty;
+# linked to nothing, each plot keeps its own zoom. On the sequence timelines (step,
+# event) the default already fits, and the property would cost every plot a chunk.
 WHOLE_RUN = rrb.archetypes.TimeAxis(
     link=rrb.components.LinkAxis.Independent,
     view_range=rrb.TimeRange(
@@ -76,11 +77,17 @@ SMALL_LEGEND = rrb.PlotLegend(corner=rrb.components.Corner2D.RightTop, visible=T
 HIDDEN = rrb.EntityBehavior(visible=False)
 
 
-def summary_plot(name: str, summary: str, per_landmark: str, ids: Sequence[int]) -> rrb.View:
+def summary_plot(
+    name: str,
+    summary: str,
+    per_landmark: str,
+    ids: Sequence[int],
+    axis_x: rrb.archetypes.TimeAxis | None = None,
+) -> rrb.View:
     """The mean and worst landmark of a per-landmark metric; the landmarks' own series
     are in the view too, hidden until shown (in the view's entity list)."""
     return rrb.TimeSeriesView(
-        axis_x=WHOLE_RUN,
+        axis_x=axis_x,
         name=name,
         contents=[f"/{summary}/**", f"/{per_landmark}/**"],
         plot_legend=SMALL_LEGEND,
@@ -109,9 +116,10 @@ def default_blueprint(
     :param landmark_ids: the landmarks whose own error series the plots hide (they show
         the mean and the worst landmark)
     """
+    axis = WHOLE_RUN if has_time else None  # the default fits a sequence timeline already
     plots: list[rrb.View] = [
         rrb.TimeSeriesView(
-            axis_x=WHOLE_RUN,
+            axis_x=axis,
             name="NIS (blue) and 95% bounds",
             origin=style.NIS,
             plot_legend=NO_LEGEND,
@@ -120,7 +128,7 @@ def default_blueprint(
     if has_true_poses:
         plots.append(
             rrb.TimeSeriesView(
-                axis_x=WHOLE_RUN,
+                axis_x=axis,
                 name="NEES (blue) and 95% bounds",
                 origin=style.NEES,
                 plot_legend=NO_LEGEND,
@@ -128,12 +136,12 @@ def default_blueprint(
         )
     plots.append(
         rrb.TimeSeriesView(
-            axis_x=WHOLE_RUN, name="Pose sigma", origin=style.POSE_SIGMA, plot_legend=SMALL_LEGEND
+            axis_x=axis, name="Pose sigma", origin=style.POSE_SIGMA, plot_legend=SMALL_LEGEND
         )
     )
     plots.append(
         rrb.TimeSeriesView(
-            axis_x=WHOLE_RUN,
+            axis_x=axis,
             name="Smallest eigenvalue of P",
             origin=style.HEALTH,
             contents=[
@@ -154,12 +162,14 @@ def default_blueprint(
                 style.LANDMARK_ERROR_SUMMARY,
                 style.LANDMARK_ERROR,
                 landmark_ids,
+                axis,
             ),
             summary_plot(
                 "Mahalanobis distance",
                 style.MAHALANOBIS_SUMMARY,
                 style.MAHALANOBIS,
                 landmark_ids,
+                axis,
             ),
         ]
     texts: list[rrb.Container | rrb.View] = [
@@ -244,7 +254,6 @@ def sweep_blueprint(
     first = variants[0][1]
     plots = [
         rrb.TimeSeriesView(
-            axis_x=WHOLE_RUN,
             name=f"NIS per {what} (grey: {variants[0][0]}'s 95% bounds)",
             contents=[
                 *(f"/{prefix}/{style.NIS}" for _, prefix in variants),
@@ -258,7 +267,6 @@ def sweep_blueprint(
     if has_poses:
         plots.append(
             rrb.TimeSeriesView(
-                axis_x=WHOLE_RUN,
                 name=f"Pose NEES per {what} (colours as above)",
                 contents=[f"/{prefix}/{style.NEES}" for _, prefix in variants],
                 axis_y=rrb.ScalarAxis(range=(0.0, 3.0 * chi2_bounds(3)[1])),
@@ -268,7 +276,6 @@ def sweep_blueprint(
     if has_truth:
         plots.append(
             rrb.TimeSeriesView(
-                axis_x=WHOLE_RUN,
                 name=f"Mean landmark error [m] per {what} (colours as above)",
                 contents=[f"/{prefix}/{style.MEAN_LANDMARK_ERROR}" for _, prefix in variants],
                 plot_legend=NO_LEGEND,

@@ -16,7 +16,6 @@ import rerun.blueprint as rrb
 from ekfviz import __version__
 from ekfviz.sim.montecarlo import MonteCarlo
 from ekfviz.viz import style
-from ekfviz.viz.blueprint import WHOLE_RUN
 from ekfviz.viz.run import temporary_beside
 
 REPORT = "run/consistency"
@@ -53,13 +52,11 @@ def save_monte_carlo(
         rrb.Horizontal(
             rrb.Vertical(
                 rrb.TimeSeriesView(
-                    axis_x=WHOLE_RUN,
                     name="Mean NEES (blue) and 95% bounds",
                     origin=style.NEES,
                     plot_legend=rrb.PlotLegend(visible=False),
                 ),
                 rrb.TimeSeriesView(
-                    axis_x=WHOLE_RUN,
                     name="Mean NIS (blue) and 95% bounds",
                     origin=style.NIS,
                     plot_legend=rrb.PlotLegend(visible=False),
