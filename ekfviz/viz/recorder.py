@@ -1391,7 +1391,6 @@ class Recorder:
             *history,
             (style.LANDMARK_ELLIPSES, style.LANDMARK_COLOR),
             (style.LANDMARK_ELLIPSES_OBSERVED, style.LANDMARK_COLOR),
-            (style.LANDMARK_INITIAL, style.INITIAL_COLOR),
         ):
             rec.log(
                 path,
@@ -1400,6 +1399,18 @@ class Recorder:
                 ),
                 static=True,
             )
+        # the first-sighting outlines thin and beneath the current ones: on real data
+        # (MRCLAM) they are metres wide and would hide the map as it is now
+        rec.log(
+            style.LANDMARK_INITIAL,
+            rr.LineStrips2D.from_fields(
+                colors=style.INITIAL_COLOR,
+                radii=_radius(style.THIN_LINE_RADIUS_UI),
+                show_labels=False,
+                draw_order=15.0,
+            ),
+            static=True,
+        )
         rec.log(
             style.OBSERVATIONS,
             rr.Arrows2D.from_fields(
