@@ -1387,30 +1387,22 @@ class Recorder:
             if self._history
             else ()
         )  # fmt: skip
-        for path, color in (
-            *history,
-            (style.LANDMARK_ELLIPSES, style.LANDMARK_COLOR),
-            (style.LANDMARK_ELLIPSES_OBSERVED, style.LANDMARK_COLOR),
+        thin = _radius(style.THIN_LINE_RADIUS_UI)
+        for path, color, radii, order in (
+            *((path, color, line, 20.0) for path, color in history),
+            (style.LANDMARK_ELLIPSES, style.LANDMARK_COLOR, line, 20.0),
+            (style.LANDMARK_ELLIPSES_OBSERVED, style.LANDMARK_COLOR, line, 20.0),
+            # the first-sighting outlines thin and beneath the current ones: on real data
+            # (MRCLAM) they are metres wide and would hide the map as it is now
+            (style.LANDMARK_INITIAL, style.INITIAL_COLOR, thin, 15.0),
         ):
             rec.log(
                 path,
                 rr.LineStrips2D.from_fields(
-                    colors=color, radii=line, show_labels=False, draw_order=20.0
+                    colors=color, radii=radii, show_labels=False, draw_order=order
                 ),
                 static=True,
             )
-        # the first-sighting outlines thin and beneath the current ones: on real data
-        # (MRCLAM) they are metres wide and would hide the map as it is now
-        rec.log(
-            style.LANDMARK_INITIAL,
-            rr.LineStrips2D.from_fields(
-                colors=style.INITIAL_COLOR,
-                radii=_radius(style.THIN_LINE_RADIUS_UI),
-                show_labels=False,
-                draw_order=15.0,
-            ),
-            static=True,
-        )
         rec.log(
             style.OBSERVATIONS,
             rr.Arrows2D.from_fields(
