@@ -74,11 +74,15 @@ def read_tum(path: Path) -> np.ndarray:
 def test_the_true_path_is_recorded_at_every_step(loop_run: Exported) -> None:
     truth = read_truth(loop_run.truth)
     assert truth.poses_xytheta is not None
-    rows = entity_rows(loop_run.rrd, f"/{style.TRUTH_ROBOT}")
+    rows = entity_rows(loop_run.rrd, f"/{style.TRUTH_ROBOT_FRAME}")
+    points = entity_rows(loop_run.rrd, f"/{style.TRUTH_ROBOT}")
     assert [row["step"] for row in rows] == list(range(len(truth.poses_xytheta)))
-    for row, pose in zip(rows, truth.poses_xytheta, strict=True):
+    assert [row["step"] for row in points] == list(range(len(truth.poses_xytheta)))
+    for row, point, pose in zip(rows, points, truth.poses_xytheta, strict=True):
         translation = np.asarray(row["Transform3D:translation"], dtype=np.float64)
         np.testing.assert_allclose(translation[0, :2], pose[:2], atol=1e-4)
+        xy = np.asarray(point["Points2D:positions"], dtype=np.float64)
+        np.testing.assert_allclose(xy[0], pose[:2], atol=1e-4)
     path = entity_rows(loop_run.rrd, f"/{style.TRUTH_TRAJECTORY}")
     assert len(path) == len(truth.poses_xytheta)
     last = np.asarray(path[-1]["LineStrips2D:strips"], dtype=np.float64)
@@ -196,7 +200,7 @@ def test_time_stamps_come_from_the_time_timeline_where_the_recording_has_one(
     steps, events = np.array([0, 1, 1, 2, 2]), np.arange(5)
     seconds = 1_248_444_000.0 + np.array([0.0, 0.5, 0.5, 1.257, 1.257])  # Unix times
     rec.send_columns(
-        f"/{style.ROBOT}",
+        f"/{style.ROBOT_FRAME}",
         indexes=[
             rr.TimeColumn("step", sequence=steps),
             rr.TimeColumn("event", sequence=events),

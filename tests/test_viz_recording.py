@@ -80,7 +80,7 @@ def mahalanobis(outline: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> np.nd
 def robot_frames(rrd: Path) -> dict[int, np.ndarray]:
     """The robot frame of every event: {event: (x, y, theta)}."""
     frames = {}
-    for row in entity_rows(rrd, f"/{style.ROBOT}"):
+    for row in entity_rows(rrd, f"/{style.ROBOT_FRAME}"):
         (x, y, z) = row["Transform3D:translation"][0]  # type: ignore[index]
         (qx, qy, qz, qw) = row["Transform3D:quaternion"][0]  # type: ignore[index]
         assert z == qx == qy == 0.0
@@ -117,17 +117,21 @@ def float32_tolerance(mean: np.ndarray, cov: np.ndarray) -> float:
 
 
 def test_robot_frame_at_every_event_is_the_cores_pose(run: Run) -> None:
-    rows = entity_rows(run.rrd, f"/{style.ROBOT}")
+    rows = entity_rows(run.rrd, f"/{style.ROBOT_FRAME}")
     assert [(row["event"], row["step"]) for row in rows] == [(r.event, r.step) for r in run.records]
     frames = robot_frames(run.rrd)
-    for record in run.records:
+    # the robot's point: its position in the world at every event, as the frame's origin
+    points = entity_rows(run.rrd, f"/{style.ROBOT}")
+    assert [row["event"] for row in points] == [r.event for r in run.records]
+    for record, point in zip(run.records, points, strict=True):
         frame = frames[record.event]
         np.testing.assert_allclose(frame[:2], record.pose[:2], rtol=F32, atol=1e-6)
         assert abs(np.angle(np.exp(1j * (frame[2] - record.pose[2])))) < 1e-6
-    # the robot's point and heading are static in its frame
+        xy = np.asarray(point["Points2D:positions"], dtype=np.float64)
+        np.testing.assert_allclose(xy[0], record.pose[:2], rtol=F32, atol=1e-6)
     static = entity_rows(run.rrd, f"/{style.ROBOT}", static=True)
-    (robot,) = [r for r in static if "Points2D:positions" in r]
-    assert robot["Points2D:positions"] == [[0.0, 0.0]]
+    assert not [r for r in static if "Points2D:positions" in r]  # static would hide them
+    # the heading is static in the robot frame
     static = entity_rows(run.rrd, f"/{style.HEADING}", static=True)
     (heading,) = [r for r in static if "Arrows2D:vectors" in r]
     assert heading["Arrows2D:vectors"] == [[1.0, 0.0]]

@@ -1,8 +1,8 @@
 """Read an ekfviz recording back as trajectories and a map: the estimated pose of every
 step, the true pose where the recording holds it, the latest landmark estimates.
 
-The estimated pose of a step is the robot frame (``world/robot``) at the step's last
-event, its corrected state; the true one is ``world/truth/robot``, logged by a replay
+The estimated pose of a step is the robot frame (``world/robot/frame``) at the step's
+last event, its corrected state; the true one is ``world/truth/robot/frame``, logged by a replay
 with true poses. Time stamps come from the ``time`` timeline where the recording has one
 (a log with time stamps), else they are the step numbers.
 """
@@ -115,8 +115,8 @@ def read_recorded_run(path: Path) -> RecordedRun:
     if not path.is_file():
         raise NotARecordingError(f"{path}: no such file")
     wanted = {
-        f"/{style.ROBOT}": "robot",
-        f"/{style.TRUTH_ROBOT}": "truth",
+        f"/{style.ROBOT_FRAME}": "robot",
+        f"/{style.TRUTH_ROBOT_FRAME}": "truth",
         f"/{style.POSE_SIGMA}": "sigma",
         f"/{style.LANDMARKS}": "landmarks",
     }
@@ -137,7 +137,7 @@ def read_recorded_run(path: Path) -> RecordedRun:
     estimate = _trajectory(rows["robot"])
     if estimate is None:
         raise NotARecordingError(
-            f"{path}: no estimated poses ({style.ROBOT}): not a recording of an ekfviz replay"
+            f"{path}: no estimated poses ({style.ROBOT_FRAME}): not a recording of an ekfviz replay"
         )
     ids, landmarks_xy = _last_landmarks(rows["landmarks"])
     return RecordedRun(

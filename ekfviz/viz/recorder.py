@@ -191,6 +191,11 @@ def _fixed(values: npt.NDArray[Any], arrow_type: pa.DataType) -> pa.Array:
     return pa.FixedSizeListArray.from_arrays(flat, type=arrow_type)
 
 
+def _positions(poses: FloatArray) -> rr.ComponentColumn:
+    """(K, 3) poses as a ``Points2D`` column of their positions, one point a row."""
+    return _column(rr.Points2D.descriptor_positions(), _xy(poses[:, :2]))
+
+
 def _robot_frame(poses: FloatArray) -> list[rr.ComponentColumn]:
     """(K, 3) poses as ``Transform3D`` columns placing the robot frame in the world:
     translation (x, y, 0) and the rotation theta about z as a quaternion (x, y, z, w)."""
@@ -797,7 +802,8 @@ class Recorder:
 
         # the robot frame: the robot's point and heading are static in it, its ellipses
         # change shape there only slowly (see _pose_ellipses)
-        self._send(style.ROBOT, rows.all, _robot_frame(poses))
+        self._send(style.ROBOT, rows.all, [_positions(poses)])
+        self._send(style.ROBOT_FRAME, rows.all, _robot_frame(poses))
         if self._truth is not None and self._truth.has_poses:
             self._send_true_path(rows, records, corrected, self._truth)
         self._send_trajectory(rows, poses[:, :2], corrected)
@@ -952,7 +958,8 @@ class Recorder:
             return
         at = np.array([k for k, _ in known])
         poses = np.array([pose for _, pose in known])
-        self._send(style.TRUTH_ROBOT, rows.pick(at), _robot_frame(poses))
+        self._send(style.TRUTH_ROBOT, rows.pick(at), [_positions(poses)])
+        self._send(style.TRUTH_ROBOT_FRAME, rows.pick(at), _robot_frame(poses))
         starts = np.vstack([poses[:1, :2] if self._last_true_xy is None else self._last_true_xy,
                             poses[:-1, :2]])  # fmt: skip
         segments = np.stack([starts, poses[:, :2]], axis=1)
@@ -1344,8 +1351,7 @@ class Recorder:
         line = _radius(style.LINE_RADIUS_UI)
         rec.log(
             style.ROBOT,
-            rr.Points2D(
-                [[0.0, 0.0]],
+            rr.Points2D.from_fields(
                 colors=style.ROBOT_COLOR,
                 radii=_radius(style.ROBOT_RADIUS_UI),
                 draw_order=40.0,
@@ -1447,8 +1453,7 @@ class Recorder:
         if truth.has_poses:  # the true robot (a grey point) and path
             self._rec.log(
                 style.TRUTH_ROBOT,
-                rr.Points2D(
-                    [[0.0, 0.0]],
+                rr.Points2D.from_fields(
                     colors=style.TRUTH_PATH_COLOR,
                     radii=_radius(style.TRUTH_RADIUS_UI),
                     draw_order=36.0,

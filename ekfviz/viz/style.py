@@ -10,13 +10,15 @@ from __future__ import annotations
 # -- entity paths ----------------------------------------------------------------------
 
 WORLD = "world"
-# The robot frame: Transform3D (translation, rotation) at every event; a Points2D at its
-# origin (static). Everything under it is drawn in the robot frame.
+# The robot: a Points2D at its position in the world at every event (what a reader of the
+# recording takes as the estimated path), and beneath it the robot frame: a Transform3D
+# (translation, rotation) at every event, everything under it drawn in the robot frame.
 ROBOT = "world/robot"
-HEADING = "world/robot/heading"  # Arrows2D along the robot's x axis (static)
+ROBOT_FRAME = "world/robot/frame"
+HEADING = "world/robot/frame/heading"  # Arrows2D along the robot's x axis (static)
 # Static unit circle LineStrips2D, mapped onto the 3-sigma ellipse by a Transform3D mat3x3
-POSE_PREDICTED = "world/robot/ellipse/predicted"  # at every predict
-POSE_UPDATED = "world/robot/ellipse/updated"  # at every update and the init
+POSE_PREDICTED = "world/robot/frame/ellipse/predicted"  # at every predict
+POSE_UPDATED = "world/robot/frame/ellipse/updated"  # at every update and the init
 TRAJECTORY = "world/trajectory"  # LineStrips2D, the path of each step, at its update
 LANDMARKS = "world/landmarks"  # Points2D, class id = landmark id
 LANDMARK_LABELS = "world/landmarks/labels"  # Points2D: "L<id>" just below each 3-sigma outline
@@ -24,11 +26,12 @@ LANDMARK_ELLIPSES = "world/landmarks/ellipses"  # LineStrips2D, the whole map (s
 LANDMARK_ELLIPSES_OBSERVED = "world/landmarks/ellipses/observed"  # LineStrips2D, large maps
 LANDMARK_INITIAL = "world/landmarks/initial"  # LineStrips2D, at first sighting only
 # Arrows2D in the robot frame, robot -> measured landmark position, at updates
-OBSERVATIONS = "world/robot/observations"
+OBSERVATIONS = "world/robot/frame/observations"
 TRUTH_LANDMARKS = "world/truth/landmarks"  # Points2D, static
-# With true poses: the true robot frame at every step (Transform3D; a static Points2D at
-# its origin), and the true path, one segment per step
+# With true poses, at every step: the true position (Points2D) and the true robot frame
+# beneath it (Transform3D, for the heading), and the true path, one segment per step
 TRUTH_ROBOT = "world/truth/robot"
+TRUTH_ROBOT_FRAME = "world/truth/robot/frame"
 TRUTH_TRAJECTORY = "world/truth/trajectory"  # LineStrips2D
 
 METRICS = "metrics"
