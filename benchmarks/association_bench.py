@@ -77,7 +77,7 @@ class Victoria:
     rmse_m: float
     fixes: int
     without_jump_m: float  # without GPS fixes over 50 m off their neighbours
-    laser_point_m: float  # the laser's point (3.78 m ahead, 0.5 m left) instead
+    rear_axle_m: float  # the rear axle's point (3.78 m behind, 0.5 m right) instead
     jumps: int
 
 
@@ -99,8 +99,8 @@ def victoria_run(dataset: Path, folder: Path) -> Victoria:
     xy = np.column_stack([np.interp(gps[:, 0], times, poses[:, k]) for k in (0, 1)])
     landmarks = len(json.loads(report.read_text())["landmarks"])
     # diagnostics, not targets: a GPS fix over 50 m off the line between its two
-    # neighbours, and the point of the laser, which the cited paper's model takes as the
-    # vehicle's state
+    # neighbours, and the rear axle's point instead of the laser's (where the GPS antenna
+    # is, and the point the recording reports)
     between = np.full(len(gps), 0.0)  # each fix's distance from its neighbours' line
     t, g = gps[:, 0], gps[:, 1:3]
     span = np.maximum(t[2:] - t[:-2], 1e-3)
@@ -109,10 +109,10 @@ def victoria_run(dataset: Path, folder: Path) -> Victoria:
     fast = between > 50.0
     heading = np.interp(gps[:, 0], times, np.unwrap(poses[:, 2]))
     c, s_ = np.cos(heading), np.sin(heading)
-    laser = xy + np.column_stack([3.78 * c - 0.5 * s_, 3.78 * s_ + 0.5 * c])
+    rear = xy - np.column_stack([3.78 * c - 0.5 * s_, 3.78 * s_ + 0.5 * c])
     return Victoria(
         wall, landmarks, rigid_rmse(xy, gps[:, 1:3]), len(gps),
-        rigid_rmse(xy[~fast], gps[~fast, 1:3]), rigid_rmse(laser, gps[:, 1:3]), int(fast.sum()),
+        rigid_rmse(xy[~fast], gps[~fast, 1:3]), rigid_rmse(rear, gps[:, 1:3]), int(fast.sum()),
     )  # fmt: skip
 
 
@@ -210,9 +210,10 @@ def association_section(folder: Path, quick: bool = False) -> str:
             f"| RMSE vs GPS <= 5 m | {v.rmse_m:.2f} m | {'yes' if v.rmse_m <= 5 else '**no**'} |",
             "",
             f"Diagnostics, not targets: without the {v.jumps} GPS fix(es) over 50 m off the"
-            f" line between their neighbours, {v.without_jump_m:.2f} m; the laser's point"
-            " (3.78 m ahead, 0.50 m left: the vehicle state of Guivant and Nebot's model)"
-            f" instead of the rear axle's, {v.laser_point_m:.2f} m.",
+            f" line between their neighbours, {v.without_jump_m:.2f} m; the rear axle's"
+            " point (3.78 m behind the laser and 0.50 m right) instead of the laser's,"
+            " where the GPS antenna sits and which the recording reports,"
+            f" {v.rear_axle_m:.2f} m.",
             "",
         ]
     sizes = LANDMARKS[:1] if quick else LANDMARKS

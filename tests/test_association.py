@@ -70,6 +70,42 @@ def test_offset_measurement_jacobians_match_finite_differences() -> None:
     assert np.allclose(l_D_z, numeric_jacobian(lambda q: sensor.inverse(pose, q), z), atol=1e-6)
 
 
+def test_records_report_the_laser_point_with_its_covariance() -> None:
+    """Victoria Park's records report the laser's pose (where the GPS antenna is): the
+    point R(theta) (a, b) off the state's origin, its covariance through the point's
+    Jacobian (checked against finite differences), the state itself untouched."""
+    from ekfviz.core.model_filter import ModelEkfSlam
+    from ekfviz.core.records import EventKind
+
+    sensor = RangeBearing(3.78, 0.5)
+    filters = [
+        ModelEkfSlam(vehicle=Ackermann(), sensor=sensor, reported_point=point)
+        for point in ((0.0, 0.0), (sensor.a, sensor.b))
+    ]
+    for ekf in filters:
+        ekf.observe([1, 2], np.array([[0.3, 12.0], [-0.2, 9.0]]))
+        ekf.drive(np.array([[3.0, 0.2, 0.5], [3.0, 0.1, 0.5]]))
+        ekf.observe([1, 2], np.array([[0.4, 11.0], [-0.3, 7.5]]))
+    origin, laser = (
+        f.record(event=3, step=1, kind=EventKind.UPDATE, full_cov=True) for f in filters
+    )
+    assert np.array_equal(filters[0].x, filters[1].x) and np.array_equal(filters[0].P, filters[1].P)
+
+    def point(pose: FloatArray) -> FloatArray:
+        x, y, theta = pose
+        c, s = math.cos(theta), math.sin(theta)
+        return np.array([x + sensor.a * c - sensor.b * s, y + sensor.a * s + sensor.b * c, theta])
+
+    assert np.allclose(laser.pose, point(origin.pose))
+    J = numeric_jacobian(point, origin.pose)
+    assert np.allclose(laser.pose_cov, J @ origin.pose_cov @ J.T, atol=1e-12)
+    assert laser.full_cov is not None and origin.full_cov is not None
+    assert np.allclose(laser.full_cov[:3, :3], laser.pose_cov)
+    assert np.allclose(laser.full_cov[:3, 3:], J @ origin.full_cov[:3, 3:])
+    assert np.array_equal(laser.full_cov[3:, 3:], origin.full_cov[3:, 3:])
+    assert np.array_equal(laser.landmarks_xy, origin.landmarks_xy)
+
+
 def test_remove_landmarks_keeps_the_rest_and_p_symmetric_psd() -> None:
     ekf = EkfSlam()
     ekf.observe([1, 2, 3], np.array([[0.1, 5.0], [0.5, 7.0], [-0.4, 6.0]]))

@@ -99,7 +99,7 @@ class ReplaySetup:
     params: FilterParams
     truth: GroundTruth | None
     slam: EkfSlam | None
-    sensor: RangeBearing
+    sensor: RangeBearing  # the sensor seen from the records' pose (the laser's, at Victoria Park)
     associator: Associator | None
     victoria: bool
     parameters: dict[str, object]
@@ -225,6 +225,7 @@ def replay_setup(
         return ctx.get_parameter_source(name) in (ParameterSource.DEFAULT, None)
 
     sensor = RangeBearing()
+    recorded_sensor = sensor  # the sensor as seen from the records' pose
     if victoria and not builtin:
         raise InputError(data, 0, "the Victoria Park run needs the built-in filter (--filter ekf)")
     if victoria:
@@ -237,11 +238,17 @@ def replay_setup(
         params = replace(params, **changes)
         sensor = RangeBearing(v.laser_ahead, v.laser_left)
         vehicle = Ackermann(sigma_speed=sigma_speed, sigma_steering=sigma_steering)
-        slam: EkfSlam = ModelEkfSlam(params, vehicle=vehicle, sensor=sensor)
+        # the records report the laser's pose: the GPS antenna sits above it (fitted to
+        # the data, the antenna is 4.0 m ahead and 0.75 m left of the rear axle), so
+        # the path compared with GPS is the laser's, and the scans start at the pose
+        slam: EkfSlam = ModelEkfSlam(
+            params, vehicle=vehicle, sensor=sensor, reported_point=(sensor.a, sensor.b)
+        )
         parameters.update(
             sigma_speed=sigma_speed, sigma_steering=sigma_steering,
             wheelbase=vehicle.wheelbase, encoder_offset=vehicle.encoder_offset,
             laser_ahead=sensor.a, laser_left=sensor.b, max_range=v.max_range,
+            reported_point="laser",
         )  # fmt: skip
     else:
         for name in ("sigma_speed", "sigma_steering"):
@@ -264,7 +271,7 @@ def replay_setup(
         )
         parameters.update(assoc.as_dict())
     return ReplaySetup(
-        data=data, params=params, truth=truth, slam=slam if builtin else None, sensor=sensor,
-        associator=associator, victoria=victoria, parameters=parameters,
-        tally=AssociationTally(truth, sensor),
+        data=data, params=params, truth=truth, slam=slam if builtin else None,
+        sensor=recorded_sensor, associator=associator, victoria=victoria,
+        parameters=parameters, tally=AssociationTally(truth, recorded_sensor),
     )  # fmt: skip

@@ -6,12 +6,19 @@ sensor mounted ``a`` ahead and ``b`` left of the pose's origin) and, for :class:
 events, the vehicle of :mod:`ekfviz.models.ackermann`. Classic logs keep the classic
 filter and its compiled kernel; these models run on numpy, sequentially (the
 ``--update joint`` option does not apply to them).
+
+The state's pose is the vehicle's origin (the rear axle's centre for the Ackermann
+vehicle), where the models are simplest. Its records may report another point of the
+vehicle instead (``reported_point``): Victoria Park's GPS antenna sits above the laser,
+so its path is the laser's, and so are the robot's pose and ellipses in the recording.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -23,6 +30,7 @@ from ekfviz.core.filter import (
     _not_definite,
     _zero_range,
 )
+from ekfviz.core.records import EventRecord
 from ekfviz.core.types import FloatArray
 from ekfviz.models.ackermann import Ackermann
 from ekfviz.models.angles import wrap_angle
@@ -34,6 +42,8 @@ class ModelEkfSlam(EkfSlam):
 
     :param vehicle: drives :meth:`drive`; ``None``: only the classic :meth:`predict`
     :param sensor: the measurement model
+    :param reported_point: (ahead, left) in metres: the point of the vehicle whose pose
+        the records report (the state keeps the origin's); (0, 0) by default
     """
 
     def __init__(
@@ -43,10 +53,39 @@ class ModelEkfSlam(EkfSlam):
         vehicle: Ackermann | None = None,
         sensor: RangeBearing | None = None,
         capacity: int = 0,
+        reported_point: tuple[float, float] = (0.0, 0.0),
     ) -> None:
         super().__init__(params, capacity=capacity, compiled=False)
         self.vehicle = vehicle
         self.sensor = sensor if sensor is not None else RangeBearing()
+        self.reported_point = reported_point
+
+    def record(self, **kwargs: Any) -> EventRecord:
+        """The built-in's record, its pose moved to :attr:`reported_point`.
+
+        The point p = (x, y) + R(theta) (a, b) and its covariance J P J^T, with J the
+        identity but for the column of theta, (-a s - b c, a c - b s); the full
+        covariance, where recorded, likewise (only the rows and columns of x and y).
+        """
+        record = super().record(**kwargs)
+        a, b = self.reported_point
+        if a == 0.0 and b == 0.0:
+            return record
+        x, y, theta = record.pose.tolist()
+        c, s = math.cos(theta), math.sin(theta)
+        J = np.eye(3)
+        J[0, 2], J[1, 2] = -a * s - b * c, a * c - b * s
+        pose = np.array((x + a * c - b * s, y + a * s + b * c, theta))
+        pose_cov = J @ record.pose_cov @ J.T
+        full_cov = record.full_cov
+        if full_cov is not None:
+            T = np.eye(len(full_cov))
+            T[:3, :3] = J
+            full_cov = T @ full_cov @ T.T
+        for array in (pose, pose_cov, full_cov):
+            if array is not None:
+                array.setflags(write=False)
+        return dataclasses.replace(record, pose=pose, pose_cov=pose_cov, full_cov=full_cov)
 
     def drive(self, segments: FloatArray) -> None:
         """Drive the vehicle through (speed, steering, dt) spans in one predict; O(N).
