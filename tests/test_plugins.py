@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from conftest import entity_rows
+from conftest import entity_rows, rrd_verify
 from typer.testing import CliRunner
 
 from ekfviz.cli import app
@@ -221,11 +221,7 @@ def test_check_saves_both_filters_and_marks_the_divergence(tmp_path: Path) -> No
     assert len(marks) == 1 and marks[0]["event"] == 2
     described = runner.invoke(app, ["info", str(save)])
     assert described.exit_code == 0 and "checked against the reference" in described.output
-    verify = subprocess.run(
-        [str(Path(sys.executable).with_name("rerun")), "rrd", "verify", str(save)],
-        capture_output=True, text=True,
-    )  # fmt: skip
-    assert verify.returncode == 0, verify.stderr
+    rrd_verify(save)
 
 
 # -- faults of a plugin ------------------------------------------------------------------

@@ -119,7 +119,7 @@ def test_a_signal_leaves_a_complete_recording(
     import os
     import time
 
-    from conftest import entity_rows
+    from conftest import entity_rows, rrd_verify
 
     rrd = tmp_path / "run.rrd"
     process = subprocess.Popen(
@@ -137,11 +137,7 @@ def test_a_signal_leaves_a_complete_recording(
     assert process.returncode == code, stderr
     assert f"interrupted ({word})" in stderr or f"terminated ({word})" in stderr
     assert "Traceback" not in stderr
-    verify = subprocess.run(
-        [str(Path(sys.executable).parent / "rerun"), "rrd", "verify", str(rrd)],
-        capture_output=True, text=True,
-    )  # fmt: skip
-    assert verify.returncode == 0, verify.stderr
+    rrd_verify(rrd)
     last = entity_rows(rrd, "/log")[-1]
     assert word in str(last["TextLog:text"]) and "after input line" in str(last["TextLog:text"])
     assert not list(tmp_path.glob("*.part"))
@@ -196,7 +192,7 @@ def test_a_signal_during_start_up_still_leaves_a_recording(
     import signal
     import time
 
-    from conftest import entity_rows
+    from conftest import entity_rows, rrd_verify
 
     log = tmp_path / "log.txt"
     log.write_text(f"{OBS}\n" + "1 0.1\n0.1 5 0.2 6\n" * 50)
@@ -215,9 +211,5 @@ def test_a_signal_during_start_up_still_leaves_a_recording(
     _, stderr = process.communicate(timeout=60)
     assert process.returncode == code, stderr
     assert f"({word}) after input line 1;" in stderr and "Traceback" not in stderr
-    verify = subprocess.run(
-        [str(Path(sys.executable).parent / "rerun"), "rrd", "verify", str(rrd)],
-        capture_output=True, text=True,
-    )  # fmt: skip
-    assert verify.returncode == 0, verify.stderr
+    rrd_verify(rrd)
     assert word in str(entity_rows(rrd, "/log")[-1]["TextLog:text"])

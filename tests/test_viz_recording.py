@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import itertools
 import json
-import os
-import subprocess
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -13,7 +11,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from conftest import entity_rows
+from conftest import entity_rows, rrd_verify
 
 from ekfviz import __version__, viz
 from ekfviz.core.evaluation import evaluate
@@ -98,10 +96,10 @@ def in_world(frame: np.ndarray, points_xy: np.ndarray) -> np.ndarray:
 def pose_outline(rrd: Path, path: str, row: dict[str, object]) -> np.ndarray:
     """A pose ellipse as drawn: the static unit circle through the row's matrix, in the
     robot frame of the row's event."""
-    (circle,) = [
+    (circle,) = [  # with the styling, in the first row (see test_styling_...)
         r["LineStrips2D:strips"][0]  # type: ignore[index]
-        for r in entity_rows(rrd, f"/{path}", static=True)
-        if "LineStrips2D:strips" in r
+        for r in entity_rows(rrd, f"/{path}")
+        if r.get("LineStrips2D:strips") is not None
     ]
     flat = np.asarray(row["Transform3D:mat3x3"], dtype=np.float64)[0]
     matrix = flat.reshape(3, 3).T  # Rerun stores it by columns
@@ -261,12 +259,19 @@ def test_both_timelines_on_every_temporal_chunk(run: Run) -> None:
         assert sorted(chunk.timeline_names) == ["event", "step"], chunk.entity_path
 
 
-def test_styling_is_static_and_logged_once(run: Run) -> None:
-    for path in (style.LANDMARKS, style.LANDMARK_ELLIPSES, style.TRAJECTORY):
+def styled(row: dict[str, object]) -> bool:
+    return any(key.endswith((":colors", ":radii")) and row[key] is not None for key in row)
+
+
+def test_styling_is_logged_once_in_the_first_row(run: Run) -> None:
+    """An entity's styling shares its first row's chunk (a static chunk of its own would
+    cost more than its data); an entity that never gets data has it static."""
+    for path in (style.LANDMARKS, style.LANDMARK_ELLIPSES, style.TRAJECTORY, style.NIS):
         temporal = entity_rows(run.rrd, f"/{path}")
-        assert all(not any(key.endswith((":colors", ":radii")) for key in row) for row in temporal)
-        static = entity_rows(run.rrd, f"/{path}", static=True)
-        assert sum(any(key.endswith(":colors") for key in row) for row in static) == 1
+        assert [styled(row) for row in temporal] == [True] + [False] * (len(temporal) - 1)
+        assert entity_rows(run.rrd, f"/{path}", static=True) == []
+    (static,) = entity_rows(run.rrd, f"/{style.LANDMARK_ELLIPSES_OBSERVED}", static=True)
+    assert styled(static) and entity_rows(run.rrd, f"/{style.LANDMARK_ELLIPSES_OBSERVED}") == []
 
 
 def test_metric_series(run: Run) -> None:
@@ -388,15 +393,7 @@ def test_recording_id_is_fixed_by_the_inputs(tmp_path: Path, run: Run) -> None:
 
 
 def test_rerun_rrd_verify_accepts_the_recording(run: Run) -> None:
-    rerun = Path(sys.executable).parent / "rerun"
-    result = subprocess.run(
-        [str(rerun), "rrd", "verify", str(run.rrd)],
-        capture_output=True,
-        text=True,
-        env=os.environ.copy(),
-        timeout=120,
-    )
-    assert result.returncode == 0, result.stderr
+    rrd_verify(run.rrd)
 
 
 def test_save_is_atomic_when_logging_fails_midway(tmp_path: Path) -> None:

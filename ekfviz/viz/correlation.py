@@ -84,13 +84,14 @@ def block_outlines(correlation: Correlation) -> tuple[FloatArray, FloatArray, li
 class _Logger(Protocol):
     def log(self, entity: str, data: rr.AsComponents, *, static: bool = False) -> None: ...
 
+    def style(self, entity: str, styling: rr.AsComponents) -> None: ...
+
 
 def log_correlation_styling(rec: _Logger) -> None:
-    """The blocks' outline colour, once (static)."""
-    rec.log(
+    """The blocks' outline colour, once (with their first outlines)."""
+    rec.style(
         style.CORRELATION_BLOCKS,
         rr.Boxes2D.from_fields(colors=style.CORRELATION_BLOCK_COLOR, draw_order=10.0),
-        static=True,
     )
 
 

@@ -209,8 +209,7 @@ def read_recording_info(path: Path) -> RecordingInfo:
             warnings.simplefilter("always")
             reader = RrdReader(path)
             recordings = [entry for entry in reader.recordings() if entry.kind == "recording"]
-        if any("no footer" in str(w.message) for w in caught):
-            notes.append("the file has no footer: its writer did not close it")
+        footerless = any("no footer" in str(w.message) for w in caught)
         if not recordings:
             raise NotARecordingError(f"{path}: a Rerun file without a recording")
         for chunk in reader.stream(store=recordings[0]).filter(content=wanted):
@@ -233,6 +232,10 @@ def read_recording_info(path: Path) -> RecordingInfo:
         reason = text.splitlines()[0] if text else type(error).__name__
         raise NotARecordingError(f"{path}: not a Rerun recording (.rrd): {reason}") from None
     entry = recordings[0]
+    if footerless and EKFVIZ_PROPERTIES not in latest:
+        # ekfviz saves without a footer (see ekfviz.viz.run.footerless), atomically: in
+        # any other file a missing footer is a writer that did not close it
+        notes.append("the file has no footer: its writer did not close it")
     properties = latest.get(EKFVIZ_PROPERTIES)
     documents = {key: values.get("TextDocument:text") for key, values in latest.items()}
     name = _optional(latest.get(PROPERTIES, {}).get("RecordingInfo:name"))

@@ -350,6 +350,38 @@ class _Observed:
         )
 
 
+def _rows_of(indexes: Sequence[rr.TimeColumnLike]) -> int:
+    return len(indexes[0].as_arrow_array()) if indexes else 0
+
+
+@dataclass(frozen=True, slots=True)
+class _FirstRow:
+    """A component of one row followed by ``rows - 1`` rows without it (nulls): the
+    SDK's ``ComponentColumn`` has no missing rows."""
+
+    descriptor: rr.ComponentDescriptor
+    values: pa.Array
+    rows: int
+
+    def component_descriptor(self) -> rr.ComponentDescriptor:
+        return self.descriptor
+
+    def as_arrow_array(self) -> pa.Array:
+        offsets = np.full(self.rows + 1, len(self.values), dtype=np.int32)
+        offsets[0] = 0
+        mask = np.ones(self.rows, dtype=bool)
+        mask[0] = False
+        return pa.ListArray.from_arrays(pa.array(offsets), self.values, mask=pa.array(mask))
+
+
+def _first_row_only(styling: rr.AsComponents, rows: int) -> list[_FirstRow]:
+    """The components of ``styling`` as columns of ``rows`` rows, set in the first only."""
+    return [
+        _FirstRow(batch.component_descriptor(), batch.as_arrow_array(), rows)
+        for batch in styling.as_component_batches()
+    ]
+
+
 class _Entities:
     """The recording stream with every entity path under ``prefix`` (none when empty),
     so that several runs can share one recording (``variants/<key>/world/...``)."""
@@ -357,15 +389,39 @@ class _Entities:
     def __init__(self, rec: rr.RecordingStream, prefix: str) -> None:
         self.rec = rec
         self._prefix = prefix.strip("/") + "/" if prefix.strip("/") else ""
+        self._styles: dict[str, rr.AsComponents] = {}  # path -> styling not sent yet
 
     def path(self, entity: str) -> str:
         return self._prefix + entity
 
+    def style(self, entity: str, styling: rr.AsComponents) -> None:
+        """Styling of an entity that gets data over time, sent with its first row.
+
+        A static chunk of its own would cost some 1.5 kB of schema and index for a few
+        bytes of colours; in the first row of the entity's data it is a column more. It
+        holds from the entity's first row on (nothing is drawn before it) and is sent
+        static by :meth:`send_styles` if the entity never gets data.
+        """
+        self._styles[self.path(entity)] = styling
+
+    def send_styles(self) -> None:
+        """Send as static data the styling of every entity that has had no data yet."""
+        for path, styling in self._styles.items():
+            self.rec.log(path, styling, static=True)
+        self._styles.clear()
+
     def log(self, entity: str, data: Any, *, static: bool = False) -> None:
-        self.rec.log(self.path(entity), data, static=static)
+        path = self.path(entity)
+        styling = self._styles.pop(path, None)
+        extra = () if styling is None else (styling,)
+        self.rec.log(path, data, *extra, static=static)
 
     def send_columns(self, entity: str, indexes: Sequence[rr.TimeColumnLike], columns: Any) -> None:
-        self.rec.send_columns(self.path(entity), indexes=indexes, columns=columns)
+        path = self.path(entity)
+        styling = self._styles.pop(path, None)
+        if styling is not None:
+            columns = [*columns, *_first_row_only(styling, _rows_of(indexes))]
+        self.rec.send_columns(path, indexes=indexes, columns=columns)
 
     def set_time(self, timeline: str, *, sequence: int) -> None:
         self.rec.set_time(timeline, sequence=sequence)
@@ -671,6 +727,7 @@ class Recorder:
                 rr.TextDocument(evaluation.to_markdown(), media_type=rr.MediaType.MARKDOWN),
                 static=True,
             )
+        self._rec.send_styles()
         if self._blueprint:
             self._rec.send_blueprint(self._layout(self._bounds_xy))
         self._rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
@@ -1310,14 +1367,13 @@ class Recorder:
     def _log_styling(self) -> None:
         rec = self._rec
         for path, name in ((style.NIS, "NIS"), (style.NEES, "NEES")):
-            rec.log(path, rr.SeriesLines(colors=style.STATISTIC_COLOR, names=name), static=True)
+            rec.style(path, rr.SeriesLines(colors=style.STATISTIC_COLOR, names=name))
             for bound, label in ((style.LOWER, "95% lower"), (style.UPPER, "95% upper")):
-                rec.log(
+                rec.style(
                     f"{path}/{bound}",
                     rr.SeriesLines(colors=style.BOUND_COLOR, names=label, widths=1.0),
-                    static=True,
                 )
-        rec.log(  # one entity, three series: one colour each, the unit in the name
+        rec.style(  # one entity, three series: one colour each, the unit in the name
             style.POSE_SIGMA,
             rr.SeriesLines(
                 colors=list(style.POSE_SIGMA_COLORS.values()),
@@ -1326,7 +1382,6 @@ class Recorder:
                     for axis in style.POSE_SIGMA_COLORS
                 ],
             ),
-            static=True,
         )
         for path, name in (
             (style.HEALTH_POSE_MIN_EIG, "pose block"),
@@ -1336,27 +1391,25 @@ class Recorder:
             (style.HEALTH_P_LOG10_CONDITION, "log10 cond(P)"),
             (style.HEALTH_SKIPPED, "skipped observations"),
         ):
-            rec.log(path, rr.SeriesLines(names=name), static=True)
+            rec.style(path, rr.SeriesLines(names=name))
         if self._truth is not None:
             for root in (style.LANDMARK_ERROR_SUMMARY, style.MAHALANOBIS_SUMMARY):
                 for which, color in style.SUMMARY_COLORS.items():
-                    rec.log(
+                    rec.style(
                         f"{root}/{which}",
                         rr.SeriesLines(colors=color, names=f"{which} landmark", widths=2.0),
-                        static=True,
                     )
         # A 2-D view draws y down; mirroring "world" in the root frame shows the map y up
         # as in the classic plots, while every entity keeps its true world coordinates.
         rec.log(style.WORLD, rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)
         line = _radius(style.LINE_RADIUS_UI)
-        rec.log(
+        rec.style(
             style.ROBOT,
             rr.Points2D.from_fields(
                 colors=style.ROBOT_COLOR,
                 radii=_radius(style.ROBOT_RADIUS_UI),
                 draw_order=40.0,
             ),
-            static=True,
         )
         rec.log(
             style.HEADING,
@@ -1369,10 +1422,9 @@ class Recorder:
             ),
             static=True,
         )
-        rec.log(
+        rec.style(
             style.TRAJECTORY,
             rr.LineStrips2D.from_fields(colors=style.TRAJECTORY_COLOR, radii=line, draw_order=10.0),
-            static=True,
         )
         for path, color in (
             (style.POSE_PREDICTED, style.PREDICTED_COLOR),
@@ -1380,12 +1432,11 @@ class Recorder:
         ):
             # one unit circle, drawn through each event's transform (see _affine_columns):
             # a sixth of the bytes of an outline per event
-            rec.log(
+            rec.style(
                 path,
                 rr.LineStrips2D(
                     [unit_circle()], colors=color, radii=line, show_labels=False, draw_order=20.0
                 ),
-                static=True,
             )
         history = (
             ((style.POSE_PREDICTED_HISTORY, style.PREDICTED_COLOR),
@@ -1402,23 +1453,21 @@ class Recorder:
             # (MRCLAM) they are metres wide and would hide the map as it is now
             (style.LANDMARK_INITIAL, style.INITIAL_COLOR, thin, 15.0),
         ):
-            rec.log(
+            rec.style(
                 path,
                 rr.LineStrips2D.from_fields(
                     colors=color, radii=radii, show_labels=False, draw_order=order
                 ),
-                static=True,
             )
-        rec.log(
+        rec.style(
             style.OBSERVATIONS,
             rr.Arrows2D.from_fields(
                 colors=style.OBSERVATION_COLOR,
                 radii=_radius(style.THIN_LINE_RADIUS_UI),
                 draw_order=15.0,
             ),
-            static=True,
         )
-        rec.log(
+        rec.style(
             style.LANDMARKS,
             rr.Points2D.from_fields(
                 colors=style.LANDMARK_COLOR,
@@ -1426,9 +1475,8 @@ class Recorder:
                 show_labels=False,
                 draw_order=30.0,
             ),
-            static=True,
         )
-        rec.log(
+        rec.style(
             style.LANDMARK_LABELS,
             rr.Points2D.from_fields(
                 colors=style.LANDMARK_COLOR,
@@ -1436,9 +1484,8 @@ class Recorder:
                 show_labels=True,
                 draw_order=31.0,
             ),
-            static=True,
         )
-        rec.log(
+        rec.style(
             style.TRUTH_LANDMARKS,
             rr.Points2D.from_fields(
                 colors=style.TRUTH_COLOR,
@@ -1446,31 +1493,28 @@ class Recorder:
                 show_labels=False,
                 draw_order=35.0,
             ),
-            static=True,
         )
 
     def _log_truth(self, truth: GroundTruth) -> None:
         if truth.has_poses:  # the true robot (a grey point) and path
-            self._rec.log(
+            self._rec.style(
                 style.TRUTH_ROBOT,
                 rr.Points2D.from_fields(
                     colors=style.TRUTH_PATH_COLOR,
                     radii=_radius(style.TRUTH_RADIUS_UI),
                     draw_order=36.0,
                 ),
-                static=True,
             )
-            self._rec.log(
+            self._rec.style(
                 style.TRUTH_TRAJECTORY,
                 rr.LineStrips2D.from_fields(
                     colors=style.TRUTH_PATH_COLOR,
                     radii=_radius(style.THIN_LINE_RADIUS_UI),
                     draw_order=5.0,
                 ),
-                static=True,
             )
         class_ids = truth.ids if self._has_class_ids(truth.ids) else None
-        self._rec.log(
+        self._rec.log(  # with its styling: one static chunk
             style.TRUTH_LANDMARKS, rr.Points2D(truth.landmarks_xy, class_ids=class_ids), static=True
         )
 
