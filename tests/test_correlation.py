@@ -26,7 +26,7 @@ from ekfviz.io.extended import read_log
 from ekfviz.sim.simulate import CLASSIC_LANDMARKS_XY, classic_controls, simulate
 from ekfviz.viz import style
 from ekfviz.viz.blueprint import map_view
-from ekfviz.viz.correlation import block_outlines, colormap
+from ekfviz.viz.correlation import PALETTE, block_outlines, colormap
 from ekfviz.viz.recorder import Recorder
 
 
@@ -35,10 +35,14 @@ def by_hand(P: np.ndarray) -> np.ndarray:
     return np.array([[P[i, j] / math.sqrt(P[i, i] * P[j, j]) for j in range(n)] for i in range(n)])
 
 
-def image_bytes(row: dict[str, object]) -> bytes:
-    buffers = row["Image:buffer"]
-    assert isinstance(buffers, list)
-    return bytes(buffers[0])
+def image_pixels(row: dict[str, object]) -> np.ndarray:
+    """The RGB pixels of a logged correlation image: its palette entries (the class ids
+    of a segmentation image) through the palette."""
+    buffers, formats = row["SegmentationImage:buffer"], row["SegmentationImage:format"]
+    assert isinstance(buffers, list) and isinstance(formats, list)
+    shape = (formats[0]["height"], formats[0]["width"])
+    pixels: np.ndarray = PALETTE[np.frombuffer(bytes(buffers[0]), dtype=np.uint8).reshape(shape)]
+    return pixels
 
 
 @pytest.fixture(scope="module")
@@ -71,7 +75,8 @@ def test_the_image_of_a_6_landmark_run_is_p_correlated_by_hand(
     np.testing.assert_allclose(chosen.correlation.matrix, expected, atol=1e-12)
     assert chosen.correlation.factor == 1
     row = next(row for row in rows if row["event"] == 14)
-    pixels = np.frombuffer(image_bytes(row), dtype=np.uint8).reshape(15, 15, 3)
+    pixels = image_pixels(row)
+    assert pixels.shape == (15, 15, 3)
     np.testing.assert_array_equal(pixels, colormap(expected))
     # the colour scale is fixed: the diagonal is the darkest red, off-diagonal entries not
     assert (pixels[np.arange(15), np.arange(15)] == colormap(np.array([[1.0]]))[0, 0]).all()
@@ -159,5 +164,27 @@ def test_the_array_api_logs_correlations_too(tmp_path: Path) -> None:
     rec.disconnect()
     rows = entity_rows(rrd, f"/{style.CORRELATION_MATRIX}")
     assert len(rows) == 1
-    pixels = np.frombuffer(image_bytes(rows[0]), dtype=np.uint8).reshape(5, 5, 3)
+    pixels = image_pixels(rows[0])
+    assert pixels.shape == (5, 5, 3)
     np.testing.assert_array_equal(pixels, colormap(by_hand(P)))
+
+
+def test_the_image_is_coloured_by_classes_of_the_palette(
+    classic_rrd: tuple[Path, Path],
+) -> None:
+    """The segmentation image's classes are the palette: class i has colour PALETTE[i]
+    (the viewer colours each pixel by its class), with the first image."""
+    _, rrd = classic_rrd
+    rows = entity_rows(rrd, f"/{style.CORRELATION_MATRIX}")
+    (context,) = [row["AnnotationContext:context"] for row in rows if row.get(
+        "AnnotationContext:context") is not None]  # fmt: skip
+    assert isinstance(context, list) and len(context) == 1  # one context, 256 classes
+    classes = context[0]
+    assert len(classes) == len(PALETTE) == 256
+    for i, entry in enumerate(classes):
+        info = entry["class_description"]["info"]
+        assert entry["class_id"] == info["id"] == i
+        color = info["color"]  # packed RGBA
+        rgb = [(color >> 24) & 0xFF, (color >> 16) & 0xFF, (color >> 8) & 0xFF]
+        assert rgb == PALETTE[i].tolist()
+    assert colormap(np.array([[np.nan]]))[0, 0].tolist() == PALETTE[-1].tolist()

@@ -3,9 +3,10 @@
 Each matrix a replay took (see :mod:`ekfviz.core.correlation`) is logged at its event
 under ``correlation/``: the image (``matrix``, -1 blue, 0 white, +1 red, whatever the
 run: the colours are fixed to [-1, 1] so that images of different events and runs
-compare), an outline per block along the diagonal labelled ``pose`` and ``L<id>``
-(groups of consecutive landmarks beyond ``MAX_LABELLED_BLOCKS``), and one sentence on
-what is shown, which says when the matrix was block-averaged.
+compare; a segmentation image of palette entries, coloured by classes), an outline per
+block along the diagonal labelled ``pose`` and ``L<id>`` (groups of consecutive
+landmarks beyond ``MAX_LABELLED_BLOCKS``), and one sentence on what is shown, which says
+when the matrix was block-averaged.
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ _ANCHORS = np.array(
     ],
     dtype=np.float64,
 )  # fmt: skip
-LUT_SIZE = 256
+LUT_SIZE = 255  # colours of [-1, 1]; with NaN's grey, class ids 0..255 (see below)
 _LUT: npt.NDArray[np.uint8] = np.rint(
     np.column_stack(
         [
@@ -44,6 +45,19 @@ _LUT: npt.NDArray[np.uint8] = np.rint(
         ]
     )
 ).astype(np.uint8)
+PALETTE: npt.NDArray[np.uint8] = np.vstack([_LUT, np.array([NAN_RGB], dtype=np.uint8)])
+NAN_INDEX = LUT_SIZE
+
+
+def color_indices(C: FloatArray) -> npt.NDArray[np.uint8]:
+    """Entries of ``PALETTE`` of correlations, the colour scale fixed to [-1, 1]; NaN grey.
+
+    :param C: (m, k) values in [-1, 1]
+    :return: (m, k) uint8
+    """
+    finite = np.isfinite(C)
+    index = np.rint((np.clip(np.where(finite, C, 0.0), -1.0, 1.0) + 1.0) * 0.5 * (LUT_SIZE - 1))
+    return np.where(finite, index, NAN_INDEX).astype(np.uint8)
 
 
 def colormap(C: FloatArray) -> npt.NDArray[np.uint8]:
@@ -52,11 +66,25 @@ def colormap(C: FloatArray) -> npt.NDArray[np.uint8]:
     :param C: (m, k) values in [-1, 1]
     :return: (m, k, 3) uint8
     """
-    finite = np.isfinite(C)
-    index = np.rint((np.clip(np.where(finite, C, 0.0), -1.0, 1.0) + 1.0) * 0.5 * (LUT_SIZE - 1))
-    rgb = _LUT[index.astype(np.intp)]
-    rgb[~finite] = NAN_RGB
-    return rgb
+    return PALETTE[color_indices(C)]
+
+
+def palette_classes() -> rr.AnnotationContext:
+    """``PALETTE`` as classes: entry i is class i, its colour, labelled by its value.
+
+    The image is logged as a segmentation image of palette entries, one byte a pixel,
+    which the viewer colours through these classes: a third of the bytes of RGB pixels,
+    the same colours, and hovering a pixel names its correlation.
+    """
+    step = 2.0 / (LUT_SIZE - 1)
+    labels = [f"{-1.0 + i * step:+.3f}" for i in range(LUT_SIZE)]
+    labels.append("undefined")
+    return rr.AnnotationContext(
+        [
+            rr.AnnotationInfo(id=i, label=label, color=tuple(int(c) for c in rgb))
+            for i, (label, rgb) in enumerate(zip(labels, PALETTE.tolist(), strict=True))
+        ]
+    )
 
 
 def block_outlines(correlation: Correlation) -> tuple[FloatArray, FloatArray, list[str]]:
@@ -88,11 +116,13 @@ class _Logger(Protocol):
 
 
 def log_correlation_styling(rec: _Logger) -> None:
-    """The blocks' outline colour, once (with their first outlines)."""
+    """The blocks' outline colour and the image's classes (see :func:`palette_classes`),
+    once (with their first data)."""
     rec.style(
         style.CORRELATION_BLOCKS,
         rr.Boxes2D.from_fields(colors=style.CORRELATION_BLOCK_COLOR, draw_order=10.0),
     )
+    rec.style(style.CORRELATION_MATRIX, palette_classes())
 
 
 def log_correlation(
@@ -100,7 +130,7 @@ def log_correlation(
 ) -> None:
     """The image at the current time; its block outlines and description too when they
     differ from those of the ``previous`` one logged (the map or its averaging changed)."""
-    rec.log(style.CORRELATION_MATRIX, rr.Image(colormap(correlation.matrix)))
+    rec.log(style.CORRELATION_MATRIX, rr.SegmentationImage(color_indices(correlation.matrix)))
     if (
         previous is not None
         and previous.dim == correlation.dim
