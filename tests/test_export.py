@@ -74,8 +74,8 @@ def read_tum(path: Path) -> np.ndarray:
 def test_the_true_path_is_recorded_at_every_step(loop_run: Exported) -> None:
     truth = read_truth(loop_run.truth)
     assert truth.poses_xytheta is not None
-    rows = entity_rows(loop_run.rrd, f"/{style.TRUTH_ROBOT_FRAME}")
-    points = entity_rows(loop_run.rrd, f"/{style.TRUTH_ROBOT}")
+    rows = entity_rows(loop_run.rrd, f"/{style.TRUTH_ROBOT}")  # the frame: on the point
+    points = rows
     assert [row["step"] for row in rows] == list(range(len(truth.poses_xytheta)))
     assert [row["step"] for row in points] == list(range(len(truth.poses_xytheta)))
     for row, point, pose in zip(rows, points, truth.poses_xytheta, strict=True):

@@ -76,9 +76,10 @@ def mahalanobis(outline: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> np.nd
 
 
 def robot_frames(rrd: Path) -> dict[int, np.ndarray]:
-    """The robot frame of every event: {event: (x, y, theta)}."""
+    """The robot frame of every event: {event: (x, y, theta)}, from the transform logged
+    on the robot's point (it places what is under ``world/robot``)."""
     frames = {}
-    for row in entity_rows(rrd, f"/{style.ROBOT_FRAME}"):
+    for row in entity_rows(rrd, f"/{style.ROBOT}"):
         (x, y, z) = row["Transform3D:translation"][0]  # type: ignore[index]
         (qx, qy, qz, qw) = row["Transform3D:quaternion"][0]  # type: ignore[index]
         assert z == qx == qy == 0.0
@@ -115,8 +116,12 @@ def float32_tolerance(mean: np.ndarray, cov: np.ndarray) -> float:
 
 
 def test_robot_frame_at_every_event_is_the_cores_pose(run: Run) -> None:
-    rows = entity_rows(run.rrd, f"/{style.ROBOT_FRAME}")
+    rows = entity_rows(run.rrd, f"/{style.ROBOT}")
     assert [(row["event"], row["step"]) for row in rows] == [(r.event, r.step) for r in run.records]
+    # the point is in the world's frame; its transform places only what is under it
+    assert rows[0]["CoordinateFrame:frame"] == ["tf#/world"]
+    assert all(row["CoordinateFrame:frame"] is None for row in rows[1:])
+    assert entity_rows(run.rrd, f"/{style.ROBOT_FRAME}") == []
     frames = robot_frames(run.rrd)
     # the robot's point: its position in the world at every event, as the frame's origin
     points = entity_rows(run.rrd, f"/{style.ROBOT}")

@@ -115,9 +115,11 @@ def read_recorded_run(path: Path) -> RecordedRun:
     """
     if not path.is_file():
         raise NotARecordingError(f"{path}: no such file")
-    wanted = {
-        f"/{style.ROBOT_FRAME}": "robot",
-        f"/{style.TRUTH_ROBOT_FRAME}": "truth",
+    wanted = {  # the poses: on the robot's point; before, on the robot frame's own entity
+        f"/{style.ROBOT}": "robot",
+        f"/{style.TRUTH_ROBOT}": "truth",
+        f"/{style.ROBOT_FRAME}": "robot_frame",
+        f"/{style.TRUTH_ROBOT_FRAME}": "truth_frame",
         f"/{style.POSE_SIGMA}": "sigma",
         f"/{style.LANDMARKS}": "landmarks",
     }
@@ -137,15 +139,15 @@ def read_recorded_run(path: Path) -> RecordedRun:
     except (RuntimeError, ValueError, OSError) as error:
         reason = str(error).splitlines()[0] if str(error) else type(error).__name__
         raise NotARecordingError(f"{path}: not a Rerun recording (.rrd): {reason}") from None
-    estimate = _trajectory(rows["robot"])
+    estimate = _trajectory(rows["robot"]) or _trajectory(rows["robot_frame"])
     if estimate is None:
         raise NotARecordingError(
-            f"{path}: no estimated poses ({style.ROBOT_FRAME}): not a recording of an ekfviz replay"
+            f"{path}: no estimated poses ({style.ROBOT}): not a recording of an ekfviz replay"
         )
     ids, landmarks_xy = _last_landmarks(rows["landmarks"])
     return RecordedRun(
         estimate=estimate,
-        truth=_trajectory(rows["truth"]),
+        truth=_trajectory(rows["truth"]) or _trajectory(rows["truth_frame"]),
         sigmas_xytheta=_sigmas(rows["sigma"], estimate.steps),
         landmark_ids=ids,
         landmarks_xy=landmarks_xy,

@@ -11,8 +11,10 @@ from __future__ import annotations
 
 WORLD = "world"
 # The robot: a Points2D at its position in the world at every event (what a reader of the
-# recording takes as the estimated path), and beneath it the robot frame: a Transform3D
-# (translation, rotation) at every event, everything under it drawn in the robot frame.
+# recording takes as the estimated path), in the same rows a Transform3D (translation,
+# rotation) placing the robot frame; the point itself stays in the world's frame (a
+# CoordinateFrame in its first row). Everything under ROBOT_FRAME (which holds no data
+# of its own) is drawn in the robot frame.
 ROBOT = "world/robot"
 ROBOT_FRAME = "world/robot/frame"
 HEADING = "world/robot/frame/heading"  # Arrows2D along the robot's x axis (static)
@@ -28,8 +30,8 @@ LANDMARK_INITIAL = "world/landmarks/initial"  # LineStrips2D, at first sighting 
 # Arrows2D in the robot frame, robot -> measured landmark position, at updates
 OBSERVATIONS = "world/robot/frame/observations"
 TRUTH_LANDMARKS = "world/truth/landmarks"  # Points2D, static
-# With true poses, at every step: the true position (Points2D) and the true robot frame
-# beneath it (Transform3D, for the heading), and the true path, one segment per step
+# With true poses, at every step: the true position (Points2D) with the true robot frame
+# (Transform3D, as for ROBOT), and the true path, one segment per step
 TRUTH_ROBOT = "world/truth/robot"
 TRUTH_ROBOT_FRAME = "world/truth/robot/frame"
 TRUTH_TRAJECTORY = "world/truth/trajectory"  # LineStrips2D
