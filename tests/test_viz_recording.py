@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+import rerun.blueprint as rrb
 from conftest import entity_rows, rrd_verify
 
 from ekfviz import __version__, viz
@@ -22,6 +23,7 @@ from ekfviz.core.truth import GroundTruth
 from ekfviz.io.classic import format_classic
 from ekfviz.sim.simulate import CLASSIC_LANDMARKS_XY, classic_controls, simulate
 from ekfviz.viz import style
+from ekfviz.viz.blueprint import map_view
 
 F32 = float(np.finfo(np.float32).eps)
 
@@ -238,15 +240,28 @@ def test_trajectory_grows_at_every_update_through_the_predicted_position(run: Ru
     np.testing.assert_allclose(path, [r.pose[:2] for r in run.records], rtol=F32, atol=1e-6)
 
 
-def test_observation_rays_at_updates_and_cleared_at_predicts(run: Run) -> None:
+def test_observation_rays_at_updates_shown_at_the_cursor_only(run: Run) -> None:
+    """Rays only at the updates; the layout shows them at the cursor's own step or event
+    (nothing at a predict) instead of clearing them with an empty row at each predict."""
     rows = entity_rows(run.rrd, f"/{style.OBSERVATIONS}")
-    assert [row["event"] for row in rows] == [r.event for r in run.records]
+    observed = [r for r in run.records if r.observations is not None and len(r.observations)]
+    assert [row["event"] for row in rows] == [r.event for r in observed]
+    overrides = map_view().visualizer_overrides
+    assert overrides is not None and f"/{style.OBSERVATIONS}" in overrides
+    override = overrides[f"/{style.OBSERVATIONS}"]
+    assert isinstance(override, rrb.VisibleTimeRanges)
+    (ranges,) = [batch.as_arrow_array() for batch in override.as_component_batches()]
+    assert sorted(ranges.field("timeline").to_pylist()) == [style.EVENT, style.STEP]
+    for side in ("start", "end"):  # from the cursor to the cursor, on both
+        union = ranges.field("range").field(side)
+        kinds = [union.type[union.type.type_codes.index(code)].name
+                 for code in union.type_codes.to_pylist()]  # fmt: skip
+        assert kinds == ["CursorRelative"] * 2 and union.to_pylist() == [0, 0]
+    static = entity_rows(run.rrd, f"/{style.OBSERVATIONS}", static=True)
+    assert [r for r in static if r["Arrows2D:colors"] is not None]  # a range starts at it
     frames = robot_frames(run.rrd)
-    for row, record in zip(rows, run.records, strict=True):
+    for row, record in zip(rows, observed, strict=True):
         rays = points(row, "Arrows2D:vectors")
-        if record.kind is EventKind.PREDICT:
-            assert rays.size == 0
-            continue
         assert record.observations is not None
         z = record.observations.z
         assert rays.shape == (len(record.observations), 2)
@@ -337,12 +352,13 @@ def test_blueprint_and_properties_are_in_the_file(run: Run) -> None:
             "Evaluation",
             "Input",
         } <= names
-        accumulated = {
+        ranged = {
             c.entity_path.split("/overrides/")[1].removesuffix("/visualizers")
             for c in chunks
             if "VisibleTimeRanges:ranges" in c.to_record_batch().schema.names
         }
-        assert accumulated == {style.TRAJECTORY, style.LANDMARK_INITIAL, style.TRUTH_TRAJECTORY}
+        accumulated = {style.TRAJECTORY, style.LANDMARK_INITIAL, style.TRUTH_TRAJECTORY}
+        assert ranged == accumulated | {style.OBSERVATIONS}  # those at the cursor only
     (name,) = entity_rows(run.rrd, "/__properties", static=True)
     assert name["RecordingInfo:name"] == ["run"]
     (properties,) = entity_rows(run.rrd, "/__properties/ekfviz", static=True)
@@ -547,7 +563,7 @@ def test_a_long_run_across_flushes_keeps_every_row_and_small_strip_chunks(
     np.testing.assert_allclose(path, [r.pose[:2] for r in records], rtol=F32, atol=1e-5)
     rays = entity_rows(rrd, f"/{style.OBSERVATIONS}")
     assert [len(points(row, "Arrows2D:vectors")) for row in rays] == [
-        0 if r.observations is None else len(r.observations) for r in records
+        len(r.observations) for r in records if r.observations is not None and len(r.observations)
     ]
     ellipses = entity_rows(rrd, f"/{style.LANDMARK_ELLIPSES}")
     shown = [row["event"] for row in ellipses]

@@ -36,6 +36,21 @@ def accumulated_range() -> rrb.VisibleTimeRanges:
     )
 
 
+def at_cursor() -> rrb.VisibleTimeRanges:
+    """Show an entity only where it was logged at the time cursor's own step or event (on
+    the ``time`` timeline the latest, as by default)."""
+    return rrb.VisibleTimeRanges(
+        [
+            rrb.VisibleTimeRange(
+                timeline,
+                start=rrb.TimeRangeBoundary.cursor_relative(),
+                end=rrb.TimeRangeBoundary.cursor_relative(),
+            )
+            for timeline in (style.STEP, style.EVENT)
+        ]
+    )
+
+
 def map_view(
     bounds_xy: FloatArray | None = None,
     *,
@@ -64,8 +79,11 @@ def map_view(
         background=style.BACKGROUND,
         visual_bounds=visual_bounds,
         overrides={
-            f"{root}{path}": accumulated_range()
-            for path in style.ACCUMULATED + (style.HISTORY if history else ())
+            **{
+                f"{root}{path}": accumulated_range()
+                for path in style.ACCUMULATED + (style.HISTORY if history else ())
+            },
+            f"{root}{style.OBSERVATIONS}": at_cursor(),  # see Recorder._send_rays
         },
     )
 

@@ -1070,16 +1070,29 @@ class Recorder:
 
     def _send_rays(self, rows: _Rows, observed: _Observed) -> None:
         """Arrows from the robot to where each observation puts its landmark, in the robot
-        frame: r [cos b, sin b] (the robot frame supplies the origin); an empty row at a
-        predict clears the previous update's."""
+        frame: r [cos b, sin b] (the robot frame supplies the origin), at the updates with
+        observations.
+
+        The layout shows them on the step and event timelines only at the cursor's own
+        step or event (``blueprint.at_cursor``): nothing at a predict, no row needed to
+        clear them there. The ``time`` timeline shows the latest instead, so a log with
+        times gets an empty row at every other event, which clears them.
+        """
         vectors = observed.z[:, 1:2] * np.column_stack(
             [np.cos(observed.z[:, 0]), np.sin(observed.z[:, 0])]
         )
-        self._send(
-            style.OBSERVATIONS,
-            rows.all,
-            [_column(rr.Arrows2D.descriptor_vectors(), _xy(vectors, _VECTOR), observed.seen)],
-        )
+        column = _column(rr.Arrows2D.descriptor_vectors(), _xy(vectors, _VECTOR), observed.seen)
+        if rows.times is not None:
+            self._send(style.OBSERVATIONS, rows.all, [column])
+            return
+        at = np.flatnonzero(observed.seen)
+        if at.size:
+            counts = observed.seen[at]
+            self._send(
+                style.OBSERVATIONS,
+                rows.pick(at),
+                [_column(rr.Arrows2D.descriptor_vectors(), _xy(vectors, _VECTOR), counts)],
+            )
 
     def _send_text(self, records: list[EventRecord], rows: _Rows, observed: _Observed) -> None:
         """A line per step: a predict's goes into the line of the update that follows it in
@@ -1475,13 +1488,15 @@ class Recorder:
                     colors=color, radii=radii, show_labels=False, draw_order=order
                 ),
             )
-        rec.style(
+        rec.log(  # static: shown by a range at the cursor (see _send_rays), which would
+            # not reach a first row holding it
             style.OBSERVATIONS,
             rr.Arrows2D.from_fields(
                 colors=style.OBSERVATION_COLOR,
                 radii=_radius(style.THIN_LINE_RADIUS_UI),
                 draw_order=15.0,
             ),
+            static=True,
         )
         rec.style(
             style.LANDMARKS,
