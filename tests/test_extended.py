@@ -115,7 +115,11 @@ def test_noise_header_round_trips_and_replay_takes_it_unless_told(tmp_path: Path
     from ekfviz.cli import app
     from ekfviz.io.extended import read_log_noise
 
-    noise = {"sigma_x": 0.0125, "sigma_alpha": 0.003, "init_pose_sigma": (0.01, 0.02, 0.005)}
+    noise: dict[str, float | tuple[float, float, float]] = {
+        "sigma_x": 0.0125,
+        "sigma_alpha": 0.003,
+        "init_pose_sigma": (0.01, 0.02, 0.005),
+    }
     text = format_extended(list(read_extended(write(tmp_path, LOG))), None, noise=noise)
     log = write(tmp_path, text, "noisy.txt")
     assert read_log_noise(log) == noise

@@ -262,13 +262,8 @@ def _simulate_mrclam(
     out.print(f"Wrote the MRCLAM-layout dataset {output} ({len(files)} files, robot 1)")
     flags = " ".join(f"--sigma-{n.removeprefix('sigma_').replace('_', '-')} {v:g}"
                      for n, v in asdict(noise).items())  # fmt: skip
-    stated = (
-        " (its header states it, and a replay takes it unless told otherwise)"
-        if log_format is LogFormat.EXTENDED
-        else ""
-    )
     out.print(
-        f"Replay it with the filter told the true noise{stated}:\n  "
+        "Replay it with the filter told the true noise:\n  "
         + f"{command_hint('ekfviz')} replay {output} --motion-noise per-sqrt-second {flags}",
         soft_wrap=True,
     )
