@@ -397,7 +397,7 @@ def test_a_plugin_replays_id_less_scans_as_the_builtin_does(tmp_path: Path) -> N
          "--truth-out", str(truth)],
     )  # fmt: skip
     assert done.exit_code == 0, done.output
-    reports = {}
+    reports: dict[str, dict[str, Any]] = {}
     for name in ("ekf", plugin("Textbook")):
         report = tmp_path / f"{len(reports)}.json"
         done = runner.invoke(
