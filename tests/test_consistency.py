@@ -24,6 +24,7 @@ from ekfviz.core.filter import FilterParams
 from ekfviz.core.replay import replay
 from ekfviz.core.truth import GroundTruth
 from ekfviz.io.classic import format_classic
+from ekfviz.io.truth import truth_json
 from ekfviz.sim.scenarios import classic
 from ekfviz.sim.simulate import Noise
 from ekfviz.viz import style
@@ -188,3 +189,31 @@ def test_monte_carlo_recording_holds_the_averaged_curves(tmp_path: Path) -> None
     rows = entity_rows(rrd, f"/{style.NEES}")
     assert [row["step"] for row in rows] == list(range(30))
     assert [row["Scalars:scalars"][0] for row in rows] == pytest.approx(mean_nees)  # type: ignore[index]
+
+
+def test_a_start_known_exactly_leaves_the_first_nees_undefined(tmp_path: Path) -> None:
+    """--init-pose-sigma 0 0 0 with true poses: the first pose covariance is singular, so
+    its NEES is not judged (and said so), never a crash; every later step is judged."""
+    from typer.testing import CliRunner
+
+    from ekfviz.cli import app
+
+    world = classic()
+    run = world.run(world.noise, seed=5, init_pose_sigma=(0.0, 0.0, 0.0))
+    log = tmp_path / "exact.txt"
+    log.write_text(format_classic(run.events))
+    truth = tmp_path / "truth.json"
+    truth.write_text(truth_json(GroundTruth(run.landmark_ids, run.landmarks_xy, run.poses_xytheta)))
+    rrd, report = tmp_path / "r.rrd", tmp_path / "r.json"
+    result = CliRunner().invoke(
+        app,
+        ["replay", str(log), "--truth", str(truth), "--init-pose-sigma", "0", "0", "0",
+         "--save", str(rrd), "--report", str(report)],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert "1 corrected state(s) with a singular pose covariance" in result.output
+    nees = json.loads(report.read_text())["consistency"]["nees"]
+    assert nees["inside"] + nees["above"] + nees["below"] == len(run.poses_xytheta) - 1
+    assert [row["step"] for row in entity_rows(rrd, f"/{style.NEES}")] == list(
+        range(1, len(run.poses_xytheta))
+    )

@@ -105,3 +105,63 @@ def test_errors_name_the_line(tmp_path: Path, content: str, message: str) -> Non
     with pytest.raises(InputError) as caught:
         list(read_extended(write(tmp_path, content)))
     assert message in str(caught.value)
+
+
+def test_noise_header_round_trips_and_replay_takes_it_unless_told(tmp_path: Path) -> None:
+    import json
+
+    from typer.testing import CliRunner
+
+    from ekfviz.cli import app
+    from ekfviz.io.extended import read_log_noise
+
+    noise: dict[str, float | tuple[float, float, float]] = {
+        "sigma_x": 0.0125,
+        "sigma_alpha": 0.003,
+        "init_pose_sigma": (0.01, 0.02, 0.005),
+    }
+    text = format_extended(list(read_extended(write(tmp_path, LOG))), None, noise=noise)
+    log = write(tmp_path, text, "noisy.txt")
+    assert read_log_noise(log) == noise
+    assert read_log_noise(write(tmp_path, LOG)) == {}  # no header
+    # a header after the first event is just a comment
+    assert read_log_noise(write(tmp_path, "control 1 0\n# noise: sigma_x=1\n", "late.txt")) == {}
+
+    runner = CliRunner()
+
+    def parameters(*options: str) -> dict[str, object]:
+        report = tmp_path / "report.json"
+        done = runner.invoke(
+            app, ["replay", str(log), "--save", str(tmp_path / "r.rrd"), "--report",
+                  str(report), *options],
+        )  # fmt: skip
+        assert done.exit_code == 0, done.output
+        assert "the noise its header states" in done.output
+        params: dict[str, object] = json.loads(report.read_text())["parameters"]
+        return params
+
+    taken = parameters()
+    assert (taken["sigma_x"], taken["sigma_alpha"]) == (0.0125, 0.003)
+    assert taken["sigma_y"] == 0.1  # not stated: the classic default
+    assert taken["init_pose_sigma"] == [0.01, 0.02, 0.005]
+    told = parameters("--sigma-x", "0.5", "--init-pose-sigma", "0.1", "0.1", "0.1")
+    assert (told["sigma_x"], told["sigma_alpha"]) == (0.5, 0.003)
+    assert told["init_pose_sigma"] == [0.1, 0.1, 0.1]
+
+
+@pytest.mark.parametrize(
+    "header",
+    ["# noise: sigma_x=abc", "# noise: sigma_q=1", "# noise: sigma_x=-1",
+     "# noise: init_pose_sigma=1,2", "# noise: sigma_x"],
+)  # fmt: skip
+def test_a_bad_noise_header_is_one_line_naming_it(tmp_path: Path, header: str) -> None:
+    from typer.testing import CliRunner
+
+    from ekfviz.cli import app
+
+    log = write(tmp_path, f"# an extended log\n{header}\n{LOG}", "bad.txt")
+    done = CliRunner().invoke(app, ["replay", str(log), "--save", str(tmp_path / "r.rrd")])
+    assert done.exit_code == 2
+    lines = done.output.strip().splitlines()
+    assert len(lines) == 1 and f"{log}:2:" in lines[0], done.output
+    assert not (tmp_path / "r.rrd").exists()

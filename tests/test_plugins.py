@@ -380,3 +380,50 @@ def test_check_finds_bugs_in_a_broken_skeleton(
     )  # fmt: skip
     assert result.exit_code == 1, result.output
     assert json.loads(report.read_text())["first_divergence"]["kind"] == kind
+
+
+def test_a_plugin_replays_id_less_scans_as_the_builtin_does(tmp_path: Path) -> None:
+    """--association jcbb with a protocol filter: the same pairing, tentative landmarks
+    removed through its remove_landmarks, the same final state as the built-in's."""
+    log, truth = tmp_path / "scans.txt", tmp_path / "scans.json"
+    done = runner.invoke(
+        app,
+        ["simulate", "--scenario", "loop", "--steps", "150", "--landmarks", "60", "--seed", "3",
+         "--unknown-ids", "--clutter", "1", "--detection-probability", "0.9", "-o", str(log),
+         "--truth-out", str(truth)],
+    )  # fmt: skip
+    assert done.exit_code == 0, done.output
+    reports: dict[str, dict[str, Any]] = {}
+    for name in ("ekf", plugin("Textbook")):
+        report = tmp_path / f"{len(reports)}.json"
+        done = runner.invoke(
+            app,
+            ["replay", str(log), "--truth", str(truth), "--filter", name, "--association",
+             "jcbb", "--save", str(tmp_path / "r.rrd"), "--report", str(report)],
+        )  # fmt: skip
+        assert done.exit_code == 0, done.output
+        reports[name] = json.loads(report.read_text())
+    builtin, textbook = reports.values()
+    assert textbook["association"] == builtin["association"]
+    assert builtin["association"]["removed"] > 0  # tentative landmarks went through removal
+    np.testing.assert_allclose(textbook["final_pose"], builtin["final_pose"], atol=1e-9)
+    assert [lm["id"] for lm in textbook["landmarks"]] == [lm["id"] for lm in builtin["landmarks"]]
+    np.testing.assert_allclose(
+        [lm["estimate"] for lm in textbook["landmarks"]],
+        [lm["estimate"] for lm in builtin["landmarks"]],
+        atol=1e-9,
+    )
+
+
+def test_a_plugin_without_removal_needs_confirm_one_for_scans(tmp_path: Path) -> None:
+    log = tmp_path / "scans.txt"
+    log.write_text("scan 0.1 5.0 0.5 7.0\ncontrol 1.0 0.0\nscan 0.1 4.0 0.5 6.2\n")
+    save = tmp_path / "r.rrd"
+    command = ["replay", str(log), "--filter", plugin("NoRemoval"), "--save", str(save)]
+    refused = runner.invoke(app, command)
+    assert refused.exit_code == 2
+    (line,) = refused.output.strip().splitlines()
+    assert "NoRemoval" in line and "remove_landmarks" in line and "--confirm 1" in line
+    kept = runner.invoke(app, [*command, "--confirm", "1"])
+    assert kept.exit_code == 0, kept.output
+    assert len(entity_rows(save, "/world/robot")) == 3  # init, predict, update

@@ -85,6 +85,7 @@ def check(
         init_pose_sigma,
         landmark_init,
         update,
+        log=data,
     )
     try:
         result = pipeline.check(data, truth, filter_spec, params, tolerance=tolerance, save=save)

@@ -20,12 +20,15 @@ from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, DownloadColumn, Progress, TimeRemainingColumn
 from rich.table import Table
+from typer._click.core import ParameterSource
+from typer._click.globals import get_current_context
 
 from ekfviz import __version__, signals
 from ekfviz.core.evaluation import Evaluation
 from ekfviz.core.filter import HAVE_KERNEL, FilterParams, LandmarkInit, UpdateMode
 from ekfviz.core.records import AnyEvent, EventRecord
 from ekfviz.core.truth import GroundTruth
+from ekfviz.io.errors import InputError
 from ekfviz.io.paths import OutputPathError, check_output_path, distinct_paths, unused_path
 from ekfviz.io.text import ProgressCallback
 from ekfviz.sim.scenarios import Scenario, ScenarioName
@@ -363,8 +366,16 @@ def filter_params(
     init_pose_sigma: Triple,
     landmark_init: LandmarkInit,
     update: UpdateMode,
+    log: Path | None = None,
 ) -> FilterParams:
-    """The filter's parameters from the command line, refusing what cannot work."""
+    """The filter's parameters from the command line, refusing what cannot work.
+
+    :param log: the log replayed: the noise its header states (see
+        :func:`ekfviz.io.extended.read_log_noise`) replaces the defaults of the options
+        not given on the command line, and a note says so
+    """
+    if log is not None and log.is_file():
+        sigmas, init_pose_sigma = _log_noise(log, sigmas, init_pose_sigma)
     sigma_x, sigma_y, sigma_alpha, sigma_bearing, sigma_range = sigmas
     if sigma_bearing <= 0 or sigma_range <= 0:
         fail("--sigma-bearing and --sigma-range must be positive: R must be invertible")
@@ -380,6 +391,41 @@ def filter_params(
         landmark_init=landmark_init,
         update=update,
     )
+
+
+def _log_noise(
+    log: Path, sigmas: tuple[float, float, float, float, float], init_pose_sigma: Triple
+) -> tuple[tuple[float, float, float, float, float], Triple]:
+    """The sigmas and prior with the log's stated noise where no option was given."""
+    from ekfviz.io.extended import NOISE_NAMES, read_log_noise
+
+    try:
+        stated = read_log_noise(log)
+    except InputError as error:
+        fail(str(error))
+    context = get_current_context(silent=True)
+
+    def given(name: str) -> bool:
+        source = None if context is None else context.get_parameter_source(name)
+        return source not in (None, ParameterSource.DEFAULT)
+
+    values = dict(zip(NOISE_NAMES, sigmas, strict=True))
+    used = []
+    for name in NOISE_NAMES:
+        value = stated.get(name)
+        if isinstance(value, float) and not given(name):
+            values[name] = value
+            used.append(f"--{name.replace('_', '-')} {value:g}")
+    prior = stated.get("init_pose_sigma")
+    if isinstance(prior, tuple) and not given("init_pose_sigma"):
+        init_pose_sigma = prior
+        used.append("--init-pose-sigma " + " ".join(f"{v:g}" for v in prior))
+    if used:
+        out.print(f"{log}: the noise its header states: {' '.join(used)}", soft_wrap=True)
+    s = values
+    return (
+        s["sigma_x"], s["sigma_y"], s["sigma_alpha"], s["sigma_bearing"], s["sigma_range"]
+    ), init_pose_sigma  # fmt: skip
 
 
 def scenario_world(

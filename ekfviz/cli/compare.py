@@ -81,6 +81,7 @@ def compare(
         init_pose_sigma,
         landmark_init,
         update,
+        log=data,
     )
     specs: list[RunSpec] = []
     keys: set[str] = set()

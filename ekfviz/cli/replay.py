@@ -164,6 +164,7 @@ def replay(
         init_pose_sigma,
         landmark_init,
         update,
+        log=data,
     )
     try:
         make_filter = load_filter(filter_spec)

@@ -170,7 +170,11 @@ def simulate(
         text = (
             format_classic(run.events, precision)
             if log_format is LogFormat.CLASSIC
-            else format_extended(run.scan_events or run.events, precision)
+            else format_extended(
+                run.scan_events or run.events,
+                precision,
+                noise={**asdict(noise), "init_pose_sigma": (*init_pose_sigma,)},
+            )
         )
     except ValueError as error:
         fail(f"--format classic: {error}")
@@ -204,8 +208,13 @@ def simulate(
         replay_noise.append("--association jcbb")
     if tuple(init_pose_sigma) != FilterParams().init_pose_sigma:
         replay_noise.append("--init-pose-sigma " + " ".join(f"{v:g}" for v in init_pose_sigma))
+    stated = (
+        " (its header states it, and a replay takes it unless told otherwise)"
+        if log_format is LogFormat.EXTENDED
+        else ""
+    )
     out.print(
-        "Replay it with the filter told the true noise:\n  "
+        f"Replay it with the filter told the true noise{stated}:\n  "
         + " ".join(
             [
                 command_hint("ekfviz"),

@@ -101,6 +101,7 @@ def sweep(
         init_pose_sigma,
         landmark_init,
         update,
+        log=data,
     )
     try:
         if preset is Preset.TUNING:

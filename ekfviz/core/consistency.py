@@ -101,13 +101,18 @@ def chi2_bounds(dof: float, runs: int = 1, confidence: float = CONFIDENCE) -> tu
 
 
 def pose_nees(record: EventRecord, truth: GroundTruth) -> float | None:
-    """NEES e^T P^-1 e of the pose at the record's step, or None without a true pose."""
+    """NEES e^T P^-1 e of the pose at the record's step, or None without a true pose or
+    where the pose covariance is singular (a start known exactly, ``--init-pose-sigma 0
+    0 0``: the NEES is undefined there, not infinite)."""
     true_pose = truth.pose_of(record.step, record.time)
     if true_pose is None:
         return None
     e = record.pose - true_pose
     e[2] = wrap_angle(float(e[2]))
-    return float(e @ np.linalg.solve(record.pose_cov, e))
+    try:
+        return float(e @ np.linalg.solve(record.pose_cov, e))
+    except np.linalg.LinAlgError:
+        return None
 
 
 def update_nis(record: EventRecord) -> tuple[float, int] | None:
@@ -193,6 +198,7 @@ class Consistency:
     nees: BoundCount = field(default_factory=BoundCount)
     nis: BoundCount = field(default_factory=BoundCount)
     without_true_pose: int = 0  # corrected states past the truth's last pose
+    singular_pose: int = 0  # corrected states whose pose covariance is singular
 
     def add(self, record: EventRecord) -> None:
         """Count a record: its NIS if an update used landmarks, its NEES if it ends a step."""
@@ -203,8 +209,11 @@ class Consistency:
             nees = pose_nees(record, self.truth)
             if nees is not None:
                 self.nees.add(nees, chi2_bounds(3))
-            elif self.truth.poses_xytheta is not None:
-                self.without_true_pose += 1
+            elif self.truth.pose_of(record.step, record.time) is None:
+                if self.truth.poses_xytheta is not None:
+                    self.without_true_pose += 1
+            else:
+                self.singular_pose += 1
 
     def summary(self) -> list[str]:
         """One sentence per statistic, for the terminal and the evaluation document."""
@@ -231,6 +240,11 @@ class Consistency:
                 lines.append(
                     f"NEES: only {count.total} of {judged} corrected states have a true pose:"
                     " the truth file ends before the run does; the rest are not judged"
+                )
+            if name == "NEES" and self.singular_pose:
+                lines.append(
+                    f"NEES: {self.singular_pose} corrected state(s) with a singular pose"
+                    " covariance (a start known exactly) are not judged"
                 )
         return lines
 

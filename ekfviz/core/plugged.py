@@ -13,13 +13,21 @@ from __future__ import annotations
 
 import inspect
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 
 import numpy as np
 
 from ekfviz.core.filter import EkfSlam, FilterError, FilterParams
 from ekfviz.core.health import CovarianceCheck
 from ekfviz.core.protocol import SlamFilter, state_of
-from ekfviz.core.records import EventKind, EventRecord, Observations, frozen, snapshot
+from ekfviz.core.records import (
+    EventKind,
+    EventRecord,
+    Observations,
+    ScanAssociation,
+    frozen,
+    snapshot,
+)
 from ekfviz.core.types import FloatArray, IntArray
 
 # P counts as symmetric when |P - P^T| <= SYMMETRY_TOLERANCE * max |P|
@@ -114,6 +122,28 @@ class Plugged:
         return observations
 
     @property
+    def removes_landmarks(self) -> bool:
+        """Whether the filter has a ``remove_landmarks(ids)``, which an association with
+        tentative landmarks needs (see :mod:`ekfviz.association`)."""
+        return callable(getattr(self.slam, "remove_landmarks", None))
+
+    def remove_landmarks(self, ids: Sequence[int]) -> None:
+        """The filter's ``remove_landmarks(ids)``; its state after it checked, the ids
+        gone from it."""
+        drop = [int(i) for i in ids]
+        self._call(
+            "remove_landmarks",
+            lambda: self.slam.remove_landmarks(list(drop)),  # type: ignore[attr-defined]
+        )
+        x, P, state_ids = self._state("remove_landmarks")
+        kept = sorted(set(drop) & set(state_ids.tolist()))
+        if kept:
+            raise PluginError(
+                f"filter {self.name}: after remove_landmarks, landmark_ids still holds {kept}"
+            )
+        self._x, self._P, self._ids = x, P, state_ids
+
+    @property
     def offline(self) -> bool:
         """Whether the filter has a ``finish()``: it estimates the whole run at the end
         (a batch smoother), so its state before then is not an estimate to record."""
@@ -137,13 +167,15 @@ class Plugged:
         time: float | None = None,
         warnings: tuple[str, ...] = (),
         covariance: CovarianceCheck | None = None,
+        association: ScanAssociation | None = None,
     ) -> EventRecord:
-        return snapshot(
+        record = snapshot(
             self._x, self._P, event=event, step=step, kind=kind, line=line,
             landmark_ids=self._ids, control=None if control is None else np.asarray(control),
             observations=observations, full_cov=full_cov, time=time, warnings=warnings,
             covariance=covariance,
         )  # fmt: skip
+        return record if association is None else replace(record, association=association)
 
     # -- checks -------------------------------------------------------------------------
 

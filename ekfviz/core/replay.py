@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from ekfviz.association.associator import Associator
+from ekfviz.association.associator import AssociationError, Associator
 from ekfviz.core.correlation import CorrelationCadence, correlation_of
 from ekfviz.core.filter import EkfSlam, FilterError, FilterParams
 from ekfviz.core.gating import gated
@@ -100,6 +100,11 @@ def replay(
             ekf = Plugged(plugin, name, params)
         except PluginError as error:
             raise FilterLineError(0, f"event 0 (init): {error}") from error
+        if associator is not None:
+            try:
+                Associator.check_filter(plugin, associator.params)
+            except AssociationError as error:
+                raise FilterLineError(0, f"filter {name}: {error}") from error
     gate, R = params.gate, params.R
     next_check = 0  # the step from which the whole covariance is due for a check
     cadence = CorrelationCadence()
@@ -220,14 +225,13 @@ def replay(
 def _observe(
     ekf: EkfSlam | Plugged, event: Sighting | Scan, associator: Associator | None, last: bool
 ) -> tuple[Observations, dict[str, Any]]:
-    """Fold an observation in: by its ids, or a scan through the association (the
-    built-in filter only, for now); the association goes into the record's arguments."""
+    """Fold an observation in: by its ids, or a scan through the association (any
+    filter: a protocol one with ``remove_landmarks`` for tentative landmarks); the
+    association goes into the record's arguments."""
     if isinstance(event, Sighting):
         return ekf.observe(event.ids, event.z), {}
     if associator is None:
         raise FilterError("a scan has no landmark ids: it needs --association nn or jcbb")
-    if not isinstance(ekf, EkfSlam):
-        raise FilterError("id-less scans run with the built-in filter only (--filter ekf)")
     observations, association = associator.process(ekf, event)
     if last:  # the end of the run: nothing tentative is left in the map
         removed = associator.finish(ekf)

@@ -12,10 +12,20 @@ One event a line, a keyword first, ``#`` comments, an optional leading timestamp
 A ``scan`` line is an observation whose landmarks are unknown (any number of pairs,
 none included): ``--association nn|jcbb`` decides which landmark each one is.
 Landmark ids are non-negative integers; they need not be dense or ordered.
+
+A log may state the noise of its odometry and sensor (and the prior of its start) in a
+comment before its first event, as ``ekfviz simulate`` does::
+
+    # noise: sigma_x=0.01935 sigma_y=0.009675 sigma_alpha=0.001935 sigma_bearing=0.01
+    #   sigma_range=0.08 init_pose_sigma=0.01,0.01,0.005   (one line in the file)
+
+The commands that replay a log take these as the filter's defaults (an option given on
+the command line wins); :func:`read_log_noise` reads them.
 """
 
 from __future__ import annotations
 
+import math
 import re
 from collections.abc import Iterable, Iterator
 from pathlib import Path
@@ -35,6 +45,9 @@ from ekfviz.io.text import (
 )
 
 KEYWORDS = ("control", "observe", "scan")
+NOISE_HEADER = "# noise:"
+NOISE_NAMES = ("sigma_x", "sigma_y", "sigma_alpha", "sigma_bearing", "sigma_range")
+LogNoise = dict[str, float | tuple[float, float, float]]
 _ID = re.compile(r"\+?\d+")
 MAX_ID = 2**63 - 1  # ids are int64
 
@@ -182,10 +195,70 @@ def _scan(
     return Scan(line=line, z=z, time=time)
 
 
-def format_extended(events: Iterable[AnyEvent], precision: int | None = 6) -> str:
+def read_log_noise(path: Path) -> LogNoise:
+    """The noise a log states in its ``# noise:`` comment before the first event
+    (empty when it states none): sigma names to values, ``init_pose_sigma`` a triple.
+
+    :raises InputError: a ``# noise:`` line that does not read, naming the line
+    """
+    try:
+        handle = path.open("rb")
+    except OSError:
+        return {}  # the reader of the events says what is wrong with the file
+    with handle:
+        for number, raw in enumerate(handle, start=1):
+            text = raw.decode("utf-8", errors="replace").lstrip("\ufeff").strip()
+            if not text:
+                continue
+            if not text.startswith("#"):
+                return {}  # the first event: no header after it counts
+            if text.startswith(NOISE_HEADER):
+                return _parse_noise(path, number, text[len(NOISE_HEADER) :].split())
+    return {}
+
+
+def _parse_noise(path: Path, line: int, cells: list[str]) -> LogNoise:
+    expected = f"expected name=value pairs of {', '.join(NOISE_NAMES)}, init_pose_sigma=SX,SY,ST"
+    noise: LogNoise = {}
+    for cell in cells:
+        name, sep, value = cell.partition("=")
+        if not sep or name not in (*NOISE_NAMES, "init_pose_sigma"):
+            raise InputError(path, line, f"found {cell!r} in the noise header, {expected}")
+        parts = value.split(",")
+        numbers = [parse_number(path, line, part) for part in parts]
+        if any(not math.isfinite(v) or v < 0 for v in numbers) or (
+            name != "init_pose_sigma" and len(numbers) != 1
+        ):
+            raise InputError(path, line, f"found {cell!r} in the noise header, {expected}")
+        if name == "init_pose_sigma":
+            if len(numbers) != 3:
+                raise InputError(path, line, f"found {cell!r} in the noise header, {expected}")
+            noise[name] = (numbers[0], numbers[1], numbers[2])
+        else:
+            noise[name] = numbers[0]
+    return noise
+
+
+def format_noise_header(noise: LogNoise) -> str:
+    """The ``# noise:`` comment of :func:`read_log_noise` (values written exactly)."""
+    cells = []
+    for name, value in noise.items():
+        text = (
+            ",".join(repr(float(v)) for v in value)
+            if isinstance(value, tuple)
+            else repr(float(value))
+        )
+        cells.append(f"{name}={text}")
+    return " ".join([NOISE_HEADER, *cells])
+
+
+def format_extended(
+    events: Iterable[AnyEvent], precision: int | None = 6, noise: LogNoise | None = None
+) -> str:
     """Write events in the extended format, one event a line, with timestamps if given.
 
     :param precision: decimals, or None for the shortest text that reads back exactly
+    :param noise: the noise to state in the header (see :func:`read_log_noise`)
     """
 
     def num(value: float) -> str:
@@ -195,6 +268,8 @@ def format_extended(events: Iterable[AnyEvent], precision: int | None = 6) -> st
         "# ekfviz extended log: control d alpha | observe id bearing range ..."
         " | scan bearing range ..."
     ]
+    if noise:
+        lines.append(format_noise_header(noise))
     for event in events:
         head = "" if event.time is None else f"{num(event.time)} "
         if isinstance(event, Control):

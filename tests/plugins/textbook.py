@@ -102,6 +102,25 @@ class Textbook:
         self.x = np.concatenate([self.x, [x + rng * np.cos(phi), y + rng * np.sin(phi)]])
         self.landmark_ids.append(int(landmark_id))
 
+    def remove_landmarks(self, ids: Any) -> None:
+        """Drop landmarks with their rows and columns (an association's tentative ones)."""
+        gone = {int(i) for i in ids}
+        keep = [0, 1, 2] + [
+            3 + 2 * k + o
+            for k, landmark_id in enumerate(self.landmark_ids)
+            if landmark_id not in gone
+            for o in (0, 1)
+        ]
+        self.x = self.x[keep]
+        self.P = self.P[np.ix_(keep, keep)]
+        self.landmark_ids = [i for i in self.landmark_ids if i not in gone]
+
+
+class NoRemoval(Textbook):
+    """A filter that cannot drop landmarks: an association needs --confirm 1 with it."""
+
+    remove_landmarks = None  # type: ignore[assignment]
+
 
 class Joint(Textbook):
     """All known landmarks of a line in one step, linearised at the predicted state."""
