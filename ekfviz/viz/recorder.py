@@ -595,6 +595,7 @@ class Recorder:
         # the small map as last logged: its ids and _shapes rows, and at which event
         self._map_shown: tuple[IntArray, FloatArray] | None = None
         self._map_shown_event: int | None = None
+        self._final_event: int | None = None  # the last update's, at finish: shown exactly
         self._last_ids: IntArray | None = None  # landmark ids of the last update, annotated
         self._event = 0
         self._step = 0
@@ -708,6 +709,8 @@ class Recorder:
         if given, the layout framing the whole run, and flush."""
         for record in self._thinning.drain():
             self._log_record(record)
+        if self._last_update is not None:  # its map exactly, in the same send if pending
+            self._final_event = self._last_update[0].event
         self._send_pending()
         if self._class_pending:
             self._log_classes()
@@ -999,8 +1002,10 @@ class Recorder:
                 self._map_shown_event = record.event
                 continue
             shape = _shapes(record.landmarks_xy, record.landmark_covs)
-            if self._map_shown is not None and np.array_equal(
-                self._map_shown[0], record.landmark_ids
+            if (
+                self._map_shown is not None
+                and record.event != self._final_event
+                and np.array_equal(self._map_shown[0], record.landmark_ids)
             ):
                 before = self._map_shown[1]
                 # the point at angle t of an outline, m + 3 sqrt(C) [cos t, sin t], moves by
