@@ -95,10 +95,10 @@ def test_the_recorded_path_is_the_lasers_and_fits_gps(
     xy = np.array([row["Points2D:positions"][0] for row in rows[1:]])  # type: ignore[index]
     times = truth["laser"][:, 0]
     # the recorded poses at the scans, against where the laser and the axle truly were
-    scan_rows = [k for k, row in enumerate(rows[1:]) if row["event"] % 2 == 0]
+    scan_rows = [k for k, row in enumerate(rows[1:]) if int(str(row["event"])) % 2 == 0]
     laser_error = []
     axle_error = []
-    stamps = np.array([row["time"].total_seconds() for row in rows[1:]])  # type: ignore[union-attr]
+    stamps = np.array([row["time"].total_seconds() for row in rows[1:]])  # type: ignore[attr-defined]
     for k in scan_rows:
         at = int(np.argmin(np.abs(times - stamps[k])))
         laser_error.append(np.hypot(*(xy[k] - truth["laser"][at, 1:])))
