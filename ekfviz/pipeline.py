@@ -21,7 +21,7 @@ from ekfviz.core.consistency import Consistency
 from ekfviz.core.evaluation import Evaluation, evaluate
 from ekfviz.core.filter import FilterParams
 from ekfviz.core.plugged import FilterFactory
-from ekfviz.core.records import AnyEvent, EventRecord, with_ids
+from ekfviz.core.records import AnyEvent, EventRecord, NeedsIds, with_ids
 from ekfviz.core.replay import FilterLineError, replay
 from ekfviz.core.truth import GroundTruth
 from ekfviz.filters import FilterSpec
@@ -234,10 +234,16 @@ def check(
     spec = FilterSpec(filter_spec)
     make_filter = spec.load()
     truth = read_truth(truth_path) if truth_path is not None else None
-    result = lockstep(
-        with_ids(log_events(data, truth, truth_path)), params, make_filter, name=spec.text,
-        tolerance=tolerance,
-    )  # fmt: skip
+    try:
+        result = lockstep(
+            with_ids(log_events(data, truth, truth_path)), params, make_filter, name=spec.text,
+            tolerance=tolerance,
+        )  # fmt: skip
+    except NeedsIds as error:
+        raise InputError(
+            data, error.line, f"found {error.what}: check compares updates by landmark id"
+            " (replay a log of scans with --filter and --association instead)",
+        ) from None  # fmt: skip
     if save is not None:
         _record_check(data, truth, truth_path, spec, params, result, save)
     return result

@@ -257,3 +257,56 @@ def test_association_statistics_read_back_from_the_recording(tmp_path: Path) -> 
     # every measurement of every scan has one fate
     assert recorded["matched"] + recorded["new"] + recorded["rejected"] == sum(map(len, scan_ids))
     assert recorded["correct"] > 0.9 * recorded["matched"]
+
+
+def test_monte_carlo_trials_pair_scans_like_known_ids_without_clutter() -> None:
+    """consistency --unknown-ids: each trial simulates id-less scans and pairs them with
+    an associator of its own; with every landmark paired on its own (as known ids are),
+    the trial is the known-id trial exactly."""
+    from ekfviz.sim.montecarlo import Trials, run_trial
+
+    world = loop(steps=200, landmarks=60, seed=4)
+    noise = world.noise
+    params = FilterParams(
+        sigma_x=noise.sigma_x, sigma_y=noise.sigma_y, sigma_alpha=noise.sigma_alpha,
+        sigma_bearing=noise.sigma_bearing, sigma_range=noise.sigma_range,
+        init_pose_sigma=world.init_pose_sigma,
+    )  # fmt: skip
+    known = Trials(world, noise, world.init_pose_sigma, params)
+    pairing = AssociationParams(gate_probability=0.999999, confirm=1, single_gate_area=math.inf)
+    unknown = Trials(
+        world, noise, world.init_pose_sigma, params,
+        detection=Detection(unknown_ids=True), association=pairing,
+    )  # fmt: skip
+    for seed in (4, 5):
+        a, b = run_trial(known, seed), run_trial(unknown, seed)
+        np.testing.assert_array_equal(a.nees, b.nees)
+        np.testing.assert_array_equal(a.nis, b.nis)
+    cluttered = Trials(
+        world, noise, world.init_pose_sigma, params,
+        detection=Detection(True, 1.0, 0.9), association=AssociationParams(),
+    )  # fmt: skip
+    c = run_trial(cluttered, 4)
+    assert np.isfinite(c.nees).all() and not np.array_equal(c.nis_dof, run_trial(known, 4).nis_dof)
+
+
+def test_consistency_runs_scans_with_clutter_and_says_how(tmp_path: Path) -> None:
+    report = tmp_path / "mc.json"
+    base = ["consistency", "--scenario", "loop", "--steps", "120", "--landmarks", "60",
+            "--runs", "2", "--workers", "1"]  # fmt: skip
+    done = runner.invoke(
+        app, [*base, "--unknown-ids", "--clutter", "1", "--detection-probability", "0.9",
+              "--association", "nn", "--report", str(report)],
+    )  # fmt: skip
+    assert done.exit_code == 0, done.output
+    settings = json.loads(report.read_text())
+    assert settings["detection"] == {"unknown_ids": True, "clutter": 1.0, "probability": 0.9}
+    assert settings["association"]["association"] == "nn"
+    assert settings["nees"]["count"] == 121
+    for wrong, message in (
+        (["--association", "jcbb"], "add --unknown-ids"),
+        (["--unknown-ids", "--association", "known"], "use nn or jcbb"),
+        (["--clutter", "1"], "only with --unknown-ids"),
+    ):
+        done = runner.invoke(app, [*base, *wrong])
+        assert done.exit_code == 2 and message in done.output, done.output

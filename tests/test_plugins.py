@@ -427,3 +427,72 @@ def test_a_plugin_without_removal_needs_confirm_one_for_scans(tmp_path: Path) ->
     kept = runner.invoke(app, [*command, "--confirm", "1"])
     assert kept.exit_code == 0, kept.output
     assert len(entity_rows(save, "/world/robot")) == 3  # init, predict, update
+
+
+def test_a_plugin_failing_in_a_worker_process_is_one_line(tmp_path: Path) -> None:
+    """The error crosses the process boundary whole (it pickles): no BrokenProcessPool."""
+    save = tmp_path / "s.rrd"
+    result = runner.invoke(
+        app, ["sweep", str(CLASSIC), "--vary", "sigma_x=x2", "--filter", plugin("Raises"),
+              "--workers", "2", "--save", str(save)],
+    )  # fmt: skip
+    assert result.exit_code == 2
+    (line,) = result.output.strip().splitlines()
+    assert line.startswith(f"error: {CLASSIC}:6: ") and "division by zero in my predict" in line
+    assert not save.exists()
+
+
+def test_compare_and_sweep_pair_id_less_scans(tmp_path: Path) -> None:
+    """--association on the studies: each run pairs the scans itself; a plugin with
+    remove_landmarks gets the built-in's pairing and map."""
+    log, truth = tmp_path / "scans.txt", tmp_path / "scans.json"
+    done = runner.invoke(
+        app,
+        ["simulate", "--scenario", "loop", "--steps", "120", "--landmarks", "50", "--seed", "7",
+         "--unknown-ids", "--clutter", "1", "-o", str(log), "--truth-out", str(truth)],
+    )  # fmt: skip
+    assert done.exit_code == 0, done.output
+    report = tmp_path / "compare.json"
+    done = runner.invoke(
+        app,
+        ["compare", str(log), "--truth", str(truth), "--filter", "ekf", "--filter",
+         plugin("Textbook"), "--save", str(tmp_path / "c.rrd"), "--report", str(report)],
+    )  # fmt: skip
+    assert done.exit_code == 0, done.output
+    builtin, textbook = json.loads(report.read_text())["filters"]
+    assert len(builtin["landmarks"]) == len(textbook["landmarks"]) > 10
+    np.testing.assert_allclose(builtin["final_pose"], textbook["final_pose"], atol=1e-9)
+    np.testing.assert_allclose(
+        [lm["estimate"] for lm in builtin["landmarks"]],
+        [lm["estimate"] for lm in textbook["landmarks"]],
+        atol=1e-9,
+    )
+    # judged against the truth under the association's pairing: every landmark has one
+    assert all(lm["truth"] is not None for lm in builtin["landmarks"])
+    assert builtin["inside"] >= 0.9 * len(builtin["landmarks"])
+    report = tmp_path / "sweep.json"
+    done = runner.invoke(
+        app,
+        ["sweep", str(log), "--truth", str(truth), "--vary", "sigma_range=0.05,0.12",
+         "--association", "nn", "--save", str(tmp_path / "s.rrd"), "--report", str(report)],
+    )  # fmt: skip
+    assert done.exit_code == 0, done.output
+    assert all(len(v["landmarks"]) > 10 for v in json.loads(report.read_text())["variants"])
+
+
+@pytest.mark.parametrize("command", ["compare", "sweep", "check", "calibrate"])
+def test_scans_where_they_cannot_go_are_one_line(tmp_path: Path, command: str) -> None:
+    log = tmp_path / "scans.txt"
+    log.write_text("scan 0.1 5.0\ncontrol 1.0 0.0\nscan 0.1 4.0\n")
+    truth = tmp_path / "t.json"
+    truth.write_text('{"landmarks": {"1": [5.0, 0.5]}, "poses": [[0, 0, 0], [1, 0, 0]]}')
+    extra = {
+        "compare": ["--filter", "ekf", "--association", "known"],
+        "sweep": ["--vary", "sigma_x=x2", "--association", "known"],
+        "check": ["--filter", plugin("Textbook")],
+        "calibrate": ["--truth", str(truth)],
+    }[command]
+    result = runner.invoke(app, [command, str(log), *extra])
+    assert result.exit_code == 2, result.output
+    (line,) = result.output.strip().splitlines()
+    assert line.startswith(f"error: {log}:1: ") and "scan" in line

@@ -22,7 +22,7 @@ from ekfviz.core.calibrate import (
 )
 from ekfviz.core.filter import FilterParams, MotionNoise
 from ekfviz.core.gating import CHI2_2_999
-from ekfviz.core.records import with_ids
+from ekfviz.core.records import NeedsIds, with_ids
 from ekfviz.io.errors import InputError
 
 
@@ -48,7 +48,13 @@ def calibrate_command(
                 f"{truth or data}: calibrate needs true poses: --truth FILE.json with"
                 ' "poses", or a dataset directory with its ground-truth files'
             )
-        events = list(with_ids(opened.events()))
+        try:
+            events = list(with_ids(opened.events()))
+        except NeedsIds as error:
+            raise InputError(
+                data, error.line, f"found {error.what}: calibrate needs landmark ids and d alpha"
+                " controls",
+            ) from None  # fmt: skip
         result = calibrate(events, opened.truth, window_s=window)
         if result.sightings == 0 or result.motion is None:
             fail(f"{data}: no sightings or no controls with a true pose to calibrate from")

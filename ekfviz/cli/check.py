@@ -31,6 +31,7 @@ from ekfviz.cli.common import (
 )
 from ekfviz.core.check import DEFAULT_TOLERANCE
 from ekfviz.core.filter import FilterError
+from ekfviz.core.replay import FilterLineError
 from ekfviz.filters import FilterSpecError
 from ekfviz.io.errors import InputError
 
@@ -89,9 +90,10 @@ def check(
     )
     try:
         result = pipeline.check(data, truth, filter_spec, params, tolerance=tolerance, save=save)
+    except FilterLineError as error:
+        fail(f"{data}:{error.line}: {error}" if error.line else f"{data}: {error}")
     except (InputError, FilterError, FilterSpecError, viz.SinkError) as error:
-        where = getattr(error, "line", None)
-        fail(f"{data}:{where}: {error}" if where else str(error))
+        fail(str(error))  # an InputError names its file and line itself
     if report is not None:
         write_json(report, {"ekfviz_version": __version__, "filter": filter_spec,
                             "parameters": params.as_dict(), **result.to_json()})  # fmt: skip

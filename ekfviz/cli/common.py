@@ -32,7 +32,7 @@ from ekfviz.io.errors import InputError
 from ekfviz.io.paths import OutputPathError, check_output_path, distinct_paths, unused_path
 from ekfviz.io.text import ProgressCallback
 from ekfviz.sim.scenarios import Scenario, ScenarioName
-from ekfviz.sim.simulate import Noise
+from ekfviz.sim.simulate import Detection, Noise
 from ekfviz.studies.executors import (
     Executor,
     ExecutorError,
@@ -248,6 +248,7 @@ FILTER_NOISE = "Filter noise"
 FILTER_OPTIONS = "Filter options"
 TRUE_NOISE = "True noise (default: the scenario's)"
 LOOP = "Loop scenario"
+SENSOR = "Detection"
 
 
 def _option(help: str, panel: str | None = None, **kwargs: Any) -> Any:
@@ -359,6 +360,40 @@ Fov = Annotated[
         show_default=False,
     ),
 ]
+
+
+UnknownIds = Annotated[
+    bool,
+    typer.Option(
+        "--unknown-ids",
+        help="Write id-less 'scan' lines (extended format); the truth's scan_ids keep"
+        " each measurement's landmark (null for clutter).",
+        rich_help_panel=SENSOR,
+    ),
+]
+Clutter = Annotated[
+    float,
+    _option(
+        "Mean false alarms per scan (Poisson), uniform over the field.",
+        SENSOR,
+        min=0.0,
+        metavar="RATE",
+    ),
+]
+DetectionProbability = Annotated[
+    float,
+    _option("Probability of detecting a landmark in reach (0 to 1).", SENSOR, metavar="P"),
+]
+Laps = Annotated[int, _option("Drive the route this many times.", min=1)]
+
+
+def detection_of(unknown_ids: bool, clutter: float, probability: float) -> Detection:
+    """The simulated sensor's misses, false alarms and ids, refusing what cannot be."""
+    if not 0.0 <= probability <= 1.0:
+        fail(f"--detection-probability: {probability:g} is not between 0 and 1")
+    if clutter > 0 and not unknown_ids:
+        fail("--clutter: only with --unknown-ids (a log with ids names no false alarms)")
+    return Detection(unknown_ids, clutter, probability)
 
 
 def filter_params(

@@ -28,8 +28,17 @@ from ekfviz.cli.common import (
     filter_params,
     study_executor,
 )
+from ekfviz.cli.scans import (
+    DEFAULT_ASSOCIATION,
+    AssociationOption,
+    Confirm,
+    ConfirmWindow,
+    GateProbability,
+    study_association,
+)
 from ekfviz.cli.study import run_study
 from ekfviz.filters import FilterSpec
+from ekfviz.io.errors import InputError
 from ekfviz.studies.executors import ExecutorName
 
 
@@ -67,6 +76,10 @@ def compare(
     workers: Workers = None,
     executor: ExecutorOption = ExecutorName.LOCAL,
     scheduler: SchedulerOption = None,
+    association: AssociationOption = None,
+    gate_probability: GateProbability = DEFAULT_ASSOCIATION.gate_probability,
+    confirm: Confirm = DEFAULT_ASSOCIATION.confirm,
+    confirm_window: ConfirmWindow = DEFAULT_ASSOCIATION.confirm_window,
 ) -> None:
     """Replay one log with several filters, each under filters/<name>/ in one recording.
 
@@ -83,6 +96,10 @@ def compare(
         update,
         log=data,
     )
+    try:
+        pairing = study_association(data, association, gate_probability, confirm, confirm_window)
+    except InputError as error:
+        fail(str(error))
     specs: list[RunSpec] = []
     keys: set[str] = set()
     for text in filters:
@@ -93,7 +110,7 @@ def compare(
                 break
             key = f"{spec.key}-{count}"
         keys.add(key)
-        specs.append(RunSpec(label=key, key=key, params=params, filter=spec))
+        specs.append(RunSpec(label=key, key=key, params=params, filter=spec, association=pairing))
     if not specs:
         fail("give at least one --filter")
     run_study(

@@ -14,14 +14,18 @@ from rich.progress import Progress
 from rich.table import Table
 
 from ekfviz import __version__
+from ekfviz.association import AssociationParams, Method
 from ekfviz.cli.common import (
     DEFAULT,
     FILTER_OPTIONS,
+    Clutter,
+    DetectionProbability,
     ExecutorOption,
     FilterOption,
     Fov,
     LandmarkInitOption,
     Landmarks,
+    Laps,
     MaxRange,
     ScenarioOption,
     SchedulerOption,
@@ -37,11 +41,13 @@ from ekfviz.cli.common import (
     TrueSigmaRange,
     TrueSigmaX,
     TrueSigmaY,
+    UnknownIds,
     UpdateOption,
     _option,
     app,
     check_outputs,
     command_hint,
+    detection_of,
     err,
     fail,
     filter_params,
@@ -50,6 +56,13 @@ from ekfviz.cli.common import (
     study_executor,
     true_noise,
     write_json,
+)
+from ekfviz.cli.scans import (
+    DEFAULT_ASSOCIATION,
+    AssociationOption,
+    Confirm,
+    ConfirmWindow,
+    GateProbability,
 )
 from ekfviz.core.consistency import Verdict
 from ekfviz.core.filter import FilterError
@@ -103,6 +116,14 @@ def consistency(
     ] = None,
     executor: ExecutorOption = ExecutorName.LOCAL,
     scheduler: SchedulerOption = None,
+    unknown_ids: UnknownIds = False,
+    clutter: Clutter = 0.0,
+    detection_probability: DetectionProbability = 1.0,
+    laps: Laps = 1,
+    association: AssociationOption = None,
+    gate_probability: GateProbability = DEFAULT_ASSOCIATION.gate_probability,
+    confirm: Confirm = DEFAULT_ASSOCIATION.confirm,
+    confirm_window: ConfirmWindow = DEFAULT_ASSOCIATION.confirm_window,
 ) -> None:
     """Monte-Carlo consistency: average NEES and NIS over many simulated runs, per step.
 
@@ -120,9 +141,21 @@ def consistency(
     noise = true_noise(
         world, true_sigma_x, true_sigma_y, true_sigma_alpha, true_sigma_bearing, true_sigma_range
     )
+    detection = detection_of(unknown_ids, clutter, detection_probability)
+    if unknown_ids and association is Method.KNOWN:
+        fail("--association known: the runs have id-less scans (--unknown-ids); use nn or jcbb")
+    pairing = None
+    if unknown_ids:
+        pairing = AssociationParams(
+            method=Method.JCBB if association is None else association,
+            gate_probability=gate_probability, confirm=confirm, confirm_window=confirm_window,
+        )  # fmt: skip
+    elif association not in (None, Method.KNOWN):
+        fail(f"--association {association.value}: the runs have landmark ids; add --unknown-ids")
     trials = Trials(
-        scenario=world, true_noise=noise, init_pose_sigma=prior, params=params, filter=filter_spec
-    )
+        scenario=world, true_noise=noise, init_pose_sigma=prior, params=params,
+        filter=filter_spec, detection=detection, laps=laps, association=pairing,
+    )  # fmt: skip
     runner = study_executor(executor, scheduler, workers)
     try:
         load_filter(filter_spec)
@@ -167,6 +200,12 @@ def consistency(
         "true_noise": asdict(noise),
         "init_pose_sigma": list(prior),
     }
+    if laps > 1:
+        settings["laps"] = laps
+    if unknown_ids or detection_probability < 1.0:
+        settings["detection"] = asdict(detection)
+    if pairing is not None:
+        settings["association"] = pairing.as_dict()
     if report is not None:
         write_json(report, {"ekfviz_version": __version__, **settings, **result.to_json()})
     if save is not None:

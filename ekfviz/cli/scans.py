@@ -65,6 +65,38 @@ ConfirmWindow = Annotated[
 ]
 
 
+def study_association(
+    data: Path,
+    association: Method | None,
+    gate_probability: float,
+    confirm: int,
+    confirm_window: int,
+) -> AssociationParams | None:
+    """The association of a study's runs (sweep, compare), as a replay's: none for
+    ``known``, else the method asked for (jcbb by default) for the log's id-less scans.
+    Victoria Park is refused in one line: its vehicle and sensor models are the replay's.
+    """
+    from ekfviz.io.detect import open_source
+
+    try:
+        kind = open_source(data, None).kind
+    except InputError:
+        kind = None  # the study's own reading says what is wrong with it
+    if kind is LogKind.VICTORIA:
+        raise InputError(
+            data, 0, "the Victoria Park run is replayed on its own (ekfviz replay DIR), not in"
+            " a sweep or comparison",
+        )  # fmt: skip
+    if association is Method.KNOWN:
+        return None
+    return AssociationParams(
+        method=Method.JCBB if association is None else association,
+        gate_probability=gate_probability,
+        confirm=confirm,
+        confirm_window=confirm_window,
+    )
+
+
 @dataclass(frozen=True, slots=True)
 class VictoriaDefaults:
     """The defaults of a Victoria Park replay (every option left at its classic default)."""

@@ -11,8 +11,11 @@ from typing import Annotated
 import typer
 
 from ekfviz.cli.common import (
+    Clutter,
+    DetectionProbability,
     Fov,
     Landmarks,
+    Laps,
     LogFormat,
     MaxRange,
     ScenarioOption,
@@ -22,10 +25,12 @@ from ekfviz.cli.common import (
     TrueSigmaRange,
     TrueSigmaX,
     TrueSigmaY,
+    UnknownIds,
     _option,
     app,
     check_outputs,
     command_hint,
+    detection_of,
     fail,
     out,
     scenario_world,
@@ -37,9 +42,6 @@ from ekfviz.core.truth import GroundTruth
 from ekfviz.io.paths import OutputPathError, check_output_folder
 from ekfviz.sim.mrclam import MrclamNoise, MrclamWorld
 from ekfviz.sim.scenarios import ScenarioName
-from ekfviz.sim.simulate import Detection
-
-SENSOR = "Detection"
 
 
 class Layout(str, enum.Enum):
@@ -105,33 +107,10 @@ def simulate(
         ),
     ] = None,
     precision: Annotated[int, typer.Option(min=1, max=17, help="Decimals written.")] = 6,
-    unknown_ids: Annotated[
-        bool,
-        typer.Option(
-            "--unknown-ids",
-            help="Write id-less 'scan' lines (extended format); the truth's scan_ids keep"
-            " each measurement's landmark (null for clutter).",
-            rich_help_panel=SENSOR,
-        ),
-    ] = False,
-    clutter: Annotated[
-        float,
-        _option(
-            "Mean false alarms per scan (Poisson), uniform over the field.",
-            SENSOR,
-            min=0.0,
-            metavar="RATE",
-        ),
-    ] = 0.0,
-    detection_probability: Annotated[
-        float,
-        _option(
-            "Probability of detecting a landmark in reach (0 to 1).",
-            SENSOR,
-            metavar="P",
-        ),
-    ] = 1.0,
-    laps: Annotated[int, _option("Drive the route this many times.", min=1)] = 1,
+    unknown_ids: UnknownIds = False,
+    clutter: Clutter = 0.0,
+    detection_probability: DetectionProbability = 1.0,
+    laps: Laps = 1,
 ) -> None:
     """Simulate a run with known truth and write its log and truth files (deterministic)."""
     if layout is Layout.MRCLAM:
@@ -153,13 +132,9 @@ def simulate(
     )
     if init_pose_sigma is None:
         init_pose_sigma = world.init_pose_sigma
-    if not 0.0 <= detection_probability <= 1.0:
-        fail(f"--detection-probability: {detection_probability:g} is not between 0 and 1")
-    if clutter > 0 and not unknown_ids:
-        fail("--clutter: only with --unknown-ids (a log with ids names no false alarms)")
     if unknown_ids and log_format is LogFormat.CLASSIC:
         fail("--unknown-ids: the classic format has no id-less scans; use --format extended")
-    detection = Detection(unknown_ids, clutter, detection_probability)
+    detection = detection_of(unknown_ids, clutter, detection_probability)
     run = world.run(
         noise, seed=seed, init_pose_sigma=init_pose_sigma, detection=detection, laps=laps
     )

@@ -25,6 +25,7 @@ from ekfviz.cli.common import (
     write_json,
 )
 from ekfviz.core.filter import FilterError
+from ekfviz.core.replay import FilterLineError
 from ekfviz.filters import FilterSpecError
 from ekfviz.io.errors import InputError
 from ekfviz.studies.executors import Executor, ExecutorError
@@ -63,6 +64,8 @@ def run_study(
                 parameters=parameters, markdown=lambda rows: study_markdown(rows, what),
                 done=lambda: bar.advance(task), executor=executor,
             )  # fmt: skip
+    except FilterLineError as error:
+        fail(f"{data}:{error.line}: {error}" if error.line else f"{data}: {error}")
     except (InputError, FilterError, FilterSpecError, viz.SinkError, ExecutorError) as error:
         fail(str(error))
     out.print(study_table(result.summaries, result.truth is not None, what))

@@ -31,8 +31,17 @@ from ekfviz.cli.common import (
     filter_params,
     study_executor,
 )
+from ekfviz.cli.scans import (
+    DEFAULT_ASSOCIATION,
+    AssociationOption,
+    Confirm,
+    ConfirmWindow,
+    GateProbability,
+    study_association,
+)
 from ekfviz.cli.study import run_study
 from ekfviz.filters import BUILTIN, FilterSpec
+from ekfviz.io.errors import InputError
 from ekfviz.studies.executors import ExecutorName
 
 
@@ -88,6 +97,10 @@ def sweep(
     workers: Workers = None,
     executor: ExecutorOption = ExecutorName.LOCAL,
     scheduler: SchedulerOption = None,
+    association: AssociationOption = None,
+    gate_probability: GateProbability = DEFAULT_ASSOCIATION.gate_probability,
+    confirm: Confirm = DEFAULT_ASSOCIATION.confirm,
+    confirm_window: ConfirmWindow = DEFAULT_ASSOCIATION.confirm_window,
 ) -> None:
     """Replay one log with filter parameters varied around a baseline, side by side.
 
@@ -104,6 +117,10 @@ def sweep(
         log=data,
     )
     try:
+        pairing = study_association(data, association, gate_probability, confirm, confirm_window)
+    except InputError as error:
+        fail(str(error))
+    try:
         if preset is Preset.TUNING:
             if vary:
                 raise SweepError("--preset tuning and --vary: give one or the other")
@@ -116,7 +133,10 @@ def sweep(
             raise SweepError("nothing to vary: give --vary NAME=VALUES or --preset tuning")
     except SweepError as error:
         fail(str(error))
-    variants = [replace(variant, filter=FilterSpec(filter_spec)) for variant in variants]
+    variants = [
+        replace(variant, filter=FilterSpec(filter_spec), association=pairing)
+        for variant in variants
+    ]
     runner = study_executor(executor, scheduler, workers)
     run_study(
         data,

@@ -94,14 +94,31 @@ LogEvent = Control | Sighting  # the events of logs with landmark ids
 AnyEvent = Control | Sighting | Scan | Drive  # and id-less scans, vehicle controls
 
 
+class NeedsIds(ValueError):
+    """An event without landmark ids (an id-less scan) or a vehicle's raw controls where
+    only observations with ids and (d, alpha) controls will do.
+
+    :param line: the event's line in the log
+    """
+
+    def __init__(self, line: int, what: str) -> None:
+        self.line = line
+        self.what = what
+        super().__init__(f"line {line}: found {what}, expected landmark ids and d alpha controls")
+
+    def __reduce__(self) -> tuple[type[NeedsIds], tuple[int, str]]:
+        return type(self), (self.line, self.what)
+
+
 def with_ids(events: Iterable[AnyEvent]) -> Iterator[LogEvent]:
     """The events of a log with landmark ids, refusing an id-less scan or vehicle control.
 
-    :raises ValueError: at the first event without ids, naming its line
+    :raises NeedsIds: at the first event without ids, naming its line
     """
     for event in events:
         if not isinstance(event, Control | Sighting):
-            raise ValueError(f"line {event.line}: this needs a log with landmark ids and controls")
+            what = "an id-less scan" if isinstance(event, Scan) else "speed and steering controls"
+            raise NeedsIds(event.line, what)
         yield event
 
 

@@ -38,6 +38,10 @@ class FilterLineError(FilterError):
         self.line = line
         super().__init__(message)
 
+    def __reduce__(self) -> tuple[type[FilterLineError], tuple[int, str]]:
+        # rebuilt from both arguments where a study's worker process hands it back
+        return type(self), (self.line, str(self))
+
 
 def replay(
     events: Iterable[AnyEvent],

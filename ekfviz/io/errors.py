@@ -19,6 +19,10 @@ class InputError(ValueError):
         self.message = message
         super().__init__(str(self))
 
+    def __reduce__(self) -> tuple[type[InputError], tuple[Path, int, str]]:
+        # rebuilt from its three arguments where a worker process hands it back
+        return type(self), (self.path, self.line, self.message)
+
     def __str__(self) -> str:
         where = f"{self.path}:{self.line}" if self.line > 0 else f"{self.path}"
         return f"{where}: {self.message}"

@@ -1,7 +1,9 @@
 """Monte-Carlo consistency: many simulated runs of a scenario, NEES and NIS averaged per step.
 
 Numpy only. Each trial simulates the scenario with its own seed, replays it through the
-filter and keeps the pose NEES after every step and the NIS of every update. Averaged
+filter and keeps the pose NEES after every step and the NIS of every update. With
+id-less scans (misses, clutter) each trial pairs them with an associator of its own, so
+the verdict is that of the filter and its association together. Averaged
 over N trials, N times the mean NEES is chi-square with 3N degrees of freedom if the
 filter is consistent; the same holds for the NIS with the summed degrees of freedom.
 """
@@ -10,10 +12,11 @@ from __future__ import annotations
 
 import os
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from ekfviz.association import AssociationParams, Associator
 from ekfviz.core.consistency import CONFIDENCE, BoundCount, chi2_quantile, pose_nees, update_nis
 from ekfviz.core.filter import FilterParams
 from ekfviz.core.records import EventKind
@@ -21,8 +24,9 @@ from ekfviz.core.replay import replay
 from ekfviz.core.truth import GroundTruth
 from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.filters import BUILTIN, load_filter
+from ekfviz.models.range_bearing import RangeBearing
 from ekfviz.sim.scenarios import Scenario
-from ekfviz.sim.simulate import Noise
+from ekfviz.sim.simulate import Detection, Noise
 
 
 @dataclass(frozen=True, slots=True)
@@ -34,6 +38,10 @@ class Trials:
     init_pose_sigma: tuple[float, float, float]
     params: FilterParams
     filter: str = BUILTIN  # a --filter value (see ekfviz.filters)
+    detection: Detection = field(default_factory=Detection)  # misses, clutter, id-less scans
+    laps: int = 1
+    # how id-less scans are paired, each trial with its own associator
+    association: AssociationParams | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -48,14 +56,23 @@ class TrialResult:
 
 def run_trial(trials: Trials, seed: int) -> TrialResult:
     """Simulate and replay one trial."""
-    run = trials.scenario.run(trials.true_noise, seed=seed, init_pose_sigma=trials.init_pose_sigma)
+    run = trials.scenario.run(
+        trials.true_noise, seed=seed, init_pose_sigma=trials.init_pose_sigma,
+        detection=trials.detection, laps=trials.laps,
+    )  # fmt: skip
     truth = GroundTruth(run.landmark_ids, run.landmarks_xy, run.poses_xytheta)
+    associator = None
+    if trials.association is not None and run.scan_events is not None:
+        associator = Associator(trials.association, RangeBearing(), trials.params.R)
     steps = len(run.poses_xytheta)
     nees = np.full(steps, np.nan)
     nis = np.full(steps, np.nan)
     nis_dof = np.zeros(steps, dtype=np.int64)
     make_filter = load_filter(trials.filter)
-    for record in replay(run.events, trials.params, make_filter=make_filter, name=trials.filter):
+    events = run.scan_events if run.scan_events is not None else run.events
+    for record in replay(
+        events, trials.params, make_filter=make_filter, name=trials.filter, associator=associator
+    ):
         if record.kind is EventKind.PREDICT:
             continue
         value = pose_nees(record, truth)

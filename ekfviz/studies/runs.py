@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ekfviz.association import AssociationParams, Associator
+from ekfviz.association.evaluation import AssociationTally
 from ekfviz.core.consistency import Consistency, reading
 from ekfviz.core.evaluation import Evaluation, evaluate
 from ekfviz.core.filter import FilterParams
@@ -25,6 +27,7 @@ from ekfviz.core.replay import replay
 from ekfviz.core.truth import GroundTruth
 from ekfviz.filters import BUILTIN, FilterSpec
 from ekfviz.io.detect import read_log
+from ekfviz.models.range_bearing import RangeBearing
 from ekfviz.studies.executors import Executor, LocalExecutor
 
 VARIABLE = ("sigma_x", "sigma_y", "sigma_alpha", "sigma_bearing", "sigma_range")
@@ -43,6 +46,8 @@ class RunSpec:
     params: FilterParams
     filter: FilterSpec = field(default_factory=lambda: FilterSpec(BUILTIN))
     changes: tuple[object, ...] = ()
+    # how id-less scans are paired (None: --association known, ids only)
+    association: AssociationParams | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -70,11 +75,23 @@ def run_spec(path: Path, spec: RunSpec, truth: GroundTruth | None) -> Run:
     make_filter = spec.filter.load()
     consistency = Consistency(truth)
     records = []
+    associator, tally = None, None
+    if spec.association is not None:  # a run of its own: its own tentative landmarks
+        sensor = RangeBearing()
+        scan_truth = None if truth is None else truth.scan_ids
+        associator = Associator(spec.association, sensor, spec.params.R, scan_truth=scan_truth)
+        tally = AssociationTally(truth, sensor)
     for record in replay(
-        read_log(path), spec.params, make_filter=make_filter, name=spec.filter.text
-    ):
+        read_log(path), spec.params, make_filter=make_filter, name=spec.filter.text,
+        associator=associator,
+    ):  # fmt: skip
         consistency.add(record)
         records.append(record)
+        if tally is not None and record.association is not None:
+            tally.add(record)
+    if tally is not None and truth is not None and tally.scans:
+        # the map's ids are the association's: the truth under its pairing
+        truth = tally.relabelled_truth(records[-1].landmark_ids)
     evaluation = evaluate(records[-1], truth, consistency)
     return Run(spec, tuple(records), evaluation, time.perf_counter() - started)
 
