@@ -9,6 +9,8 @@ from pathlib import Path
 
 import pytest
 
+import ekfviz.viz._quiet  # noqa: F401  (before rerun is imported: no footer warning)
+
 MISSING_FOOTER = "Missing RRD footer / no RRD manifests"
 
 

@@ -478,11 +478,13 @@ def test_200_landmarks_are_one_batch(tmp_path: Path) -> None:
     assert len(points(row, "Points2D:positions")) == 200
 
 
-def large_map_run(tmp_path: Path, detail: bool) -> tuple[Path, tuple[EventRecord, ...]]:
+def large_map_run(
+    tmp_path: Path, detail: bool, steps: int = 60
+) -> tuple[Path, tuple[EventRecord, ...]]:
     """40 landmarks, 5 of them seen per step in turn, with truth: more than a small map."""
     rng = np.random.default_rng(40)
     landmarks = rng.uniform(-20.0, 20.0, size=(40, 2))
-    sim = simulate(np.tile([[1.0, 0.1]], (60, 1)), landmarks, seed=40)
+    sim = simulate(np.tile([[1.0, 0.1]], (steps, 1)), landmarks, seed=40)
     events: list[LogEvent] = [sim.events[0]]
     for k, event in enumerate(sim.events[1:]):
         if isinstance(event, Sighting):
@@ -527,6 +529,36 @@ def test_a_large_map_is_logged_whole_every_k_steps_and_its_observed_ellipses_alw
     error = entity_rows(rrd, f"/{style.LANDMARK_ERROR}/7")
     assert error[-1]["event"] == records[-1].event
     assert len(error) < len(updates) / 2
+
+
+def test_a_large_maps_points_are_logged_where_they_moved_and_always_within_tolerance(
+    tmp_path: Path,
+) -> None:
+    """Beyond a small map the points go as a small map's do: at the updates where the map
+    grew, some point moved by over MAP_TOLERANCE of its ellipse's semi-major axis, or the
+    whole map's ellipses are logged; at every update the latest row shown is within that
+    tolerance of every landmark; the end exactly."""
+    from ekfviz.viz.recorder import MAP_EVERY_STEPS, MAP_TOLERANCE
+
+    rrd, records = large_map_run(tmp_path, detail=False, steps=400)  # it converges
+    updates = [r for r in records if r.kind is not EventKind.PREDICT]
+    rows = entity_rows(rrd, f"/{style.LANDMARKS}")
+    shown_at = [int(str(row["event"])) for row in rows]
+    assert len(shown_at) < 0.9 * len(updates)  # not at every update any more
+    assert {r.event for r in updates if r.step % MAP_EVERY_STEPS == 0} <= set(shown_at)
+    assert shown_at[-1] == updates[-1].event
+    for record in updates:
+        k = int(np.searchsorted(shown_at, record.event, side="right")) - 1
+        assert rows[k]["Points2D:class_ids"] == record.landmark_ids.tolist()
+        shown_xy = points(rows[k], "Points2D:positions")
+        for shown, mean, cov in zip(
+            shown_xy, record.landmarks_xy, record.landmark_covs, strict=True
+        ):
+            slack = MAP_TOLERANCE * 3 * np.sqrt(np.linalg.eigvalsh(cov))[1]
+            assert np.linalg.norm(shown - mean) <= slack + 1e-5
+    np.testing.assert_allclose(
+        points(rows[-1], "Points2D:positions"), updates[-1].landmarks_xy, rtol=F32
+    )
 
 
 def test_detail_logs_every_ellipse_at_every_update(tmp_path: Path) -> None:

@@ -22,9 +22,11 @@ logged once as static data. Everything else is buffered and sent in columns
 (``send_columns``) every ``FLUSH_EVERY`` events and at ``finish``: a ``rec.log`` per
 entity and event would cost more than the filter itself.
 
-What is logged when, by default: the robot, its ellipses, the observation rays, all
-landmark positions and a log line at every event. The 3-sigma ellipses of all landmarks
-at every update while the map holds at most ``SMALL_MAP`` landmarks; beyond that, at
+What is logged when, by default: the robot and its ellipses at every event, a log line
+a step, the observation rays at the updates with some; all landmark positions where the
+map grew or some landmark moved by over ``MAP_TOLERANCE`` of its ellipse (the viewer
+shows the latest). The 3-sigma ellipses of all landmarks likewise while the map holds
+at most ``SMALL_MAP`` landmarks; beyond that, at
 every update only those of the landmarks observed (``world/landmarks/ellipses/observed``)
 and the whole map every ``MAP_EVERY_STEPS`` steps and at the end (the viewer shows the
 latest of each, so every landmark keeps an ellipse at any time). A timestamped log
@@ -717,6 +719,14 @@ class Recorder:
         if self._last_update is not None and not self._last_update[1]:
             record = self._last_update[0]
             self._last_update = (record, True)
+            if self._map_shown_event != record.event:  # its points too, exactly
+                end = self._clock.rows(
+                    np.array([record.step]),
+                    np.array([record.event]),
+                    [math.nan if record.time is None else record.time],
+                )
+                self._send_landmarks(end.all, [record])
+                self._map_shown_event = record.event
             self._log_landmark_errors(record, None)
             rows = self._clock.rows(
                 np.array([record.step]),
@@ -989,14 +999,16 @@ class Recorder:
     ) -> list[tuple[int, EventRecord, bool]]:
         """The updates whose landmarks (points and whole-map ellipses) are logged.
 
-        A large map's at every update, as ``--detail``; a small map's only where it grew
-        or where some landmark's point or 3-sigma outline moved by more than
-        ``MAP_TOLERANCE`` of its ellipse's semi-major axis since it was last logged: in
-        between the viewer shows the latest, within that tolerance of the true state.
+        Only where the map grew or where some landmark's point or 3-sigma outline moved
+        by more than ``MAP_TOLERANCE`` of its ellipse's semi-major axis since it was last
+        logged: in between the viewer shows the latest, within that tolerance of the true
+        state. A large map's points so (its ellipses have their own cadence, and the
+        updates that log them log the points too); everything at every update with
+        ``--detail``.
         """
         shown: list[tuple[int, EventRecord, bool]] = []
         for k, record, whole in updates:
-            if self._detail or self._sparse_map(record):
+            if self._detail:
                 shown.append((k, record, whole))
                 self._map_shown = None
                 self._map_shown_event = record.event
@@ -1005,6 +1017,7 @@ class Recorder:
             if (
                 self._map_shown is not None
                 and record.event != self._final_event
+                and not (whole and self._sparse_map(record))
                 and np.array_equal(self._map_shown[0], record.landmark_ids)
             ):
                 before = self._map_shown[1]
