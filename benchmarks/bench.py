@@ -408,15 +408,12 @@ def bytes_by_entity(recording: Path, top: int = 12) -> list[tuple[str, float]]:
     columns, data) compressed as one LZ4 block: within a few bytes of its message in
     the file.
     """
-    import warnings
     from collections import Counter
 
     import pyarrow as pa  # type: ignore[import-untyped]
     from rerun.chunk import RrdReader
 
-    with warnings.catch_warnings():  # ekfviz writes no footer (ekfviz.viz.run.footerless)
-        warnings.filterwarnings("ignore", message=".*no footer")
-        reader = RrdReader(recording)
+    reader = RrdReader(recording)
     sizes: Counter[str] = Counter()
     for chunk in reader.stream(store=reader.recordings()[0]):
         batch = chunk.to_record_batch()

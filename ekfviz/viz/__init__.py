@@ -29,7 +29,6 @@ See ``examples/byof_minimal.py`` for a complete, runnable loop.
 
 from __future__ import annotations
 
-from ekfviz.viz import _quiet  # noqa: F401  (first: before rerun is imported)
 from ekfviz.viz.ellipses import ellipse_outlines
 from ekfviz.viz.export import RecordedRun, Trajectory, read_recorded_run
 from ekfviz.viz.info import NotARecordingError, RecordingInfo, read_recording_info

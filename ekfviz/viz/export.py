@@ -10,7 +10,6 @@ with true poses. Time stamps come from the ``time`` timeline where the recording
 from __future__ import annotations
 
 import math
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -125,10 +124,8 @@ def read_recorded_run(path: Path) -> RecordedRun:
     }
     rows = {name: _Rows([], [], [], {}) for name in wanted.values()}
     try:
-        with warnings.catch_warnings():  # no footer: ekfviz writes none (run.footerless)
-            warnings.filterwarnings("ignore", message=".*no footer")
-            reader = RrdReader(path)
-            recordings = reader.recordings()
+        reader = RrdReader(path)
+        recordings = reader.recordings()
         if not recordings:
             raise NotARecordingError(f"{path}: a Rerun file without a recording")
         chunks = reader.stream(store=recordings[0]).filter(content=list(wanted), is_static=False)

@@ -232,9 +232,7 @@ def read_recording_info(path: Path) -> RecordingInfo:
         reason = text.splitlines()[0] if text else type(error).__name__
         raise NotARecordingError(f"{path}: not a Rerun recording (.rrd): {reason}") from None
     entry = recordings[0]
-    if footerless and EKFVIZ_PROPERTIES not in latest:
-        # ekfviz saves without a footer (see ekfviz.viz.run.footerless), atomically: in
-        # any other file a missing footer is a writer that did not close it
+    if footerless:  # ekfviz saves atomically, footer included: a writer that did not close
         notes.append("the file has no footer: its writer did not close it")
     properties = latest.get(EKFVIZ_PROPERTIES)
     documents = {key: values.get("TextDocument:text") for key, values in latest.items()}

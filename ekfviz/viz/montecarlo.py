@@ -71,7 +71,7 @@ def save_monte_carlo(
     with atomic_rrd(path) as temporary:
         rec = rr.RecordingStream("ekfviz", recording_id=str(uuid.uuid4()), send_properties=False)
         rec.set_log_time_enabled(False)
-        rec.save(temporary, default_blueprint=blueprint, write_footer=False)  # see run.footerless
+        rec.save(temporary, default_blueprint=blueprint)
         rec.send_recording_name(name)
         properties = rr.AnyValues()
         for key, value in (

@@ -583,20 +583,8 @@ def _attach(
         # Beside the target (same file system, so os.replace is atomic), made by the
         # FileSink itself so that it gets the usual permissions.
         temporary = temporary_beside(target)
-        log_sinks.append(footerless(temporary))
+        log_sinks.append(rr.FileSink(temporary))
     return log_sinks, temporary, url
-
-
-def footerless(path: Path) -> rr.FileSink:
-    """A file sink writing no RRD footer.
-
-    The footer is an index of the chunks for random access into large recordings held
-    in object stores: the schema of every column and a row per chunk, some 200 kB for
-    the bundled classic sample, more than all its data. The viewer, ``ekfviz info`` and
-    ``export`` read a recording from its start; ``rerun rrd optimize`` adds the footer
-    back (``rerun rrd verify`` reports it missing).
-    """
-    return rr.FileSink(path, write_footer=False)
 
 
 def temporary_beside(target: Path) -> Path:
