@@ -257,6 +257,16 @@ def test_association_statistics_read_back_from_the_recording(tmp_path: Path) -> 
     # every measurement of every scan has one fate
     assert recorded["matched"] + recorded["new"] + recorded["rejected"] == sum(map(len, scan_ids))
     assert recorded["correct"] > 0.9 * recorded["matched"]
+    # a first-sighting outline for each confirmed landmark, at its confirmation, none for
+    # the tentative ones removed (which would bury the map)
+    outlined = [
+        int(i)
+        for row in entity_rows(rrd, "/world/landmarks/initial")
+        for i in row.get("LineStrips2D:class_ids") or []  # type: ignore[attr-defined]
+    ]
+    assert recorded["removed"] > 0 and len(outlined) == recorded["confirmed"]
+    final = [lm["id"] for lm in json.loads(report.read_text())["landmarks"]]
+    assert sorted(outlined) == sorted(final)
 
 
 def test_monte_carlo_trials_pair_scans_like_known_ids_without_clutter() -> None:
