@@ -419,6 +419,19 @@ def test_a_plugin_without_removal_needs_confirm_one_for_scans(tmp_path: Path) ->
     log = tmp_path / "scans.txt"
     log.write_text("scan 0.1 5.0 0.5 7.0\ncontrol 1.0 0.0\nscan 0.1 4.0 0.5 6.2\n")
     save = tmp_path / "r.rrd"
+    # a log with ids needs no removal, whatever the association options say
+    for options in ([], ["--association", "jcbb"]):
+        with_ids = runner.invoke(
+            app, ["replay", str(CLASSIC), "--filter", plugin("NoRemoval"), *options, "--save",
+                  str(save)],
+        )  # fmt: skip
+        assert with_ids.exit_code == 0, with_ids.output
+    with_ids = runner.invoke(
+        app, ["compare", str(CLASSIC), "--filter", "ekf", "--filter", plugin("NoRemoval"),
+              "--save", str(save)],
+    )  # fmt: skip
+    assert with_ids.exit_code == 0, with_ids.output
+    save.unlink()
     command = ["replay", str(log), "--filter", plugin("NoRemoval"), "--save", str(save)]
     refused = runner.invoke(app, command)
     assert refused.exit_code == 2

@@ -104,11 +104,6 @@ def replay(
             ekf = Plugged(plugin, name, params)
         except PluginError as error:
             raise FilterLineError(0, f"event 0 (init): {error}") from error
-        if associator is not None:
-            try:
-                Associator.check_filter(plugin, associator.params)
-            except AssociationError as error:
-                raise FilterLineError(0, f"filter {name}: {error}") from error
     gate, R = params.gate, params.R
     next_check = 0  # the step from which the whole covariance is due for a check
     cadence = CorrelationCadence()
@@ -236,6 +231,11 @@ def _observe(
         return ekf.observe(event.ids, event.z), {}
     if associator is None:
         raise FilterError("a scan has no landmark ids: it needs --association nn or jcbb")
+    if isinstance(ekf, Plugged):  # at the first scan: a log with ids needs no removal
+        try:
+            Associator.check_filter(ekf.slam, associator.params)
+        except AssociationError as error:
+            raise FilterError(f"filter {ekf.name}: {error}") from error
     observations, association = associator.process(ekf, event)
     if last:  # the end of the run: nothing tentative is left in the map
         removed = associator.finish(ekf)
