@@ -237,3 +237,36 @@ def test_without_gtsam_the_filters_say_how_to_install_it() -> None:
     lines = result.stdout.strip().split("\n")
     assert len(lines) == 2
     assert all(INSTALL_HINT in line and "--filter" in line for line in lines)
+
+
+@pytest.mark.parametrize("cls", [Isam2Slam, BatchSlam])
+def test_a_start_known_exactly_is_a_tight_prior(cls: type[GtsamFilter]) -> None:
+    """--init-pose-sigma 0 0 0: GTSAM cannot whiten a zero sigma, so the prior is
+    PRIOR_SIGMA_FLOOR; the estimate stays beside the EKF's with the exact start."""
+    params = FilterParams(init_pose_sigma=(0.0, 0.0, 0.0))
+    events = list(with_ids(read_log(DATA / "classic.txt")))
+    ekf, smoother = EkfSlam(params), cls(params)
+    for event in events:
+        if isinstance(event, Control):
+            ekf.predict(event.d, event.alpha)
+        else:
+            ekf.observe(event.ids, event.z)
+    run(smoother, events)
+    if isinstance(smoother, BatchSlam):
+        smoother.finish()
+    assert np.abs(smoother.x[:2] - ekf.x[:2]).max() < 0.05
+    assert np.sqrt(smoother.P[0, 0]) == pytest.approx(np.sqrt(ekf.P[0, 0]), rel=0.1)
+
+
+def test_gtsams_long_messages_become_one_line() -> None:
+    from ekfviz.filters.gtsam import reason
+
+    message = (
+        "\nIndeterminate linear system detected while working near variable\n"
+        "8646911284551352320 (Symbol: x0).\n\nThrown when a linear system is ill-posed.\n"
+    )
+    assert reason(RuntimeError(message)) == (
+        "Indeterminate linear system detected while working near variable"
+        " 8646911284551352320 (Symbol: x0)."
+    )
+    assert reason(RuntimeError("")) == "RuntimeError"

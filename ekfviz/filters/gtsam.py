@@ -53,6 +53,16 @@ if TYPE_CHECKING:
 INSTALL_HINT = "pip install 'ekfviz[gtsam]'"
 
 
+PRIOR_SIGMA_FLOOR = 1e-6  # m and rad: the prior of a start known exactly
+
+
+def reason(error: BaseException) -> str:
+    """GTSAM's message in one line: its first sentence, up to the first blank line (its
+    messages run on for paragraphs, with links)."""
+    text = " ".join(str(error).strip().split("\n\n")[0].split())
+    return text or type(error).__name__
+
+
 class GtsamMissing(ModuleNotFoundError):
     """GTSAM is not installed; the message says how to install it."""
 
@@ -125,7 +135,10 @@ class _FactorGraph:
         start = np.array([p.init_pose[0], p.init_pose[1], wrap_angle(p.init_pose[2])])
         # the prior's world-frame covariance, in the tangent space of the start pose
         to_world = tangent_to_world(float(start[2]))
-        prior_cov = to_world.T @ np.diag(np.square(p.init_pose_sigma)) @ to_world
+        # a start known exactly (a sigma of 0) is a prior of PRIOR_SIGMA_FLOOR: GTSAM's
+        # factors whiten by an invertible covariance
+        sigmas = np.maximum(np.asarray(p.init_pose_sigma, dtype=np.float64), PRIOR_SIGMA_FLOOR)
+        prior_cov = to_world.T @ np.diag(np.square(sigmas)) @ to_world
         self.new_factors.add(
             gt.PriorFactorPose2(self.pose_key(0), self._pose(start), self._noise(prior_cov))
         )
@@ -155,7 +168,7 @@ class _FactorGraph:
         try:
             model: gtsam.noiseModel.Base = self.gtsam.noiseModel.Gaussian.Covariance(cov)
         except RuntimeError as error:
-            raise FilterError(f"a noise covariance GTSAM cannot use: {error}") from error
+            raise FilterError(f"a noise covariance GTSAM cannot use: {reason(error)}") from error
         return model
 
     # -- the graph -----------------------------------------------------------------------
@@ -276,7 +289,9 @@ class Isam2Slam:
             try:
                 joint = self._isam.jointMarginalCovariance(keys).fullMatrix()
             except RuntimeError as error:
-                raise FilterError(f"iSAM2 could not compute the marginals: {error}") from error
+                raise FilterError(
+                    f"iSAM2 could not compute the marginals: {reason(error)}"
+                ) from error
             self._P = self._graph.world_covariance(joint, float(self._x[2]))
         return self._P
 
@@ -330,7 +345,7 @@ class Isam2Slam:
                 self._isam.update(self._factors, start)
             estimate = self._isam.calculateEstimate()
         except RuntimeError as error:  # GTSAM's exceptions (an indeterminant system, ...)
-            raise FilterError(f"iSAM2 failed: {error}") from error
+            raise FilterError(f"iSAM2 failed: {reason(error)}") from error
         self._estimate = estimate
         self._x = self._graph.state(estimate)
         if not np.isfinite(self._x).all():
@@ -435,7 +450,7 @@ class BatchSlam:
             keys = gt.KeyVector(self._graph.state_keys())
             joint = marginals.jointMarginalCovariance(keys).fullMatrix()
         except RuntimeError as error:
-            raise FilterError(f"the batch optimisation failed: {error}") from error
+            raise FilterError(f"the batch optimisation failed: {reason(error)}") from error
         x = self._graph.state(result)
         if not np.isfinite(x).all():
             raise FilterError("the batch optimum is non-finite")
