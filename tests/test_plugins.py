@@ -113,6 +113,41 @@ def test_an_offline_filter_is_recorded_after_finish() -> None:
     assert offline[-1].step == online[-1].step and offline[-1].event == online[-1].event + 1
     assert offline[-1].observations is None
     np.testing.assert_allclose(offline[-1].pose, online[-1].pose, atol=1e-12)
+    assert offline[-1].path_xytheta is None  # it gives no path
+
+
+def test_an_offline_filters_path_is_drawn_whole(tmp_path: Path) -> None:
+    """poses_xytheta after finish(): the final record holds it and the map draws it as
+    the trajectory (not a straight line from the start), the true path likewise."""
+    online = list(
+        replay(read_log(CLASSIC), FilterParams(), make_filter=load_filter(plugin("Textbook")))
+    )
+    save = tmp_path / "offline.rrd"
+    done = runner.invoke(
+        app, ["replay", str(CLASSIC), "--truth", str(TRUTH), "--filter",
+              plugin("OfflineWithPath"), "--save", str(save)],
+    )  # fmt: skip
+    assert done.exit_code == 0, done.output
+    predicted = [r.pose for r in online if r.kind in (EventKind.INIT, EventKind.PREDICT)]
+    (drawn,) = [
+        np.asarray(row["LineStrips2D:strips"], dtype=np.float64)[0]
+        for row in entity_rows(save, "/world/trajectory")
+        if row.get("LineStrips2D:strips")
+    ]
+    assert drawn.shape == (len(predicted), 2)
+    np.testing.assert_allclose(drawn[:-1], np.array(predicted)[:-1, :2], atol=1e-5)
+    np.testing.assert_allclose(drawn[-1], online[-1].pose[:2], atol=1e-5)
+    true_paths = [
+        len(row["LineStrips2D:strips"][0])  # type: ignore[index]
+        for row in entity_rows(save, "/world/truth/trajectory")
+        if row.get("LineStrips2D:strips")
+    ]
+    assert true_paths[-1] == online[-1].step + 1  # every true pose up to the last step
+    bad = runner.invoke(app, ["replay", str(CLASSIC), "--filter", plugin("BadPath"), "--save",
+                              str(tmp_path / "bad.rrd")])  # fmt: skip
+    assert bad.exit_code == 2
+    (line,) = bad.output.strip().splitlines()
+    assert "poses_xytheta has shape (3, 2), expected (K, 3)" in line
 
 
 # -- check ---------------------------------------------------------------------------------

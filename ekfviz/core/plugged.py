@@ -154,6 +154,30 @@ class Plugged:
         self._call("finish", self.slam.finish)  # type: ignore[attr-defined]
         self._x, self._P, self._ids = self._state("finish")
 
+    def path(self) -> FloatArray | None:
+        """An offline filter's ``poses_xytheta`` after ``finish()``, when it has one: its
+        estimate of every pose of the run, the start's first (K, 3), checked.
+
+        :raises PluginError: a path of the wrong shape, not finite, or not ending on x
+        """
+        try:
+            path = getattr(self.slam, "poses_xytheta", None)
+        except Exception as error:  # the user's property
+            raise PluginError(
+                f"filter {self.name}: reading poses_xytheta failed: {error}"
+            ) from error
+        if path is None:
+            return None
+        path = np.array(path, dtype=np.float64)
+        where = f"filter {self.name}: after finish, poses_xytheta"
+        if path.ndim != 2 or path.shape[1] != 3 or len(path) < 1:
+            raise PluginError(f"{where} has shape {path.shape}, expected (K, 3)")
+        if not np.isfinite(path).all():
+            raise PluginError(f"{where} is not finite")
+        if np.abs(path[-1, :2] - self._x[:2]).max() > 1e-6 * max(1.0, float(np.abs(path).max())):
+            raise PluginError(f"{where} does not end on the pose of x")
+        return frozen(path)
+
     def record(
         self,
         *,

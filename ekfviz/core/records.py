@@ -228,6 +228,8 @@ class EventRecord:
     :param correlation: the correlation matrix of the whole covariance, at the events
         where the replay took it (see :mod:`ekfviz.core.correlation`)
     :param association: what the association decided, at the update of a scan
+    :param path_xytheta: (K, 3) an offline filter's estimate of every pose of the run,
+        the start's first, at its record after ``finish()`` (a smoother's whole path)
     """
 
     event: int
@@ -247,6 +249,7 @@ class EventRecord:
     covariance: CovarianceCheck | None = None
     correlation: Correlation | None = None
     association: ScanAssociation | None = None
+    path_xytheta: FloatArray | None = None
 
     @property
     def n_landmarks(self) -> int:

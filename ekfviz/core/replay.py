@@ -215,10 +215,14 @@ def replay(
             ekf.finish()
         except PluginError as error:
             raise FilterLineError(0, f"after the last event: {error}") from error
-        # the estimate of the whole run, at its last step (where the truth's last pose is)
-        yield correlated(
-            ekf.record(event=event + 1, step=step, kind=EventKind.UPDATE, **checked(0, ())), True
-        )
+        # the estimate of the whole run, at its last step (where the truth's last pose is),
+        # with the path of every step where the filter gives it (a smoother's)
+        try:
+            path = ekf.path()
+        except PluginError as error:
+            raise FilterLineError(0, f"after the last event: {error}") from error
+        final = ekf.record(event=event + 1, step=step, kind=EventKind.UPDATE, **checked(0, ()))
+        yield correlated(replace(final, path_xytheta=path), True)
 
 
 def _observe(

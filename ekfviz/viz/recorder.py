@@ -570,6 +570,7 @@ class Recorder:
         # id-less scans: a new landmark's first-sighting outline (mean, covariance), held
         # until the association confirms it (drawn then) or removes it (dropped)
         self._first_sightings: dict[int, tuple[FloatArray, FloatArray]] = {}
+        self._last_true_step = 0  # the step of the last true pose logged
         self._history = history
         self._correlation = CorrelationCadence()  # of the array API (a replay's records own)
         self._last_correlation: Correlation | None = None  # the last one logged
@@ -895,7 +896,8 @@ class Recorder:
         self._send(style.ROBOT, rows.all, [_positions(poses), *_robot_frame(poses)])
         if self._truth is not None and self._truth.has_poses:
             self._send_true_path(rows, records, corrected, self._truth)
-        self._send_trajectory(rows, poses[:, :2], corrected)
+        paths = {k: r.path_xytheta for k, r in enumerate(records) if r.path_xytheta is not None}
+        self._send_trajectory(rows, poses[:, :2], corrected, paths)
         for path, history, picked in (
             (style.POSE_PREDICTED, style.POSE_PREDICTED_HISTORY, np.flatnonzero(is_predict)),
             (style.POSE_UPDATED, style.POSE_UPDATED_HISTORY, corrected),
@@ -1057,12 +1059,37 @@ class Recorder:
         starts = np.vstack([poses[:1, :2] if self._last_true_xy is None else self._last_true_xy,
                             poses[:-1, :2]])  # fmt: skip
         segments = np.stack([starts, poses[:, :2]], axis=1)
-        self._send_strips(style.TRUTH_TRAJECTORY, rows, at, segments)
+        # an offline filter's final record spans the run: the true path of every step
+        # between, beside its whole estimated path (see _send_trajectory)
+        spans = {
+            i: k
+            for i, k in enumerate(at.tolist())
+            if records[k].path_xytheta is not None and truth.poses_xytheta is not None
+        }
+        plain = np.array([i not in spans for i in range(len(at))], dtype=bool)
+        self._send_strips(style.TRUTH_TRAJECTORY, rows, at[plain], segments[plain])
+        for i, k in spans.items():
+            first = records[known[i - 1][0]].step if i else self._last_true_step
+            between = truth.poses_xytheta[first : records[k].step + 1, :2]  # type: ignore[index]
+            self._send_strips(
+                style.TRUTH_TRAJECTORY, rows, np.array([k], dtype=np.int64), between[None]
+            )
         self._last_true_xy = poses[-1:, :2].copy()
+        self._last_true_step = records[at[-1]].step
 
-    def _send_trajectory(self, rows: _Rows, ends_xy: FloatArray, corrected: IntArray) -> None:
+    def _send_trajectory(
+        self,
+        rows: _Rows,
+        ends_xy: FloatArray,
+        corrected: IntArray,
+        paths: dict[int, FloatArray] | None = None,
+    ) -> None:
         """The path since the last row, through the predicted positions, at every update
-        and at the last event of a send: a row per step rather than per event."""
+        and at the last event of a send: a row per step rather than per event.
+
+        :param paths: rows whose record holds an offline filter's whole path (a
+            smoother's, after ``finish()``): drawn there instead of a straight segment
+        """
         count = len(rows)
         at = (
             corrected
@@ -1074,6 +1101,8 @@ class Recorder:
         ends = at + shift
         starts = np.concatenate([[0], ends[:-1]])
         drawn = ends > starts  # the very first event alone is no line yet
+        if paths:
+            drawn &= ~np.isin(at, list(paths))
         at, starts, ends = at[drawn], starts[drawn], ends[drawn]
         if at.size:
             lengths = ends - starts + 1
@@ -1087,6 +1116,10 @@ class Recorder:
                 rows.pick(at),
                 [_column(rr.LineStrips2D.descriptor_strips(), strips)],
             )
+        for k, path in sorted((paths or {}).items()):
+            at_k = np.array([k], dtype=np.int64)
+            self._send_strips(style.TRAJECTORY, rows, at_k, path[None, :, :2])
+            self._grow_bounds(path[:, :2])
         self._last_xy = ends_xy[-1].copy()
         self._grow_bounds(ends_xy)
 

@@ -237,6 +237,33 @@ class Offline(Textbook):
         self.finished = True
 
 
+class OfflineWithPath(Offline):
+    """An offline filter that gives its whole path after finish(): here the pose it held
+    after each predict (the start's first, the last one x's)."""
+
+    def __init__(self, params: Any) -> None:
+        super().__init__(params)
+        self.path: list[Array] = [self.x[:3].copy()]
+
+    def predict(self, d: float, alpha: float) -> None:
+        super().predict(d, alpha)
+        self.path.append(self.x[:3].copy())
+
+    @property
+    def poses_xytheta(self) -> Array | None:
+        if not self.finished:
+            return None
+        path = np.array(self.path)
+        path[-1] = self.x[:3]
+        return path
+
+
+class BadPath(OfflineWithPath):
+    @property
+    def poses_xytheta(self) -> Array | None:
+        return np.zeros((3, 2))
+
+
 class BadConstructor:
     def __init__(self, params: Any) -> None:
         raise RuntimeError("cannot start")
