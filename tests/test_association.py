@@ -22,7 +22,7 @@ from ekfviz.io.errors import InputError
 from ekfviz.io.victoria import read_victoria
 from ekfviz.models.ackermann import Ackermann
 from ekfviz.models.range_bearing import RangeBearing
-from ekfviz.sim.scenarios import loop
+from ekfviz.sim.scenarios import Scenario, loop
 from ekfviz.sim.simulate import Detection
 
 runner = CliRunner()
@@ -121,6 +121,16 @@ def test_remove_landmarks_keeps_the_rest_and_p_symmetric_psd() -> None:
     assert np.linalg.eigvalsh(ekf.P).min() > -1e-12
 
 
+def matched(world: Scenario) -> FilterParams:
+    """The filter told the world's true noise and prior."""
+    noise = world.noise
+    return FilterParams(
+        sigma_x=noise.sigma_x, sigma_y=noise.sigma_y, sigma_alpha=noise.sigma_alpha,
+        sigma_bearing=noise.sigma_bearing, sigma_range=noise.sigma_range,
+        init_pose_sigma=world.init_pose_sigma,
+    )  # fmt: skip
+
+
 def _loop_events(detection: Detection):  # type: ignore[no-untyped-def]
     world = loop(steps=200, landmarks=60, seed=4)
     return world, world.run(seed=4, detection=detection)
@@ -129,12 +139,7 @@ def _loop_events(detection: Detection):  # type: ignore[no-untyped-def]
 def test_association_without_clutter_equals_known() -> None:
     world, known = _loop_events(Detection())
     _, unknown = _loop_events(Detection(unknown_ids=True))
-    noise = world.noise
-    params = FilterParams(
-        sigma_x=noise.sigma_x, sigma_y=noise.sigma_y, sigma_alpha=noise.sigma_alpha,
-        sigma_bearing=noise.sigma_bearing, sigma_range=noise.sigma_range,
-        init_pose_sigma=world.init_pose_sigma,
-    )  # fmt: skip
+    params = matched(world)
     associator = Associator(
         # every landmark paired on its own too, however wide its gate (as known ids are)
         AssociationParams(gate_probability=0.999999, confirm=1, single_gate_area=math.inf),
@@ -276,12 +281,7 @@ def test_monte_carlo_trials_pair_scans_like_known_ids_without_clutter() -> None:
     from ekfviz.sim.montecarlo import Trials, run_trial
 
     world = loop(steps=200, landmarks=60, seed=4)
-    noise = world.noise
-    params = FilterParams(
-        sigma_x=noise.sigma_x, sigma_y=noise.sigma_y, sigma_alpha=noise.sigma_alpha,
-        sigma_bearing=noise.sigma_bearing, sigma_range=noise.sigma_range,
-        init_pose_sigma=world.init_pose_sigma,
-    )  # fmt: skip
+    noise, params = world.noise, matched(world)
     known = Trials(world, noise, world.init_pose_sigma, params)
     pairing = AssociationParams(gate_probability=0.999999, confirm=1, single_gate_area=math.inf)
     unknown = Trials(

@@ -246,11 +246,7 @@ def test_a_start_known_exactly_is_a_tight_prior(cls: type[GtsamFilter]) -> None:
     params = FilterParams(init_pose_sigma=(0.0, 0.0, 0.0))
     events = list(with_ids(read_log(DATA / "classic.txt")))
     ekf, smoother = EkfSlam(params), cls(params)
-    for event in events:
-        if isinstance(event, Control):
-            ekf.predict(event.d, event.alpha)
-        else:
-            ekf.observe(event.ids, event.z)
+    run(ekf, events)
     run(smoother, events)
     if isinstance(smoother, BatchSlam):
         smoother.finish()
