@@ -39,7 +39,8 @@ def make_park(folder: Path, seed: int = 0, seconds: float = 90.0) -> dict[str, n
     diameters = rng.uniform(0.2, 0.6, len(trees))
     steering = math.atan(car.wheelbase / 30.0)  # a circle of 30 m through the origin
     pose = np.zeros(3)
-    inputs, scans, gps, laser_path, axle_path = [], [], [], [], []
+    inputs, scans, laser_path, axle_path = [], [], [], []
+    gps: list[tuple[float, float, float]] = []
     rotation = np.array([[math.cos(0.7), -math.sin(0.7)], [math.sin(0.7), math.cos(0.7)]])
     dt = 0.025
     for k in range(1, int(seconds / dt) + 1):
@@ -60,7 +61,10 @@ def make_park(folder: Path, seed: int = 0, seconds: float = 90.0) -> dict[str, n
                 b = bearings[i] + rng.normal(0, 0.004) + math.pi / 2  # the laser's 0..pi
                 scans.append((t, r, b, diameters[i]))
         if k % 40 == 0:  # GPS at 1 Hz, in a frame of its own
-            gps.append((t, *(rotation @ laser + (500.0, -200.0) + rng.normal(0, 0.05, 2))))
+            fix = rotation @ laser + (500.0, -200.0) + rng.normal(0, 0.05, 2)
+            if len(gps) == 45:  # once, a fix far off for a moment (as in the real run)
+                fix += (100.0, 100.0)
+            gps.append((t, float(fix[0]), float(fix[1])))
     (folder / "inputs.dat").write_text("".join(f"{t:.3f} {v:.5f} {s:.6f}\n" for t, v, s in inputs))
     (folder / "measurements.dat").write_text(
         "".join(f"{t:.3f} {r:.4f} {b:.6f} {d:.3f}\n" for t, r, b, d in scans)
@@ -106,7 +110,14 @@ def test_the_recorded_path_is_the_lasers_and_fits_gps(
     assert np.mean(laser_error) < 0.5
     assert np.mean(axle_error) > 3.0
     gps = json.loads((out / "run.json").read_text())["gps"]
-    assert gps["rmse_m"] < 0.5 and gps["points"] == 90
+    assert gps["points"] == 90 and gps["jumps"] == 1
+    assert gps["rmse_without_jumps_m"] < 0.5 < 10.0 < gps["rmse_m"]  # the jump counts in it
+    # the track is drawn without its jump, which is a point of its own
+    (track,) = [r for r in entity_rows(out / "run.rrd", "/world/reference/gps", static=True)
+                if "LineStrips2D:strips" in r]  # fmt: skip
+    assert len(track["LineStrips2D:strips"][0]) == 89  # type: ignore[index]
+    (jump,) = entity_rows(out / "run.rrd", "/world/reference/gps_jumps", static=True)
+    assert len(jump["Points2D:positions"]) == 1  # type: ignore[arg-type]
 
 
 def test_every_tree_seen_is_mapped_once_near_where_it_stands(
@@ -124,3 +135,20 @@ def test_every_tree_seen_is_mapped_once_near_where_it_stands(
     assert report["association"]["removed"] >= 0 and report["association"]["landmarks"] == len(
         estimates
     )
+
+
+def test_the_rigid_fit_recovers_a_known_transform_and_finds_jumps() -> None:
+    from ekfviz.core.reference import fit_reference, jumps
+
+    t = np.linspace(0.0, 60.0, 61)
+    estimate = np.column_stack([10 * np.cos(t / 10), 5 * np.sin(t / 7)])
+    angle = 1.1
+    rotation = np.array([[math.cos(angle), -math.sin(angle)], [math.sin(angle), math.cos(angle)]])
+    gps = estimate @ rotation.T + (300.0, -50.0)  # the same path in a frame of its own
+    fit = fit_reference(t, estimate, t[::3], gps[::3])
+    assert fit.errors.max() < 1e-9 and not fit.jumps.any()
+    gps[30] += (60.0, 0.0)
+    found = jumps(t, gps)
+    assert found.tolist() == [k == 30 for k in range(61)]
+    fit = fit_reference(t, estimate, t, gps)
+    assert fit.jumps.sum() == 1 and fit.rmse > 5.0 > 1.0 > fit.rmse_without_jumps

@@ -20,7 +20,7 @@ from ekfviz.cli.sources import OpenedLog
 from ekfviz.core.filter import EkfSlam, FilterParams
 from ekfviz.core.model_filter import ModelEkfSlam
 from ekfviz.core.records import AnyEvent, EventRecord
-from ekfviz.core.reference import ReferenceFit, fit_reference
+from ekfviz.core.reference import JUMP_M, ReferenceFit, fit_reference
 from ekfviz.core.truth import GroundTruth
 from ekfviz.io.detect import LogKind
 from ekfviz.io.errors import InputError
@@ -187,6 +187,8 @@ class ReplaySetup:
                     "rmse_m": fit.rmse,
                     "max_error_m": float(fit.errors.max()),
                     "points": len(fit.times),
+                    "jumps": int(fit.jumps.sum()),
+                    "rmse_without_jumps_m": fit.rmse_without_jumps,
                 }
         return extra
 
@@ -212,9 +214,18 @@ class ReplaySetup:
             out.print(f"Association: {text}", soft_wrap=True)
         gps = extra.get("gps")
         if isinstance(gps, dict):
+            count = gps.get("jumps", 0)
+            without = (
+                f" ({gps['rmse_without_jumps_m']:.2f} m without the {count} fix"
+                f"{'es' if count != 1 else ''} over {JUMP_M:g} m off"
+                f" {'their' if count != 1 else 'its'} neighbours' line)"
+                if count
+                else ""
+            )
             out.print(
-                f"GPS reference (fitted rigidly): RMSE {gps['rmse_m']:.2f} m,"
-                f" largest error {gps['max_error_m']:.2f} m over {gps['points']} fixes"
+                f"GPS reference (fitted rigidly): RMSE {gps['rmse_m']:.2f} m{without},"
+                f" largest error {gps['max_error_m']:.2f} m over {gps['points']} fixes",
+                soft_wrap=True,
             )
 
 

@@ -38,6 +38,7 @@ TENTATIVE = "world/landmarks/tentative"
 SIZES = "world/landmarks/sizes"
 SERIES = "metrics/association"
 REFERENCE = "world/reference/gps"
+REFERENCE_JUMPS = "world/reference/gps_jumps"  # fixes far off their neighbours' line
 REFERENCE_ERROR = "metrics/reference/gps_error"
 REFERENCE_RMSE = "metrics/reference/gps_rmse"
 
@@ -222,13 +223,24 @@ def log_reference(
 
     :param steps: (K,) the step at each reference time (for the step timeline)
     """
+    # the track without its jumps (a fix far off for a moment), which are points apart
+    kept = fit.reference_xy[~fit.jumps]
     rec.log(
         path(REFERENCE),
-        rr.LineStrips2D(
-            [fit.reference_xy], colors=[REFERENCE_COLOR], radii=rr.Radius.ui_points(1.0)
-        ),
+        rr.LineStrips2D([kept], colors=[REFERENCE_COLOR], radii=rr.Radius.ui_points(1.0)),
         static=True,
     )
+    if fit.jumps.any():
+        rec.log(
+            path(REFERENCE_JUMPS),
+            rr.Points2D(
+                fit.reference_xy[fit.jumps],
+                colors=[REFERENCE_COLOR],
+                radii=rr.Radius.ui_points(4.0),
+                labels=[f"GPS jump t={t:.2f} s" for t in fit.times[fit.jumps]],
+            ),
+            static=True,
+        )
     rec.send_columns(
         path(REFERENCE_ERROR),
         indexes=[
