@@ -457,10 +457,8 @@ def _log_noise(
         used.append("--init-pose-sigma " + " ".join(f"{v:g}" for v in prior))
     if used:
         out.print(f"{log}: the noise its header states: {' '.join(used)}", soft_wrap=True)
-    s = values
-    return (
-        s["sigma_x"], s["sigma_y"], s["sigma_alpha"], s["sigma_bearing"], s["sigma_range"]
-    ), init_pose_sigma  # fmt: skip
+    sigma_x, sigma_y, sigma_alpha, sigma_bearing, sigma_range = (values[n] for n in NOISE_NAMES)
+    return (sigma_x, sigma_y, sigma_alpha, sigma_bearing, sigma_range), init_pose_sigma
 
 
 def scenario_world(

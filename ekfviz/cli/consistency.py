@@ -14,7 +14,7 @@ from rich.progress import Progress
 from rich.table import Table
 
 from ekfviz import __version__
-from ekfviz.association import AssociationParams, Method
+from ekfviz.association import Method
 from ekfviz.cli.common import (
     DEFAULT,
     FILTER_OPTIONS,
@@ -63,6 +63,7 @@ from ekfviz.cli.scans import (
     Confirm,
     ConfirmWindow,
     GateProbability,
+    association_params,
 )
 from ekfviz.core.consistency import Verdict
 from ekfviz.core.filter import FilterError
@@ -146,10 +147,7 @@ def consistency(
         fail("--association known: the runs have id-less scans (--unknown-ids); use nn or jcbb")
     pairing = None
     if unknown_ids:
-        pairing = AssociationParams(
-            method=Method.JCBB if association is None else association,
-            gate_probability=gate_probability, confirm=confirm, confirm_window=confirm_window,
-        )  # fmt: skip
+        pairing = association_params(association, gate_probability, confirm, confirm_window)
     elif association not in (None, Method.KNOWN):
         fail(f"--association {association.value}: the runs have landmark ids; add --unknown-ids")
     trials = Trials(

@@ -65,6 +65,14 @@ ConfirmWindow = Annotated[
 ]
 
 
+def association_params(
+    association: Method | None, gate_probability: float, confirm: int, confirm_window: int
+) -> AssociationParams | None:
+    """The association the options ask for: none for ``known``, else the method (jcbb
+    by default) with its gate and confirmation."""
+    return association_params(association, gate_probability, confirm, confirm_window)
+
+
 def study_association(
     data: Path,
     association: Method | None,
@@ -301,13 +309,8 @@ def replay_setup(
                 )
         slam = EkfSlam(params)
     associator: Associator | None = None
-    if association is not Method.KNOWN:
-        assoc = AssociationParams(
-            method=Method.JCBB if association is None else association,
-            gate_probability=gate_probability,
-            confirm=confirm,
-            confirm_window=confirm_window,
-        )
+    assoc = association_params(association, gate_probability, confirm, confirm_window)
+    if assoc is not None:
         Associator.check_filter(slam, assoc)
         associator = Associator(
             assoc, sensor, params.R, scan_truth=None if truth is None else truth.scan_ids
