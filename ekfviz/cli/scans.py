@@ -70,7 +70,14 @@ def association_params(
 ) -> AssociationParams | None:
     """The association the options ask for: none for ``known``, else the method (jcbb
     by default) with its gate and confirmation."""
-    return association_params(association, gate_probability, confirm, confirm_window)
+    if association is Method.KNOWN:
+        return None
+    return AssociationParams(
+        method=Method.JCBB if association is None else association,
+        gate_probability=gate_probability,
+        confirm=confirm,
+        confirm_window=confirm_window,
+    )
 
 
 def study_association(
@@ -95,14 +102,7 @@ def study_association(
             data, 0, "the Victoria Park run is replayed on its own (ekfviz replay DIR), not in"
             " a sweep or comparison",
         )  # fmt: skip
-    if association is Method.KNOWN:
-        return None
-    return AssociationParams(
-        method=Method.JCBB if association is None else association,
-        gate_probability=gate_probability,
-        confirm=confirm,
-        confirm_window=confirm_window,
-    )
+    return association_params(association, gate_probability, confirm, confirm_window)
 
 
 @dataclass(frozen=True, slots=True)
