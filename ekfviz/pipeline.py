@@ -36,6 +36,7 @@ from ekfviz.studies.runs import Run, RunSpec, Summary, run_specs, summarise
 if TYPE_CHECKING:
     from ekfviz.association.associator import Associator
     from ekfviz.core.check import CheckResult
+    from ekfviz.core.coverage import Item as CoverageItem
     from ekfviz.core.filter import EkfSlam
     from ekfviz.viz.run import RunLogger
 
@@ -218,35 +219,43 @@ def study(
 def check(
     data: Path,
     truth_path: Path | None,
-    filter_spec: str,
+    spec: FilterSpec,
     params: FilterParams,
     *,
     tolerance: float,
     save: Path | None,
-) -> CheckResult:
+    every: bool = False,
+) -> tuple[CheckResult, list[CoverageItem]]:
     """Check a protocol filter against the reference in lockstep over ``data``; with
-    ``save``, one recording of both side by side, the first divergence marked.
+    ``save``, one recording of both side by side, the divergences marked. Also what the
+    log exercised (:func:`ekfviz.core.coverage.coverage`).
 
+    :param every: look for the cause of every divergent event (``check --all``)
     :raises InputError, FilterLineError, FilterSpecError, SinkError: one line each
     """
     from ekfviz.core.check import lockstep
+    from ekfviz.core.coverage import coverage
 
-    spec = FilterSpec(filter_spec)
     make_filter = spec.load()
     truth = read_truth(truth_path) if truth_path is not None else None
     try:
+        events = list(with_ids(log_events(data, truth, truth_path)))
         result = lockstep(
-            with_ids(log_events(data, truth, truth_path)), params, make_filter, name=spec.text,
-            tolerance=tolerance,
-        )  # fmt: skip
+            events, params, make_filter, name=spec.text, tolerance=tolerance, every=every
+        )
     except NeedsIds as error:
         raise InputError(
             data, error.line, f"found {error.what}: check compares updates by landmark id"
             " (replay a log of scans with --filter and --association instead)",
         ) from None  # fmt: skip
+    finally:
+        close = getattr(make_filter, "close", None)
+        if callable(close):
+            close()
+    exercised = coverage(events, result.reference, params)
     if save is not None:
         _record_check(data, truth, truth_path, spec, params, result, save)
-    return result
+    return result, exercised
 
 
 def _record_check(

@@ -13,6 +13,9 @@ from pathlib import Path
 # file stem -> the arguments of `ekfviz simulate` that write <stem>.txt and <stem>_truth.json
 SAMPLES: dict[str, list[str]] = {
     "classic": ["--scenario", "classic", "--seed", "2", "--precision", "4"],
+    # the classic format's corner cases (bearings across +-pi, a start heading nearly pi,
+    # a turn of over pi) for `ekfviz check`'s battery; replay with --init-pose 4 -2 3.136593
+    "edge": ["--scenario", "edge", "--seed", "2", "--precision", "6"],
     # the loop scenario as `ekfviz simulate --scenario loop` gives it by default (seed 0)
     "loop": ["--scenario", "loop", "--precision", "4"],
     # id-less scans with clutter and misses, for --association (see README)

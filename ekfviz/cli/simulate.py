@@ -139,7 +139,7 @@ def simulate(
         noise, seed=seed, init_pose_sigma=init_pose_sigma, detection=detection, laps=laps
     )
     if log_format is None:
-        classic = scenario is ScenarioName.CLASSIC and not unknown_ids
+        classic = scenario in (ScenarioName.CLASSIC, ScenarioName.EDGE) and not unknown_ids
         log_format = LogFormat.CLASSIC if classic else LogFormat.EXTENDED
     try:
         text = (
@@ -165,6 +165,8 @@ def simulate(
         },
         "steps": len(world.controls) * laps,
     }
+    if any(world.start_xytheta):
+        extra["init_pose"] = list(world.start_xytheta)
     if laps > 1:
         extra["laps"] = laps
     if unknown_ids or detection_probability < 1.0:
