@@ -49,6 +49,35 @@ def simulate_arguments(folder: Path, stem: str) -> list[str]:
     ]
 
 
+BATTERY = ("classic", "edge")
+
+
+def write_battery(folder: Path) -> list[tuple[Path, Path, tuple[float, float, float] | None]]:
+    """``ekfviz check``'s battery written into ``folder``, as ``make sample`` writes those
+    files: (log, truth, the filter's initial pose where it is not the origin) per log."""
+    import contextlib
+    import io
+
+    from ekfviz.cli import app
+    from ekfviz.cli.common import OUT_STREAM
+    from ekfviz.sim.scenarios import EDGE_START
+
+    logs: list[tuple[Path, Path, tuple[float, float, float] | None]] = []
+    to_stderr = OUT_STREAM.to_stderr
+    OUT_STREAM.to_stderr = True  # the simulator's own lines are nobody's output here
+    try:
+        for stem in BATTERY:
+            with contextlib.redirect_stderr(io.StringIO()), contextlib.redirect_stdout(
+                io.StringIO()
+            ):
+                app(simulate_arguments(folder, stem), standalone_mode=False)
+            start = EDGE_START if stem == "edge" else None
+            logs.append((folder / f"{stem}.txt", folder / f"{stem}_truth.json", start))
+    finally:
+        OUT_STREAM.to_stderr = to_stderr
+    return logs
+
+
 def main(argv: list[str]) -> None:
     from ekfviz.cli import app
 

@@ -41,6 +41,7 @@ from ekfviz.core.filter import FilterError
 from ekfviz.core.replay import FilterLineError
 from ekfviz.filters import FilterSpec, FilterSpecError
 from ekfviz.io.errors import InputError
+from ekfviz.samples import write_battery
 
 if TYPE_CHECKING:
     from ekfviz.core.check import CheckResult
@@ -122,7 +123,7 @@ def check(
     )
     sigmas = (sigma_x, sigma_y, sigma_alpha, sigma_bearing, sigma_range)
     with tempfile.TemporaryDirectory(prefix="ekfviz-battery-") as folder:
-        logs = [(data, truth, init_pose)] if data is not None else _battery(Path(folder))
+        logs = [(data, truth, init_pose)] if data is not None else write_battery(Path(folder))
         if data is None and truth is not None:
             fail("--truth needs a log (DATA); the battery brings its own truth")
         results: list[dict[str, Any]] = []
@@ -153,36 +154,6 @@ def check(
         raise typer.Exit(2)
     if diverged:
         raise typer.Exit(1)
-
-
-def _battery(folder: Path) -> list[tuple[Path, Path, tuple[float, float, float] | None]]:
-    """The bundled battery written into ``folder``: the classic sample and the edge log
-    (made as ``make sample`` makes them), with their truth and the edge log's start."""
-    from ekfviz.cli import app as cli_app
-    from ekfviz.cli.common import OUT_STREAM
-    from ekfviz.samples import simulate_arguments
-    from ekfviz.sim.scenarios import EDGE_START
-
-    logs = []
-    to_stderr = OUT_STREAM.to_stderr
-    OUT_STREAM.to_stderr = True  # the simulator's own lines are not check's output
-    try:
-        for stem in ("classic", "edge"):
-            _quiet(lambda stem=stem: cli_app(simulate_arguments(folder, stem),
-                                             standalone_mode=False))  # fmt: skip
-            start = EDGE_START if stem == "edge" else None
-            logs.append((folder / f"{stem}.txt", folder / f"{stem}_truth.json", start))
-    finally:
-        OUT_STREAM.to_stderr = to_stderr
-    return logs
-
-
-def _quiet(action: Any) -> None:
-    import contextlib
-    import io
-
-    with contextlib.redirect_stderr(io.StringIO()):
-        action()
 
 
 def _per_log(save: Path, log: Path) -> Path:

@@ -75,8 +75,10 @@ class WorkerOptions:
     :param memory_mb: the worker's address-space limit (None: none)
     :param clean_env: start it without the caller's environment variables
     :param cwd: its working directory (None: the caller's)
-    :param echo: what it prints goes to ekfviz's stderr as it comes, prefixed by
-        ``prefix`` (else it is only kept, see :attr:`WorkerProcess.output`)
+    :param echo: what it prints goes to ekfviz's stderr as it comes, prefixed by the
+        filter's name (else it is only kept, see :attr:`WorkerProcess.output`)
+    :param deadline: a time (``time.time()``) by which every call must be done, the
+        bound of a whole submission in ``grade`` (None: none)
     """
 
     python: str | None = None
@@ -85,6 +87,7 @@ class WorkerOptions:
     clean_env: bool = False
     cwd: str | None = None
     echo: bool = True
+    deadline: float | None = None
 
 
 @dataclass
@@ -194,6 +197,9 @@ class WorkerProcess:
         :raises WorkerFault: the filter failed, timed out or its process died
         """
         timeout = self.options.timeout_s if timeout_s is None else timeout_s
+        if self.options.deadline is not None:
+            left = max(0.0, self.options.deadline - time.time())
+            timeout = left if timeout is None else min(timeout, left)
         if self.process.poll() is not None:
             raise self._died(what)
         contiguous = [np.ascontiguousarray(a) for a in arrays]
@@ -241,7 +247,9 @@ class WorkerProcess:
                     self.kill()
                     raise WorkerFault(
                         f"{what} did not return within {self.options.timeout_s:g} s"
-                        " (--filter-timeout); the filter was stopped",
+                        " (--filter-timeout); the filter was stopped"
+                        if self.options.deadline is None
+                        else f"{what} was still running when its time ran out (--timeout)",
                         "timeout",
                     )
             try:
@@ -263,10 +271,7 @@ class WorkerProcess:
         last = self.output.lines[-1] if self.output.lines else ""
         if code < 0:
             name = _signal_name(-code)
-            why = f"was killed by {name}"
-            if -code == signal.SIGKILL and self.options.memory_mb:
-                why += f" (perhaps its memory limit, {self.options.memory_mb} MB)"
-            kind = "crashed"
+            why, kind = f"was killed by {name}", "crashed"
         else:
             why, kind = f"exited with code {code}", "exit" if code == 0 else "crashed"
         said = f"; its last output: {last.strip()}" if last.strip() else ""
