@@ -67,8 +67,9 @@ def write_battery(folder: Path) -> list[tuple[Path, Path, tuple[float, float, fl
     OUT_STREAM.to_stderr = True  # the simulator's own lines are nobody's output here
     try:
         for stem in BATTERY:
-            with contextlib.redirect_stderr(io.StringIO()), contextlib.redirect_stdout(
-                io.StringIO()
+            with (
+                contextlib.redirect_stderr(io.StringIO()),
+                contextlib.redirect_stdout(io.StringIO()),
             ):
                 app(simulate_arguments(folder, stem), standalone_mode=False)
             start = EDGE_START if stem == "edge" else None
