@@ -255,7 +255,14 @@ def lockstep(
     :raises FilterLineError: the checked filter cannot even be constructed
     """
     try:
-        slam = Plugged(make_filter(params), name, params)
+        made = make_filter(params)
+    except PluginError as refused:  # a filter in a worker says what went wrong itself
+        raise FilterLineError(0, f"filter {name}: {refused}") from refused
+    except Exception as raised:  # the user's constructor
+        message = f"filter {name}: construction raised {type(raised).__name__}: {raised}"
+        raise FilterLineError(0, message) from raised
+    try:
+        slam = Plugged(made, name, params)
     except PluginError as refused:
         raise FilterLineError(0, f"event 0 (init): {refused}") from refused
     except Exception as raised:  # the user's constructor

@@ -97,6 +97,8 @@ def replay(
     else:
         try:
             plugin = make_filter(params)
+        except PluginError as error:  # a filter in a worker says what went wrong itself
+            raise FilterLineError(0, f"filter {name}: {error}") from error
         except Exception as error:  # the user's constructor: any exception is its fault
             message = f"filter {name}: construction raised {type(error).__name__}: {error}"
             raise FilterLineError(0, message) from error
@@ -237,7 +239,7 @@ def _observe(
         raise FilterError("a scan has no landmark ids: it needs --association nn or jcbb")
     if isinstance(ekf, Plugged):  # at the first scan: a log with ids needs no removal
         try:
-            Associator.check_filter(ekf.slam, associator.params)
+            Associator.check_filter(ekf, associator.params)
         except AssociationError as error:
             raise FilterError(f"filter {ekf.name}: {error}") from error
     observations, association = associator.process(ekf, event)

@@ -20,8 +20,11 @@ backend until it is asked for.
 
 from __future__ import annotations
 
+import hashlib
 import importlib
+import importlib.util
 import re
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -176,6 +179,45 @@ def _import(module: str) -> object:
         raise FilterSpecError(
             f"--filter: importing {module} raised {type(error).__name__}: {error}"
         ) from error
+
+
+def load_in_process(text: str) -> FilterFactory:
+    """The class that ``PATH.py:Class`` or ``module:Class`` names, imported into this
+    process: for trusted code (tests, a library user's own class); ``--filter`` never
+    does this with a user's code.
+
+    :raises FilterSpecError: one line naming what is wrong
+    """
+    if text in REGISTRY:
+        return load_filter(text)
+    target = target_of(text)
+    if target.name is None:
+        raise FilterSpecError(f"--filter {text}: expected PATH.py:ClassName")
+    module = _import_file(Path(target.path), text) if target.path else _import(str(target.module))
+    return _class_in(module, target.name, text)
+
+
+def _import_file(path: Path, text: str) -> object:
+    """Import a Python file as a module of its own (named after its path's hash)."""
+    if not path.is_file():
+        raise FilterSpecError(f"--filter {text}: {path}: no such file")
+    resolved = path.resolve()
+    module_name = "ekfviz_plugin_" + hashlib.sha256(str(resolved).encode()).hexdigest()[:16]
+    if module_name in sys.modules:
+        return sys.modules[module_name]
+    spec = importlib.util.spec_from_file_location(module_name, resolved)
+    if spec is None or spec.loader is None:
+        raise FilterSpecError(f"--filter {text}: {path}: not a Python file")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[module_name] = module  # before running it: dataclasses and pickling need it
+    try:
+        spec.loader.exec_module(module)
+    except Exception as error:  # the user's file: any exception is its fault
+        del sys.modules[module_name]
+        raise FilterSpecError(
+            f"--filter {text}: importing {path} raised {type(error).__name__}: {error}"
+        ) from error
+    return module
 
 
 def _class_in(module: object, target: str, text: str) -> FilterFactory:

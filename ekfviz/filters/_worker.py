@@ -658,7 +658,7 @@ class Worker:
         params = Params(header["params"])
         if self.target:
             cls = getattr(self.module, self.target)
-            self.call("the constructor", lambda: setattr(self, "filter", cls(params)))
+            self.call("construction", lambda: setattr(self, "filter", cls(params)))
         else:
             self.filter = CourseModule(self.module, params)
         return self.state(noise=True)

@@ -22,7 +22,7 @@ from ekfviz.association.evaluation import AssociationTally
 from ekfviz.core.consistency import Consistency, reading
 from ekfviz.core.evaluation import Evaluation, evaluate
 from ekfviz.core.filter import FilterParams
-from ekfviz.core.plugged import FilterFactory
+from ekfviz.core.plugged import FilterFactory, PluginError
 from ekfviz.core.protocol import SlamFilter
 from ekfviz.core.records import EventRecord
 from ekfviz.core.replay import FilterLineError, replay
@@ -134,8 +134,8 @@ def run_spec(
             if tally is not None and record.association is not None:
                 tally.add(record)
     except FilterLineError as error:
-        if not keep_going:
-            raise
+        if not keep_going or not isinstance(error.__cause__, PluginError):
+            raise  # not the filter's own failure: the input's, for every filter alike
         failure = f"{path}:{error.line}: {error}" if error.line else f"{path}: {error}"
         if not records:
             return RunFailure(spec, failure)
