@@ -275,7 +275,7 @@ def check(
         if callable(close):
             close()
     exercised = coverage(events, result.reference, params)
-    if save is not None:
+    if save is not None and result.records:
         _record_check(data, truth, truth_path, spec, params, result, save)
     return result, exercised
 

@@ -167,6 +167,9 @@ def grade_one(task: GradeTask) -> GradeRow:
             except (InputError, FilterError) as error:
                 status, detail = _failure(error)
                 break
+            except Exception as error:  # a submission's row, whatever broke: never the class's
+                status, detail = "error", _one_line(f"{type(error).__name__}: {error}")
+                break
             for cause in result.causes:
                 causes.setdefault(cause, None)
             if result.first_divergence is not None and not first:
