@@ -194,6 +194,15 @@ def _print(
     name = log.stem if battery else str(log)
     if battery:
         out.print(Text.assemble(("log ", "bold"), (name, "bold"), f" ({log.name})"))
+    if result.convention:
+        shapes = {"X": "X (3+2k, 1)", "control": "control (2, 1)", "measure": "measure (2k, 1)"}
+        flat = {"X": "X (3+2k,)", "control": "control (2,)", "measure": "measure (2k,)"}
+        said = [
+            (shapes if how == "column" else flat)[what]
+            for what, how in result.convention.items()
+            if how is not None
+        ]
+        out.print(plain(f"course module, shapes detected: {', '.join(said)}"))
     if result.match:
         out.print(Text.assemble(
             ("match:", "green"),

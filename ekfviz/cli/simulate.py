@@ -183,6 +183,8 @@ def simulate(
     ]
     if unknown_ids:
         replay_noise.append("--association jcbb")
+    if any(world.start_xytheta):
+        replay_noise.append("--init-pose " + " ".join(f"{v:.17g}" for v in world.start_xytheta))
     if tuple(init_pose_sigma) != FilterParams().init_pose_sigma:
         replay_noise.append("--init-pose-sigma " + " ".join(f"{v:g}" for v in init_pose_sigma))
     stated = (

@@ -165,6 +165,8 @@ class CheckResult:
     error: str | None = None
     error_line: int = 0
     error_kind: str = ""
+    # a course module's shapes as detected (argument -> "column" or "flat")
+    convention: dict[str, str | None] | None = None
 
     @property
     def match(self) -> bool:
@@ -207,6 +209,7 @@ class CheckResult:
             "divergences": [group.to_json() for group in self.groups],
             "causes": self.causes,
             "all": self.every,
+            "convention": self.convention,
             "error": None
             if self.error is None
             else {"message": self.error, "line": self.error_line, "kind": self.error_kind},
@@ -334,6 +337,7 @@ def lockstep(
         error=None if stopped is None else stopped[0],
         error_line=0 if stopped is None else stopped[1],
         error_kind="" if stopped is None else stopped[2],
+        convention=getattr(slam.slam, "convention", None) or None,
     )
 
 

@@ -131,6 +131,10 @@ def _shape(value: Any) -> str:
 
 
 def _floats(value: Any, function: str, name: str) -> Any:
+    if np.iscomplexobj(value):
+        raise FilterFault(
+            "%s returned %s with complex numbers, expected real ones" % (function, name)
+        )
     try:
         array = np.array(value, dtype=np.float64)
     except Exception as error:  # ragged lists, objects, complex values
@@ -699,6 +703,8 @@ class Worker:
 
 
 def _array_of(value: Any, name: str) -> Any:
+    if np.iscomplexobj(value):
+        raise FilterFault("%s holds complex numbers, expected real ones" % name)
     try:
         array = np.array(value, dtype=np.float64)
     except Exception as error:  # complex values, ragged lists, objects
