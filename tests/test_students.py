@@ -291,3 +291,19 @@ def test_the_battery_is_the_bundled_data(tmp_path: Path) -> None:
     for log, truth, _ in write_battery(tmp_path):
         assert log.read_bytes() == (DATA / log.name).read_bytes()
         assert truth.read_bytes() == (DATA / truth.name).read_bytes()
+
+
+@pytest.mark.parametrize("exposed", [False, True])
+def test_an_open_source_style_filter_gets_its_predict_mistakes_named(
+    tmp_path: Path, exposed: bool
+) -> None:
+    name = "RoboticsStyleExposed" if exposed else "RoboticsStyle"
+    report = tmp_path / "r.json"
+    spec = f"{ROOT / 'tests' / 'plugins' / 'robotics_style.py'}:{name}"
+    result = ekfviz("check", str(DATA / "classic.txt"), "--filter", spec, "--all", "--report",
+                    str(report))  # fmt: skip
+    assert result.returncode == 1, result.stderr
+    causes = set(json.loads(report.read_text())["causes"])
+    expected = {"transposed_motion_jacobian", "predict_pose_block_only"}
+    # its own noise, when it says what it is, is the reference's: no longer a difference
+    assert causes == (expected if exposed else expected | {"different_motion_noise"})

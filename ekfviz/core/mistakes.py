@@ -74,6 +74,12 @@ CATALOGUE: tuple[Cause, ...] = (
           "a new landmark's mean and covariance match the pose before the line's updates",
           "fold in the known landmarks first, then initialise the new ones (or say so:"
           " the reference does known first)"),
+    Cause("update_at_initialisation", "update",
+          "a new landmark, once initialised from a measurement, is updated with that same"
+          " measurement (a zero innovation: the measurement counted twice)",
+          "the new landmark's covariance (and the pose's) shrink at its first sighting",
+          "initialise a new landmark from its measurement and do not fold that measurement"
+          " in again"),
     Cause("joint_update", "update",
           "all landmarks of a line are folded in at once (one stacked H, S, K), where the"
           " reference folds them in one after another",
@@ -223,6 +229,7 @@ UPDATE_FLAGS = (
     "landmark_init_in_line_order",
 )
 INIT_FLAGS = (
+    "update_at_initialisation",
     "independent_landmark_init",
     "landmark_cov_missing_pose_term",
     "landmark_cov_missing_measurement_term",
@@ -344,6 +351,9 @@ def update_with(
                 known.append((j, bearing, rng))
             else:
                 correct([(j, bearing, rng)])
+        elif "update_at_initialisation" in flags and not joint:
+            add(landmark_id, bearing, rng)
+            correct([(len(x) - 2, bearing, rng)])
         elif in_order and not joint:
             add(landmark_id, bearing, rng)
         else:

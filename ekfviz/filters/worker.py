@@ -399,6 +399,7 @@ class RemoteFilter:
         self.seconds = 0.0
         self.convention: dict[str, str | None] = {}
         self.measurement_noise: FloatArray | None = None
+        self.motion_noise: FloatArray | None = None
         self.poses_xytheta: FloatArray | None = None
         values = params.as_dict()
         answer, arrays = self._worker.request(
@@ -425,6 +426,8 @@ class RemoteFilter:
         for name, array in zip(answer.get("extra", []), arrays[2:], strict=False):
             if name == "measurement_noise":
                 self.measurement_noise = np.array(array, dtype=np.float64)
+            elif name == "motion_noise":
+                self.motion_noise = np.array(array, dtype=np.float64)
             elif name == "poses_xytheta":
                 self.poses_xytheta = np.array(array, dtype=np.float64)
 
