@@ -307,3 +307,24 @@ def test_an_open_source_style_filter_gets_its_predict_mistakes_named(
     expected = {"transposed_motion_jacobian", "predict_pose_block_only"}
     # its own noise, when it says what it is, is the reference's: no longer a difference
     assert causes == (expected if exposed else expected | {"different_motion_noise"})
+
+
+def test_grade_on_a_dask_cluster_gives_the_same_rows(tmp_path: Path) -> None:
+    from distributed import LocalCluster
+
+    folder = tmp_path / "class"
+    students.write(folder / "ada", "correct")
+    students.write(folder / "bob", "joint")
+    (folder / "quitter.py").write_text("import sys\nsys.exit(1)\n")
+    with LocalCluster(  # type: ignore[no-untyped-call]
+        n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+        dashboard_address=None,
+    ) as cluster:  # fmt: skip
+        result = ekfviz("grade", str(folder), "--executor", "dask", "--scheduler",
+                        str(cluster.scheduler_address), "--json")  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    rows = {r["submission"]: r for r in json.loads(result.stdout)["submissions"]}
+    assert {n: r["status"] for n, r in rows.items()} == {
+        "ada": "diverged", "bob": "diverged", "quitter.py": "crashed"
+    }  # fmt: skip
+    assert set(rows["bob"]["causes"]) == students.MISTAKES["joint"]

@@ -120,6 +120,14 @@ class Params:
 class FilterFault(Exception):
     """What the user's code did wrong, said in one line (no traceback of ours)."""
 
+    kind = "fault"
+
+
+class ExitFault(FilterFault):
+    """The user's code called ``sys.exit``."""
+
+    kind = "exit"
+
 
 def _shape(value: Any) -> str:
     shape = getattr(value, "shape", None)
@@ -498,7 +506,7 @@ class Worker:
                 self.reply(self.fault(error.function, error.error, error.trace))
                 continue
             except FilterFault as error:
-                self.reply({"ok": False, "kind": "fault", "message": str(error)})
+                self.reply({"ok": False, "kind": error.kind, "message": str(error)})
                 continue
             except SystemExit as error:
                 code = error.code
@@ -598,7 +606,7 @@ class Worker:
         except FilterFault:
             raise
         except SystemExit as error:
-            raise FilterFault(
+            raise ExitFault(
                 "importing %s called sys.exit(%r)" % (path or module_name, error.code)
             ) from None
         except BaseException as error:
