@@ -328,3 +328,15 @@ def test_grade_on_a_dask_cluster_gives_the_same_rows(tmp_path: Path) -> None:
         "ada": "diverged", "bob": "diverged", "quitter.py": "crashed"
     }  # fmt: skip
     assert set(rows["bob"]["causes"]) == students.MISTAKES["joint"]
+
+
+def test_a_state_turning_complex_is_one_line_without_a_warning(tmp_path: Path) -> None:
+    module = tmp_path / "complex.py"
+    module.write_text(students.source("correct").replace(
+        "    P_pre = G @ P @ G.T + Q", "    P_pre = (G @ P @ G.T + Q) * (1 + 0j)"))  # fmt: skip
+    result = ekfviz("replay", str(DATA / "classic.txt"), "--filter", str(module), "--save",
+                    str(tmp_path / "c.rrd"))  # fmt: skip
+    assert result.returncode == 2
+    (line,) = result.stderr.strip().splitlines()
+    assert "predict returned P with complex numbers, expected real ones" in line
+    assert "Warning" not in result.stderr
