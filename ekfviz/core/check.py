@@ -34,7 +34,7 @@ from ekfviz.core.mistakes import (
 )
 from ekfviz.core.plugged import FilterFactory, Plugged, PluginError
 from ekfviz.core.records import Control, EventKind, EventRecord, LogEvent, Sighting
-from ekfviz.core.replay import FilterLineError
+from ekfviz.core.replay import plugged
 from ekfviz.core.types import IntArray
 from ekfviz.models.angles import wrap_angle
 
@@ -257,20 +257,7 @@ def lockstep(
         of the first
     :raises FilterLineError: the checked filter cannot even be constructed
     """
-    try:
-        made = make_filter(params)
-    except PluginError as refused:  # a filter in a worker says what went wrong itself
-        raise FilterLineError(0, f"filter {name}: {refused}") from refused
-    except Exception as raised:  # the user's constructor
-        message = f"filter {name}: construction raised {type(raised).__name__}: {raised}"
-        raise FilterLineError(0, message) from raised
-    try:
-        slam = Plugged(made, name, params)
-    except PluginError as refused:
-        raise FilterLineError(0, f"event 0 (init): {refused}") from refused
-    except Exception as raised:  # the user's constructor
-        message = f"filter {name}: construction raised {type(raised).__name__}: {raised}"
-        raise FilterLineError(0, message) from raised
+    slam = plugged(make_filter, params, name)
     params = reference_params(params, slam.slam)
     records: list[EventRecord] = []
     reference: list[EventRecord] = []
