@@ -30,7 +30,7 @@ from ekfviz.core.records import AnyEvent, EventRecord
 from ekfviz.core.truth import GroundTruth
 from ekfviz.io.errors import InputError
 from ekfviz.io.paths import OutputPathError, check_output_path, distinct_paths, unused_path
-from ekfviz.io.text import ProgressCallback
+from ekfviz.io.text import MAX_MAGNITUDE, RANGE_TEXT, ProgressCallback
 from ekfviz.sim.scenarios import Scenario, ScenarioName
 from ekfviz.sim.simulate import Detection, Noise
 from ekfviz.studies.executors import (
@@ -409,6 +409,13 @@ def filter_params(
         :func:`ekfviz.io.extended.read_log_noise`) replaces the defaults of the options
         not given on the command line, and a note says so
     """
+    names = ("--sigma-x", "--sigma-y", "--sigma-alpha", "--sigma-bearing", "--sigma-range")
+    for name, value in [
+        *zip(names, sigmas, strict=True),
+        ("--init-pose-sigma", max(init_pose_sigma)),
+    ]:
+        if not value <= MAX_MAGNITUDE:  # nan too
+            fail(f"{name} {value:g}: expected a sigma within {RANGE_TEXT}")
     if log is not None and log.is_file():
         sigmas, init_pose_sigma = _log_noise(log, sigmas, init_pose_sigma)
     sigma_x, sigma_y, sigma_alpha, sigma_bearing, sigma_range = sigmas

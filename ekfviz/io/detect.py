@@ -101,7 +101,9 @@ def open_source(path: Path, robot: int | None = None) -> LogSource:
                 " an MRCLAM dataset directory or a Victoria Park directory"
                 f" ({victoria.INPUTS}, {victoria.MEASUREMENTS}, {victoria.GPS})"
             )  # fmt: skip
-        return LogSource(path, LogKind.MRCLAM, mrclam.open_dataset(path, robot or 1))
+        return LogSource(
+            path, LogKind.MRCLAM, mrclam.open_dataset(path, 1 if robot is None else robot)
+        )
     if robot is not None:
         raise InputError(path, 0, "--robot is for an MRCLAM dataset directory, not a log file")
     return LogSource(path, LogKind.EXTENDED if is_extended(path) else LogKind.CLASSIC)

@@ -236,6 +236,12 @@ def _parse_noise(path: Path, line: int, cells: list[str]) -> LogNoise:
             noise[name] = (numbers[0], numbers[1], numbers[2])
         else:
             noise[name] = numbers[0]
+    for name in ("sigma_bearing", "sigma_range"):
+        if noise.get(name) == 0.0:
+            raise InputError(
+                path, line, f"found {name}=0 in the noise header, expected a positive"
+                " sigma_bearing and sigma_range (the filter's R must be invertible)",
+            )  # fmt: skip
     return noise
 
 
