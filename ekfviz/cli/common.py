@@ -537,12 +537,11 @@ class FilterWarnings:
 
 
 @contextmanager
-def open_progress(path: Path) -> Iterator[ProgressCallback | None]:
-    """A progress bar over the bytes of ``path`` when it is long, else nothing."""
-    try:
-        size = path.stat().st_size
-    except OSError:
-        size = 0  # the reader reports a missing file
+def open_progress(paths: list[Path]) -> Iterator[ProgressCallback | None]:
+    """A progress bar over the bytes of ``paths`` (read side by side, the callback told
+    the sum of the bytes read) when they are long, else nothing."""
+    size = sum(path.stat().st_size for path in paths if path.is_file())  # else the reader says
+    path = paths[0]
     if size < PROGRESS_MIN_BYTES:
         yield None
         return

@@ -46,11 +46,12 @@ class LogSource:
         return [self.path] if self.dataset is None else self.dataset.log_files
 
     @property
-    def progress_path(self) -> Path:
-        """The file whose bytes read measure the progress (a dataset's odometry)."""
+    def progress_paths(self) -> list[Path]:
+        """The files whose bytes read, summed, measure the progress (a dataset's odometry;
+        both files of a Victoria Park run, read side by side)."""
         if self.kind is LogKind.VICTORIA:
-            return self.path / victoria.MEASUREMENTS
-        return self.path if self.dataset is None else self.dataset.odometry
+            return self.files
+        return [self.path if self.dataset is None else self.dataset.odometry]
 
     @property
     def velocity_odometry(self) -> bool:
