@@ -163,6 +163,8 @@ def numeric_blocks(
                     lines.append(k)
                     data.append(body)
             try:
+                if not all(map(bytes.isascii, raw)):  # comments too: one policy for text
+                    b"\n".join(raw).decode("utf-8")  # a UnicodeDecodeError is a ValueError
                 values = list(map(float, b" ".join(data).split()))
                 table = np.array(values, dtype=np.float64)
                 good = len(values) == columns * len(data) and bool(
