@@ -10,6 +10,7 @@ import sys
 import warnings
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -72,7 +73,9 @@ def edit_line(path: Path, k: int, text: str) -> None:
     path.write_text("".join(lines))
 
 
-def truth_with(made: dict[str, Path], tmp: Path, key: str, change: Callable[[dict], None]) -> Path:
+def truth_with(
+    made: dict[str, Path], tmp: Path, key: str, change: Callable[[dict[str, Any]], None]
+) -> Path:
     document = json.loads(made[key].read_text())
     change(document)
     path = tmp / "truth.json"
@@ -83,17 +86,17 @@ def truth_with(made: dict[str, Path], tmp: Path, key: str, change: Callable[[dic
 BIG = int("1" + "0" * 400)
 
 
-def _set(document: dict, *path: object, value: object) -> None:
+def _set(document: Any, *path: Any, value: object) -> None:
     for key in path[:-1]:
-        document = document[key]  # type: ignore[index]
-    document[path[-1]] = value  # type: ignore[index]
+        document = document[key]
+    document[path[-1]] = value
 
 
 # Each case: (made files, a fresh folder) -> (command-line arguments, what the one line says)
 Case = Callable[[dict[str, Path], Path], tuple[list[str], str]]
 
 
-def _truth_case(change: Callable[[dict], None], expected: str, key: str = "ext") -> Case:
+def _truth_case(change: Callable[[dict[str, Any]], None], expected: str, key: str = "ext") -> Case:
     def case(made: dict[str, Path], tmp: Path) -> tuple[list[str], str]:
         truth = truth_with(made, tmp, f"{key}_truth", change)
         args = ["replay", str(made[key]), "--truth", str(truth), "--save", str(tmp / "r.rrd")]
@@ -115,7 +118,7 @@ def _log_case(text: Callable[[str], str], expected: str, *extra: str, key: str =
     return case
 
 
-def _mrclam_case(change: Callable[[Path], None], expected: str, *extra: str) -> Case:
+def _mrclam_case(change: Callable[[Path], object], expected: str, *extra: str) -> Case:
     def case(made: dict[str, Path], tmp: Path) -> tuple[list[str], str]:
         folder = copy_dir(made["mrclam"], tmp / "MRCLAM")
         change(folder)
@@ -125,7 +128,7 @@ def _mrclam_case(change: Callable[[Path], None], expected: str, *extra: str) -> 
     return case
 
 
-def _park_case(change: Callable[[Path], None], expected: str) -> Case:
+def _park_case(change: Callable[[Path], object], expected: str) -> Case:
     def case(made: dict[str, Path], tmp: Path) -> tuple[list[str], str]:
         folder = copy_dir(made["park"], tmp / "park")
         change(folder)
@@ -163,6 +166,11 @@ def _truncated(made: dict[str, Path], tmp: Path) -> tuple[list[str], str]:
     path = tmp / "cut.rrd"
     path.write_bytes(made["rrd"].read_bytes()[:20_000])
     return ["export", str(path), "--csv", str(tmp / "o.csv")], f"{path}: truncated after 20000"
+
+
+def _make_odometry_a_directory(folder: Path) -> None:
+    (folder / "Robot1_Odometry.dat").unlink()
+    (folder / "Robot1_Odometry.dat").mkdir()
 
 
 def _drop(folder: Path, name: str) -> None:
@@ -242,7 +250,7 @@ CASES: dict[str, Case] = {
         "DIR/Robot1_Odometry.dat: found no data, expected",
     ),
     "mrclam odometry a directory": _mrclam_case(
-        lambda d: ((d / "Robot1_Odometry.dat").unlink(), (d / "Robot1_Odometry.dat").mkdir()),
+        _make_odometry_a_directory,
         "DIR/Robot1_Odometry.dat: is a directory, expected a text file",
     ),
     "mrclam --robot 0": _mrclam_case(
@@ -360,7 +368,7 @@ def _events(path: Path) -> list[tuple[str, int, list[float]]]:
     source = open_source(path)
     rows = []
     for event in source.events():
-        values = getattr(event, "z", getattr(event, "d", None))
+        values = getattr(event, "z", getattr(event, "d", 0.0))
         rows.append((type(event).__name__, event.line, np.ravel(values).tolist()))
     return rows
 
@@ -433,7 +441,7 @@ def test_a_bad_mrclam_line_in_the_first_block_keeps_the_run_up_to_it(
     rrd = tmp_path / "r.rrd"
     result = runner.invoke(app, ["replay", str(folder), "--save", str(rrd)])
     assert result.exit_code == 2
-    assert f"Robot1_Odometry.dat:300: found 'x'" in result.stderr
+    assert "Robot1_Odometry.dat:300: found 'x'" in result.stderr
     status = viz.read_recording_info(rrd).status
     assert status is not None and status.state == "stopped"
     # the last event recorded is the control of line 298: the sample of line 299 holds
