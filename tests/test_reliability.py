@@ -320,6 +320,18 @@ def _digits(count: int) -> Case:
     return case
 
 
+def _usage(*extra: str, expected: str) -> Case:
+    def case(made: dict[str, Path], tmp: Path) -> tuple[list[str], str]:
+        return ["replay", str(made["classic"]), "--save", str(tmp / "r.rrd"), *extra], expected
+
+    return case
+
+
+CASES["--sigma-x -1 (typer's range)"] = _usage(
+    "--sigma-x", "-1", expected="replay: Invalid value for '--sigma-x'"
+)
+CASES["an unknown option"] = _usage("--sigma-z", "1", expected="No such option: --sigma-z")
+CASES["--robot for a file"] = _usage("--robot", "2", expected="--robot is for an MRCLAM")
 CASES["truth nested 100,000 deep"] = _deep(100_000)
 CASES["truth nested 65 deep"] = _deep(65)
 CASES["truth number of 5,000 digits"] = _digits(5000)
@@ -359,6 +371,17 @@ def test_a_real_process_prints_no_warning_before_the_error(
     assert result.returncode == 2
     assert result.stderr.strip().splitlines() == [result.stderr.strip()]
     assert expected in result.stderr and "arning" not in result.stderr
+
+
+def test_extreme_values_in_range_replay_without_a_python_warning(tmp_path: Path) -> None:
+    """Numbers near the limit make a nonsense run, told by the filter's own checks, never
+    by numpy's RuntimeWarnings (a source line on stderr)."""
+    log = tmp_path / "big.txt"
+    log.write_text("0.1 1e17 0.2 1e18\n1e18 0.1\n0.1 1e17 0.2 1e18\n1e18 3\n0.3 1e18 0.2 1e17\n")
+    result = ekfviz("replay", str(log), "--save", str(tmp_path / "r.rrd"))
+    assert result.returncode in (0, 2), result.stderr
+    assert "RuntimeWarning" not in result.stderr and "Traceback" not in result.stderr
+    assert all(line.startswith(("warning: ", "error: ")) for line in result.stderr.splitlines())
 
 
 # -- odd but valid input: accepted, and read as its plain form --------------------------

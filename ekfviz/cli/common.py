@@ -231,6 +231,10 @@ def main(
 ) -> None:
     """Replay a 2-D EKF-SLAM run and explore it in Rerun."""
     DEBUG["traceback"] = debug
+    # numpy's RuntimeWarnings (overflow, sqrt of a negative) would print a source line
+    # before the run's own one-line warning or error: the filter's health checks say
+    # what went wrong (a covariance not PSD, a state no longer finite) and where
+    np.seterr(all="ignore")
     OUT_STREAM.to_stderr = False
     fit_consoles()
     if ctx.invoked_subcommand != "replay":  # only a replay keeps signals for later
