@@ -21,6 +21,7 @@ from typer.testing import CliRunner
 from ekfviz.cli import app
 from ekfviz.io.detect import LogKind, open_source
 from ekfviz.io.errors import InputError
+from ekfviz.io.extended import read_log_noise
 from ekfviz.io.jsontext import MAX_JSON_DEPTH, load_json
 from ekfviz.io.text import BLOCK_BYTES, numeric_blocks, token_lines
 
@@ -424,6 +425,8 @@ def test_cr_only_log_files_read_the_same(made: dict[str, Path], tmp_path: Path, 
     odd = tmp_path / "odd.txt"
     odd.write_bytes(b"\xef\xbb\xbf" + made[key].read_bytes().replace(b"\n", b"\r"))
     assert _events(odd) == _events(made[key])
+    assert read_log_noise(odd) == read_log_noise(made[key])  # the header too
+    assert key == "classic" or read_log_noise(odd)["sigma_range"] == 0.08
 
 
 def test_a_crlf_split_between_two_reads_is_one_line_end(tmp_path: Path) -> None:

@@ -40,6 +40,8 @@ from ekfviz.io.text import (
     ProgressCallback,
     WarningCallback,
     format_number,
+    line_blocks,
+    open_input,
     parse_number,
     token_lines,
 )
@@ -202,18 +204,19 @@ def read_log_noise(path: Path) -> LogNoise:
     :raises InputError: a ``# noise:`` line that does not read, naming the line
     """
     try:
-        handle = path.open("rb")
-    except OSError:
+        handle = open_input(path)
+    except InputError:
         return {}  # the reader of the events says what is wrong with the file
     with handle:
-        for number, raw in enumerate(handle, start=1):
-            text = raw.decode("utf-8", errors="replace").lstrip("\ufeff").strip()
-            if not text:
-                continue
-            if not text.startswith("#"):
-                return {}  # the first event: no header after it counts
-            if text.startswith(NOISE_HEADER):
-                return _parse_noise(path, number, text[len(NOISE_HEADER) :].split())
+        for first, lines in line_blocks(path, handle):  # the readers' line ends and BOM
+            for number, raw in enumerate(lines, start=first):
+                text = raw.decode("utf-8", errors="replace").strip()
+                if not text:
+                    continue
+                if not text.startswith("#"):
+                    return {}  # the first event: no header after it counts
+                if text.startswith(NOISE_HEADER):
+                    return _parse_noise(path, number, text[len(NOISE_HEADER) :].split())
     return {}
 
 

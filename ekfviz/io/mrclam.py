@@ -51,7 +51,7 @@ _ROBOT_FILE = re.compile(r"Robot(\d+)_Odometry\.dat")
 
 def is_mrclam(path: Path) -> bool:
     """Whether ``path`` is a directory in the MRCLAM layout (it holds ``Barcodes.dat``)."""
-    return path.is_dir() and (path / BARCODES).is_file()
+    return path.is_dir() and (path / BARCODES).exists()  # a folder there: said on reading
 
 
 def robots_in(directory: Path) -> list[int]:

@@ -35,7 +35,7 @@ LASER_BEARING_AHEAD = math.pi / 2  # the laser's bearing of straight ahead
 
 def is_victoria(path: Path) -> bool:
     """Whether ``path`` is a directory holding the Victoria Park logs."""
-    return path.is_dir() and (path / INPUTS).is_file() and (path / MEASUREMENTS).is_file()
+    return path.is_dir() and (path / INPUTS).exists() and (path / MEASUREMENTS).exists()
 
 
 def read_victoria(path: Path, progress: ProgressCallback | None = None) -> Iterator[AnyEvent]:
