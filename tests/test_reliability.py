@@ -229,6 +229,10 @@ CASES: dict[str, Case] = {
         ),
         "LOG:2: found sigma_bearing=0 in the noise header, expected a positive",
     ),
+    "noise header naming a sigma twice": _log_case(
+        lambda t: t.replace("sigma_range=0.08", "sigma_range=0.08 sigma_x=3"),
+        "LOG:2: found sigma_x twice in the noise header",
+    ),
     "--sigma-x 1e200": _log_case(
         lambda t: t, "--sigma-x 1e+200: expected a sigma within +-1e18", "--sigma-x", "1e200"
     ),
@@ -514,6 +518,7 @@ def test_victoria_progress_counts_against_both_files(made: dict[str, Path]) -> N
         ('{"a": "[[[[' + "[" * 100 + '"}', None, None),  # brackets in a string do not nest
         ("\ufeff" + '{"a": 123456789012345678}', None, None),
         ('{"a": 1}\n{', 2, "invalid JSON"),
+        ('{"landmarks": {"1": [0, 0],\n "1": [5, 5]}}', 2, "found the key '1' twice"),
     ],
 )
 def test_json_limits(tmp_path: Path, text: str, line: int | None, words: str | None) -> None:

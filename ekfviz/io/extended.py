@@ -227,6 +227,8 @@ def _parse_noise(path: Path, line: int, cells: list[str]) -> LogNoise:
         name, sep, value = cell.partition("=")
         if not sep or name not in (*NOISE_NAMES, "init_pose_sigma"):
             raise InputError(path, line, f"found {cell!r} in the noise header, {expected}")
+        if name in noise:
+            raise InputError(path, line, f"found {name} twice in the noise header, {expected}")
         parts = value.split(",")
         numbers = [parse_number(path, line, part) for part in parts]
         if any(not math.isfinite(v) or v < 0 for v in numbers) or (

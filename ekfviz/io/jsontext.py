@@ -4,7 +4,8 @@ Python's ``json`` takes any size, recurses once per nesting level (a deep docume
 ``RecursionError``), turns a 5,000-digit integer into a ``ValueError`` and a 400-digit
 one into an int no float can hold, and accepts ``NaN`` and ``Infinity``. Here a
 document is refused, with its file and line, when it is over :data:`MAX_JSON_BYTES`,
-nested over :data:`MAX_JSON_DEPTH` deep, or holds a number outside
+nested over :data:`MAX_JSON_DEPTH` deep, gives a key twice in one object (Python keeps
+the last, losing the first), or holds a number outside
 +-:data:`~ekfviz.io.text.MAX_MAGNITUDE` or a non-finite constant; every number read is a
 Python ``int`` (up to 19 digits) or a finite ``float``.
 """
@@ -14,6 +15,7 @@ from __future__ import annotations
 import json
 import re
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -58,15 +60,44 @@ def load_json(path: Path, what: str = "a JSON file") -> object:
         line = raw.count(b"\n", 0, error.start) + 1
         raise InputError(path, line, "found bytes that are not UTF-8 text") from None
     try:
-        return json.loads(text, parse_int=_int, parse_float=_float, parse_constant=_constant)
+        return json.loads(
+            text,
+            parse_int=_int,
+            parse_float=_float,
+            parse_constant=_constant,
+            object_pairs_hook=_unique,
+        )
     except json.JSONDecodeError as error:
         raise InputError(path, error.lineno, f"invalid JSON: {error.msg}") from None
+    except _Repeated as error:
+        line = _line_of(text, json.dumps(error.key), nth=2)
+        raise InputError(
+            path, line, f"found the key {error.key!r} twice in one object, expected it once"
+        ) from None
     except _BadNumber as error:
         line = _line_of(text, error.token)
         shown = error.token if len(error.token) <= 20 else error.token[:20] + "..."
         raise InputError(
             path, line, f"found {shown}, expected a finite number within {RANGE_TEXT}"
         ) from None
+
+
+class _Repeated(ValueError):
+    def __init__(self, key: str) -> None:
+        super().__init__(key)
+        self.key = key
+
+
+def _unique(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    """An object, refusing a key given twice (Python keeps the last: the first is lost)."""
+    document = dict(pairs)
+    if len(document) != len(pairs):
+        seen: set[str] = set()
+        for key, _ in pairs:
+            if key in seen:
+                raise _Repeated(key)
+            seen.add(key)
+    return document
 
 
 def _depth(raw: bytes) -> tuple[int, int]:
@@ -101,6 +132,11 @@ def _constant(token: str) -> float:
     raise _BadNumber(token)
 
 
-def _line_of(text: str, token: str) -> int:
-    at = text.find(token)
-    return 0 if at < 0 else text.count("\n", 0, at) + 1
+def _line_of(text: str, token: str, nth: int = 1) -> int:
+    """The line of the ``nth`` occurrence of ``token`` (a good guess: JSON says no more)."""
+    at = -1
+    for _ in range(nth):
+        at = text.find(token, at + 1)
+        if at < 0:
+            return 0
+    return text.count("\n", 0, at) + 1
