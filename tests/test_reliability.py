@@ -288,6 +288,18 @@ CASES: dict[str, Case] = {
         lambda d: edit_line(d / "inputs.dat", 7, "1000.2 1e200 0.0"),
         "DIR/inputs.dat:7: found '1e200'",
     ),
+    "victoria gps.dat of 2 columns": _park_case(
+        lambda d: (d / "gps.dat").write_text("1000.0 5.0\n"),
+        "DIR/gps.dat:1: found 2 numbers, expected 3: time x y",
+    ),
+    "extended id of 5,000 digits": _log_case(
+        lambda t: t + "observe " + "7" * 5000 + " 0.1 5\n",
+        "LOG:",
+    ),
+    "truth landmark id of 5,000 digits": _truth_case(
+        lambda d: _set(d, "landmarks", "9" * 5000, value=[0, 0]),
+        "TRUTH:1: found landmark id 99999999999999999999..., expected an integer up to",
+    ),
     # recordings read back
     "export of another program's world/robot": _foreign_robot,
     "info --extract-input of malformed properties": _malformed_properties,

@@ -148,11 +148,17 @@ def _observation(
     for k in range(len(values) // 3):
         token = values[3 * k]
         if not _ID.fullmatch(token):
-            raise InputError(path, line, f"found landmark id {token!r}, expected an integer >= 0")
-        landmark_id = int(token)
+            shown = token if len(token) <= 20 else token[:20] + "..."
+            raise InputError(path, line, f"found landmark id {shown!r}, expected an integer >= 0")
+        # int() refuses over 4,300 digits: a long one is too large before it is converted
+        digits = token.lstrip("+").lstrip("0")
+        landmark_id = int(token) if len(digits) <= len(str(MAX_ID)) else MAX_ID + 1
         if landmark_id > MAX_ID:
             raise InputError(
-                path, line, f"found landmark id {token}, expected an integer up to {MAX_ID}"
+                path,
+                line,
+                f"found landmark id {token[:25]}{'...' if len(token) > 25 else ''},"
+                f" expected an integer up to {MAX_ID}",
             )
         if landmark_id in ids:
             raise InputError(

@@ -68,6 +68,11 @@ def _read_json(path: Path) -> GroundTruth:
         if not all(_ID.fullmatch(key) for key in landmarks):
             bad = next(key for key in landmarks if not _ID.fullmatch(key))
             raise InputError(path, 1, f"found landmark id {bad!r}, expected an integer >= 0")
+        long = next((key for key in landmarks if len(key) > len(str(MAX_ID))), None)
+        if long is not None:  # before int(): Python refuses over 4,300 digits
+            raise InputError(
+                path, 1, f"found landmark id {long[:20]}..., expected an integer up to {MAX_ID}"
+            )
         ids = [int(key) for key in landmarks]
         if max(ids, default=0) > MAX_ID:
             raise InputError(path, 1, f"found landmark id {max(ids)}, expected up to {MAX_ID}")
