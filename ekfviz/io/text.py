@@ -60,22 +60,18 @@ def line_blocks(path: Path, handle: BinaryIO) -> Iterator[tuple[int, list[bytes]
     :raises InputError: a line longer than :data:`MAX_LINE_BYTES`
     """
     number = 1
-    carry = b""
-    first = True
+    carry = b""  # the start of a line whose end is not read yet
+    chunk = handle.read(BLOCK_BYTES).removeprefix(BOM)
     while True:
-        chunk = handle.read(BLOCK_BYTES)
-        if first:
-            chunk = chunk.removeprefix(BOM)
-            first = False
-        if chunk.endswith(b"\r"):  # a CRLF split between two reads stays one line end
-            chunk += handle.read(1)
-        if not chunk:
-            break
+        at_end = not chunk
         text = carry + chunk
+        held = b""
+        if not at_end and text.endswith(b"\r"):  # maybe a CRLF split between two reads
+            text, held = text[:-1], b"\r"
         if b"\r" in text:
             text = text.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
         lines = text.split(b"\n")
-        carry = lines.pop()
+        carry = lines.pop() + held
         if len(carry) > MAX_LINE_BYTES:
             _too_long(path, number + len(lines))
         if lines:
@@ -84,6 +80,9 @@ def line_blocks(path: Path, handle: BinaryIO) -> Iterator[tuple[int, list[bytes]
                     _too_long(path, number + k)
             yield number, lines
             number += len(lines)
+        if at_end:
+            break
+        chunk = handle.read(BLOCK_BYTES)
     if carry:
         yield number, [carry]
 
