@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 import pytest
 import rerun as rr
+from conftest import rrd_verify
 from test_victoria import make_park
 from typer.testing import CliRunner
 
@@ -484,6 +485,7 @@ def test_a_bad_mrclam_line_in_the_first_block_keeps_the_run_up_to_it(
     result = runner.invoke(app, ["replay", str(folder), "--save", str(rrd)])
     assert result.exit_code == 2
     assert "Robot1_Odometry.dat:300: found 'x'" in result.stderr
+    rrd_verify(rrd)  # a whole recording, footer included
     status = viz.read_recording_info(rrd).status
     assert status is not None and status.state == "stopped"
     # the last event recorded is the control of line 298: the sample of line 299 holds
