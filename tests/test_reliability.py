@@ -175,6 +175,14 @@ def _make_odometry_a_directory(folder: Path) -> None:
     (folder / "Robot1_Odometry.dat").mkdir()
 
 
+def _truncated_info(made: dict[str, Path], tmp: Path) -> tuple[list[str], str]:
+    path = tmp / "cut.rrd"
+    whole = made["rrd"].read_bytes()
+    path.write_bytes(whole[: len(whole) * 2 // 3])
+    args = ["info", str(path), "--extract-input", str(tmp / "in.txt")]
+    return args, f"{path}: truncated after"
+
+
 def _drop(folder: Path, name: str) -> None:
     (folder / name).write_text("")
 
@@ -305,6 +313,7 @@ CASES: dict[str, Case] = {
     "export of another program's world/robot": _foreign_robot,
     "info --extract-input of malformed properties": _malformed_properties,
     "export of a truncated recording": _truncated,
+    "info of a truncated recording": _truncated_info,
 }
 
 
@@ -379,7 +388,11 @@ def ekfviz(*args: str) -> subprocess.CompletedProcess[str]:
     )
 
 
-@pytest.mark.parametrize("name", ["ranges of 1e300", "export of a truncated recording"])
+@pytest.mark.parametrize(
+    "name",
+    ["ranges of 1e300", "export of a truncated recording", "info of a truncated recording",
+     "mrclam speed of 1e300", "truth nested 100,000 deep"],
+)  # fmt: skip
 def test_a_real_process_prints_no_warning_before_the_error(
     made: dict[str, Path], tmp_path: Path, name: str
 ) -> None:
