@@ -3,7 +3,8 @@ traceback (an exception other than the reader's one-line error), a hang or a sil
 success with input lost.
 
 Mutations: truncation, byte flips, duplicated and swapped lines, huge and non-finite
-numbers, other encodings, a byte-order mark, CR or CRLF line ends.
+numbers, other encodings, a byte-order mark, CR or CRLF line ends; for recordings read
+back (``info``, ``export``), truncation and byte flips.
 """
 
 from __future__ import annotations
@@ -209,3 +210,40 @@ def test_the_victoria_reader_never_crashes(
     except InputError:
         return
     assert events and len(times) == len(xy) == len(data_lines(folder / "gps.dat"))
+
+
+@st.composite
+def damaged(draw: st.DrawFn, valid: bytes) -> bytes:
+    """A recording cut short or with a few bytes flipped."""
+    data = bytearray(valid)
+    if draw(st.booleans()):
+        data = data[: draw(st.integers(0, len(data) - 1))]
+    for _ in range(draw(st.integers(0 if len(data) < len(valid) else 1, 4))):
+        if data:
+            at = draw(st.integers(0, len(data) - 1))
+            data[at] ^= draw(st.integers(1, 255))
+    return bytes(data)
+
+
+@pytest.fixture(scope="module")
+def recording(valid: dict[str, Path]) -> bytes:
+    path = valid["classic"].with_suffix(".rrd")
+    result = runner.invoke(app, ["replay", str(valid["classic"]), "--save", str(path)])
+    assert result.exit_code == 0, result.output
+    return path.read_bytes()
+
+
+@settings(FUZZ, max_examples=25, deadline=20_000)
+@given(data=st.data())
+def test_reading_a_damaged_recording_back_never_crashes(
+    recording: bytes, tmp_path_factory: pytest.TempPathFactory, data: st.DataObject
+) -> None:
+    from ekfviz import viz
+
+    path = tmp_path_factory.mktemp("rrd") / "damaged.rrd"
+    path.write_bytes(data.draw(damaged(recording)))
+    for read in (viz.read_recording_info, viz.read_recorded_run):
+        try:
+            read(path)
+        except viz.NotARecordingError as error:
+            assert str(error).startswith(str(path)) and "\n" not in str(error)
