@@ -173,7 +173,10 @@ def command_hint(program: str) -> str:
 
 
 # Options taking several values: a value that is not a number is a missing value.
-NUMBER_OPTIONS = {"--init-pose-sigma": ("SX SY STHETA", 3)}
+NUMBER_OPTIONS = {
+    "--init-pose-sigma": ("SX SY STHETA", 3),
+    "--odometry-scale": ("DISTANCE TURN", 2),
+}
 GLOBAL_FLAGS = ("--debug",)
 
 
@@ -267,6 +270,25 @@ SigmaBearing = Annotated[
 ]
 SigmaRange = Annotated[
     float, _option("Measurement noise sigma of the range (m); positive.", FILTER_NOISE)
+]
+OdometryScale = Annotated[
+    tuple[float, float],
+    _option(
+        "Systematic odometry error to take out of every control: the true distance is"
+        " DISTANCE times the odometry's, the true turn TURN times its turn (plus"
+        " --odometry-bias); ekfviz calibrate estimates them.",
+        FILTER_NOISE,
+        metavar="DISTANCE TURN",
+        min=0.0,
+    ),
+]
+OdometryBias = Annotated[
+    float,
+    _option(
+        "Systematic turn per metre driven to add to every control (rad/m), as wheels of"
+        " unequal size turn a robot; a robot standing still does not turn.",
+        FILTER_NOISE,
+    ),
 ]
 LandmarkInitOption = Annotated[
     LandmarkInit,

@@ -221,11 +221,9 @@ def _simulate_mrclam(
     except OutputPathError as error:
         fail(str(error))
     default = asdict(MrclamNoise())
+    names = ("sigma_x", "sigma_y", "sigma_alpha", "sigma_bearing", "sigma_range")
     noise = MrclamNoise(
-        **{
-            name: d if g is None else g
-            for (name, d), g in zip(default.items(), sigmas, strict=True)
-        }
+        **{name: default[name] if g is None else g for name, g in zip(names, sigmas, strict=True)}
     )
     files = simulate_mrclam(seed=seed, world=MrclamWorld(duration_s=duration), noise=noise)
     try:

@@ -43,6 +43,17 @@ class FilterLineError(FilterError):
         return type(self), (self.line, str(self))
 
 
+def corrected_controls(events: Iterable[AnyEvent], params: FilterParams) -> Iterator[AnyEvent]:
+    """The events with every control's systematic odometry errors taken out
+    (:meth:`FilterParams.corrected`); the rest as they are."""
+    for event in events:
+        if isinstance(event, Control):
+            d, alpha = params.corrected(event.d, event.alpha)
+            yield replace(event, d=d, alpha=alpha)
+        else:
+            yield event
+
+
 def replay(
     events: Iterable[AnyEvent],
     params: FilterParams | None = None,
@@ -89,6 +100,8 @@ def replay(
         protocol filter that raised or showed a broken state, ...)
     """
     params = params if params is not None else FilterParams()
+    if params.corrects_odometry:  # every filter sees the corrected controls
+        events = corrected_controls(events, params)
     ekf: EkfSlam | Plugged
     if slam is not None:
         ekf = slam
