@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import enum
 import math
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Annotated
 
@@ -220,11 +220,15 @@ def _simulate_mrclam(
         check_output_folder(output, "--output")
     except OutputPathError as error:
         fail(str(error))
-    default = asdict(MrclamNoise())
-    names = ("sigma_x", "sigma_y", "sigma_alpha", "sigma_bearing", "sigma_range")
-    noise = MrclamNoise(
-        **{name: default[name] if g is None else g for name, g in zip(names, sigmas, strict=True)}
-    )
+    d = MrclamNoise()
+    x, y, a, b, r = (
+        default if g is None else g
+        for default, g in zip(
+            (d.sigma_x, d.sigma_y, d.sigma_alpha, d.sigma_bearing, d.sigma_range), sigmas,
+            strict=True,
+        )
+    )  # fmt: skip
+    noise = replace(d, sigma_x=x, sigma_y=y, sigma_alpha=a, sigma_bearing=b, sigma_range=r)
     files = simulate_mrclam(seed=seed, world=MrclamWorld(duration_s=duration), noise=noise)
     try:
         output.mkdir(exist_ok=True)  # its parent was checked: no folders made above it
