@@ -109,6 +109,7 @@ def calibrate_command(
         fail(f"{data}: {error}")
     _print_table(result.calibration)
     _warn_non_gaussian(result.calibration)
+    _print_scaling(result)
     _print_candidates(result)
     for note in result.notes:
         warn(note)
@@ -206,6 +207,30 @@ def _print_table(result: Calibration) -> None:
         )
 
 
+def _print_scaling(result: Recommendation) -> None:
+    apart, together = result.scaling, result.together
+    before = apart.before
+    if apart.motion == 1.0 and apart.measurement == 1.0:
+        out.print(
+            f"On the fitted part, a filter told these estimates is consistent with the truth:"
+            f" mean pose NEES {before.nees:.3g} (3 expected), NIS per dof {before.nis:.3g}"
+            " (1 expected).",
+            soft_wrap=True,
+        )
+        return
+    out.print(
+        f"On the fitted part, a filter told these estimates has a mean pose NEES of"
+        f" {before.nees:.3g} (3 expected) and an NIS per dof of {before.nis:.3g} (1"
+        f" expected). Scaled apart, the measurement sigmas by {apart.measurement:.3g} (from"
+        f" the NIS) and the motion sigmas by {apart.motion:.3g} (from the NEES), it has"
+        f" {apart.after.nees:.3g} and {apart.after.nis:.3g}"
+        + (" (the search stopped at its limit)" if apart.at_limit else "")
+        + f"; with one factor {together.motion:.3g} on all sigmas, {together.after.nees:.3g}"
+        f" and {together.after.nis:.3g}.",
+        soft_wrap=True,
+    )
+
+
 def _print_candidates(result: Recommendation) -> None:
     table = Table(
         title=(
@@ -284,7 +309,7 @@ def _report(result: Recommendation, data: Path, command: list[str]) -> dict[str,
             "odometry": None if calibration.odometry is None else calibration.odometry.to_json(),
             "sightings": calibration.sightings,
         },
-        "scaling": result.scaling.to_json(),
+        "scaling": {"apart": result.scaling.to_json(), "together": result.together.to_json()},
         "candidates": [c.to_json() for c in result.candidates],
         "recommended": result.best.name,
         "notes": list(result.notes),

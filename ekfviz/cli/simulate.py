@@ -238,7 +238,7 @@ def _simulate_mrclam(
         write_bytes_atomic(output / name, text.encode("utf-8"))
     out.print(f"Wrote the MRCLAM-layout dataset {output} ({len(files)} files, robot 1)")
     flags = " ".join(f"--sigma-{n.removeprefix('sigma_').replace('_', '-')} {v:g}"
-                     for n, v in asdict(noise).items())  # fmt: skip
+                     for n, v in asdict(noise).items() if n.startswith("sigma_"))  # fmt: skip
     out.print(
         "Replay it with the filter told the true noise:\n  "
         + f"{command_hint('ekfviz')} replay {output} --motion-noise per-sqrt-second {flags}",

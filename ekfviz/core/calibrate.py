@@ -849,7 +849,8 @@ class Recommendation:
     """What ``ekfviz calibrate`` found and recommends.
 
     :param calibration: the estimates, fitted on the first part of the run
-    :param scaling: the factors found on the first part
+    :param scaling: the factors found on the first part, motion and measurement apart
+    :param together: the one factor on all sigmas found there
     :param candidates: every setting judged on the held-out part
     :param chosen: the index of the recommended one
     :param split: where the run was cut
@@ -858,6 +859,7 @@ class Recommendation:
 
     calibration: Calibration
     scaling: Scaling
+    together: Scaling
     candidates: tuple[Candidate, ...]
     chosen: int
     split_at: float
@@ -968,7 +970,7 @@ def recommend(
     )
     notes += _notes(calibration, scaling, candidates[chosen])
     return Recommendation(
-        calibration, scaling, tuple(candidates), chosen, split.at, fit_share, tuple(notes)
+        calibration, scaling, one, tuple(candidates), chosen, split.at, fit_share, tuple(notes)
     )
 
 
