@@ -24,7 +24,7 @@ from typer._click.core import ParameterSource
 from typer._click.globals import get_current_context
 
 from ekfviz import __version__, signals
-from ekfviz.core.evaluation import Evaluation
+from ekfviz.core.evaluation import Evaluation, summary_lines
 from ekfviz.core.filter import HAVE_KERNEL, FilterParams, LandmarkInit, UpdateMode
 from ekfviz.core.records import AnyEvent, EventRecord
 from ekfviz.core.truth import GroundTruth
@@ -600,6 +600,9 @@ def print_evaluation(evaluation: Evaluation, truth: GroundTruth | None) -> None:
     if truth is not None:
         inside = sum(bool(r.inside_3sigma) for r in evaluation.landmarks)
         out.print(f"{inside} of {len(evaluation.landmarks)} landmarks inside their 3-sigma ellipse")
+        if evaluation.summary is not None:  # inside because right, or because huge?
+            for line in summary_lines(evaluation.summary):
+                out.print(line, soft_wrap=True)
         missing = set(truth.ids.tolist()) - {r.id for r in evaluation.landmarks}
         if missing:
             out.print(f"[yellow]never observed: landmarks {sorted(missing)}[/]")
