@@ -19,7 +19,9 @@ from ekfviz.core.calibrate import (
     calibrate,
     estimated_params,
     fit_odometry,
+    judge,
     recommend,
+    run_stats,
 )
 from ekfviz.core.consistency import Consistency, Verdict, reading
 from ekfviz.core.evaluation import evaluate, rigid_alignment, semi_major_3sigma, summarise_map
@@ -259,3 +261,21 @@ def test_alignment_refuses_a_reflection() -> None:
     mirrored = true_xy * np.array([1.0, -1.0])
     R, _ = rigid_alignment(mirrored, true_xy)
     assert np.linalg.det(R) == pytest.approx(1.0)
+
+
+def test_the_fast_judgement_is_the_replay_s(skewed: Path) -> None:
+    """calibrate judges candidates by driving the filter directly: the same final map,
+    NEES and NIS as a replay's, with a gate and an odometry correction."""
+    events, truth = events_and_truth(skewed)
+    params = FilterParams(
+        0.05, 0.02, 0.05, 0.03, 0.1, motion_noise=MotionNoise.PER_SQRT_SECOND,
+        init_pose=start_of(truth), gate=13.8, odometry_scale=(0.95, 1.05), odometry_bias=0.02,
+    )  # fmt: skip
+    after = float(events[len(events) // 2].time or 0.0)
+    slow, fast = run_stats(events, truth, params, after=after), judge(events, truth, params,
+                                                                       after=after)  # fmt: skip
+    assert fast.map is not None and slow.map is not None
+    assert fast.map == slow.map
+    assert fast.nees == pytest.approx(slow.nees, rel=1e-12)
+    assert fast.nis == pytest.approx(slow.nis, rel=1e-12)
+    assert fast.verdict == slow.verdict

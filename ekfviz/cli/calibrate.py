@@ -234,8 +234,9 @@ def _print_scaling(result: Recommendation) -> None:
 def _print_candidates(result: Recommendation) -> None:
     table = Table(
         title=(
-            f"Candidates judged on the held-out {1 - result.fit_share:.0%} of the run"
-            f" (fitted on the first {result.fit_share:.0%})"
+            f"Candidates (fitted on the first {result.fit_share:.0%} of the run), each"
+            f" replayed whole: NEES and NIS over the held-out {1 - result.fit_share:.0%},"
+            " the map at the end"
         ),
         title_justify="left",
     )

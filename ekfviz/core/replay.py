@@ -49,7 +49,8 @@ def corrected_controls(events: Iterable[AnyEvent], params: FilterParams) -> Iter
     for event in events:
         if isinstance(event, Control):
             d, alpha = params.corrected(event.d, event.alpha)
-            yield replace(event, d=d, alpha=alpha)
+            # not dataclasses.replace: this runs for every control of every replay
+            yield Control(event.line, d, alpha, event.time, event.dt)
         else:
             yield event
 
