@@ -1007,7 +1007,7 @@ def recommend(
     ``fit_share`` of the run only. The candidates: the defaults (``defaults``, what a
     replay without options does), the estimates as they are, scaled apart (motion by the
     NEES, measurement by the NIS, :func:`scale_apart`) and scaled together (one factor),
-    and, where an odometry correction was found, the defaults with it and the one factor
+    and, where an odometry correction was found, the defaults with it and both scalings
     without it. Each is replayed
     over the whole run, as the user's replay will be (a replay of the rest alone would
     start from a map-less state the user never sees, and misses the frame errors of the
@@ -1059,6 +1059,11 @@ def recommend(
         # a log's odometry errors may be shared by its measurements (a range scale): the
         # correction is judged, not assumed
         plain = replace(estimated, odometry_scale=(1.0, 1.0), odometry_bias=0.0)
+        settings.append((
+            "scaled apart, odometry as read",
+            scaled(plain, scaling.motion, scaling.measurement),
+            (scaling.motion, scaling.measurement),
+        ))  # fmt: skip
         settings.append((
             "scaled together, odometry as read", scaled(plain, one.motion, one.motion),
             (one.motion, one.motion),
