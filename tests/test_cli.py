@@ -97,6 +97,8 @@ def test_replay_saves_reports_and_prints_the_table(tmp_path: Path) -> None:
     ]
     assert summary["mean_semi_major_3sigma"] == pytest.approx(np.mean(axes))
     assert summary["aligned_mean_error"] <= summary["mean_error"] + 1e-12
+    aligned = [lm["aligned_error"] for lm in document["landmarks"]]
+    assert summary["aligned_mean_error"] == pytest.approx(np.mean(aligned))
     assert "mean 3σ semi-major axis" in result.output and "best rigid alignment" in result.output
 
 

@@ -579,16 +579,17 @@ def print_evaluation(evaluation: Evaluation, truth: GroundTruth | None) -> None:
     for column in ("id", "x", "y", "σ x", "σ y"):
         table.add_column(column, justify="right")
     if truth is not None:
-        for column in ("error (m)", "Mahalanobis", "in 3σ"):
+        for column in ("error (m)", "aligned (m)", "Mahalanobis", "in 3σ"):
             table.add_column(column, justify="right")
     for r in evaluation.landmarks:
         cells = [str(r.id), *(f"{v:.4f}" for v in (*r.estimate, *r.sigma))]
         if truth is not None:
             if r.mahalanobis is None or r.euclidean is None:
-                cells += ["-", "-", "no truth"]
+                cells += ["-", "-", "-", "no truth"]
             else:
                 verdict = "[green]yes[/]" if r.inside_3sigma else "[bold red]no[/]"
-                cells += [f"{r.euclidean:.4f}", f"{r.mahalanobis:.3f}", verdict]
+                aligned = "-" if r.aligned is None else f"{r.aligned:.4f}"
+                cells += [f"{r.euclidean:.4f}", aligned, f"{r.mahalanobis:.3f}", verdict]
         table.add_row(*cells)
     out.print(table)
     x, y, theta = evaluation.pose

@@ -16,12 +16,19 @@ of a product of Gaussians), iterated, leaving out windows whose Mahalanobis dist
 exceeds the 99.9 % chi-square bound. With one control a window and an exact truth (a
 simulated log without time stamps) this is the classic per-step estimate.
 
+Systematic odometry errors (:func:`fit_odometry`): over the same windows, the true turn
+against scale_alpha sum(alpha) + bias sum(d) and the true displacement against scale_d
+times the odometry's, robust least squares; the motion noise is then fitted on the
+corrected controls. A control that reads no motion adds no noise (the filter's model).
+
 What a filter should be told: real logs have errors these estimates do not see (odometry
 errors correlated over many seconds, a measurement bias, heavy tails), and a filter
-told only the white part is over-confident. :func:`consistent_scale` replays the log
-with the estimates and scales every sigma by the smallest factor k >= 1 that brings the
-time-averaged pose NEES to its expected value, 3 (chi-square with 3 dof), the standard
-consistency test against ground truth (Bar-Shalom et al., 2001, ch. 5.4).
+told only the white part is over-confident. :func:`recommend` fits on the first part of
+the run, scales the sigmas (the measurement by the NIS, the motion by the pose NEES,
+:func:`scale_apart`; or one factor for all), and judges every candidate, the defaults
+among them, on what the fit did not see (NEES and NIS over the held-out time, the final
+map against the truth), the standard consistency tests against ground truth
+(Bar-Shalom et al., 2001, ch. 5.4) beside the map's error and ellipse size.
 """
 
 from __future__ import annotations

@@ -180,6 +180,7 @@ class LandmarkResult:
     truth: FloatArray | None = None
     euclidean: float | None = None
     mahalanobis: float | None = None
+    aligned: float | None = None  # the error after the map's best rigid alignment
 
     @property
     def sigma(self) -> FloatArray:
@@ -221,6 +222,7 @@ class Evaluation:
                 entry["truth"] = result.truth.tolist()
                 entry["euclidean"] = result.euclidean
                 entry["mahalanobis"] = result.mahalanobis
+                entry["aligned_error"] = result.aligned
                 entry["inside_3sigma"] = result.inside_3sigma
             landmarks.append(entry)
         document: dict[str, object] = {
@@ -251,16 +253,17 @@ class Evaluation:
         ]
         header = "| id | x | y | σ x | σ y |"
         if self.has_truth:
-            header += " error (m) | Mahalanobis | in 3σ |"
+            header += " error (m) | aligned (m) | Mahalanobis | in 3σ |"
         rows += [header, "|" + "---|" * (header.count("|") - 1)]
         for r in self.landmarks:
             cells = [str(r.id), *(f"{v:.4f}" for v in (*r.estimate, *r.sigma))]
             if self.has_truth:
                 if r.euclidean is None or r.mahalanobis is None:
-                    cells += ["-", "-", "no truth"]
+                    cells += ["-", "-", "-", "no truth"]
                 else:
                     cells += [
                         f"{r.euclidean:.4f}",
+                        "-" if r.aligned is None else f"{r.aligned:.4f}",
                         f"{r.mahalanobis:.3f}",
                         "yes" if r.inside_3sigma else "**no**",
                     ]
@@ -292,6 +295,9 @@ def evaluate(
         euclidean, mahalanobis = landmark_errors(
             record.landmarks_xy, record.landmark_covs, truth_xy
         )
+        known = np.isfinite(truth_xy).all(axis=1)
+        R, t = rigid_alignment(record.landmarks_xy[known], truth_xy[known])
+        aligned = np.hypot(*((record.landmarks_xy @ R.T + t) - truth_xy).T)
     for row, landmark_id in enumerate(record.landmark_ids):
         has = truth is not None and bool(np.isfinite(truth_xy[row]).all())
         results.append(
@@ -302,6 +308,7 @@ def evaluate(
                 truth=truth_xy[row] if has else None,
                 euclidean=float(euclidean[row]) if has else None,
                 mahalanobis=float(mahalanobis[row]) if has else None,
+                aligned=float(aligned[row]) if has else None,
             )
         )
     summary = None
