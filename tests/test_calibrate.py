@@ -279,3 +279,21 @@ def test_the_fast_judgement_is_the_replay_s(skewed: Path) -> None:
     assert fast.nees == pytest.approx(slow.nees, rel=1e-12)
     assert fast.nis == pytest.approx(slow.nis, rel=1e-12)
     assert fast.verdict == slow.verdict
+
+
+def test_where_no_candidate_is_credible_the_closest_is_widened(
+    skewed: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """No map can have over 100 % inside: the closest candidate is widened twice, 2 and 4
+    times, each judged and listed, and the recommendation is still the lowest error."""
+    import ekfviz.core.calibrate as calibration
+
+    monkeypatch.setattr(calibration, "MAP_CREDIBLE", 1.01)
+    events, truth = events_and_truth(skewed)
+    defaults = FilterParams(motion_noise=MotionNoise.PER_SQRT_SECOND, init_pose=start_of(truth))
+    result = recommend(events, truth, defaults, defaults)
+    wider = [c for c in result.candidates if "times wider" in c.name]
+    assert [c.name.rsplit(", ", 1)[1] for c in wider] == ["2 times wider", "4 times wider"]
+    closest = min(result.candidates[: -len(wider)], key=lambda c: c.held_out.error)
+    assert wider[0].params.sigma_range == pytest.approx(2 * closest.params.sigma_range)
+    assert result.best.held_out.error == min(c.held_out.error for c in result.candidates)

@@ -555,6 +555,7 @@ SCALE_RESOLUTION = 1.15  # the factor is found to within this ratio
 MAX_SCALE = 12.0  # no factor beyond this: the search stops there and says so
 LARGE_SCALE = 5.0  # a factor over this: the model misses errors of the log
 MAP_CREDIBLE = 0.8  # a held-out map with this share of landmarks inside 3 sigma is credible
+WIDENINGS = (2.0, 4.0)  # where no candidate is credible, the closest one widened so
 LEFT_OUT_WARNING = 0.05  # more windows left out than this: said (a Gaussian: 0.1 %)
 # a sigma whose fit hit its limit (0) is replaced in the replay by this share of the
 # default sigma of its component: a filter must never be told a motion is exact
@@ -1081,15 +1082,30 @@ def recommend(
                     odometry_bias=estimated.odometry_bias),
             None,
         ))  # fmt: skip
-    candidates = []
-    for name, params, factors in settings:
-        run = params
+
+    def judged(params: FilterParams) -> RunStats:
+        """The whole run judged on the held-out part (the events corrected once)."""
         if params.corrects_odometry and params.odometry_scale == estimated.odometry_scale:
             run = replace(params, odometry_scale=(1.0, 1.0), odometry_bias=0.0)
-            stats = judge(corrected_events, truth, run, after=split.at)
-        else:
-            stats = judge(events, truth, params, after=split.at)
-        candidates.append(Candidate(name, params, stats, factors))
+            return judge(corrected_events, truth, run, after=split.at)
+        return judge(events, truth, params, after=split.at)
+
+    candidates = [
+        Candidate(name, params, judged(params), factors) for name, params, factors in settings
+    ]
+    if not any(c.held_out.credible for c in candidates):
+        # none credible: the most accurate, widened until its map is (a map inside its
+        # ellipses with a known error beats a tighter one that is not)
+        closest = min(candidates, key=lambda c: c.held_out.error)
+        for widen in WIDENINGS:
+            motion, measurement = closest.factors or (1.0, 1.0)
+            params = scaled(closest.params, widen, widen)
+            stats = judged(params)
+            name = f"{closest.name}, {widen:g} times wider"
+            factors = (motion * widen, measurement * widen)
+            candidates.append(Candidate(name, params, stats, factors))
+            if stats.credible:
+                break
     chosen = min(
         range(len(candidates)),
         key=lambda k: (not candidates[k].held_out.credible, candidates[k].held_out.error, k),
