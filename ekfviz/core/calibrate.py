@@ -1090,9 +1090,11 @@ def recommend(
             return judge(corrected_events, truth, run, after=split.at)
         return judge(events, truth, params, after=split.at)
 
-    candidates = [
-        Candidate(name, params, judged(params), factors) for name, params, factors in settings
-    ]
+    candidates: list[Candidate] = []
+    for name, params, factors in settings:
+        if any(c.params == params for c in candidates):
+            continue  # a factor of 1: the same setting as one judged already
+        candidates.append(Candidate(name, params, judged(params), factors))
     if not any(c.held_out.credible for c in candidates):
         # none credible: the most accurate, widened until its map is (a map inside its
         # ellipses with a known error beats a tighter one that is not)
