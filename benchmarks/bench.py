@@ -17,9 +17,9 @@
    the logging (in the main thread, and the CPU of Rerun's own threads with it).
 5. The interpreter plus ``import rerun, numpy, typer``, which every replay pays, and the
    import of the compiled kernel.
-6. Real data (``mrclam_bench.py``): MRCLAM dataset 6, robots 1-3, calibrated and replayed
-   as the issue's check does; skipped with a note when the dataset is not found.
-   ``--mrclam-only`` runs just this and replaces its section of RESULTS.md.
+6. Real data (``mrclam_bench.py``): MRCLAM dataset 6, all five robots, calibrated and
+   replayed beside the defaults as the issue's check does; skipped with a note when the
+   dataset is not found. ``--mrclam-only`` runs just this and replaces its section of RESULTS.md.
 7. Smoothers (``smoother_bench.py``): GTSAM's iSAM2 and the batch optimum against the EKF,
    end to end on the bundled samples; ``--smoother-only`` runs just this.
 8. Association (``association_bench.py``): the Victoria Park run end to end (time,

@@ -82,9 +82,24 @@ def test_replay_saves_reports_and_prints_the_table(tmp_path: Path) -> None:
         "update": "sequential",
         "motion_noise": "per-step",
         "gate": None,
+        "odometry_scale": [1.0, 1.0],
+        "odometry_bias": 0.0,
     }
     assert "Mahalanobis" in result.output and "Final pose" in result.output
     assert "6 of 6 landmarks inside their 3-sigma ellipse" in result.output
+    # the summary: errors beside the ellipses' size, and after the rigid alignment
+    summary = document["summary"]
+    errors = [lm["euclidean"] for lm in document["landmarks"]]
+    assert summary["mean_error"] == pytest.approx(np.mean(errors))
+    assert summary["worst_error"] == pytest.approx(max(errors))
+    axes = [
+        3 * math.sqrt(max(np.linalg.eigvalsh(np.array(lm["cov"])))) for lm in document["landmarks"]
+    ]
+    assert summary["mean_semi_major_3sigma"] == pytest.approx(np.mean(axes))
+    assert summary["aligned_mean_error"] <= summary["mean_error"] + 1e-12
+    aligned = [lm["aligned_error"] for lm in document["landmarks"]]
+    assert summary["aligned_mean_error"] == pytest.approx(np.mean(aligned))
+    assert "mean 3σ semi-major axis" in result.output and "best rigid alignment" in result.output
 
 
 def test_options_reach_the_filter(tmp_path: Path) -> None:

@@ -63,14 +63,15 @@ def test_the_noise_jacobian_W_is_that_of_noise_acting_per_sqrt_second() -> None:
 
 
 def test_units_the_noise_of_a_span_does_not_depend_on_how_it_is_cut(compiled: bool) -> None:
-    """Standing still for one second adds sigma^2 * 1 s, in one control or in 100: the
-    noise per sqrt(s) is a random walk, whatever the logging rate. Per step it is not."""
+    """Creeping (d = 1e-10 m, so that G is the identity to 1e-12) for one second adds
+    sigma^2 * 1 s, in one control or in 100: the noise per sqrt(s) is a random walk,
+    whatever the logging rate. Per step it is not."""
     whole = EkfSlam(timed(), compiled=compiled)
-    whole.predict(0.0, 0.0, 1.0)
+    whole.predict(1e-10, 0.0, 1.0)
     cut = EkfSlam(timed(), compiled=compiled)
     for _ in range(100):
-        cut.predict(0.0, 0.0, 0.01)
-    np.testing.assert_allclose(cut.P, whole.P, rtol=1e-12)
+        cut.predict(1e-12, 0.0, 0.01)
+    np.testing.assert_allclose(cut.P, whole.P, rtol=1e-9, atol=1e-12)
     prior = np.square(FilterParams().init_pose_sigma)
     c, s = math.cos(0.7), math.sin(0.7)
     qx, qy, qa = np.square(SIGMAS)
@@ -80,6 +81,20 @@ def test_units_the_noise_of_a_span_does_not_depend_on_how_it_is_cut(compiled: bo
     for _ in range(100):
         per_step.predict(0.0, 0.0, 0.01)
     assert per_step.P[2, 2] == pytest.approx(prior[2] + 100 * qa)  # grows with the rate
+
+
+def test_a_robot_standing_still_gains_no_uncertainty_from_time(compiled: bool) -> None:
+    """Zero odometry (parked, wheels still) for a minute: the time-scaled noise adds
+    nothing, where any motion, however small, adds sigma^2 dt."""
+    still = EkfSlam(timed(), compiled=compiled)
+    before = still.P[:3, :3].copy()
+    for _ in range(3000):
+        still.predict(0.0, 0.0, 0.02)
+    np.testing.assert_array_equal(still.P[:3, :3], before)
+    turning = EkfSlam(timed(), compiled=compiled)
+    turning.predict(0.0, 1e-6, 60.0)
+    assert turning.P[2, 2] == pytest.approx(before[2, 2] + SIGMAS[2] ** 2 * 60.0)
+    assert timed().Q_of_motion(0.0, 0.0, 5.0) == pytest.approx(np.zeros((3, 3)))
 
 
 def test_time_scaled_noise_needs_the_span() -> None:

@@ -70,8 +70,10 @@ def test_sweep_baseline_equals_replay_and_holds_every_variant(tmp_path: Path) ->
         app,
         ["sweep", str(SAMPLE), "--truth", str(TRUTH), "--preset", "tuning", "--save", str(rrd),
          "--report", str(report), "--workers", "2"],
+        env={"COLUMNS": "200"},
     )  # fmt: skip
     assert result.exit_code == 0, result.output
+    assert all(column in result.output for column in ("worst", "aligned", "3σ axis"))
     result = runner.invoke(
         app, ["replay", str(SAMPLE), "--truth", str(TRUTH), "--save", str(tmp_path / "r.rrd"),
               "--report", str(replay_report)],
@@ -86,6 +88,15 @@ def test_sweep_baseline_equals_replay_and_holds_every_variant(tmp_path: Path) ->
         {"label", "parameters", "landmarks", "final_pose", "mean_nis"} <= set(v) for v in variants
     )
     assert variants[1]["parameters"]["sigma_x"] == pytest.approx(2.5)
+    # the new columns: the same figures as the replay's summary, in the table too
+    assert variants[0]["mean_semi_major"] == pytest.approx(
+        plain["summary"]["mean_semi_major_3sigma"]
+    )
+    assert variants[0]["aligned_mean_error"] == pytest.approx(
+        plain["summary"]["aligned_mean_error"]
+    )
+    assert variants[0]["max_error"] == pytest.approx(plain["summary"]["worst_error"])
+    assert all(v["mean_semi_major"] > 0 for v in variants)
     for variant in variants:
         key = variant["label"].replace(" /", "-div").replace(" x", "-x")
         rows = entity_rows(rrd, f"/variants/{key}/world/robot")

@@ -25,7 +25,7 @@ from typer._click.core import ParameterSource
 from typer._click.globals import get_current_context
 
 from ekfviz import __version__, signals
-from ekfviz.core.evaluation import Evaluation
+from ekfviz.core.evaluation import Evaluation, summary_lines
 from ekfviz.core.filter import HAVE_KERNEL, FilterParams, LandmarkInit, UpdateMode
 from ekfviz.core.records import AnyEvent, EventRecord
 from ekfviz.core.truth import GroundTruth
@@ -230,7 +230,10 @@ def command_hint(program: str) -> str:
 
 
 # Options taking several values: a value that is not a number is a missing value.
-NUMBER_OPTIONS = {"--init-pose-sigma": ("SX SY STHETA", 3)}
+NUMBER_OPTIONS = {
+    "--init-pose-sigma": ("SX SY STHETA", 3),
+    "--odometry-scale": ("DISTANCE TURN", 2),
+}
 GLOBAL_FLAGS = ("--debug",)
 
 
@@ -328,6 +331,25 @@ SigmaBearing = Annotated[
 ]
 SigmaRange = Annotated[
     float, _option("Measurement noise sigma of the range (m); positive.", FILTER_NOISE)
+]
+OdometryScale = Annotated[
+    tuple[float, float],
+    _option(
+        "Systematic odometry error to take out of every control: the true distance is"
+        " DISTANCE times the odometry's, the true turn TURN times its turn (plus"
+        " --odometry-bias); ekfviz calibrate estimates them.",
+        FILTER_NOISE,
+        metavar="DISTANCE TURN",
+        min=0.0,
+    ),
+]
+OdometryBias = Annotated[
+    float,
+    _option(
+        "Systematic turn per metre driven to add to every control (rad/m), as wheels of"
+        " unequal size turn a robot; a robot standing still does not turn.",
+        FILTER_NOISE,
+    ),
 ]
 LandmarkInitOption = Annotated[
     LandmarkInit,
@@ -624,16 +646,17 @@ def print_evaluation(evaluation: Evaluation, truth: GroundTruth | None) -> None:
     for column in ("id", "x", "y", "σ x", "σ y"):
         table.add_column(column, justify="right")
     if truth is not None:
-        for column in ("error (m)", "Mahalanobis", "in 3σ"):
+        for column in ("error (m)", "aligned (m)", "Mahalanobis", "in 3σ"):
             table.add_column(column, justify="right")
     for r in evaluation.landmarks:
         cells = [str(r.id), *(f"{v:.4f}" for v in (*r.estimate, *r.sigma))]
         if truth is not None:
             if r.mahalanobis is None or r.euclidean is None:
-                cells += ["-", "-", "no truth"]
+                cells += ["-", "-", "-", "no truth"]
             else:
                 verdict = "[green]yes[/]" if r.inside_3sigma else "[bold red]no[/]"
-                cells += [f"{r.euclidean:.4f}", f"{r.mahalanobis:.3f}", verdict]
+                aligned = "-" if r.aligned is None else f"{r.aligned:.4f}"
+                cells += [f"{r.euclidean:.4f}", aligned, f"{r.mahalanobis:.3f}", verdict]
         table.add_row(*cells)
     out.print(table)
     x, y, theta = evaluation.pose
@@ -645,6 +668,9 @@ def print_evaluation(evaluation: Evaluation, truth: GroundTruth | None) -> None:
     if truth is not None:
         inside = sum(bool(r.inside_3sigma) for r in evaluation.landmarks)
         out.print(f"{inside} of {len(evaluation.landmarks)} landmarks inside their 3-sigma ellipse")
+        if evaluation.summary is not None:  # inside because right, or because huge?
+            for line in summary_lines(evaluation.summary):
+                out.print(line, soft_wrap=True)
         missing = set(truth.ids.tolist()) - {r.id for r in evaluation.landmarks}
         if missing:
             out.print(f"[yellow]never observed: landmarks {sorted(missing)}[/]")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import shlex
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import Annotated
 
@@ -21,6 +22,8 @@ from ekfviz.cli.common import (
     InitPoseSigma,
     LandmarkInitOption,
     LogArgument,
+    OdometryBias,
+    OdometryScale,
     PythonOption,
     SigmaAlpha,
     SigmaBearing,
@@ -91,6 +94,8 @@ def replay(
     sigma_alpha: SigmaAlpha = DEFAULT.sigma_alpha,
     sigma_bearing: SigmaBearing = DEFAULT.sigma_bearing,
     sigma_range: SigmaRange = DEFAULT.sigma_range,
+    odometry_scale: OdometryScale = DEFAULT.odometry_scale,
+    odometry_bias: OdometryBias = DEFAULT.odometry_bias,
     motion_noise: MotionNoiseOption = MotionNoiseChoice.AUTO,
     init_pose: InitPoseOption = None,
     gate: GateOption = None,
@@ -173,6 +178,9 @@ def replay(
         update,
         log=data,
     )
+    if min(odometry_scale) <= 0:
+        fail("--odometry-scale values must be positive")
+    params = replace(params, odometry_scale=odometry_scale, odometry_bias=odometry_bias)
     try:
         worker = worker_options(python, filter_timeout, filter_memory)
         make_filter = load_filter(filter_spec, worker)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import enum
 import math
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Annotated
 
@@ -224,13 +224,15 @@ def _simulate_mrclam(
         check_output_folder(output, "--output")
     except OutputPathError as error:
         fail(str(error))
-    default = asdict(MrclamNoise())
-    noise = MrclamNoise(
-        **{
-            name: d if g is None else g
-            for (name, d), g in zip(default.items(), sigmas, strict=True)
-        }
-    )
+    d = MrclamNoise()
+    x, y, a, b, r = (
+        default if g is None else g
+        for default, g in zip(
+            (d.sigma_x, d.sigma_y, d.sigma_alpha, d.sigma_bearing, d.sigma_range), sigmas,
+            strict=True,
+        )
+    )  # fmt: skip
+    noise = replace(d, sigma_x=x, sigma_y=y, sigma_alpha=a, sigma_bearing=b, sigma_range=r)
     files = simulate_mrclam(seed=seed, world=MrclamWorld(duration_s=duration), noise=noise)
     try:
         output.mkdir(exist_ok=True)  # its parent was checked: no folders made above it
@@ -240,7 +242,7 @@ def _simulate_mrclam(
         write_bytes_atomic(output / name, text.encode("utf-8"))
     out.print(f"Wrote the MRCLAM-layout dataset {output} ({len(files)} files, robot 1)")
     flags = " ".join(f"--sigma-{n.removeprefix('sigma_').replace('_', '-')} {v:g}"
-                     for n, v in asdict(noise).items())  # fmt: skip
+                     for n, v in asdict(noise).items() if n.startswith("sigma_"))  # fmt: skip
     out.print(
         "Replay it with the filter told the true noise:\n  "
         + f"{command_hint('ekfviz')} replay {output} --motion-noise per-sqrt-second {flags}",

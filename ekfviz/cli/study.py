@@ -121,7 +121,7 @@ def study_table(
     )
     columns = [what]
     if has_truth:
-        columns += ["mean err", "Mahal.", "in 3σ"]
+        columns += ["mean err", "worst", "aligned", "3σ axis", "Mahal.", "in 3σ"]
     columns += ["Δ base", "NIS in", "ms/step", "reading"]
     for column in columns:
         table.add_column(column, justify="left" if column in (what, "reading") else "right")
@@ -129,7 +129,10 @@ def study_table(
         cells = [s.label + ("*" if own_noise and s.label in own_noise else "")]
         if has_truth:
             inside = "-" if s.inside is None else f"{s.inside}/{s.landmarks}"
-            cells += [_num(s.mean_error, 3), _num(s.mean_mahalanobis, 2), inside]
+            cells += [
+                _num(s.mean_error, 3), _num(s.max_error, 3), _num(s.aligned_mean_error, 3),
+                _num(s.mean_semi_major, 3), _num(s.mean_mahalanobis, 2), inside,
+            ]  # fmt: skip
         nis_inside = "-" if s.nis_inside is None else f"{s.nis_inside:.0%}"
         cells += [f"{s.from_baseline:.3f}", nis_inside, _num(s.ms_per_step, 3), s.reading]
         table.add_row(*(escape(c) for c in cells))
@@ -138,7 +141,8 @@ def study_table(
 
 def study_markdown(summaries: list[Summary], what: str) -> str:
     """The study's table as markdown, for the recording."""
-    columns = [what, "mean error", "max error", "mean Mahalanobis", "in 3σ", "final pose",
+    columns = [what, "mean error", "max error", "aligned mean error", "mean 3σ semi-major",
+               "mean Mahalanobis", "in 3σ", "final pose",
                "Δ baseline", "mean NIS", "NIS in 95%", "ms per step", "reading"]  # fmt: skip
     rows = [
         "# Sweep" if what == "variant" else "# Comparison",
@@ -152,6 +156,7 @@ def study_markdown(summaries: list[Summary], what: str) -> str:
         nis_inside = "-" if s.nis_inside is None else f"{s.nis_inside:.0%}"
         rows.append(
             f"| {s.label} | {_num(s.mean_error, 3)} | {_num(s.max_error, 3)} |"
+            f" {_num(s.aligned_mean_error, 3)} | {_num(s.mean_semi_major, 3)} |"
             f" {_num(s.mean_mahalanobis, 2)} | {inside} | {pose} | {s.from_baseline:.3f} |"
             f" {_num(s.mean_nis, 2)} | {nis_inside} | {_num(s.ms_per_step, 3)} | {s.reading} |"
         )

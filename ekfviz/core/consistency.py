@@ -215,6 +215,37 @@ class Consistency:
             else:
                 self.singular_pose += 1
 
+    def combined(self) -> tuple[Verdict, str] | None:
+        """One verdict from NEES and NIS together, and why; None with neither.
+
+        The NEES sees the pose error against the pose covariance only, and a covariance
+        inflated until it holds the errors passes it. The NIS sees the measurements
+        against what the filter expects of them: far below its bounds, the filter expects
+        far more error than its measurements show. So: NEES consistent (or borderline)
+        but NIS mostly below its bounds reads "too cautious"; either one over-confident
+        reads "over-confident"; both consistent reads "consistent".
+        """
+        nees, nis = self.nees.verdict, self.nis.verdict
+        if nees is None and nis is None:
+            return None
+        if nees is None or nis is None:
+            only = nees if nees is not None else nis
+            assert only is not None
+            return only, f"from the {'NEES' if nees is not None else 'NIS'} alone"
+        if Verdict.OVER_CONFIDENT in (nees, nis):
+            which = "NEES" if nees is Verdict.OVER_CONFIDENT else "NIS"
+            return Verdict.OVER_CONFIDENT, f"its {which} lies above the bounds"
+        if nis is Verdict.TOO_CAUTIOUS or nees is Verdict.TOO_CAUTIOUS:
+            if nees is not Verdict.TOO_CAUTIOUS:
+                return Verdict.TOO_CAUTIOUS, (
+                    f"its NEES looks {nees.value} but its NIS lies {self.nis.leaning()}"
+                    " (a covariance inflated until the truth falls inside it)"
+                )
+            return Verdict.TOO_CAUTIOUS, "its NEES lies below the bounds"
+        if Verdict.BORDERLINE in (nees, nis):
+            return Verdict.BORDERLINE, "NEES and NIS together"
+        return Verdict.CONSISTENT, "NEES and NIS together"
+
     def summary(self) -> list[str]:
         """One sentence per statistic, for the terminal and the evaluation document."""
         lines = []
@@ -246,12 +277,17 @@ class Consistency:
                     f"NEES: {self.singular_pose} corrected state(s) with a singular pose"
                     " covariance (a start known exactly) are not judged"
                 )
+        both = self.combined()
+        if both is not None and self.nees.total and self.nis.total:
+            lines.append(f"NEES and NIS together: the filter looks {both[0].value} ({both[1]})")
         return lines
 
     def to_json(self) -> dict[str, object]:
+        both = self.combined()
         return {
             "nees": self.nees.to_json(),
             "nis": self.nis.to_json(),
+            "verdict": None if both is None else both[0].value,
             "steps_without_true_pose": self.without_true_pose,
             "confidence": CONFIDENCE,
         }
@@ -278,6 +314,17 @@ def reading(consistency: Consistency | None, inside: int | None, landmarks: int)
             return f"no NEES or NIS; map: {inside}/{landmarks} landmarks in 3σ"
         return "no update to judge"
     verdict = counts[0][1].verdict if counts else None
+    both = None if consistency is None else consistency.combined()
+    if (
+        both is not None
+        and both[0] is Verdict.TOO_CAUTIOUS
+        and verdict
+        in (
+            Verdict.CONSISTENT,
+            Verdict.BORDERLINE,
+        )
+    ):  # a NEES that passes only because the covariance is inflated: the NIS shows it
+        verdict = Verdict.TOO_CAUTIOUS
     if map_off and verdict in (
         None,
         Verdict.CONSISTENT,

@@ -76,7 +76,9 @@ class MotionNoise(str, enum.Enum):
     # per control, whatever time it spans: Q = diag(sigma^2), sigmas in m and rad (classic)
     PER_STEP = "per-step"
     # per square-root second of the time dt a control spans: Q = diag(sigma^2) * dt,
-    # sigmas in m/sqrt(s) and rad/sqrt(s): a random walk, whatever the logging rate
+    # sigmas in m/sqrt(s) and rad/sqrt(s): a random walk, whatever the logging rate. The
+    # noise follows the motion: a control that reads no motion (d = alpha = 0, a robot
+    # standing still) adds none, since wheels that do not turn do not slip
     PER_SQRT_SECOND = "per-sqrt-second"
 
 
@@ -101,6 +103,25 @@ class FilterParams:
     # NIS (2 dof) beyond which an observation of a known landmark is rejected as an
     # outlier (see ekfviz.core.gating); None: no gate
     gate: float | None = None
+    # systematic odometry errors the replay takes out of every control before the filter
+    # sees it (see corrected): scales on the distance and on the turn, and a turn bias in
+    # rad per metre driven (wheels of unequal size turn the robot as it drives)
+    odometry_scale: tuple[float, float] = (1.0, 1.0)
+    odometry_bias: float = 0.0
+
+    @property
+    def corrects_odometry(self) -> bool:
+        """Whether the controls are corrected (a scale other than 1 or a bias)."""
+        return self.odometry_scale != (1.0, 1.0) or self.odometry_bias != 0.0
+
+    def corrected(self, d: float, alpha: float) -> tuple[float, float]:
+        """A control with the systematic odometry errors taken out.
+
+        d' = k_d d, alpha' = k_alpha alpha + b d (the bias follows the distance, so a
+        robot standing still does not turn).
+        """
+        k_d, k_alpha = self.odometry_scale
+        return k_d * d, k_alpha * alpha + self.odometry_bias * d
 
     @property
     def Q(self) -> FloatArray:
@@ -115,6 +136,12 @@ class FilterParams:
         """
         return self.Q * _noise_scale(self.motion_noise, dt)
 
+    def Q_of_motion(self, d: float, alpha: float, dt: float | None) -> FloatArray:
+        """The motion noise covariance (3x3) of a control: with the time-scaled model, a
+        control that reads no motion (d = alpha = 0) adds none (see :class:`MotionNoise`).
+        """
+        return self.Q * _noise_scale(self.motion_noise, dt, moving=d != 0.0 or alpha != 0.0)
+
     @property
     def R(self) -> FloatArray:
         """Measurement noise covariance (2x2) of (bearing, range)."""
@@ -125,6 +152,7 @@ class FilterParams:
         values = asdict(self)
         values["init_pose"] = list(self.init_pose)
         values["init_pose_sigma"] = list(self.init_pose_sigma)
+        values["odometry_scale"] = list(self.odometry_scale)
         values["landmark_init"] = self.landmark_init.value
         values["update"] = self.update.value
         values["motion_noise"] = self.motion_noise.value
@@ -140,8 +168,9 @@ class FilterError(ValueError):
     """
 
 
-def _noise_scale(model: MotionNoise, dt: float | None) -> float:
-    """The factor of diag(sigma^2) in a control's Q: 1 per step, dt per second."""
+def _noise_scale(model: MotionNoise, dt: float | None, moving: bool = True) -> float:
+    """The factor of diag(sigma^2) in a control's Q: 1 per step, dt per second (0 for a
+    control that reads no motion: ``moving`` False)."""
     if model is MotionNoise.PER_STEP:
         return 1.0
     if dt is None:
@@ -151,7 +180,7 @@ def _noise_scale(model: MotionNoise, dt: float | None) -> float:
         )
     if not dt >= 0.0:
         raise FilterError(f"a control spans {dt:g} s, expected a time span >= 0")
-    return dt
+    return dt if moving else 0.0
 
 
 class EkfSlam:
@@ -321,7 +350,8 @@ class EkfSlam:
         P_rr' = G P_rr G^T + W Q W^T and P_rm' = G P_rm. G is the identity but for
         G[0, 2] = -d sin(theta) and G[1, 2] = d cos(theta), and Q is diagonal, so the
         3x3 block is written out in floats (symmetric by construction). With the
-        time-scaled motion noise, Q = diag(sigma^2) * dt (see :class:`MotionNoise`).
+        time-scaled motion noise, Q = diag(sigma^2) * dt, none for a control that reads no
+        motion (see :class:`MotionNoise`).
 
         :param dt: the time in seconds the control spans; needed by the time-scaled model
         :raises FilterError: a non-finite state, or a time-scaled Q without ``dt``
@@ -330,7 +360,7 @@ class EkfSlam:
         x, P = self._x, self._P
         q = self._q
         if self.params.motion_noise is not MotionNoise.PER_STEP:
-            scale = _noise_scale(self.params.motion_noise, dt)
+            scale = _noise_scale(self.params.motion_noise, dt, moving=d != 0.0 or alpha != 0.0)
             q = (q[0] * scale, q[1] * scale, q[2] * scale)
         if self._compiled:  # the same algebra in C (O(n) either way)
             if not _kernel.predict(x, P, n, d, alpha, *q):

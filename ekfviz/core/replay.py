@@ -61,6 +61,18 @@ def plugged(make_filter: FilterFactory, params: FilterParams, name: str) -> Plug
         raise FilterLineError(0, f"event 0 (init): {error}") from error
 
 
+def corrected_controls(events: Iterable[AnyEvent], params: FilterParams) -> Iterator[AnyEvent]:
+    """The events with every control's systematic odometry errors taken out
+    (:meth:`FilterParams.corrected`); the rest as they are."""
+    for event in events:
+        if isinstance(event, Control):
+            d, alpha = params.corrected(event.d, event.alpha)
+            # not dataclasses.replace: this runs for every control of every replay
+            yield Control(event.line, d, alpha, event.time, event.dt)
+        else:
+            yield event
+
+
 def replay(
     events: Iterable[AnyEvent],
     params: FilterParams | None = None,
@@ -107,6 +119,8 @@ def replay(
         protocol filter that raised or showed a broken state, ...)
     """
     params = params if params is not None else FilterParams()
+    if params.corrects_odometry:  # every filter sees the corrected controls
+        events = corrected_controls(events, params)
     ekf: EkfSlam | Plugged
     if slam is not None:
         ekf = slam

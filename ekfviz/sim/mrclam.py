@@ -39,6 +39,11 @@ class MrclamNoise:
     sigma_alpha: float = 0.03  # rad / sqrt(s)
     sigma_bearing: float = 0.02  # rad
     sigma_range: float = 0.05  # m
+    # systematic odometry errors (as FilterParams.corrected takes them out): the robot
+    # truly drives k_d v dt and turns k_alpha omega dt + b v dt when its odometry reads
+    # (v, omega) over dt; (1, 1) and 0: an odometry without them
+    odometry_scale: tuple[float, float] = (1.0, 1.0)
+    turn_bias: float = 0.0  # b, rad per metre driven
 
 
 @dataclass(frozen=True, slots=True)
@@ -99,7 +104,10 @@ def simulate_mrclam(
         if dt > 0:  # the true motion over the span, with the velocities in force
             e_x, e_y, e_a = rng.normal(0.0, 1.0, 3) * q * math.sqrt(dt)
             theta = pose[2]
-            moved = motion(pose, v * dt + e_x, omega * dt + e_a)
+            k_d, k_alpha = noise.odometry_scale
+            d_true = k_d * v * dt
+            alpha_true = k_alpha * omega * dt + noise.turn_bias * v * dt
+            moved = motion(pose, d_true + e_x, alpha_true + e_a)
             moved[:2] += e_y * np.array([-math.sin(theta), math.cos(theta)])
             pose = moved
         previous_ms = t_ms

@@ -194,6 +194,11 @@ class Summary:
     filter: str
     seconds: float
     ms_per_step: float | None
+    # the map beside its errors: a map inside 3 sigma because its ellipses are huge shows
+    # here; and the errors after the best rigid alignment to the truth (the map's shape)
+    mean_semi_major: float | None = None
+    aligned_mean_error: float | None = None
+    aligned_max_error: float | None = None
 
 
 def summarise(run: Run, baseline: Run) -> Summary:
@@ -209,6 +214,7 @@ def summarise(run: Run, baseline: Run) -> Summary:
     consistency = evaluation.consistency
     count = consistency.nis if consistency is not None else None
     inside = sum(bool(r.inside_3sigma) for r in evaluation.landmarks) if distances else None
+    summary = evaluation.summary
     return Summary(
         label=run.spec.label,
         parameters={name: getattr(run.spec.params, name) for name in VARIABLE},
@@ -225,4 +231,7 @@ def summarise(run: Run, baseline: Run) -> Summary:
         filter=run.spec.filter.text,
         seconds=run.seconds,
         ms_per_step=1000.0 * run.seconds / run.steps if run.steps else None,
+        mean_semi_major=None if summary is None else summary.mean_semi_major,
+        aligned_mean_error=None if summary is None else summary.aligned_mean_error,
+        aligned_max_error=None if summary is None else summary.aligned_worst_error,
     )
