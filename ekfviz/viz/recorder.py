@@ -68,9 +68,15 @@ from ekfviz.models.angles import wrap_angles
 from ekfviz.models.range_bearing import RangeBearing
 from ekfviz.viz import style
 from ekfviz.viz.association import AssociationView
-from ekfviz.viz.blueprint import default_blueprint
+from ekfviz.viz.blueprint import ASSOCIATION_SERIES, REFERENCE_SERIES, default_blueprint
 from ekfviz.viz.correlation import log_correlation, log_correlation_styling
-from ekfviz.viz.ellipses import ellipse_axes, ellipse_outlines, outline_points, unit_circle
+from ekfviz.viz.ellipses import (
+    ellipse_axes,
+    ellipse_extent,
+    ellipse_outlines,
+    outline_points,
+    unit_circle,
+)
 from ekfviz.viz.flush import flush_interruptibly
 from ekfviz.viz.thinning import PREDICT_INTERVAL_S, PredictThinning
 
@@ -409,6 +415,7 @@ class _Entities:
         self.rec = rec
         self._prefix = prefix.strip("/") + "/" if prefix.strip("/") else ""
         self._styles: dict[str, tuple[rr.AsComponents, ...]] = {}  # path -> styling unsent
+        self.sent: set[str] = set()  # the entities (without the prefix) given data so far
 
     def path(self, entity: str) -> str:
         return self._prefix + entity
@@ -430,11 +437,13 @@ class _Entities:
         self._styles.clear()
 
     def log(self, entity: str, data: Any, *, static: bool = False) -> None:
+        self.sent.add(entity)
         path = self.path(entity)
         styling = self._styles.pop(path, ())
         self.rec.log(path, data, *styling, static=static)
 
     def send_columns(self, entity: str, indexes: Sequence[rr.TimeColumnLike], columns: Any) -> None:
+        self.sent.add(entity)
         path = self.path(entity)
         styling = self._styles.pop(path, ())
         if styling:
@@ -546,6 +555,8 @@ class Recorder:
     :param predict_interval_s: log time between two logged predicts of a timestamped
         log (see :mod:`ekfviz.viz.thinning`); None logs every predict
     :param sensor: the measurement model, to draw id-less scans from the sensor's position
+    :param gps_reference: a GPS reference will be logged after ``finish`` (Victoria Park,
+        see :func:`ekfviz.viz.association.log_reference`): the layout has its plot
     """
 
     def __init__(
@@ -563,8 +574,10 @@ class Recorder:
         history: bool = False,
         predict_interval_s: float | None = PREDICT_INTERVAL_S,
         sensor: RangeBearing | None = None,
+        gps_reference: bool = False,
     ) -> None:
         self._rec = _Entities(rec, prefix)
+        self._gps_reference = gps_reference
         self._sensor = sensor if sensor is not None else RangeBearing()
         self.association: AssociationView | None = None  # made at the first scan
         # id-less scans: a new landmark's first-sighting outline (mean, covariance), held
@@ -752,6 +765,9 @@ class Recorder:
                 style.LANDMARK_ELLIPSES, rows, [(0, record, _landmark_rows(record, None))]
             )
             self._map_shown_event = record.event
+        if self._last_update is not None and self._last_update[0].n_landmarks:
+            last = self._last_update[0]  # frame the final map's ellipses, not only its points
+            self._grow_bounds(ellipse_extent(last.landmarks_xy, last.landmark_covs))
         self._series.flush()
         if self.association is not None:
             self.association.flush()
@@ -763,7 +779,7 @@ class Recorder:
             )
         self._rec.send_styles()
         if self._blueprint:
-            self._rec.send_blueprint(self._layout(self._bounds_xy))
+            self._rec.send_blueprint(self._layout(self._bounds_xy, final=True))
         self._rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
 
     def note(self, text: str, level: str | rr.TextLogLevel = rr.TextLogLevel.WARN) -> None:
@@ -787,11 +803,12 @@ class Recorder:
         else:
             self._rec.rec.set_time(style.TIME, duration=time)
 
-    def _layout(self, bounds_xy: FloatArray | None = None) -> rrb.Blueprint:
+    def _layout(self, bounds_xy: FloatArray | None = None, *, final: bool = False) -> rrb.Blueprint:
         if bounds_xy is not None:
             margin = 0.05 * max(float(np.max(bounds_xy[1] - bounds_xy[0])), 1.0)
             bounds_xy = bounds_xy + np.array([[-margin], [margin]])
         return default_blueprint(
+            has=self.entities_with_data if final else None,
             landmark_ids=sorted(self._seen_ids) if self._truth is not None else (),
             has_truth=self._truth is not None,
             has_true_poses=self._truth is not None and self._truth.has_poses,
@@ -802,6 +819,17 @@ class Recorder:
         )
 
     # -- records -------------------------------------------------------------------------
+
+    @property
+    def entities_with_data(self) -> frozenset[str]:
+        """The entity paths (without the prefix) given data so far, and the GPS
+        reference's series if one is to come."""
+        has = set(self._rec.sent)
+        if self.association is not None:  # it logs through the stream itself
+            has |= {f"{ASSOCIATION_SERIES}/matched", style.LOG}
+        if self._gps_reference:
+            has |= {f"{REFERENCE_SERIES}/gps_error", f"{REFERENCE_SERIES}/gps_rmse"}
+        return frozenset(has)
 
     @property
     def time_span(self) -> tuple[float, float] | None:

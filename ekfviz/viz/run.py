@@ -518,12 +518,14 @@ def open_run(
     detail: bool = False,
     history: bool = False,
     sensor: RangeBearing | None = None,
+    gps_reference: bool = False,
 ) -> Iterator[RunLogger]:
     """A recording of one replay (see :func:`open_recording`), logged by a RunLogger.
 
     :param detail: log every landmark's ellipse and error at every update (see
         :class:`~ekfviz.viz.recorder.Recorder`); by default a large map is logged whole
         only every ``MAP_EVERY_STEPS`` steps
+    :param gps_reference: a GPS reference is logged after the run (its plot is laid out)
     """
     with open_recording(info, sinks) as recording:
         recorder = Recorder(
@@ -534,6 +536,7 @@ def open_run(
             history=history,
             live_layout=sinks.spawn or sinks.serve or sinks.connect is not None,
             sensor=sensor,
+            gps_reference=gps_reference,
         )
         yield RunLogger(recorder, recording)
 

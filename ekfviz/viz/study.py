@@ -11,21 +11,23 @@ import numpy as np
 import rerun as rr
 
 from ekfviz.core.consistency import chi2_bounds, update_nis
-from ekfviz.core.evaluation import landmark_errors
+from ekfviz.core.evaluation import Evaluation, landmark_errors
 from ekfviz.core.records import EventKind
 from ekfviz.core.truth import GroundTruth
 from ekfviz.core.types import FloatArray
 from ekfviz.studies.runs import Run
 from ekfviz.viz import style
 from ekfviz.viz.blueprint import sweep_blueprint
+from ekfviz.viz.ellipses import ellipse_extent
 from ekfviz.viz.recorder import Recorder
 from ekfviz.viz.run import Recording, finish_recorders
 
 SUMMARY = "run/summary"
-# matplotlib's tab10 and a few more: one colour per variant in the overlaid plots
+# matplotlib's tab10 (its grey swapped for navy: grey is the 95% bounds' colour) and a
+# few more: one colour per variant in the overlaid plots
 PALETTE: tuple[style.Rgb, ...] = (
     (31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
-    (140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207),
+    (140, 86, 75), (227, 119, 194), (0, 0, 128), (188, 189, 34), (23, 190, 207),
     (255, 215, 0), (174, 199, 232), (255, 187, 120), (152, 223, 138),
 )  # fmt: skip
 
@@ -43,8 +45,37 @@ def record_study(
     :param root: ``variants`` for a sweep, ``filters`` for a comparison
     """
     rec = recording.rec
-    recorders = []
-    bounds: list[np.ndarray] = []
+    recorders, box = log_runs(rec, runs, truth, root)
+    rec.log(SUMMARY, rr.TextDocument(summary, media_type=rr.MediaType.MARKDOWN), static=True)
+    finish_recorders(recording, recorders)
+    # after the runs are finished: the layout shows what they logged, no empty plot
+    rec.send_blueprint(
+        sweep_blueprint(
+            [(run.spec.label, f"{root}/{run.spec.key}") for run in runs],
+            has_truth=truth is not None,
+            bounds_xy=box,
+            what="variant" if root == "variants" else "filter",
+            has_poses=truth is not None and truth.poses_xytheta is not None,
+            nis_range=nis_axis(runs[0]),
+            has={
+                f"{root}/{run.spec.key}": recorder.entities_with_data
+                for run, (recorder, _) in zip(runs, recorders, strict=True)
+            },
+            summary=SUMMARY,
+        )
+    )
+
+
+def log_runs(
+    rec: rr.RecordingStream, runs: list[Run], truth: GroundTruth | None, root: str
+) -> tuple[list[tuple[Recorder, Evaluation]], FloatArray]:
+    """Log every run's records under ``<root>/<key>``, one colour per run in the plots.
+
+    :return: the recorders to finish with their evaluations, and the (2, 2) world box
+        of every pose and landmark's 3-sigma ellipse, with a margin
+    """
+    recorders: list[tuple[Recorder, Evaluation]] = []
+    bounds: list[FloatArray] = []
     for k, run in enumerate(runs):
         prefix = f"{root}/{run.spec.key}"
         recorder = Recorder(rec, truth=truth, blueprint=False, prefix=prefix)
@@ -60,24 +91,14 @@ def record_study(
         if truth is not None:
             _log_mean_error(rec, prefix, run, truth, colour)
         recorders.append((recorder, run.evaluation))
-        for record in run.records:
-            bounds.append(record.pose[None, :2])
-            bounds.append(record.landmarks_xy)
+        bounds.append(np.array([record.pose[:2] for record in run.records]))
+        last = run.records[-1]  # the final map's ellipses in the frame, not only its points
+        if last.n_landmarks:
+            bounds.append(ellipse_extent(last.landmarks_xy, last.landmark_covs))
     points = np.concatenate(bounds)
     box = np.stack([points.min(axis=0), points.max(axis=0)])
     margin = 0.05 * max(float(np.max(box[1] - box[0])), 1.0)
-    rec.send_blueprint(
-        sweep_blueprint(
-            [(run.spec.label, f"{root}/{run.spec.key}") for run in runs],
-            has_truth=truth is not None,
-            bounds_xy=box + np.array([[-margin], [margin]]),
-            what="variant" if root == "variants" else "filter",
-            has_poses=truth is not None and truth.poses_xytheta is not None,
-            nis_range=nis_axis(runs[0]),
-        )
-    )
-    rec.log(SUMMARY, rr.TextDocument(summary, media_type=rr.MediaType.MARKDOWN), static=True)
-    finish_recorders(recording, recorders)
+    return recorders, box + np.array([[-margin], [margin]])
 
 
 def nis_axis(baseline: Run) -> tuple[float, float] | None:
