@@ -58,6 +58,7 @@ def map_view(
     prefix: str = "",
     name: str = "Map",
     history: bool = False,
+    exclude: Sequence[str] = (),
 ) -> rrb.Spatial2DView:
     """The 2-D map: robot, ellipses, landmarks, observations and the trajectory so far.
 
@@ -66,6 +67,7 @@ def map_view(
     :param prefix: the entity path the run was logged under (see ``Recorder(prefix=)``)
     :param history: also accumulate every predicted and updated robot ellipse up to the
         time cursor (``--history``: the classic figure)
+    :param exclude: entities under the world (without the prefix) this map leaves out
     """
     root = f"/{prefix.strip('/')}/" if prefix.strip("/") else "/"
     visual_bounds = None
@@ -76,7 +78,9 @@ def map_view(
     return rrb.Spatial2DView(
         name=name,
         origin=root,  # the display frame: y up, through the static transform of "world"
-        contents=f"{root}{style.WORLD}/**",
+        contents=[f"+ {root}{style.WORLD}/**", *(f"- {root}{path}" for path in exclude)]
+        if exclude
+        else f"{root}{style.WORLD}/**",
         background=style.BACKGROUND,
         visual_bounds=visual_bounds,
         overrides={
@@ -346,13 +350,21 @@ def correlation_view(prefix: str = "") -> rrb.Vertical:
 
 
 def run_details(
-    label: str, prefix: str, has: Collection[str], axis: rrb.archetypes.TimeAxis | None = None
+    label: str,
+    prefix: str,
+    has: Collection[str],
+    axis: rrb.archetypes.TimeAxis | None = None,
+    *,
+    log: bool = False,
 ) -> rrb.Container:
-    """A tab of one run of a study: its own plots, correlation matrix and evaluation."""
+    """A tab of one run of a study: its own plots, correlation matrix and evaluation (and
+    its log, with ``log``)."""
     plots = run_plots(has, prefix=prefix, axis=axis)
     below: list[rrb.View | rrb.Container] = []
     if style.CORRELATION_MATRIX in has:
         below.append(correlation_view(prefix))
+    if log and style.LOG in has:
+        below.append(log_view([f"{root_of(prefix)}{style.LOG}/**"], name=f"Log: {label}"))
     if style.RUN_EVALUATION in has:
         below.append(
             rrb.TextDocumentView(
@@ -368,7 +380,8 @@ def run_details(
 def study_documents(
     prefixes: Sequence[str], summary: str | None, *, first: Sequence[rrb.View] = ()
 ) -> list[rrb.View]:
-    """The documents of a study: its summary, every run's log in one view, how it was run."""
+    """The documents of a study: its summary, the log of every run in ``prefixes`` in one
+    view, how it was run."""
     views: list[rrb.View] = list(first)
     if summary is not None:
         views.append(rrb.TextDocumentView(name="Summary", origin=summary))

@@ -293,8 +293,10 @@ def check_blueprint(
 
     :param variants: (label, prefix) of the reference's run then the checked filter's
     """
+    # the outlines at the divergence in the zoomed view only: they would cover the map
     maps: list[rrb.View] = [
-        map_view(bounds_xy, prefix=prefix, name=label) for label, prefix in variants
+        map_view(bounds_xy, prefix=prefix, name=label, exclude=(EXPECTED, GOT))
+        for label, prefix in variants
     ]
     if first is not None:
         prefix = variants[-1][1]
@@ -311,14 +313,18 @@ def check_blueprint(
         contents=[f"/{DIFFERENCE}", f"/{TOLERANCE}", f"/{DIVERGENT}"],
         plot_legend=SMALL_LEGEND if first is not None else NO_LEGEND,
     )
+    # the log of the checked filter (the reference's says the same, in its own tab)
     documents = study_documents(
-        [prefix for _, prefix in variants],
+        [variants[-1][1]],
         SUMMARY,
         first=[rrb.TextDocumentView(name="Divergences", origin=TABLE)] if first else [],
     )
     logs: list[rrb.View] = [view for view in documents if isinstance(view, rrb.TextLogView)]
     others = [view for view in documents if not isinstance(view, rrb.TextLogView)]
-    details = [run_details(label, prefix, has[prefix]) for label, prefix in variants]
+    details = [
+        run_details(label, prefix, has[prefix], log=k < len(variants) - 1)
+        for k, (label, prefix) in enumerate(variants)
+    ]
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Vertical(
