@@ -143,8 +143,10 @@ def test_a_check_recording_opens_on_the_divergence(tmp_path: Path) -> None:
     } <= zoom.shown
     assert f"/filters/NoRInS/{check_viz.EXPECTED}" not in maps[1].shown  # not over the map
     # the ERROR line is in the log view, at the divergent event
-    (log,) = [view for view in layout.views if view.kind == "TextLog" and "/log" in view.shown]
-    errors = [row for row in entity_rows(save, "/log") if row["TextLog:level"] == ["ERROR"]]
+    (log,) = [view for view in layout.views if f"/{check_viz.LOG}" in view.shown]
+    assert log.kind == "TextLog"
+    errors = entity_rows(save, f"/{check_viz.LOG}")
+    assert [row["TextLog:level"] for row in errors] == [["ERROR"]]
     assert [row["event"] for row in errors] == [2]
     assert "landmark mean x[L2.x] expected 2.74994" in str(errors[0]["TextLog:text"])
     # the time cursor: the event timeline, following to the end, which is the divergence

@@ -11,7 +11,7 @@ Besides each filter's run under ``filters/<key>/`` (see :mod:`ekfviz.viz.study`)
 | ``check/tolerance`` | log10 of the tolerance, over the same events |
 | ``check/divergent`` | the divergent events' own values (points) |
 | ``check/divergences`` | a table of every divergent event: entry, expected, got, hint |
-| ``log`` | an ERROR line at every divergent event |
+| ``log/divergence`` | an ERROR line at every divergent event |
 
 The time panel shows the ``event`` timeline; the checked run ends at its first
 divergence (unless every event is checked), where the cursor opens.
@@ -54,6 +54,7 @@ DIFFERENCE = "check/difference"
 TOLERANCE = "check/tolerance"
 DIVERGENT = "check/divergent"
 TABLE = "check/divergences"
+LOG = "log/divergence"  # under the log: its view shows it
 
 MARK_COLOR: style.Rgb = (220, 0, 0)
 EXPECTED_COLOR: style.Rgb = (110, 110, 110)
@@ -132,7 +133,7 @@ def record_check(
         for k, divergence in enumerate(divergences):
             rec.set_time(style.STEP, sequence=divergence.step)
             rec.set_time(style.EVENT, sequence=divergence.event)
-            rec.log(style.LOG, rr.TextLog(describe(divergence, first=k == 0), level="ERROR"))
+            rec.log(LOG, rr.TextLog(describe(divergence, first=k == 0), level="ERROR"))
         rec.log(
             TABLE, rr.TextDocument(_table(divergences), media_type="text/markdown"), static=True
         )
