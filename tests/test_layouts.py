@@ -151,7 +151,7 @@ def test_a_check_recording_opens_on_the_divergence(tmp_path: Path) -> None:
     assert "landmark mean x[L2.x] expected 2.74994" in str(errors[0]["TextLog:text"])
     # the time cursor: the event timeline, following to the end, which is the divergence
     assert layout.time_panel["TimePanelBlueprint:timeline"] == ["event"]
-    assert max(row["event"] for row in entity_rows(save, "/filters/NoRInS/world/robot")) == 2
+    assert [row["event"] for row in entity_rows(save, "/filters/NoRInS/world/robot")][-1] == 2
     # a plot with data at every event up to the divergence, the divergent one marked
     differences = entity_rows(save, f"/{check_viz.DIFFERENCE}")
     assert [row["event"] for row in differences] == [0, 1, 2]
@@ -160,3 +160,27 @@ def test_a_check_recording_opens_on_the_divergence(tmp_path: Path) -> None:
     assert divergent["event"] == 2
     assert layout.showing(f"/{check_viz.DIFFERENCE}") and layout.showing(f"/{check_viz.DIVERGENT}")
     assert layout.showing(f"/{check_viz.TABLE}")
+
+
+def test_gps_dropouts_are_gaps_not_chords() -> None:
+    import numpy as np
+
+    from ekfviz.viz.association import gps_pieces
+
+    times = np.array([0.0, 1.0, 2.0, 3.0, 30.0, 31.0, 32.5, 33.0])
+    xy = np.column_stack([times, np.zeros(8)])
+    pieces = gps_pieces(xy, times)
+    assert [piece[:, 0].tolist() for piece in pieces] == [[0, 1, 2, 3], [30, 31, 32.5, 33]]
+    assert len(gps_pieces(xy[:1], times[:1])) == 1
+    assert len(gps_pieces(xy[:4], times[:4])) == 1  # a steady track stays one piece
+
+
+def test_real_data_maps_draw_only_the_latest_first_sighting(tmp_path: Path, mrclam: Path) -> None:
+    layout = made(["replay", str(mrclam), "--robot", "1"], tmp_path / "run.rrd")
+    (world,) = [view for view in layout.views if view.name == "Map"]
+    ranged = {key for key in world.properties if key.endswith("/visualizers")}
+    assert not any(style.LANDMARK_INITIAL in key for key in ranged)
+    assert any(style.TRAJECTORY in key for key in ranged)
+    history = made(["replay", str(mrclam), "--robot", "1", "--history"], tmp_path / "h.rrd")
+    (world,) = [view for view in history.views if view.name == "Map"]
+    assert any(style.LANDMARK_INITIAL in key for key in world.properties)

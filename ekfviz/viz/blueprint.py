@@ -59,6 +59,7 @@ def map_view(
     name: str = "Map",
     history: bool = False,
     exclude: Sequence[str] = (),
+    all_first_sightings: bool = True,
 ) -> rrb.Spatial2DView:
     """The 2-D map: robot, ellipses, landmarks, observations and the trajectory so far.
 
@@ -68,6 +69,9 @@ def map_view(
     :param history: also accumulate every predicted and updated robot ellipse up to the
         time cursor (``--history``: the classic figure)
     :param exclude: entities under the world (without the prefix) this map leaves out
+    :param all_first_sightings: accumulate every landmark's first-sighting ellipse up to
+        the cursor; else only the latest is drawn (on real data they are metres wide and
+        a run's worth of them covers the map)
     """
     root = f"/{prefix.strip('/')}/" if prefix.strip("/") else "/"
     visual_bounds = None
@@ -87,6 +91,7 @@ def map_view(
             **{
                 f"{root}{path}": accumulated_range()
                 for path in style.ACCUMULATED + (style.HISTORY if history else ())
+                if all_first_sightings or path != style.LANDMARK_INITIAL
             },
             f"{root}{style.OBSERVATIONS}": at_cursor(),  # see Recorder._send_rays
         },
@@ -317,7 +322,8 @@ def default_blueprint(
         ]
     return rrb.Blueprint(
         rrb.Horizontal(
-            map_view(bounds_xy, history=history),
+            # a timestamped log is real data: its first sightings accumulate with --history
+            map_view(bounds_xy, history=history, all_first_sightings=history or not has_time),
             rrb.Vertical(
                 tiles(plots) if plots else rrb.Vertical(),
                 rrb.Tabs(*texts),
