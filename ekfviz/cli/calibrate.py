@@ -8,7 +8,7 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from ekfviz.cli.common import LogArgument, TruthOption, app, command_hint, fail, out, warn
+from ekfviz.cli.common import StudyLogArgument, TruthOption, app, command_hint, fail, out, warn
 from ekfviz.cli.sources import MotionNoiseChoice, RobotOption, first_time, open_log, resolve
 from ekfviz.core.calibrate import (
     HEAVY_TAIL_SHARE,
@@ -28,7 +28,7 @@ from ekfviz.io.errors import InputError
 
 @app.command(name="calibrate")
 def calibrate_command(
-    data: LogArgument,
+    data: StudyLogArgument,
     truth: TruthOption = None,
     robot: RobotOption = None,
     window: Annotated[

@@ -12,12 +12,12 @@ from ekfviz.cli.common import (
     DEFAULT,
     InitPoseSigma,
     LandmarkInitOption,
-    LogArgument,
     SigmaAlpha,
     SigmaBearing,
     SigmaRange,
     SigmaX,
     SigmaY,
+    StudyLogArgument,
     TruthOption,
     UpdateOption,
     _option,
@@ -38,7 +38,7 @@ from ekfviz.io.errors import InputError
 
 @app.command()
 def check(
-    data: LogArgument,
+    data: StudyLogArgument,
     filter_spec: Annotated[
         str,
         typer.Option(

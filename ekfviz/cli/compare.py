@@ -12,13 +12,13 @@ from ekfviz.cli.common import (
     ExecutorOption,
     InitPoseSigma,
     LandmarkInitOption,
-    LogArgument,
     SchedulerOption,
     SigmaAlpha,
     SigmaBearing,
     SigmaRange,
     SigmaX,
     SigmaY,
+    StudyLogArgument,
     TruthOption,
     UpdateOption,
     Workers,
@@ -44,7 +44,7 @@ from ekfviz.studies.executors import ExecutorName
 
 @app.command()
 def compare(
-    data: LogArgument,
+    data: StudyLogArgument,
     filters: Annotated[
         list[str],
         typer.Option(

@@ -126,7 +126,13 @@ SigmaSpeed = Annotated[
     float, _option("Sigma of the encoder speed (m/s) per input.", VICTORIA_PANEL, min=0.0)
 ]
 SigmaSteering = Annotated[
-    float, _option("Sigma of the steering angle (rad) per input.", VICTORIA_PANEL, min=0.0)
+    float,
+    _option(
+        "Sigma of the steering angle (rad) per input \\[default: 0.0262, 1.5 degrees].",
+        VICTORIA_PANEL,
+        min=0.0,
+        show_default=False,
+    ),
 ]
 
 

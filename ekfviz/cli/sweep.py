@@ -15,13 +15,13 @@ from ekfviz.cli.common import (
     FilterOption,
     InitPoseSigma,
     LandmarkInitOption,
-    LogArgument,
     SchedulerOption,
     SigmaAlpha,
     SigmaBearing,
     SigmaRange,
     SigmaX,
     SigmaY,
+    StudyLogArgument,
     TruthOption,
     UpdateOption,
     Workers,
@@ -51,7 +51,7 @@ class Preset(str, enum.Enum):
 
 @app.command()
 def sweep(
-    data: LogArgument,
+    data: StudyLogArgument,
     truth: TruthOption = None,
     save: Annotated[
         Path | None,
