@@ -184,3 +184,29 @@ def test_real_data_maps_draw_only_the_latest_first_sighting(tmp_path: Path, mrcl
     history = made(["replay", str(mrclam), "--robot", "1", "--history"], tmp_path / "h.rrd")
     (world,) = [view for view in history.views if view.name == "Map"]
     assert any(style.LANDMARK_INITIAL in key for key in world.properties)
+
+
+def test_info_shows_a_runs_results_and_only_the_parameters_that_applied(tmp_path: Path) -> None:
+    scans = tmp_path / "scans.rrd"
+    made(KINDS["scans"], scans)
+    shown = runner.invoke(app, ["info", str(scans)])
+    assert shown.exit_code == 0, shown.output
+    (line,) = [line for line in shown.output.splitlines() if line.startswith("association ")]
+    assert "matched" in line and "precision" in line
+    assert '"jcbb"' in shown.output  # its association's parameters: they applied
+    classic = tmp_path / "classic.rrd"
+    made(KINDS["classic"], classic)
+    shown = runner.invoke(app, ["info", str(classic)])
+    assert "jcbb" not in shown.output and "confirm_window" not in shown.output
+    assert not any(line.startswith("association ") for line in shown.output.splitlines())
+
+
+def test_victoria_park_info_has_its_gps_rmse(tmp_path: Path, park: Path) -> None:
+    save = tmp_path / "park.rrd"
+    made(["replay", str(park)], save)
+    shown = runner.invoke(app, ["info", str(save), "--json"])
+    assert shown.exit_code == 0, shown.output
+    import json
+
+    results = json.loads(shown.stdout)["results"]
+    assert results["gps"]["rmse_m"] > 0 and results["association"]["matched"] > 0

@@ -41,6 +41,7 @@ from ekfviz.viz.recorder import Recorder
 
 APPLICATION_ID = "ekfviz"
 TIME_PROPERTY = "time"  # the span of the time timeline: start, end (seconds), kind
+RESULTS_PROPERTY = "results"  # a replay's results beside its evaluation, as JSON
 INPUT_TEXT_CAP = 4 * 1024 * 1024  # bytes of input embedded in a recording
 GRPC_PORT = 9876
 WEB_PORT = 9090
@@ -419,6 +420,13 @@ class RunLogger:
             self.recording.rec.send_property(
                 TIME_PROPERTY, _any_values({"start": span[0], "end": span[1], "kind": kind})
             )
+
+    def add_results(self, results: Mapping[str, object]) -> None:
+        """Results of the run beside its evaluation (the association's counts, the GPS
+        error of Victoria Park), as the property ``results`` that ``ekfviz info`` shows."""
+        self.recording.rec.send_property(
+            RESULTS_PROPERTY, _any_values({"json": json.dumps(dict(results), default=str)})
+        )
 
     def stop(self, reason: str, evaluation: Evaluation | None) -> bool:
         """End a run cut short (bad input, a numerical fault, a signal): log why as the
