@@ -176,11 +176,15 @@ def run_plots(
     prefix: str = "",
     axis: rrb.archetypes.TimeAxis | None = None,
     landmark_ids: Sequence[int] = (),
+    value_ranges: Mapping[str, tuple[float, float]] | None = None,
 ) -> list[rrb.View | rrb.Container]:
     """The plots of one run, each only where its series have data (a plot of styling
     alone is an empty frame).
 
     :param has: the entity paths (without the prefix) that were given data
+    :param value_ranges: the y range of the NIS and NEES plots by entity path: all the
+        data, and the 95% bounds inside the frame (a fit to the data alone put them on
+        its edges)
     """
     root = root_of(prefix)
     plots: list[rrb.View | rrb.Container] = []
@@ -191,7 +195,13 @@ def run_plots(
         if path in has:
             plots.append(
                 rrb.TimeSeriesView(
-                    axis_x=axis, name=name, origin=f"{root}{path}", plot_legend=NO_LEGEND
+                    axis_x=axis,
+                    axis_y=rrb.ScalarAxis(range=value_ranges[path])
+                    if value_ranges and path in value_ranges
+                    else None,
+                    name=name,
+                    origin=f"{root}{path}",
+                    plot_legend=NO_LEGEND,
                 )
             )
     if style.POSE_SIGMA in has:
@@ -288,6 +298,7 @@ def default_blueprint(
     history: bool = False,
     landmark_ids: Sequence[int] = (),
     has: Collection[str] | None = None,
+    value_ranges: Mapping[str, tuple[float, float]] | None = None,
 ) -> rrb.Blueprint:
     """The layout: the map on the left, plots above and documents below on the right.
 
@@ -301,6 +312,7 @@ def default_blueprint(
         the mean and the worst landmark)
     :param has: the entity paths given data; a plot is laid out only where its series
         have some (None: those a run of this kind has, before any data)
+    :param value_ranges: the NIS and NEES plots' y ranges, see :func:`run_plots`
     """
     axis = WHOLE_RUN if has_time else None  # the default fits a sequence timeline already
     final = has is not None
@@ -310,7 +322,7 @@ def default_blueprint(
             has.add(style.NEES)
         if has_truth:
             has.add(f"{style.LANDMARK_ERROR_SUMMARY}/{style.MEAN}")
-    plots = run_plots(has, axis=axis, landmark_ids=landmark_ids)
+    plots = run_plots(has, axis=axis, landmark_ids=landmark_ids, value_ranges=value_ranges)
     texts: list[rrb.Container | rrb.View] = [log_view()]
     if style.CORRELATION_MATRIX in has or not final:
         texts.append(correlation_view())

@@ -626,6 +626,8 @@ class Recorder:
         self._blueprint = blueprint
         self._run_documents = run_documents
         self._bounds_xy: FloatArray | None = None  # [[x_min, y_min], [x_max, y_max]] so far
+        # NIS, NEES: (largest value, largest 95% upper bound) so far, to fit their axes
+        self._extents: dict[str, tuple[float, float]] = {}
         if blueprint and live_layout:
             self._rec.send_blueprint(self._layout())
         if not prefix.strip("/") and not run_documents:  # a filter of the user's own
@@ -809,6 +811,10 @@ class Recorder:
             bounds_xy = bounds_xy + np.array([[-margin], [margin]])
         return default_blueprint(
             has=self.entities_with_data if final else None,
+            value_ranges={
+                path: (0.0, 1.08 * max(1.15 * bound, top))
+                for path, (top, bound) in self._extents.items()
+            },
             landmark_ids=sorted(self._seen_ids) if self._truth is not None else (),
             has_truth=self._truth is not None,
             has_true_poses=self._truth is not None and self._truth.has_poses,
@@ -954,6 +960,9 @@ class Recorder:
             used, which = np.unique(observed.nis_used[with_nis], return_inverse=True)
             bounds = np.array([chi2_bounds(2 * int(n)) for n in used])[which]
             self._send(style.NIS, rows.pick(with_nis), _scalars(observed.nis_sum[with_nis]))
+            self._extent(
+                style.NIS, float(observed.nis_sum[with_nis].max()), float(bounds[:, 1].max())
+            )
             ends = _run_ends(bounds[:, 0])
             at = rows.pick(with_nis[ends])
             for path, values in (
@@ -1488,9 +1497,17 @@ class Recorder:
     ) -> None:
         """A NIS or NEES value with its chi-square bounds, drawn in the same plot."""
         at = (record.step, record.event)
+        self._extent(path, value, bounds[1])
         self._series.add(path, *at, value, record.time)
         self._series.add(f"{path}/{style.LOWER}", *at, bounds[0], record.time)
         self._series.add(f"{path}/{style.UPPER}", *at, bounds[1], record.time)
+
+    def _extent(self, path: str, value: float, upper: float) -> None:
+        """Grow the largest value and 95% upper bound of a NIS or NEES series so far."""
+        top, bound = self._extents.get(path, (0.0, 0.0))
+        if math.isfinite(value):
+            top = max(top, value)
+        self._extents[path] = (top, max(bound, upper))
 
     @staticmethod
     def _describe(record: EventRecord, seen: int, new: int, nis: float, nis_used: int) -> str:
