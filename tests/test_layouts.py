@@ -210,3 +210,23 @@ def test_victoria_park_info_has_its_gps_rmse(tmp_path: Path, park: Path) -> None
 
     results = json.loads(shown.stdout)["results"]
     assert results["gps"]["rmse_m"] > 0 and results["association"]["matched"] > 0
+
+
+def test_close_labels_are_stacked_not_overprinted() -> None:
+    import numpy as np
+
+    from ekfviz.viz.recorder import unclutter
+
+    # three labels within one label's box of each other (MRCLAM's L6, L7, L8) and one apart;
+    # 0.05 and 0.6 make a round-off that once kept a label in place forever
+    anchors = np.array([[0.0, 0.0], [0.1, 0.05], [0.2, -0.02], [5.0, 5.0]])
+    placed = unclutter(anchors, 1.0, 0.6)
+    assert placed[3].tolist() == [5.0, 5.0]  # alone: where it was
+    assert (placed[:, 0] == anchors[:, 0]).all()  # moved down only
+    for i in range(4):
+        for j in range(i):
+            dx, dy = abs(placed[i] - placed[j])
+            assert dx >= 1.0 or dy >= 0.6, (i, j)
+    assert placed[1].tolist() == [0.1, 0.05]  # the highest stays
+    apart = np.array([[0.0, 0.0], [3.0, 0.0]])
+    assert unclutter(apart, 1.0, 0.6) is apart

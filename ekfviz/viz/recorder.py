@@ -86,6 +86,10 @@ FLUSH_EVERY = 4096
 SHAPES_EVERY = 256  # ... but line strips in chunks of at most this many events (_send_strips)
 FLUSH_LANDMARKS = 1 << 20  # ... or sooner, once the buffered records hold this many landmarks
 SMALL_MAP = 32  # up to this many landmarks, every ellipse at every update
+# A landmark label's box as a fraction of the map's span, at the zoom that frames the map
+# (about "L12" at 14 px on a 700 px map): closer labels are stacked (see unclutter)
+LABEL_WIDTH = 0.05
+LABEL_HEIGHT = 0.03
 MAP_EVERY_STEPS = 25  # beyond: the whole map every this many steps
 # A small map is logged again only once some landmark's point or outline would move by
 # more than this fraction of its ellipse's semi-major axis (the viewer shows the latest).
@@ -102,6 +106,38 @@ EPOCH_MIN_S = 1e9  # log times from here on are Unix time (see time_is_epoch)
 
 def _radius(ui_points: float) -> npt.ArrayLike:
     return rr.Radius.ui_points(ui_points)
+
+
+def unclutter(anchors_xy: FloatArray, width: float, height: float) -> FloatArray:
+    """Label anchors moved down (y up) until no two labels' boxes overlap.
+
+    :param anchors_xy: (n, 2) where each label hangs (its top centre), in world units
+    :param width: a label's width, in world units; ``height`` likewise
+    :return: (n, 2) the anchors, the higher of two overlapping ones kept in place
+    """
+    n = len(anchors_xy)
+    if n < 2:
+        return anchors_xy
+    dx = np.abs(anchors_xy[:, None, 0] - anchors_xy[None, :, 0])
+    dy = np.abs(anchors_xy[:, None, 1] - anchors_xy[None, :, 1])
+    overlap = (dx < width) & (dy < height)
+    np.fill_diagonal(overlap, False)
+    if not overlap.any():  # the common case, without a loop
+        return anchors_xy
+    placed: FloatArray = anchors_xy.copy()
+    done: list[int] = []
+    for i in np.argsort(-anchors_xy[:, 1], kind="stable").tolist():
+        x, y = placed[i]
+        moved = True
+        while moved:  # below every label already placed that it would cover
+            moved = False
+            for j in done:
+                if abs(placed[j, 0] - x) < width and abs(placed[j, 1] - y) < height:
+                    y = placed[j, 1] - 1.001 * height  # clear of it despite round-off
+                    moved = True
+        placed[i, 1] = y
+        done.append(i)
+    return placed
 
 
 # Arrow types of the components built here (see _column), from the SDK's own conversion
@@ -1340,6 +1376,19 @@ class Recorder:
             return
         sigma_y = np.sqrt(np.concatenate([record.landmark_covs[:, 1, 1] for record in updates]))
         below = positions - np.column_stack([np.zeros(len(positions)), 3.0 * sigma_y])
+        if self._bounds_xy is not None and counts[-1] > 1:
+            # labels of close landmarks stacked, not overprinted: the offsets that clear the
+            # batch's last map, by landmark id, for all its rows (a map moves little within
+            # a batch, and one pass per update would cost seconds on a long run)
+            span = max(float(np.max(self._bounds_xy[1] - self._bounds_xy[0])), 1e-9)
+            last = slice(len(below) - int(counts[-1]), len(below))
+            offsets = unclutter(below[last], LABEL_WIDTH * span, LABEL_HEIGHT * span) - below[last]
+            if offsets.any():
+                last_ids = ids[last]
+                order = np.argsort(last_ids)
+                at = np.clip(np.searchsorted(last_ids[order], ids), 0, len(order) - 1)
+                same = last_ids[order][at] == ids
+                below[same] += offsets[order][at[same]]
         self._send(
             style.LANDMARK_LABELS,
             times,
