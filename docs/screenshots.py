@@ -43,6 +43,15 @@ def shoot(rrd: Path, png: Path, env: dict[str, str]) -> None:
         capture_output=True,
         timeout=300,
     )
+    try:  # a display scaled 2x (HiDPI) writes twice the window's size: back to it
+        from PIL import Image
+
+        with Image.open(png) as image:
+            width, height = (int(n) for n in SIZE.split("x"))
+            if image.size != (width, height):
+                image.resize((width, height), Image.Resampling.LANCZOS).save(png, optimize=True)
+    except ImportError:  # Pillow is optional (matplotlib, a dependency of evo, brings it)
+        pass
     print(f"wrote {png.relative_to(ROOT) if png.is_relative_to(ROOT) else png}")
 
 
@@ -65,7 +74,9 @@ def main() -> None:
         if not env.get("DISPLAY") and not env.get("WAYLAND_DISPLAY"):
             if shutil.which("Xvfb") is None:
                 sys.exit("no display and no Xvfb: apt-get install xvfb mesa-vulkan-drivers")
-            xvfb = subprocess.Popen(["Xvfb", ":97", "-screen", "0", "1920x1200x24"])
+            # a screen far larger than the window: the pointer starts at the screen's
+            # centre, outside the window, so no hover tooltip is in the picture
+            xvfb = subprocess.Popen(["Xvfb", ":97", "-screen", "0", "8000x5000x24"])
             env["DISPLAY"] = ":97"
             time.sleep(1.0)
         try:
