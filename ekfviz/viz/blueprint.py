@@ -442,6 +442,8 @@ def sweep_blueprint(
     """
     maps = [map_view(bounds_xy, prefix=prefix, name=label) for label, prefix in variants]
     first = variants[0][1]
+    # a legend in every plot of a few runs; of many, in the first only (it would cover them)
+    legend = SMALL_LEGEND if len(variants) <= 4 else NO_LEGEND
     plots: list[rrb.View] = [
         rrb.TimeSeriesView(
             name=f"NIS per {what} (grey: {variants[0][0]}'s 95% bounds)",
@@ -464,7 +466,7 @@ def sweep_blueprint(
                     f"/{first}/{style.NEES}/{style.UPPER}",
                 ],
                 axis_y=rrb.ScalarAxis(range=(0.0, 3.0 * chi2_bounds(3)[1])),
-                plot_legend=NO_LEGEND,
+                plot_legend=legend,
             )
         )
     if has_truth:
@@ -472,7 +474,7 @@ def sweep_blueprint(
             rrb.TimeSeriesView(
                 name=f"Mean landmark error [m] per {what} (colours as above)",
                 contents=[f"/{prefix}/{style.MEAN_LANDMARK_ERROR}" for _, prefix in variants],
-                plot_legend=NO_LEGEND,
+                plot_legend=legend,
             )
         )
     prefixes = [prefix for _, prefix in variants]

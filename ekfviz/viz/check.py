@@ -34,7 +34,6 @@ from ekfviz.studies.runs import Run
 from ekfviz.viz import style
 from ekfviz.viz.blueprint import (
     NO_LEGEND,
-    SMALL_LEGEND,
     log_view,
     map_view,
     run_details,
@@ -305,14 +304,17 @@ def check_blueprint(
             map_view(
                 zoom_xy,
                 prefix=prefix,
-                name=f"Event {first.event}: expected (grey) and got (red) 3-sigma outlines",
+                name=f"Event {first.event}: expected (grey), got (red)",
             )
         )
     difference = rrb.TimeSeriesView(
         name="Largest difference per event (log10) and the tolerance"
         + ("" if first is None else f"; first divergence at event {first.event}"),
         contents=[f"/{DIFFERENCE}", f"/{TOLERANCE}", f"/{DIVERGENT}"],
-        plot_legend=SMALL_LEGEND if first is not None else NO_LEGEND,
+        # top left: the divergence is at the right end, the exact matches at the bottom
+        plot_legend=rrb.PlotLegend(corner=rrb.components.Corner2D.LeftTop, visible=True)
+        if first is not None
+        else NO_LEGEND,
     )
     # the log of the checked filter (the reference's says the same, in its own tab)
     documents = study_documents(

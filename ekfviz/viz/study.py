@@ -80,16 +80,13 @@ def log_runs(
         prefix = f"{root}/{run.spec.key}"
         recorder = Recorder(rec, truth=truth, blueprint=False, prefix=prefix)
         colour = PALETTE[k % len(PALETTE)]
+        marks = _series_style(run, runs[0], colour)
         for series in (style.NIS, style.NEES):  # one colour and name per run, overlaid
-            rec.log(
-                f"{prefix}/{series}",
-                rr.SeriesLines(colors=colour, names=run.spec.label),
-                static=True,
-            )
+            rec.log(f"{prefix}/{series}", marks, static=True)
         for record in run.records:
             recorder.log_record(record)
         if truth is not None:
-            _log_mean_error(rec, prefix, run, truth, colour)
+            _log_mean_error(rec, prefix, run, truth, marks)
         recorders.append((recorder, run.evaluation))
         bounds.append(np.array([record.pose[:2] for record in run.records]))
         last = run.records[-1]  # the final map's ellipses in the frame, not only its points
@@ -115,8 +112,25 @@ def nis_axis(baseline: Run) -> tuple[float, float] | None:
     return 0.0, max(3.0 * max(uppers), max(values))
 
 
+def is_offline(run: Run, baseline: Run) -> bool:
+    """Whether a run is an offline filter's (it has ``finish()``): its records are the
+    initialisation and the optimum at the end, with the whole path in the last."""
+    last = run.records[-1]
+    return last.path_xytheta is not None or (len(run.records) <= 2 < len(baseline.records))
+
+
+def _series_style(run: Run, baseline: Run, colour: style.Rgb) -> rr.AsComponents:
+    """An online run's series as lines; an offline run's as points: a line between its
+    two records would look like a value at every step."""
+    if is_offline(run, baseline):
+        return rr.SeriesPoints(
+            colors=colour, names=f"{run.spec.label} (offline: start, end)", marker_sizes=5.0
+        )
+    return rr.SeriesLines(colors=colour, names=run.spec.label)
+
+
 def _log_mean_error(
-    rec: rr.RecordingStream, prefix: str, run: Run, truth: GroundTruth, colour: style.Rgb
+    rec: rr.RecordingStream, prefix: str, run: Run, truth: GroundTruth, marks: rr.AsComponents
 ) -> None:
     """The mean Euclidean landmark error after every update, as one column send."""
     steps, events, means = [], [], []
@@ -131,7 +145,7 @@ def _log_mean_error(
             events.append(record.event)
             means.append(float(np.nanmean(euclidean)))
     path = f"{prefix}/{style.MEAN_LANDMARK_ERROR}"
-    rec.log(path, rr.SeriesLines(colors=colour, names=run.spec.label), static=True)
+    rec.log(path, marks, static=True)
     rec.send_columns(
         path,
         indexes=[
