@@ -6,7 +6,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 RECORDING := recordings/classic.rrd
 
-.PHONY: demo test bench sample clean
+.PHONY: demo test bench sample clean screenshots
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -55,3 +55,9 @@ clean:
 # replays, measured in one run (a few minutes); writes benchmarks/RESULTS.md.
 bench: $(VENV)/.installed-dev
 	$(BIN)/python benchmarks/bench.py
+
+# The README's screenshots from the current layouts, in the real viewer off screen (not part
+# of make test; needs Xvfb without a display). With the datasets: make screenshots
+# MRCLAM=PATH/MRCLAM_Dataset6 VICTORIA=PATH/VictoriaPark (else a simulated MRCLAM run).
+screenshots: $(VENV)/.installed-dev
+	$(BIN)/python docs/screenshots.py $(if $(MRCLAM),--mrclam $(MRCLAM)) $(if $(VICTORIA),--victoria $(VICTORIA))

@@ -291,9 +291,22 @@ def _record_check(
     result: CheckResult,
     save: Path,
 ) -> None:
-    from ekfviz import viz
-    from ekfviz.viz.study import mark_event, record_study
+    from dataclasses import replace
 
+    from ekfviz import viz
+    from ekfviz.viz.check import record_check
+
+    first = result.first_divergence
+    if first is not None and not result.every:
+        # without --all the recording ends at the first divergence, where it then opens
+        kept = sum(1 for record in result.records if record.event <= first.event)
+        result = replace(
+            result,
+            records=result.records[:kept],
+            reference=result.reference[:kept],
+            differences=result.differences[:kept],
+            divergences=(first,),
+        )
     runs = []
     for label, key, records in (
         ("reference (ekf)", "reference", result.reference),
@@ -318,14 +331,4 @@ def _record_check(
     verdict = json.dumps(result.to_json(), indent=2)
     summary = f"# Check of {spec.text} against the reference\n\n```json\n{verdict}\n```\n"
     with viz.open_recording(info, viz.Sinks(save=save)) as recording:
-        record_study(recording, runs, truth, summary, root="filters")
-        first = result.first_divergence
-        if first is not None:
-            where = next((r.pose[:2] for r in result.records if r.event == first.event), None)
-            worst = first.worst
-            mark_event(
-                recording, step=first.step, event=first.event, where_xy=where,
-                text=f"first divergence: event {first.event} ({first.kind.value}), line"
-                f" {first.line}: {worst.quantity.value} {worst.entry} expected"
-                f" {worst.expected:.6g}, got {worst.got:.6g}; likely cause: {first.hint}",
-            )  # fmt: skip
+        record_check(recording, result, runs, truth, summary)

@@ -1,7 +1,10 @@
 """Bring your own filter: a plain dense EKF-SLAM loop, recorded with ekfviz's Recorder.
 
-    python examples/byof_minimal.py [OUT.rrd]     (default: byof_minimal.rrd in the temp dir)
-    rerun OUT.rrd
+    .venv/bin/python examples/byof_minimal.py [OUT.rrd]
+    .venv/bin/rerun OUT.rrd          (or rerun with the venv activated)
+
+(OUT.rrd by default: byof_minimal.rrd in the temp directory; the script prints the
+command that opens it.)
 
 The filter below is the textbook one (docs/ekf-slam.md), written for reading, not speed:
 dense Jacobians, all landmarks of a line folded in at once. Only the four ``recorder``
@@ -10,6 +13,8 @@ calls are about ekfviz.
 
 from __future__ import annotations
 
+import shlex
+import shutil
 import sys
 import tempfile
 from pathlib import Path
@@ -93,4 +98,10 @@ if __name__ == "__main__":
     if target.is_dir():
         target = target / "byof_minimal.rrd"
     main(target)
-    print(f"Saved {target}; open it with: rerun {target}")
+    # the viewer beside this Python (an unactivated venv has it there, not on PATH)
+    beside = Path(sys.executable).with_name("rerun")
+    on_path = shutil.which("rerun")
+    viewer = "rerun"
+    if beside.is_file() and (on_path is None or Path(on_path).resolve() != beside.resolve()):
+        viewer = str(beside)
+    print(f"Saved {target}; open it with: {shlex.join([viewer, str(target)])}")

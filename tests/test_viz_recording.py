@@ -346,7 +346,8 @@ def test_blueprint_and_properties_are_in_the_file(run: Run) -> None:
         assert {
             "Map",
             "NIS (blue) and 95% bounds",
-            "Pose sigma",
+            "Pose sigma x, y [m]",
+            "Pose sigma theta [rad]",
             "Log",
             "Run",
             "Evaluation",

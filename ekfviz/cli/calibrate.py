@@ -13,7 +13,7 @@ from rich.table import Table
 
 from ekfviz.cli.common import (
     DEFAULT,
-    LogArgument,
+    StudyLogArgument,
     TruthOption,
     app,
     check_outputs,
@@ -46,7 +46,7 @@ from ekfviz.io.errors import InputError
 
 @app.command(name="calibrate")
 def calibrate_command(
-    data: LogArgument,
+    data: StudyLogArgument,
     truth: TruthOption = None,
     robot: RobotOption = None,
     window: Annotated[

@@ -53,8 +53,9 @@ def check(
     data: Annotated[
         Path | None,
         typer.Argument(
-            help="Log in the classic or the extended format [default: the bundled battery:"
-            " the classic sample and the edge log].",
+            help="A log in the classic or the extended format, or an MRCLAM dataset directory"
+            " (with --robot) [default: the bundled battery: the classic sample and the edge"
+            " log]; the Victoria Park directory is for replay only.",
             show_default=False,
         ),
     ] = None,

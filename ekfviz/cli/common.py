@@ -364,11 +364,28 @@ DEFAULT = FilterParams()  # the classic defaults, stated once
 InitPoseSigma = Annotated[
     Triple,
     _option(
-        "Sigma of the initial pose prior at (0, 0, 0).", FILTER_OPTIONS, metavar="SX SY STHETA"
+        "Sigma of the initial pose prior, around the start pose: (0, 0, 0), the true pose of"
+        " the first event of a dataset with truth, or --init-pose.",
+        FILTER_OPTIONS,
+        metavar="SX SY STHETA",
     ),
 ]
 LogArgument = Annotated[
-    Path, typer.Argument(help="Log in the classic or the extended format.", show_default=False)
+    Path,
+    typer.Argument(
+        help="A log in the classic or the extended format, an MRCLAM dataset directory"
+        " (with --robot) or the Victoria Park directory.",
+        show_default=False,
+    ),
+]
+# sweep, compare, check and calibrate: Victoria Park has no ids nor true poses
+StudyLogArgument = Annotated[
+    Path,
+    typer.Argument(
+        help="A log in the classic or the extended format, or an MRCLAM dataset directory"
+        " (with --robot); the Victoria Park directory is for replay only.",
+        show_default=False,
+    ),
 ]
 TruthOption = Annotated[
     Path | None, _option("True landmark positions: 'x y' per line, or JSON.", show_default=False)
@@ -395,7 +412,8 @@ ExecutorOption = Annotated[
 SchedulerOption = Annotated[
     str | None,
     _option(
-        "The Dask scheduler's address, e.g. tcp://10.0.0.5:8786 (pip install 'ekfviz[dask]').",
+        "The Dask scheduler's address, e.g. tcp://10.0.0.5:8786 (needs the dask extra:"
+        " pip install -e '.\\[dask]' in a clone).",
         STUDY,
         metavar="ADDRESS",
         show_default=False,

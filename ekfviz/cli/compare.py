@@ -14,7 +14,6 @@ from ekfviz.cli.common import (
     FilterTimeout,
     InitPoseSigma,
     LandmarkInitOption,
-    LogArgument,
     PythonOption,
     SchedulerOption,
     SigmaAlpha,
@@ -22,6 +21,7 @@ from ekfviz.cli.common import (
     SigmaRange,
     SigmaX,
     SigmaY,
+    StudyLogArgument,
     TruthOption,
     UpdateOption,
     Workers,
@@ -48,7 +48,7 @@ from ekfviz.studies.executors import ExecutorName
 
 @app.command()
 def compare(
-    data: LogArgument,
+    data: StudyLogArgument,
     filters: Annotated[
         list[str],
         typer.Option(

@@ -219,7 +219,12 @@ def replay(
         with (
             open_progress(opened.source.progress_paths) as progress,
             viz.open_run(
-                info, sinks, detail=detail, history=history, sensor=setup.sensor
+                info,
+                sinks,
+                detail=detail,
+                history=history,
+                sensor=setup.sensor,
+                gps_reference=setup.victoria,
             ) as logger,
             signals.as_exceptions(),
         ):

@@ -126,7 +126,13 @@ SigmaSpeed = Annotated[
     float, _option("Sigma of the encoder speed (m/s) per input.", VICTORIA_PANEL, min=0.0)
 ]
 SigmaSteering = Annotated[
-    float, _option("Sigma of the steering angle (rad) per input.", VICTORIA_PANEL, min=0.0)
+    float,
+    _option(
+        "Sigma of the steering angle (rad) per input \\[default: 0.0262, 1.5 degrees].",
+        VICTORIA_PANEL,
+        min=0.0,
+        show_default=False,
+    ),
 ]
 
 
@@ -198,6 +204,8 @@ class ReplaySetup:
                     "jumps": int(fit.jumps.sum()),
                     "rmse_without_jumps_m": fit.rmse_without_jumps,
                 }
+        if extra:  # for ekfviz info
+            logger.add_results(extra)
         return extra
 
     def gps_fit(self) -> ReferenceFit | None:
@@ -317,7 +325,10 @@ def replay_setup(
         associator = Associator(
             assoc, sensor, params.R, scan_truth=None if truth is None else truth.scan_ids
         )
-        parameters.update(assoc.as_dict())
+        # only where it applies: a classic log or an MRCLAM dataset has ids, never scans
+        with_ids = opened.source.kind in (LogKind.CLASSIC, LogKind.MRCLAM)
+        if not with_ids or not default("association"):
+            parameters.update(assoc.as_dict())
     return ReplaySetup(
         data=data, params=params, truth=truth, slam=slam if builtin else None,
         sensor=recorded_sensor, associator=associator, victoria=victoria,

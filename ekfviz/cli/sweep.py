@@ -17,7 +17,6 @@ from ekfviz.cli.common import (
     FilterTimeout,
     InitPoseSigma,
     LandmarkInitOption,
-    LogArgument,
     PythonOption,
     SchedulerOption,
     SigmaAlpha,
@@ -25,6 +24,7 @@ from ekfviz.cli.common import (
     SigmaRange,
     SigmaX,
     SigmaY,
+    StudyLogArgument,
     TruthOption,
     UpdateOption,
     Workers,
@@ -55,7 +55,7 @@ class Preset(str, enum.Enum):
 
 @app.command()
 def sweep(
-    data: LogArgument,
+    data: StudyLogArgument,
     truth: TruthOption = None,
     save: Annotated[
         Path | None,

@@ -158,7 +158,7 @@ def load_filter(text: str, worker: WorkerOptions | None = None) -> FilterFactory
                 raise
             raise FilterSpecError(
                 f"--filter {text} needs the optional dependency {error.name!r}:"
-                f" pip install 'ekfviz[{extra}]'"
+                f" the {extra} extra (pip install -e '.[{extra}]' in a clone of ekfviz)"
             ) from error
     user = target_of(text)
     options = worker if worker is not None else WorkerOptions()

@@ -50,7 +50,7 @@ from ekfviz.models.classic import (
 if TYPE_CHECKING:
     import gtsam
 
-INSTALL_HINT = "pip install 'ekfviz[gtsam]'"
+INSTALL_HINT = "the gtsam extra (pip install -e '.[gtsam]' in a clone of ekfviz)"
 
 
 PRIOR_SIGMA_FLOOR = 1e-6  # m and rad: the prior of a start known exactly

@@ -11,7 +11,7 @@ The results do not depend on the executor: each item is the same pure computatio
 items must pickle; a Dask cluster's workers need ekfviz installed, and the files a
 run reads (a sweep's log) at the same path.
 
-Dask (``pip install ekfviz[dask]``) is imported only by :class:`DaskExecutor.map`.
+Dask (the ``dask`` extra) is imported only by :class:`DaskExecutor.map`.
 """
 
 from __future__ import annotations
@@ -106,7 +106,8 @@ class DaskExecutor:
             from distributed import as_completed as dask_completed
         except ImportError:
             raise ExecutorError(
-                "--executor dask needs dask.distributed: pip install 'ekfviz[dask]'"
+                "--executor dask needs dask.distributed: the dask extra"
+                " (pip install -e '.[dask]' in a clone of ekfviz)"
             ) from None
         try:
             client = Client(  # type: ignore[no-untyped-call]

@@ -216,6 +216,27 @@ def _points(sensor: RangeBearing, pose: FloatArray, z: FloatArray) -> FloatArray
     return np.array([sensor.inverse(pose, row) for row in z]).reshape(-1, 2)
 
 
+# A GPS dropout: a gap between fixes this many times their median interval (and at least
+# GAP_MIN_S); at 1 Hz with a few missed fixes the track stays one piece
+GAP_FACTOR = 5.0
+GAP_MIN_S = 3.0
+
+
+def gps_pieces(xy: FloatArray, times: FloatArray) -> list[FloatArray]:
+    """A GPS track cut into pieces at its dropouts (see ``GAP_FACTOR``).
+
+    :param xy: (K, 2) fixes in time order
+    :param times: (K,) their times in seconds
+    :return: the pieces, each (k, 2) with k >= 1 (a lone fix is a piece of one point)
+    """
+    if len(xy) < 2:
+        return [xy]
+    gaps = np.diff(times)
+    limit = max(GAP_FACTOR * float(np.median(gaps)), GAP_MIN_S)
+    cuts = np.flatnonzero(gaps > limit) + 1
+    return [piece for piece in np.split(xy, cuts) if len(piece)]
+
+
 def log_reference(
     rec: rr.RecordingStream, path: Callable[[str], str], fit: ReferenceFit, steps: FloatArray
 ) -> None:
@@ -223,11 +244,16 @@ def log_reference(
 
     :param steps: (K,) the step at each reference time (for the step timeline)
     """
-    # the track without its jumps (a fix far off for a moment), which are points apart
+    # the track without its jumps (a fix far off for a moment), which are points apart,
+    # broken where the GPS had no fix for a while: a dropout is no straight chord
     kept = fit.reference_xy[~fit.jumps]
     rec.log(
         path(REFERENCE),
-        rr.LineStrips2D([kept], colors=[REFERENCE_COLOR], radii=rr.Radius.ui_points(1.0)),
+        rr.LineStrips2D(
+            gps_pieces(kept, fit.times[~fit.jumps]),
+            colors=[REFERENCE_COLOR],
+            radii=rr.Radius.ui_points(1.0),
+        ),
         static=True,
     )
     if fit.jumps.any():

@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Collection, Mapping, Sequence
 
+import rerun as rr
 import rerun.blueprint as rrb
 
 from ekfviz.core.consistency import chi2_bounds
@@ -57,6 +58,8 @@ def map_view(
     prefix: str = "",
     name: str = "Map",
     history: bool = False,
+    exclude: Sequence[str] = (),
+    all_first_sightings: bool = True,
 ) -> rrb.Spatial2DView:
     """The 2-D map: robot, ellipses, landmarks, observations and the trajectory so far.
 
@@ -65,6 +68,10 @@ def map_view(
     :param prefix: the entity path the run was logged under (see ``Recorder(prefix=)``)
     :param history: also accumulate every predicted and updated robot ellipse up to the
         time cursor (``--history``: the classic figure)
+    :param exclude: entities under the world (without the prefix) this map leaves out
+    :param all_first_sightings: accumulate every landmark's first-sighting ellipse up to
+        the cursor; else only the latest is drawn (on real data they are metres wide and
+        a run's worth of them covers the map)
     """
     root = f"/{prefix.strip('/')}/" if prefix.strip("/") else "/"
     visual_bounds = None
@@ -75,13 +82,16 @@ def map_view(
     return rrb.Spatial2DView(
         name=name,
         origin=root,  # the display frame: y up, through the static transform of "world"
-        contents=f"{root}{style.WORLD}/**",
+        contents=[f"+ {root}{style.WORLD}/**", *(f"- {root}{path}" for path in exclude)]
+        if exclude
+        else f"{root}{style.WORLD}/**",
         background=style.BACKGROUND,
         visual_bounds=visual_bounds,
         overrides={
             **{
                 f"{root}{path}": accumulated_range()
                 for path in style.ACCUMULATED + (style.HISTORY if history else ())
+                if all_first_sightings or path != style.LANDMARK_INITIAL
             },
             f"{root}{style.OBSERVATIONS}": at_cursor(),  # see Recorder._send_rays
         },
@@ -93,24 +103,188 @@ def map_view(
 NO_LEGEND = rrb.PlotLegend(visible=False)
 SMALL_LEGEND = rrb.PlotLegend(corner=rrb.components.Corner2D.RightTop, visible=True)
 HIDDEN = rrb.EntityBehavior(visible=False)
+# The pose sigma entity holds three series, x and y in metres and theta in radians: two
+# plots of it, each showing the series of one unit (a shared axis flattened theta).
+LENGTHS_ONLY = rr.SeriesLines.from_fields(visible_series=[True, True, False])
+ANGLE_ONLY = rr.SeriesLines.from_fields(visible_series=[False, False, True])
+# Series of the association of id-less scans and of a GPS reference (ekfviz.viz.association
+# owns them; named here so that the layout needs no import of that module)
+ASSOCIATION_SERIES = "metrics/association"
+REFERENCE_SERIES = "metrics/reference"
+
+
+def root_of(prefix: str) -> str:
+    """The entity path a run was logged under, with slashes: ``/`` or ``/filters/ekf/``."""
+    return f"/{prefix.strip('/')}/" if prefix.strip("/") else "/"
+
+
+def tiles(views: Sequence[rrb.View | rrb.Container], columns: int = 2) -> rrb.Container:
+    """Views in rows of ``columns``, the last row's views sharing its whole width: a grid
+    of an odd number of views leaves no empty cell (a viewer draws it black)."""
+    rows: list[rrb.View | rrb.Container] = [
+        views[k] if len(views[k : k + columns]) == 1 else rrb.Horizontal(*views[k : k + columns])
+        for k in range(0, len(views), columns)
+    ]
+    if len(rows) == 1 and isinstance(rows[0], rrb.Container):
+        return rows[0]
+    return rrb.Vertical(*rows)
 
 
 def summary_plot(
     name: str,
     summary: str,
     per_landmark: str,
-    ids: Sequence[int],
+    ids: Sequence[int] = (),
     axis_x: rrb.archetypes.TimeAxis | None = None,
+    prefix: str = "",
 ) -> rrb.View:
     """The mean and worst landmark of a per-landmark metric; the landmarks' own series
     are in the view too, hidden until shown (in the view's entity list): one override on
     their parent, which they inherit (one per landmark cost a blueprint chunk each)."""
+    root = root_of(prefix)
     return rrb.TimeSeriesView(
         axis_x=axis_x,
         name=name,
-        contents=[f"/{summary}/**", f"/{per_landmark}/**"],
+        contents=[f"{root}{summary}/**", f"{root}{per_landmark}/**"],
         plot_legend=SMALL_LEGEND,
-        overrides={f"/{per_landmark}": HIDDEN},
+        overrides={f"{root}{per_landmark}": HIDDEN},
+    )
+
+
+def health_views(
+    has: Collection[str], prefix: str = "", axis: rrb.archetypes.TimeAxis | None = None
+) -> list[rrb.View]:
+    """One plot per numerical-health series with data (each its own scale and unit)."""
+    root = root_of(prefix)
+    return [
+        rrb.TimeSeriesView(axis_x=axis, name=name, origin=f"{root}{path}", plot_legend=NO_LEGEND)
+        for path, name in (
+            (style.HEALTH_POSE_MIN_EIG, "Smallest eigenvalue: pose block"),
+            (style.HEALTH_LANDMARK_MIN_EIG, "Smallest eigenvalue: landmark blocks"),
+            (style.HEALTH_P_MIN_EIG, "Smallest eigenvalue: whole P"),
+            (style.HEALTH_P_LOG10_CONDITION, "log10 condition number of P"),
+            (style.HEALTH_P_ASYMMETRY, "Asymmetry of P: max |P - P^T|"),
+            (style.HEALTH_SKIPPED, "Skipped observations per update"),
+        )
+        if path in has
+    ]
+
+
+def run_plots(
+    has: Collection[str],
+    *,
+    prefix: str = "",
+    axis: rrb.archetypes.TimeAxis | None = None,
+    landmark_ids: Sequence[int] = (),
+    value_ranges: Mapping[str, tuple[float, float]] | None = None,
+) -> list[rrb.View | rrb.Container]:
+    """The plots of one run, each only where its series have data (a plot of styling
+    alone is an empty frame).
+
+    :param has: the entity paths (without the prefix) that were given data
+    :param value_ranges: the y range of the NIS and NEES plots by entity path: all the
+        data, and the 95% bounds inside the frame (a fit to the data alone put them on
+        its edges)
+    """
+    root = root_of(prefix)
+    plots: list[rrb.View | rrb.Container] = []
+    for path, name in (
+        (style.NIS, "NIS (blue) and 95% bounds"),
+        (style.NEES, "NEES (blue) and 95% bounds"),
+    ):
+        if path in has:
+            plots.append(
+                rrb.TimeSeriesView(
+                    axis_x=axis,
+                    axis_y=rrb.ScalarAxis(range=value_ranges[path])
+                    if value_ranges and path in value_ranges
+                    else None,
+                    name=name,
+                    origin=f"{root}{path}",
+                    plot_legend=NO_LEGEND,
+                )
+            )
+    if style.POSE_SIGMA in has:
+        plots.append(
+            rrb.Tabs(
+                rrb.TimeSeriesView(
+                    axis_x=axis,
+                    name="Pose sigma x, y [m]",
+                    origin=f"{root}{style.POSE_SIGMA}",
+                    plot_legend=SMALL_LEGEND,
+                    overrides={f"{root}{style.POSE_SIGMA}": LENGTHS_ONLY},
+                ),
+                rrb.TimeSeriesView(
+                    axis_x=axis,
+                    name="Pose sigma theta [rad]",
+                    origin=f"{root}{style.POSE_SIGMA}",
+                    plot_legend=NO_LEGEND,
+                    overrides={f"{root}{style.POSE_SIGMA}": ANGLE_ONLY},
+                ),
+                name="Pose sigma",
+            )
+        )
+    health = health_views(has, prefix, axis)
+    if health:
+        plots.append(rrb.Tabs(*health, name="Numerical health") if len(health) > 1 else health[0])
+    if f"{style.LANDMARK_ERROR_SUMMARY}/{style.MEAN}" in has:
+        plots += [
+            summary_plot(
+                "Landmark error [m]",
+                style.LANDMARK_ERROR_SUMMARY,
+                style.LANDMARK_ERROR,
+                landmark_ids,
+                axis,
+                prefix,
+            ),
+            summary_plot(
+                "Mahalanobis distance",
+                style.MAHALANOBIS_SUMMARY,
+                style.MAHALANOBIS,
+                landmark_ids,
+                axis,
+                prefix,
+            ),
+        ]
+    if any(path.startswith(f"{ASSOCIATION_SERIES}/") for path in has):
+        plots.append(
+            rrb.TimeSeriesView(
+                axis_x=axis,
+                name="Association per scan (counts)",
+                origin=f"{root}{ASSOCIATION_SERIES}",
+                plot_legend=SMALL_LEGEND,
+            )
+        )
+    if any(path.startswith(f"{REFERENCE_SERIES}/") for path in has):
+        plots.append(
+            rrb.TimeSeriesView(
+                axis_x=axis,
+                name="GPS error and its running RMSE [m]",
+                origin=f"{root}{REFERENCE_SERIES}",
+                plot_legend=SMALL_LEGEND,
+            )
+        )
+    return plots
+
+
+def log_view(contents: Sequence[str] = (f"/{style.LOG}/**",), name: str = "Log") -> rrb.View:
+    """The text log: level and text only (a line starts with its step, which a narrow
+    timeline column would cut: "#9..."), no entity path."""
+    return rrb.TextLogView(
+        name=name,
+        origin="/",
+        contents=list(contents),
+        columns=rrb.TextLogColumns(
+            timeline_columns=[
+                rrb.encodings.TimelineColumn(style.STEP, visible=False),
+                rrb.encodings.TimelineColumn(style.EVENT, visible=False),
+            ],
+            text_log_columns=[
+                rrb.encodings.TextLogColumn("EntityPath", visible=False),
+                rrb.encodings.TextLogColumn("LogLevel"),
+                rrb.encodings.TextLogColumn("Body"),
+            ],
+        ),
     )
 
 
@@ -123,6 +297,8 @@ def default_blueprint(
     has_time: bool = False,
     history: bool = False,
     landmark_ids: Sequence[int] = (),
+    has: Collection[str] | None = None,
+    value_ranges: Mapping[str, tuple[float, float]] | None = None,
 ) -> rrb.Blueprint:
     """The layout: the map on the left, plots above and documents below on the right.
 
@@ -134,83 +310,22 @@ def default_blueprint(
     :param history: the map accumulates every robot ellipse, see :func:`map_view`
     :param landmark_ids: the landmarks whose own error series the plots hide (they show
         the mean and the worst landmark)
+    :param has: the entity paths given data; a plot is laid out only where its series
+        have some (None: those a run of this kind has, before any data)
+    :param value_ranges: the NIS and NEES plots' y ranges, see :func:`run_plots`
     """
     axis = WHOLE_RUN if has_time else None  # the default fits a sequence timeline already
-    plots: list[rrb.View] = [
-        rrb.TimeSeriesView(
-            axis_x=axis,
-            name="NIS (blue) and 95% bounds",
-            origin=style.NIS,
-            plot_legend=NO_LEGEND,
-        )
-    ]
-    if has_true_poses:
-        plots.append(
-            rrb.TimeSeriesView(
-                axis_x=axis,
-                name="NEES (blue) and 95% bounds",
-                origin=style.NEES,
-                plot_legend=NO_LEGEND,
-            )
-        )
-    plots.append(
-        rrb.TimeSeriesView(
-            axis_x=axis, name="Pose sigma", origin=style.POSE_SIGMA, plot_legend=SMALL_LEGEND
-        )
-    )
-    plots.append(
-        rrb.TimeSeriesView(
-            axis_x=axis,
-            name="Smallest eigenvalue of P",
-            origin=style.HEALTH,
-            contents=[
-                f"$origin/{path.rsplit('/', 1)[1]}"
-                for path in (
-                    style.HEALTH_POSE_MIN_EIG,
-                    style.HEALTH_LANDMARK_MIN_EIG,
-                    style.HEALTH_P_MIN_EIG,
-                )
-            ],
-            plot_legend=SMALL_LEGEND,
-        )
-    )
-    if has_truth:
-        plots += [
-            summary_plot(
-                "Landmark error [m]",
-                style.LANDMARK_ERROR_SUMMARY,
-                style.LANDMARK_ERROR,
-                landmark_ids,
-                axis,
-            ),
-            summary_plot(
-                "Mahalanobis distance",
-                style.MAHALANOBIS_SUMMARY,
-                style.MAHALANOBIS,
-                landmark_ids,
-                axis,
-            ),
-        ]
-    texts: list[rrb.Container | rrb.View] = [
-        rrb.TextLogView(
-            name="Log",
-            origin=style.LOG,
-            # level and text only: a line starts with its step, which a narrow timeline
-            # column would cut ("#9..."); no entity path
-            columns=rrb.TextLogColumns(
-                timeline_columns=[
-                    rrb.encodings.TimelineColumn(style.STEP, visible=False),
-                    rrb.encodings.TimelineColumn(style.EVENT, visible=False),
-                ],
-                text_log_columns=[
-                    rrb.encodings.TextLogColumn("EntityPath", visible=False),
-                    rrb.encodings.TextLogColumn("LogLevel"),
-                    rrb.encodings.TextLogColumn("Body"),
-                ],
-            ),
-        ),
-        correlation_view(),
-    ]
+    final = has is not None
+    if has is None:
+        has = {style.NIS, style.POSE_SIGMA, style.HEALTH_POSE_MIN_EIG}
+        if has_true_poses:
+            has.add(style.NEES)
+        if has_truth:
+            has.add(f"{style.LANDMARK_ERROR_SUMMARY}/{style.MEAN}")
+    plots = run_plots(has, axis=axis, landmark_ids=landmark_ids, value_ranges=value_ranges)
+    texts: list[rrb.Container | rrb.View] = [log_view()]
+    if style.CORRELATION_MATRIX in has or not final:
+        texts.append(correlation_view())
     if has_run_info:
         texts += [
             rrb.TextDocumentView(name="Run", origin=style.RUN_INFO),
@@ -219,9 +334,10 @@ def default_blueprint(
         ]
     return rrb.Blueprint(
         rrb.Horizontal(
-            map_view(bounds_xy, history=history),
+            # a timestamped log is real data: its first sightings accumulate with --history
+            map_view(bounds_xy, history=history, all_first_sightings=history or not has_time),
             rrb.Vertical(
-                rrb.Grid(*plots, grid_columns=2),
+                tiles(plots) if plots else rrb.Vertical(),
                 rrb.Tabs(*texts),
                 row_shares=[3, 2],
             ),
@@ -251,6 +367,56 @@ def correlation_view(prefix: str = "") -> rrb.Vertical:
     )
 
 
+def run_details(
+    label: str,
+    prefix: str,
+    has: Collection[str],
+    axis: rrb.archetypes.TimeAxis | None = None,
+    *,
+    log: bool = False,
+) -> rrb.Container:
+    """A tab of one run of a study: its own plots, correlation matrix and evaluation (and
+    its log, with ``log``)."""
+    plots = run_plots(has, prefix=prefix, axis=axis)
+    below: list[rrb.View | rrb.Container] = []
+    if style.CORRELATION_MATRIX in has:
+        below.append(correlation_view(prefix))
+    if log and style.LOG in has:
+        below.append(log_view([f"{root_of(prefix)}{style.LOG}/**"], name=f"Log: {label}"))
+    if style.RUN_EVALUATION in has:
+        below.append(
+            rrb.TextDocumentView(
+                name=f"Evaluation: {label}", origin=f"{root_of(prefix)}{style.RUN_EVALUATION}"
+            )
+        )
+    parts: list[rrb.View | rrb.Container] = [tiles(plots)] if plots else []
+    if below:
+        parts.append(rrb.Horizontal(*below) if len(below) > 1 else below[0])
+    return rrb.Vertical(*parts, row_shares=[3, 2] if len(parts) == 2 else None, name=label)
+
+
+def study_documents(
+    prefixes: Sequence[str], summary: str | None, *, first: Sequence[rrb.View] = ()
+) -> list[rrb.View]:
+    """The documents of a study: its summary, the log of every run in ``prefixes`` in one
+    view, how it was run."""
+    views: list[rrb.View] = list(first)
+    if summary is not None:
+        views.append(rrb.TextDocumentView(name="Summary", origin=summary))
+    views += [
+        log_view([f"/{style.LOG}/**", *(f"{root_of(p)}{style.LOG}/**" for p in prefixes)]),
+        rrb.TextDocumentView(name="Run", origin=style.RUN_INFO),
+        rrb.TextDocumentView(name="Input", origin=style.RUN_INPUT),
+    ]
+    return views
+
+
+def map_tiles(maps: Sequence[rrb.View]) -> rrb.Container:
+    """Maps in rows of about the square root of their number (no empty cell)."""
+    columns = max(1, round(len(maps) ** 0.5 + 0.49))
+    return tiles(maps, columns=columns)
+
+
 def sweep_blueprint(
     variants: list[tuple[str, str]],
     *,
@@ -259,19 +425,26 @@ def sweep_blueprint(
     what: str = "variant",
     has_poses: bool = False,
     nis_range: tuple[float, float] | None = None,
+    has: Mapping[str, Collection[str]] | None = None,
+    summary: str | None = None,
 ) -> rrb.Blueprint:
     """A grid of maps, one per run (baseline first), beside overlaid metric plots tall
-    enough for a legend entry per run.
+    enough for a legend entry per run, the study's documents and a tab per run.
 
     :param variants: (label, prefix) of every run, in order
     :param what: what a run is called in the plot titles (``variant``, ``filter``)
     :param has_poses: the truth has poses: a NEES plot too
     :param nis_range: the NIS axis to show (a few times the first run's 95% bounds): the
         few wild runs would otherwise flatten every sensible one
+    :param has: per prefix, the entity paths given data (see :func:`run_plots`); None
+        leaves out the tabs of the runs
+    :param summary: the entity of the study's summary document
     """
     maps = [map_view(bounds_xy, prefix=prefix, name=label) for label, prefix in variants]
     first = variants[0][1]
-    plots = [
+    # a legend in every plot of a few runs; of many, in the first only (it would cover them)
+    legend = SMALL_LEGEND if len(variants) <= 4 else NO_LEGEND
+    plots: list[rrb.View] = [
         rrb.TimeSeriesView(
             name=f"NIS per {what} (grey: {variants[0][0]}'s 95% bounds)",
             contents=[
@@ -287,9 +460,13 @@ def sweep_blueprint(
         plots.append(
             rrb.TimeSeriesView(
                 name=f"Pose NEES per {what} (colours as above)",
-                contents=[f"/{prefix}/{style.NEES}" for _, prefix in variants],
+                contents=[
+                    *(f"/{prefix}/{style.NEES}" for _, prefix in variants),
+                    f"/{first}/{style.NEES}/{style.LOWER}",
+                    f"/{first}/{style.NEES}/{style.UPPER}",
+                ],
                 axis_y=rrb.ScalarAxis(range=(0.0, 3.0 * chi2_bounds(3)[1])),
-                plot_legend=NO_LEGEND,
+                plot_legend=legend,
             )
         )
     if has_truth:
@@ -297,14 +474,22 @@ def sweep_blueprint(
             rrb.TimeSeriesView(
                 name=f"Mean landmark error [m] per {what} (colours as above)",
                 contents=[f"/{prefix}/{style.MEAN_LANDMARK_ERROR}" for _, prefix in variants],
-                plot_legend=NO_LEGEND,
+                plot_legend=legend,
             )
         )
+    prefixes = [prefix for _, prefix in variants]
+    tabs: list[rrb.View | rrb.Container] = [*study_documents(prefixes, summary)]
+    if has is not None:
+        tabs += [run_details(label, prefix, has[prefix]) for label, prefix in variants]
     return rrb.Blueprint(
         rrb.Horizontal(
-            rrb.Grid(*maps),
-            rrb.Vertical(*plots, row_shares=[2] + [1] * (len(plots) - 1)),  # room for the legend
-            column_shares=[5, 2],
+            map_tiles(maps),
+            rrb.Vertical(
+                *plots,
+                rrb.Tabs(*tabs),
+                row_shares=[2] + [1] * (len(plots) - 1) + [2],  # room for the legend
+            ),
+            column_shares=[5, 3],
         ),
         rrb.TimePanel(timeline=style.STEP, play_state="following", state="collapsed"),
         collapse_panels=True,

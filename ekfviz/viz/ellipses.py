@@ -109,3 +109,20 @@ def ellipse_outlines(
     outlines: FloatArray = (coefficients @ _unit_circle_map(n_points)).reshape(-1, n_points, 2)
     outlines[:, -1] = outlines[:, 0]  # cos(2 pi) is not exactly 1: close the loop exactly
     return outlines
+
+
+def ellipse_extent(
+    means_xy: FloatArray, covs: FloatArray, *, n_sigma: float = N_SIGMA
+) -> FloatArray:
+    """The corners of the boxes around many ``n_sigma`` ellipses, to frame a map by.
+
+    :param means_xy: (K, 2) means
+    :param covs: (K, 2, 2) covariances
+    :return: (2K, 2) every box's lower-left then upper-right corner; the box of an
+        ellipse has half-widths n_sigma sqrt(C_xx), n_sigma sqrt(C_yy)
+    """
+    means_xy = np.asarray(means_xy, dtype=np.float64).reshape(-1, 2)
+    covs = np.asarray(covs, dtype=np.float64).reshape(-1, 2, 2)
+    half = n_sigma * np.sqrt(np.clip(np.stack([covs[:, 0, 0], covs[:, 1, 1]], axis=1), 0.0, None))
+    corners: FloatArray = np.concatenate([means_xy - half, means_xy + half])
+    return corners

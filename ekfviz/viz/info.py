@@ -103,6 +103,8 @@ class RecordingInfo:
     application_id: str = "ekfviz"
     status: RunStatus | None = None  # None: not recorded (not a replay, or an older one)
     notes: list[str] = field(default_factory=list)
+    # a replay's results beside its evaluation: the association's counts, the GPS error
+    results: dict[str, object] = field(default_factory=dict)
 
     @property
     def has_input(self) -> bool:
@@ -134,6 +136,9 @@ class RecordingInfo:
         if self.truth_name is not None:
             rows += [("truth", self.truth_name), ("truth sha256", self.truth_sha256 or "-")]
         rows += [(f"  {key}", json.dumps(value)) for key, value in self.parameters.items()]
+        rows += [
+            (RESULT_NAMES.get(key, key), _result(value)) for key, value in self.results.items()
+        ]
         rows += [("note", note) for note in self.notes]
         return rows
 
@@ -169,6 +174,7 @@ class RecordingInfo:
             "time_kind": self.time_kind,
             "evaluation_markdown": self.evaluation_markdown,
             "notes": self.notes,
+            "results": self.results,
         }
 
 
@@ -176,6 +182,7 @@ PROPERTIES = "/__properties"
 EKFVIZ_PROPERTIES = "/__properties/ekfviz"
 STATUS_PROPERTIES = "/__properties/status"
 TIME_PROPERTIES = "/__properties/time"
+RESULTS_PROPERTIES = "/__properties/results"
 CONSISTENCY_DOCUMENT = "/run/consistency"
 SWEEP_DOCUMENT = "/run/sweep"
 # entities every Recorder writes: how a recording of an older ekfviz is recognised
@@ -199,6 +206,7 @@ def read_recording_info(path: Path) -> RecordingInfo:
         EKFVIZ_PROPERTIES,
         STATUS_PROPERTIES,
         TIME_PROPERTIES,
+        RESULTS_PROPERTIES,
         f"/{style.RUN_INPUT}",
         f"/{style.RUN_EVALUATION}",
         CONSISTENCY_DOCUMENT,
@@ -290,6 +298,7 @@ def _info(
         application_id=entry.application_id,
         status=_status(latest.get(STATUS_PROPERTIES)),
         notes=notes,
+        results=json.loads(str(latest.get(RESULTS_PROPERTIES, {}).get("json", "{}") or "{}")),
     )
 
 
@@ -306,6 +315,19 @@ def unreadable(path: Path, error: BaseException) -> str:
         return f"{path}: not a Rerun recording (.rrd)"
     reason = text.splitlines()[0] if text else type(error).__name__
     return f"{path}: not a Rerun recording (.rrd): {reason}"
+
+
+RESULT_NAMES = {"association": "association", "gps": "GPS reference"}
+
+
+def _result(value: object) -> str:
+    """One result as a line: a mapping as ``key value, ...`` (numbers to 4 digits)."""
+    if isinstance(value, dict):
+        return ", ".join(
+            f"{key} {f'{item:.4g}' if isinstance(item, float) else item}"
+            for key, item in value.items()
+        )
+    return json.dumps(value)
 
 
 def _time_span(values: dict[str, object]) -> tuple[float, float] | None:

@@ -68,9 +68,15 @@ from ekfviz.models.angles import wrap_angles
 from ekfviz.models.range_bearing import RangeBearing
 from ekfviz.viz import style
 from ekfviz.viz.association import AssociationView
-from ekfviz.viz.blueprint import default_blueprint
+from ekfviz.viz.blueprint import ASSOCIATION_SERIES, REFERENCE_SERIES, default_blueprint
 from ekfviz.viz.correlation import log_correlation, log_correlation_styling
-from ekfviz.viz.ellipses import ellipse_axes, ellipse_outlines, outline_points, unit_circle
+from ekfviz.viz.ellipses import (
+    ellipse_axes,
+    ellipse_extent,
+    ellipse_outlines,
+    outline_points,
+    unit_circle,
+)
 from ekfviz.viz.flush import flush_interruptibly
 from ekfviz.viz.thinning import PREDICT_INTERVAL_S, PredictThinning
 
@@ -80,6 +86,10 @@ FLUSH_EVERY = 4096
 SHAPES_EVERY = 256  # ... but line strips in chunks of at most this many events (_send_strips)
 FLUSH_LANDMARKS = 1 << 20  # ... or sooner, once the buffered records hold this many landmarks
 SMALL_MAP = 32  # up to this many landmarks, every ellipse at every update
+# A landmark label's box as a fraction of the map's span, at the zoom that frames the map
+# (about "L12" at 14 px on a 700 px map): closer labels are stacked (see unclutter)
+LABEL_WIDTH = 0.05
+LABEL_HEIGHT = 0.03
 MAP_EVERY_STEPS = 25  # beyond: the whole map every this many steps
 # A small map is logged again only once some landmark's point or outline would move by
 # more than this fraction of its ellipse's semi-major axis (the viewer shows the latest).
@@ -96,6 +106,38 @@ EPOCH_MIN_S = 1e9  # log times from here on are Unix time (see time_is_epoch)
 
 def _radius(ui_points: float) -> npt.ArrayLike:
     return rr.Radius.ui_points(ui_points)
+
+
+def unclutter(anchors_xy: FloatArray, width: float, height: float) -> FloatArray:
+    """Label anchors moved down (y up) until no two labels' boxes overlap.
+
+    :param anchors_xy: (n, 2) where each label hangs (its top centre), in world units
+    :param width: a label's width, in world units; ``height`` likewise
+    :return: (n, 2) the anchors, the higher of two overlapping ones kept in place
+    """
+    n = len(anchors_xy)
+    if n < 2:
+        return anchors_xy
+    dx = np.abs(anchors_xy[:, None, 0] - anchors_xy[None, :, 0])
+    dy = np.abs(anchors_xy[:, None, 1] - anchors_xy[None, :, 1])
+    overlap = (dx < width) & (dy < height)
+    np.fill_diagonal(overlap, False)
+    if not overlap.any():  # the common case, without a loop
+        return anchors_xy
+    placed: FloatArray = anchors_xy.copy()
+    done: list[int] = []
+    for i in np.argsort(-anchors_xy[:, 1], kind="stable").tolist():
+        x, y = placed[i]
+        moved = True
+        while moved:  # below every label already placed that it would cover
+            moved = False
+            for j in done:
+                if abs(placed[j, 0] - x) < width and abs(placed[j, 1] - y) < height:
+                    y = placed[j, 1] - 1.001 * height  # clear of it despite round-off
+                    moved = True
+        placed[i, 1] = y
+        done.append(i)
+    return placed
 
 
 # Arrow types of the components built here (see _column), from the SDK's own conversion
@@ -409,6 +451,7 @@ class _Entities:
         self.rec = rec
         self._prefix = prefix.strip("/") + "/" if prefix.strip("/") else ""
         self._styles: dict[str, tuple[rr.AsComponents, ...]] = {}  # path -> styling unsent
+        self.sent: set[str] = set()  # the entities (without the prefix) given data so far
 
     def path(self, entity: str) -> str:
         return self._prefix + entity
@@ -430,11 +473,13 @@ class _Entities:
         self._styles.clear()
 
     def log(self, entity: str, data: Any, *, static: bool = False) -> None:
+        self.sent.add(entity)
         path = self.path(entity)
         styling = self._styles.pop(path, ())
         self.rec.log(path, data, *styling, static=static)
 
     def send_columns(self, entity: str, indexes: Sequence[rr.TimeColumnLike], columns: Any) -> None:
+        self.sent.add(entity)
         path = self.path(entity)
         styling = self._styles.pop(path, ())
         if styling:
@@ -546,6 +591,8 @@ class Recorder:
     :param predict_interval_s: log time between two logged predicts of a timestamped
         log (see :mod:`ekfviz.viz.thinning`); None logs every predict
     :param sensor: the measurement model, to draw id-less scans from the sensor's position
+    :param gps_reference: a GPS reference will be logged after ``finish`` (Victoria Park,
+        see :func:`ekfviz.viz.association.log_reference`): the layout has its plot
     """
 
     def __init__(
@@ -563,8 +610,10 @@ class Recorder:
         history: bool = False,
         predict_interval_s: float | None = PREDICT_INTERVAL_S,
         sensor: RangeBearing | None = None,
+        gps_reference: bool = False,
     ) -> None:
         self._rec = _Entities(rec, prefix)
+        self._gps_reference = gps_reference
         self._sensor = sensor if sensor is not None else RangeBearing()
         self.association: AssociationView | None = None  # made at the first scan
         # id-less scans: a new landmark's first-sighting outline (mean, covariance), held
@@ -613,6 +662,8 @@ class Recorder:
         self._blueprint = blueprint
         self._run_documents = run_documents
         self._bounds_xy: FloatArray | None = None  # [[x_min, y_min], [x_max, y_max]] so far
+        # NIS, NEES: (largest value, largest 95% upper bound) so far, to fit their axes
+        self._extents: dict[str, tuple[float, float]] = {}
         if blueprint and live_layout:
             self._rec.send_blueprint(self._layout())
         if not prefix.strip("/") and not run_documents:  # a filter of the user's own
@@ -752,6 +803,9 @@ class Recorder:
                 style.LANDMARK_ELLIPSES, rows, [(0, record, _landmark_rows(record, None))]
             )
             self._map_shown_event = record.event
+        if self._last_update is not None and self._last_update[0].n_landmarks:
+            last = self._last_update[0]  # frame the final map's ellipses, not only its points
+            self._grow_bounds(ellipse_extent(last.landmarks_xy, last.landmark_covs))
         self._series.flush()
         if self.association is not None:
             self.association.flush()
@@ -763,7 +817,7 @@ class Recorder:
             )
         self._rec.send_styles()
         if self._blueprint:
-            self._rec.send_blueprint(self._layout(self._bounds_xy))
+            self._rec.send_blueprint(self._layout(self._bounds_xy, final=True))
         self._rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
 
     def note(self, text: str, level: str | rr.TextLogLevel = rr.TextLogLevel.WARN) -> None:
@@ -787,11 +841,16 @@ class Recorder:
         else:
             self._rec.rec.set_time(style.TIME, duration=time)
 
-    def _layout(self, bounds_xy: FloatArray | None = None) -> rrb.Blueprint:
+    def _layout(self, bounds_xy: FloatArray | None = None, *, final: bool = False) -> rrb.Blueprint:
         if bounds_xy is not None:
             margin = 0.05 * max(float(np.max(bounds_xy[1] - bounds_xy[0])), 1.0)
             bounds_xy = bounds_xy + np.array([[-margin], [margin]])
         return default_blueprint(
+            has=self.entities_with_data if final else None,
+            value_ranges={
+                path: (0.0, 1.08 * max(1.15 * bound, top))
+                for path, (top, bound) in self._extents.items()
+            },
             landmark_ids=sorted(self._seen_ids) if self._truth is not None else (),
             has_truth=self._truth is not None,
             has_true_poses=self._truth is not None and self._truth.has_poses,
@@ -802,6 +861,17 @@ class Recorder:
         )
 
     # -- records -------------------------------------------------------------------------
+
+    @property
+    def entities_with_data(self) -> frozenset[str]:
+        """The entity paths (without the prefix) given data so far, and the GPS
+        reference's series if one is to come."""
+        has = set(self._rec.sent)
+        if self.association is not None:  # it logs through the stream itself
+            has |= {f"{ASSOCIATION_SERIES}/matched", style.LOG}
+        if self._gps_reference:
+            has |= {f"{REFERENCE_SERIES}/gps_error", f"{REFERENCE_SERIES}/gps_rmse"}
+        return frozenset(has)
 
     @property
     def time_span(self) -> tuple[float, float] | None:
@@ -926,6 +996,9 @@ class Recorder:
             used, which = np.unique(observed.nis_used[with_nis], return_inverse=True)
             bounds = np.array([chi2_bounds(2 * int(n)) for n in used])[which]
             self._send(style.NIS, rows.pick(with_nis), _scalars(observed.nis_sum[with_nis]))
+            self._extent(
+                style.NIS, float(observed.nis_sum[with_nis].max()), float(bounds[:, 1].max())
+            )
             ends = _run_ends(bounds[:, 0])
             at = rows.pick(with_nis[ends])
             for path, values in (
@@ -1303,6 +1376,19 @@ class Recorder:
             return
         sigma_y = np.sqrt(np.concatenate([record.landmark_covs[:, 1, 1] for record in updates]))
         below = positions - np.column_stack([np.zeros(len(positions)), 3.0 * sigma_y])
+        if self._bounds_xy is not None and counts[-1] > 1:
+            # labels of close landmarks stacked, not overprinted: the offsets that clear the
+            # batch's last map, by landmark id, for all its rows (a map moves little within
+            # a batch, and one pass per update would cost seconds on a long run)
+            span = max(float(np.max(self._bounds_xy[1] - self._bounds_xy[0])), 1e-9)
+            last = slice(len(below) - int(counts[-1]), len(below))
+            offsets = unclutter(below[last], LABEL_WIDTH * span, LABEL_HEIGHT * span) - below[last]
+            if offsets.any():
+                last_ids = ids[last]
+                order = np.argsort(last_ids)
+                at = np.clip(np.searchsorted(last_ids[order], ids), 0, len(order) - 1)
+                same = last_ids[order][at] == ids
+                below[same] += offsets[order][at[same]]
         self._send(
             style.LANDMARK_LABELS,
             times,
@@ -1460,9 +1546,17 @@ class Recorder:
     ) -> None:
         """A NIS or NEES value with its chi-square bounds, drawn in the same plot."""
         at = (record.step, record.event)
+        self._extent(path, value, bounds[1])
         self._series.add(path, *at, value, record.time)
         self._series.add(f"{path}/{style.LOWER}", *at, bounds[0], record.time)
         self._series.add(f"{path}/{style.UPPER}", *at, bounds[1], record.time)
+
+    def _extent(self, path: str, value: float, upper: float) -> None:
+        """Grow the largest value and 95% upper bound of a NIS or NEES series so far."""
+        top, bound = self._extents.get(path, (0.0, 0.0))
+        if math.isfinite(value):
+            top = max(top, value)
+        self._extents[path] = (top, max(bound, upper))
 
     @staticmethod
     def _describe(record: EventRecord, seen: int, new: int, nis: float, nis_used: int) -> str:

@@ -41,6 +41,7 @@ from ekfviz.viz.recorder import Recorder
 
 APPLICATION_ID = "ekfviz"
 TIME_PROPERTY = "time"  # the span of the time timeline: start, end (seconds), kind
+RESULTS_PROPERTY = "results"  # a replay's results beside its evaluation, as JSON
 INPUT_TEXT_CAP = 4 * 1024 * 1024  # bytes of input embedded in a recording
 GRPC_PORT = 9876
 WEB_PORT = 9090
@@ -420,6 +421,13 @@ class RunLogger:
                 TIME_PROPERTY, _any_values({"start": span[0], "end": span[1], "kind": kind})
             )
 
+    def add_results(self, results: Mapping[str, object]) -> None:
+        """Results of the run beside its evaluation (the association's counts, the GPS
+        error of Victoria Park), as the property ``results`` that ``ekfviz info`` shows."""
+        self.recording.rec.send_property(
+            RESULTS_PROPERTY, _any_values({"json": json.dumps(dict(results), default=str)})
+        )
+
     def stop(self, reason: str, evaluation: Evaluation | None) -> bool:
         """End a run cut short (bad input, a numerical fault, a signal): log why as the
         last line, send what is buffered and keep the recording if it holds any event.
@@ -518,12 +526,14 @@ def open_run(
     detail: bool = False,
     history: bool = False,
     sensor: RangeBearing | None = None,
+    gps_reference: bool = False,
 ) -> Iterator[RunLogger]:
     """A recording of one replay (see :func:`open_recording`), logged by a RunLogger.
 
     :param detail: log every landmark's ellipse and error at every update (see
         :class:`~ekfviz.viz.recorder.Recorder`); by default a large map is logged whole
         only every ``MAP_EVERY_STEPS`` steps
+    :param gps_reference: a GPS reference is logged after the run (its plot is laid out)
     """
     with open_recording(info, sinks) as recording:
         recorder = Recorder(
@@ -534,6 +544,7 @@ def open_run(
             history=history,
             live_layout=sinks.spawn or sinks.serve or sinks.connect is not None,
             sensor=sensor,
+            gps_reference=gps_reference,
         )
         yield RunLogger(recorder, recording)
 

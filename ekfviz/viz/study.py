@@ -11,21 +11,23 @@ import numpy as np
 import rerun as rr
 
 from ekfviz.core.consistency import chi2_bounds, update_nis
-from ekfviz.core.evaluation import landmark_errors
+from ekfviz.core.evaluation import Evaluation, landmark_errors
 from ekfviz.core.records import EventKind
 from ekfviz.core.truth import GroundTruth
 from ekfviz.core.types import FloatArray
 from ekfviz.studies.runs import Run
 from ekfviz.viz import style
 from ekfviz.viz.blueprint import sweep_blueprint
+from ekfviz.viz.ellipses import ellipse_extent
 from ekfviz.viz.recorder import Recorder
 from ekfviz.viz.run import Recording, finish_recorders
 
 SUMMARY = "run/summary"
-# matplotlib's tab10 and a few more: one colour per variant in the overlaid plots
+# matplotlib's tab10 (its grey swapped for navy: grey is the 95% bounds' colour) and a
+# few more: one colour per variant in the overlaid plots
 PALETTE: tuple[style.Rgb, ...] = (
     (31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
-    (140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207),
+    (140, 86, 75), (227, 119, 194), (0, 0, 128), (188, 189, 34), (23, 190, 207),
     (255, 215, 0), (174, 199, 232), (255, 187, 120), (152, 223, 138),
 )  # fmt: skip
 
@@ -43,41 +45,57 @@ def record_study(
     :param root: ``variants`` for a sweep, ``filters`` for a comparison
     """
     rec = recording.rec
-    recorders = []
-    bounds: list[np.ndarray] = []
-    for k, run in enumerate(runs):
-        prefix = f"{root}/{run.spec.key}"
-        recorder = Recorder(rec, truth=truth, blueprint=False, prefix=prefix)
-        colour = PALETTE[k % len(PALETTE)]
-        for series in (style.NIS, style.NEES):  # one colour and name per run, overlaid
-            rec.log(
-                f"{prefix}/{series}",
-                rr.SeriesLines(colors=colour, names=run.spec.label),
-                static=True,
-            )
-        for record in run.records:
-            recorder.log_record(record)
-        if truth is not None:
-            _log_mean_error(rec, prefix, run, truth, colour)
-        recorders.append((recorder, run.evaluation))
-        for record in run.records:
-            bounds.append(record.pose[None, :2])
-            bounds.append(record.landmarks_xy)
-    points = np.concatenate(bounds)
-    box = np.stack([points.min(axis=0), points.max(axis=0)])
-    margin = 0.05 * max(float(np.max(box[1] - box[0])), 1.0)
+    recorders, box = log_runs(rec, runs, truth, root)
+    rec.log(SUMMARY, rr.TextDocument(summary, media_type=rr.MediaType.MARKDOWN), static=True)
+    finish_recorders(recording, recorders)
+    # after the runs are finished: the layout shows what they logged, no empty plot
     rec.send_blueprint(
         sweep_blueprint(
             [(run.spec.label, f"{root}/{run.spec.key}") for run in runs],
             has_truth=truth is not None,
-            bounds_xy=box + np.array([[-margin], [margin]]),
+            bounds_xy=box,
             what="variant" if root == "variants" else "filter",
             has_poses=truth is not None and truth.poses_xytheta is not None,
             nis_range=nis_axis(runs[0]),
+            has={
+                f"{root}/{run.spec.key}": recorder.entities_with_data
+                for run, (recorder, _) in zip(runs, recorders, strict=True)
+            },
+            summary=SUMMARY,
         )
     )
-    rec.log(SUMMARY, rr.TextDocument(summary, media_type=rr.MediaType.MARKDOWN), static=True)
-    finish_recorders(recording, recorders)
+
+
+def log_runs(
+    rec: rr.RecordingStream, runs: list[Run], truth: GroundTruth | None, root: str
+) -> tuple[list[tuple[Recorder, Evaluation]], FloatArray]:
+    """Log every run's records under ``<root>/<key>``, one colour per run in the plots.
+
+    :return: the recorders to finish with their evaluations, and the (2, 2) world box
+        of every pose and landmark's 3-sigma ellipse, with a margin
+    """
+    recorders: list[tuple[Recorder, Evaluation]] = []
+    bounds: list[FloatArray] = []
+    for k, run in enumerate(runs):
+        prefix = f"{root}/{run.spec.key}"
+        recorder = Recorder(rec, truth=truth, blueprint=False, prefix=prefix)
+        colour = PALETTE[k % len(PALETTE)]
+        marks = _series_style(run, runs[0], colour)
+        for series in (style.NIS, style.NEES):  # one colour and name per run, overlaid
+            rec.log(f"{prefix}/{series}", marks, static=True)
+        for record in run.records:
+            recorder.log_record(record)
+        if truth is not None:
+            _log_mean_error(rec, prefix, run, truth, marks)
+        recorders.append((recorder, run.evaluation))
+        bounds.append(np.array([record.pose[:2] for record in run.records]))
+        last = run.records[-1]  # the final map's ellipses in the frame, not only its points
+        if last.n_landmarks:
+            bounds.append(ellipse_extent(last.landmarks_xy, last.landmark_covs))
+    points = np.concatenate(bounds)
+    box = np.stack([points.min(axis=0), points.max(axis=0)])
+    margin = 0.05 * max(float(np.max(box[1] - box[0])), 1.0)
+    return recorders, box + np.array([[-margin], [margin]])
 
 
 def nis_axis(baseline: Run) -> tuple[float, float] | None:
@@ -94,8 +112,25 @@ def nis_axis(baseline: Run) -> tuple[float, float] | None:
     return 0.0, max(3.0 * max(uppers), max(values))
 
 
+def is_offline(run: Run, baseline: Run) -> bool:
+    """Whether a run is an offline filter's (it has ``finish()``): its records are the
+    initialisation and the optimum at the end, with the whole path in the last."""
+    last = run.records[-1]
+    return last.path_xytheta is not None or (len(run.records) <= 2 < len(baseline.records))
+
+
+def _series_style(run: Run, baseline: Run, colour: style.Rgb) -> rr.AsComponents:
+    """An online run's series as lines; an offline run's as points: a line between its
+    two records would look like a value at every step."""
+    if is_offline(run, baseline):
+        return rr.SeriesPoints(
+            colors=colour, names=f"{run.spec.label} (offline: start, end)", marker_sizes=5.0
+        )
+    return rr.SeriesLines(colors=colour, names=run.spec.label)
+
+
 def _log_mean_error(
-    rec: rr.RecordingStream, prefix: str, run: Run, truth: GroundTruth, colour: style.Rgb
+    rec: rr.RecordingStream, prefix: str, run: Run, truth: GroundTruth, marks: rr.AsComponents
 ) -> None:
     """The mean Euclidean landmark error after every update, as one column send."""
     steps, events, means = [], [], []
@@ -110,7 +145,7 @@ def _log_mean_error(
             events.append(record.event)
             means.append(float(np.nanmean(euclidean)))
     path = f"{prefix}/{style.MEAN_LANDMARK_ERROR}"
-    rec.log(path, rr.SeriesLines(colors=colour, names=run.spec.label), static=True)
+    rec.log(path, marks, static=True)
     rec.send_columns(
         path,
         indexes=[
