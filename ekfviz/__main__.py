@@ -17,7 +17,12 @@ def main() -> None:
         argv = prepare_argv(sys.argv[1:])
     except typer.Exit as stop:  # outside the app: exit with the code it carries
         raise SystemExit(stop.exit_code) from None
-    app(args=argv, prog_name="ekfviz")
+    try:
+        app(args=argv, prog_name="ekfviz")
+    except signals.Interrupted as stop:  # a command that did not say more itself
+        from ekfviz.cli.common import interrupted
+
+        interrupted(stop, "nothing was written")
 
 
 if __name__ == "__main__":
