@@ -170,6 +170,7 @@ def replay(
         make_filter = load_filter(filter_spec)
     except FilterSpecError as error:
         fail(str(error))
+    logger: viz.RunLogger | None = None
     try:
         opened = open_log(data, robot, truth, no_truth)
         truth_xy = opened.truth
@@ -236,8 +237,13 @@ def replay(
             logger.wait_while_serving()
     except pipeline.RunStopped as stopped:
         where = ""
-        if stopped.kept and sinks.save is not None:
-            where = f"; the recording of everything before it is saved in {sinks.save}"
+        saved_to = None if logger is None else logger.recording.saved_to
+        if stopped.kept and saved_to is not None:
+            where = f"; the recording of everything before it is saved in {saved_to}"
+            if saved_to != sinks.save:
+                where += f" ({sinks.save} is left as it was)"
+        elif sinks.save is not None and sinks.save.exists():
+            where = f"; {sinks.save} is left as it was"
         fail(f"{stopped.reason}{where}", code=stopped.exit_code)
     except (InputError, FilterError, AssociationError, viz.SinkError) as error:
         fail(str(error))

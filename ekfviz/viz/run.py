@@ -364,6 +364,9 @@ class Recording:
     :ivar rec: the stream to log to
     :ivar url: the web viewer's address when serving, else None
     :ivar complete: set once everything is logged: only then is a ``--save`` file written
+    :ivar partial: the run was cut short: its file goes to :func:`partial_path` when one
+        is already at the ``--save`` path
+    :ivar saved_to: where the ``--save`` file was written, once it is
     """
 
     def __init__(
@@ -372,6 +375,8 @@ class Recording:
         self.rec = rec
         self.url = url
         self.complete = False
+        self.partial = False  # a run cut short: never written over an existing file
+        self.saved_to: Path | None = None  # where a --save file went, once written
         self.unreachable = unreachable  # a --connect URL without a viewer, when saving too
 
     def wait_while_serving(self) -> None:
@@ -428,6 +433,7 @@ class RunLogger:
         """
         if not self.logged:
             return False
+        self.recording.partial = True
         self.recorder.note(reason, level=rr.TextLogLevel.ERROR)
         last = self.last
         finish_recorders(
@@ -473,7 +479,10 @@ def open_recording(info: RunInfo, sinks: Sinks) -> Iterator[Recording]:
 
     A ``--save`` file is written beside its path under a temporary name and moved over
     the path only once the recording is marked complete; otherwise the temporary file is
-    removed and an existing file at the path is left untouched.
+    removed and an existing file at the path is left untouched. The recording of a run
+    cut short (marked ``partial``) never replaces a file: with one at the path it goes to
+    :func:`partial_path` instead (``saved_to`` says where). Temporary files that runs
+    killed outright (``kill -9``) left beside the path are removed first.
 
     :raises SinkError: when a sink cannot be used (no display for ``spawn``, ...)
     """
@@ -499,8 +508,10 @@ def open_recording(info: RunInfo, sinks: Sinks) -> Iterator[Recording]:
         with contextlib.suppress(Exception):
             flush_interruptibly(rec, FLUSH_TIMEOUT_S)
         rec.disconnect()  # finalises the file (footer) and stops a server
-        if temporary is not None:
-            _commit_or_remove(temporary, sinks.save, recording is not None and recording.complete)
+        if temporary is not None and sinks.save is not None:
+            saved = _commit_or_remove(temporary, sinks.save, recording)
+            if recording is not None:
+                recording.saved_to = saved
     if unreachable is not None:
         kept = f"; the recording is saved in {sinks.save}" if sinks.save is not None else ""
         raise SinkError(f"no Rerun viewer at {unreachable}{kept}")
@@ -589,16 +600,74 @@ def _attach(
 
 def temporary_beside(target: Path) -> Path:
     """A fresh hidden name in the folder of ``target``: the same file system, so a
-    finished file can replace ``target`` atomically with ``os.replace``."""
+    finished file can replace ``target`` atomically with ``os.replace``.
+
+    The name holds this process's id, so that the next run to ``target`` can tell a
+    file of a run that died (see :func:`remove_stale_parts`) from one being written.
+    """
+    remove_stale_parts(target)
     return target.with_name(f".{target.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.part")
 
 
-def _commit_or_remove(temporary: Path, target: Path | None, complete: bool) -> None:
-    """Move a complete recording over its path; drop an incomplete one."""
-    if complete and target is not None:
-        os.replace(temporary, target)
-    else:
+def remove_stale_parts(target: Path) -> list[Path]:
+    """Remove the temporary files beside ``target`` of runs whose process is gone (a
+    run killed with ``kill -9`` cannot remove its own); those of live processes stay.
+
+    :return: the files removed
+    """
+    removed: list[Path] = []
+    prefix = f".{target.name}."
+    try:
+        names = [entry.name for entry in os.scandir(target.parent or Path("."))]
+    except OSError:
+        return removed
+    for name in names:
+        if not (name.startswith(prefix) and name.endswith(".part")):
+            continue
+        fields = name[len(prefix) : -len(".part")].split(".")
+        if len(fields) != 2 or not fields[0].isdigit() or _alive(int(fields[0])):
+            continue
+        stale = target.with_name(name)
+        with contextlib.suppress(OSError):
+            stale.unlink()
+            removed.append(stale)
+    return removed
+
+
+def _alive(pid: int) -> bool:
+    """Whether a process with this id exists (one of another user's counts)."""
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError):
+        return True
+    return True
+
+
+def partial_path(target: Path) -> Path:
+    """Where the recording of a run cut short goes when a file is at ``target``:
+    ``RUN.partial.rrd`` beside ``RUN.rrd`` (an earlier partial recording there is
+    replaced)."""
+    return target.with_name(f"{target.stem}.partial{target.suffix or '.rrd'}")
+
+
+def _commit_or_remove(temporary: Path, target: Path, recording: Recording | None) -> Path | None:
+    """Move a complete recording over its path and a partial one over its path or,
+    when a file is there already, beside it; drop an incomplete one.
+
+    :return: where the recording was written, None when it was dropped
+    """
+    if recording is None or not recording.complete:
         temporary.unlink(missing_ok=True)
+        return None
+    destination = target
+    if recording.partial and target.exists():
+        destination = partial_path(target)
+    os.replace(temporary, destination)
+    return destination
 
 
 def _describe(rec: rr.RecordingStream, info: RunInfo) -> None:
