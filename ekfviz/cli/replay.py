@@ -112,10 +112,20 @@ def replay(
         bool,
         typer.Option(
             "--serve",
-            help="Serve the web viewer on localhost until Ctrl-C.",
+            help="Serve the web viewer on localhost (see --bind) until Ctrl-C.",
             rich_help_panel="Rerun output",
         ),
     ] = False,
+    bind: Annotated[
+        str | None,
+        typer.Option(
+            help="With --serve: the IP address to listen on \\[default: 127.0.0.1, this"
+            " machine only]; 0.0.0.0 serves the recording to the whole network.",
+            show_default=False,
+            metavar="ADDRESS",
+            rich_help_panel="Rerun output",
+        ),
+    ] = None,
     connect: Annotated[
         str | None,
         typer.Option(
@@ -157,6 +167,13 @@ def replay(
     from ekfviz import pipeline, viz  # rerun loads only for commands that record
 
     check_outputs(("--save", save), ("--report", report))
+    if bind is not None:
+        if not serve:
+            fail("--bind is the address of --serve: add --serve")
+        try:
+            viz.check_bind(bind)
+        except viz.SinkError as error:
+            fail(str(error))
     if as_json:
         human_output_to_stderr()
     params = filter_params(
@@ -186,7 +203,9 @@ def replay(
         if setup.victoria:
             events = setup.events(opened, None)
         sinks, note = viz.resolve_default_sinks(
-            viz.Sinks(save=save, spawn=spawn, serve=serve, connect=connect),
+            viz.Sinks(
+                save=save, spawn=spawn, serve=serve, connect=connect, bind=bind or viz.LOOPBACK
+            ),
             data,
             RECORDINGS_DIR,
             name=opened.source.name,

@@ -10,15 +10,19 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import ipaddress
 import json
 import os
 import shutil
+import signal
 import socket
+import subprocess
 import sys
+import tempfile
 import threading
 import time
 import uuid
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -285,14 +289,23 @@ def _json(value: object) -> str:
 # -- sinks -----------------------------------------------------------------------------
 
 
+LOOPBACK = "127.0.0.1"
+SERVE_START_S = 15.0  # how long --serve waits for its viewer program to listen
+
+
 @dataclass(frozen=True, slots=True)
 class Sinks:
-    """Where a recording goes: a file, a spawned viewer, a served web viewer, a viewer URL."""
+    """Where a recording goes: a file, a spawned viewer, a served web viewer, a viewer URL.
+
+    :param bind: the address the served web viewer and its gRPC server listen on
+        (loopback unless the user says otherwise)
+    """
 
     save: Path | None = None
     spawn: bool = False
     serve: bool = False
     connect: str | None = None
+    bind: str = LOOPBACK
 
     @property
     def any(self) -> bool:
@@ -350,9 +363,115 @@ def _rerun_executable() -> str | None:
     return str(beside) if beside.is_file() else None
 
 
-def web_viewer_url(grpc_uri: str, web_port: int = WEB_PORT) -> str:
+def web_viewer_url(grpc_uri: str, web_port: int = WEB_PORT, host: str = "localhost") -> str:
     """The address of the served web viewer, pointed at the gRPC server."""
-    return f"http://localhost:{web_port}/?url={quote(grpc_uri, safe=':/')}"
+    return f"http://{host}:{web_port}/?url={quote(grpc_uri, safe=':/')}"
+
+
+def check_bind(address: str) -> str:
+    """An IP address to serve on, as given; a one-line complaint otherwise.
+
+    :raises SinkError: not an IPv4 or IPv6 address
+    """
+    try:
+        ipaddress.ip_address(address)
+    except ValueError:
+        raise SinkError(
+            f"--bind {address}: expected an IP address, e.g. 127.0.0.1 (this machine only,"
+            " the default) or 0.0.0.0 (every network interface)"
+        ) from None
+    return address
+
+
+def _url_host(bind: str) -> str:
+    """The host to put in a URL for a server bound to ``bind``."""
+    address = ipaddress.ip_address(bind)
+    if address.is_loopback:
+        return "localhost" if address.version == 4 else "[::1]"
+    if address.is_unspecified:  # every interface: the machine's name
+        return socket.gethostname()
+    return bind if address.version == 4 else f"[{bind}]"
+
+
+class ServedViewer:
+    """The web viewer and its gRPC server, served by Rerun's viewer program on ``bind``.
+
+    Rerun's ``serve_web_viewer`` always listens on every network interface; its viewer
+    program takes ``--bind``, so ``--serve`` runs that, as a child that ends with this
+    process (terminated on close; on Linux also when this process is killed outright).
+    """
+
+    def __init__(self, bind: str) -> None:
+        executable = _viewer_binary() or _rerun_executable()
+        if executable is None:
+            raise SinkError("--serve needs the rerun viewer program, which is not installed")
+        self.bind = bind
+        host = _url_host(bind)
+        self.grpc_url = f"rerun+http://{host}:{GRPC_PORT}/proxy"
+        self.url = web_viewer_url(self.grpc_url, WEB_PORT, host)
+        self._log = tempfile.TemporaryFile()  # noqa: SIM115 (closed by close())
+        self.process = subprocess.Popen(
+            [
+                executable, "--serve-web", "--bind", bind, "--port", str(GRPC_PORT),
+                "--web-viewer-port", str(WEB_PORT), "--hide-welcome-screen",
+            ],
+            stdin=subprocess.DEVNULL,
+            stdout=self._log,
+            stderr=subprocess.STDOUT,
+            preexec_fn=_end_with_parent if sys.platform == "linux" else None,
+            start_new_session=True,  # its own group: stopped whole, wrapper script and all
+        )  # fmt: skip
+        local = LOOPBACK if ipaddress.ip_address(bind).is_unspecified else bind
+        probe = f"http://{local if ':' not in local else f'[{local}]'}:{GRPC_PORT}"
+        deadline = time.monotonic() + SERVE_START_S
+        while not viewer_answers(probe, timeout=1.0):
+            if self.process.poll() is not None or time.monotonic() > deadline:
+                reason = self._last_line() or "it did not start"
+                self.close()
+                raise SinkError(f"--serve on {bind}, ports {WEB_PORT} and {GRPC_PORT}: {reason}")
+            time.sleep(0.1)
+
+    def _last_line(self) -> str:
+        with contextlib.suppress(OSError):
+            self._log.seek(0)
+            lines = [
+                line.strip() for line in self._log.read().decode(errors="replace").splitlines()
+            ]
+            lines = [line for line in lines if line]
+            if lines:
+                return lines[-1][:300]
+        return ""
+
+    def close(self) -> None:
+        """Stop the viewer program."""
+        for signum in (signal.SIGTERM, signal.SIGKILL):
+            with contextlib.suppress(OSError):
+                os.killpg(self.process.pid, signum)
+            try:
+                self.process.wait(2.0)
+                break
+            except subprocess.TimeoutExpired:
+                continue
+        self._log.close()
+
+
+def _viewer_binary() -> str | None:
+    """The viewer program itself, not the ``rerun`` script that runs it as a child."""
+    import importlib.util
+
+    spec = importlib.util.find_spec("rerun_cli")
+    if spec is None or spec.origin is None:
+        return None
+    binary = Path(spec.origin).parent / ("rerun.exe" if sys.platform == "win32" else "rerun")
+    return str(binary) if binary.is_file() and os.access(binary, os.X_OK) else None
+
+
+def _end_with_parent() -> None:
+    """In the viewer program's process (Linux): SIGTERM when its parent dies."""
+    import ctypes
+
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL(None).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
 
 
 # -- the run ---------------------------------------------------------------------------
@@ -498,8 +617,9 @@ def open_recording(info: RunInfo, sinks: Sinks) -> Iterator[Recording]:
             raise SinkError(_no_viewer(sinks.connect))
         unreachable = sinks.connect  # the other outputs go on; said at the end
         sinks = Sinks(save=sinks.save, spawn=sinks.spawn, serve=sinks.serve)
+    closers: list[Callable[[], None]] = []
     try:
-        log_sinks, temporary, url = _attach(rec, sinks)
+        log_sinks, temporary, url = _attach(rec, sinks, closers)
         rec.set_sinks(*log_sinks)
         _describe(rec, info)
         recording = Recording(rec, url, unreachable)
@@ -508,6 +628,8 @@ def open_recording(info: RunInfo, sinks: Sinks) -> Iterator[Recording]:
         with contextlib.suppress(Exception):
             flush_interruptibly(rec, FLUSH_TIMEOUT_S)
         rec.disconnect()  # finalises the file (footer) and stops a server
+        for close in closers:
+            close()
         if temporary is not None and sinks.save is not None:
             saved = _commit_or_remove(temporary, sinks.save, recording)
             if recording is not None:
@@ -550,9 +672,12 @@ def open_run(
 
 
 def _attach(
-    rec: rr.RecordingStream, sinks: Sinks
+    rec: rr.RecordingStream, sinks: Sinks, closers: list[Callable[[], None]]
 ) -> tuple[list[rr.LogSinkLike], Path | None, str | None]:
-    """Make the sinks; return them, the temporary file of a save, and a web viewer URL."""
+    """Make the sinks; return them, the temporary file of a save, and a web viewer URL.
+
+    :param closers: gets what must be stopped once the recording is closed
+    """
     log_sinks: list[rr.LogSinkLike] = []
     temporary: Path | None = None
     url: str | None = None
@@ -578,13 +703,13 @@ def _attach(
         except (ValueError, RuntimeError) as error:
             raise SinkError(f"--connect {sinks.connect}: {error}") from None
     if sinks.serve:
+        served = ServedViewer(check_bind(sinks.bind))
+        closers.append(served.close)
         try:
-            server = rr.GrpcServerSink(bind_ip="127.0.0.1", port=GRPC_PORT)
-            rr.serve_web_viewer(web_port=WEB_PORT, open_browser=False, connect_to=server.uri)
-        except (ValueError, RuntimeError, OSError) as error:
+            log_sinks.append(rr.GrpcSink(served.grpc_url))
+        except (ValueError, RuntimeError) as error:
             raise SinkError(f"--serve: {error}") from None
-        log_sinks.append(server)
-        url = web_viewer_url(server.uri)
+        url = served.url
     if sinks.save is not None:
         target = sinks.save
         try:  # no folder is made: a path that cannot be written is refused before any work
