@@ -139,6 +139,8 @@ class RunInfo:
     truth_sha256: str | None = None
     version: str = field(default=__version__)
     kind: str = "replay"  # or "sweep": what ``ekfviz info`` says the recording is
+    # each file's own sha256 where the input or truth is several files (a dataset)
+    file_digests: dict[str, str] = field(default_factory=dict)
 
     @property
     def recording_id(self) -> str:
@@ -166,6 +168,9 @@ class RunInfo:
             rows.append(f"- **input text** {self.input_note}")
         if self.truth_path is not None:
             rows.append(f"- **truth** `{self.truth_path.name}`, sha256 `{self.truth_sha256}`")
+        rows += [
+            f"- **file** `{path}`, sha256 `{digest}`" for path, digest in self.file_digests.items()
+        ]
         rows += ["", "## Parameters", "", "| parameter | value |", "|---|---|"]
         rows += [f"| {key} | `{_json(value)}` |" for key, value in self.parameters.items()]
         return "\n".join(rows) + "\n"
@@ -194,7 +199,7 @@ def run_info(
         return replace(
             _described(
                 name, command, parameters, input_path, size, sha256, None,
-                "not embedded: a dataset directory", truth, truth_path, truth_files,
+                "not embedded: a dataset directory", truth, truth_path, truth_files, input_files,
             ),
             kind=kind,
         )  # fmt: skip
@@ -229,12 +234,15 @@ def _described(
     truth: GroundTruth | None,
     truth_path: Path | None,
     truth_files: Sequence[Path] | None,
+    input_files: Sequence[Path] | None = None,
 ) -> RunInfo:
     truth_sha256 = None
-    if truth_files:
-        truth_sha256 = _digest_files(truth_files)[1]
-    elif truth_path is not None:
-        truth_sha256 = _digest(truth_path, keep_up_to=0)[1]
+    truth_list = list(truth_files or ([] if truth_path is None else [truth_path]))
+    if len(truth_list) == 1:  # the file's own digest, as sha256sum prints it
+        truth_sha256 = _digest(truth_list[0], keep_up_to=0)[1]
+    elif truth_list:  # a dataset's files: a digest of them all, each in file_digests
+        truth_sha256 = _digest_files(truth_list)[1]
+    listed = [*(input_files or []), *truth_list] if len(truth_list) > 1 or input_files else []
     return RunInfo(
         name=name,
         command=command,
@@ -247,7 +255,13 @@ def _described(
         truth=truth,
         truth_path=truth_path,
         truth_sha256=truth_sha256,
+        file_digests=_file_digests(listed),
     )
+
+
+def _file_digests(paths: Sequence[Path]) -> dict[str, str]:
+    """Each file's own sha256, by path as given."""
+    return {str(path): _digest(path, keep_up_to=0)[1] for path in paths}
 
 
 def _digest_files(paths: Sequence[Path]) -> tuple[int, str]:
@@ -809,6 +823,7 @@ def _describe(rec: rr.RecordingStream, info: RunInfo) -> None:
         "input_embedded": info.input_text is not None,
         "truth_name": None if info.truth_path is None else info.truth_path.name,
         "truth_sha256": info.truth_sha256,
+        "files_sha256": _json(info.file_digests) if info.file_digests else None,
         "compiled_kernel": HAVE_KERNEL,  # numbers differ from numpy's by round-off only
     }
     rec.send_property("ekfviz", _any_values(values))
