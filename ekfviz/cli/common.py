@@ -166,6 +166,21 @@ def check_outputs(*outputs: tuple[str, Path | None]) -> None:
         fail(clash)
 
 
+ForceOption = Annotated[bool, typer.Option("--force", help="Replace an existing output file.")]
+
+
+def refuse_overwrite(force: bool, *outputs: tuple[str, Path | None]) -> None:
+    """Without ``--force``, refuse (one line, exit 2) to write over an existing file.
+
+    :param outputs: (how the path was given, e.g. ``--output``; the path or None)
+    """
+    if force:
+        return
+    for option, path in outputs:
+        if path is not None and path.is_file():
+            fail(f"{option} {path}: exists; add --force to replace it")
+
+
 def default_output(name: str) -> Path:
     """A default output path under ``recordings/`` (made here if missing), never one
     that already holds a file (see :func:`ekfviz.io.paths.unused_path`)."""
