@@ -22,7 +22,7 @@ def main() -> None:
     except signals.Interrupted as stop:  # a command that did not say more itself
         from ekfviz.cli.common import interrupted
 
-        interrupted(stop, "nothing was written")
+        interrupted(stop, "nothing was written; existing files are left as they were")
 
 
 if __name__ == "__main__":
