@@ -266,5 +266,12 @@ def replay(
         fail(f"{stopped.reason}{where}", code=stopped.exit_code)
     except (InputError, FilterError, AssociationError, viz.SinkError) as error:
         fail(str(error))
-    except (KeyboardInterrupt, signals.Terminated) as signal_error:
-        raise typer.Exit(143 if isinstance(signal_error, signals.Terminated) else 130) from None
+    except (KeyboardInterrupt, signals.Terminated) as signal_error:  # outside the replay itself
+        name = "SIGTERM" if isinstance(signal_error, signals.Terminated) else "SIGINT"
+        saved_to = None if logger is None else logger.recording.saved_to
+        kept = (
+            f"the finished recording is saved in {saved_to}"
+            if saved_to is not None
+            else "nothing was written; existing files are left as they were"
+        )
+        fail(f"{data}: interrupted ({name}): {kept}", code=143 if name == "SIGTERM" else 130)
