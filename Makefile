@@ -29,7 +29,15 @@ demo: $(VENV)/.installed
 	@echo
 	@echo "Saved $(RECORDING). Open it with:  $(BIN)/rerun $(RECORDING)"
 
-test: $(VENV)/.installed-dev
+# an interpreter with numpy 1 (no ekfviz), for the tests of --python: students' code written
+# for numpy 1 runs under it (1.23 still builds ragged arrays; Python 3.12+ gets 1.26)
+NUMPY1 := .venv-numpy1/bin/python
+$(NUMPY1):
+	$(PYTHON) -m venv .venv-numpy1
+	.venv-numpy1/bin/python -m pip install --quiet \
+		"numpy==$$($(PYTHON) -c 'import sys; print("1.23.5" if sys.version_info < (3, 12) else "1.26.4")')"
+
+test: $(VENV)/.installed-dev $(NUMPY1)
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
 	$(BIN)/mypy
@@ -40,7 +48,7 @@ sample: $(VENV)/.installed
 	$(BIN)/python -m ekfviz.samples data
 
 clean:
-	rm -rf $(VENV) .mypy_cache .ruff_cache .pytest_cache .hypothesis build
+	rm -rf $(VENV) .venv-numpy1 .mypy_cache .ruff_cache .pytest_cache .hypothesis build
 	rm -f ekfviz/core/_kernel*.so
 
 # Benchmarks (not part of make test): core against dense, the bandwidth bound and end-to-end

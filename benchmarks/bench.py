@@ -59,7 +59,7 @@ import numpy as np
 
 import ekfviz
 from ekfviz.core.filter import HAVE_KERNEL, KERNEL_MAX_DIM, EkfSlam, FilterParams, UpdateMode
-from ekfviz.core.records import Control, EventKind, Sighting
+from ekfviz.core.records import Control, EventKind, LogEvent, Sighting
 from ekfviz.io.classic import format_classic, read_classic
 from ekfviz.sim.simulate import CLASSIC_LANDMARKS_XY, Noise, classic_controls, simulate
 
@@ -68,6 +68,7 @@ from association_bench import association_section
 from mrclam_bench import mrclam_section, splice
 from smoother_bench import smoother_section
 from textbook_ekf import TextbookEkfSlam
+from worker_bench import worker_section
 
 ROOT = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent
@@ -845,6 +846,18 @@ def report(
     return "\n".join(lines)
 
 
+def worker_worlds(quick: bool) -> list[tuple[int, int, list[LogEvent]]]:
+    """The events of the worker section: the classic world (N = 6) and N = 300, 10 seen."""
+    worlds = []
+    for n, seen, steps in ((6, 6, 58), (300, 10, 10 if quick else 40)):
+        world = make_world(n, seen, steps)
+        events: list[LogEvent] = [world.first]
+        for control, sighting in world.steps:
+            events += [control, sighting]
+        worlds.append((n, seen, events))
+    return worlds
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
     parser.add_argument("--quick", action="store_true", help="small cases, for a smoke test")
@@ -856,12 +869,21 @@ def main(argv: Sequence[str] | None = None) -> None:
         "--smoother-only", action="store_true", help="only the smoother section of RESULTS.md"
     )
     parser.add_argument(
+        "--worker-only", action="store_true", help="only the worker section of RESULTS.md"
+    )
+    parser.add_argument(
         "--association-only",
         action="store_true",
         help="only the association section (Victoria Park, simulated clutter) of RESULTS.md",
     )
     args = parser.parse_args(argv)
     started = time.perf_counter()
+    if args.worker_only:
+        section = worker_section(worker_worlds(args.quick))
+        old = args.out.read_text() if args.out.exists() else ""
+        args.out.write_text(splice(old, section))
+        print(section)
+        return
     if args.mrclam_only or args.smoother_only or args.association_only:
         with tempfile.TemporaryDirectory() as tmp:
             if args.association_only:
@@ -901,7 +923,9 @@ def main(argv: Sequence[str] | None = None) -> None:
         rows, e2e, memory, phases, sizes, long_entities, interpreter_s, imports_s,
         kernel_import_us(), flops, args.quick,
     )  # fmt: skip
-    text = splice(splice(splice(text, mrclam), smoothers), association)
+    print("a user's filter in its worker", flush=True)
+    workers = worker_section(worker_worlds(args.quick))
+    text = splice(splice(splice(splice(text, mrclam), smoothers), association), workers)
     args.out.write_text(text)
     print()
     print(text)

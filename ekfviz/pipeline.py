@@ -12,7 +12,7 @@ import json
 import shlex
 import sys
 from collections.abc import Callable, Iterable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Protocol
 
@@ -24,18 +24,19 @@ from ekfviz.core.plugged import FilterFactory
 from ekfviz.core.records import AnyEvent, EventRecord, NeedsIds, with_ids
 from ekfviz.core.replay import FilterLineError, replay
 from ekfviz.core.truth import GroundTruth
-from ekfviz.filters import FilterSpec
+from ekfviz.filters import FilterSpec, FilterSpecError
 from ekfviz.io.detect import read_log
 from ekfviz.io.errors import InputError
 from ekfviz.io.extended import is_extended
 from ekfviz.io.text import ProgressCallback, WarningCallback
 from ekfviz.io.truth import checked_against, read_truth
 from ekfviz.studies.executors import Executor
-from ekfviz.studies.runs import Run, RunSpec, Summary, run_specs, summarise
+from ekfviz.studies.runs import Run, RunFailure, RunSpec, Summary, run_specs, summarise
 
 if TYPE_CHECKING:
     from ekfviz.association.associator import Associator
     from ekfviz.core.check import CheckResult
+    from ekfviz.core.coverage import Item as CoverageItem
     from ekfviz.core.filter import EkfSlam
     from ekfviz.viz.run import RunLogger
 
@@ -160,6 +161,8 @@ class StudyResult:
     summaries: list[Summary]
     truth: GroundTruth | None
     input_sha256: str
+    # the runs whose filter failed before any event (compare), with why
+    failures: list[RunFailure] = field(default_factory=list)
 
 
 def study(
@@ -174,8 +177,12 @@ def study(
     markdown: Callable[[list[Summary]], str],
     done: Callable[[], None] | None = None,
     executor: Executor | None = None,
+    keep_going: bool = False,
 ) -> StudyResult:
     """Replay ``data`` with every spec, summarise against the first, save one recording.
+
+    With ``keep_going`` (compare) a filter that fails is a row saying why, its events
+    before the failure recorded, and the other filters go on.
 
     The log is read whole once before any work, so that bad input stops the study early;
     every filter is loaded once here for the same reason.
@@ -190,16 +197,24 @@ def study(
     truth = read_truth(truth_path) if truth_path is not None else None
     for _ in log_events(data, truth, truth_path):
         pass
-    for spec in specs:
-        spec.filter.load()
-    runs = run_specs(
+    if not keep_going:
+        for spec in specs:
+            close = getattr(spec.filter.load(), "close", None)
+            if callable(close):
+                close()
+    results = run_specs(
         data,
         specs,
         truth,
         workers,
         done=None if done is None else lambda _: done(),
         executor=executor,
+        keep_going=keep_going,
     )
+    runs = [r for r in results if isinstance(r, Run)]
+    failures = [r for r in results if isinstance(r, RunFailure)]
+    if not runs:
+        raise FilterSpecError("; ".join(f"{f.spec.label}: {f.message}" for f in failures))
     summaries = [summarise(run, runs[0]) for run in runs]
     info = viz.run_info(
         name=f"{data.stem}-{'sweep' if root == 'variants' else 'compare'}",
@@ -211,42 +226,58 @@ def study(
         kind="sweep" if root == "variants" else "compare",
     )
     with viz.open_recording(info, viz.Sinks(save=target)) as recording:
-        record_study(recording, runs, truth, markdown(summaries), root=root)
-    return StudyResult(runs, summaries, truth, info.input_sha256)
+        record_study(recording, runs, truth, markdown(summaries) + failed_markdown(runs, failures),
+                     root=root)  # fmt: skip
+    return StudyResult(runs, summaries, truth, info.input_sha256, failures)
+
+
+def failed_markdown(runs: list[Run], failures: list[RunFailure]) -> str:
+    """What failed in a study, for its recording's summary."""
+    lines = [f"- **{r.spec.label}** stopped: {r.failure}" for r in runs if r.failure]
+    lines += [f"- **{f.spec.label}** failed: {f.message}" for f in failures]
+    return "\n## Failed\n\n" + "\n".join(lines) + "\n" if lines else ""
 
 
 def check(
     data: Path,
     truth_path: Path | None,
-    filter_spec: str,
+    spec: FilterSpec,
     params: FilterParams,
     *,
     tolerance: float,
     save: Path | None,
-) -> CheckResult:
+    every: bool = False,
+) -> tuple[CheckResult, list[CoverageItem]]:
     """Check a protocol filter against the reference in lockstep over ``data``; with
-    ``save``, one recording of both side by side, the first divergence marked.
+    ``save``, one recording of both side by side, the divergences marked. Also what the
+    log exercised (:func:`ekfviz.core.coverage.coverage`).
 
+    :param every: look for the cause of every divergent event (``check --all``)
     :raises InputError, FilterLineError, FilterSpecError, SinkError: one line each
     """
     from ekfviz.core.check import lockstep
+    from ekfviz.core.coverage import coverage
 
-    spec = FilterSpec(filter_spec)
     make_filter = spec.load()
     truth = read_truth(truth_path) if truth_path is not None else None
     try:
+        events = list(with_ids(log_events(data, truth, truth_path)))
         result = lockstep(
-            with_ids(log_events(data, truth, truth_path)), params, make_filter, name=spec.text,
-            tolerance=tolerance,
-        )  # fmt: skip
+            events, params, make_filter, name=spec.text, tolerance=tolerance, every=every
+        )
     except NeedsIds as error:
         raise InputError(
             data, error.line, f"found {error.what}: check compares updates by landmark id"
             " (replay a log of scans with --filter and --association instead)",
         ) from None  # fmt: skip
-    if save is not None:
+    finally:
+        close = getattr(make_filter, "close", None)
+        if callable(close):
+            close()
+    exercised = coverage(events, result.reference, params)
+    if save is not None and result.records:
         _record_check(data, truth, truth_path, spec, params, result, save)
-    return result
+    return result, exercised
 
 
 def _record_check(

@@ -157,9 +157,13 @@ class Associator:
     def check_filter(slam: object, params: AssociationParams) -> None:
         """Refuse a filter that cannot drop tentative landmarks, unless none will be
         (``--confirm 1``)."""
-        if params.confirm > 1 and not callable(getattr(slam, "remove_landmarks", None)):
+        removes = getattr(slam, "removes_landmarks", None)  # a Plugged filter says so itself
+        if not isinstance(removes, bool):
+            removes = callable(getattr(slam, "remove_landmarks", None))
+        if params.confirm > 1 and not removes:
+            name = "it" if isinstance(getattr(slam, "name", None), str) else type(slam).__name__
             raise AssociationError(
-                f"{type(slam).__name__} has no remove_landmarks(ids), which tentative landmarks"
+                f"{name} has no remove_landmarks(ids), which tentative landmarks"
                 " need: use --confirm 1 (every new landmark kept) with this filter"
             )
 

@@ -1,18 +1,21 @@
-"""``ekfviz check``: a filter in lockstep with the reference, to the first divergent event."""
+"""``ekfviz check``: a filter in lockstep with the reference, every divergence and its cause."""
 
 from __future__ import annotations
 
+import tempfile
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
 from ekfviz import __version__
 from ekfviz.cli.common import (
     DEFAULT,
+    FilterMemory,
+    FilterTimeout,
     InitPoseSigma,
     LandmarkInitOption,
-    LogArgument,
+    PythonOption,
     SigmaAlpha,
     SigmaBearing,
     SigmaRange,
@@ -24,29 +27,54 @@ from ekfviz.cli.common import (
     app,
     check_outputs,
     command_hint,
+    err,
     fail,
     filter_params,
     out,
+    plain,
+    worker_options,
     write_json,
 )
+from ekfviz.cli.sources import InitPoseOption
 from ekfviz.core.check import DEFAULT_TOLERANCE
 from ekfviz.core.filter import FilterError
 from ekfviz.core.replay import FilterLineError
-from ekfviz.filters import FilterSpecError
+from ekfviz.filters import FilterSpec, FilterSpecError
 from ekfviz.io.errors import InputError
+from ekfviz.samples import write_battery
+
+if TYPE_CHECKING:
+    from ekfviz.core.check import CheckResult
+    from ekfviz.core.coverage import Item
 
 
 @app.command()
 def check(
-    data: LogArgument,
-    filter_spec: Annotated[
+    data: Annotated[
+        Path | None,
+        typer.Argument(
+            help="Log in the classic or the extended format [default: the bundled battery:"
+            " the classic sample and the edge log].",
+            show_default=False,
+        ),
+    ] = None,
+    filter_text: Annotated[
         str,
         typer.Option(
             "--filter",
-            help="The filter to check: PATH.py:ClassName or package.module:ClassName.",
+            help="The filter to check: PATH.py (a course module of init_landmarks, predict,"
+            " update), PATH.py:ClassName or package.module:ClassName.",
             show_default=False,
         ),
-    ],
+    ] = "",
+    every: Annotated[
+        bool,
+        typer.Option(
+            "--all",
+            help="Go on after a divergence: find the cause of every divergent event and"
+            " report them grouped.",
+        ),
+    ] = False,
     truth: TruthOption = None,
     tolerance: Annotated[
         float,
@@ -58,10 +86,15 @@ def check(
     save: Annotated[
         Path | None,
         _option(
-            "Write a recording of the filter and the reference side by side here.",
+            "Write a recording of the filter and the reference side by side here (with the"
+            " battery, one per log: NAME-classic.rrd, NAME-edge.rrd).",
             show_default=False,
         ),
     ] = None,
+    python: PythonOption = None,
+    filter_timeout: FilterTimeout = 60.0,
+    filter_memory: FilterMemory = None,
+    init_pose: InitPoseOption = None,
     sigma_x: SigmaX = DEFAULT.sigma_x,
     sigma_y: SigmaY = DEFAULT.sigma_y,
     sigma_alpha: SigmaAlpha = DEFAULT.sigma_alpha,
@@ -74,48 +107,174 @@ def check(
     """Check a filter against the built-in reference, event by event.
 
     Before every event the reference starts from the filter's own state and applies the
-    same event; the results are compared by landmark id, so the first divergent event is
-    where the bug is. Exit status 0 when every event matches, 1 at a divergence, 2 for
-    bad input.
+    same event; the results are compared by landmark id, so every divergent event is a
+    place where the filter's algebra differs, and its cause is named when a mistake of
+    the catalogue (README) reproduces it. Without DATA it runs the bundled battery.
+    Exit status 0 when every event matches, 1 at a divergence, 2 for bad input or a
+    filter that fails.
     """
+    from dataclasses import replace
+
+    if not filter_text:
+        fail("give the filter to check: --filter PATH.py (or PATH.py:ClassName)")
+    check_outputs(("--report", report), ("--save", save))
+    spec = FilterSpec.parse(
+        filter_text, worker=worker_options(python, filter_timeout, filter_memory)
+    )
+    sigmas = (sigma_x, sigma_y, sigma_alpha, sigma_bearing, sigma_range)
+    with tempfile.TemporaryDirectory(prefix="ekfviz-battery-") as folder:
+        logs = [(data, truth, init_pose)] if data is not None else write_battery(Path(folder))
+        if data is None and truth is not None:
+            fail("--truth needs a log (DATA); the battery brings its own truth")
+        results: list[dict[str, Any]] = []
+        diverged = failed = False
+        for log, log_truth, start in logs:
+            params = filter_params(sigmas, init_pose_sigma, landmark_init, update, log=log)
+            if start is not None:
+                params = replace(params, init_pose=start)
+            target = save if data is not None or save is None else _per_log(save, log)
+            result, exercised = _run(log, log_truth, spec, params, tolerance, target, every)
+            _print(log, result, exercised, tolerance, every, battery=data is None)
+            diverged |= result.first_divergence is not None
+            failed |= result.error is not None
+            results.append({"log": str(log) if data is not None else log.stem,
+                            **result.to_json(),
+                            "coverage": [item.to_json() for item in exercised]})  # fmt: skip
+            if target is not None:
+                out.print(plain(f"Saved {target}; open it with: {command_hint('rerun')} {target}"))
+    if report is not None:
+        document: dict[str, Any] = {"ekfviz_version": __version__, "filter": spec.text,
+                                    "parameters": params.as_dict()}  # fmt: skip
+        if data is not None:
+            document.update(results[0])
+        else:
+            document.update(_battery_report(results))
+        write_json(report, document)
+    if failed:
+        raise typer.Exit(2)
+    if diverged:
+        raise typer.Exit(1)
+
+
+def _per_log(save: Path, log: Path) -> Path:
+    return save.with_name(f"{save.stem}-{log.stem}{save.suffix or '.rrd'}")
+
+
+def _run(
+    log: Path,
+    truth: Path | None,
+    spec: FilterSpec,
+    params: Any,
+    tolerance: float,
+    save: Path | None,
+    every: bool,
+) -> tuple[CheckResult, list[Item]]:
     from ekfviz import pipeline, viz
 
-    check_outputs(("--report", report), ("--save", save))
-    params = filter_params(
-        (sigma_x, sigma_y, sigma_alpha, sigma_bearing, sigma_range),
-        init_pose_sigma,
-        landmark_init,
-        update,
-        log=data,
-    )
     try:
-        result = pipeline.check(data, truth, filter_spec, params, tolerance=tolerance, save=save)
+        return pipeline.check(log, truth, spec, params, tolerance=tolerance, save=save, every=every)
     except FilterLineError as error:
-        fail(f"{data}:{error.line}: {error}" if error.line else f"{data}: {error}")
+        fail(f"{log}:{error.line}: {error}" if error.line else f"{log}: {error}")
     except (InputError, FilterError, FilterSpecError, viz.SinkError) as error:
         fail(str(error))  # an InputError names its file and line itself
-    if report is not None:
-        write_json(report, {"ekfviz_version": __version__, "filter": filter_spec,
-                            "parameters": params.as_dict(), **result.to_json()})  # fmt: skip
+
+
+def _print(
+    log: Path,
+    result: CheckResult,
+    exercised: list[Item],
+    tolerance: float,
+    every: bool,
+    *,
+    battery: bool,
+) -> None:
+    """The verdict on one log, as the report says it (no markup read in any name)."""
+    from rich.text import Text
+
+    name = log.stem if battery else str(log)
+    if battery:
+        out.print(Text.assemble(("log ", "bold"), (name, "bold"), f" ({log.name})"))
+    if result.convention:
+        shapes = {"X": "X (3+2k, 1)", "control": "control (2, 1)", "measure": "measure (2k, 1)"}
+        flat = {"X": "X (3+2k,)", "control": "control (2,)", "measure": "measure (2k,)"}
+        said = [
+            (shapes if how == "column" else flat)[what]
+            for what, how in result.convention.items()
+            if how is not None
+        ]
+        out.print(plain(f"course module, shapes detected: {', '.join(said)}"))
+    if result.match:
+        out.print(Text.assemble(
+            ("match:", "green"),
+            f" all {result.events_checked} events agree with the reference (largest"
+            f" difference {result.max_difference:.3g}, tolerance {tolerance:g})",
+        ))  # fmt: skip
     first = result.first_divergence
-    if first is None:
-        out.print(
-            f"[green]match:[/] all {result.events_checked} events agree with the reference"
-            f" (largest difference {result.max_difference:.3g}, tolerance {tolerance:g})",
-            soft_wrap=True,
-        )
-    else:
+    if first is not None:
         worst = first.worst
         landmark = "" if worst.landmark_id is None else f" of landmark {worst.landmark_id}"
-        out.print(
-            f"[bold red]divergence[/] at event {first.event} (step {first.step},"
-            f" {first.kind.value}, {data}:{first.line}): the {worst.quantity.value}{landmark}"
-            f" differs\n  worst entry {worst.entry}: expected {worst.expected:.9g},"
-            f" got {worst.got:.9g} (difference {worst.difference:.3g}, tolerance"
-            f" {tolerance:g})\n  likely cause: {first.hint}",
-            soft_wrap=True,
+        where = f"{name}:{first.line}"
+        out.print(Text.assemble(
+            ("divergence", "bold red"),
+            f" at event {first.event} (step {first.step}, {first.kind.value}, {where}): the"
+            f" {worst.quantity.value}{landmark} differs\n  worst entry {worst.entry}: expected"
+            f" {worst.expected:.9g}, got {worst.got:.9g} (difference {worst.difference:.3g},"
+            f" tolerance {tolerance:g})\n  cause: {first.cause}\n  hint: {first.hint}",
+        ))  # fmt: skip
+        more = len(result.divergences) - 1
+        if more and not every:
+            out.print(plain(
+                f"  {more} more event(s) diverge; --all finds the cause of every one"
+            ))  # fmt: skip
+        elif every and result.divergences:
+            _print_groups(result)
+    if result.error is not None:
+        err.print(Text.assemble(("error: ", "bold red"), f"{name}:{result.error_line}:"
+                                f" {result.error}"))  # fmt: skip
+    missing = [item for item in exercised if not item.exercised]
+    if missing:
+        out.print(plain(f"  not exercised by {name}:"))
+        for item in missing:
+            out.print(plain(f"    - {item.untested}"))
+
+
+def _print_groups(result: CheckResult) -> None:
+    from rich.table import Table
+
+    table = Table(title="every divergent event, grouped", title_justify="left")
+    for column in ("kind", "quantity", "events", "first", "line", "cause"):
+        table.add_column(
+            column, justify="right" if column in ("events", "first", "line") else "left"
         )
-    if save is not None:
-        out.print(f"Saved {save}; open it with: {command_hint('rerun')} {save}")
-    if first is not None:
-        raise typer.Exit(1)
+    for group in result.groups:
+        first = group.first
+        values = (group.kind, group.quantity, group.count, first.event, first.line, group.cause)
+        table.add_row(*(plain(v) for v in values))
+    out.print(table)
+    causes = result.causes
+    out.print(plain("causes: " + (", ".join(causes) if causes else "none found")))
+    for group in result.groups:
+        if group.cause != "unknown":
+            continue
+        out.print(plain(f"  unknown at event {group.first.event} ({group.quantity}): "
+                        f"{group.first.hint}"))  # fmt: skip
+
+
+def _battery_report(results: list[dict[str, Any]]) -> dict[str, Any]:
+    causes: dict[str, None] = {}
+    divergences = []
+    for entry in results:
+        for cause in entry["causes"]:
+            causes.setdefault(cause, None)
+        divergences += [{"log": entry["log"], **group} for group in entry["divergences"]]
+    coverage: dict[str, bool] = {}
+    for entry in results:
+        for item in entry["coverage"]:
+            coverage[item["id"]] = coverage.get(item["id"], False) or bool(item["exercised"])
+    return {
+        "match": all(entry["match"] for entry in results),
+        "logs": results,
+        "divergences": divergences,
+        "causes": list(causes),
+        "coverage": [{"id": k, "exercised": v} for k, v in coverage.items()],
+    }

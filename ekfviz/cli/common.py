@@ -20,6 +20,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, DownloadColumn, Progress, TimeRemainingColumn
 from rich.table import Table
+from rich.text import Text
 from typer._click.core import ParameterSource
 from typer._click.globals import get_current_context
 
@@ -118,6 +119,62 @@ def print_json(document: object) -> None:
 
 PROGRESS_MIN_BYTES = 1 << 20  # files under 1 MiB replay in well under a second
 RECORDINGS_DIR = Path("recordings")
+
+
+PythonOption = Annotated[
+    Path | None,
+    typer.Option(
+        "--python",
+        help="Run a user's filter under this interpreter (any Python >= 3.8 with numpy >="
+        " 1.17, without ekfviz): a solution written for numpy 1 runs in its own environment.",
+        rich_help_panel="User filters",
+        show_default=False,
+    ),
+]
+FilterTimeout = Annotated[
+    float,
+    typer.Option(
+        "--filter-timeout",
+        help="Seconds one call of a user's filter may take; it is stopped after that.",
+        rich_help_panel="User filters",
+        min=0.1,
+    ),
+]
+FilterMemory = Annotated[
+    int | None,
+    typer.Option(
+        "--filter-memory",
+        help="Megabytes of address space a user's filter may take (none: no limit).",
+        rich_help_panel="User filters",
+        min=64,
+        show_default=False,
+    ),
+]
+
+
+def worker_options(
+    python: Path | None, timeout_s: float, memory_mb: int | None, echo: bool = True
+) -> Any:
+    """How a user's filter runs (:class:`~ekfviz.filters.worker.WorkerOptions`), the
+    interpreter checked first."""
+    from ekfviz.filters.worker import WorkerOptions
+
+    if python is not None:
+        found = shutil.which(str(python))
+        if found is None or not Path(found).is_file():
+            fail(f"--python {python}: no such interpreter (expected a Python executable)")
+        python = Path(found)
+    return WorkerOptions(
+        python=None if python is None else str(python),
+        timeout_s=timeout_s,
+        memory_mb=memory_mb,
+        echo=echo,
+    )
+
+
+def plain(text: object) -> Text:
+    """Text printed as it is: no rich markup read in it (``x[theta]``, ``[bold]``)."""
+    return Text(str(text))
 
 
 def fail(message: str, code: int = 2) -> NoReturn:
@@ -512,11 +569,11 @@ def scenario_world(
         "steps": steps, "landmarks": landmarks, "max_range": max_range, "fov_deg": fov
     }  # fmt: skip
     given = {name: value for name, value in options.items() if value is not None}
-    if scenario is ScenarioName.CLASSIC:
+    if scenario in (ScenarioName.CLASSIC, ScenarioName.EDGE):
         if given:
             flags = (f"--{name.removesuffix('_deg').replace('_', '-')}" for name in given)
             fail(f"{', '.join(flags)}: only for --scenario loop")
-        return scenarios.classic()
+        return scenarios.classic() if scenario is ScenarioName.CLASSIC else scenarios.edge()
     return scenarios.loop(seed=seed, **given)
 
 

@@ -10,9 +10,12 @@ import typer
 from ekfviz.cli.common import (
     DEFAULT,
     ExecutorOption,
+    FilterMemory,
+    FilterTimeout,
     InitPoseSigma,
     LandmarkInitOption,
     LogArgument,
+    PythonOption,
     SchedulerOption,
     SigmaAlpha,
     SigmaBearing,
@@ -27,6 +30,7 @@ from ekfviz.cli.common import (
     fail,
     filter_params,
     study_executor,
+    worker_options,
 )
 from ekfviz.cli.scans import (
     DEFAULT_ASSOCIATION,
@@ -49,11 +53,24 @@ def compare(
         list[str],
         typer.Option(
             "--filter",
-            help="A filter to compare (ekf, a registered backend, PATH.py:ClassName,"
-            " package.module:ClassName); repeat for each, the first is the baseline.",
+            help="A filter to compare (ekf, a registered backend, PATH.py (a course module),"
+            " PATH.py:ClassName, package.module:ClassName, any as LABEL=SPEC); repeat for"
+            " each, the first is the baseline.",
             show_default=False,
         ),
     ],
+    labels: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--label",
+            help="A name for each --filter, in order (repeat; fewer labels than filters"
+            " leave the rest named by their file or class).",
+            show_default=False,
+        ),
+    ] = None,
+    python: PythonOption = None,
+    filter_timeout: FilterTimeout = 60.0,
+    filter_memory: FilterMemory = None,
     truth: TruthOption = None,
     save: Annotated[
         Path | None,
@@ -102,15 +119,20 @@ def compare(
         fail(str(error))
     specs: list[RunSpec] = []
     keys: set[str] = set()
-    for text in filters:
-        spec = FilterSpec(text)
+    given = list(labels or [])
+    if len(given) > len(filters):
+        fail(f"{len(given)} --label for {len(filters)} --filter: give at most one label a filter")
+    worker = worker_options(python, filter_timeout, filter_memory)
+    for index, text in enumerate(filters):
+        spec = FilterSpec.parse(text, given[index] if index < len(given) else None, worker)
         key = spec.key
         for count in range(2, len(filters) + 2):  # the same filter twice: ekf, ekf-2
             if key not in keys:
                 break
             key = f"{spec.key}-{count}"
         keys.add(key)
-        specs.append(RunSpec(label=key, key=key, params=params, filter=spec, association=pairing))
+        label = spec.label if spec.name else key
+        specs.append(RunSpec(label=label, key=key, params=params, filter=spec, association=pairing))
     if not specs:
         fail("give at least one --filter")
     run_study(
@@ -124,4 +146,5 @@ def compare(
         parameters={"filters": filters, "parameters": params.as_dict()},
         report_extra={"parameters": params.as_dict()},
         executor=study_executor(executor, scheduler, workers),
+        keep_going=True,
     )

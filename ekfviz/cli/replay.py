@@ -14,11 +14,14 @@ from ekfviz.association import AssociationError
 from ekfviz.cli.common import (
     DEFAULT,
     RECORDINGS_DIR,
+    FilterMemory,
     FilterOption,
+    FilterTimeout,
     FilterWarnings,
     InitPoseSigma,
     LandmarkInitOption,
     LogArgument,
+    PythonOption,
     SigmaAlpha,
     SigmaBearing,
     SigmaRange,
@@ -37,6 +40,7 @@ from ekfviz.cli.common import (
     print_evaluation,
     print_json,
     report_json,
+    worker_options,
     write_json,
 )
 from ekfviz.cli.scans import (
@@ -94,6 +98,9 @@ def replay(
     landmark_init: LandmarkInitOption = DEFAULT.landmark_init,
     update: UpdateOption = DEFAULT.update,
     filter_spec: FilterOption = BUILTIN,
+    python: PythonOption = None,
+    filter_timeout: FilterTimeout = 60.0,
+    filter_memory: FilterMemory = None,
     save: Annotated[
         Path | None,
         typer.Option(
@@ -184,7 +191,8 @@ def replay(
         log=data,
     )
     try:
-        make_filter = load_filter(filter_spec)
+        worker = worker_options(python, filter_timeout, filter_memory)
+        make_filter = load_filter(filter_spec, worker)
     except FilterSpecError as error:
         fail(str(error))
     logger: viz.RunLogger | None = None

@@ -144,7 +144,7 @@ def simulate(
         noise, seed=seed, init_pose_sigma=init_pose_sigma, detection=detection, laps=laps
     )
     if log_format is None:
-        classic = scenario is ScenarioName.CLASSIC and not unknown_ids
+        classic = scenario in (ScenarioName.CLASSIC, ScenarioName.EDGE) and not unknown_ids
         log_format = LogFormat.CLASSIC if classic else LogFormat.EXTENDED
     try:
         text = (
@@ -170,6 +170,8 @@ def simulate(
         },
         "steps": len(world.controls) * laps,
     }
+    if any(world.start_xytheta):
+        extra["init_pose"] = list(world.start_xytheta)
     if laps > 1:
         extra["laps"] = laps
     if unknown_ids or detection_probability < 1.0:
@@ -186,6 +188,8 @@ def simulate(
     ]
     if unknown_ids:
         replay_noise.append("--association jcbb")
+    if any(world.start_xytheta):
+        replay_noise.append("--init-pose " + " ".join(f"{v:.17g}" for v in world.start_xytheta))
     if tuple(init_pose_sigma) != FilterParams().init_pose_sigma:
         replay_noise.append("--init-pose-sigma " + " ".join(f"{v:g}" for v in init_pose_sigma))
     stated = (

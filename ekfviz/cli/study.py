@@ -13,6 +13,7 @@ from rich import box
 from rich.markup import escape
 from rich.progress import Progress
 from rich.table import Table
+from rich.text import Text
 
 from ekfviz import __version__, signals
 from ekfviz.cli.common import (
@@ -46,6 +47,7 @@ def run_study(
     parameters: dict[str, object],
     report_extra: dict[str, object],
     executor: Executor | None = None,
+    keep_going: bool = False,
 ) -> None:
     """Run every spec on the log, print the table, save the recording and the report.
 
@@ -70,7 +72,7 @@ def run_study(
             result = pipeline.study(
                 data, truth, specs, target=target, workers=workers, root=root,
                 parameters=parameters, markdown=lambda rows: study_markdown(rows, what),
-                done=advance, executor=executor,
+                done=advance, executor=executor, keep_going=keep_going,
             )  # fmt: skip
     except signals.Interrupted as stop:
         interrupted(stop, stopped_study(len(finished), len(specs), f"{what}s", [target, report]))
@@ -78,7 +80,23 @@ def run_study(
         fail(f"{data}:{error.line}: {error}" if error.line else f"{data}: {error}")
     except (InputError, FilterError, FilterSpecError, viz.SinkError, ExecutorError) as error:
         fail(str(error))
-    out.print(study_table(result.summaries, result.truth is not None, what))
+    own = {run.spec.label for run in result.runs if run.own_noise}
+    out.print(study_table(result.summaries, result.truth is not None, what, own))
+    if own:
+        out.print(
+            Text(
+                "* NIS derived with the filter's own R (measurement_noise): "
+                + ", ".join(sorted(own))
+            )
+        )
+    for run in result.runs:
+        if run.failure:
+            err.print(Text.assemble(("stopped: ", "bold red"), f"{run.spec.label}: {run.failure}"
+                                    " (its events before that are recorded)"))  # fmt: skip
+    for failure in result.failures:
+        err.print(
+            Text.assemble(("failed: ", "bold red"), f"{failure.spec.label}: {failure.message}")
+        )
     if report is not None:
         write_json(
             report,
@@ -87,15 +105,26 @@ def run_study(
                 "input": {"name": data.name, "sha256": result.input_sha256},
                 **report_extra,
                 f"{what}s": [
-                    {**asdict(summary), **run.evaluation.to_json()}
+                    {
+                        **asdict(summary),
+                        **run.evaluation.to_json(),
+                        "failure": run.failure,
+                        "own_noise": run.own_noise,
+                    }
                     for summary, run in zip(result.summaries, result.runs, strict=True)
+                ]
+                + [
+                    {"label": f.spec.label, "filter": f.spec.filter.text, "failure": f.message}
+                    for f in result.failures
                 ],
             },
         )
     out.print(f"Saved {target}; open it with: {command_hint('rerun')} {target}")
 
 
-def study_table(summaries: list[Summary], has_truth: bool, what: str) -> Table:
+def study_table(
+    summaries: list[Summary], has_truth: bool, what: str, own_noise: set[str] | None = None
+) -> Table:
     """The study's table for the terminal (the report has every column)."""
     table = Table(
         title=f"{what.capitalize()}s", title_justify="left", box=box.SIMPLE_HEAD, padding=(0, 1)
@@ -107,7 +136,7 @@ def study_table(summaries: list[Summary], has_truth: bool, what: str) -> Table:
     for column in columns:
         table.add_column(column, justify="left" if column in (what, "reading") else "right")
     for s in summaries:
-        cells = [s.label]
+        cells = [s.label + ("*" if own_noise and s.label in own_noise else "")]
         if has_truth:
             inside = "-" if s.inside is None else f"{s.inside}/{s.landmarks}"
             cells += [_num(s.mean_error, 3), _num(s.mean_mahalanobis, 2), inside]

@@ -12,10 +12,13 @@ import typer
 from ekfviz.cli.common import (
     DEFAULT,
     ExecutorOption,
+    FilterMemory,
     FilterOption,
+    FilterTimeout,
     InitPoseSigma,
     LandmarkInitOption,
     LogArgument,
+    PythonOption,
     SchedulerOption,
     SigmaAlpha,
     SigmaBearing,
@@ -30,6 +33,7 @@ from ekfviz.cli.common import (
     fail,
     filter_params,
     study_executor,
+    worker_options,
 )
 from ekfviz.cli.scans import (
     DEFAULT_ASSOCIATION,
@@ -94,6 +98,9 @@ def sweep(
     landmark_init: LandmarkInitOption = DEFAULT.landmark_init,
     update: UpdateOption = DEFAULT.update,
     filter_spec: FilterOption = BUILTIN,
+    python: PythonOption = None,
+    filter_timeout: FilterTimeout = 60.0,
+    filter_memory: FilterMemory = None,
     workers: Workers = None,
     executor: ExecutorOption = ExecutorName.LOCAL,
     scheduler: SchedulerOption = None,
@@ -133,10 +140,8 @@ def sweep(
             raise SweepError("nothing to vary: give --vary NAME=VALUES or --preset tuning")
     except SweepError as error:
         fail(str(error))
-    variants = [
-        replace(variant, filter=FilterSpec(filter_spec), association=pairing)
-        for variant in variants
-    ]
+    spec = FilterSpec(filter_spec, worker=worker_options(python, filter_timeout, filter_memory))
+    variants = [replace(variant, filter=spec, association=pairing) for variant in variants]
     runner = study_executor(executor, scheduler, workers)
     run_study(
         data,

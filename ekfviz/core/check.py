@@ -3,31 +3,39 @@
 Before every event the reference (the built-in :class:`~ekfviz.core.filter.EkfSlam`)
 starts from the checked filter's **own** state (x, P, landmark ids) and applies the same
 event with the same parameters; the two results are compared by landmark id. Every
-difference found is therefore that event's own: errors do not pile up, and the first
-event that differs by more than the tolerance is where the bug is.
+difference found is therefore that event's own: errors do not pile up, and every event
+that differs by more than the tolerance is a place where the filter's algebra differs.
 
 A difference is scaled as |got - expected| / max(1, |expected|): absolute for the small
-entries of a covariance, relative for large ones. At the first divergent event the
-likely cause is found by re-running that event from the same state with each of a list
-of classic mistakes (:data:`PREDICT_MISTAKES`, :data:`UPDATE_MISTAKES`): a mistake that
-reproduces what the filter did is named; otherwise the hint says which part of the
-algebra produces the quantity that differs.
+entries of a covariance, relative for large ones. A divergent event's cause is found by
+re-running it from the same state with the mistakes of the catalogue
+(:mod:`ekfviz.core.mistakes`), combined with those already found: a set that reproduces
+what the filter did is named; otherwise the hint says which part of the algebra produces
+the quantity that differs.
 """
 
 from __future__ import annotations
 
 import enum
 import math
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ekfviz.core.filter import EkfSlam, FilterParams, LandmarkInit, UpdateMode
+from ekfviz.core.filter import EkfSlam, FilterParams
+from ekfviz.core.mistakes import (
+    UNKNOWN,
+    Explanation,
+    State,
+    describe,
+    explain_predict,
+    explain_update,
+)
 from ekfviz.core.plugged import FilterFactory, Plugged, PluginError
 from ekfviz.core.records import Control, EventKind, EventRecord, LogEvent, Sighting
-from ekfviz.core.replay import FilterLineError
-from ekfviz.core.types import FloatArray, IntArray
+from ekfviz.core.replay import plugged
+from ekfviz.core.types import IntArray
 from ekfviz.models.angles import wrap_angle
 
 DEFAULT_TOLERANCE = 1e-6
@@ -48,15 +56,6 @@ class Quantity(str, enum.Enum):
 
 
 @dataclass(frozen=True, slots=True)
-class State:
-    """A filter state: x (3+2N,), P (3+2N, 3+2N), landmark ids (N,) in state order."""
-
-    x: FloatArray
-    P: FloatArray
-    ids: IntArray
-
-
-@dataclass(frozen=True, slots=True)
 class Difference:
     """The worst entry of one comparison.
 
@@ -74,9 +73,13 @@ class Difference:
 
 @dataclass(frozen=True, slots=True)
 class Divergence:
-    """The first event where the filter leaves the reference, and the likely cause.
+    """One event where the filter leaves the reference, and its cause.
 
     :param worst: the worst entry of the event's comparison
+    :param causes: the catalogue's ids that reproduce the event (empty: not found, or
+        not looked for)
+    :param alternatives: other sets of causes that reproduce it equally (the event
+        cannot tell them apart; ``causes`` is then not named)
     """
 
     event: int
@@ -85,6 +88,13 @@ class Divergence:
     kind: EventKind
     worst: Difference
     hint: str
+    causes: tuple[str, ...] = ()
+    alternatives: tuple[tuple[str, ...], ...] = ()
+
+    @property
+    def cause(self) -> str:
+        """The cause as one id (``a+b`` for two combined), or ``unknown``."""
+        return "+".join(self.causes) if self.causes and not self.alternatives else UNKNOWN
 
     def to_json(self) -> dict[str, object]:
         worst = self.worst
@@ -99,7 +109,31 @@ class Divergence:
             "expected": worst.expected,
             "got": worst.got,
             "difference": worst.difference,
+            "cause": self.cause,
             "hint": self.hint,
+        }
+
+
+@dataclass(frozen=True, slots=True)
+class DivergenceGroup:
+    """Divergent events of one kind, quantity and cause: how many, and the first."""
+
+    kind: str
+    quantity: str
+    cause: str
+    count: int
+    first: Divergence
+
+    def to_json(self) -> dict[str, object]:
+        return {
+            "kind": self.kind,
+            "quantity": self.quantity,
+            "count": self.count,
+            "first_event": self.first.event,
+            "first_step": self.first.step,
+            "first_line": self.first.line,
+            "cause": self.cause,
+            "hint": self.first.hint,
         }
 
 
@@ -107,10 +141,16 @@ class Divergence:
 class CheckResult:
     """What a lockstep check found.
 
-    :param records: the checked filter's record of every event up to the divergence
+    :param records: the checked filter's record of every event it ran
     :param reference: the reference's record of the same events (each from the
         filter's state before the event)
     :param differences: the largest scaled difference at every event, in order
+    :param divergences: every divergent event, in order; causes looked for in all of
+        them (``every``) or in the first only
+    :param every: whether causes were looked for at every divergent event (``--all``)
+    :param error: why the filter stopped early (it raised, crashed, timed out), if it did
+    :param error_line: the input line of that event
+    :param error_kind: as :class:`~ekfviz.filters.worker.WorkerFault`'s kind
     """
 
     events_checked: int
@@ -120,10 +160,41 @@ class CheckResult:
     records: tuple[EventRecord, ...]
     reference: tuple[EventRecord, ...]
     differences: tuple[float, ...]
+    divergences: tuple[Divergence, ...] = ()
+    every: bool = False
+    error: str | None = None
+    error_line: int = 0
+    error_kind: str = ""
+    # a course module's shapes as detected (argument -> "column" or "flat")
+    convention: dict[str, str | None] | None = None
 
     @property
     def match(self) -> bool:
-        return self.first_divergence is None
+        return self.first_divergence is None and self.error is None
+
+    @property
+    def groups(self) -> list[DivergenceGroup]:
+        """The divergences grouped by kind, quantity and cause, in order of first event."""
+        groups: dict[tuple[str, str, str], list[Divergence]] = {}
+        for divergence in self.divergences:
+            if not self.every and divergence is not self.first_divergence:
+                continue
+            key = (divergence.kind.value, divergence.worst.quantity.value, divergence.cause)
+            groups.setdefault(key, []).append(divergence)
+        return [
+            DivergenceGroup(kind, quantity, cause, len(found), found[0])
+            for (kind, quantity, cause), found in groups.items()
+        ]
+
+    @property
+    def causes(self) -> list[str]:
+        """The distinct causes named, in the order first found."""
+        seen: dict[str, None] = {}
+        for divergence in self.divergences:
+            if divergence.cause != UNKNOWN:
+                for cause in divergence.causes:
+                    seen.setdefault(cause, None)
+        return list(seen)
 
     def to_json(self) -> dict[str, object]:
         return {
@@ -131,10 +202,43 @@ class CheckResult:
             "events_checked": self.events_checked,
             "max_difference": self.max_difference,
             "tolerance": self.tolerance,
+            "divergent_events": len(self.divergences),
             "first_divergence": (
                 None if self.first_divergence is None else self.first_divergence.to_json()
             ),
+            "divergences": [group.to_json() for group in self.groups],
+            "causes": self.causes,
+            "all": self.every,
+            "convention": self.convention,
+            "error": None
+            if self.error is None
+            else {"message": self.error, "line": self.error_line, "kind": self.error_kind},
         }
+
+
+def reference_params(params: FilterParams, slam: object) -> FilterParams:
+    """The run's parameters with the noise the filter exposes as its own
+    (``measurement_noise`` 2x2, ``motion_noise`` 3x3, both diagonal), which the reference
+    then uses: the check is of the filter's algebra, not of its noise levels."""
+    changes: dict[str, float] = {}
+    for name, fields in (
+        ("measurement_noise", ("sigma_bearing", "sigma_range")),
+        ("motion_noise", ("sigma_x", "sigma_y", "sigma_alpha")),
+    ):
+        try:
+            value = getattr(slam, name, None)
+        except Exception:  # the user's property: Plugged reports it
+            value = None
+        if value is None:
+            continue
+        matrix = np.array(value, dtype=np.float64)
+        size = len(fields)
+        if matrix.shape != (size, size) or not np.isfinite(matrix).all():
+            continue
+        if np.abs(matrix - np.diag(np.diag(matrix))).max() > 0 or np.diag(matrix).min() <= 0:
+            continue
+        changes.update(zip(fields, np.sqrt(np.diag(matrix)).tolist(), strict=True))
+    return replace(params, **changes) if changes else params  # type: ignore[arg-type]
 
 
 def lockstep(
@@ -144,36 +248,32 @@ def lockstep(
     *,
     name: str,
     tolerance: float = DEFAULT_TOLERANCE,
-    stop_at_divergence: bool = True,
+    every: bool = False,
 ) -> CheckResult:
-    """Run ``make_filter(params)`` and the reference in lockstep over ``events``.
+    """Run ``make_filter(params)`` and the reference in lockstep over ``events``, to the
+    end (or to the event where the filter fails, which ``error`` then says).
 
-    :param stop_at_divergence: stop at the first divergent event (else go on to the end,
-        still from the filter's own state, and report the first)
-    :raises FilterLineError: the checked filter raised or showed a broken state
+    :param every: look for the causes of every divergent event (``--all``), not only
+        of the first
+    :raises FilterLineError: the checked filter cannot even be constructed
     """
-    try:
-        slam = Plugged(make_filter(params), name, params)
-    except PluginError as error:
-        raise FilterLineError(0, f"event 0 (init): {error}") from error
-    except Exception as error:  # the user's constructor
-        message = f"filter {name}: construction raised {type(error).__name__}: {error}"
-        raise FilterLineError(0, message) from error
+    slam = plugged(make_filter, params, name)
+    params = reference_params(params, slam.slam)
     records: list[EventRecord] = []
     reference: list[EventRecord] = []
     differences: list[float] = []
-    first: Divergence | None = None
+    divergences: list[Divergence] = []
+    found: set[str] = set()
+    stopped: tuple[str, int, str] | None = None
 
     # the prior itself: the filter must start where the parameters say
     prior = EkfSlam(params)
     before = _state(slam)
     worst = compare(_state(prior), before)
     if worst is not None and worst.difference > tolerance:
-        first = Divergence(0, 0, 0, EventKind.INIT, worst, _PRIOR_HINT)
+        divergences.append(Divergence(0, 0, 0, EventKind.INIT, worst, _PRIOR_HINT))
 
     for event, step, kind, log_event in numbered(events):
-        if first is not None and stop_at_divergence:
-            break
         before = _state(slam)
         ekf = EkfSlam.from_state(params, before.x, before.P, before.ids, compiled=False)
         line, time = log_event.line, log_event.time
@@ -191,24 +291,40 @@ def lockstep(
                 for target, source, seen in ((reference, ekf, expected), (records, slam, got)):
                     target.append(source.record(event=event, step=step, kind=kind, line=line,
                                                 time=time, observations=seen))  # fmt: skip
-        except PluginError as error:
-            raise FilterLineError(
-                log_event.line, f"event {event} ({kind.value}): {error}"
-            ) from error
+        except PluginError as failure:
+            message = f"event {event} ({kind.value}): {failure}"
+            stopped = (message, log_event.line, str(getattr(failure, "kind", "raised")))
+            break
         after = _state(slam)
         worst = compare(_state(ekf), after)
         differences.append(0.0 if worst is None else worst.difference)
-        if first is None and worst is not None and worst.difference > tolerance:
-            hint = explain(params, before, after, log_event, worst, tolerance)
-            first = Divergence(event, step, log_event.line, kind, worst, hint)
+        if worst is None or worst.difference <= tolerance:
+            continue
+        if every or not divergences:
+            found_now = frozenset(found)
+            explanation = explain(params, before, after, log_event, worst, tolerance, found_now)
+            found.update(explanation.causes if explanation.known else ())
+            hint = _hint(explanation, kind, worst, before, log_event)
+            causes, alternatives = explanation.causes, explanation.alternatives
+            divergences.append(
+                Divergence(event, step, log_event.line, kind, worst, hint, causes, alternatives)
+            )
+        else:
+            divergences.append(Divergence(event, step, log_event.line, kind, worst, ""))
     return CheckResult(
         events_checked=len(differences),
         max_difference=max(differences, default=0.0),
         tolerance=tolerance,
-        first_divergence=first,
+        first_divergence=divergences[0] if divergences else None,
         records=tuple(records),
         reference=tuple(reference),
         differences=tuple(differences),
+        divergences=tuple(divergences),
+        every=every,
+        error=None if stopped is None else stopped[0],
+        error_line=0 if stopped is None else stopped[1],
+        error_kind="" if stopped is None else stopped[2],
+        convention=getattr(slam.slam, "convention", None) or None,
     )
 
 
@@ -309,158 +425,6 @@ _PRIOR_HINT = (
 )
 
 
-@dataclass(frozen=True, slots=True)
-class Mistake:
-    """A classic mistake, re-run from the same state to see if it explains a divergence.
-
-    :param run: the event applied with the mistake: (params, before, event) -> after
-    """
-
-    hint: str
-    run: Callable[[FilterParams, State, LogEvent], State]
-
-
-def _dense_predict(
-    params: FilterParams, s: State, d: float, alpha: float, *, heading: float = 1.0,
-    rotate: bool = True, noise: bool = True, turn_first: bool = False,
-) -> State:  # fmt: skip
-    n = len(s.x)
-    x, P = s.x.copy(), s.P.copy()
-    theta = float(x[2])
-    along = theta + alpha if turn_first else theta
-    x[0] += d * math.cos(along)
-    x[1] += d * math.sin(along)
-    x[2] = wrap_angle(theta + alpha)
-    G = np.eye(n)
-    G[0, 2], G[1, 2] = -heading * d * math.sin(theta), heading * d * math.cos(theta)
-    c, sn = math.cos(theta), math.sin(theta)
-    W = np.array([[c, -sn, 0.0], [sn, c, 0.0], [0.0, 0.0, 1.0]])
-    P = G @ P @ G.T
-    if noise:
-        P[:3, :3] += W @ params.Q @ W.T if rotate else params.Q
-    return State(x, P, s.ids)
-
-
-def _dense_update(
-    params: FilterParams, s: State, ids: IntArray, z: FloatArray, *, add_R: bool = True,
-    wrap: bool | str = True, init_R: bool = True, init_in_order: bool = False,
-) -> State:  # fmt: skip
-    x, P, state_ids = s.x.copy(), s.P.copy(), [int(i) for i in s.ids]
-    R = params.R
-
-    def add(landmark_id: int, bearing: float, rng: float) -> None:
-        nonlocal x, P
-        n = len(x)
-        phi = x[2] + bearing
-        J_p = np.array([[1.0, 0.0, -rng * math.sin(phi)], [0.0, 1.0, rng * math.cos(phi)]])
-        J_z = np.array(
-            [[-rng * math.sin(phi), math.cos(phi)], [rng * math.cos(phi), math.sin(phi)]]
-        )
-        grown = np.zeros((n + 2, n + 2))
-        grown[:n, :n] = P
-        grown[n:, n:] = J_p @ P[:3, :3] @ J_p.T + (J_z @ R @ J_z.T if init_R else 0.0)
-        if params.landmark_init is LandmarkInit.CORRELATED:
-            grown[n:, :n] = J_p @ P[:3, :]
-            grown[:n, n:] = grown[n:, :n].T
-        P = grown
-        x = np.concatenate([x, [x[0] + rng * math.cos(phi), x[1] + rng * math.sin(phi)]])
-        state_ids.append(landmark_id)
-
-    new = []
-    for landmark_id, (bearing, rng) in zip(ids.tolist(), z.tolist(), strict=True):
-        if landmark_id not in state_ids:
-            if init_in_order:
-                add(landmark_id, bearing, rng)
-            else:
-                new.append((landmark_id, bearing, rng))
-            continue
-        j = 3 + 2 * state_ids.index(landmark_id)
-        dx, dy = x[j] - x[0], x[j + 1] - x[1]
-        q = dx * dx + dy * dy
-        r = math.sqrt(q)
-        H = np.zeros((2, len(x)))
-        H[:, :3] = [[dy / q, -dx / q, -1.0], [-dx / r, -dy / r, 0.0]]
-        H[:, j : j + 2] = [[-dy / q, dx / q], [dx / r, dy / r]]
-        S = H @ P @ H.T + (R if add_R else 0.0)
-        K = np.linalg.solve(S, H @ P).T
-        nu = np.array([bearing - (math.atan2(dy, dx) - x[2]), rng - r])
-        if wrap is True:
-            nu[0] = wrap_angle(float(nu[0]))
-        elif wrap == "prediction":  # the prediction wrapped, the innovation not
-            nu[0] = bearing - wrap_angle(math.atan2(dy, dx) - x[2])
-        x = x + K @ nu
-        if wrap is not False:  # a filter that wraps nothing keeps its heading unwrapped too
-            x[2] = wrap_angle(float(x[2]))
-        I_KH = np.eye(len(x)) - K @ H
-        P = I_KH @ P @ I_KH.T + K @ R @ K.T  # Joseph's form: what most course code writes
-    for landmark_id, bearing, rng in new:
-        add(landmark_id, bearing, rng)
-    return State(x, P, np.array(state_ids, dtype=np.int64))
-
-
-def _with(**changes: object) -> Callable[[FilterParams, State, LogEvent], State]:
-    """The reference itself, with other parameters (update mode, landmark init)."""
-
-    def run(base: FilterParams, s: State, event: LogEvent) -> State:
-        ekf = EkfSlam.from_state(replace(base, **changes), s.x, s.P, s.ids, compiled=False)  # type: ignore[arg-type]
-        assert isinstance(event, Sighting)
-        ekf.observe(event.ids, event.z)
-        return _state(ekf)
-
-    return run
-
-
-def _predict_with(**options: object) -> Callable[[FilterParams, State, LogEvent], State]:
-    def run(params: FilterParams, s: State, event: LogEvent) -> State:
-        assert isinstance(event, Control)
-        return _dense_predict(params, s, event.d, event.alpha, **options)  # type: ignore[arg-type]
-
-    return run
-
-
-def _update_with(**options: object) -> Callable[[FilterParams, State, LogEvent], State]:
-    def run(params: FilterParams, s: State, event: LogEvent) -> State:
-        assert isinstance(event, Sighting)
-        return _dense_update(params, s, event.ids, event.z, **options)  # type: ignore[arg-type]
-
-    return run
-
-
-PREDICT_MISTAKES: tuple[Mistake, ...] = (
-    Mistake("the heading column of the motion Jacobian G has the wrong sign: it is"
-            " [-d sin(theta), d cos(theta), 1]", _predict_with(heading=-1.0)),
-    Mistake("the motion Jacobian G lacks its heading column (-d sin(theta), d cos(theta)):"
-            " G is the identity", _predict_with(heading=0.0)),
-    Mistake("the motion noise is not rotated into the world frame: add W Q W^T, not Q"
-            " (Q is in the robot frame: along the heading, sideways, turn)",
-            _predict_with(rotate=False)),
-    Mistake("the motion noise is missing: P_rr' = G P_rr G^T + W Q W^T",
-            _predict_with(noise=False)),
-    Mistake("the robot turns before it drives: it drives d along the old heading, then"
-            " turns alpha", _predict_with(turn_first=True)),
-)  # fmt: skip
-
-UPDATE_MISTAKES: tuple[Mistake, ...] = (
-    Mistake("R is missing from the innovation covariance: S = H P H^T + R",
-            _update_with(add_R=False)),
-    Mistake("the bearing innovation is not wrapped: wrap z - z_pred to (-pi, pi] before"
-            " using it", _update_with(wrap="prediction")),
-    Mistake("the bearing innovation is not wrapped: wrap z - z_pred to (-pi, pi] before"
-            " using it (here neither the predicted bearing nor the difference is)",
-            _update_with(wrap=False)),
-    Mistake("a new landmark is initialised without its cross-covariances to the pose and"
-            " the map (P_lx = J_p P_px); --landmark-init independent reproduces this",
-            _with(landmark_init=LandmarkInit.INDEPENDENT)),
-    Mistake("a new landmark's covariance lacks the measurement noise: P_ll = J_p P_pp J_p^T"
-            " + J_z R J_z^T", _update_with(init_R=False)),
-    Mistake("the landmarks of the line are folded in all at once, the reference folds them"
-            " one after another in file order; --update joint reproduces this",
-            _with(update=UpdateMode.JOINT)),
-    Mistake("a new landmark is initialised where it comes in the line, from the pose"
-            " before the known landmarks after it corrected it; the reference initialises"
-            " new landmarks after the known ones", _update_with(init_in_order=True)),
-)  # fmt: skip
-
 _PATTERN_HINTS: dict[tuple[str, Quantity], str] = {
     ("predict", Quantity.POSE_MEAN): "the motion model: x' = x + d cos(theta),"
     " y' = y + d sin(theta), theta' = wrap(theta + alpha)",
@@ -483,33 +447,54 @@ def explain(
     event: LogEvent,
     worst: Difference,
     tolerance: float,
+    found: frozenset[str] = frozenset(),
+) -> Explanation:
+    """The causes of a divergence at ``event`` (see :mod:`ekfviz.core.mistakes`), combined
+    with the causes already ``found``; none where the state is too large to re-run."""
+    if worst.quantity is Quantity.LANDMARK_IDS or len(before.x) > HYPOTHESIS_MAX_DIM:
+        return Explanation(())
+    divergence = worst.difference if math.isfinite(worst.difference) else 0.0
+    try:
+        if isinstance(event, Control):
+            return explain_predict(
+                params.Q, before, after, event.d, event.alpha, found, tolerance, divergence
+            )
+        assert isinstance(event, Sighting)
+        ids = np.asarray(event.ids, dtype=np.int64)
+        z = np.asarray(event.z, dtype=np.float64).reshape(-1, 2)
+        return explain_update(params.R, before, after, ids, z, found, tolerance, divergence)
+    except (ValueError, np.linalg.LinAlgError, ZeroDivisionError):
+        return Explanation(())
+
+
+def _hint(
+    explanation: Explanation,
+    kind: EventKind,
+    worst: Difference,
+    before: State,
+    event: LogEvent,
 ) -> str:
-    """The likely cause of a divergence at ``event``: a classic mistake that reproduces
-    the filter's result from the same state, else where the quantity comes from."""
+    """What to tell the user: the causes found, else where the quantity comes from."""
+    if explanation.alternatives:
+        options = " OR ".join("+".join(option) for option in explanation.alternatives)
+        return (
+            f"this event is reproduced equally by {options}: it cannot tell them apart"
+            " (check --all on a longer log may)"
+        )
+    if explanation.causes:
+        text = describe(explanation.causes)
+        return f"{text} ({explanation.detail})" if explanation.detail else text
+    return pattern_hint("predict" if isinstance(event, Control) else "update", worst, before,
+                        event)  # fmt: skip
+
+
+def pattern_hint(kind: str, worst: Difference, before: State, event: LogEvent) -> str:
+    """Where the quantity that differs comes from, when no known mistake reproduces it."""
     if worst.quantity is Quantity.LANDMARK_IDS:
         return (
             "the filter's landmark_ids differ from the observed landmarks: every id of an"
             " update must be in the state afterwards, new ones appended in the order seen"
         )
-    kind = "predict" if isinstance(event, Control) else "update"
-    if len(before.x) <= HYPOTHESIS_MAX_DIM:
-        # a mistake explains the divergence when it reproduces the filter's whole state or,
-        # where the mean differs, its mean (a covariance may differ by the form of its update)
-        mean_differs = worst.quantity in (Quantity.POSE_MEAN, Quantity.LANDMARK_MEAN)
-        close = max(tolerance, 1e-9) * 10
-        mistakes = PREDICT_MISTAKES if kind == "predict" else UPDATE_MISTAKES
-        for mistake in mistakes:
-            try:
-                candidate = mistake.run(params, before, event)
-            except (ValueError, np.linalg.LinAlgError, ZeroDivisionError):
-                continue
-            found = compare(candidate, after)
-            if found is None or found.difference <= close:
-                return mistake.hint
-            if mean_differs and len(candidate.x) == len(after.x):
-                means = compare(State(candidate.x, after.P, candidate.ids), after)
-                if means is None or means.difference <= close:
-                    return mistake.hint
     pattern = _PATTERN_HINTS.get((kind, worst.quantity))
     if pattern is not None:
         return pattern

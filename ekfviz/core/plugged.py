@@ -19,7 +19,7 @@ import numpy as np
 
 from ekfviz.core.filter import EkfSlam, FilterError, FilterParams
 from ekfviz.core.health import CovarianceCheck
-from ekfviz.core.protocol import SlamFilter, state_of
+from ekfviz.core.protocol import DeclaresCapabilities, SlamFilter, state_of
 from ekfviz.core.records import (
     EventKind,
     EventRecord,
@@ -51,9 +51,17 @@ class Plugged:
     def __init__(self, slam: SlamFilter, name: str, params: FilterParams) -> None:
         self.slam = slam
         self.name = name
-        self._params = params
         self._warnings: tuple[str, ...] = ()
-        self._predict_takes_dt = _takes_dt(getattr(slam, "predict", None))
+        if isinstance(slam, DeclaresCapabilities):
+            capabilities = slam.capabilities
+            self._predict_takes_dt = capabilities.takes_dt
+            self._removes = capabilities.removes_landmarks
+            self._offline = capabilities.offline
+        else:
+            self._predict_takes_dt = _takes_dt(getattr(slam, "predict", None))
+            self._removes = callable(getattr(slam, "remove_landmarks", None))
+            self._offline = callable(getattr(slam, "finish", None))
+        self._params, self.own_noise = _with_own_noise(slam, name, params)
         self._x, self._P, self._ids = self._state("construction")
 
     # -- what the runner reads ----------------------------------------------------------
@@ -125,7 +133,7 @@ class Plugged:
     def removes_landmarks(self) -> bool:
         """Whether the filter has a ``remove_landmarks(ids)``, which an association with
         tentative landmarks needs (see :mod:`ekfviz.association`)."""
-        return callable(getattr(self.slam, "remove_landmarks", None))
+        return self._removes
 
     def remove_landmarks(self, ids: Sequence[int]) -> None:
         """The filter's ``remove_landmarks(ids)``; its state after it checked, the ids
@@ -147,7 +155,7 @@ class Plugged:
     def offline(self) -> bool:
         """Whether the filter has a ``finish()``: it estimates the whole run at the end
         (a batch smoother), so its state before then is not an estimate to record."""
-        return callable(getattr(self.slam, "finish", None))
+        return self._offline
 
     def finish(self) -> None:
         """Call the filter's ``finish()`` and take its state after it."""
@@ -206,6 +214,8 @@ class Plugged:
     def _call(self, what: str, action: Callable[[], object]) -> None:
         try:
             action()
+        except PluginError as error:  # a filter in a worker says what went wrong itself
+            raise type(error)(*_prefixed(error, self.name)) from error
         except Exception as error:  # the user's code: any exception is its fault
             raise PluginError(
                 f"filter {self.name}: {what} raised {type(error).__name__}: {error}"
@@ -222,6 +232,39 @@ class Plugged:
             ) from error
         x, P = check_state(x, P, ids, where)
         return x, P, ids
+
+
+def _prefixed(error: PluginError, name: str) -> tuple[object, ...]:
+    """The arguments that rebuild ``error`` with its message naming the filter."""
+    rebuilt = error.__reduce__()[1]
+    message = f"filter {name}: {error}"
+    return (message, *tuple(rebuilt)[1:]) if isinstance(rebuilt, tuple) else (message,)
+
+
+def _with_own_noise(slam: object, name: str, params: FilterParams) -> tuple[FilterParams, bool]:
+    """The parameters ekfviz derives NIS with: the run's, or the filter's own R where it
+    exposes one as ``measurement_noise`` (2x2, bearing first, diagonal).
+
+    :raises PluginError: a ``measurement_noise`` that is not such a matrix
+    """
+    try:
+        noise = getattr(slam, "measurement_noise", None)
+    except Exception as error:  # the user's property
+        raise PluginError(f"filter {name}: reading measurement_noise failed: {error}") from error
+    if noise is None:
+        return params, False
+    R = np.array(noise, dtype=np.float64)
+    ok = R.shape == (2, 2) and bool(np.isfinite(R).all())
+    if ok and (R[0, 1] != 0.0 or R[1, 0] != 0.0 or R[0, 0] <= 0.0 or R[1, 1] <= 0.0):
+        ok = False
+    if not ok:
+        raise PluginError(
+            f"filter {name}: measurement_noise is {R.tolist()}, expected a diagonal 2x2"
+            " covariance of (bearing, range) with positive variances"
+        )
+    sigmas = np.sqrt(np.diag(R))
+    own = replace(params, sigma_bearing=float(sigmas[0]), sigma_range=float(sigmas[1]))
+    return own, True
 
 
 def check_state(

@@ -25,6 +25,7 @@ A minimal filter::
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -64,3 +65,26 @@ def state_of(slam: SlamFilter) -> tuple[FloatArray, FloatArray, IntArray]:
     P = np.array(slam.P, dtype=np.float64)
     ids = np.array(list(slam.landmark_ids), dtype=np.int64).reshape(-1)
     return x, P, ids
+
+
+@dataclass(frozen=True, slots=True)
+class Capabilities:
+    """What a filter offers beyond the protocol, where it says so itself (a filter in a
+    worker process, whose methods are all present on this side).
+
+    :param takes_dt: ``predict(d, alpha, dt)`` takes the time the control spans
+    :param removes_landmarks: it has ``remove_landmarks(ids)``
+    :param offline: it has ``finish()`` (a batch smoother)
+    """
+
+    takes_dt: bool = False
+    removes_landmarks: bool = False
+    offline: bool = False
+
+
+@runtime_checkable
+class DeclaresCapabilities(Protocol):
+    """A filter that says what it offers (:class:`Capabilities`) instead of being asked."""
+
+    @property
+    def capabilities(self) -> Capabilities: ...

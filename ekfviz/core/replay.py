@@ -43,6 +43,24 @@ class FilterLineError(FilterError):
         return type(self), (self.line, str(self))
 
 
+def plugged(make_filter: FilterFactory, params: FilterParams, name: str) -> Plugged:
+    """``make_filter(params)`` behind :class:`Plugged`, its state at construction checked.
+
+    :raises FilterLineError: (line 0) the constructor raised, or showed a broken state
+    """
+    try:
+        made = make_filter(params)
+    except PluginError as error:  # a filter in a worker says what went wrong itself
+        raise FilterLineError(0, f"filter {name}: {error}") from error
+    except Exception as error:  # the user's constructor: any exception is its fault
+        message = f"filter {name}: construction raised {type(error).__name__}: {error}"
+        raise FilterLineError(0, message) from error
+    try:
+        return Plugged(made, name, params)
+    except PluginError as error:
+        raise FilterLineError(0, f"event 0 (init): {error}") from error
+
+
 def replay(
     events: Iterable[AnyEvent],
     params: FilterParams | None = None,
@@ -95,15 +113,7 @@ def replay(
     elif make_filter is None or make_filter is EkfSlam:
         ekf = EkfSlam(params)
     else:
-        try:
-            plugin = make_filter(params)
-        except Exception as error:  # the user's constructor: any exception is its fault
-            message = f"filter {name}: construction raised {type(error).__name__}: {error}"
-            raise FilterLineError(0, message) from error
-        try:
-            ekf = Plugged(plugin, name, params)
-        except PluginError as error:
-            raise FilterLineError(0, f"event 0 (init): {error}") from error
+        ekf = plugged(make_filter, params, name)
     gate, R = params.gate, params.R
     next_check = 0  # the step from which the whole covariance is due for a check
     cadence = CorrelationCadence()
@@ -237,7 +247,7 @@ def _observe(
         raise FilterError("a scan has no landmark ids: it needs --association nn or jcbb")
     if isinstance(ekf, Plugged):  # at the first scan: a log with ids needs no removal
         try:
-            Associator.check_filter(ekf.slam, associator.params)
+            Associator.check_filter(ekf, associator.params)
         except AssociationError as error:
             raise FilterError(f"filter {ekf.name}: {error}") from error
     observations, association = associator.process(ekf, event)

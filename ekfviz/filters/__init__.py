@@ -1,14 +1,19 @@
-"""Which filter a run uses: ``--filter ekf``, a registered backend, or a user's class.
+"""Which filter a run uses: ``--filter ekf``, a registered backend, or a user's code.
 
 ``--filter`` takes
 
 - ``ekf``: the built-in EKF-SLAM (:class:`~ekfviz.core.filter.EkfSlam`), the default;
 - a registered name (:data:`REGISTRY`), imported only when asked for, so that optional
   backends (GTSAM) cost nothing when unused;
+- ``PATH.py``: a course module of functions ``init_landmarks``, ``predict``, ``update``
+  (the handout's shapes), as handed in;
 - ``PATH.py:ClassName``: a class in a Python file;
-- ``package.module:ClassName``: a class in an importable module.
+- ``package.module:ClassName``: a class in an importable module;
+- any of these as ``LABEL=SPEC``: the same, called LABEL in tables and recordings.
 
-Every one is constructed as ``Class(params)`` and follows the
+The built-in and registered filters run in ekfviz's process; a user's code runs in a
+worker process of its own (:mod:`ekfviz.filters.worker`), under ``--python`` if given.
+Every class is constructed as ``Class(params)`` and follows the
 :class:`~ekfviz.core.protocol.SlamFilter` protocol. Numpy only: nothing here imports a
 backend until it is asked for.
 """
@@ -20,10 +25,11 @@ import importlib
 import importlib.util
 import re
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from ekfviz.core.plugged import FilterFactory
+from ekfviz.filters.worker import Target, WorkerFactory, WorkerFault, WorkerOptions
 
 BUILTIN = "ekf"
 # name -> ("module:Class", the extra that provides its dependency, or None)
@@ -35,28 +41,67 @@ REGISTRY: dict[str, tuple[str, str | None]] = {
 
 
 class FilterSpecError(ValueError):
-    """A ``--filter`` that cannot be loaded; the message is one line."""
+    """A ``--filter`` that cannot be loaded; the message is one line.
+
+    :param kind: as :class:`~ekfviz.filters.worker.WorkerFault`'s (``error`` where the
+        spec itself is wrong)
+    """
+
+    def __init__(self, message: str, kind: str = "error", user_traceback: str = "") -> None:
+        super().__init__(message)
+        self.kind = kind
+        self.user_traceback = user_traceback
+
+    def __reduce__(self) -> tuple[object, ...]:
+        return type(self), (str(self), self.kind, self.user_traceback)
+
+
+_LABEL = re.compile(r"^([A-Za-z0-9_.-]+)=(.+)$")
 
 
 @dataclass(frozen=True, slots=True)
 class FilterSpec:
-    """A ``--filter`` value, loadable in any process (it pickles as its text).
+    """A ``--filter`` value, loadable in any process (it pickles as its text and options).
 
-    :param text: as given on the command line
+    :param text: as given on the command line, without a ``LABEL=`` prefix
+    :param name: the label asked for (``--label`` or ``LABEL=SPEC``), if any
+    :param worker: how a user's code runs (interpreter, time and memory bounds)
     """
 
     text: str
+    name: str | None = None
+    worker: WorkerOptions = field(default_factory=WorkerOptions)
+
+    @classmethod
+    def parse(
+        cls, text: str, label: str | None = None, worker: WorkerOptions | None = None
+    ) -> FilterSpec:
+        """A spec from ``--filter`` text, which may be ``LABEL=SPEC``."""
+        match = _LABEL.match(text)
+        if match and not Path(text).exists():
+            label, text = label or match.group(1), match.group(2)
+        return cls(text, label, worker if worker is not None else WorkerOptions())
 
     @property
     def is_builtin(self) -> bool:
         return self.text == BUILTIN
 
     @property
+    def in_process(self) -> bool:
+        """Whether it is ekfviz's own code (built-in or registered), run in this process."""
+        return self.text in REGISTRY
+
+    @property
     def label(self) -> str:
-        """A short name: ``ekf``, ``isam2``, the class name of a user's filter."""
+        """A short name: the label given, ``ekf``, ``isam2``, a class name, a file's stem."""
+        if self.name:
+            return self.name
         if self.text in REGISTRY:
             return self.text
-        return self.text.rpartition(":")[2] or self.text
+        where, sep, name = self.text.rpartition(":")
+        if sep and name.isidentifier() and where:
+            return name
+        return Path(self.text).stem or self.text
 
     @property
     def key(self) -> str:
@@ -64,15 +109,43 @@ class FilterSpec:
         return re.sub(r"[^A-Za-z0-9_.-]+", "_", self.label)
 
     def load(self) -> FilterFactory:
-        """The filter class.
+        """The filter class, or for a user's code a factory of workers running it.
 
         :raises FilterSpecError: the file, module or class cannot be had; one line
         """
-        return load_filter(self.text)
+        return load_filter(self.text, self.worker)
 
 
-def load_filter(text: str) -> FilterFactory:
-    """The filter class that ``--filter text`` names (see the module docstring).
+def target_of(text: str) -> Target:
+    """What a user's ``--filter`` names: a file or module, and a class or functions.
+
+    :raises FilterSpecError: neither ``PATH.py``, ``PATH.py:Class`` nor ``module:Class``
+    """
+    where, sep, name = text.rpartition(":")
+    if sep and where and name.isidentifier():
+        if where.endswith(".py") or "/" in where or "\\" in where:
+            return Target(_python_file(Path(where), text), None, name)
+        return Target(None, where, name)
+    if text.endswith(".py"):
+        return Target(_python_file(Path(text), text), None, None)
+    names = ", ".join(REGISTRY)
+    raise FilterSpecError(
+        f"--filter {text}: expected one of {names}, PATH.py (a course module),"
+        " PATH.py:ClassName or package.module:ClassName"
+    )
+
+
+def _python_file(path: Path, text: str) -> str:
+    if path.is_dir():
+        raise FilterSpecError(f"--filter {text}: {path} is a directory, expected a Python file")
+    if not path.is_file():
+        raise FilterSpecError(f"--filter {text}: {path}: no such file")
+    return str(path.resolve())
+
+
+def load_filter(text: str, worker: WorkerOptions | None = None) -> FilterFactory:
+    """The filter class that ``--filter text`` names, or a factory of workers running a
+    user's code (see the module docstring).
 
     :raises FilterSpecError: one line naming what is wrong and what was expected
     """
@@ -87,20 +160,14 @@ def load_filter(text: str) -> FilterFactory:
                 f"--filter {text} needs the optional dependency {error.name!r}:"
                 f" pip install 'ekfviz[{extra}]'"
             ) from error
-    where, sep, name = text.rpartition(":")
-    if not sep or not where or not name.isidentifier():
-        names = ", ".join(REGISTRY)
-        raise FilterSpecError(
-            f"--filter {text}: expected one of {names}, PATH.py:ClassName or"
-            " package.module:ClassName"
-        )
-    if where.endswith(".py") or "/" in where or "\\" in where:
-        return _class_in(_import_file(Path(where), text), name, text)
+    user = target_of(text)
+    options = worker if worker is not None else WorkerOptions()
+    label = f"filter {Path(user.path).name if user.path else user.describe()}"
     try:
-        module = _import(where)
-    except ModuleNotFoundError as error:
-        raise FilterSpecError(f"--filter {text}: no module named {error.name!r}") from error
-    return _class_in(module, name, text)
+        return WorkerFactory(user, options, label)
+    except WorkerFault as fault:
+        message = f"--filter {text}: {fault}"
+        raise FilterSpecError(message, fault.kind, fault.user_traceback) from None
 
 
 def _import(module: str) -> object:
@@ -112,6 +179,22 @@ def _import(module: str) -> object:
         raise FilterSpecError(
             f"--filter: importing {module} raised {type(error).__name__}: {error}"
         ) from error
+
+
+def load_in_process(text: str) -> FilterFactory:
+    """The class that ``PATH.py:Class`` or ``module:Class`` names, imported into this
+    process: for trusted code (tests, a library user's own class); ``--filter`` never
+    does this with a user's code.
+
+    :raises FilterSpecError: one line naming what is wrong
+    """
+    if text in REGISTRY:
+        return load_filter(text)
+    target = target_of(text)
+    if target.name is None:
+        raise FilterSpecError(f"--filter {text}: expected PATH.py:ClassName")
+    module = _import_file(Path(target.path), text) if target.path else _import(str(target.module))
+    return _class_in(module, target.name, text)
 
 
 def _import_file(path: Path, text: str) -> object:

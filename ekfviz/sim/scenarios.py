@@ -2,6 +2,9 @@
 
 - ``classic``: the run of the reference (6 landmarks, the pentagon of 29 controls),
   every landmark seen at every step;
+- ``edge``: the classic format's corner cases, every landmark seen at every step: a start
+  away from the origin heading nearly pi, landmarks right behind the robot (bearings on
+  both sides of +-pi), the heading crossing +-pi, a single turn of over pi;
 - ``loop``: a closed stadium-shaped route of ``steps`` controls through a field of
   ``landmarks`` landmarks, seen by a sensor of limited range and field of view, so that
   landmarks enter and leave view, are first seen mid-run, and the loop closes.
@@ -29,6 +32,7 @@ from ekfviz.sim.simulate import (
 
 class ScenarioName(str, enum.Enum):
     CLASSIC = "classic"
+    EDGE = "edge"
     LOOP = "loop"
 
 
@@ -43,6 +47,8 @@ class Scenario:
     sensor: Sensor
     noise: Noise  # the scenario's own true noise, used when none is given
     init_pose_sigma: tuple[float, float, float]  # its own prior of the start, likewise
+    # the mean of the prior of the start (the filter's init_pose)
+    start_xytheta: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def run(
         self,
@@ -63,7 +69,9 @@ class Scenario:
         if init_pose_sigma is None:
             init_pose_sigma = self.init_pose_sigma
         rng = np.random.default_rng([seed, 0x5EED])  # a stream apart from the run's noise
-        start = rng.normal(0.0, 1.0, 3) * np.asarray(init_pose_sigma, dtype=np.float64)
+        start = np.asarray(self.start_xytheta, dtype=np.float64) + rng.normal(
+            0.0, 1.0, 3
+        ) * np.asarray(init_pose_sigma, dtype=np.float64)
         return simulate(
             np.tile(self.controls, (laps, 1)),
             self.landmarks_xy,
@@ -86,6 +94,37 @@ def classic() -> Scenario:
         sensor=Sensor(),
         noise=Noise(),
         init_pose_sigma=(0.02, 0.02, 0.1),
+    )
+
+
+EDGE_START = (4.0, -2.0, math.pi - 0.005)
+
+
+def edge() -> Scenario:
+    """The classic format's corner cases (see the module docstring): 6 landmarks, 24
+    controls, the classic noise and prior, a start at :data:`EDGE_START`."""
+    controls = np.array(
+        [(1.0, 0.0)] * 3  # straight on, landmark 1 right behind: bearings of about +-pi
+        + [(1.0, 0.2), (1.0, 0.0), (1.0, 0.0)]  # the heading crosses +-pi
+        + [(0.5, 3.3)]  # one turn of over pi
+        + [(1.0, 0.0)] * 3
+        + [(1.0, -1.0), (1.0, -1.0), (1.0, 0.0), (1.0, 0.0)]
+        + [(0.8, 2.0), (1.0, 0.0), (1.0, 0.0), (1.0, -0.3)]
+        + [(-0.5, 0.0), (1.0, 1.6), (1.0, 1.6), (1.0, 0.0), (1.0, 1.6), (1.0, 0.0)],
+        dtype=np.float64,
+    )
+    landmarks_xy = np.array(
+        [(10.0, -2.0), (-6.0, -2.05), (0.0, 3.0), (2.0, -7.0), (-3.0, -6.0), (8.0, 4.0)]
+    )
+    return Scenario(
+        name=ScenarioName.EDGE,
+        controls=controls,
+        landmark_ids=np.arange(1, 7, dtype=np.int64),
+        landmarks_xy=landmarks_xy,
+        sensor=Sensor(),
+        noise=Noise(),
+        init_pose_sigma=(0.02, 0.02, 0.1),
+        start_xytheta=EDGE_START,
     )
 
 

@@ -22,10 +22,12 @@ from ekfviz.association.evaluation import AssociationTally
 from ekfviz.core.consistency import Consistency, reading
 from ekfviz.core.evaluation import Evaluation, evaluate
 from ekfviz.core.filter import FilterParams
+from ekfviz.core.plugged import FilterFactory, PluginError
+from ekfviz.core.protocol import SlamFilter
 from ekfviz.core.records import EventRecord
-from ekfviz.core.replay import replay
+from ekfviz.core.replay import FilterLineError, replay
 from ekfviz.core.truth import GroundTruth
-from ekfviz.filters import BUILTIN, FilterSpec
+from ekfviz.filters import BUILTIN, FilterSpec, FilterSpecError
 from ekfviz.io.detect import read_log
 from ekfviz.models.range_bearing import RangeBearing
 from ekfviz.studies.executors import Executor, LocalExecutor
@@ -59,20 +61,60 @@ class Run:
     records: tuple[EventRecord, ...]
     evaluation: Evaluation
     seconds: float
+    # why the run stopped before the end of the log (a filter that failed), if it did
+    failure: str | None = None
+    # whether its NIS was derived with the filter's own R (it exposes measurement_noise)
+    own_noise: bool = False
 
     @property
     def steps(self) -> int:
         return self.records[-1].step if self.records else 0
 
 
-def run_spec(path: Path, spec: RunSpec, truth: GroundTruth | None) -> Run:
+@dataclass(frozen=True, slots=True)
+class RunFailure:
+    """A run that could not record a single event: its filter failed to load or start."""
+
+    spec: RunSpec
+    message: str
+
+
+class _Timed:
+    """A filter factory that remembers what it made and how long making it took."""
+
+    def __init__(self, make: FilterFactory) -> None:
+        self.make = make
+        self.seconds = 0.0
+        self.made: object = None
+
+    def __call__(self, params: FilterParams) -> SlamFilter:
+        started = time.perf_counter()
+        self.made = self.make(params)
+        self.seconds += time.perf_counter() - started
+        return self.made
+
+
+def run_spec(
+    path: Path, spec: RunSpec, truth: GroundTruth | None, keep_going: bool = False
+) -> Run | RunFailure:
     """Replay the log at ``path`` with one pipeline's filter and parameters.
 
+    The run's seconds exclude loading and constructing the filter (its imports, a
+    worker's start).
+
+    :param keep_going: a filter that fails is a result (a :class:`RunFailure`, or a
+        :class:`Run` of the events before it with its ``failure``), not an error
     :raises FilterSpecError: the filter cannot be loaded
     :raises FilterLineError: the filter cannot go on at a line of the log
     """
+    try:
+        loaded = spec.filter.load()
+    except FilterSpecError as error:
+        if keep_going:
+            return RunFailure(spec, str(error))
+        raise
+    make_filter = loaded if spec.filter.in_process else _Timed(loaded)
     started = time.perf_counter()
-    make_filter = spec.filter.load()
     consistency = Consistency(truth)
     records = []
     associator, tally = None, None
@@ -81,19 +123,36 @@ def run_spec(path: Path, spec: RunSpec, truth: GroundTruth | None) -> Run:
         scan_truth = None if truth is None else truth.scan_ids
         associator = Associator(spec.association, sensor, spec.params.R, scan_truth=scan_truth)
         tally = AssociationTally(truth, sensor)
-    for record in replay(
-        read_log(path), spec.params, make_filter=make_filter, name=spec.filter.text,
-        associator=associator,
-    ):  # fmt: skip
-        consistency.add(record)
-        records.append(record)
-        if tally is not None and record.association is not None:
-            tally.add(record)
+    failure = None
+    try:
+        for record in replay(
+            read_log(path), spec.params, make_filter=make_filter, name=spec.filter.text,
+            associator=associator,
+        ):  # fmt: skip
+            consistency.add(record)
+            records.append(record)
+            if tally is not None and record.association is not None:
+                tally.add(record)
+    except FilterLineError as error:
+        if not keep_going or not isinstance(error.__cause__, PluginError):
+            raise  # not the filter's own failure: the input's, for every filter alike
+        failure = f"{path}:{error.line}: {error}" if error.line else f"{path}: {error}"
+        if not records:
+            return RunFailure(spec, failure)
+    finally:
+        close = getattr(loaded, "close", None)
+        if callable(close):
+            close()
+    seconds = time.perf_counter() - started
+    own_noise = False
+    if isinstance(make_filter, _Timed):
+        seconds -= make_filter.seconds
+        own_noise = getattr(make_filter.made, "measurement_noise", None) is not None
     if tally is not None and truth is not None and tally.scans:
         # the map's ids are the association's: the truth under its pairing
         truth = tally.relabelled_truth(records[-1].landmark_ids)
     evaluation = evaluate(records[-1], truth, consistency)
-    return Run(spec, tuple(records), evaluation, time.perf_counter() - started)
+    return Run(spec, tuple(records), evaluation, seconds, failure, own_noise)
 
 
 def run_specs(
@@ -101,9 +160,10 @@ def run_specs(
     specs: Sequence[RunSpec],
     truth: GroundTruth | None,
     workers: int | None = None,
-    done: Callable[[Run], None] | None = None,
+    done: Callable[[Run | RunFailure], None] | None = None,
     executor: Executor | None = None,
-) -> list[Run]:
+    keep_going: bool = False,
+) -> list[Run | RunFailure]:
     """Replay every pipeline on ``executor`` (default: ``workers`` local processes);
     results in the specs' order.
 
@@ -111,7 +171,8 @@ def run_specs(
     the same replay.
     """
     executor = LocalExecutor(workers) if executor is None else executor
-    return executor.map(functools.partial(run_spec, path, truth=truth), specs, done=done)
+    run = functools.partial(run_spec, path, truth=truth, keep_going=keep_going)
+    return executor.map(run, specs, done=done)
 
 
 @dataclass(frozen=True, slots=True)

@@ -7,8 +7,14 @@ control_cov = diag(sigma_x^2, sigma_y^2, sigma_alpha^2) is in the robot frame. A
 measurement is (bearing, range) per landmark, stacked into a (2k, 1) column, with
 measure_cov = diag(sigma_bearing^2, sigma_range^2).
 
-``adapter.py`` beside this file runs these functions as an ekfviz filter, so that
-``ekfviz check`` compares them with the reference event by event.
+ekfviz runs a module of these functions as it is, in a worker process of its own::
+
+    ekfviz check --filter examples/course_skeleton/ekf_slam.py
+
+compares them with the reference event by event. ``init_cross_covariance`` is this
+module's own addition to the handout: where a module has it, ekfviz puts the new
+landmarks' cross-covariance with the pose into P (the handout's ``main()`` builds
+P = block_diag(pose_cov, landmark_cov) and so drops it).
 """
 
 from __future__ import annotations
@@ -76,10 +82,10 @@ def init_cross_covariance(init_measure: Array, init_pose: Array, init_pose_cov: 
 def predict(X: Array, P: Array, control: Array, control_cov: Array, k: int) -> tuple[Array, Array]:
     """Drive d, turn alpha; only the robot rows and columns of P change.
 
-    :param control: (2,) d, alpha
+    :param control: (2, 1) d, alpha, a column as the handout passes it
     :return: the predicted X (3 + 2k, 1) and P
     """
-    d, alpha = np.asarray(control, dtype=float).reshape(2)
+    d, alpha = control[0, 0], control[1, 0]
     theta = float(X[2, 0])
     X = X.copy()
     X[0, 0] += d * np.cos(theta)

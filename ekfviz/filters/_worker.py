@@ -1,0 +1,761 @@
+"""The worker side of a user's filter: runs in a process of its own, any Python >= 3.8.
+
+ekfviz starts this file with the interpreter of ``--python`` (its own by default); it needs
+only the standard library and numpy >= 1.17, never ekfviz, so that a filter written for
+another numpy runs unchanged in its own environment. It loads the user's module, runs the
+filter's calls one by one and answers each with the filter's state.
+
+Channels (set up before any user code runs):
+
+- commands come on what was stdin, answers go on what was stdout; both are moved to
+  private descriptors, stdin becomes /dev/null and stdout joins stderr, so that whatever the
+  filter prints (Python or C) goes to stderr, which ekfviz captures as the filter's output;
+- a message is a 4-byte little-endian length, a JSON header, then the raw bytes of each
+  array the header lists (``{"__nd__": i}`` in the JSON; shape and dtype in
+  ``header["arrays"]``): numpy objects never cross as pickles, so both sides may run
+  different numpy versions.
+
+Two kinds of filter: a class of ekfviz's filter protocol (``PATH.py:Class``), and a
+course module of functions ``init_landmarks``, ``predict``, ``update`` in the handout's
+shapes (column vectors), run here by :class:`CourseModule`, which detects which shapes the
+functions take (control (2, 1) or (2,), measurements (2k, 1) or (2k,), X (3+2k, 1) or
+(3+2k,)) and checks what they return.
+
+Kept to Python 3.8's syntax and numpy 1.17's API on purpose (no ``X | Y`` outside
+annotations, no ``zip(strict=...)``, no ``match``).
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.abc
+import importlib.util
+import io
+import json
+import os
+import signal
+import struct
+import sys
+import time
+import traceback
+import types
+from typing import Any, Callable, Dict, List, Optional, Tuple
+
+import numpy as np
+
+PROTOCOL = 1
+COURSE_FUNCTIONS = ("init_landmarks", "predict", "update")
+
+
+# -- framing ---------------------------------------------------------------------------------
+
+
+def _read_exact(stream: Any, count: int) -> bytes:
+    chunks = []
+    left = count
+    while left:
+        chunk = stream.read(left)
+        if not chunk:
+            raise EOFError
+        chunks.append(chunk)
+        left -= len(chunk)
+    return b"".join(chunks)
+
+
+def read_message(stream: Any) -> Tuple[Dict[str, Any], List[Any]]:
+    """One message: its JSON header and its arrays."""
+    (size,) = struct.unpack("<I", _read_exact(stream, 4))
+    header = json.loads(_read_exact(stream, size).decode("utf-8"))
+    arrays = []
+    for meta in header.get("arrays", []):
+        dtype = np.dtype(meta["dtype"])
+        shape = tuple(meta["shape"])
+        count = int(np.prod(shape)) if shape else 1
+        data = _read_exact(stream, count * dtype.itemsize)
+        arrays.append(np.frombuffer(data, dtype=dtype).reshape(shape).copy())
+    return header, arrays
+
+
+def write_message(stream: Any, header: Dict[str, Any], arrays: List[Any]) -> None:
+    """Send one message (see the module docstring)."""
+    contiguous = [np.ascontiguousarray(a) for a in arrays]
+    header = dict(header)
+    header["arrays"] = [{"shape": list(a.shape), "dtype": a.dtype.str} for a in contiguous]
+    data = json.dumps(header, allow_nan=True).encode("utf-8")
+    stream.write(struct.pack("<I", len(data)))
+    stream.write(data)
+    for a in contiguous:
+        stream.write(a.tobytes())
+    stream.flush()
+
+
+# -- what the filter is given ------------------------------------------------------------------
+
+
+class Params:
+    """ekfviz's filter parameters as plain attributes, with ``Q`` and ``R`` as arrays."""
+
+    def __init__(self, values: Dict[str, Any]) -> None:
+        self._values = dict(values)
+        for name, value in values.items():
+            setattr(self, name, tuple(value) if isinstance(value, list) else value)
+
+    @property
+    def Q(self) -> Any:
+        """Motion noise covariance (3x3) in the robot frame."""
+        return np.diag(np.square([self.sigma_x, self.sigma_y, self.sigma_alpha]))  # type: ignore[attr-defined]
+
+    @property
+    def R(self) -> Any:
+        """Measurement noise covariance (2x2) of (bearing, range)."""
+        return np.diag(np.square([self.sigma_bearing, self.sigma_range]))  # type: ignore[attr-defined]
+
+    def as_dict(self) -> Dict[str, Any]:
+        return dict(self._values)
+
+    def __repr__(self) -> str:
+        return "FilterParams(%s)" % ", ".join("%s=%r" % kv for kv in self._values.items())
+
+
+class FilterFault(Exception):
+    """What the user's code did wrong, said in one line (no traceback of ours)."""
+
+    kind = "fault"
+
+
+class ExitFault(FilterFault):
+    """The user's code called ``sys.exit``."""
+
+    kind = "exit"
+
+
+def _shape(value: Any) -> str:
+    shape = getattr(value, "shape", None)
+    if shape is not None:
+        return str(tuple(shape))
+    if isinstance(value, (list, tuple)):
+        return "a %s of %d" % (type(value).__name__, len(value))
+    return "a %s" % type(value).__name__
+
+
+def _floats(value: Any, function: str, name: str) -> Any:
+    if np.iscomplexobj(value):
+        raise FilterFault(
+            "%s returned %s with complex numbers, expected real ones" % (function, name)
+        )
+    try:
+        array = np.array(value, dtype=np.float64)
+    except Exception as error:  # ragged lists, objects, complex values
+        raise FilterFault(
+            "%s returned %s that is not an array of numbers (%s: %s)"
+            % (function, name, type(error).__name__, error)
+        ) from None
+    return array
+
+
+# -- course modules ------------------------------------------------------------------------------
+
+
+class CourseModule:
+    """A module of the handout's functions behind the filter protocol.
+
+    The state is kept as the module keeps it (X a (3+2k, 1) column or (3+2k,)); k
+    landmarks, all named by the first observation (the classic format).
+    """
+
+    def __init__(self, module: Any, params: Params) -> None:
+        self.module = module
+        pose = np.array(params.init_pose, dtype=np.float64)  # type: ignore[attr-defined]
+        sigma = np.array(params.init_pose_sigma, dtype=np.float64)  # type: ignore[attr-defined]
+        self.X = pose.reshape(3, 1)
+        self.P = np.diag(np.square(sigma))
+        self.control_cov = params.Q
+        self.measure_cov = params.R
+        self.landmark_ids: List[int] = []
+        # which shapes the functions take: None until a call has told
+        self.columns: Dict[str, Optional[bool]] = {"X": None, "control": None, "measure": None}
+
+    # the protocol ------------------------------------------------------------------------
+
+    @property
+    def x(self) -> Any:
+        return self.X.reshape(-1)
+
+    @property
+    def k(self) -> int:
+        return len(self.landmark_ids)
+
+    def convention(self) -> Dict[str, Any]:
+        """The shapes detected so far, by argument: "column", "flat" or None."""
+        return {
+            name: (None if value is None else ("column" if value else "flat"))
+            for name, value in self.columns.items()
+        }
+
+    def predict(self, d: float, alpha: float) -> None:
+        n = 3 + 2 * self.k
+        attempts = []
+        for x_col in self._options("X"):
+            for c_col in self._options("control"):
+                control = np.array([[d], [alpha]]) if c_col else np.array([d, alpha])
+                attempts.append(({"X": x_col, "control": c_col}, control))
+
+        def call(option: Dict[str, bool], control: Any) -> Any:
+            X = self._as("X", option["X"])
+            return self.module.predict(X, self.P.copy(), control, self.control_cov.copy(), self.k)
+
+        self.X, self.P = self._first_working("predict", attempts, call, n)
+
+    def update(self, ids: Any, z: Any) -> None:
+        ids_list = [int(i) for i in ids]
+        z = np.asarray(z, dtype=np.float64).reshape(-1, 2)
+        if not self.landmark_ids:
+            self._initialise(ids_list, z)
+            return
+        if ids_list != self.landmark_ids:
+            raise FilterFault(
+                "a course module reads the classic format: every observation names the %d"
+                " landmarks of the first one, in the same order (ids %s); this one names %s"
+                % (self.k, self.landmark_ids, ids_list)
+            )
+        n = 3 + 2 * self.k
+        attempts = []
+        for x_col in self._options("X"):
+            for m_col in self._options("measure"):
+                attempts.append(({"X": x_col, "measure": m_col}, None))
+
+        def call(option: Dict[str, bool], _: Any) -> Any:
+            measure = z.reshape(-1, 1) if option["measure"] else z.reshape(-1)
+            X = self._as("X", option["X"])
+            return self.module.update(
+                X, self.P.copy(), measure.copy(), self.measure_cov.copy(), self.k
+            )
+
+        self.X, self.P = self._first_working("update", attempts, call, n)
+
+    # inside -------------------------------------------------------------------------------
+
+    def _options(self, name: str) -> List[bool]:
+        known = self.columns[name]
+        return [True, False] if known is None else [known]
+
+    def _as(self, name: str, column: bool) -> Any:
+        X = self.X.reshape(-1, 1) if column else self.X.reshape(-1)
+        return X.copy()
+
+    def _first_working(
+        self, function: str, attempts: List[Any], call: Callable[..., Any], n: int
+    ) -> Tuple[Any, Any]:
+        """The first of the argument shapes under which ``function`` works; its X, P.
+
+        The handout's shapes come first; when they fail, the next is tried, and the
+        first failure is the one reported if none works.
+        """
+        first_error: Optional[BaseException] = None
+        first_trace: Optional[str] = None
+        for option, control in attempts:
+            try:
+                result = call(option, control)
+                X, P = self._checked(function, result, n, option.get("X", True))
+            except (SystemExit, KeyboardInterrupt):
+                raise
+            except BaseException as error:
+                if first_error is None:
+                    first_error = error
+                    first_trace = traceback.format_exc()
+                continue
+            for name, value in option.items():
+                self.columns[name] = value
+            return X, P
+        assert first_error is not None
+        if isinstance(first_error, FilterFault):
+            raise first_error
+        raise UserError(function, first_error, first_trace or "")
+
+    def _checked(self, function: str, result: Any, n: int, x_column: bool) -> Tuple[Any, Any]:
+        """X and P as returned by ``function``, their shapes and values checked."""
+        if not isinstance(result, (tuple, list)) or len(result) != 2:
+            raise FilterFault(
+                "%s returned %s, expected (X, P): the state (%d, 1) and its covariance (%d, %d)"
+                % (function, _shape(result), n, n, n)
+            )
+        X = _floats(result[0], function, "X")
+        P = _floats(result[1], function, "P")
+        if X.shape not in ((n, 1), (n,)):
+            raise FilterFault(
+                "%s returned X of shape %s, expected (%d, 1) or (%d,) (3 + 2k with k = %d)"
+                % (function, X.shape, n, n, self.k)
+            )
+        if P.shape != (n, n):
+            raise FilterFault(
+                "%s returned P of shape %s, expected (%d, %d) to match X"
+                % (function, P.shape, n, n)
+            )
+        return X.reshape(n, 1), P
+
+    def _initialise(self, ids: List[int], z: Any) -> None:
+        pose = self.X[:3].copy()
+        pose_cov = self.P[:3, :3].copy()
+        k = len(ids)
+        errors: List[Tuple[BaseException, str]] = []
+        for m_col in self._options("measure"):
+            for x_col in self._options("X"):
+                measure = z.reshape(-1, 1) if m_col else z.reshape(-1)
+                init_pose = pose.reshape(3, 1) if x_col else pose.reshape(3)
+                try:
+                    result = self.module.init_landmarks(
+                        measure.copy(), self.measure_cov.copy(), init_pose.copy(), pose_cov.copy()
+                    )
+                    landmark, landmark_cov = self._checked_init(result, k)
+                except (SystemExit, KeyboardInterrupt):
+                    raise
+                except BaseException as error:
+                    errors.append((error, traceback.format_exc()))
+                    continue
+                n = 3 + 2 * k
+                P = np.zeros((n, n))
+                P[:3, :3] = pose_cov
+                P[3:, 3:] = landmark_cov
+                cross_of = getattr(self.module, "init_cross_covariance", None)
+                if callable(cross_of):
+                    cross = _floats(
+                        cross_of(measure.copy(), init_pose.copy(), pose_cov.copy()),
+                        "init_cross_covariance",
+                        "the cross-covariance",
+                    )
+                    if cross.shape != (2 * k, 3):
+                        raise FilterFault(
+                            "init_cross_covariance returned shape %s, expected (%d, 3)"
+                            % (cross.shape, 2 * k)
+                        )
+                    P[3:, :3] = cross
+                    P[:3, 3:] = cross.T
+                self.X = np.vstack([pose.reshape(3, 1), landmark.reshape(-1, 1)])
+                self.P = P
+                self.landmark_ids = list(ids)
+                self.columns["measure"] = m_col
+                if self.columns["X"] is None:
+                    self.columns["X"] = x_col
+                return
+        first, trace = errors[0]
+        if isinstance(first, FilterFault):
+            raise first
+        raise UserError("init_landmarks", first, trace)
+
+    def _checked_init(self, result: Any, k: int) -> Tuple[Any, Any]:
+        if not isinstance(result, (tuple, list)) or len(result) != 3:
+            raise FilterFault(
+                "init_landmarks returned %s, expected (k, landmarks (%d, 1), landmark_cov"
+                " (%d, %d))" % (_shape(result), 2 * k, 2 * k, 2 * k)
+            )
+        count, landmark, landmark_cov = result
+        try:
+            count_ok = int(count) == k
+        except (TypeError, ValueError):
+            count_ok = False
+        if not count_ok:
+            raise FilterFault(
+                "init_landmarks returned k = %r, expected %d (the landmarks of the first line)"
+                % (count, k)
+            )
+        landmark = _floats(landmark, "init_landmarks", "the landmarks")
+        landmark_cov = _floats(landmark_cov, "init_landmarks", "landmark_cov")
+        if landmark.shape not in ((2 * k, 1), (2 * k,)):
+            raise FilterFault(
+                "init_landmarks returned the landmarks with shape %s, expected (%d, 1) or (%d,)"
+                % (landmark.shape, 2 * k, 2 * k)
+            )
+        if landmark_cov.shape != (2 * k, 2 * k):
+            raise FilterFault(
+                "init_landmarks returned landmark_cov with shape %s, expected (%d, %d)"
+                % (landmark_cov.shape, 2 * k, 2 * k)
+            )
+        return landmark, landmark_cov
+
+
+class UserError(Exception):
+    """An exception raised by the user's code, with where and its traceback."""
+
+    def __init__(self, function: str, error: BaseException, trace: str) -> None:
+        super().__init__("%s raised %s: %s" % (function, type(error).__name__, error))
+        self.function = function
+        self.error = error
+        self.trace = trace
+
+
+# -- matplotlib: no windows --------------------------------------------------------------------
+
+
+class _Nothing:
+    """Stands in for anything of matplotlib where it is not installed: does nothing."""
+
+    def __call__(self, *args: Any, **kwargs: Any) -> Any:
+        return _NOTHING
+
+    def __getattr__(self, name: str) -> Any:
+        if name.startswith("__"):
+            raise AttributeError(name)
+        return _NOTHING
+
+    def __getitem__(self, key: Any) -> Any:
+        return _NOTHING
+
+    def __setitem__(self, key: Any, value: Any) -> None:
+        pass
+
+    def __iter__(self) -> Any:
+        return iter((_NOTHING, _NOTHING))
+
+    def __enter__(self) -> Any:
+        return _NOTHING
+
+    def __exit__(self, *args: Any) -> None:
+        pass
+
+
+_NOTHING = _Nothing()
+
+
+class _StubModule(types.ModuleType):
+    def __getattr__(self, name: str) -> Any:
+        if name.startswith("__"):
+            raise AttributeError(name)
+        return _NOTHING
+
+
+class _Matplotlib(importlib.abc.MetaPathFinder, importlib.abc.Loader):
+    """matplotlib without windows: the Agg backend, whatever ``matplotlib.use`` asks for
+    (a filter's module runs here for its functions, never for its plots); where
+    matplotlib is not installed, modules that do nothing, so that its import works."""
+
+    def __init__(self) -> None:
+        self.stubbed = False
+
+    def find_spec(self, name: str, path: Any = None, target: Any = None) -> Any:
+        if name != "matplotlib" and not name.startswith("matplotlib."):
+            return None
+        if name == "matplotlib" and not self.stubbed:
+            sys.meta_path.remove(self)
+            try:
+                spec = importlib.util.find_spec("matplotlib")
+            finally:
+                sys.meta_path.insert(0, self)
+            if spec is not None and spec.loader is not None:
+                real = spec.loader
+                spec.loader = _PatchingLoader(real)
+                return spec
+            self.stubbed = True
+        if self.stubbed:
+            return importlib.util.spec_from_loader(name, self, is_package=True)
+        return None
+
+    def create_module(self, spec: Any) -> Any:
+        module = _StubModule(spec.name)
+        module.__path__ = []
+        return module
+
+    def exec_module(self, module: Any) -> None:
+        pass
+
+
+class _PatchingLoader(importlib.abc.Loader):
+    def __init__(self, real: Any) -> None:
+        self.real = real
+
+    def create_module(self, spec: Any) -> Any:
+        return self.real.create_module(spec)
+
+    def exec_module(self, module: Any) -> None:
+        self.real.exec_module(module)
+        original = module.use
+
+        def use(backend: Any, *args: Any, **kwargs: Any) -> None:
+            original("Agg", force=True)
+
+        original("Agg", force=True)
+        module.use = use
+
+
+# -- the loop ----------------------------------------------------------------------------------
+
+
+class Worker:
+    def __init__(self, commands: Any, answers: Any) -> None:
+        self.commands = commands
+        self.answers = answers
+        self.module: Any = None
+        self.target: Optional[str] = None
+        self.filter: Any = None
+        self.matplotlib = _Matplotlib()
+        sys.meta_path.insert(0, self.matplotlib)
+
+    def serve(self) -> None:
+        while True:
+            try:
+                header, arrays = read_message(self.commands)
+            except EOFError:
+                return
+            op = header.get("op")
+            if op == "close":
+                self.reply({"ok": True})
+                return
+            started = time.perf_counter()
+            try:
+                answer, out = self.dispatch(op, header, arrays)
+            except UserError as error:
+                self.reply(self.fault(error.function, error.error, error.trace))
+                continue
+            except FilterFault as error:
+                self.reply({"ok": False, "kind": error.kind, "message": str(error)})
+                continue
+            except SystemExit as error:
+                code = error.code
+                self.reply(
+                    {
+                        "ok": False,
+                        "kind": "exit",
+                        "message": "%s called sys.exit(%r)" % (op, code),
+                        "traceback": traceback.format_exc(),
+                    }
+                )
+                continue
+            except BaseException as error:
+                self.reply(self.fault(str(op), error, traceback.format_exc()))
+                continue
+            answer["ok"] = True
+            answer["seconds"] = time.perf_counter() - started
+            self.reply(answer, out)
+
+    def fault(self, where: str, error: BaseException, trace: str) -> Dict[str, Any]:
+        return {
+            "ok": False,
+            "kind": "memory" if isinstance(error, MemoryError) else "raised",
+            "type": type(error).__name__,
+            "message": "%s raised %s: %s" % (where, type(error).__name__, error),
+            "traceback": trace,
+        }
+
+    def reply(self, header: Dict[str, Any], arrays: Optional[List[Any]] = None) -> None:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        write_message(self.answers, header, arrays or [])
+
+    def dispatch(
+        self, op: Any, header: Dict[str, Any], arrays: List[Any]
+    ) -> Tuple[Dict[str, Any], List[Any]]:
+        if op == "hello":
+            return {
+                "protocol": PROTOCOL,
+                "python": "%d.%d.%d" % sys.version_info[:3],
+                "numpy": np.__version__,
+                "pid": os.getpid(),
+            }, []
+        if op == "load":
+            return self.load(header), []
+        if op == "construct":
+            return self.construct(header)
+        if self.filter is None:
+            raise FilterFault("no filter constructed")
+        if op == "predict":
+            self.call(
+                "predict",
+                lambda: (
+                    self.filter.predict(header["d"], header["alpha"], header["dt"])
+                    if header.get("dt_arg")
+                    else self.filter.predict(header["d"], header["alpha"])
+                ),
+            )
+        elif op == "update":
+            ids, z = arrays
+            self.call("update", lambda: self.filter.update(ids.copy(), z.copy()))
+        elif op == "remove_landmarks":
+            self.call("remove_landmarks", lambda: self.filter.remove_landmarks(list(header["ids"])))
+        elif op == "finish":
+            self.call("finish", self.filter.finish)
+            return self.state(path=True)
+        else:
+            raise FilterFault("unknown request %r" % (op,))
+        return self.state()
+
+    def call(self, function: str, action: Callable[[], Any]) -> None:
+        try:
+            action()
+        except (UserError, FilterFault, SystemExit, KeyboardInterrupt):
+            raise
+        except BaseException as error:
+            raise UserError(function, error, traceback.format_exc()) from None
+
+    def load(self, header: Dict[str, Any]) -> Dict[str, Any]:
+        path = header.get("path")
+        module_name = header.get("module")
+        self.target = header.get("name")
+        for entry in reversed(header.get("sys_path", [])):
+            if entry not in sys.path:
+                sys.path.insert(0, entry)
+        try:
+            if path is not None:
+                name = "ekfviz_user_" + "".join(c if c.isalnum() else "_" for c in path)[-60:]
+                spec = importlib.util.spec_from_file_location(name, path)
+                if spec is None or spec.loader is None:
+                    raise FilterFault("%s: not a Python file" % path)
+                module = importlib.util.module_from_spec(spec)
+                sys.modules[name] = module
+                spec.loader.exec_module(module)
+            else:
+                module = importlib.import_module(str(module_name))
+        except FilterFault:
+            raise
+        except SystemExit as error:
+            raise ExitFault(
+                "importing %s called sys.exit(%r)" % (path or module_name, error.code)
+            ) from None
+        except BaseException as error:
+            trace = traceback.format_exc()
+            raise UserError("importing %s" % (path or module_name), error, trace) from None
+        self.module = module
+        where = path or module_name
+        if self.target:
+            found = getattr(module, self.target, None)
+            if not isinstance(found, type):
+                raise FilterFault("%s has no class %s" % (where, self.target))
+            return {"style": "class", "capabilities": self.capabilities(found)}
+        missing = [f for f in COURSE_FUNCTIONS if not callable(getattr(module, f, None))]
+        if missing:
+            classes = sorted(
+                n
+                for n, v in vars(module).items()
+                if isinstance(v, type)
+                and callable(getattr(v, "predict", None))
+                and callable(getattr(v, "update", None))
+            )
+            also = "; or name its filter class: %s:%s" % (where, classes[0]) if classes else ""
+            raise FilterFault(
+                "%s has no function %s: a course module has init_landmarks, predict and update%s"
+                % (where, " or ".join(missing), also)
+            )
+        return {
+            "style": "functions",
+            "capabilities": {
+                "takes_dt": False,
+                "removes_landmarks": False,
+                "offline": False,
+                "poses": False,
+            },
+        }
+
+    def capabilities(self, cls: Any) -> Dict[str, Any]:
+        import inspect
+
+        takes_dt = False
+        predict = getattr(cls, "predict", None)
+        if callable(predict):
+            try:
+                parameters = list(inspect.signature(predict).parameters.values())
+            except (TypeError, ValueError):
+                parameters = []
+            positional = [
+                p
+                for p in parameters
+                if p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD) and p.name != "self"
+            ]
+            takes_dt = len(positional) >= 3 or any(p.kind is p.VAR_POSITIONAL for p in parameters)
+        return {
+            "takes_dt": takes_dt,
+            "removes_landmarks": callable(getattr(cls, "remove_landmarks", None)),
+            "offline": callable(getattr(cls, "finish", None)),
+            "poses": hasattr(cls, "poses_xytheta"),
+        }
+
+    def construct(self, header: Dict[str, Any]) -> Tuple[Dict[str, Any], List[Any]]:
+        params = Params(header["params"])
+        if self.target:
+            cls = getattr(self.module, self.target)
+            self.call("construction", lambda: setattr(self, "filter", cls(params)))
+        else:
+            self.filter = CourseModule(self.module, params)
+        return self.state(noise=True)
+
+    def state(self, path: bool = False, noise: bool = False) -> Tuple[Dict[str, Any], List[Any]]:
+        """The filter's x, P and landmark ids (and its own noise, its path) as arrays."""
+        slam = self.filter
+        arrays = []
+        for name in ("x", "P"):
+            try:
+                value = getattr(slam, name)
+            except BaseException as error:
+                raise UserError("reading %s" % name, error, traceback.format_exc()) from None
+            array = _array_of(value, name)
+            arrays.append(array.reshape(-1) if name == "x" else array)
+        try:
+            ids = [int(i) for i in list(np.asarray(slam.landmark_ids).reshape(-1))]
+        except BaseException as error:
+            raise UserError("reading landmark_ids", error, traceback.format_exc()) from None
+        answer: Dict[str, Any] = {"ids": ids, "extra": []}
+        if isinstance(slam, CourseModule):
+            answer["convention"] = slam.convention()
+        if noise:
+            for name in ("measurement_noise", "motion_noise"):
+                value = getattr(slam, name, None)
+                if value is not None:
+                    answer["extra"].append(name)
+                    arrays.append(_array_of(value, name))
+        if path:
+            try:
+                poses = getattr(slam, "poses_xytheta", None)
+            except BaseException as error:
+                raise UserError("reading poses_xytheta", error, traceback.format_exc()) from None
+            if poses is not None:
+                answer["extra"].append("poses_xytheta")
+                arrays.append(_array_of(poses, "poses_xytheta"))
+        return answer, arrays
+
+
+def _array_of(value: Any, name: str) -> Any:
+    if np.iscomplexobj(value):
+        raise FilterFault("%s holds complex numbers, expected real ones" % name)
+    try:
+        array = np.array(value, dtype=np.float64)
+    except Exception as error:  # complex values, ragged lists, objects
+        raise FilterFault(
+            "%s is not an array of real numbers (%s: %s)" % (name, type(error).__name__, error)
+        ) from None
+    return array
+
+
+def _die_with_parent() -> None:
+    """Ask Linux to end this process when ekfviz ends (a hung filter left no orphan)."""
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None)
+        libc.prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    except Exception:
+        pass
+
+
+def main() -> None:
+    # the script's own folder (ekfviz/filters) must not shadow the user's imports
+    here = os.path.dirname(os.path.abspath(__file__))
+    if sys.path and os.path.abspath(sys.path[0] or ".") == here:
+        del sys.path[0]
+    options = json.loads(sys.argv[1]) if len(sys.argv) > 1 else {}
+    _die_with_parent()
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # ekfviz handles Ctrl-C and ends this
+    memory = options.get("memory_bytes")
+    if memory:
+        import resource
+
+        resource.setrlimit(resource.RLIMIT_AS, (int(memory), int(memory)))
+    commands = os.fdopen(os.dup(0), "rb")
+    answers = os.fdopen(os.dup(1), "wb")
+    null = os.open(os.devnull, os.O_RDONLY)
+    os.dup2(null, 0)
+    os.close(null)
+    os.dup2(2, 1)  # what the filter prints goes where ekfviz captures it
+    sys.stdin = open(os.devnull)  # noqa: SIM115 (for the whole life of the process)
+    sys.stdout = io.TextIOWrapper(os.fdopen(1, "wb", closefd=False), line_buffering=True)
+    Worker(commands, answers).serve()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,226 @@
+"""``ekfviz grade``: every submission of a class checked on the battery, each apart.
+
+A submission is a ``.py`` file or a directory holding one (a course module, or a file
+with a filter class). Each is checked (``check --all``) on every log in a worker of its
+own: a fresh temporary working directory, an environment without the caller's variables,
+an address-space limit, and one deadline for the whole submission. Whatever a submission
+does (a syntax error, an endless loop, a memory hog, ``sys.exit``, killing itself) ends
+in its own row; the others go on. Runs are spread over an executor like any study.
+Numpy only (the check recording, with ``save_dir``, imports the viz layer where it runs).
+"""
+
+from __future__ import annotations
+
+import re
+import tempfile
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+from ekfviz.core.filter import FilterParams
+
+STATUSES = ("match", "diverged", "error", "timeout", "memory", "crashed")
+# how a failure's kind (WorkerFault, FilterSpecError) reads in the table
+_STATUS_OF_KIND = {"timeout": "timeout", "memory": "memory", "crashed": "crashed",
+                   "exit": "crashed", "start": "error"}  # fmt: skip
+MODULE_NAMES = ("ekf_slam.py", "ekf.py", "slam.py")
+
+
+@dataclass(frozen=True, slots=True)
+class GradeTask:
+    """One submission to check.
+
+    :param name: how its row names it (the entry's name in the folder)
+    :param path: the submission (a file or a directory)
+    :param logs: (log, truth, initial pose or None) to check it on
+    """
+
+    name: str
+    path: Path
+    logs: tuple[tuple[Path, Path | None, tuple[float, float, float] | None], ...]
+    params: FilterParams
+    timeout_s: float
+    memory_mb: int | None
+    python: str | None = None
+    tolerance: float = 1e-6
+    save_dir: Path | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class GradeRow:
+    """One submission's result.
+
+    :param first: the first divergence, ``LOG:LINE event E (kind): quantity``
+    :param detail: why it failed, for ``error``, ``timeout``, ``memory``, ``crashed``
+    """
+
+    submission: str
+    status: str
+    causes: tuple[str, ...]
+    first: str
+    seconds: float
+    detail: str = ""
+    module: str = ""
+
+    def to_json(self) -> dict[str, object]:
+        return {
+            "submission": self.submission,
+            "status": self.status,
+            "causes": list(self.causes),
+            "first_divergence": self.first,
+            "seconds": round(self.seconds, 3),
+            "detail": self.detail,
+            "module": self.module,
+        }
+
+
+class NoModule(Exception):
+    """A submission with no Python module to check."""
+
+
+def module_of(entry: Path) -> Path:
+    """The module a submission hands in: the file itself, or in a directory the one
+    ``.py`` file, else one named like the handout's (:data:`MODULE_NAMES`), else the one
+    that defines ``predict`` and ``update``.
+
+    :raises NoModule: none, or several that cannot be told apart
+    """
+    if entry.is_file():
+        if entry.suffix != ".py":
+            raise NoModule(f"{entry.name} is not a Python file")
+        return entry
+    files = sorted(p for p in entry.rglob("*.py") if p.is_file() and "__pycache__" not in p.parts)
+    if not files:
+        raise NoModule("no .py file in it")
+    if len(files) == 1:
+        return files[0]
+    for name in MODULE_NAMES:
+        named = [p for p in files if p.name == name]
+        if len(named) == 1:
+            return named[0]
+    defining = [p for p in files if _defines_filter(p)]
+    if len(defining) == 1:
+        return defining[0]
+    names = ", ".join(str(p.relative_to(entry)) for p in files[:5])
+    raise NoModule(f"several .py files ({names}), none named ekf_slam.py")
+
+
+def _defines_filter(path: Path) -> bool:
+    try:
+        text = path.read_text(errors="replace")
+    except OSError:
+        return False
+    return bool(
+        re.search(r"^def predict\(", text, re.M) and re.search(r"^def update\(", text, re.M)
+    )
+
+
+def spec_text(module: Path) -> str:
+    """``--filter`` for a module: itself (a course module of functions) unless it has no
+    ``init_landmarks`` and one filter class, then ``PATH.py:Class``."""
+    try:
+        text = module.read_text(errors="replace")
+    except OSError:
+        return str(module)
+    if re.search(r"^def init_landmarks\(", text, re.M):
+        return str(module)
+    classes = re.findall(r"^class (\w+)\b", text, re.M)
+    with_predict = [c for c in classes if re.search(rf"class {c}\b[\s\S]*?def predict\(", text)]
+    return f"{module}:{with_predict[0]}" if len(with_predict) == 1 else str(module)
+
+
+def grade_one(task: GradeTask) -> GradeRow:
+    """Check one submission on every log of ``task``; never raises for what it does."""
+    from ekfviz import pipeline
+    from ekfviz.core.filter import FilterError
+    from ekfviz.filters import FilterSpec, FilterSpecError
+    from ekfviz.filters.worker import WorkerOptions
+    from ekfviz.io.errors import InputError
+
+    started = time.perf_counter()
+    try:
+        module = module_of(task.path)
+    except NoModule as error:
+        return GradeRow(task.name, "error", (), "", 0.0, str(error))
+    causes: dict[str, None] = {}
+    first = ""
+    status = "match"
+    detail = ""
+    deadline = time.time() + task.timeout_s
+    with tempfile.TemporaryDirectory(prefix="ekfviz-grade-") as home:
+        options = WorkerOptions(python=task.python, timeout_s=task.timeout_s,
+                                memory_mb=task.memory_mb, clean_env=True, cwd=home,
+                                echo=False, deadline=deadline)  # fmt: skip
+        spec = FilterSpec(spec_text(module), task.name, options)
+        for log, truth, start in task.logs:
+            params = task.params if start is None else replace(task.params, init_pose=start)
+            save = None
+            if task.save_dir is not None:
+                save = task.save_dir / f"{_safe(task.name)}-{log.stem}.rrd"
+            try:
+                result, _ = pipeline.check(log, truth, spec, params, tolerance=task.tolerance,
+                                           save=save, every=True)  # fmt: skip
+            except FilterSpecError as error:
+                status = _STATUS_OF_KIND.get(error.kind, "error")
+                detail = _one_line(str(error))
+                break
+            except (InputError, FilterError) as error:
+                status, detail = _failure(error)
+                break
+            except Exception as error:  # a submission's row, whatever broke: never the class's
+                status, detail = "error", _one_line(f"{type(error).__name__}: {error}")
+                break
+            for cause in result.causes:
+                causes.setdefault(cause, None)
+            if result.first_divergence is not None and not first:
+                d = result.first_divergence
+                first = (f"{log.stem}:{d.line} event {d.event} ({d.kind.value}):"
+                         f" {d.worst.quantity.value}")  # fmt: skip
+                status = "diverged"
+            if result.error is not None:
+                status = _STATUS_OF_KIND.get(result.error_kind, "error")
+                detail = _one_line(f"{log.stem}:{result.error_line}: {result.error}")
+                break
+    return GradeRow(task.name, status, tuple(causes), first,
+                    time.perf_counter() - started, detail, str(module))  # fmt: skip
+
+
+def _failure(error: Exception) -> tuple[str, str]:
+    kind = str(getattr(error, "kind", ""))
+    return _STATUS_OF_KIND.get(kind, "error"), _one_line(str(error))
+
+
+def _one_line(text: str) -> str:
+    return " ".join(text.split())[:500]
+
+
+def _safe(name: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", name) or "submission"
+
+
+def submissions(folder: Path) -> list[Path]:
+    """The entries of a class folder: its ``.py`` files and its directories, by name
+    (hidden ones and ``__pycache__`` left out)."""
+    return sorted(
+        p
+        for p in folder.iterdir()
+        if not p.name.startswith((".", "__")) and (p.is_dir() or p.suffix == ".py")
+    )
+
+
+CSV_COLUMNS = ("submission", "status", "causes", "first_divergence", "seconds", "detail")
+
+
+def to_csv(rows: list[GradeRow]) -> str:
+    import csv
+    import io
+
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow(CSV_COLUMNS)
+    for row in rows:
+        writer.writerow(
+            [row.submission, row.status, ";".join(row.causes), row.first,
+             f"{row.seconds:.3f}", row.detail]
+        )  # fmt: skip
+    return buffer.getvalue()

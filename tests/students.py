@@ -1,0 +1,205 @@
+"""Course-homework solutions of the classic assignment, as students write them.
+
+Each is a module of the handout's functions (``init_landmarks``, ``predict``, ``update``
+with column vectors), written out by :func:`write` with one or more real mistakes, so
+that ``check`` is tried on code of the shape it meets in the wild: loops over landmarks,
+``np.linalg.inv``, ``(I - K H) P``, the handout's imports. :data:`MISTAKES` says which
+causes ``check --all`` must name for each.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+HEADER = """\
+import re
+
+import numpy as np
+{imports}
+
+np.set_printoptions(suppress=True)
+
+
+def warp2pi(angle_rad):
+    return (angle_rad + np.pi) % (2 * np.pi) - np.pi
+"""
+
+INIT = """
+
+def init_landmarks(init_measure, init_measure_cov, init_pose, init_pose_cov):
+    k = init_measure.shape[0] // 2
+    landmark = np.zeros((2 * k, 1))
+    landmark_cov = np.zeros((2 * k, 2 * k))
+    x, y, theta = init_pose[0, 0], init_pose[1, 0], init_pose[2, 0]
+    for i in range(k):
+        beta, r = init_measure[2 * i, 0], init_measure[2 * i + 1, 0]
+        phi = theta + beta
+        landmark[2 * i, 0] = x + r * np.cos(phi)
+        landmark[2 * i + 1, 0] = y + r * np.sin(phi)
+        J_p = np.array([[1, 0, -r * np.sin(phi)], [0, 1, r * np.cos(phi)]])
+        J_z = np.array([[-r * np.sin(phi), np.cos(phi)], [r * np.cos(phi), np.sin(phi)]])
+        block = {init_cov}
+        landmark_cov[2 * i : 2 * i + 2, 2 * i : 2 * i + 2] = block
+    return k, landmark, landmark_cov
+"""
+
+PREDICT = """
+
+def predict(X, P, control, control_cov, k):
+    d, alpha = control[0, 0], control[1, 0]
+    theta = X[2, 0]
+    X_pre = X.copy()
+    X_pre[0, 0] += d * np.cos(theta)
+    X_pre[1, 0] += d * np.sin(theta)
+    X_pre[2, 0] = warp2pi(theta + alpha)
+    G = np.eye(3 + 2 * k)
+    G[0, 2] = -d * np.sin(theta)
+    G[1, 2] = d * np.cos(theta)
+    rot = np.array(
+        [[np.cos(theta), -np.sin(theta), 0], [np.sin(theta), np.cos(theta), 0], [0, 0, 1]]
+    )
+    Q = np.zeros((3 + 2 * k, 3 + 2 * k))
+    Q[:3, :3] = {noise}
+    P_pre = {propagate} + Q
+    return X_pre, P_pre
+"""
+
+# a student of a few years ago: a ragged array, which numpy >= 1.24 refuses
+PREDICT_RAGGED = """
+
+def predict(X, P, control, control_cov, k):
+    d, alpha = control[0, 0], control[1, 0]
+    theta = X[2]
+    X_pre = X.copy()
+    X_pre[0, 0] += d * np.cos(theta[0])
+    X_pre[1, 0] += d * np.sin(theta[0])
+    X_pre[2, 0] = warp2pi(theta[0] + alpha)
+    G_r = np.array([[1, 0, -d * np.sin(theta)], [0, 1, d * np.cos(theta)], [0, 0, 1]])
+    G = np.eye(3 + 2 * k)
+    G[:3, :3] = G_r
+    c, s = np.cos(theta[0]), np.sin(theta[0])
+    rot = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+    Q = np.zeros((3 + 2 * k, 3 + 2 * k))
+    Q[:3, :3] = rot @ control_cov @ rot.T
+    return X_pre, G @ P @ G.T + Q
+"""
+
+UPDATE_SEQUENTIAL = """
+
+def update(X_pre, P_pre, measure, measure_cov, k):
+    X, P = X_pre.copy(), P_pre.copy()
+    n = 3 + 2 * k
+    for i in range(k):
+        lx, ly = X[3 + 2 * i, 0], X[4 + 2 * i, 0]
+        dx, dy = lx - X[0, 0], ly - X[1, 0]
+        q = dx ** 2 + dy ** 2
+        sq = np.sqrt(q)
+        H = np.zeros((2, n))
+        H[:, :3] = [[dy / q, -dx / q, -1], [-dx / sq, -dy / sq, 0]]
+        H[:, 3 + 2 * i : 5 + 2 * i] = [[-dy / q, dx / q], [dx / sq, dy / sq]]
+        z_hat = np.array([[warp2pi(np.arctan2(dy, dx) - X[2, 0])], [sq]])
+        nu = measure[2 * i : 2 * i + 2] - z_hat
+        {wrap}
+        S = H @ P @ H.T{plus_r}
+        K = P @ H.T @ np.linalg.inv(S)
+        X = X + K @ nu
+        X[2, 0] = warp2pi(X[2, 0])
+        P = (np.eye(n) - K @ H) @ P
+    return X, P
+"""
+
+UPDATE_JOINT = """
+
+def update(X_pre, P_pre, measure, measure_cov, k):
+    n = 3 + 2 * k
+    H = np.zeros((2 * k, n))
+    z_hat = np.zeros((2 * k, 1))
+    for i in range(k):
+        dx = X_pre[3 + 2 * i, 0] - X_pre[0, 0]
+        dy = X_pre[4 + 2 * i, 0] - X_pre[1, 0]
+        q = dx ** 2 + dy ** 2
+        sq = np.sqrt(q)
+        H[2 * i : 2 * i + 2, :3] = [[dy / q, -dx / q, -1], [-dx / sq, -dy / sq, 0]]
+        H[2 * i : 2 * i + 2, 3 + 2 * i : 5 + 2 * i] = [[-dy / q, dx / q], [dx / sq, dy / sq]]
+        z_hat[2 * i, 0] = warp2pi(np.arctan2(dy, dx) - X_pre[2, 0])
+        z_hat[2 * i + 1, 0] = sq
+    nu = measure - z_hat
+    {wrap}
+    R = np.kron(np.eye(k), measure_cov)
+    S = H @ P_pre @ H.T + R
+    K = P_pre @ H.T @ np.linalg.inv(S)
+    X = X_pre + K @ nu
+    X[2, 0] = warp2pi(X[2, 0])
+    P = (np.eye(n) - K @ H) @ P_pre
+    return X, P
+"""
+
+CORRECT_INIT = "J_p @ init_pose_cov @ J_p.T + J_z @ init_measure_cov @ J_z.T"
+WRAP_SEQUENTIAL = "nu[0, 0] = warp2pi(nu[0, 0])"
+WRAP_JOINT = "nu[0::2] = warp2pi(nu[0::2])"
+
+# name -> the module's options, and the causes check --all must name on the battery
+STUDENTS: dict[str, dict[str, str]] = {
+    "correct": {},
+    "missing_pose_term": {"init_cov": "J_z @ init_measure_cov @ J_z.T"},
+    "fixed_init": {"init_cov": "0.5 * np.eye(2)"},
+    "transposed": {"propagate": "G.T @ P @ G"},
+    "unrotated": {"noise": "control_cov"},
+    "no_r": {"plus_r": ""},
+    "joint": {"update": "joint"},
+    "joint_unwrapped": {"update": "joint", "wrap": "pass"},
+    "sequential_unwrapped": {"wrap": "pass"},
+    "transposed_and_missing_pose_term": {
+        "propagate": "G.T @ P @ G",
+        "init_cov": "J_z @ init_measure_cov @ J_z.T",
+    },
+    "ragged": {"predict": "ragged"},
+    "tkagg": {
+        "imports": "import matplotlib\n\nmatplotlib.use('TkAgg')\nimport matplotlib.pyplot as plt"
+    },
+}
+
+# the handout's main() builds P = block_diag(pose_cov, landmark_cov): every solution
+# that keeps it initialises its landmarks without cross-covariances
+HANDOUT = {"independent_landmark_init"}
+MISTAKES: dict[str, set[str]] = {
+    "correct": HANDOUT,
+    "missing_pose_term": HANDOUT | {"landmark_cov_missing_pose_term"},
+    "fixed_init": HANDOUT | {"fixed_landmark_init_covariance"},
+    "transposed": HANDOUT | {"transposed_motion_jacobian"},
+    "unrotated": HANDOUT | {"unrotated_motion_noise"},
+    "no_r": HANDOUT | {"missing_measurement_noise"},
+    "joint": HANDOUT | {"joint_update"},
+    "joint_unwrapped": HANDOUT | {"joint_update", "unwrapped_innovation"},
+    "sequential_unwrapped": HANDOUT | {"unwrapped_innovation"},
+    "transposed_and_missing_pose_term": HANDOUT
+    | {"transposed_motion_jacobian", "landmark_cov_missing_pose_term"},
+    "ragged": HANDOUT,
+    "tkagg": HANDOUT,
+}
+
+
+def source(name: str) -> str:
+    """The module text of one student."""
+    options = STUDENTS[name]
+    joint = options.get("update") == "joint"
+    update = UPDATE_JOINT if joint else UPDATE_SEQUENTIAL
+    wrap = options.get("wrap", WRAP_JOINT if joint else WRAP_SEQUENTIAL)
+    predict = PREDICT_RAGGED if options.get("predict") == "ragged" else PREDICT
+    return (
+        HEADER.format(imports=options.get("imports", "import matplotlib.pyplot as plt"))
+        + INIT.format(init_cov=options.get("init_cov", CORRECT_INIT))
+        + predict.format(
+            noise=options.get("noise", "rot @ control_cov @ rot.T"),
+            propagate=options.get("propagate", "G @ P @ G.T"),
+        )
+        + update.format(wrap=wrap, plus_r=options.get("plus_r", " + measure_cov"))
+    )
+
+
+def write(folder: Path, name: str, file_name: str = "ekf_slam.py") -> Path:
+    """Write one student's module into ``folder`` (made if missing); its path."""
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / file_name
+    path.write_text(source(name))
+    return path

@@ -1,0 +1,342 @@
+"""Students' filters as handed in: course modules run in workers, every mistake named,
+a class graded, comparisons of other people's code (issue: real students' filters)."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import students
+from conftest import entity_rows
+
+from ekfviz.core.mistakes import CATALOGUE
+
+ROOT = Path(__file__).resolve().parent.parent
+DATA = ROOT / "data"
+# an interpreter with numpy 1.23 (make test builds it: .venv-numpy1)
+NUMPY1 = Path(os.environ.get("EKFVIZ_NUMPY1_PYTHON", ROOT / ".venv-numpy1" / "bin" / "python"))
+
+
+def ekfviz(
+    *args: str, cwd: Path | None = None, timeout: float = 300
+) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "ekfviz", *args], capture_output=True, text=True,
+        timeout=timeout, cwd=cwd,
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize("name", sorted(set(students.MISTAKES) - {"ragged"}))
+def test_check_all_names_exactly_the_mistakes_in_the_code(tmp_path: Path, name: str) -> None:
+    module = students.write(tmp_path / name, name)
+    report = tmp_path / "check.json"
+    # the edge log exercises everything the classic one does, and angle wrapping
+    log = DATA / ("edge.txt" if "unwrapped" in name else "classic.txt")
+    start = ["--init-pose", "4", "-2", "3.1365926535897932"] if log.stem == "edge" else []
+    result = ekfviz("check", str(log), "--filter", str(module), "--all", "--report",
+                    str(report), *start)  # fmt: skip
+    assert result.returncode == 1, result.stdout + result.stderr
+    assert "Traceback" not in result.stderr
+    document = json.loads(report.read_text())
+    assert set(document["causes"]) == students.MISTAKES[name]
+    # every group of divergences names a cause, or says unknown; none names one not in the code
+    for group in document["divergences"]:
+        for cause in group["cause"].split("+"):
+            assert cause in students.MISTAKES[name] | {"unknown"}, group
+    # the console says what the report says
+    for cause in students.MISTAKES[name]:
+        assert cause in result.stdout
+
+
+def test_the_course_skeleton_matches_and_says_what_the_log_left_untested() -> None:
+    skeleton = ROOT / "examples" / "course_skeleton" / "ekf_slam.py"
+    result = ekfviz("check", str(DATA / "classic.txt"), "--filter", str(skeleton))
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "match: all 59 events agree" in result.stdout
+    assert "no bearing within 0.1 rad of +-pi" in result.stdout
+    battery = ekfviz("check", "--filter", str(skeleton), "--all")
+    assert battery.returncode == 0, battery.stdout + battery.stderr
+    # the edge log exercises angle wrapping: nothing said about it there
+    edge = battery.stdout[battery.stdout.index("log edge") :]
+    assert "bearing" not in edge.split("not exercised")[-1] if "not exercised" in edge else True
+    assert "the heading never" not in edge
+
+
+def test_without_all_the_first_divergence_and_how_many_more(tmp_path: Path) -> None:
+    module = students.write(tmp_path / "t", "transposed")
+    result = ekfviz("check", str(DATA / "classic.txt"), "--filter", str(module))
+    assert result.returncode == 1
+    assert "course module, shapes detected: X (3+2k, 1), control (2, 1)" in result.stdout
+    first = next(line for line in result.stdout.splitlines() if line.startswith("divergence"))
+    more = result.stdout
+    assert first.startswith("divergence at event 0 (step 0, init")
+    assert re.search(r"\d+ more event\(s\) diverge; --all", more)
+
+
+def test_the_console_prints_names_as_the_report_has_them(tmp_path: Path) -> None:
+    folder = tmp_path / "[bold]x"
+    module = students.write(folder, "unrotated")
+    report = tmp_path / "r.json"
+    result = ekfviz("check", str(DATA / "classic.txt"), "--filter", str(module), "--report",
+                    str(report))  # fmt: skip
+    document = json.loads(report.read_text())
+    entry = document["first_divergence"]["entry"]
+    assert re.fullmatch(r"P\[[A-Za-z0-9.]+, [A-Za-z0-9.]+\]|x\[[A-Za-z0-9.]+\]", entry)
+    assert f"worst entry {entry}:" in result.stdout
+    assert "[bold]x" in result.stdout + result.stderr or "[bold]" in str(module)
+    wrong = tmp_path / "wrong.py"
+    wrong.write_text(students.source("correct").replace("X_pre[2, 0] = warp2pi(theta + alpha)",
+                                                        "X_pre[2, 0] = theta"))  # fmt: skip
+    result = ekfviz("check", str(DATA / "classic.txt"), "--filter", str(wrong), "--report",
+                    str(report))  # fmt: skip
+    document = json.loads(report.read_text())
+    divergence = next(d for d in [document["first_divergence"]] if d)
+    assert f"worst entry {divergence['entry']}:" in result.stdout
+
+
+def test_wrong_shapes_name_the_function_the_array_and_the_shapes(tmp_path: Path) -> None:
+    module = tmp_path / "broadcast.py"
+    module.write_text(
+        students.source("correct").replace(
+            "    return X_pre, P_pre\n", "    return X_pre + X_pre.T, P_pre\n"
+        )
+    )
+    result = ekfviz("check", str(DATA / "classic.txt"), "--filter", str(module))
+    assert result.returncode == 2
+    (line,) = result.stderr.strip().splitlines()
+    assert "predict returned X of shape (15, 15), expected (15, 1) or (15,)" in line
+    assert line.startswith(f"error: {DATA / 'classic.txt'}:2: event 1 (predict)")
+
+
+FLAT = """
+import numpy as np
+
+
+def init_landmarks(init_measure, init_measure_cov, init_pose, init_pose_cov):
+    assert init_measure.ndim == 1 and init_pose.ndim == 1, "flat arrays only"
+    k = len(init_measure) // 2
+    x, y, theta = init_pose
+    landmark = np.zeros(2 * k)
+    for i in range(k):
+        beta, r = init_measure[2 * i : 2 * i + 2]
+        landmark[2 * i : 2 * i + 2] = [x + r * np.cos(theta + beta), y + r * np.sin(theta + beta)]
+    return k, landmark, 0.1 * np.eye(2 * k)
+
+
+def predict(X, P, control, control_cov, k):
+    assert X.ndim == 1 and control.ndim == 1, "flat arrays only"
+    d, alpha = control
+    X = X.copy()
+    X[:3] += [d * np.cos(X[2]), d * np.sin(X[2]), alpha]
+    return X, P
+
+
+def update(X, P, measure, measure_cov, k):
+    assert X.ndim == 1 and measure.ndim == 1, "flat arrays only"
+    return X, P
+"""
+
+
+def test_flat_shapes_are_detected_and_said(tmp_path: Path) -> None:
+    from ekfviz.core.filter import FilterParams
+    from ekfviz.filters import FilterSpec
+
+    flat = tmp_path / "flat.py"
+    flat.write_text(FLAT)
+    remote: Any = FilterSpec(str(flat)).load()(FilterParams())
+    remote.update(np.array([1, 2]), np.array([[0.5, 3.0], [1.0, 4.0]]))
+    remote.predict(1.0, 0.1)
+    assert remote.convention == {"X": "flat", "control": "flat", "measure": "flat"}
+    assert remote.x.shape == (7,) and remote.x[0] == pytest.approx(1.0)
+    remote.close()
+
+
+def test_a_numpy1_solution_runs_under_its_own_interpreter(tmp_path: Path) -> None:
+    assert NUMPY1.is_file(), f"{NUMPY1}: make test builds it (numpy 1.23)"
+    version = subprocess.run(
+        [str(NUMPY1), "-c", "import numpy; print(numpy.__version__)"],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
+    if tuple(int(v) for v in version.split(".")[:2]) >= (1, 24):  # (Python 3.12+)
+        pytest.skip(f"numpy {version.strip()} refuses ragged arrays too")
+    module = students.write(tmp_path / "old", "ragged")
+    # numpy 2 refuses the ragged array: one line that says what to do
+    refused = ekfviz("check", str(DATA / "classic.txt"), "--filter", str(module))
+    assert refused.returncode == 2
+    assert "ragged array" in refused.stderr and "--python" in refused.stderr
+    report = tmp_path / "old.json"
+    result = ekfviz("check", "--filter", str(module), "--all", "--python", str(NUMPY1),
+                    "--report", str(report))  # fmt: skip
+    assert result.returncode == 1, result.stdout + result.stderr
+    assert set(json.loads(report.read_text())["causes"]) == students.MISTAKES["ragged"]
+
+
+def test_a_filter_that_prints_never_breaks_json_and_its_exit_is_contained(tmp_path: Path) -> None:
+    chatty = tmp_path / "chatty.py"
+    chatty.write_text(
+        students.source("correct")
+        .replace("def predict(X, P, control, control_cov, k):",
+                 "def predict(X, P, control, control_cov, k):\n    print('predicting', k)")
+        + "\nprint('imported')\nimport os\nos.write(1, b'raw C-level output\\n')\n"
+    )  # fmt: skip
+    result = ekfviz("replay", str(DATA / "classic.txt"), "--filter", str(chatty), "--json",
+                    "--save", str(tmp_path / "c.rrd"))  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    json.loads(result.stdout)  # nothing but the document on stdout
+    assert "predicting 6" in result.stderr and "raw C-level output" in result.stderr
+    quitter = tmp_path / "quitter.py"
+    quitter.write_text(students.source("correct").replace(
+        "    P_pre = G @ P @ G.T + Q", "    import sys\n    sys.exit(0)"))  # fmt: skip
+    save = tmp_path / "q.rrd"
+    result = ekfviz("replay", str(DATA / "classic.txt"), "--filter", str(quitter), "--save",
+                    str(save))  # fmt: skip
+    assert result.returncode == 2
+    (line,) = result.stderr.strip().splitlines()
+    assert "event 1 (predict)" in line and "sys.exit(0)" in line and ":2:" in line
+    assert len(entity_rows(save, "/world/robot")) == 1  # the initialisation, kept
+    at_import = tmp_path / "at_import.py"
+    at_import.write_text("import sys\nsys.exit(3)\n")
+    result = ekfviz("check", str(DATA / "classic.txt"), "--filter", str(at_import))
+    assert result.returncode == 2 and "sys.exit(3)" in result.stderr
+    assert "Traceback" not in result.stderr
+
+
+def test_a_crash_and_a_hang_are_bounded_and_named(tmp_path: Path) -> None:
+    crash = tmp_path / "crash.py"
+    crash.write_text(students.source("correct").replace(
+        "    P_pre = G @ P @ G.T + Q",
+        "    import ctypes\n    ctypes.string_at(0)\n    P_pre = G @ P @ G.T + Q"))  # fmt: skip
+    result = ekfviz("check", str(DATA / "classic.txt"), "--filter", str(crash))
+    assert result.returncode == 2
+    assert "killed by SIGSEGV during predict" in result.stderr and "Traceback" not in result.stderr
+    hang = tmp_path / "hang.py"
+    hang.write_text(students.source("correct").replace(
+        "    P_pre = G @ P @ G.T + Q", "    while True:\n        pass"))  # fmt: skip
+    result = ekfviz("check", str(DATA / "classic.txt"), "--filter", str(hang),
+                    "--filter-timeout", "1")  # fmt: skip
+    assert result.returncode == 2
+    assert "predict did not return within 1 s (--filter-timeout)" in result.stderr
+
+
+def test_compare_of_three_students_and_a_broken_one_records_the_three(tmp_path: Path) -> None:
+    paths = [students.write(tmp_path / n, n) for n in ("tkagg", "correct", "joint")]
+    broken = tmp_path / "broken.py"
+    broken.write_text("def predict(:\n")
+    save, report = tmp_path / "cmp.rrd", tmp_path / "cmp.json"
+    result = ekfviz("compare", str(DATA / "classic.txt"), *[a for p in paths for a in
+                    ("--filter", str(p))], "--filter", f"broken={broken}", "--label", "alice",
+                    "--save", str(save), "--report", str(report))  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    rows = json.loads(report.read_text())["filters"]
+    labels = [row["label"] for row in rows]
+    assert labels[0] == "alice" and "broken" in labels
+    assert next(r for r in rows if r["label"] == "broken")["failure"].count("SyntaxError") == 1
+    for row in rows:
+        if row["label"] != "broken":
+            key = row["label"].replace("/", "_")
+            assert len(entity_rows(save, f"/filters/{key}/world/robot")) == 59, key
+
+
+def test_grade_gives_each_submission_its_row(tmp_path: Path) -> None:
+    folder = tmp_path / "class"
+    students.write(folder / "ada", "correct")
+    students.write(folder / "bob", "transposed_and_missing_pose_term")
+    (folder / "syntax.py").write_text("def predict(:\n")
+    hostile = "def predict(X, P, c, q, k):\n    return X, P\n\ndef update(X, P, m, r, k):\n" \
+              "    return X, P\n\ndef init_landmarks(m, r, p, c):\n{body}\n"  # fmt: skip
+    bodies = {
+        "loop.py": "    while True:\n        pass",
+        "hog.py": "    import numpy as np\n    return np.ones(1 << 33)",
+        "quitter.py": "    import sys\n    sys.exit(0)",
+        "suicide.py": "    import os, signal\n    os.kill(os.getpid(), signal.SIGKILL)",
+    }
+    for name, body in bodies.items():
+        (folder / name).write_text(hostile.format(body=body))
+    csv = tmp_path / "grades.csv"
+    result = ekfviz("grade", str(folder), "--timeout", "20", "--memory", "1024", "--report",
+                    str(csv), "--json", "--save-dir", str(tmp_path / "rec"))  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    rows = {row["submission"]: row for row in json.loads(result.stdout)["submissions"]}
+    assert {name: row["status"] for name, row in rows.items()} == {
+        "ada": "diverged", "bob": "diverged", "syntax.py": "error", "loop.py": "timeout",
+        "hog.py": "memory", "quitter.py": "crashed", "suicide.py": "crashed",
+    }  # fmt: skip
+    assert set(rows["bob"]["causes"]) == students.MISTAKES["transposed_and_missing_pose_term"]
+    assert rows["loop.py"]["seconds"] < 60
+    assert (
+        csv.read_text().splitlines()[0]
+        == "submission,status,causes,first_divergence,seconds,detail"
+    )
+    assert (tmp_path / "rec" / "ada-classic.rrd").is_file()
+
+
+def test_the_catalogue_is_in_the_readme() -> None:
+    readme = (ROOT / "README.md").read_text()
+    for cause in CATALOGUE:
+        assert f"`{cause.id}`" in readme, cause.id
+
+
+def test_the_battery_is_the_bundled_data(tmp_path: Path) -> None:
+    from ekfviz.samples import write_battery
+
+    for log, truth, _ in write_battery(tmp_path):
+        assert log.read_bytes() == (DATA / log.name).read_bytes()
+        assert truth.read_bytes() == (DATA / truth.name).read_bytes()
+
+
+@pytest.mark.parametrize("exposed", [False, True])
+def test_an_open_source_style_filter_gets_its_predict_mistakes_named(
+    tmp_path: Path, exposed: bool
+) -> None:
+    name = "RoboticsStyleExposed" if exposed else "RoboticsStyle"
+    report = tmp_path / "r.json"
+    spec = f"{ROOT / 'tests' / 'plugins' / 'robotics_style.py'}:{name}"
+    result = ekfviz("check", str(DATA / "classic.txt"), "--filter", spec, "--all", "--report",
+                    str(report))  # fmt: skip
+    assert result.returncode == 1, result.stderr
+    causes = set(json.loads(report.read_text())["causes"])
+    expected = {"transposed_motion_jacobian", "predict_pose_block_only"}
+    # its own noise, when it says what it is, is the reference's: no longer a difference
+    assert causes == (expected if exposed else expected | {"different_motion_noise"})
+
+
+def test_grade_on_a_dask_cluster_gives_the_same_rows(tmp_path: Path) -> None:
+    from distributed import LocalCluster
+
+    folder = tmp_path / "class"
+    students.write(folder / "ada", "correct")
+    students.write(folder / "bob", "joint")
+    (folder / "quitter.py").write_text("import sys\nsys.exit(1)\n")
+    with LocalCluster(  # type: ignore[no-untyped-call]
+        n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+        dashboard_address=None,
+    ) as cluster:  # fmt: skip
+        result = ekfviz("grade", str(folder), "--executor", "dask", "--scheduler",
+                        str(cluster.scheduler_address), "--json")  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    rows = {r["submission"]: r for r in json.loads(result.stdout)["submissions"]}
+    assert {n: r["status"] for n, r in rows.items()} == {
+        "ada": "diverged", "bob": "diverged", "quitter.py": "crashed"
+    }  # fmt: skip
+    assert set(rows["bob"]["causes"]) == students.MISTAKES["joint"]
+
+
+def test_a_state_turning_complex_is_one_line_without_a_warning(tmp_path: Path) -> None:
+    module = tmp_path / "complex.py"
+    module.write_text(students.source("correct").replace(
+        "    P_pre = G @ P @ G.T + Q", "    P_pre = (G @ P @ G.T + Q) * (1 + 0j)"))  # fmt: skip
+    result = ekfviz("replay", str(DATA / "classic.txt"), "--filter", str(module), "--save",
+                    str(tmp_path / "c.rrd"))  # fmt: skip
+    assert result.returncode == 2
+    (line,) = result.stderr.strip().splitlines()
+    assert "predict returned P with complex numbers, expected real ones" in line
+    assert "Warning" not in result.stderr
