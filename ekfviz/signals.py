@@ -17,7 +17,9 @@ cleanly.
 
 from __future__ import annotations
 
+import os
 import signal
+import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
 from types import FrameType
@@ -60,7 +62,14 @@ def _raise(signum: int, frame: FrameType | None = None) -> None:
     raise Terminated
 
 
+_owner: list[int] = []  # the process that turned signals into Interrupted
+_fired: list[int] = []  # the signal that did, in case its exception was swallowed
+
+
 def _interrupt(signum: int, frame: FrameType | None = None) -> None:
+    if _owner and os.getpid() != _owner[0]:
+        return  # a worker just forked, before its own handlers: its parent stops it
+    _fired.append(signum)
     defer()  # a second signal while the first is handled must not cut the clean-up short
     raise Terminated if signum == signal.SIGTERM else Interrupted
 
@@ -99,6 +108,9 @@ def restore() -> None:
 def as_interrupts() -> None:
     """From now on SIGINT raises :class:`Interrupted` and SIGTERM :class:`Terminated`
     (the commands other than replay); one that came while deferred is raised now."""
+    _owner[:] = [os.getpid()]
+    _fired.clear()
+    sys.unraisablehook = _quiet_unraisable
     _handle(_interrupt, _interrupt)
     signum = _take_pending()
     if signum is not None:
@@ -108,7 +120,30 @@ def as_interrupts() -> None:
 def reset() -> None:
     """The usual handlers again, forgetting any signal that came while deferred."""
     _pending.clear()
+    _fired.clear()
+    _owner.clear()
+    sys.unraisablehook = sys.__unraisablehook__
     _usual()
+
+
+def _quiet_unraisable(unraisable: sys.UnraisableHookArgs) -> None:
+    """Say nothing of an interrupt's exception that Python had to drop (see
+    :func:`raise_if_interrupted`, which raises it again); the rest as usual."""
+    if isinstance(unraisable.exc_value, Interrupted):
+        return
+    sys.__unraisablehook__(unraisable)
+
+
+def raise_if_interrupted() -> None:
+    """Raise again the :class:`Interrupted` of a signal whose exception was swallowed.
+
+    Python drops an exception raised where it cannot propagate: a signal handled while
+    ``os.fork`` runs its hooks (a process pool starting its workers), in a finaliser.
+    Code that waits (a study's executor) calls this now and then, so that such a signal
+    still stops the command.
+    """
+    if _fired:
+        raise Terminated if _fired[0] == signal.SIGTERM else Interrupted
 
 
 def raise_pending() -> None:

@@ -29,6 +29,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
+from ekfviz import signals
+
 if TYPE_CHECKING:
     from concurrent.futures import Future, ProcessPoolExecutor
 
@@ -91,6 +93,7 @@ class LocalExecutor:
 
 
 STOP_GRACE_S = 0.5  # how long a stopped worker gets to exit before it is killed
+POLL_S = 0.2  # how often a wait looks for an interrupt whose exception was swallowed
 
 
 def _worker_signals() -> None:
@@ -117,13 +120,19 @@ def _stop_pool(pool: ProcessPoolExecutor) -> None:
 
 
 def _report(futures: Sequence[Future[R]], done: Callable[[R], None] | None) -> None:
-    """``done`` with every result as it completes (the first error is raised)."""
-    from concurrent.futures import as_completed
+    """``done`` with every result as it completes (the first error is raised); an
+    interrupt whose exception was swallowed (see :func:`signals.raise_if_interrupted`)
+    is raised within ``POLL_S``."""
+    from concurrent.futures import FIRST_COMPLETED, wait
 
-    for future in as_completed(futures):
-        result = future.result()
-        if done is not None:
-            done(result)
+    pending = set(futures)
+    while pending:
+        finished, pending = wait(pending, timeout=POLL_S, return_when=FIRST_COMPLETED)
+        signals.raise_if_interrupted()
+        for future in [f for f in futures if f in finished]:  # in the items' order
+            result = future.result()
+            if done is not None:
+                done(result)
 
 
 @dataclass(frozen=True, slots=True)
