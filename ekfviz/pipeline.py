@@ -51,7 +51,9 @@ def log_events(
     """The log's events, checked against the truth's landmarks when there is one."""
     events = read_log(data, progress, warn)
     if truth is not None and truth_path is not None:
-        events = checked_against(events, truth, truth_path, every_id=not is_extended(data))
+        # only the classic format names every landmark on its first line
+        classic = data.is_file() and not is_extended(data)
+        events = checked_against(events, truth, truth_path, every_id=classic)
     return events
 
 

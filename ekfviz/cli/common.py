@@ -31,7 +31,7 @@ from ekfviz.core.records import AnyEvent, EventRecord
 from ekfviz.core.truth import GroundTruth
 from ekfviz.io.errors import InputError
 from ekfviz.io.paths import OutputPathError, check_output_path, distinct_paths, unused_path
-from ekfviz.io.text import ProgressCallback
+from ekfviz.io.text import MAX_MAGNITUDE, RANGE_TEXT, ProgressCallback
 from ekfviz.sim.scenarios import Scenario, ScenarioName
 from ekfviz.sim.simulate import Detection, Noise
 from ekfviz.studies.executors import (
@@ -323,6 +323,10 @@ def main(
 ) -> None:
     """Replay a 2-D EKF-SLAM run and explore it in Rerun."""
     DEBUG["traceback"] = debug
+    # numpy's RuntimeWarnings (overflow, sqrt of a negative) would print a source line
+    # before the run's own one-line warning or error: the filter's health checks say
+    # what went wrong (a covariance not PSD, a state no longer finite) and where
+    np.seterr(all="ignore")
     OUT_STREAM.to_stderr = False
     fit_consoles()
     if ctx.invoked_subcommand != "replay":  # only a replay keeps signals for later
@@ -502,6 +506,13 @@ def filter_params(
         :func:`ekfviz.io.extended.read_log_noise`) replaces the defaults of the options
         not given on the command line, and a note says so
     """
+    names = ("--sigma-x", "--sigma-y", "--sigma-alpha", "--sigma-bearing", "--sigma-range")
+    for name, value in [
+        *zip(names, sigmas, strict=True),
+        ("--init-pose-sigma", max(init_pose_sigma)),
+    ]:
+        if not value <= MAX_MAGNITUDE:  # nan too
+            fail(f"{name} {value:g}: expected a sigma within {RANGE_TEXT}")
     if log is not None and log.is_file():
         sigmas, init_pose_sigma = _log_noise(log, sigmas, init_pose_sigma)
     sigma_x, sigma_y, sigma_alpha, sigma_bearing, sigma_range = sigmas
@@ -623,12 +634,11 @@ class FilterWarnings:
 
 
 @contextmanager
-def open_progress(path: Path) -> Iterator[ProgressCallback | None]:
-    """A progress bar over the bytes of ``path`` when it is long, else nothing."""
-    try:
-        size = path.stat().st_size
-    except OSError:
-        size = 0  # the reader reports a missing file
+def open_progress(paths: list[Path]) -> Iterator[ProgressCallback | None]:
+    """A progress bar over the bytes of ``paths`` (read side by side, the callback told
+    the sum of the bytes read) when they are long, else nothing."""
+    size = sum(path.stat().st_size for path in paths if path.is_file())  # else the reader says
+    path = paths[0]
     if size < PROGRESS_MIN_BYTES:
         yield None
         return

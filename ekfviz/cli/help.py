@@ -4,7 +4,9 @@ Typer keeps the line breaks of a docstring in its rich help (sentences broken wh
 source wraps), shows ``<bool>`` after every flag and ``{data}`` for a required argument.
 :func:`polish` reflows the commands' docstrings into paragraphs and, where the installed
 typer has the hooks (they are looked up, never assumed), drops the flag placeholder and
-writes arguments in capitals.
+writes arguments in capitals, and makes a usage error (an option's value out of range, an
+unknown option, a missing argument) one line on stderr, as every other error, instead of
+typer's boxed paragraph.
 """
 
 from __future__ import annotations
@@ -66,3 +68,22 @@ def polish(app: typer.Typer) -> None:
             return re.sub(r"\{([^}]*)\}", lambda m: m.group(1).upper(), name)
 
         argument._usage_display_name = usage_display_name
+    try:
+        from typer import rich_utils
+    except ImportError:  # pragma: no cover - a typer without rich: click's own lines
+        return
+    utils: Any = rich_utils
+    if hasattr(utils, "rich_format_error"):
+        utils.rich_format_error = one_line_usage_error
+
+
+def one_line_usage_error(error: Any) -> None:
+    """A usage error as ``error: COMMAND: what is wrong (COMMAND --help)``, on stderr."""
+    if type(error).__name__ == "NoArgsIsHelpError":  # the help page was printed
+        return
+    import sys
+
+    ctx = getattr(error, "ctx", None)
+    command = getattr(ctx, "command_path", None) or "ekfviz"
+    message = " ".join(str(error.format_message()).split())
+    sys.stderr.write(f"error: {command}: {message} (see {command} --help)\n")

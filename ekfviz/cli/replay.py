@@ -229,7 +229,7 @@ def replay(
             truth_files=opened.truth_files,
         )
         with (
-            open_progress(opened.source.progress_path) as progress,
+            open_progress(opened.source.progress_paths) as progress,
             viz.open_run(
                 info, sinks, detail=detail, history=history, sensor=setup.sensor
             ) as logger,

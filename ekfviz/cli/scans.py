@@ -25,7 +25,7 @@ from ekfviz.core.truth import GroundTruth
 from ekfviz.io.detect import LogKind
 from ekfviz.io.errors import InputError
 from ekfviz.io.text import ProgressCallback
-from ekfviz.io.victoria import read_gps
+from ekfviz.io.victoria import GPS, read_gps
 from ekfviz.models.ackermann import Ackermann
 from ekfviz.models.range_bearing import RangeBearing
 
@@ -280,6 +280,8 @@ def replay_setup(
     if victoria and not builtin:
         raise InputError(data, 0, "the Victoria Park run needs the built-in filter (--filter ekf)")
     if victoria:
+        if (data / GPS).exists():  # optional, but a bad one is refused before any work
+            read_gps(data)
         v = VictoriaDefaults()
         changes: dict[str, Any] = {
             name: getattr(v, name)

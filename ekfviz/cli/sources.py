@@ -18,7 +18,7 @@ from ekfviz.core.records import AnyEvent, Control
 from ekfviz.core.truth import GroundTruth
 from ekfviz.io.detect import LogSource, open_source
 from ekfviz.io.text import ProgressCallback
-from ekfviz.io.truth import read_truth
+from ekfviz.io.truth import checked_against, read_truth
 
 
 class MotionNoiseChoice(str, enum.Enum):
@@ -29,9 +29,7 @@ class MotionNoiseChoice(str, enum.Enum):
 
 RobotOption = Annotated[
     int | None,
-    typer.Option(
-        help="The robot of an MRCLAM dataset directory [default: 1].", min=1, show_default=False
-    ),
+    typer.Option(help="The robot of an MRCLAM dataset directory [default: 1].", show_default=False),
 ]
 NoTruthOption = Annotated[
     bool,
@@ -86,7 +84,11 @@ class OpenedLog:
     def events(self, progress: ProgressCallback | None = None) -> Iterator[AnyEvent]:
         """The log's events, checked against a ``--truth`` file's landmarks."""
         if self.source.dataset is not None:
-            return self.source.events(progress, warn)
+            events = self.source.events(progress, warn)
+            if self.truth is not None and len(self.truth_files) == 1:  # not the dataset's
+                # a --truth file must know every landmark seen, as for a log file
+                return checked_against(events, self.truth, self.truth_files[0], every_id=False)
+            return events
         if self.truth is not None and self.truth_files:
             return log_events(self.source.path, self.truth, self.truth_files[0], progress)
         return log_events(self.source.path, None, None, progress)
@@ -101,8 +103,14 @@ def open_log(data: Path, robot: int | None, truth_path: Path | None, no_truth: b
     source = open_source(data, robot)
     if truth_path is not None:
         return OpenedLog(source, read_truth(truth_path), [truth_path])
-    if not no_truth and source.dataset is not None and source.dataset.has_truth:
-        return OpenedLog(source, source.own_truth(), source.dataset.truth_files)
+    if not no_truth and source.dataset is not None:
+        if source.dataset.has_truth:
+            return OpenedLog(source, source.own_truth(), source.dataset.truth_files)
+        missing = [p.name for p in source.dataset.truth_files if not p.is_file()]
+        warn(
+            f"{data}: no {' or '.join(missing)}, replaying without the dataset's truth"
+            " (expected both truth files beside Barcodes.dat; --no-truth to go without)"
+        )
     return OpenedLog(source, None, [])
 
 

@@ -46,11 +46,12 @@ class LogSource:
         return [self.path] if self.dataset is None else self.dataset.log_files
 
     @property
-    def progress_path(self) -> Path:
-        """The file whose bytes read measure the progress (a dataset's odometry)."""
+    def progress_paths(self) -> list[Path]:
+        """The files whose bytes read, summed, measure the progress (a dataset's odometry;
+        both files of a Victoria Park run, read side by side)."""
         if self.kind is LogKind.VICTORIA:
-            return self.path / victoria.MEASUREMENTS
-        return self.path if self.dataset is None else self.dataset.odometry
+            return self.files
+        return [self.path if self.dataset is None else self.dataset.odometry]
 
     @property
     def velocity_odometry(self) -> bool:
@@ -101,7 +102,9 @@ def open_source(path: Path, robot: int | None = None) -> LogSource:
                 " an MRCLAM dataset directory or a Victoria Park directory"
                 f" ({victoria.INPUTS}, {victoria.MEASUREMENTS}, {victoria.GPS})"
             )  # fmt: skip
-        return LogSource(path, LogKind.MRCLAM, mrclam.open_dataset(path, robot or 1))
+        return LogSource(
+            path, LogKind.MRCLAM, mrclam.open_dataset(path, 1 if robot is None else robot)
+        )
     if robot is not None:
         raise InputError(path, 0, "--robot is for an MRCLAM dataset directory, not a log file")
     return LogSource(path, LogKind.EXTENDED if is_extended(path) else LogKind.CLASSIC)

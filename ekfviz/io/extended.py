@@ -40,6 +40,8 @@ from ekfviz.io.text import (
     ProgressCallback,
     WarningCallback,
     format_number,
+    line_blocks,
+    open_input,
     parse_number,
     token_lines,
 )
@@ -146,11 +148,17 @@ def _observation(
     for k in range(len(values) // 3):
         token = values[3 * k]
         if not _ID.fullmatch(token):
-            raise InputError(path, line, f"found landmark id {token!r}, expected an integer >= 0")
-        landmark_id = int(token)
+            shown = token if len(token) <= 20 else token[:20] + "..."
+            raise InputError(path, line, f"found landmark id {shown!r}, expected an integer >= 0")
+        # int() refuses over 4,300 digits: a long one is too large before it is converted
+        digits = token.lstrip("+").lstrip("0")
+        landmark_id = int(token) if len(digits) <= len(str(MAX_ID)) else MAX_ID + 1
         if landmark_id > MAX_ID:
             raise InputError(
-                path, line, f"found landmark id {token}, expected an integer up to {MAX_ID}"
+                path,
+                line,
+                f"found landmark id {token[:25]}{'...' if len(token) > 25 else ''},"
+                f" expected an integer up to {MAX_ID}",
             )
         if landmark_id in ids:
             raise InputError(
@@ -202,18 +210,19 @@ def read_log_noise(path: Path) -> LogNoise:
     :raises InputError: a ``# noise:`` line that does not read, naming the line
     """
     try:
-        handle = path.open("rb")
-    except OSError:
+        handle = open_input(path)
+    except InputError:
         return {}  # the reader of the events says what is wrong with the file
     with handle:
-        for number, raw in enumerate(handle, start=1):
-            text = raw.decode("utf-8", errors="replace").lstrip("\ufeff").strip()
-            if not text:
-                continue
-            if not text.startswith("#"):
-                return {}  # the first event: no header after it counts
-            if text.startswith(NOISE_HEADER):
-                return _parse_noise(path, number, text[len(NOISE_HEADER) :].split())
+        for first, lines in line_blocks(path, handle):  # the readers' line ends and BOM
+            for number, raw in enumerate(lines, start=first):
+                text = raw.decode("utf-8", errors="replace").strip()
+                if not text:
+                    continue
+                if not text.startswith("#"):
+                    return {}  # the first event: no header after it counts
+                if text.startswith(NOISE_HEADER):
+                    return _parse_noise(path, number, text[len(NOISE_HEADER) :].split())
     return {}
 
 
@@ -224,6 +233,8 @@ def _parse_noise(path: Path, line: int, cells: list[str]) -> LogNoise:
         name, sep, value = cell.partition("=")
         if not sep or name not in (*NOISE_NAMES, "init_pose_sigma"):
             raise InputError(path, line, f"found {cell!r} in the noise header, {expected}")
+        if name in noise:
+            raise InputError(path, line, f"found {name} twice in the noise header, {expected}")
         parts = value.split(",")
         numbers = [parse_number(path, line, part) for part in parts]
         if any(not math.isfinite(v) or v < 0 for v in numbers) or (
@@ -236,6 +247,12 @@ def _parse_noise(path: Path, line: int, cells: list[str]) -> LogNoise:
             noise[name] = (numbers[0], numbers[1], numbers[2])
         else:
             noise[name] = numbers[0]
+    for name in ("sigma_bearing", "sigma_range"):
+        if noise.get(name) == 0.0:
+            raise InputError(
+                path, line, f"found {name}=0 in the noise header, expected a positive"
+                " sigma_bearing and sigma_range (the filter's R must be invertible)",
+            )  # fmt: skip
     return noise
 
 

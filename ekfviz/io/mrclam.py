@@ -51,7 +51,7 @@ _ROBOT_FILE = re.compile(r"Robot(\d+)_Odometry\.dat")
 
 def is_mrclam(path: Path) -> bool:
     """Whether ``path`` is a directory in the MRCLAM layout (it holds ``Barcodes.dat``)."""
-    return path.is_dir() and (path / BARCODES).is_file()
+    return path.is_dir() and (path / BARCODES).exists()  # a folder there: said on reading
 
 
 def robots_in(directory: Path) -> list[int]:
@@ -107,7 +107,11 @@ def open_dataset(directory: Path, robot: int) -> MrclamDataset:
     :raises InputError: a missing file, naming it and the robots the directory has
     """
     dataset = MrclamDataset(directory, robot)
+    if robot < 1:
+        raise InputError(directory, 0, f"found --robot {robot}, expected a robot number from 1")
     for path in dataset.log_files:
+        if path.is_dir():
+            raise InputError(path, 0, "is a directory, expected a text file")
         if not path.is_file():
             robots = robots_in(directory)
             have = ", ".join(map(str, robots)) if robots else "none"
@@ -250,11 +254,14 @@ def _odometry(
 ) -> Iterator[tuple[int, float, float, float]]:
     """(line, time, v, omega) of every odometry sample, times never decreasing."""
     last = -math.inf
-    for lines, table in numeric_blocks(path, 3, "time forward-velocity angular-velocity", progress):
+    what = "time forward-velocity angular-velocity"
+    for lines, table in numeric_blocks(path, 3, what, progress):
         _check_times(path, lines, table[:, 0], last)
         last = float(table[-1, 0])
         for line, (time, v, omega) in zip(lines, table.tolist(), strict=True):
             yield line, time, v, omega
+    if last == -math.inf:
+        raise InputError(path, 0, f"found no data, expected '{what}' lines")
 
 
 def _sightings(
@@ -275,7 +282,10 @@ def _sightings(
             time=last,
         )
 
-    for line, values in _rows(path, 4, "time barcode range bearing"):
+    what = "time barcode range bearing"
+    rows = 0
+    for line, values in _rows(path, 4, what):
+        rows += 1
         time, barcode, rng, bearing = values
         if not (barcode.is_integer() and barcode >= 0):
             raise InputError(path, line, f"found barcode {barcode:g}, expected an integer >= 0")
@@ -301,6 +311,8 @@ def _sightings(
             z.append((bearing, rng))
     if ids:
         yield sighting()
+    if not rows:
+        raise InputError(path, 0, f"found no data, expected '{what}' lines")
 
 
 def _rows(path: Path, columns: int, what: str) -> Iterator[tuple[int, list[float]]]:

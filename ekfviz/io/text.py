@@ -6,6 +6,7 @@ import math
 import re
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import BinaryIO, NoReturn
 
 import numpy as np
 
@@ -20,6 +21,78 @@ _NON_FINITE = re.compile(r"[-+]?(?:nan|inf|infinity)", re.IGNORECASE)
 ProgressCallback = Callable[[int], None]
 WarningCallback = Callable[[str], None]
 MAX_LINE_BYTES = 1 << 20  # an observation of some 50,000 landmarks: far past any EKF
+# Every number read from any input lies in [-MAX_MAGNITUDE, MAX_MAGNITUDE]: its square,
+# and the square of that, stay far from float64's overflow (1.8e308), so no sum of
+# squares in a filter overflows on an input's account, and time stamps in microseconds
+# since 1970 (1.8e15) are still inside. Physical values of a 2-D run are far smaller.
+MAX_MAGNITUDE = 1e18
+RANGE_TEXT = "+-1e18"  # MAX_MAGNITUDE in messages
+BLOCK_BYTES = 1 << 18  # bytes read at once
+BOM = b"\xef\xbb\xbf"
+
+
+def open_input(path: Path, what: str = "a text file") -> BinaryIO:
+    """Open an input file for reading bytes, or say in one line why it cannot be.
+
+    :param what: what was expected at ``path``, for the message
+    :raises InputError: a missing file, a directory, an unreadable file
+    """
+    try:
+        if path.is_dir():
+            raise InputError(path, 0, f"is a directory, expected {what}")
+        return path.open("rb")
+    except FileNotFoundError:
+        raise InputError(path, 0, f"no such file, expected {what}") from None
+    except IsADirectoryError:
+        raise InputError(path, 0, f"is a directory, expected {what}") from None
+    except OSError as error:
+        raise InputError(path, 0, f"cannot be read ({error.strerror})") from None
+
+
+def line_blocks(path: Path, handle: BinaryIO) -> Iterator[tuple[int, list[bytes]]]:
+    """The lines of an open file in blocks of about :data:`BLOCK_BYTES`: the one policy of
+    every reader for line ends and byte-order marks.
+
+    A line ends at LF, CRLF or CR alone (the three may mix); a UTF-8 byte-order mark at the
+    very start of the file is dropped. The lines are returned without their ends.
+
+    :return: iterator of (1-based number of the block's first line, its lines)
+    :raises InputError: a line longer than :data:`MAX_LINE_BYTES`
+    """
+    number = 1
+    carry = b""  # the start of a line whose end is not read yet
+    chunk = handle.read(BLOCK_BYTES).removeprefix(BOM)
+    while True:
+        at_end = not chunk
+        text = carry + chunk
+        held = b""
+        if not at_end and text.endswith(b"\r"):  # maybe a CRLF split between two reads
+            text, held = text[:-1], b"\r"
+        if b"\r" in text:
+            text = text.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
+        lines = text.split(b"\n")
+        carry = lines.pop() + held
+        if len(carry) > MAX_LINE_BYTES:
+            _too_long(path, number + len(lines))
+        if lines:
+            for k, line in enumerate(lines):
+                if len(line) > MAX_LINE_BYTES:
+                    _too_long(path, number + k)
+            yield number, lines
+            number += len(lines)
+        if at_end:
+            break
+        chunk = handle.read(BLOCK_BYTES)
+    if carry:
+        yield number, [carry]
+
+
+def _too_long(path: Path, line: int) -> NoReturn:
+    raise InputError(
+        path,
+        line,
+        f"found a line longer than {MAX_LINE_BYTES // (1 << 20)} MiB, expected one event a line",
+    )
 
 
 def token_lines(
@@ -28,59 +101,24 @@ def token_lines(
     """Stream the non-blank lines of a file as tokens, never holding the whole file.
 
     Accepts tabs or spaces, trailing separators, LF, CRLF or CR line ends, a UTF-8
-    byte-order mark and ``#`` comments.
+    byte-order mark and ``#`` comments (see :func:`line_blocks`).
 
     :param progress: called now and then with the number of bytes read so far
     :return: iterator of (1-based line number, whitespace-separated tokens of that line)
     :raises InputError: a missing or unreadable file, text that is not UTF-8
     """
-    try:
-        handle = path.open("rb")
-    except FileNotFoundError:
-        raise InputError(path, 0, "no such file") from None
-    except IsADirectoryError:
-        raise InputError(path, 0, "is a directory, expected a text file") from None
-    except OSError as error:
-        raise InputError(path, 0, f"cannot be read ({error.strerror})") from None
-    with handle:
-        bytes_read = 0
-        number = 0
-        # readline with a limit: a runaway line cannot take the memory
-        while raw := handle.readline(MAX_LINE_BYTES + 1):
-            number += 1
-            if len(raw) > MAX_LINE_BYTES and not raw.endswith(b"\n"):
-                raise InputError(
-                    path,
-                    number,
-                    f"found a line longer than {MAX_LINE_BYTES // (1 << 20)} MiB,"
-                    " expected one event a line",
-                )
-            bytes_read += len(raw)
-            if progress is not None and number % 4096 == 0:
-                progress(bytes_read)
-            try:
-                text = raw.decode("utf-8")
-            except UnicodeDecodeError:
-                raise InputError(path, number, "found bytes that are not UTF-8 text") from None
-            if number == 1 and text.startswith(
-                "\ufeff"
-            ):  # a byte-order mark, as some editors write
-                text = text[1:]
-            if "\r" in text:  # CRLF, or lines ended by CR alone (classic Mac)
-                pieces = text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
-                if pieces[-1] == "":
-                    pieces.pop()
-                for piece in pieces[:-1]:
-                    tokens = piece.split("#", 1)[0].split()
-                    if tokens:
-                        yield number, tokens
-                    number += 1
-                text = pieces[-1] if pieces else ""
-            tokens = text.split("#", 1)[0].split()
-            if tokens:
-                yield number, tokens
-        if progress is not None:
-            progress(bytes_read)
+    with open_input(path) as handle:
+        for first, lines in line_blocks(path, handle):
+            for number, raw in enumerate(lines, start=first):
+                try:
+                    text = raw.decode("utf-8")
+                except UnicodeDecodeError:
+                    raise InputError(path, number, "found bytes that are not UTF-8 text") from None
+                tokens = text.split("#", 1)[0].split()
+                if tokens:
+                    yield number, tokens
+            if progress is not None:
+                progress(handle.tell())
 
 
 def numeric_lines(
@@ -88,20 +126,17 @@ def numeric_lines(
 ) -> Iterator[tuple[int, list[float]]]:
     """Stream the non-blank lines of a file as numbers (see :func:`token_lines`).
 
-    :raises InputError: as :func:`token_lines`, and for a token that is not a finite
-        decimal number
+    :raises InputError: as :func:`token_lines`, and for a token that is not a decimal
+        number within +-:data:`MAX_MAGNITUDE`
     """
     for number, tokens in token_lines(path, progress):
         # one regex match a line for the usual case; token by token to name a bad one
         if _NUMBERS.fullmatch(" ".join(tokens)):
             values = list(map(float, tokens))
-            if all(map(math.isfinite, values)):
+            if all(-MAX_MAGNITUDE <= v <= MAX_MAGNITUDE for v in values):
                 yield number, values
                 continue
         yield number, [parse_number(path, number, token) for token in tokens]
-
-
-BLOCK_BYTES = 1 << 18  # bytes read per block by numeric_blocks
 
 
 def numeric_blocks(
@@ -111,25 +146,14 @@ def numeric_blocks(
 
     For long, regular files (MRCLAM's tens of thousands of lines): a block is converted
     in one go, and only a block that does not convert is read line by line, to name the
-    first bad line as :func:`numeric_lines` would (``what`` says what a line holds).
+    first bad line as :func:`numeric_lines` would (``what`` says what a line holds). The
+    lines before a bad one are yielded before the error is raised, so that a run cut
+    short by it keeps everything up to it.
 
     :raises InputError: as :func:`numeric_lines`, and for a line of another length
     """
-    try:
-        handle = path.open("rb")
-    except FileNotFoundError:
-        raise InputError(path, 0, "no such file") from None
-    except IsADirectoryError:
-        raise InputError(path, 0, "is a directory, expected a text file") from None
-    except OSError as error:
-        raise InputError(path, 0, f"cannot be read ({error.strerror})") from None
-    with handle:
-        number = 0
-        done = 0
-        while raw := handle.readlines(BLOCK_BYTES):
-            first = number + 1
-            number += len(raw)
-            done += sum(map(len, raw))
+    with open_input(path) as handle:
+        for first, raw in line_blocks(path, handle):
             lines: list[int] = []
             data: list[bytes] = []
             for k, text in enumerate(raw, start=first):
@@ -138,47 +162,62 @@ def numeric_blocks(
                     lines.append(k)
                     data.append(body)
             try:
+                if not all(map(bytes.isascii, raw)):  # comments too: one policy for text
+                    b"\n".join(raw).decode("utf-8")  # a UnicodeDecodeError is a ValueError
                 values = list(map(float, b" ".join(data).split()))
                 table = np.array(values, dtype=np.float64)
-                good = len(values) == columns * len(data) and bool(np.isfinite(table).all())
+                good = len(values) == columns * len(data) and bool(
+                    (np.abs(table) <= MAX_MAGNITUDE).all()  # False for nan too
+                )
             except ValueError:
                 good = False
-            if not good:
-                # the slow way, to name the line at fault
-                table = np.array(_checked_rows(path, first, raw, columns, what), dtype=np.float64)
+            if not good:  # the slow way, to name the line at fault
+                rows, fault = _checked_rows(path, first, raw, columns, what)
+                if fault is not None:
+                    if rows:
+                        yield lines[: len(rows)], np.array(rows, dtype=np.float64)
+                    raise fault
+                table = np.array(rows, dtype=np.float64)
             if progress is not None:
-                progress(done)
+                progress(handle.tell())
             if lines:
                 yield lines, table.reshape(len(lines), columns)
 
 
 def _checked_rows(
     path: Path, first: int, raw: list[bytes], columns: int, what: str
-) -> list[list[float]]:
-    rows = []
+) -> tuple[list[list[float]], InputError | None]:
+    """The rows of a block up to its first bad line, and the error of that line."""
+    rows: list[list[float]] = []
     for number, text in enumerate(raw, start=first):
         try:
             body = text.decode("utf-8")
+            tokens = body.split("#", 1)[0].split()
+            if not tokens:
+                continue
+            if len(tokens) != columns:
+                raise InputError(
+                    path, number, f"found {len(tokens)} numbers, expected {columns}: {what}"
+                )
+            rows.append([parse_number(path, number, token) for token in tokens])
         except UnicodeDecodeError:
-            raise InputError(path, number, "found bytes that are not UTF-8 text") from None
-        tokens = body.split("#", 1)[0].split()
-        if not tokens:
-            continue
-        if len(tokens) != columns:
-            raise InputError(
-                path, number, f"found {len(tokens)} numbers, expected {columns}: {what}"
-            )
-        rows.append([parse_number(path, number, token) for token in tokens])
-    return rows
+            return rows, InputError(path, number, "found bytes that are not UTF-8 text")
+        except InputError as error:
+            return rows, error
+    return rows, None
 
 
 def parse_number(path: Path, line: int, token: str) -> float:
-    """A finite decimal number, or an :class:`InputError` naming the token."""
+    """A decimal number within +-:data:`MAX_MAGNITUDE`, or an error naming the token."""
     if _NUMBER.fullmatch(token):
         value = float(token)
-        if math.isfinite(value):
+        if -MAX_MAGNITUDE <= value <= MAX_MAGNITUDE:
             return value
-        raise InputError(path, line, f"found {token!r}, which overflows, expected a finite number")
+        shown = repr(token if len(token) <= 20 else token[:20] + "...")
+        overflows = "" if math.isfinite(value) else " which overflows,"
+        raise InputError(
+            path, line, f"found {shown},{overflows} expected a number within {RANGE_TEXT}"
+        )
     if _NON_FINITE.fullmatch(token):
         raise InputError(path, line, f"found {token!r}, expected a finite number")
     shown = token if len(token) <= 20 else token[:20] + "..."

@@ -9,17 +9,17 @@ list ``[[x, y], ...]`` in landmark order (ids 1, 2, ...).
 from __future__ import annotations
 
 import json
-import math
 import re
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 import numpy as np
 
-from ekfviz.core.records import AnyEvent, Sighting
+from ekfviz.core.records import AnyEvent, Scan, Sighting
 from ekfviz.core.truth import GroundTruth
 from ekfviz.io.errors import InputError
-from ekfviz.io.text import numeric_lines
+from ekfviz.io.jsontext import load_json
+from ekfviz.io.text import MAX_MAGNITUDE, numeric_lines
 
 _ID = re.compile(r"\d+")
 MAX_ID = 2**63 - 1  # ids are int64
@@ -57,19 +57,10 @@ def _read_text(path: Path) -> GroundTruth:
 
 
 def _read_json(path: Path) -> GroundTruth:
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise InputError(path, 0, "no such file") from None
-    except IsADirectoryError:
-        raise InputError(path, 0, "is a directory, expected a JSON file") from None
-    except UnicodeDecodeError:
-        raise InputError(path, 0, "found bytes that are not UTF-8 text") from None
-    try:
-        document = json.loads(text)
-    except json.JSONDecodeError as error:
-        raise InputError(path, error.lineno, f"invalid JSON: {error.msg}") from None
-    landmarks = document.get("landmarks") if isinstance(document, dict) else None
+    document = load_json(path, "a JSON truth file")
+    if not isinstance(document, dict):
+        document = {}  # refused below, as an object without landmarks
+    landmarks = document.get("landmarks")
     if isinstance(landmarks, list) and landmarks:
         ids = list(range(1, len(landmarks) + 1))
         pairs = landmarks
@@ -77,6 +68,11 @@ def _read_json(path: Path) -> GroundTruth:
         if not all(_ID.fullmatch(key) for key in landmarks):
             bad = next(key for key in landmarks if not _ID.fullmatch(key))
             raise InputError(path, 1, f"found landmark id {bad!r}, expected an integer >= 0")
+        long = next((key for key in landmarks if len(key) > len(str(MAX_ID))), None)
+        if long is not None:  # before int(): Python refuses over 4,300 digits
+            raise InputError(
+                path, 1, f"found landmark id {long[:20]}..., expected an integer up to {MAX_ID}"
+            )
         ids = [int(key) for key in landmarks]
         if max(ids, default=0) > MAX_ID:
             raise InputError(path, 1, f"found landmark id {max(ids)}, expected up to {MAX_ID}")
@@ -99,10 +95,20 @@ def _read_json(path: Path) -> GroundTruth:
     scan_ids = _scan_ids(path, document.get("scan_ids"))
     settings: dict[str, float | list[float]] = {}
     noise = document.get("noise")
-    if isinstance(noise, dict):
-        settings.update({k: float(v) for k, v in noise.items() if isinstance(v, int | float)})
+    if noise is not None:
+        if not isinstance(noise, dict) or not all(_sigma(v) for v in noise.values()):
+            raise InputError(
+                path, 1, f'"noise" is {json.dumps(noise)[:60]}, expected {{"sigma_x": 0.1, ...}}'
+                " with sigmas >= 0",
+            )  # fmt: skip
+        settings.update({k: float(v) for k, v in noise.items()})
     prior = document.get("init_pose_sigma")
-    if isinstance(prior, list) and _finite_numbers(prior, 3):
+    if prior is not None:
+        if not (_finite_numbers(prior, 3) and all(map(_sigma, prior))):
+            raise InputError(
+                path, 1, f'"init_pose_sigma" is {json.dumps(prior)[:60]}, expected [sx, sy,'
+                " stheta] with sigmas >= 0",
+            )  # fmt: skip
         settings["init_pose_sigma"] = [float(v) for v in prior]
     return GroundTruth(
         ids=np.array(ids, dtype=np.int64),
@@ -132,14 +138,20 @@ def _scan_ids(path: Path, value: object) -> tuple[tuple[int | None, ...], ...] |
 
 
 def _finite_numbers(value: object, count: int) -> bool:
+    return isinstance(value, list) and len(value) == count and all(map(_number, value))
+
+
+def _number(value: object) -> bool:
+    """A JSON number within +-MAX_MAGNITUDE (load_json holds no other, a caller might)."""
     return (
-        isinstance(value, list)
-        and len(value) == count
-        and all(
-            isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
-            for v in value
-        )
+        isinstance(value, int | float)
+        and not isinstance(value, bool)
+        and -MAX_MAGNITUDE <= value <= MAX_MAGNITUDE
     )
+
+
+def _sigma(value: object) -> bool:
+    return _number(value) and value >= 0  # type: ignore[operator]
 
 
 def truth_json(truth: GroundTruth, **extra: object) -> str:
@@ -174,7 +186,8 @@ def _truth(rows: list[list[float]]) -> GroundTruth:
 def checked_against(
     events: Iterable[AnyEvent], truth: GroundTruth, truth_path: Path, *, every_id: bool
 ) -> Iterator[AnyEvent]:
-    """Pass events through, stopping at the first landmark the truth does not know.
+    """Pass events through, stopping at the first landmark the truth does not know, and,
+    when the truth has ``scan_ids``, at the first scan line they do not fit.
 
     :param every_id: the log names all its landmarks on its first line (the classic
         format): then the truth must hold exactly those
@@ -182,6 +195,8 @@ def checked_against(
     """
     known = set(truth.ids.tolist())
     first = True
+    scans = 0
+    scan_ids = truth.scan_ids
     for event in events:
         if isinstance(event, Sighting):
             ids = set(event.ids.tolist())
@@ -201,4 +216,48 @@ def checked_against(
                     " observes: expected a true position for every landmark",
                 )
             first = False
+        elif isinstance(event, Scan) and scan_ids is not None:
+            scans += 1
+            _check_scan(truth_path, scan_ids, scans, event, known)
         yield event
+    if scan_ids is not None and scans != len(scan_ids):
+        raise InputError(
+            truth_path,
+            0,
+            f'has {len(scan_ids)} lists in "scan_ids", expected one per scan line of the log'
+            f" ({scans})",
+        )
+
+
+def _check_scan(
+    truth_path: Path,
+    scan_ids: tuple[tuple[int | None, ...], ...],
+    k: int,
+    scan: Scan,
+    known: set[int],
+) -> None:
+    """Refuse a scan line (the k-th, 1-based) that its ``scan_ids`` entry does not fit."""
+    where = f"the log's scan line {scan.line} (scan {k})"
+    if k > len(scan_ids):
+        raise InputError(
+            truth_path,
+            0,
+            f'has {len(scan_ids)} lists in "scan_ids", expected one for {where} and every'
+            " other scan line",
+        )
+    ids = scan_ids[k - 1]
+    if len(ids) != len(scan.z):
+        raise InputError(
+            truth_path,
+            0,
+            f'has {len(ids)} ids in "scan_ids" for {where}, expected one per measurement'
+            f" ({len(scan.z)})",
+        )
+    unknown = {i for i in ids if i is not None} - known
+    if unknown:
+        raise InputError(
+            truth_path,
+            0,
+            f'has landmark {min(unknown)} in "scan_ids" for {where}, which is not among its'
+            " landmarks: expected their ids or null (clutter)",
+        )

@@ -35,7 +35,7 @@ LASER_BEARING_AHEAD = math.pi / 2  # the laser's bearing of straight ahead
 
 def is_victoria(path: Path) -> bool:
     """Whether ``path`` is a directory holding the Victoria Park logs."""
-    return path.is_dir() and (path / INPUTS).is_file() and (path / MEASUREMENTS).is_file()
+    return path.is_dir() and (path / INPUTS).exists() and (path / MEASUREMENTS).exists()
 
 
 def read_victoria(path: Path, progress: ProgressCallback | None = None) -> Iterator[AnyEvent]:
@@ -93,7 +93,9 @@ def _rows(
 ) -> Iterator[tuple[int, list[float]]]:
     """Numeric lines of ``count`` values with a first column (time) that never decreases."""
     last = -math.inf
+    rows = 0
     for line, values in numeric_lines(path, progress):
+        rows += 1
         if len(values) != count:
             raise InputError(path, line, f"found {len(values)} numbers, expected {count}: {what}")
         if values[0] < last:
@@ -102,6 +104,8 @@ def _rows(
             )
         last = values[0]
         yield line, values
+    if not rows:
+        raise InputError(path, 0, f"found no data, expected '{what}' lines")
 
 
 def _scans(path: Path, progress: ProgressCallback | None) -> Iterator[Scan]:
@@ -143,7 +147,5 @@ def read_gps(path: Path) -> tuple[FloatArray, FloatArray]:
     if path.is_dir():
         path = path / GPS
     rows = [values for _, values in _rows(path, 3, "time x y", None)]
-    if not rows:
-        raise InputError(path, 0, "found no data, expected 'time x y' lines")
     table = np.array(rows)
     return table[:, 0], table[:, 1:3]

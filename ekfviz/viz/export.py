@@ -10,6 +10,7 @@ with true poses. Time stamps come from the ``time`` timeline where the recording
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -21,7 +22,7 @@ from rerun.chunk import RrdReader
 from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.models.angles import wrap_angles
 from ekfviz.viz import style
-from ekfviz.viz.info import NotARecordingError
+from ekfviz.viz.info import NotARecordingError, unreadable
 
 TIME = "time"  # the timeline of a log's own time stamps, in seconds
 
@@ -66,6 +67,8 @@ class _Rows:
 
     def add(self, batch: pa.RecordBatch) -> None:
         names = batch.schema.names
+        if "step" not in names or "event" not in names:
+            return  # logged by another program on an entity of ours: not a step of a replay
         self.steps.append(np.asarray(batch.column("step").to_numpy(), dtype=np.int64))
         self.events.append(np.asarray(batch.column("event").to_numpy(), dtype=np.int64))
         self.seconds.append(_seconds(batch.column(TIME)) if TIME in names else None)
@@ -112,6 +115,8 @@ def read_recorded_run(path: Path) -> RecordedRun:
     :raises NotARecordingError: when ``path`` is not a recording of a replay with
         estimated poses
     """
+    if path.is_dir():
+        raise NotARecordingError(f"{path}: is a folder, expected a recording (.rrd)")
     if not path.is_file():
         raise NotARecordingError(f"{path}: no such file")
     wanted = {  # the poses: on the robot's point; before, on the robot frame's own entity
@@ -124,18 +129,22 @@ def read_recorded_run(path: Path) -> RecordedRun:
     }
     rows = {name: _Rows([], [], [], {}) for name in wanted.values()}
     try:
-        reader = RrdReader(path)
-        recordings = reader.recordings()
-        if not recordings:
-            raise NotARecordingError(f"{path}: a Rerun file without a recording")
-        chunks = reader.stream(store=recordings[0]).filter(content=list(wanted), is_static=False)
-        for chunk in chunks:
-            name = wanted.get(chunk.entity_path)
-            if name is not None:
-                rows[name].add(chunk.to_record_batch())
+        # Rerun warns (a Python warning) of a file without its footer: the error says more
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            reader = RrdReader(path)
+            recordings = reader.recordings()
+            if not recordings:
+                raise NotARecordingError(f"{path}: a Rerun file without a recording")
+            chunks = reader.stream(store=recordings[0]).filter(
+                content=list(wanted), is_static=False
+            )
+            for chunk in chunks:
+                name = wanted.get(chunk.entity_path)
+                if name is not None:
+                    rows[name].add(chunk.to_record_batch())
     except (RuntimeError, ValueError, OSError) as error:
-        reason = str(error).splitlines()[0] if str(error) else type(error).__name__
-        raise NotARecordingError(f"{path}: not a Rerun recording (.rrd): {reason}") from None
+        raise NotARecordingError(unreadable(path, error)) from None
     estimate = _trajectory(rows["robot"]) or _trajectory(rows["robot_frame"])
     if estimate is None:
         raise NotARecordingError(

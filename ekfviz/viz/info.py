@@ -15,11 +15,14 @@ import warnings
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
+from typing import Any
 
 import pyarrow as pa  # type: ignore[import-untyped]
 from rerun.chunk import RrdReader
 
 from ekfviz.viz import style
+
+MAX_PROPERTY_CHARS = 1 << 20  # the parameters of a run are a few hundred bytes
 
 
 class NotARecordingError(Exception):
@@ -191,7 +194,6 @@ def read_recording_info(path: Path) -> RecordingInfo:
         raise NotARecordingError(f"{path}: is a folder, expected a recording (.rrd)")
     if not path.is_file():
         raise NotARecordingError(f"{path}: no such file")
-    size = path.stat().st_size
     wanted = [
         PROPERTIES,
         EKFVIZ_PROPERTIES,
@@ -221,16 +223,7 @@ def read_recording_info(path: Path) -> RecordingInfo:
                 if all(entity in latest for entity in RECORDER_ENTITIES):
                     break
     except (RuntimeError, ValueError, OSError) as error:
-        text = str(error)
-        if "exceeds file size" in text or ("too small" in text and _rrd_header(path)):
-            raise NotARecordingError(
-                f"{path}: truncated after {size} bytes (a recording cut short, e.g. by an"
-                " interrupted copy)"
-            ) from None
-        if "too small" in text or "not an rrd" in text.lower():
-            raise NotARecordingError(f"{path}: not a Rerun recording (.rrd)") from None
-        reason = text.splitlines()[0] if text else type(error).__name__
-        raise NotARecordingError(f"{path}: not a Rerun recording (.rrd): {reason}") from None
+        raise NotARecordingError(unreadable(path, error)) from None
     entry = recordings[0]
     if footerless:  # ekfviz saves atomically, footer included: a writer that did not close
         notes.append("the file has no footer: its writer did not close it")
@@ -246,6 +239,29 @@ def read_recording_info(path: Path) -> RecordingInfo:
             )
         notes.append("made by an older ekfviz: it does not say its version or command")
         properties = {"kind": kind}
+    try:
+        return _info(path, entry, latest, properties, documents, name, notes)
+    except (ValueError, TypeError, AttributeError) as error:  # properties another wrote
+        reason = str(error).splitlines()[0][:80] if str(error) else type(error).__name__
+        raise NotARecordingError(
+            f"{path}: its ekfviz properties do not read ({reason}), expected those ekfviz"
+            " writes: a damaged recording or one another program wrote"
+        ) from None
+
+
+def _info(
+    path: Path,
+    entry: Any,
+    latest: dict[str, dict[str, object]],
+    properties: dict[str, object],
+    documents: dict[str, object],
+    name: str | None,
+    notes: list[str],
+) -> RecordingInfo:
+    """The recording's information from the values read (see :func:`read_recording_info`).
+
+    :raises ValueError, TypeError: properties of the wrong type
+    """
     kind = str(properties.get("kind") or _kind_by_entities(latest) or "replay")
     embedded = bool(properties.get("input_embedded", False))
     evaluation = documents.get(f"/{style.RUN_EVALUATION}") or documents.get(
@@ -257,7 +273,7 @@ def read_recording_info(path: Path) -> RecordingInfo:
         name=name,
         version=str(properties.get("version", "")),
         command=str(properties.get("command", "") or ""),
-        parameters=json.loads(str(properties.get("parameters", "{}") or "{}")),
+        parameters=_parameters(properties.get("parameters")),
         input_name=str(properties.get("input_name", "") or ""),
         input_size=int(str(properties.get("input_size", 0) or 0)),
         input_sha256=str(properties.get("input_sha256", "") or ""),
@@ -275,6 +291,21 @@ def read_recording_info(path: Path) -> RecordingInfo:
         status=_status(latest.get(STATUS_PROPERTIES)),
         notes=notes,
     )
+
+
+def unreadable(path: Path, error: BaseException) -> str:
+    """One line saying why Rerun could not read ``path``: cut short, or no recording."""
+    text = str(error)
+    if "exceeds file size" in text or ("too small" in text and _rrd_header(path)):
+        size = path.stat().st_size
+        return (
+            f"{path}: truncated after {size} bytes (a recording cut short, e.g. by an"
+            " interrupted copy)"
+        )
+    if "too small" in text or "not an rrd" in text.lower():
+        return f"{path}: not a Rerun recording (.rrd)"
+    reason = text.splitlines()[0] if text else type(error).__name__
+    return f"{path}: not a Rerun recording (.rrd): {reason}"
 
 
 def _time_span(values: dict[str, object]) -> tuple[float, float] | None:
@@ -342,6 +373,20 @@ def _last_values(batch: pa.RecordBatch) -> dict[str, object]:
                 values[field_.name] = cell[0]
                 break
     return values
+
+
+def _parameters(value: object) -> dict[str, object]:
+    """The parameters property: a JSON object, within the limits of inputs' JSON."""
+    text = str(value or "{}")
+    if len(text) > MAX_PROPERTY_CHARS:
+        raise ValueError("parameters over 1 MiB")
+    try:
+        document = json.loads(text)
+    except RecursionError:
+        raise ValueError("parameters nested too deep") from None
+    if not isinstance(document, dict):
+        raise ValueError("parameters that are not a JSON object")
+    return document
 
 
 def _optional(value: object) -> str | None:
