@@ -120,8 +120,7 @@ def as_interrupts() -> None:
 def reset() -> None:
     """The usual handlers again, forgetting any signal that came while deferred."""
     _pending.clear()
-    _fired.clear()
-    _owner.clear()
+    _owner.clear()  # (_fired is kept: fired() says the process is leaving on a signal)
     sys.unraisablehook = sys.__unraisablehook__
     _usual()
 
@@ -134,6 +133,11 @@ def _quiet_unraisable(unraisable: sys.UnraisableHookArgs) -> None:
     sys.__unraisablehook__(unraisable)
 
 
+def fired() -> bool:
+    """Whether SIGINT or SIGTERM became :class:`Interrupted` since :func:`as_interrupts`."""
+    return bool(_fired)
+
+
 def raise_if_interrupted() -> None:
     """Raise again the :class:`Interrupted` of a signal whose exception was swallowed.
 
@@ -142,7 +146,7 @@ def raise_if_interrupted() -> None:
     Code that waits (a study's executor) calls this now and then, so that such a signal
     still stops the command.
     """
-    if _fired:
+    if _fired and _owner:
         raise Terminated if _fired[0] == signal.SIGTERM else Interrupted
 
 
