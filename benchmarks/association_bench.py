@@ -279,6 +279,55 @@ def association_section(folder: Path, quick: bool = False) -> str:
         f" known ids (as many landmarks mapped once, at most 5 % spurious, the final pose"
         f" within 0.5 m or no farther than theirs) in {as_good} of {len(jcbb)}."
         f" Load average when measured: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores.",
+        "",
+        *worst_case_lines(folder),
         END,
     ]
     return "\n".join(lines)
+
+
+def two_bearing_log(path: Path, scans: int, per_scan: int, spacing_m: float) -> Path:
+    """Issue 22's hang: every scan ``per_scan`` measurements on two rays (+-0.3 rad),
+    ranges 2 m onwards ``spacing_m`` apart, the robot all but still."""
+    lines = ["# ekfviz extended log: control d alpha | observe id bearing range ..."]
+    for _ in range(scans):
+        lines.append("control 0.01 0.0")
+        cells = []
+        for j in range(per_scan):
+            cells += [f"{0.3 if j % 2 == 0 else -0.3:.4f}", f"{2.0 + spacing_m * (j // 2):.4f}"]
+        lines.append("scan " + " ".join(cells))
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def worst_case_lines(folder: Path) -> list[str]:
+    """JCBB's worst case: replays of 40 two-bearing scans of 120 measurements each."""
+    lines = [
+        "JCBB's bound per scan (issue 22): 40 scans of 120 measurements at two bearings,"
+        " `ekfviz replay LOG --association jcbb --save --report` as a subprocess (8 such scans"
+        " took 51 s before the bound, 70,000 general solves). Wall time of the whole replay"
+        " (reading, filter, association and recording), CPU time of the process.",
+        "",
+        "| ranges apart | s wall | s CPU | ms CPU per scan | hypotheses | scans fallen back |",
+        "|---:|---:|---:|---:|---:|---:|",
+    ]
+    for spacing in (0.1, 0.01):
+        log = two_bearing_log(folder / f"rays-{spacing:g}.txt", 40, 120, spacing)
+        report = folder / f"rays-{spacing:g}.json"
+        rrd = folder / f"rays-{spacing:g}.rrd"
+        command = [str(BIN / "ekfviz"), "replay", str(log), "--association", "jcbb",
+                   "--save", str(rrd), "--report", str(report)]  # fmt: skip
+        before = os.times()
+        started = time.perf_counter()
+        subprocess.run(command, capture_output=True, check=True, cwd=folder)
+        wall = time.perf_counter() - started
+        after = os.times()
+        cpu = (after.children_user - before.children_user) + (
+            after.children_system - before.children_system
+        )
+        association = json.loads(report.read_text())["association"]
+        lines.append(
+            f"| {spacing:g} m | {wall:.1f} | {cpu:.1f} | {1000 * cpu / 40:.0f} |"
+            f" {association['jcbb_hypotheses']} | {association['jcbb_budget_exhausted_scans']} |"
+        )
+    return lines

@@ -17,7 +17,24 @@ def main() -> None:
         argv = prepare_argv(sys.argv[1:])
     except typer.Exit as stop:  # outside the app: exit with the code it carries
         raise SystemExit(stop.exit_code) from None
-    app(args=argv, prog_name="ekfviz")
+    try:
+        try:
+            app(args=argv, prog_name="ekfviz")
+        except signals.Interrupted as stop:  # a command that did not say more itself
+            from ekfviz.cli.common import interrupted
+
+            interrupted(stop, "nothing was written; existing files are left as they were")
+    except SystemExit as leaving:
+        if signals.fired():
+            # Stopped by a signal, with its line said and its clean-up done: leave now.
+            # Python's own exit would join a stopped process pool's threads, which can
+            # wait for ever on a queue whose workers were killed.
+            import os
+
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(leaving.code if isinstance(leaving.code, int) else 1)
+        raise
 
 
 if __name__ == "__main__":

@@ -5,8 +5,10 @@ first second of a run is spent importing rerun and numpy, before there is anythi
 record; a signal then would end the process with nothing saved. So the command line
 *defers* both signals from its first line on (:func:`defer`); ``replay`` turns them into
 exceptions once its recording is open (:func:`as_exceptions`) and honours one that came
-early right after logging its first event (:func:`raise_pending`). Other commands get
-the usual behaviour back at once (:func:`restore`).
+early right after logging its first event (:func:`raise_pending`). Every other command
+turns them into :class:`Interrupted` at once (:func:`as_interrupts`), which the command
+line answers with one line saying what was kept, and exit code 130 or 143; a second
+signal while it cleans up is ignored.
 
 SIGINT is handled even when the parent started ekfviz with SIGINT ignored, as a
 non-interactive shell does for ``ekfviz ... &``: ``kill -INT`` must still stop a replay
@@ -15,7 +17,9 @@ cleanly.
 
 from __future__ import annotations
 
+import os
 import signal
+import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
 from types import FrameType
@@ -23,8 +27,29 @@ from types import FrameType
 _pending: list[int] = []
 
 
-class Terminated(BaseException):  # like KeyboardInterrupt: not caught by "except Exception"
+class Interrupted(BaseException):  # like KeyboardInterrupt: not caught by "except Exception"
+    """SIGINT (or, as :class:`Terminated`, SIGTERM) in a command: stop, clean up, say so.
+
+    Not a KeyboardInterrupt, which typer would answer with "Aborted." and exit code 1.
+    """
+
+    signum: int = signal.SIGINT
+
+    @property
+    def name(self) -> str:
+        """``SIGINT`` or ``SIGTERM``."""
+        return signal.Signals(self.signum).name
+
+    @property
+    def exit_code(self) -> int:
+        """128 + the signal's number, as a shell reports a process the signal ended."""
+        return 128 + self.signum
+
+
+class Terminated(Interrupted):
     """SIGTERM, turned into an exception so that a run can close its recording."""
+
+    signum = signal.SIGTERM
 
 
 def _remember(signum: int, frame: FrameType | None) -> None:
@@ -35,6 +60,18 @@ def _raise(signum: int, frame: FrameType | None = None) -> None:
     if signum == signal.SIGINT:
         raise KeyboardInterrupt
     raise Terminated
+
+
+_owner: list[int] = []  # the process that turned signals into Interrupted
+_fired: list[int] = []  # the signal that did, in case its exception was swallowed
+
+
+def _interrupt(signum: int, frame: FrameType | None = None) -> None:
+    if _owner and os.getpid() != _owner[0]:
+        return  # a worker just forked, before its own handlers: its parent stops it
+    _fired.append(signum)
+    defer()  # a second signal while the first is handled must not cut the clean-up short
+    raise Terminated if signum == signal.SIGTERM else Interrupted
 
 
 def _handle(on_sigint: signal._HANDLER, on_sigterm: signal._HANDLER) -> None:
@@ -66,6 +103,51 @@ def restore() -> None:
         raise KeyboardInterrupt
     if signum is not None:
         signal.raise_signal(signum)
+
+
+def as_interrupts() -> None:
+    """From now on SIGINT raises :class:`Interrupted` and SIGTERM :class:`Terminated`
+    (the commands other than replay); one that came while deferred is raised now."""
+    _owner[:] = [os.getpid()]
+    _fired.clear()
+    sys.unraisablehook = _quiet_unraisable
+    _handle(_interrupt, _interrupt)
+    signum = _take_pending()
+    if signum is not None:
+        _interrupt(signum)
+
+
+def reset() -> None:
+    """The usual handlers again, forgetting any signal that came while deferred."""
+    _pending.clear()
+    _owner.clear()  # (_fired is kept: fired() says the process is leaving on a signal)
+    sys.unraisablehook = sys.__unraisablehook__
+    _usual()
+
+
+def _quiet_unraisable(unraisable: sys.UnraisableHookArgs) -> None:
+    """Say nothing of an interrupt's exception that Python had to drop (see
+    :func:`raise_if_interrupted`, which raises it again); the rest as usual."""
+    if isinstance(unraisable.exc_value, Interrupted):
+        return
+    sys.__unraisablehook__(unraisable)
+
+
+def fired() -> bool:
+    """Whether SIGINT or SIGTERM became :class:`Interrupted` since :func:`as_interrupts`."""
+    return bool(_fired)
+
+
+def raise_if_interrupted() -> None:
+    """Raise again the :class:`Interrupted` of a signal whose exception was swallowed.
+
+    Python drops an exception raised where it cannot propagate: a signal handled while
+    ``os.fork`` runs its hooks (a process pool starting its workers), in a finaliser.
+    Code that waits (a study's executor) calls this now and then, so that such a signal
+    still stops the command.
+    """
+    if _fired and _owner:
+        raise Terminated if _fired[0] == signal.SIGTERM else Interrupted
 
 
 def raise_pending() -> None:

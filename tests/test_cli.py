@@ -170,12 +170,14 @@ def test_bad_input_is_one_line_exit_2_and_keeps_what_came_before(
     assert expected in result.stderr
     assert len(result.stderr.strip().splitlines()) == 1
     assert "Traceback" not in result.stderr
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["log.txt", "old.rrd"]
-    if not kept:  # nothing was replayed: the old file stays as it was
-        assert rrd.read_bytes() == b"previous recording"
+    assert rrd.read_bytes() == b"previous recording"  # never replaced by a partial run
+    if not kept:  # nothing was replayed: nothing beside it either
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["log.txt", "old.rrd"]
         return
-    assert f"the recording of everything before it is saved in {rrd}" in result.stderr
-    log_lines = [row["TextLog:text"] for row in entity_rows(rrd, "/log")]
+    partial = tmp_path / "old.partial.rrd"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["log.txt", partial.name, "old.rrd"]
+    assert f"the recording of everything before it is saved in {partial}" in result.stderr
+    log_lines = [row["TextLog:text"] for row in entity_rows(partial, "/log")]
     assert log_lines[0] == ["step 0 init line 1: 2 landmarks (2 new)"]
     assert expected in str(log_lines[-1][0])  # type: ignore[index]
 

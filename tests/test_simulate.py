@@ -30,9 +30,9 @@ def simulate(tmp_path: Path, *args: str, stem: str = "run") -> tuple[Path, Path]
 
 def test_simulate_is_deterministic_in_its_seed(tmp_path: Path) -> None:
     for scenario in ("classic", "loop"):
-        a = simulate(tmp_path, "--scenario", scenario, "--seed", "3", stem="a")
-        b = simulate(tmp_path, "--scenario", scenario, "--seed", "3", stem="b")
-        c = simulate(tmp_path, "--scenario", scenario, "--seed", "4", stem="c")
+        a = simulate(tmp_path, "--scenario", scenario, "--seed", "3", stem=f"{scenario}-a")
+        b = simulate(tmp_path, "--scenario", scenario, "--seed", "3", stem=f"{scenario}-b")
+        c = simulate(tmp_path, "--scenario", scenario, "--seed", "4", stem=f"{scenario}-c")
         assert a[0].read_bytes() == b[0].read_bytes() and a[1].read_bytes() == b[1].read_bytes()
         assert a[0].read_bytes() != c[0].read_bytes()
 

@@ -41,7 +41,7 @@ from ekfviz.association.gating import (
     mahalanobis2,
     predict_landmarks,
 )
-from ekfviz.association.jcbb import DEFAULT_BUDGET, jcbb
+from ekfviz.association.jcbb import DEFAULT_BUDGET, DEFAULT_WORK_BUDGET, jcbb
 from ekfviz.association.nn import nearest_neighbour
 from ekfviz.association.tentative import TentativeBook
 from ekfviz.core.records import Fate, Observations, Scan, ScanAssociation, frozen
@@ -73,6 +73,8 @@ class AssociationParams:
     :param new_probability: a measurement inside any landmark's gate at this probability
         does not start a landmark (it is rejected when it is not paired)
     :param budget: JCBB's hypotheses per scan (see :mod:`ekfviz.association.jcbb`)
+    :param work_budget: JCBB's units of work per scan (likewise); past either budget
+        the scan falls back (to the best pairing found, else nearest neighbour)
     :param single_gate_area: m^2, the largest gate (at ``gate_probability``, in the
         plane) of a landmark that JCBB may pair on its own, one measurement in the scan's
         pairing; larger gates need a joint pairing of two or more
@@ -85,6 +87,7 @@ class AssociationParams:
     confirm_window: int = 6
     new_probability: float = 0.9999
     budget: int = DEFAULT_BUDGET
+    work_budget: int = DEFAULT_WORK_BUDGET
     single_gate_area: float = 20.0
     wide_pairs: int = 3
 
@@ -96,6 +99,7 @@ class AssociationParams:
             "confirm_window": self.confirm_window,
             "new_landmark_gate_probability": self.new_probability,
             "jcbb_budget": self.budget,
+            "jcbb_work_budget": self.work_budget,
             "single_gate_area_m2": self.single_gate_area,
             "wide_pairs": self.wide_pairs,
         }
@@ -181,7 +185,7 @@ class Associator:
         n_landmarks = state_ids.shape[0]
         pairing = np.full(m, -1, dtype=np.int64)
         fate = np.full(m, Fate.NEW, dtype=np.int8)
-        hypotheses, joint_d2, exhausted = 0, 0.0, False
+        hypotheses, joint_d2, exhausted, fallback = 0, 0.0, False, ""
         gate_rows = np.zeros(0, dtype=np.int64)
         z_pred = np.zeros((0, 2))
         S = np.zeros((0, 2, 2))
@@ -205,10 +209,11 @@ class Associator:
                         self._R,
                         self.params.gate_probability,
                         self.params.budget,
+                        self.params.work_budget,
                     )
                     column = result.pairing
-                    hypotheses, joint_d2, exhausted = (
-                        result.hypotheses, result.joint_d2, result.exhausted
+                    hypotheses, joint_d2, exhausted, fallback = (
+                        result.hypotheses, result.joint_d2, result.exhausted, result.fallback
                     )  # fmt: skip
                     column = self._without_a_lone_wide_pair(column, gate_rows, predictions)
                 paired = column >= 0
@@ -253,6 +258,7 @@ class Associator:
             removed=frozen(np.array(removed, dtype=np.int64)),
             diameters=None if scan.diameters is None else frozen(np.array(scan.diameters)),
             truth=truth if truth is not None and truth.shape[0] == m else None,
+            fallback=fallback,
         )
         return observations, association
 

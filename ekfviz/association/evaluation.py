@@ -51,6 +51,7 @@ class AssociationTally:
     scans: int = 0
     hypotheses: int = 0
     exhausted: int = 0
+    fallback_nn: int = 0  # scans the search gave up on before any complete pairing
     _votes: dict[int, Counter[int]] = field(default_factory=dict)
 
     def identity(self, landmark_id: int) -> int | None:
@@ -93,6 +94,7 @@ class AssociationTally:
         self.removed += len(association.removed)
         self.hypotheses += association.hypotheses
         self.exhausted += int(association.exhausted)
+        self.fallback_nn += int(association.fallback == "nearest neighbour")
         true_ids = self.true_ids(record)
         if true_ids is None:
             return None
@@ -151,6 +153,7 @@ class AssociationTally:
             "removed": self.removed,
             "jcbb_hypotheses": self.hypotheses,
             "jcbb_budget_exhausted_scans": self.exhausted,
+            "jcbb_fallback_nearest_neighbour_scans": self.fallback_nn,
             "landmarks": len(landmark_ids),
         }
         if self.truth is not None:

@@ -8,7 +8,7 @@ import os
 import shutil
 import sys
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import astuple
 from pathlib import Path
@@ -186,6 +186,26 @@ def fail(message: str, code: int = 2) -> NoReturn:
     raise typer.Exit(code)
 
 
+def interrupted(stop: signals.Interrupted, kept: str) -> NoReturn:
+    """Say in one line that the command was stopped by a signal and what it kept, and
+    exit with 130 (SIGINT) or 143 (SIGTERM); ``--debug`` shows the traceback instead.
+
+    :param kept: what was kept and where, e.g. ``nothing was written``
+    """
+    if DEBUG["traceback"]:
+        raise stop
+    err.print(f"[bold red]error:[/] interrupted ({stop.name}): {escape(kept)}", soft_wrap=True)
+    raise SystemExit(stop.exit_code)
+
+
+def stopped_study(done: int, total: int, what: str, outputs: Sequence[Path | None]) -> str:
+    """What an interrupted study kept: the runs done of all, and that no output was
+    written (each is written whole at the end), an existing one left as it was."""
+    existing = [str(path) for path in outputs if path is not None and path.exists()]
+    kept = f" ({', '.join(existing)} left as it was)" if existing else ""
+    return f"{done} of {total} {what} done, the rest cancelled; nothing was saved{kept}"
+
+
 def check_outputs(*outputs: tuple[str, Path | None]) -> None:
     """Check every output path of a command before any work starts (see
     :func:`ekfviz.io.paths.check_output_path`); two outputs must be two files.
@@ -201,6 +221,21 @@ def check_outputs(*outputs: tuple[str, Path | None]) -> None:
     clash = distinct_paths(dict(outputs))
     if clash is not None:
         fail(clash)
+
+
+ForceOption = Annotated[bool, typer.Option("--force", help="Replace an existing output file.")]
+
+
+def refuse_overwrite(force: bool, *outputs: tuple[str, Path | None]) -> None:
+    """Without ``--force``, refuse (one line, exit 2) to write over an existing file.
+
+    :param outputs: (how the path was given, e.g. ``--output``; the path or None)
+    """
+    if force:
+        return
+    for option, path in outputs:
+        if path is not None and path.is_file():
+            fail(f"{option} {path}: exists; add --force to replace it")
 
 
 def default_output(name: str) -> Path:
@@ -298,7 +333,8 @@ def main(
     OUT_STREAM.to_stderr = False
     fit_consoles()
     if ctx.invoked_subcommand != "replay":  # only a replay keeps signals for later
-        signals.restore()
+        ctx.call_on_close(signals.reset)  # (for a caller that goes on: tests, notebooks)
+        signals.as_interrupts()
 
 
 def warn(message: str) -> None:

@@ -13,7 +13,7 @@ from typing import Annotated
 from rich.progress import Progress
 from rich.table import Table
 
-from ekfviz import __version__
+from ekfviz import __version__, signals
 from ekfviz.association import Method
 from ekfviz.cli.common import (
     DEFAULT,
@@ -51,8 +51,10 @@ from ekfviz.cli.common import (
     err,
     fail,
     filter_params,
+    interrupted,
     out,
     scenario_world,
+    stopped_study,
     study_executor,
     true_noise,
     write_json,
@@ -155,16 +157,22 @@ def consistency(
         filter=filter_spec, detection=detection, laps=laps, association=pairing,
     )  # fmt: skip
     runner = study_executor(executor, scheduler, workers)
+    finished: list[None] = []
+
+    def advance(_: object) -> None:
+        finished.append(None)
+        bar.advance(task)
+
     try:
         load_filter(filter_spec)
-        with Progress(console=err, transient=True) as bar:
+        with Progress(console=err, transient=True, disable=not err.is_terminal) as bar:
             task = bar.add_task(f"{runs} runs of the {scenario.value} scenario", total=runs)
             results = runner.map(
-                functools.partial(run_trial, trials),
-                [seed + k for k in range(runs)],
-                done=lambda _: bar.advance(task),
+                functools.partial(run_trial, trials), [seed + k for k in range(runs)], done=advance
             )
         result = average(results)
+    except signals.Interrupted as stop:
+        interrupted(stop, stopped_study(len(finished), runs, "runs", [save, report]))
     except (FilterSpecError, FilterError) as error:
         fail(f"--scenario {scenario.value}: {error}")
     except ExecutorError as error:

@@ -8,10 +8,12 @@ from typing import Annotated
 import typer
 
 from ekfviz.cli.common import (
+    ForceOption,
     app,
     check_outputs,
     fail,
     out,
+    refuse_overwrite,
     write_bytes_atomic,
 )
 from ekfviz.io.errors import InputError
@@ -25,6 +27,7 @@ def convert(
     target: Annotated[
         Path, typer.Argument(help="Where to write the extended log.", show_default=False)
     ],
+    force: ForceOption = False,
 ) -> None:
     """Rewrite a classic log in the extended format, every number exactly as written."""
     from ekfviz.io.convert import classic_to_extended
@@ -32,6 +35,7 @@ def convert(
     check_outputs(("TARGET", target))
     if target.resolve() == source.resolve():
         fail(f"TARGET {target}: is the source itself: give another file")
+    refuse_overwrite(force, ("TARGET", target))
     try:
         text, events = classic_to_extended(source)
     except InputError as error:

@@ -124,10 +124,20 @@ def replay(
         bool,
         typer.Option(
             "--serve",
-            help="Serve the web viewer on localhost until Ctrl-C.",
+            help="Serve the web viewer on localhost (see --bind) until Ctrl-C.",
             rich_help_panel="Rerun output",
         ),
     ] = False,
+    bind: Annotated[
+        str | None,
+        typer.Option(
+            help="With --serve: the IP address to listen on \\[default: 127.0.0.1, this"
+            " machine only]; 0.0.0.0 serves the recording to the whole network.",
+            show_default=False,
+            metavar="ADDRESS",
+            rich_help_panel="Rerun output",
+        ),
+    ] = None,
     connect: Annotated[
         str | None,
         typer.Option(
@@ -169,6 +179,13 @@ def replay(
     from ekfviz import pipeline, viz  # rerun loads only for commands that record
 
     check_outputs(("--save", save), ("--report", report))
+    if bind is not None:
+        if not serve:
+            fail("--bind is the address of --serve: add --serve")
+        try:
+            viz.check_bind(bind)
+        except viz.SinkError as error:
+            fail(str(error))
     if as_json:
         human_output_to_stderr()
     params = filter_params(
@@ -186,6 +203,7 @@ def replay(
         make_filter = load_filter(filter_spec, worker)
     except FilterSpecError as error:
         fail(str(error))
+    logger: viz.RunLogger | None = None
     try:
         opened = open_log(data, robot, truth, no_truth)
         truth_xy = opened.truth
@@ -201,7 +219,9 @@ def replay(
         if setup.victoria:
             events = setup.events(opened, None)
         sinks, note = viz.resolve_default_sinks(
-            viz.Sinks(save=save, spawn=spawn, serve=serve, connect=connect),
+            viz.Sinks(
+                save=save, spawn=spawn, serve=serve, connect=connect, bind=bind or viz.LOOPBACK
+            ),
             data,
             RECORDINGS_DIR,
             name=opened.source.name,
@@ -257,10 +277,22 @@ def replay(
             logger.wait_while_serving()
     except pipeline.RunStopped as stopped:
         where = ""
-        if stopped.kept and sinks.save is not None:
-            where = f"; the recording of everything before it is saved in {sinks.save}"
+        saved_to = None if logger is None else logger.recording.saved_to
+        if stopped.kept and saved_to is not None:
+            where = f"; the recording of everything before it is saved in {saved_to}"
+            if saved_to != sinks.save:
+                where += f" ({sinks.save} is left as it was)"
+        elif sinks.save is not None and sinks.save.exists():
+            where = f"; {sinks.save} is left as it was"
         fail(f"{stopped.reason}{where}", code=stopped.exit_code)
     except (InputError, FilterError, AssociationError, viz.SinkError) as error:
         fail(str(error))
-    except (KeyboardInterrupt, signals.Terminated) as signal_error:
-        raise typer.Exit(143 if isinstance(signal_error, signals.Terminated) else 130) from None
+    except (KeyboardInterrupt, signals.Terminated) as signal_error:  # outside the replay itself
+        name = "SIGTERM" if isinstance(signal_error, signals.Terminated) else "SIGINT"
+        saved_to = None if logger is None else logger.recording.saved_to
+        kept = (
+            f"the finished recording is saved in {saved_to}"
+            if saved_to is not None
+            else "nothing was written; existing files are left as they were"
+        )
+        fail(f"{data}: interrupted ({name}): {kept}", code=143 if name == "SIGTERM" else 130)

@@ -13,6 +13,7 @@ import typer
 from ekfviz.cli.common import (
     Clutter,
     DetectionProbability,
+    ForceOption,
     Fov,
     Landmarks,
     Laps,
@@ -33,6 +34,7 @@ from ekfviz.cli.common import (
     detection_of,
     fail,
     out,
+    refuse_overwrite,
     scenario_world,
     true_noise,
     write_bytes_atomic,
@@ -111,12 +113,14 @@ def simulate(
     clutter: Clutter = 0.0,
     detection_probability: DetectionProbability = 1.0,
     laps: Laps = 1,
+    force: ForceOption = False,
 ) -> None:
     """Simulate a run with known truth and write its log and truth files (deterministic)."""
     if layout is Layout.MRCLAM:
         _simulate_mrclam(
             output, seed, duration, truth_out,
             (true_sigma_x, true_sigma_y, true_sigma_alpha, true_sigma_bearing, true_sigma_range),
+            force,
         )  # fmt: skip
         return
     if truth_out is None:
@@ -126,6 +130,7 @@ def simulate(
     from ekfviz.io.truth import truth_json
 
     check_outputs(("--output", output), ("--truth-out", truth_out))
+    refuse_overwrite(force, ("--output", output), ("--truth-out", truth_out))
     world = scenario_world(scenario, seed, steps, landmarks, max_range, fov)
     noise = true_noise(
         world, true_sigma_x, true_sigma_y, true_sigma_alpha, true_sigma_bearing, true_sigma_range
@@ -214,6 +219,7 @@ def _simulate_mrclam(
     duration: float,
     truth_out: Path | None,
     sigmas: tuple[float | None, ...],
+    force: bool,
 ) -> None:
     """Write a simulated MRCLAM dataset directory (see :mod:`ekfviz.sim.mrclam`)."""
     from ekfviz.sim.mrclam import simulate_mrclam
@@ -234,6 +240,7 @@ def _simulate_mrclam(
     )  # fmt: skip
     noise = replace(d, sigma_x=x, sigma_y=y, sigma_alpha=a, sigma_bearing=b, sigma_range=r)
     files = simulate_mrclam(seed=seed, world=MrclamWorld(duration_s=duration), noise=noise)
+    refuse_overwrite(force, *(("--output", output / name) for name in files))
     try:
         output.mkdir(exist_ok=True)  # its parent was checked: no folders made above it
     except OSError as error:

@@ -15,14 +15,16 @@ from rich.progress import Progress
 from rich.table import Table
 from rich.text import Text
 
-from ekfviz import __version__
+from ekfviz import __version__, signals
 from ekfviz.cli.common import (
     check_outputs,
     command_hint,
     default_output,
     err,
     fail,
+    interrupted,
     out,
+    stopped_study,
     write_json,
 )
 from ekfviz.core.filter import FilterError
@@ -58,14 +60,22 @@ def run_study(
     check_outputs(("--save", target), ("--report", report))
     if target is None:
         target = default_output(f"{data.stem}-{'sweep' if root == 'variants' else 'compare'}.rrd")
+    finished: list[None] = []
+
+    def advance() -> None:
+        finished.append(None)
+        bar.advance(task)
+
     try:
-        with Progress(console=err, transient=True) as bar:
+        with Progress(console=err, transient=True, disable=not err.is_terminal) as bar:
             task = bar.add_task(f"{len(specs)} {what}s", total=len(specs))
             result = pipeline.study(
                 data, truth, specs, target=target, workers=workers, root=root,
                 parameters=parameters, markdown=lambda rows: study_markdown(rows, what),
-                done=lambda: bar.advance(task), executor=executor, keep_going=keep_going,
+                done=advance, executor=executor, keep_going=keep_going,
             )  # fmt: skip
+    except signals.Interrupted as stop:
+        interrupted(stop, stopped_study(len(finished), len(specs), f"{what}s", [target, report]))
     except FilterLineError as error:
         fail(f"{data}:{error.line}: {error}" if error.line else f"{data}: {error}")
     except (InputError, FilterError, FilterSpecError, viz.SinkError, ExecutorError) as error:

@@ -176,12 +176,15 @@ class ScanAssociation:
     :param gate_threshold: the chi-square quantile of the individual gate (2 dof)
     :param hypotheses: how many JCBB hypotheses (search nodes) were explored
     :param joint_nis: the joint Mahalanobis distance squared of the chosen pairing
-    :param exhausted: the search hit its node budget and kept the best found so far
+    :param exhausted: the search ran out of its budget (hypotheses or work per scan)
     :param tentative: (t,) the landmarks still tentative after this scan
     :param confirmed: (c,) the landmarks confirmed at this scan
     :param removed: (r,) the tentative landmarks removed at this scan
     :param diameters: (m,) the sensor's size of each measured object, when known
     :param truth: (m,) the true landmark id of each measurement (-1 for clutter), when known
+    :param fallback: when the search was cut short, what the pairing is instead: "best
+        found" (the best jointly compatible pairing reached) or "nearest neighbour"; ""
+        otherwise (see :mod:`ekfviz.association.jcbb`)
     """
 
     method: str
@@ -200,6 +203,7 @@ class ScanAssociation:
     removed: IntArray
     diameters: FloatArray | None = None
     truth: IntArray | None = None
+    fallback: str = ""
 
     def count(self, fate: Fate) -> int:
         return int(np.count_nonzero(self.fate == fate))

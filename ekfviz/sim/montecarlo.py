@@ -10,8 +10,7 @@ filter is consistent; the same holds for the NIS with the summed degrees of free
 
 from __future__ import annotations
 
-import os
-from concurrent.futures import ProcessPoolExecutor
+import functools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -27,6 +26,7 @@ from ekfviz.filters import BUILTIN, load_filter
 from ekfviz.models.range_bearing import RangeBearing
 from ekfviz.sim.scenarios import Scenario
 from ekfviz.sim.simulate import Detection, Noise
+from ekfviz.studies.executors import LocalExecutor
 
 
 @dataclass(frozen=True, slots=True)
@@ -125,14 +125,8 @@ class MonteCarlo:
 def monte_carlo(trials: Trials, runs: int, seed: int = 0, workers: int | None = None) -> MonteCarlo:
     """Run ``runs`` trials with seeds ``seed``, ``seed + 1``, ... over the machine's cores."""
     seeds = [seed + k for k in range(runs)]
-    workers = min(runs, workers or os.cpu_count() or 1)
-    if workers > 1:
-        with ProcessPoolExecutor(max_workers=workers) as pool:
-            results = list(
-                pool.map(run_trial, [trials] * runs, seeds, chunksize=max(1, runs // (4 * workers)))
-            )
-    else:
-        results = [run_trial(trials, s) for s in seeds]
+    # the local executor stops its workers at once on Ctrl-C (see ekfviz.studies.executors)
+    results = LocalExecutor(workers).map(functools.partial(run_trial, trials), seeds)
     return average(results)
 
 

@@ -12,18 +12,27 @@ items must pickle; a Dask cluster's workers need ekfviz installed, and the files
 run reads (a sweep's log) at the same path.
 
 Dask (the ``dask`` extra) is imported only by :class:`DaskExecutor.map`.
+
+A study stops at once when interrupted: on any exception while it waits (Ctrl-C,
+SIGTERM, a run that failed) the runs still queued are cancelled and the running ones
+stopped, instead of waiting for every one as leaving a process pool's ``with`` does.
+Local workers ignore SIGINT, which a terminal sends to the whole process group: the
+command stops them itself, so that a worker never prints a traceback of its own.
 """
 
 from __future__ import annotations
 
 import enum
 import os
+import signal
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
+from ekfviz import signals
+
 if TYPE_CHECKING:
-    from concurrent.futures import Future
+    from concurrent.futures import Future, ProcessPoolExecutor
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -71,20 +80,59 @@ class LocalExecutor:
             return results
         from concurrent.futures import ProcessPoolExecutor  # not at start-up: 30 ms
 
-        with ProcessPoolExecutor(max_workers=workers) as pool:
+        pool = ProcessPoolExecutor(max_workers=workers, initializer=_worker_signals)
+        try:
             futures = [pool.submit(fn, item) for item in items]
             _report(futures, done)
-            return [future.result() for future in futures]
+            results = [future.result() for future in futures]
+        except BaseException:
+            _stop_pool(pool)
+            raise
+        pool.shutdown()
+        return results
+
+
+STOP_GRACE_S = 0.5  # how long a stopped worker gets to exit before it is killed
+POLL_S = 0.2  # how often a wait looks for an interrupt whose exception was swallowed
+
+
+def _worker_signals() -> None:
+    """In a local worker: SIGINT ignored (the parent stops the pool), SIGTERM ends it."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+def _stop_pool(pool: ProcessPoolExecutor) -> None:
+    """Cancel the queued runs and end the running ones now (SIGTERM, then SIGKILL)."""
+    import time
+
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for process in processes:
+        if process.is_alive():
+            process.terminate()
+    deadline = time.monotonic() + STOP_GRACE_S
+    for process in processes:
+        process.join(max(0.0, deadline - time.monotonic()))
+        if process.is_alive():
+            process.kill()
+            process.join(1.0)
 
 
 def _report(futures: Sequence[Future[R]], done: Callable[[R], None] | None) -> None:
-    """``done`` with every result as it completes (the first error is raised)."""
-    from concurrent.futures import as_completed
+    """``done`` with every result as it completes (the first error is raised); an
+    interrupt whose exception was swallowed (see :func:`signals.raise_if_interrupted`)
+    is raised within ``POLL_S``."""
+    from concurrent.futures import FIRST_COMPLETED, wait
 
-    for future in as_completed(futures):
-        result = future.result()
-        if done is not None:
-            done(result)
+    pending = set(futures)
+    while pending:
+        finished, pending = wait(pending, timeout=POLL_S, return_when=FIRST_COMPLETED)
+        signals.raise_if_interrupted()
+        for future in [f for f in futures if f in finished]:  # in the items' order
+            result = future.result()
+            if done is not None:
+                done(result)
 
 
 @dataclass(frozen=True, slots=True)
@@ -121,11 +169,15 @@ class DaskExecutor:
         with client, client.as_current():  # as_completed asks for the current client
             # pure=False: every item is a task of its own, even two equal ones
             futures: list[Any] = client.map(fn, list(items), pure=False)
-            for future in dask_completed(futures):  # type: ignore[no-untyped-call]
-                result = future.result()
-                if done is not None:
-                    done(result)
-            results: list[R] = client.gather(futures)  # type: ignore[no-untyped-call]
+            try:
+                for future in dask_completed(futures):  # type: ignore[no-untyped-call]
+                    result = future.result()
+                    if done is not None:
+                        done(result)
+                results: list[R] = client.gather(futures)  # type: ignore[no-untyped-call]
+            except BaseException:  # interrupted or failed: the cluster drops the rest
+                client.cancel(futures)  # type: ignore[no-untyped-call]
+                raise
             return results
 
 

@@ -34,11 +34,13 @@ from ekfviz.viz.export import RecordedRun, Trajectory, read_recorded_run
 from ekfviz.viz.info import NotARecordingError, RecordingInfo, read_recording_info
 from ekfviz.viz.recorder import Recorder
 from ekfviz.viz.run import (
+    LOOPBACK,
     Recording,
     RunInfo,
     RunLogger,
     SinkError,
     Sinks,
+    check_bind,
     open_recording,
     open_run,
     resolve_default_sinks,
@@ -46,6 +48,7 @@ from ekfviz.viz.run import (
 )
 
 __all__ = [
+    "LOOPBACK",
     "NotARecordingError",
     "RecordedRun",
     "Recorder",
@@ -56,6 +59,7 @@ __all__ = [
     "SinkError",
     "Sinks",
     "Trajectory",
+    "check_bind",
     "ellipse_outlines",
     "open_recording",
     "open_run",

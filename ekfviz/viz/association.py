@@ -153,6 +153,7 @@ class AssociationView:
             "confirmed": len(association.confirmed),
             "removed": len(association.removed),
             "landmarks": record.n_landmarks - len(association.tentative),
+            "fell_back": int(association.exhausted),  # JCBB's budget ran out at this scan
         }
         if score is not None:
             values.update(correct=score.correct, wrong=score.wrong, missed=score.missed)
@@ -167,15 +168,15 @@ class AssociationView:
             f" {values['rejected']} rejected"
         )
         if association.method == "jcbb":
-            text += (
-                f"; {association.hypotheses} hypotheses"
-                + (" (budget exhausted)" if association.exhausted else "")
-                + f", joint NIS {association.joint_nis:.2f}"
-            )
+            text += f"; {association.hypotheses} hypotheses"
+            if association.exhausted:
+                text += f" (budget exhausted: fell back to {association.fallback or 'best found'})"
+            text += f", joint NIS {association.joint_nis:.2f}"
         if len(association.confirmed) or len(association.removed):
             confirmed, removed = association.confirmed.tolist(), association.removed.tolist()
             text += f"; confirmed {confirmed}, removed {removed}"
-        rec.log(path(style.LOG), rr.TextLog(text, level=rr.TextLogLevel.DEBUG))
+        level = rr.TextLogLevel.WARN if association.exhausted else rr.TextLogLevel.DEBUG
+        rec.log(path(style.LOG), rr.TextLog(text, level=level))
 
     def flush(self) -> None:
         """Send the buffered series, one column each."""

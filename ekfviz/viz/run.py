@@ -10,15 +10,19 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import ipaddress
 import json
 import os
 import shutil
+import signal
 import socket
+import subprocess
 import sys
+import tempfile
 import threading
 import time
 import uuid
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -136,6 +140,8 @@ class RunInfo:
     truth_sha256: str | None = None
     version: str = field(default=__version__)
     kind: str = "replay"  # or "sweep": what ``ekfviz info`` says the recording is
+    # each file's own sha256 where the input or truth is several files (a dataset)
+    file_digests: dict[str, str] = field(default_factory=dict)
 
     @property
     def recording_id(self) -> str:
@@ -163,6 +169,9 @@ class RunInfo:
             rows.append(f"- **input text** {self.input_note}")
         if self.truth_path is not None:
             rows.append(f"- **truth** `{self.truth_path.name}`, sha256 `{self.truth_sha256}`")
+        rows += [
+            f"- **file** `{path}`, sha256 `{digest}`" for path, digest in self.file_digests.items()
+        ]
         rows += ["", "## Parameters", "", "| parameter | value |", "|---|---|"]
         rows += [f"| {key} | `{_json(value)}` |" for key, value in self.parameters.items()]
         return "\n".join(rows) + "\n"
@@ -191,7 +200,7 @@ def run_info(
         return replace(
             _described(
                 name, command, parameters, input_path, size, sha256, None,
-                "not embedded: a dataset directory", truth, truth_path, truth_files,
+                "not embedded: a dataset directory", truth, truth_path, truth_files, input_files,
             ),
             kind=kind,
         )  # fmt: skip
@@ -226,12 +235,15 @@ def _described(
     truth: GroundTruth | None,
     truth_path: Path | None,
     truth_files: Sequence[Path] | None,
+    input_files: Sequence[Path] | None = None,
 ) -> RunInfo:
     truth_sha256 = None
-    if truth_files:
-        truth_sha256 = _digest_files(truth_files)[1]
-    elif truth_path is not None:
-        truth_sha256 = _digest(truth_path, keep_up_to=0)[1]
+    truth_list = list(truth_files or ([] if truth_path is None else [truth_path]))
+    if len(truth_list) == 1:  # the file's own digest, as sha256sum prints it
+        truth_sha256 = _digest(truth_list[0], keep_up_to=0)[1]
+    elif truth_list:  # a dataset's files: a digest of them all, each in file_digests
+        truth_sha256 = _digest_files(truth_list)[1]
+    listed = [*(input_files or []), *truth_list] if len(truth_list) > 1 or input_files else []
     return RunInfo(
         name=name,
         command=command,
@@ -244,7 +256,13 @@ def _described(
         truth=truth,
         truth_path=truth_path,
         truth_sha256=truth_sha256,
+        file_digests=_file_digests(listed),
     )
+
+
+def _file_digests(paths: Sequence[Path]) -> dict[str, str]:
+    """Each file's own sha256, by path as given."""
+    return {str(path): _digest(path, keep_up_to=0)[1] for path in paths}
 
 
 def _digest_files(paths: Sequence[Path]) -> tuple[int, str]:
@@ -286,14 +304,23 @@ def _json(value: object) -> str:
 # -- sinks -----------------------------------------------------------------------------
 
 
+LOOPBACK = "127.0.0.1"
+SERVE_START_S = 15.0  # how long --serve waits for its viewer program to listen
+
+
 @dataclass(frozen=True, slots=True)
 class Sinks:
-    """Where a recording goes: a file, a spawned viewer, a served web viewer, a viewer URL."""
+    """Where a recording goes: a file, a spawned viewer, a served web viewer, a viewer URL.
+
+    :param bind: the address the served web viewer and its gRPC server listen on
+        (loopback unless the user says otherwise)
+    """
 
     save: Path | None = None
     spawn: bool = False
     serve: bool = False
     connect: str | None = None
+    bind: str = LOOPBACK
 
     @property
     def any(self) -> bool:
@@ -351,9 +378,115 @@ def _rerun_executable() -> str | None:
     return str(beside) if beside.is_file() else None
 
 
-def web_viewer_url(grpc_uri: str, web_port: int = WEB_PORT) -> str:
+def web_viewer_url(grpc_uri: str, web_port: int = WEB_PORT, host: str = "localhost") -> str:
     """The address of the served web viewer, pointed at the gRPC server."""
-    return f"http://localhost:{web_port}/?url={quote(grpc_uri, safe=':/')}"
+    return f"http://{host}:{web_port}/?url={quote(grpc_uri, safe=':/')}"
+
+
+def check_bind(address: str) -> str:
+    """An IP address to serve on, as given; a one-line complaint otherwise.
+
+    :raises SinkError: not an IPv4 or IPv6 address
+    """
+    try:
+        ipaddress.ip_address(address)
+    except ValueError:
+        raise SinkError(
+            f"--bind {address}: expected an IP address, e.g. 127.0.0.1 (this machine only,"
+            " the default) or 0.0.0.0 (every network interface)"
+        ) from None
+    return address
+
+
+def _url_host(bind: str) -> str:
+    """The host to put in a URL for a server bound to ``bind``."""
+    address = ipaddress.ip_address(bind)
+    if address.is_loopback:
+        return "localhost" if address.version == 4 else "[::1]"
+    if address.is_unspecified:  # every interface: the machine's name
+        return socket.gethostname()
+    return bind if address.version == 4 else f"[{bind}]"
+
+
+class ServedViewer:
+    """The web viewer and its gRPC server, served by Rerun's viewer program on ``bind``.
+
+    Rerun's ``serve_web_viewer`` always listens on every network interface; its viewer
+    program takes ``--bind``, so ``--serve`` runs that, as a child that ends with this
+    process (terminated on close; on Linux also when this process is killed outright).
+    """
+
+    def __init__(self, bind: str) -> None:
+        executable = _viewer_binary() or _rerun_executable()
+        if executable is None:
+            raise SinkError("--serve needs the rerun viewer program, which is not installed")
+        self.bind = bind
+        host = _url_host(bind)
+        self.grpc_url = f"rerun+http://{host}:{GRPC_PORT}/proxy"
+        self.url = web_viewer_url(self.grpc_url, WEB_PORT, host)
+        self._log = tempfile.TemporaryFile()  # noqa: SIM115 (closed by close())
+        self.process = subprocess.Popen(
+            [
+                executable, "--serve-web", "--bind", bind, "--port", str(GRPC_PORT),
+                "--web-viewer-port", str(WEB_PORT), "--hide-welcome-screen",
+            ],
+            stdin=subprocess.DEVNULL,
+            stdout=self._log,
+            stderr=subprocess.STDOUT,
+            preexec_fn=_end_with_parent if sys.platform == "linux" else None,
+            start_new_session=True,  # its own group: stopped whole, wrapper script and all
+        )  # fmt: skip
+        local = LOOPBACK if ipaddress.ip_address(bind).is_unspecified else bind
+        probe = f"http://{local if ':' not in local else f'[{local}]'}:{GRPC_PORT}"
+        deadline = time.monotonic() + SERVE_START_S
+        while not viewer_answers(probe, timeout=1.0):
+            if self.process.poll() is not None or time.monotonic() > deadline:
+                reason = self._last_line() or "it did not start"
+                self.close()
+                raise SinkError(f"--serve on {bind}, ports {WEB_PORT} and {GRPC_PORT}: {reason}")
+            time.sleep(0.1)
+
+    def _last_line(self) -> str:
+        with contextlib.suppress(OSError):
+            self._log.seek(0)
+            lines = [
+                line.strip() for line in self._log.read().decode(errors="replace").splitlines()
+            ]
+            lines = [line for line in lines if line]
+            if lines:
+                return lines[-1][:300]
+        return ""
+
+    def close(self) -> None:
+        """Stop the viewer program."""
+        for signum in (signal.SIGTERM, signal.SIGKILL):
+            with contextlib.suppress(OSError):
+                os.killpg(self.process.pid, signum)
+            try:
+                self.process.wait(2.0)
+                break
+            except subprocess.TimeoutExpired:
+                continue
+        self._log.close()
+
+
+def _viewer_binary() -> str | None:
+    """The viewer program itself, not the ``rerun`` script that runs it as a child."""
+    import importlib.util
+
+    spec = importlib.util.find_spec("rerun_cli")
+    if spec is None or spec.origin is None:
+        return None
+    binary = Path(spec.origin).parent / ("rerun.exe" if sys.platform == "win32" else "rerun")
+    return str(binary) if binary.is_file() and os.access(binary, os.X_OK) else None
+
+
+def _end_with_parent() -> None:
+    """In the viewer program's process (Linux): SIGTERM when its parent dies."""
+    import ctypes
+
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL(None).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
 
 
 # -- the run ---------------------------------------------------------------------------
@@ -365,6 +498,9 @@ class Recording:
     :ivar rec: the stream to log to
     :ivar url: the web viewer's address when serving, else None
     :ivar complete: set once everything is logged: only then is a ``--save`` file written
+    :ivar partial: the run was cut short: its file goes to :func:`partial_path` when one
+        is already at the ``--save`` path
+    :ivar saved_to: where the ``--save`` file was written, once it is
     """
 
     def __init__(
@@ -373,6 +509,8 @@ class Recording:
         self.rec = rec
         self.url = url
         self.complete = False
+        self.partial = False  # a run cut short: never written over an existing file
+        self.saved_to: Path | None = None  # where a --save file went, once written
         self.unreachable = unreachable  # a --connect URL without a viewer, when saving too
 
     def wait_while_serving(self) -> None:
@@ -436,6 +574,7 @@ class RunLogger:
         """
         if not self.logged:
             return False
+        self.recording.partial = True
         self.recorder.note(reason, level=rr.TextLogLevel.ERROR)
         last = self.last
         finish_recorders(
@@ -481,7 +620,10 @@ def open_recording(info: RunInfo, sinks: Sinks) -> Iterator[Recording]:
 
     A ``--save`` file is written beside its path under a temporary name and moved over
     the path only once the recording is marked complete; otherwise the temporary file is
-    removed and an existing file at the path is left untouched.
+    removed and an existing file at the path is left untouched. The recording of a run
+    cut short (marked ``partial``) never replaces a file: with one at the path it goes to
+    :func:`partial_path` instead (``saved_to`` says where). Temporary files that runs
+    killed outright (``kill -9``) left beside the path are removed first.
 
     :raises SinkError: when a sink cannot be used (no display for ``spawn``, ...)
     """
@@ -497,8 +639,9 @@ def open_recording(info: RunInfo, sinks: Sinks) -> Iterator[Recording]:
             raise SinkError(_no_viewer(sinks.connect))
         unreachable = sinks.connect  # the other outputs go on; said at the end
         sinks = Sinks(save=sinks.save, spawn=sinks.spawn, serve=sinks.serve)
+    closers: list[Callable[[], None]] = []
     try:
-        log_sinks, temporary, url = _attach(rec, sinks)
+        log_sinks, temporary, url = _attach(rec, sinks, closers)
         rec.set_sinks(*log_sinks)
         _describe(rec, info)
         recording = Recording(rec, url, unreachable)
@@ -507,8 +650,12 @@ def open_recording(info: RunInfo, sinks: Sinks) -> Iterator[Recording]:
         with contextlib.suppress(Exception):
             flush_interruptibly(rec, FLUSH_TIMEOUT_S)
         rec.disconnect()  # finalises the file (footer) and stops a server
-        if temporary is not None:
-            _commit_or_remove(temporary, sinks.save, recording is not None and recording.complete)
+        for close in closers:
+            close()
+        if temporary is not None and sinks.save is not None:
+            saved = _commit_or_remove(temporary, sinks.save, recording)
+            if recording is not None:
+                recording.saved_to = saved
     if unreachable is not None:
         kept = f"; the recording is saved in {sinks.save}" if sinks.save is not None else ""
         raise SinkError(f"no Rerun viewer at {unreachable}{kept}")
@@ -550,9 +697,12 @@ def open_run(
 
 
 def _attach(
-    rec: rr.RecordingStream, sinks: Sinks
+    rec: rr.RecordingStream, sinks: Sinks, closers: list[Callable[[], None]]
 ) -> tuple[list[rr.LogSinkLike], Path | None, str | None]:
-    """Make the sinks; return them, the temporary file of a save, and a web viewer URL."""
+    """Make the sinks; return them, the temporary file of a save, and a web viewer URL.
+
+    :param closers: gets what must be stopped once the recording is closed
+    """
     log_sinks: list[rr.LogSinkLike] = []
     temporary: Path | None = None
     url: str | None = None
@@ -578,13 +728,13 @@ def _attach(
         except (ValueError, RuntimeError) as error:
             raise SinkError(f"--connect {sinks.connect}: {error}") from None
     if sinks.serve:
+        served = ServedViewer(check_bind(sinks.bind))
+        closers.append(served.close)
         try:
-            server = rr.GrpcServerSink(bind_ip="127.0.0.1", port=GRPC_PORT)
-            rr.serve_web_viewer(web_port=WEB_PORT, open_browser=False, connect_to=server.uri)
-        except (ValueError, RuntimeError, OSError) as error:
+            log_sinks.append(rr.GrpcSink(served.grpc_url))
+        except (ValueError, RuntimeError) as error:
             raise SinkError(f"--serve: {error}") from None
-        log_sinks.append(server)
-        url = web_viewer_url(server.uri)
+        url = served.url
     if sinks.save is not None:
         target = sinks.save
         try:  # no folder is made: a path that cannot be written is refused before any work
@@ -600,16 +750,74 @@ def _attach(
 
 def temporary_beside(target: Path) -> Path:
     """A fresh hidden name in the folder of ``target``: the same file system, so a
-    finished file can replace ``target`` atomically with ``os.replace``."""
+    finished file can replace ``target`` atomically with ``os.replace``.
+
+    The name holds this process's id, so that the next run to ``target`` can tell a
+    file of a run that died (see :func:`remove_stale_parts`) from one being written.
+    """
+    remove_stale_parts(target)
     return target.with_name(f".{target.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.part")
 
 
-def _commit_or_remove(temporary: Path, target: Path | None, complete: bool) -> None:
-    """Move a complete recording over its path; drop an incomplete one."""
-    if complete and target is not None:
-        os.replace(temporary, target)
-    else:
+def remove_stale_parts(target: Path) -> list[Path]:
+    """Remove the temporary files beside ``target`` of runs whose process is gone (a
+    run killed with ``kill -9`` cannot remove its own); those of live processes stay.
+
+    :return: the files removed
+    """
+    removed: list[Path] = []
+    prefix = f".{target.name}."
+    try:
+        names = [entry.name for entry in os.scandir(target.parent or Path("."))]
+    except OSError:
+        return removed
+    for name in names:
+        if not (name.startswith(prefix) and name.endswith(".part")):
+            continue
+        fields = name[len(prefix) : -len(".part")].split(".")
+        if len(fields) != 2 or not fields[0].isdigit() or _alive(int(fields[0])):
+            continue
+        stale = target.with_name(name)
+        with contextlib.suppress(OSError):
+            stale.unlink()
+            removed.append(stale)
+    return removed
+
+
+def _alive(pid: int) -> bool:
+    """Whether a process with this id exists (one of another user's counts)."""
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError):
+        return True
+    return True
+
+
+def partial_path(target: Path) -> Path:
+    """Where the recording of a run cut short goes when a file is at ``target``:
+    ``RUN.partial.rrd`` beside ``RUN.rrd`` (an earlier partial recording there is
+    replaced)."""
+    return target.with_name(f"{target.stem}.partial{target.suffix or '.rrd'}")
+
+
+def _commit_or_remove(temporary: Path, target: Path, recording: Recording | None) -> Path | None:
+    """Move a complete recording over its path and a partial one over its path or,
+    when a file is there already, beside it; drop an incomplete one.
+
+    :return: where the recording was written, None when it was dropped
+    """
+    if recording is None or not recording.complete:
         temporary.unlink(missing_ok=True)
+        return None
+    destination = target
+    if recording.partial and target.exists():
+        destination = partial_path(target)
+    os.replace(temporary, destination)
+    return destination
 
 
 def _describe(rec: rr.RecordingStream, info: RunInfo) -> None:
@@ -626,6 +834,7 @@ def _describe(rec: rr.RecordingStream, info: RunInfo) -> None:
         "input_embedded": info.input_text is not None,
         "truth_name": None if info.truth_path is None else info.truth_path.name,
         "truth_sha256": info.truth_sha256,
+        "files_sha256": _json(info.file_digests) if info.file_digests else None,
         "compiled_kernel": HAVE_KERNEL,  # numbers differ from numpy's by round-off only
     }
     rec.send_property("ekfviz", _any_values(values))

@@ -1,0 +1,191 @@
+"""JCBB bounded in time per scan (issue 22): the work of a scan is capped by construction,
+a scan cut short falls back (best complete pairing, else nearest neighbour), and the
+fallback is counted in the report and logged in the recording."""
+
+from __future__ import annotations
+
+import itertools
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import entity_rows
+from typer.testing import CliRunner
+
+from ekfviz.association import AssociationParams, Associator, Method
+from ekfviz.association.jcbb import (
+    DEFAULT_BUDGET,
+    DEFAULT_WORK_BUDGET,
+    FALLBACK_BEST,
+    FALLBACK_NN,
+    MAX_JOINT,
+    jcbb,
+    joint_threshold,
+)
+from ekfviz.association.nn import nearest_neighbour
+from ekfviz.cli import app
+from ekfviz.core.filter import EkfSlam, FilterParams
+from ekfviz.core.records import Scan
+from ekfviz.core.types import FloatArray
+from ekfviz.models.range_bearing import RangeBearing
+
+runner = CliRunner()
+
+
+def _problem(
+    rng: np.random.Generator, m: int, k: int, spread: float = 1.0
+) -> tuple[FloatArray, FloatArray, np.ndarray, FloatArray, FloatArray]:
+    """A random scan against ``k`` candidates with correlated predictions (a shared pose)."""
+    pose_part = rng.normal(size=(2 * k, 3)) * 0.3
+    own = rng.normal(size=(2 * k, 2 * k)) * 0.05
+    C = pose_part @ pose_part.T + own @ own.T + 0.01 * np.eye(2 * k)
+    C = 0.5 * (C + C.T)
+    R = np.diag([0.02, 0.05])
+    nu = rng.normal(size=(m, k, 2)) * spread
+    S = np.array([C[2 * j : 2 * j + 2, 2 * j : 2 * j + 2] + R for j in range(k)])
+    d2 = np.einsum("mki,kij,mkj->mk", nu, np.linalg.inv(S), nu)
+    return nu, d2, d2 < 9.21, C, R
+
+
+def _joint_d2(pairs: list[tuple[int, int]], nu: FloatArray, C: FloatArray, R: FloatArray) -> float:
+    """The joint Mahalanobis distance squared of a pairing, from scratch (dense solve)."""
+    cols = [2 * k + t for _, k in pairs for t in (0, 1)]
+    S = C[np.ix_(cols, cols)] + np.kron(np.eye(len(pairs)), R)
+    v = np.concatenate([nu[i, k] for i, k in pairs])
+    return float(v @ np.linalg.solve(S, v))
+
+
+def _brute_force(
+    nu: FloatArray, d2: FloatArray, ok: np.ndarray, C: FloatArray, R: FloatArray, p: float
+) -> tuple[int, float]:
+    """Pairs and joint distance of the best pairing whose every prefix (in measurement
+    order) is jointly compatible: what JCBB's search defines, by enumeration."""
+    m = ok.shape[0]
+    best = (0, 0.0)
+    choices = [[-1, *np.flatnonzero(ok[i]).tolist()] for i in range(m)]
+    for combo in itertools.product(*choices):
+        used = [c for c in combo if c >= 0]
+        if len(used) != len(set(used)):
+            continue
+        pairs: list[tuple[int, int]] = []
+        fine = True
+        for i, c in enumerate(combo):
+            if c < 0:
+                continue
+            pairs.append((i, c))
+            if not _joint_d2(pairs, nu, C, R) < joint_threshold(p, 2 * len(pairs)):
+                fine = False
+                break
+        if not fine or not pairs:
+            continue
+        dist = _joint_d2(pairs, nu, C, R)
+        if len(pairs) > best[0] or (len(pairs) == best[0] and dist < best[1]):
+            best = (len(pairs), dist)
+    return best
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_jcbb_finds_the_pairing_exhaustive_search_finds(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    nu, d2, ok, C, R = _problem(rng, m=4, k=4, spread=0.6)
+    result = jcbb(nu, d2, ok, C, R, 0.99)
+    pairs, dist = _brute_force(nu, d2, ok, C, R, 0.99)
+    assert not result.exhausted and result.fallback == ""
+    found = [(i, int(k)) for i, k in enumerate(result.pairing.tolist()) if k >= 0]
+    assert len(found) == pairs
+    if pairs:
+        assert result.joint_d2 == pytest.approx(dist, rel=1e-9)
+        assert _joint_d2(found, nu, C, R) == pytest.approx(dist, rel=1e-9)
+
+
+def _two_bearing_scan(m: int, k: int) -> tuple[FloatArray, FloatArray, np.ndarray, FloatArray]:
+    """The hang of issue 22: every measurement of a scan on two rays, every one in the
+    gate of every candidate, all strongly correlated through the pose."""
+    rng = np.random.default_rng(7)
+    pose_part = np.tile(np.array([[0.0, 0.0, 0.4], [0.05, 0.0, 0.0]]), (k, 1))
+    C = pose_part @ pose_part.T + 1e-4 * np.eye(2 * k)
+    nu = rng.normal(size=(m, k, 2)) * 0.05
+    d2 = np.abs(rng.normal(size=(m, k)))
+    return nu, d2, np.ones((m, k), dtype=bool), C
+
+
+def test_an_adversarial_scan_stays_within_its_work_budget_and_falls_back() -> None:
+    nu, d2, ok, C = _two_bearing_scan(120, 120)
+    R = np.diag([0.01**2, 0.08**2])
+    started = time.process_time()
+    result = jcbb(nu, d2, ok, C, R, 0.99)
+    seconds = time.process_time() - started
+    assert result.exhausted and result.fallback in (FALLBACK_BEST, FALLBACK_NN)
+    assert result.hypotheses <= DEFAULT_BUDGET
+    assert result.work <= DEFAULT_WORK_BUDGET
+    paired = result.pairing[result.pairing >= 0]
+    assert len(set(paired.tolist())) == len(paired)  # each landmark once
+    assert ok[np.flatnonzero(result.pairing >= 0), paired].all()
+    print(f"adversarial scan 120 x 120: {seconds:.3f} s of CPU, {result.hypotheses} hypotheses")
+
+
+def test_a_search_that_completes_no_pairing_falls_back_to_nearest_neighbour() -> None:
+    nu, d2, ok, C = _two_bearing_scan(60, 60)
+    R = np.diag([0.01**2, 0.08**2])
+    result = jcbb(nu, d2, ok, C, R, 0.99, work_budget=1000)
+    assert result.exhausted and result.fallback == FALLBACK_NN
+    assert result.work <= 1000
+    np.testing.assert_array_equal(result.pairing, nearest_neighbour(d2, ok))
+
+
+def test_a_scan_with_too_many_gated_measurements_is_not_searched() -> None:
+    m = MAX_JOINT + 1
+    nu, d2, ok, C = _two_bearing_scan(m, 3)
+    result = jcbb(nu, d2, ok, C, np.eye(2), 0.99)
+    assert result.exhausted and result.fallback == FALLBACK_NN and result.hypotheses == 0
+    np.testing.assert_array_equal(result.pairing, nearest_neighbour(d2, ok))
+
+
+def test_the_associator_records_the_fallback_of_a_scan() -> None:
+    params = FilterParams(sigma_bearing=0.01, sigma_range=0.08)
+    slam = EkfSlam(params)
+    associator = Associator(
+        AssociationParams(method=Method.JCBB, confirm=1, work_budget=500),
+        RangeBearing(),
+        params.R,
+    )
+    rays = [(0.3 if j % 2 else -0.3, 2.0 + 0.05 * (j // 2)) for j in range(40)]
+    z = np.array(rays, dtype=np.float64)
+    _, first = associator.process(slam, Scan(line=1, z=z))
+    assert not first.exhausted  # nothing mapped yet: nothing to search
+    _, second = associator.process(slam, Scan(line=1, z=z))
+    assert second.exhausted and second.fallback == FALLBACK_NN
+
+
+def _two_bearing_log(path: Path, scans: int, per_scan: int) -> Path:
+    lines = ["# ekfviz extended log: control d alpha | observe id bearing range ..."]
+    for _ in range(scans):
+        lines.append("control 0.01 0.0")
+        cells = []
+        for j in range(per_scan):
+            cells += [f"{0.3 if j % 2 == 0 else -0.3:.4f}", f"{2.0 + 0.01 * (j // 2):.4f}"]
+        lines.append("scan " + " ".join(cells))
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_a_replay_of_two_bearing_scans_reports_and_logs_its_fallbacks(tmp_path: Path) -> None:
+    log = _two_bearing_log(tmp_path / "rays.txt", scans=5, per_scan=120)
+    rrd, report = tmp_path / "rays.rrd", tmp_path / "rays.json"
+    result = runner.invoke(
+        app,
+        ["replay", str(log), "--association", "jcbb", "--save", str(rrd), "--report", str(report)],
+    )
+    assert result.exit_code == 0, result.output
+    association = json.loads(report.read_text())["association"]
+    exhausted = association["jcbb_budget_exhausted_scans"]
+    assert exhausted >= 1
+    assert association["jcbb_hypotheses"] <= DEFAULT_BUDGET * association["scans"]
+    assert "jcbb_budget_exhausted_scans" in result.output  # said in the summary
+    rows = entity_rows(rrd, "/metrics/association/fell_back")
+    assert len(rows) == association["scans"]  # one value per scan
+    assert sum(row["Scalars:scalars"][0] for row in rows) == exhausted  # type: ignore[index]
+    lines = [str(row) for row in entity_rows(rrd, "/log")]
+    assert sum("fell back to" in line for line in lines) == exhausted
