@@ -24,7 +24,7 @@ from ekfviz.core.plugged import FilterFactory
 from ekfviz.core.records import AnyEvent, EventRecord, NeedsIds, with_ids
 from ekfviz.core.replay import FilterLineError, replay
 from ekfviz.core.truth import GroundTruth
-from ekfviz.filters import FilterSpec, FilterSpecError
+from ekfviz.filters import FilterSpec, FilterSpecError, release
 from ekfviz.io.detect import read_log
 from ekfviz.io.errors import InputError
 from ekfviz.io.extended import is_extended
@@ -201,9 +201,7 @@ def study(
         pass
     if not keep_going:
         for spec in specs:
-            close = getattr(spec.filter.load(), "close", None)
-            if callable(close):
-                close()
+            release(spec.filter.load())
     results = run_specs(
         data,
         specs,
@@ -273,9 +271,7 @@ def check(
             " (replay a log of scans with --filter and --association instead)",
         ) from None  # fmt: skip
     finally:
-        close = getattr(make_filter, "close", None)
-        if callable(close):
-            close()
+        release(make_filter)
     exercised = coverage(events, result.reference, params)
     if save is not None and result.records:
         _record_check(data, truth, truth_path, spec, params, result, save)

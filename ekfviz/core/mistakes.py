@@ -507,9 +507,7 @@ def explain_update(
     has_new = any(int(i) not in before.ids.tolist() for i in ids)
     has_known = any(int(i) in before.ids.tolist() for i in ids)
     flags_here = (UPDATE_FLAGS if has_known else ()) + (INIT_FLAGS if has_new else ())
-    if has_new and has_known:
-        pass
-    elif "landmark_init_in_line_order" in flags_here:
+    if not (has_new and has_known):  # the order of a line matters only with both in it
         flags_here = tuple(f for f in flags_here if f != "landmark_init_in_line_order")
     fixed = _fixed_block(before, after, ids) if has_new else None
     if fixed is None:

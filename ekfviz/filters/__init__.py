@@ -116,6 +116,13 @@ class FilterSpec:
         return load_filter(self.text, self.worker)
 
 
+def release(make_filter: object) -> None:
+    """End what a loaded filter holds: the spare worker a user's filter keeps started
+    (:class:`~ekfviz.filters.worker.WorkerFactory`); nothing for the others."""
+    if isinstance(make_filter, WorkerFactory):
+        make_filter.close()
+
+
 def target_of(text: str) -> Target:
     """What a user's ``--filter`` names: a file or module, and a class or functions.
 

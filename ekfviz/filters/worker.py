@@ -97,9 +97,6 @@ class Output:
     lines: deque[str] = field(default_factory=lambda: deque(maxlen=200))
     total_bytes: int = 0
 
-    def text(self, last: int = 20) -> str:
-        return "\n".join(list(self.lines)[-last:])
-
 
 def _signal_name(number: int) -> str:
     try:
@@ -428,10 +425,6 @@ class RemoteFilter:
     def output(self) -> Output:
         return self._worker.output
 
-    @property
-    def worker(self) -> WorkerProcess:
-        return self._worker
-
     def _take(self, answer: dict[str, Any], arrays: list[np.ndarray[Any, Any]]) -> None:
         self.x: FloatArray = arrays[0]
         self.P: FloatArray = arrays[1]
@@ -483,15 +476,12 @@ class WorkerFactory:
         self.label = label
         self._spare: LoadedWorker | None = LoadedWorker(target, options, label)
         self.style = self._spare.style
-        self.created: list[weakref.ref[RemoteFilter]] = []
 
     def __call__(self, params: FilterParams) -> RemoteFilter:
         loaded, self._spare = self._spare, None
         if loaded is None or loaded.process.process.poll() is not None:
             loaded = LoadedWorker(self.target, self.options, self.label)
-        remote = RemoteFilter(loaded, params)
-        self.created.append(weakref.ref(remote))
-        return remote
+        return RemoteFilter(loaded, params)
 
     def close(self) -> None:
         if self._spare is not None:

@@ -27,7 +27,7 @@ from ekfviz.core.protocol import SlamFilter
 from ekfviz.core.records import EventRecord
 from ekfviz.core.replay import FilterLineError, replay
 from ekfviz.core.truth import GroundTruth
-from ekfviz.filters import BUILTIN, FilterSpec, FilterSpecError
+from ekfviz.filters import BUILTIN, FilterSpec, FilterSpecError, release
 from ekfviz.io.detect import read_log
 from ekfviz.models.range_bearing import RangeBearing
 from ekfviz.studies.executors import Executor, LocalExecutor
@@ -140,9 +140,7 @@ def run_spec(
         if not records:
             return RunFailure(spec, failure)
     finally:
-        close = getattr(loaded, "close", None)
-        if callable(close):
-            close()
+        release(loaded)
     seconds = time.perf_counter() - started
     own_noise = False
     if isinstance(make_filter, _Timed):
