@@ -239,6 +239,8 @@ def test_compare_of_three_students_and_a_broken_one_records_the_three(tmp_path: 
     rows = json.loads(report.read_text())["filters"]
     labels = [row["label"] for row in rows]
     assert labels[0] == "alice" and "broken" in labels
+    # the students' files share a name: each is called by its folder
+    assert {"correct/ekf_slam", "joint/ekf_slam"} <= set(labels)
     assert next(r for r in rows if r["label"] == "broken")["failure"].count("SyntaxError") == 1
     for row in rows:
         if row["label"] != "broken":

@@ -123,8 +123,11 @@ def compare(
     if len(given) > len(filters):
         fail(f"{len(given)} --label for {len(filters)} --filter: give at most one label a filter")
     worker = worker_options(python, filter_timeout, filter_memory)
-    for index, text in enumerate(filters):
-        spec = FilterSpec.parse(text, given[index] if index < len(given) else None, worker)
+    parsed = [
+        FilterSpec.parse(text, given[index] if index < len(given) else None, worker)
+        for index, text in enumerate(filters)
+    ]
+    for spec in _by_folder(parsed):
         key = spec.key
         for count in range(2, len(filters) + 2):  # the same filter twice: ekf, ekf-2
             if key not in keys:
@@ -148,3 +151,24 @@ def compare(
         executor=study_executor(executor, scheduler, workers),
         keep_going=True,
     )
+
+
+def _by_folder(specs: list[FilterSpec]) -> list[FilterSpec]:
+    """The specs, files of one name in several folders (every student's ``ekf_slam.py``)
+    labelled ``FOLDER/NAME`` unless given a label."""
+    from collections import Counter
+    from dataclasses import replace
+
+    counts = Counter(spec.label for spec in specs)
+    folders: dict[str, set[str]] = {}
+    for spec in specs:
+        folders.setdefault(spec.label, set()).add(str(Path(spec.text.partition(":")[0]).parent))
+    return [
+        replace(spec, name=f"{Path(spec.text.partition(':')[0]).parent.name}/{spec.label}")
+        if spec.name is None
+        and counts[spec.label] > 1
+        and len(folders[spec.label]) > 1
+        and not spec.in_process
+        else spec
+        for spec in specs
+    ]
