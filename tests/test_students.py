@@ -342,3 +342,29 @@ def test_a_state_turning_complex_is_one_line_without_a_warning(tmp_path: Path) -
     (line,) = result.stderr.strip().splitlines()
     assert "predict returned P with complex numbers, expected real ones" in line
     assert "Warning" not in result.stderr
+
+
+@pytest.mark.parametrize(
+    ("args", "expected"),
+    [
+        (["grade", "{tmp}/missing"], "{tmp}/missing: no such directory"),
+        (["grade", "{tmp}/file.py"], "{tmp}/file.py: not a directory"),
+        (["grade", "{tmp}/empty"], "{tmp}/empty: no submissions in it"),
+        (["grade", "{tmp}/class", "--log", "{tmp}/no.txt"], "--log {tmp}/no.txt: no such file"),
+        (["check", "--filter", "{tmp}/file.py", "--python", "{tmp}/nopython"],
+         "--python {tmp}/nopython: no such interpreter"),
+        (["check", "--filter", "{tmp}/missing.py"], "{tmp}/missing.py: no such file"),
+        (["check", "--filter", "{tmp}/empty"], "{tmp}/empty is a directory"),
+        (["check", "--filter", "{tmp}/file.py"], "has no function init_landmarks or predict"),
+    ],
+)  # fmt: skip
+def test_bad_input_of_grade_and_check_is_one_line(
+    tmp_path: Path, args: list[str], expected: str
+) -> None:
+    (tmp_path / "file.py").write_text("x = 1\n")
+    (tmp_path / "empty").mkdir()
+    students.write(tmp_path / "class" / "ada", "correct")
+    result = ekfviz(*[a.format(tmp=tmp_path) for a in args])
+    assert result.returncode == 2, result.stdout + result.stderr
+    (line,) = result.stderr.strip().splitlines()
+    assert line.startswith("error: ") and expected.format(tmp=tmp_path) in line, line

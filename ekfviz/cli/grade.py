@@ -51,11 +51,12 @@ def grade(
     ],
     logs: Annotated[
         list[Path] | None,
-        _option(
+        typer.Option(
             "--log",
-            "Check on this log (repeat for several) [default: the battery: the classic"
+            help="Check on this log (repeat for several) \\[default: the battery: the classic"
             " sample and the edge log].",
             show_default=False,
+            metavar="FILE",
         ),
     ] = None,
     timeout: Annotated[

@@ -133,7 +133,7 @@ def target_of(text: str) -> Target:
         if where.endswith(".py") or "/" in where or "\\" in where:
             return Target(_python_file(Path(where), text), None, name)
         return Target(None, where, name)
-    if text.endswith(".py"):
+    if text.endswith(".py") or Path(text).is_dir():
         return Target(_python_file(Path(text), text), None, None)
     names = ", ".join(REGISTRY)
     raise FilterSpecError(
