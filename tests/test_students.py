@@ -368,3 +368,10 @@ def test_bad_input_of_grade_and_check_is_one_line(
     assert result.returncode == 2, result.stdout + result.stderr
     (line,) = result.stderr.strip().splitlines()
     assert line.startswith("error: ") and expected.format(tmp=tmp_path) in line, line
+
+
+def test_the_command_line_default_timeout_is_the_workers() -> None:
+    from ekfviz.cli.common import DEFAULT_FILTER_TIMEOUT_S
+    from ekfviz.filters.worker import DEFAULT_TIMEOUT_S
+
+    assert DEFAULT_FILTER_TIMEOUT_S == DEFAULT_TIMEOUT_S

@@ -11,6 +11,7 @@ import typer
 from ekfviz import __version__
 from ekfviz.cli.common import (
     DEFAULT,
+    DEFAULT_FILTER_TIMEOUT_S,
     FilterMemory,
     FilterTimeout,
     InitPoseSigma,
@@ -93,7 +94,7 @@ def check(
         ),
     ] = None,
     python: PythonOption = None,
-    filter_timeout: FilterTimeout = 60.0,
+    filter_timeout: FilterTimeout = DEFAULT_FILTER_TIMEOUT_S,
     filter_memory: FilterMemory = None,
     init_pose: InitPoseOption = None,
     sigma_x: SigmaX = DEFAULT.sigma_x,

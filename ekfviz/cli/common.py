@@ -121,6 +121,9 @@ PROGRESS_MIN_BYTES = 1 << 20  # files under 1 MiB replay in well under a second
 RECORDINGS_DIR = Path("recordings")
 
 
+# as ekfviz.filters.worker.DEFAULT_TIMEOUT_S (a test holds them equal; that module is
+# not imported at start-up)
+DEFAULT_FILTER_TIMEOUT_S = 60.0
 PythonOption = Annotated[
     Path | None,
     typer.Option(

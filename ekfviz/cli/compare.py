@@ -9,6 +9,7 @@ import typer
 
 from ekfviz.cli.common import (
     DEFAULT,
+    DEFAULT_FILTER_TIMEOUT_S,
     ExecutorOption,
     FilterMemory,
     FilterTimeout,
@@ -69,7 +70,7 @@ def compare(
         ),
     ] = None,
     python: PythonOption = None,
-    filter_timeout: FilterTimeout = 60.0,
+    filter_timeout: FilterTimeout = DEFAULT_FILTER_TIMEOUT_S,
     filter_memory: FilterMemory = None,
     truth: TruthOption = None,
     save: Annotated[

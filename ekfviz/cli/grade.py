@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import functools
 import tempfile
 from pathlib import Path
 from typing import Annotated
@@ -136,7 +135,7 @@ def grade(
             for entry in entries
         ]  # fmt: skip
         try:
-            rows = chosen.map(functools.partial(grade_one), tasks)
+            rows = chosen.map(grade_one, tasks)
         except ExecutorError as error:
             fail(str(error))
     _table(rows)

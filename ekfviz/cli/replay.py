@@ -14,6 +14,7 @@ from ekfviz import signals
 from ekfviz.association import AssociationError
 from ekfviz.cli.common import (
     DEFAULT,
+    DEFAULT_FILTER_TIMEOUT_S,
     RECORDINGS_DIR,
     FilterMemory,
     FilterOption,
@@ -104,7 +105,7 @@ def replay(
     update: UpdateOption = DEFAULT.update,
     filter_spec: FilterOption = BUILTIN,
     python: PythonOption = None,
-    filter_timeout: FilterTimeout = 60.0,
+    filter_timeout: FilterTimeout = DEFAULT_FILTER_TIMEOUT_S,
     filter_memory: FilterMemory = None,
     save: Annotated[
         Path | None,

@@ -11,6 +11,7 @@ import typer
 
 from ekfviz.cli.common import (
     DEFAULT,
+    DEFAULT_FILTER_TIMEOUT_S,
     ExecutorOption,
     FilterMemory,
     FilterOption,
@@ -99,7 +100,7 @@ def sweep(
     update: UpdateOption = DEFAULT.update,
     filter_spec: FilterOption = BUILTIN,
     python: PythonOption = None,
-    filter_timeout: FilterTimeout = 60.0,
+    filter_timeout: FilterTimeout = DEFAULT_FILTER_TIMEOUT_S,
     filter_memory: FilterMemory = None,
     workers: Workers = None,
     executor: ExecutorOption = ExecutorName.LOCAL,

@@ -202,7 +202,7 @@ class CourseModule:
                 attempts.append(({"X": x_col, "control": c_col}, control))
 
         def call(option: Dict[str, bool], control: Any) -> Any:
-            X = self._as("X", option["X"])
+            X = self._state_as(option["X"])
             return self.module.predict(X, self.P.copy(), control, self.control_cov.copy(), self.k)
 
         self.X, self.P = self._first_working("predict", attempts, call, n)
@@ -227,7 +227,7 @@ class CourseModule:
 
         def call(option: Dict[str, bool], _: Any) -> Any:
             measure = z.reshape(-1, 1) if option["measure"] else z.reshape(-1)
-            X = self._as("X", option["X"])
+            X = self._state_as(option["X"])
             return self.module.update(
                 X, self.P.copy(), measure.copy(), self.measure_cov.copy(), self.k
             )
@@ -240,7 +240,8 @@ class CourseModule:
         known = self.columns[name]
         return [True, False] if known is None else [known]
 
-    def _as(self, name: str, column: bool) -> Any:
+    def _state_as(self, column: bool) -> Any:
+        """A copy of X as the functions take it: a (3+2k, 1) column or (3+2k,)."""
         X = self.X.reshape(-1, 1) if column else self.X.reshape(-1)
         return X.copy()
 
