@@ -12,8 +12,8 @@ $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 
-# setup.py builds the compiled kernel of small maps (ekfviz/core/_kernel.c) in place
-BUILD_INPUTS := pyproject.toml setup.py ekfviz/core/_kernel.c
+# setup.py builds the compiled kernel of small maps (ekfviz/filters/_kernel.c) in place
+BUILD_INPUTS := pyproject.toml setup.py ekfviz/filters/_kernel.c
 
 $(VENV)/.installed: $(BUILD_INPUTS) | $(BIN)/python
 	$(BIN)/python -m pip install --quiet -e .
@@ -49,7 +49,7 @@ sample: $(VENV)/.installed
 
 clean:
 	rm -rf $(VENV) .venv-numpy1 .mypy_cache .ruff_cache .pytest_cache .hypothesis build
-	rm -f ekfviz/core/_kernel*.so
+	rm -f ekfviz/filters/_kernel*.so
 
 # Benchmarks (not part of make test): core against dense, the bandwidth bound and end-to-end
 # replays, measured in one run (a few minutes); writes benchmarks/RESULTS.md.

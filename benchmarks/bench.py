@@ -58,8 +58,8 @@ from pathlib import Path
 import numpy as np
 
 import ekfviz
-from ekfviz.core.filter import HAVE_KERNEL, KERNEL_MAX_DIM, EkfSlam, FilterParams, UpdateMode
 from ekfviz.core.records import Control, EventKind, LogEvent, Sighting
+from ekfviz.filters.ekf import HAVE_KERNEL, KERNEL_MAX_DIM, EkfSlam, FilterParams, UpdateMode
 from ekfviz.io.classic import format_classic, read_classic
 from ekfviz.sim.simulate import CLASSIC_LANDMARKS_XY, Noise, classic_controls, simulate
 
@@ -440,8 +440,8 @@ class Memory:
 CORE_ONLY = """
 import sys
 from pathlib import Path
-from ekfviz.core.consistency import Consistency
-from ekfviz.core.replay import replay
+from ekfviz.evaluation.consistency import Consistency
+from ekfviz.runner.replay import replay
 from ekfviz.io.extended import read_log
 consistency = Consistency()
 for record in replay(read_log(Path(sys.argv[1]))):
@@ -504,9 +504,9 @@ PHASES = """
 import json, sys, time
 from pathlib import Path
 import rerun as rr
-from ekfviz.core.filter import EkfSlam
+from ekfviz.filters.ekf import EkfSlam
 from ekfviz.core.records import Control
-from ekfviz.core.replay import replay
+from ekfviz.runner.replay import replay
 from ekfviz.io.extended import read_log
 from ekfviz.viz.recorder import Recorder
 start = time.perf_counter()
@@ -556,18 +556,18 @@ def phase_rows(folder: Path, logs: Sequence[tuple[str, Path]]) -> list[Phases]:
 
 
 def kernel_import_us() -> float | None:
-    """Microseconds of ``import ekfviz.core._kernel`` (``-X importtime``), if built."""
+    """Microseconds of ``import ekfviz.filters._kernel`` (``-X importtime``), if built."""
     if not HAVE_KERNEL:
         return None
     out = subprocess.run(
-        [sys.executable, "-X", "importtime", "-c", "import ekfviz.core._kernel"],
+        [sys.executable, "-X", "importtime", "-c", "import ekfviz.filters._kernel"],
         check=True, capture_output=True, text=True,
     )  # fmt: skip
     # "import time: self [us] | cumulative | imported package"
     return next(
         float(line.split("|")[0].split(":")[1])
         for line in out.stderr.splitlines()
-        if line.rstrip().endswith("ekfviz.core._kernel")
+        if line.rstrip().endswith("ekfviz.filters._kernel")
     )
 
 
@@ -609,7 +609,7 @@ def machine() -> list[str]:
         f"- **software**: Python {platform.python_version()}, numpy {np.__version__}"
         f" ({blas.get('name')} {blas.get('version')}), ekfviz {ekfviz.__version__},"
         " one BLAS thread (OPENBLAS/OMP/MKL_NUM_THREADS=1) on both sides",
-        "- **compiled kernel** (`ekfviz/core/_kernel.c`): "
+        "- **compiled kernel** (`ekfviz/filters/_kernel.c`): "
         + (
             f"built; predict runs in it at any size, the sequential update below state"
             f" dimension {KERNEL_MAX_DIM} (N <= {(KERNEL_MAX_DIM - 4) // 2} landmarks)"

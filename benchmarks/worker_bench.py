@@ -2,7 +2,7 @@
 same filter imported into ekfviz's process, end to end through the runner.
 
 The filter is ``examples/my_filter.py:MyFilter`` (a dense protocol class, as users
-write them). Both ways run the same events through :func:`ekfviz.core.replay.replay`
+write them). Both ways run the same events through :func:`ekfviz.runner.replay.replay`
 (state checks, derived observations, records; no recording), timed from the first event
 to the last (the worker's start and the module's import are reported apart).
 """
@@ -15,10 +15,10 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from ekfviz.core.filter import FilterParams
 from ekfviz.core.records import LogEvent
-from ekfviz.core.replay import replay
-from ekfviz.filters import load_filter, load_in_process
+from ekfviz.filters.ekf import FilterParams
+from ekfviz.filters.spec import load_filter, load_in_process
+from ekfviz.runner.replay import replay
 
 BEGIN, END = "<!-- worker:begin -->", "<!-- worker:end -->"
 FILTER = str(Path(__file__).resolve().parent.parent / "examples" / "my_filter.py") + ":MyFilter"

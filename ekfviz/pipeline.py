@@ -17,27 +17,27 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Protocol
 
 from ekfviz import signals
-from ekfviz.core.consistency import Consistency
-from ekfviz.core.evaluation import Evaluation, evaluate
-from ekfviz.core.filter import FilterParams
-from ekfviz.core.plugged import FilterFactory
 from ekfviz.core.records import AnyEvent, EventRecord, NeedsIds, with_ids
-from ekfviz.core.replay import FilterLineError, replay
 from ekfviz.core.truth import GroundTruth
-from ekfviz.filters import FilterSpec, FilterSpecError, release
+from ekfviz.evaluation.consistency import Consistency
+from ekfviz.evaluation.errors import Evaluation, evaluate
+from ekfviz.filters.ekf import FilterParams
+from ekfviz.filters.plugged import FilterFactory
+from ekfviz.filters.spec import FilterSpec, FilterSpecError, release
 from ekfviz.io.detect import read_log
 from ekfviz.io.errors import InputError
 from ekfviz.io.extended import is_extended
 from ekfviz.io.text import ProgressCallback, WarningCallback
 from ekfviz.io.truth import checked_against, read_truth
+from ekfviz.runner.replay import FilterLineError, replay
 from ekfviz.studies.executors import Executor
 from ekfviz.studies.runs import Run, RunFailure, RunSpec, Summary, run_specs, summarise
 
 if TYPE_CHECKING:
     from ekfviz.association.associator import Associator
-    from ekfviz.core.check import CheckResult
-    from ekfviz.core.coverage import Item as CoverageItem
-    from ekfviz.core.filter import EkfSlam
+    from ekfviz.check.coverage import Item as CoverageItem
+    from ekfviz.check.lockstep import CheckResult
+    from ekfviz.filters.ekf import EkfSlam
     from ekfviz.viz.run import RunLogger
 
 
@@ -250,13 +250,13 @@ def check(
 ) -> tuple[CheckResult, list[CoverageItem]]:
     """Check a protocol filter against the reference in lockstep over ``data``; with
     ``save``, one recording of both side by side, the divergences marked. Also what the
-    log exercised (:func:`ekfviz.core.coverage.coverage`).
+    log exercised (:func:`ekfviz.check.coverage.coverage`).
 
     :param every: look for the cause of every divergent event (``check --all``)
     :raises InputError, FilterLineError, FilterSpecError, SinkError: one line each
     """
-    from ekfviz.core.check import lockstep
-    from ekfviz.core.coverage import coverage
+    from ekfviz.check.coverage import coverage
+    from ekfviz.check.lockstep import lockstep
 
     make_filter = spec.load()
     truth = read_truth(truth_path) if truth_path is not None else None

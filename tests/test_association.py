@@ -14,14 +14,14 @@ from typer.testing import CliRunner
 
 from ekfviz.association import AssociationParams, Associator, Method
 from ekfviz.cli import app
-from ekfviz.core.filter import EkfSlam, FilterParams
 from ekfviz.core.records import Drive, Fate, Scan
-from ekfviz.core.replay import replay
 from ekfviz.core.types import FloatArray
+from ekfviz.filters.ekf import EkfSlam, FilterParams
 from ekfviz.io.errors import InputError
 from ekfviz.io.victoria import read_victoria
 from ekfviz.models.ackermann import Ackermann
 from ekfviz.models.range_bearing import RangeBearing
+from ekfviz.runner.replay import replay
 from ekfviz.sim.scenarios import Scenario, loop
 from ekfviz.sim.simulate import Detection
 
@@ -74,8 +74,8 @@ def test_records_report_the_laser_point_with_its_covariance() -> None:
     """Victoria Park's records report the laser's pose (where the GPS antenna is): the
     point R(theta) (a, b) off the state's origin, its covariance through the point's
     Jacobian (checked against finite differences), the state itself untouched."""
-    from ekfviz.core.model_filter import ModelEkfSlam
     from ekfviz.core.records import EventKind
+    from ekfviz.filters.model_ekf import ModelEkfSlam
 
     sensor = RangeBearing(3.78, 0.5)
     filters = [
@@ -278,7 +278,7 @@ def test_monte_carlo_trials_pair_scans_like_known_ids_without_clutter() -> None:
     """consistency --unknown-ids: each trial simulates id-less scans and pairs them with
     an associator of its own; with every landmark paired on its own (as known ids are),
     the trial is the known-id trial exactly."""
-    from ekfviz.sim.montecarlo import Trials, run_trial
+    from ekfviz.studies.montecarlo import Trials, run_trial
 
     world = loop(steps=200, landmarks=60, seed=4)
     noise, params = world.noise, matched(world)

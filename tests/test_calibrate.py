@@ -13,23 +13,16 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from ekfviz.calibrate.fit import _fit_motion, calibrate, fit_odometry
+from ekfviz.calibrate.recommend import estimated_params, judge, recommend, run_stats
 from ekfviz.cli import app
-from ekfviz.core.calibrate import (
-    _fit_motion,
-    calibrate,
-    estimated_params,
-    fit_odometry,
-    judge,
-    recommend,
-    run_stats,
-)
-from ekfviz.core.consistency import Consistency, Verdict, reading
-from ekfviz.core.evaluation import evaluate, rigid_alignment, semi_major_3sigma, summarise_map
-from ekfviz.core.filter import FilterParams, MotionNoise
 from ekfviz.core.records import Control, LogEvent, with_ids
-from ekfviz.core.replay import replay
 from ekfviz.core.truth import GroundTruth
+from ekfviz.evaluation.consistency import Consistency, Verdict, reading
+from ekfviz.evaluation.errors import evaluate, rigid_alignment, semi_major_3sigma, summarise_map
+from ekfviz.filters.ekf import FilterParams, MotionNoise
 from ekfviz.io.detect import open_source
+from ekfviz.runner.replay import replay
 from ekfviz.sim.mrclam import MrclamNoise, MrclamWorld, simulate_mrclam
 
 runner = CliRunner()
@@ -286,7 +279,7 @@ def test_where_no_candidate_is_credible_the_closest_is_widened(
 ) -> None:
     """No map can have over 100 % inside: the closest candidate is widened twice, 2 and 4
     times, each judged and listed, and the recommendation is still the lowest error."""
-    import ekfviz.core.calibrate as calibration
+    import ekfviz.calibrate.recommend as calibration
 
     monkeypatch.setattr(calibration, "MAP_CREDIBLE", 1.01)
     events, truth = events_and_truth(skewed)

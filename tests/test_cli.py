@@ -14,9 +14,9 @@ from typer.testing import CliRunner
 
 from ekfviz import __version__
 from ekfviz.cli import app
-from ekfviz.core.filter import HAVE_KERNEL
-from ekfviz.core.replay import replay
+from ekfviz.filters.ekf import HAVE_KERNEL
 from ekfviz.io.classic import read_classic
+from ekfviz.runner.replay import replay
 
 DATA = Path(__file__).parents[1] / "data"
 SAMPLE, TRUTH = DATA / "classic.txt", DATA / "classic_truth.json"

@@ -10,21 +10,20 @@ import pytest
 from conftest import entity_rows
 
 from ekfviz import viz
-from ekfviz.core.consistency import (
+from ekfviz.core.stats import chi2_cdf, chi2_quantile
+from ekfviz.core.truth import GroundTruth
+from ekfviz.evaluation.consistency import (
     BoundCount,
     Consistency,
     Verdict,
     chi2_bounds,
-    chi2_cdf,
-    chi2_quantile,
     pose_nees,
 )
-from ekfviz.core.evaluation import evaluate
-from ekfviz.core.filter import FilterParams
-from ekfviz.core.replay import replay
-from ekfviz.core.truth import GroundTruth
+from ekfviz.evaluation.errors import evaluate
+from ekfviz.filters.ekf import FilterParams
 from ekfviz.io.classic import format_classic
 from ekfviz.io.truth import truth_json
+from ekfviz.runner.replay import replay
 from ekfviz.sim.scenarios import classic
 from ekfviz.sim.simulate import Noise
 from ekfviz.viz import style
@@ -166,7 +165,7 @@ def test_monte_carlo_verdicts(tmp_path: Path, args: list[str], verdict: str) -> 
 
 
 def test_monte_carlo_is_the_same_on_one_or_two_workers(tmp_path: Path) -> None:
-    from ekfviz.sim.montecarlo import Trials, monte_carlo
+    from ekfviz.studies.montecarlo import Trials, monte_carlo
 
     world = classic()
     trials = Trials(world, world.noise, world.init_pose_sigma, FilterParams())

@@ -19,10 +19,10 @@ from ekfviz.core.correlation import (
     block_average,
     correlation_of,
 )
-from ekfviz.core.filter import FilterParams
 from ekfviz.core.records import EventKind
-from ekfviz.core.replay import replay
+from ekfviz.filters.ekf import FilterParams
 from ekfviz.io.extended import read_log
+from ekfviz.runner.replay import replay
 from ekfviz.sim.simulate import CLASSIC_LANDMARKS_XY, classic_controls, simulate
 from ekfviz.viz import style
 from ekfviz.viz.blueprint import map_view

@@ -16,11 +16,11 @@ from conftest import entity_rows
 from typer.testing import CliRunner
 
 from ekfviz.cli import app
-from ekfviz.core.filter import FilterParams
 from ekfviz.core.records import EventKind, EventRecord
-from ekfviz.core.replay import replay
+from ekfviz.filters.ekf import FilterParams
 from ekfviz.io.extended import read_log
 from ekfviz.io.truth import read_truth
+from ekfviz.runner.replay import replay
 from ekfviz.viz import style
 
 runner = CliRunner()

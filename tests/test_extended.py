@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from ekfviz.core.records import Control, EventKind, Sighting
-from ekfviz.core.replay import replay
 from ekfviz.io.classic import format_classic
 from ekfviz.io.errors import InputError
 from ekfviz.io.extended import format_extended, is_extended, read_extended, read_log
+from ekfviz.runner.replay import replay
 from ekfviz.sim.scenarios import classic
 
 LOG = """# a log

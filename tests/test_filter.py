@@ -10,7 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ekfviz.core.filter import (
+from ekfviz.core.records import Control, EventKind, EventRecord, Sighting
+from ekfviz.filters.ekf import (
     HAVE_KERNEL,
     KERNEL_MAX_DIM,
     EkfSlam,
@@ -18,10 +19,9 @@ from ekfviz.core.filter import (
     LandmarkInit,
     UpdateMode,
 )
-from ekfviz.core.records import Control, EventKind, EventRecord, Sighting
-from ekfviz.core.replay import replay
 from ekfviz.models.angles import wrap_angle
 from ekfviz.models.classic import measure, measurement_jacobians
+from ekfviz.runner.replay import replay
 from ekfviz.sim.scenarios import classic
 from ekfviz.sim.simulate import CLASSIC_LANDMARKS_XY, Noise, classic_controls, simulate
 
@@ -308,7 +308,7 @@ def test_kernel_and_numpy_code_give_the_same_records(n_landmarks: int, seen: int
 @pytest.mark.skipif(not HAVE_KERNEL, reason="the compiled kernel was not built")
 def test_kernel_refuses_buffers_of_the_wrong_kind() -> None:
     """A wrong buffer is a ValueError, never a write outside it."""
-    from ekfviz.core import _kernel
+    from ekfviz.filters import _kernel
 
     x, P = np.zeros(5), np.eye(5)
     with pytest.raises(ValueError, match="float64"):

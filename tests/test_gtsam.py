@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ekfviz.core.evaluation import landmark_errors
-from ekfviz.core.filter import EkfSlam, FilterError, FilterParams
-from ekfviz.core.protocol import SlamFilter, state_of
 from ekfviz.core.records import Control, LogEvent, landmark_marginals, with_ids
+from ekfviz.evaluation.errors import landmark_errors
+from ekfviz.filters.ekf import EkfSlam, FilterError, FilterParams
+from ekfviz.filters.protocol import SlamFilter, state_of
 from ekfviz.io.extended import read_log
 from ekfviz.io.truth import read_truth
 from ekfviz.sim.scenarios import classic, loop
@@ -224,7 +224,7 @@ def test_without_gtsam_the_filters_say_how_to_install_it() -> None:
         "        if name.split('.')[0] == 'gtsam':\n"
         "            raise ImportError('no gtsam')\n"
         "sys.meta_path.insert(0, NoGtsam())\n"
-        "from ekfviz.filters import FilterSpecError, load_filter\n"
+        "from ekfviz.filters.spec import FilterSpecError, load_filter\n"
         "for name in ('isam2', 'batch'):\n"
         "    try:\n"
         "        load_filter(name)\n"

@@ -18,7 +18,9 @@ from conftest import entity_rows
 from typer.testing import CliRunner
 
 from ekfviz.cli import app
-from ekfviz.core.consistency import (
+from ekfviz.core.health import check_covariance
+from ekfviz.core.truth import GroundTruth
+from ekfviz.evaluation.consistency import (
     INSIDE_BORDERLINE,
     INSIDE_FOR_CONSISTENT,
     BoundCount,
@@ -26,11 +28,9 @@ from ekfviz.core.consistency import (
     Verdict,
     reading,
 )
-from ekfviz.core.health import check_covariance
-from ekfviz.core.replay import replay
-from ekfviz.core.truth import GroundTruth
 from ekfviz.io.classic import read_classic
 from ekfviz.io.paths import OutputPathError, check_output_path, unused_path
+from ekfviz.runner.replay import replay
 
 ROOT = Path(__file__).parents[1]
 DATA = ROOT / "data"

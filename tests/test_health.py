@@ -9,10 +9,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ekfviz.core.filter import EkfSlam, FilterError, FilterParams, LandmarkInit, UpdateMode
 from ekfviz.core.health import CHECK_EVERY_STEPS, check_covariance, health
 from ekfviz.core.records import Control, EventKind, EventRecord, LogEvent, Sighting, snapshot
-from ekfviz.core.replay import FilterLineError, replay
+from ekfviz.filters.ekf import EkfSlam, FilterError, FilterParams, LandmarkInit, UpdateMode
+from ekfviz.runner.replay import FilterLineError, replay
 from ekfviz.sim.scenarios import classic, loop
 
 

@@ -26,9 +26,9 @@ from ekfviz.association.jcbb import (
 )
 from ekfviz.association.nn import nearest_neighbour
 from ekfviz.cli import app
-from ekfviz.core.filter import EkfSlam, FilterParams
 from ekfviz.core.records import Scan
 from ekfviz.core.types import FloatArray
+from ekfviz.filters.ekf import EkfSlam, FilterParams
 from ekfviz.models.range_bearing import RangeBearing
 
 runner = CliRunner()

@@ -1,4 +1,5 @@
-"""The layering of the package: the numpy-only core never loads rerun or typer."""
+"""The layering of the package: layers import downwards only, without circles, and the
+numpy-only layers never load rerun, typer or an optional backend."""
 
 from __future__ import annotations
 
@@ -6,20 +7,31 @@ import subprocess
 import sys
 from pathlib import Path
 
+# The packages below the logging layer: numpy and the standard library only
+NUMPY_ONLY = ("core", "models", "io", "sim", "filters", "association", "evaluation", "sources",
+              "runner", "check", "calibrate", "studies")  # fmt: skip
+PACKAGE = Path(__file__).parents[1] / "ekfviz"
 
-def test_core_io_and_sim_do_not_import_rerun_typer_gtsam_or_dask() -> None:
+
+def _modules(*packages: str) -> list[str]:
+    """Every module of the given ekfviz packages, by dotted name."""
+    names = []
+    for package in packages:
+        for path in sorted((PACKAGE / package).rglob("*.py")):
+            parts = path.relative_to(PACKAGE).with_suffix("").parts
+            names.append(".".join(("ekfviz", *parts)).removesuffix(".__init__"))
+    return names
+
+
+def test_the_numpy_only_packages_do_not_import_rerun_typer_gtsam_or_dask() -> None:
+    # the GTSAM backend is the one module that imports its extra (when --filter asks for it)
+    modules = [m for m in _modules(*NUMPY_ONLY) if m != "ekfviz.filters.gtsam"]
+    assert "ekfviz.filters.ekf" in modules and len(modules) > 40
     code = (
-        "import sys\n"
-        "import ekfviz.core.filter, ekfviz.core.replay, ekfviz.core.evaluation\n"
-        "import ekfviz.core.health\n"
-        "import ekfviz.core.consistency, ekfviz.sim.montecarlo, ekfviz.studies.sweep\n"
-        "import ekfviz.studies.runs, ekfviz.filters, ekfviz.core.check, ekfviz.models.classic\n"
-        "import ekfviz.io.classic, ekfviz.io.extended, ekfviz.io.truth, ekfviz.sim.scenarios\n"
-        "import ekfviz.io.mrclam, ekfviz.io.detect, ekfviz.sim.mrclam\n"
-        "import ekfviz.core.calibrate, ekfviz.core.gating\n"
-        "import ekfviz.models.classic, ekfviz.core.correlation, ekfviz.filters\n"
-        "import ekfviz.studies.executors, ekfviz.io.trajectory\n"
-        "banned = {'rerun', 'typer', 'rich', 'gtsam', 'dask', 'distributed'}\n"
+        "import importlib, sys\n"
+        f"for name in {modules!r}:\n"
+        "    importlib.import_module(name)\n"
+        "banned = {'rerun', 'typer', 'rich', 'gtsam', 'dask', 'distributed', 'pandas', 'rosbags'}\n"
         "bad = sorted(m for m in sys.modules if m.split('.')[0] in banned)\n"
         "print(','.join(bad))\n"
     )
@@ -58,12 +70,12 @@ def test_without_the_compiled_kernel_the_numpy_code_stands_in() -> None:
         "import sys\n"
         "class NoKernel:\n"
         "    def find_spec(self, name, path=None, target=None):\n"
-        "        if name == 'ekfviz.core._kernel':\n"
+        "        if name == 'ekfviz.filters._kernel':\n"
         "            raise ImportError('not built')\n"
         "if sys.argv[1] == 'without':\n"
         "    sys.meta_path.insert(0, NoKernel())\n"
-        "from ekfviz.core.filter import HAVE_KERNEL, EkfSlam\n"
-        "from ekfviz.core.replay import replay\n"
+        "from ekfviz.filters.ekf import HAVE_KERNEL, EkfSlam\n"
+        "from ekfviz.runner.replay import replay\n"
         "from ekfviz.sim.scenarios import classic\n"
         "last = list(replay(classic().run(seed=2).events))[-1]\n"
         "print(HAVE_KERNEL, EkfSlam()._compiled, repr(last.pose.tolist()))\n"
@@ -103,19 +115,88 @@ def _imports(package: Path, root: str) -> dict[str, set[str]]:
     return {name: {m for m in found if m in graph} for name, found in graph.items()}
 
 
-def test_no_import_circles_in_the_numpy_only_packages() -> None:
-    package = Path(__file__).parents[1] / "ekfviz"
-    graph = _imports(package, "ekfviz")
-    numpy_only = ("ekfviz.core", "ekfviz.models", "ekfviz.io", "ekfviz.sim", "ekfviz.studies",
-                  "ekfviz.filters")  # fmt: skip
-    for start in (name for name in graph if name.startswith(numpy_only)):
+# The layers, lowest first: a module imports only from its own layer or lower ones. The
+# shared vocabulary (types, events and records, truth, statistics) is at the bottom; the
+# command line at the top. Where a module sits is said by the longest prefix that names it.
+LAYERS: tuple[tuple[str, ...], ...] = (
+    ("ekfviz.core", "ekfviz.signals", "ekfviz.io.errors", "ekfviz.io.paths"),
+    ("ekfviz.models",),
+    ("ekfviz.io",),
+    ("ekfviz.sim",),
+    ("ekfviz.filters",),
+    ("ekfviz.association",),
+    ("ekfviz.evaluation",),
+    ("ekfviz.sources",),
+    ("ekfviz.runner",),
+    ("ekfviz.check", "ekfviz.calibrate"),
+    ("ekfviz.studies",),
+    ("ekfviz.viz",),
+    ("ekfviz.pipeline",),
+    ("ekfviz.cli", "ekfviz.samples", "ekfviz.__main__"),
+)
+
+
+def _layer(module: str) -> int | None:
+    """The index in :data:`LAYERS` of the longest prefix naming ``module``, if any."""
+    best: tuple[int, int] | None = None
+    for index, prefixes in enumerate(LAYERS):
+        for prefix in prefixes:
+            if (module == prefix or module.startswith(prefix + ".")) and (
+                best is None or len(prefix) > best[1]
+            ):
+                best = (index, len(prefix))
+    return None if best is None else best[0]
+
+
+def _upward(graph: dict[str, set[str]]) -> list[str]:
+    """Every import of a module from a higher layer (or of one no layer names)."""
+    found = []
+    for name, targets in sorted(graph.items()):
+        if name == "ekfviz":  # the package itself: its version only
+            continue
+        for target in sorted(targets - {"ekfviz"}):
+            low, high = _layer(target), _layer(name)
+            if low is None or high is None or low > high:
+                found.append(f"{name} (layer {high}) imports {target} (layer {low})")
+    return found
+
+
+def _circles(graph: dict[str, set[str]]) -> list[str]:
+    """Every module that imports itself through others."""
+    found = []
+    for start in sorted(graph):
         stack, seen = [start], set[str]()
         while stack:
             for target in graph[stack.pop()]:
-                assert target != start, f"{start} imports itself through {sorted(seen)}"
+                if target == start:
+                    found.append(f"{start} imports itself through {sorted(seen)}")
+                    stack = []
+                    break
                 if target not in seen:
                     seen.add(target)
                     stack.append(target)
+    return found
+
+
+def test_no_import_circles_anywhere_in_ekfviz() -> None:
+    assert _circles(_imports(PACKAGE, "ekfviz")) == []
+
+
+def test_every_module_imports_only_from_its_layer_or_lower_ones() -> None:
+    graph = _imports(PACKAGE, "ekfviz")
+    assert "ekfviz.filters.ekf" in graph and "ekfviz.cli.replay" in graph
+    assert _upward(graph) == []
+
+
+def test_the_layer_check_can_fail() -> None:
+    graph = {"ekfviz.models.classic": {"ekfviz.filters.ekf"}, "ekfviz.filters.ekf": set(),
+             "ekfviz.nowhere": set()}  # fmt: skip
+    assert _upward(graph) == [
+        "ekfviz.models.classic (layer 1) imports ekfviz.filters.ekf (layer 4)"
+    ]
+    assert _upward({"ekfviz.cli.x": {"ekfviz.nowhere"}, "ekfviz.nowhere": set()}) == [
+        "ekfviz.cli.x (layer 13) imports ekfviz.nowhere (layer None)"
+    ]
 
 
 def test_the_circle_check_can_fail(tmp_path: Path) -> None:
@@ -124,3 +205,4 @@ def test_the_circle_check_can_fail(tmp_path: Path) -> None:
                                    "    from pkg.a import y\n")  # fmt: skip
     graph = _imports(tmp_path, "pkg")
     assert "pkg.b" in graph["pkg.a"] and "pkg.a" in graph["pkg.b"]
+    assert len(_circles(graph)) == 2

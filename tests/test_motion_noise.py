@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from test_models import numerical_jacobian
 
-from ekfviz.core.filter import EkfSlam, FilterError, FilterParams, MotionNoise
 from ekfviz.core.records import Control
 from ekfviz.core.types import FloatArray
+from ekfviz.filters.ekf import EkfSlam, FilterError, FilterParams, MotionNoise
 from ekfviz.io.extended import read_extended
 from ekfviz.models.classic import motion, motion_jacobians
 

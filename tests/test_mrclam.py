@@ -13,8 +13,8 @@ import pytest
 from conftest import entity_rows
 from typer.testing import CliRunner
 
+from ekfviz.calibrate.fit import calibrate
 from ekfviz.cli import app
-from ekfviz.core.calibrate import calibrate
 from ekfviz.core.records import Control, EventKind, EventRecord, Sighting
 from ekfviz.core.truth import GroundTruth
 from ekfviz.io.detect import LogKind, open_source
@@ -276,8 +276,8 @@ def test_calibrate_needs_true_poses(tmp_path: Path) -> None:
 
 
 def test_the_gate_rejects_an_outlier_with_a_warning(tmp_path: Path) -> None:
-    from ekfviz.core.filter import FilterParams
-    from ekfviz.core.replay import replay
+    from ekfviz.filters.ekf import FilterParams
+    from ekfviz.runner.replay import replay
 
     near = Sighting(line=1, ids=np.array([1]), z=np.array([[0.0, 5.0]]))
     events: list[Control | Sighting] = [near, Control(line=2, d=0.0, alpha=0.0), Sighting(

@@ -14,13 +14,13 @@ import pytest
 from conftest import entity_rows, rrd_verify
 from typer.testing import CliRunner
 
+from ekfviz.check.lockstep import Quantity, lockstep, numbered
 from ekfviz.cli import app
-from ekfviz.core.check import Quantity, lockstep, numbered
-from ekfviz.core.filter import FilterParams, LandmarkInit, UpdateMode
 from ekfviz.core.records import Control, EventKind, LogEvent, with_ids
-from ekfviz.core.replay import replay
-from ekfviz.filters import FilterSpecError, load_filter, load_in_process
+from ekfviz.filters.ekf import FilterParams, LandmarkInit, UpdateMode
+from ekfviz.filters.spec import FilterSpecError, load_filter, load_in_process
 from ekfviz.io.extended import read_log
+from ekfviz.runner.replay import replay
 
 ROOT = Path(__file__).parents[1]
 DATA = ROOT / "data"
@@ -321,9 +321,9 @@ def test_a_filter_that_cannot_be_loaded_is_one_line(
 
 
 def test_a_plugin_in_a_package_module() -> None:
-    assert load_in_process("ekfviz.core.filter:EkfSlam").__name__ == "EkfSlam"
+    assert load_in_process("ekfviz.filters.ekf:EkfSlam").__name__ == "EkfSlam"
     # through --filter, a module's class runs in a worker like a file's
-    remote = load_filter("ekfviz.core.filter:EkfSlam")(FilterParams())
+    remote = load_filter("ekfviz.filters.ekf:EkfSlam")(FilterParams())
     assert np.allclose(np.asarray(remote.x), [0.0, 0.0, 0.0])
 
 

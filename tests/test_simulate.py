@@ -11,10 +11,10 @@ from typer.testing import CliRunner
 
 from ekfviz.cli import app
 from ekfviz.core.records import Sighting
-from ekfviz.core.replay import replay
 from ekfviz.io.classic import read_classic
 from ekfviz.io.extended import read_extended, read_log
 from ekfviz.io.truth import read_truth
+from ekfviz.runner.replay import replay
 from ekfviz.sim.scenarios import classic, loop
 from ekfviz.sim.simulate import Noise
 

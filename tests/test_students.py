@@ -16,7 +16,7 @@ import pytest
 import students
 from conftest import entity_rows
 
-from ekfviz.core.mistakes import CATALOGUE
+from ekfviz.check.mistakes import CATALOGUE
 
 ROOT = Path(__file__).resolve().parent.parent
 DATA = ROOT / "data"
@@ -145,8 +145,8 @@ def update(X, P, measure, measure_cov, k):
 
 
 def test_flat_shapes_are_detected_and_said(tmp_path: Path) -> None:
-    from ekfviz.core.filter import FilterParams
-    from ekfviz.filters import FilterSpec
+    from ekfviz.filters.ekf import FilterParams
+    from ekfviz.filters.spec import FilterSpec
 
     flat = tmp_path / "flat.py"
     flat.write_text(FLAT)

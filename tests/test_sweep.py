@@ -10,7 +10,7 @@ from conftest import entity_rows
 from typer.testing import CliRunner
 
 from ekfviz.cli import app
-from ekfviz.core.filter import FilterParams
+from ekfviz.filters.ekf import FilterParams
 from ekfviz.studies.sweep import Change, SweepError, build_variants, parse_vary, tuning_preset
 
 DATA = Path(__file__).parents[1] / "data"

@@ -138,7 +138,7 @@ def test_every_tree_seen_is_mapped_once_near_where_it_stands(
 
 
 def test_the_rigid_fit_recovers_a_known_transform_and_finds_jumps() -> None:
-    from ekfviz.core.reference import fit_reference, jumps
+    from ekfviz.evaluation.reference import fit_reference, jumps
 
     t = np.linspace(0.0, 60.0, 61)
     estimate = np.column_stack([10 * np.cos(t / 10), 5 * np.sin(t / 7)])

@@ -15,12 +15,12 @@ import rerun.blueprint as rrb
 from conftest import entity_rows, rrd_verify
 
 from ekfviz import __version__, viz
-from ekfviz.core.evaluation import evaluate
-from ekfviz.core.filter import HAVE_KERNEL, FilterParams
 from ekfviz.core.records import EventKind, EventRecord, LogEvent, Sighting
-from ekfviz.core.replay import replay
 from ekfviz.core.truth import GroundTruth
+from ekfviz.evaluation.errors import evaluate
+from ekfviz.filters.ekf import HAVE_KERNEL, FilterParams
 from ekfviz.io.classic import format_classic
+from ekfviz.runner.replay import replay
 from ekfviz.sim.simulate import CLASSIC_LANDMARKS_XY, classic_controls, simulate
 from ekfviz.viz import style
 from ekfviz.viz.blueprint import map_view

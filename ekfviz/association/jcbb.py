@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ekfviz.association.nn import nearest_neighbour
-from ekfviz.core.consistency import chi2_quantile
+from ekfviz.core.stats import chi2_quantile
 from ekfviz.core.types import BoolArray, FloatArray, IntArray
 
 DEFAULT_BUDGET = 10_000  # hypotheses per scan

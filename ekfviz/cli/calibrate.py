@@ -11,6 +11,22 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
+from ekfviz.association.gating import CHI2_2_999
+from ekfviz.calibrate.fit import (
+    HEAVY_TAIL_SHARE,
+    OUTLIER_SIGMAS,
+    WINDOW_S,
+    Calibration,
+    ResidualStats,
+)
+from ekfviz.calibrate.recommend import (
+    FIT_SHARE,
+    LARGE_SCALE,
+    MAP_CREDIBLE,
+    Candidate,
+    Recommendation,
+    recommend,
+)
 from ekfviz.cli.common import (
     DEFAULT,
     StudyLogArgument,
@@ -25,22 +41,8 @@ from ekfviz.cli.common import (
     write_json,
 )
 from ekfviz.cli.sources import MotionNoiseChoice, RobotOption, first_time, open_log, resolve
-from ekfviz.core.calibrate import (
-    FIT_SHARE,
-    HEAVY_TAIL_SHARE,
-    LARGE_SCALE,
-    MAP_CREDIBLE,
-    OUTLIER_SIGMAS,
-    WINDOW_S,
-    Calibration,
-    Candidate,
-    Recommendation,
-    ResidualStats,
-    recommend,
-)
-from ekfviz.core.filter import MotionNoise
-from ekfviz.core.gating import CHI2_2_999
 from ekfviz.core.records import NeedsIds, with_ids
+from ekfviz.filters.ekf import MotionNoise
 from ekfviz.io.errors import InputError
 
 

@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 
 from ekfviz import __version__
+from ekfviz.check.lockstep import DEFAULT_TOLERANCE
 from ekfviz.cli.common import (
     DEFAULT,
     DEFAULT_FILTER_TIMEOUT_S,
@@ -37,16 +38,15 @@ from ekfviz.cli.common import (
     write_json,
 )
 from ekfviz.cli.sources import InitPoseOption
-from ekfviz.core.check import DEFAULT_TOLERANCE
-from ekfviz.core.filter import FilterError
-from ekfviz.core.replay import FilterLineError
-from ekfviz.filters import FilterSpec, FilterSpecError
+from ekfviz.filters.ekf import FilterError
+from ekfviz.filters.spec import FilterSpec, FilterSpecError
 from ekfviz.io.errors import InputError
+from ekfviz.runner.replay import FilterLineError
 from ekfviz.samples import write_battery
 
 if TYPE_CHECKING:
-    from ekfviz.core.check import CheckResult
-    from ekfviz.core.coverage import Item
+    from ekfviz.check.coverage import Item
+    from ekfviz.check.lockstep import CheckResult
 
 
 @app.command()

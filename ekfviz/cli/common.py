@@ -25,10 +25,10 @@ from typer._click.core import ParameterSource
 from typer._click.globals import get_current_context
 
 from ekfviz import __version__, signals
-from ekfviz.core.evaluation import Evaluation, summary_lines
-from ekfviz.core.filter import HAVE_KERNEL, FilterParams, LandmarkInit, UpdateMode
 from ekfviz.core.records import AnyEvent, EventRecord
 from ekfviz.core.truth import GroundTruth
+from ekfviz.evaluation.errors import Evaluation, summary_lines
+from ekfviz.filters.ekf import HAVE_KERNEL, FilterParams, LandmarkInit, UpdateMode
 from ekfviz.io.errors import InputError
 from ekfviz.io.paths import OutputPathError, check_output_path, distinct_paths, unused_path
 from ekfviz.io.text import MAX_MAGNITUDE, RANGE_TEXT, ProgressCallback

@@ -42,7 +42,7 @@ from ekfviz.cli.scans import (
     study_association,
 )
 from ekfviz.cli.study import run_study
-from ekfviz.filters import FilterSpec
+from ekfviz.filters.spec import FilterSpec
 from ekfviz.io.errors import InputError
 from ekfviz.studies.executors import ExecutorName
 

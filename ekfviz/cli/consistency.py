@@ -67,9 +67,9 @@ from ekfviz.cli.scans import (
     GateProbability,
     association_params,
 )
-from ekfviz.core.consistency import Verdict
-from ekfviz.core.filter import FilterError
-from ekfviz.filters import BUILTIN, FilterSpecError, load_filter
+from ekfviz.evaluation.consistency import Verdict
+from ekfviz.filters.ekf import FilterError
+from ekfviz.filters.spec import BUILTIN, FilterSpecError, load_filter
 from ekfviz.sim.scenarios import ScenarioName
 from ekfviz.studies.executors import ExecutorError, ExecutorName
 
@@ -133,7 +133,7 @@ def consistency(
     A consistent filter keeps the averaged NEES inside its 95% chi-square bounds; above
     them it is over-confident, below them too cautious.
     """
-    from ekfviz.sim.montecarlo import Trials, average, run_trial
+    from ekfviz.studies.montecarlo import Trials, average, run_trial
 
     check_outputs(("--report", report), ("--save", save))
     world = scenario_world(scenario, seed, steps, landmarks, max_range, fov)

@@ -69,8 +69,8 @@ from ekfviz.cli.sources import (
     open_log,
     resolve,
 )
-from ekfviz.core.filter import EkfSlam, FilterError
-from ekfviz.filters import BUILTIN, FilterSpecError, load_filter
+from ekfviz.filters.ekf import EkfSlam, FilterError
+from ekfviz.filters.spec import BUILTIN, FilterSpecError, load_filter
 from ekfviz.io.errors import InputError
 
 

@@ -17,11 +17,11 @@ from ekfviz.association import AssociationParams, Associator, Method
 from ekfviz.association.evaluation import AssociationTally
 from ekfviz.cli.common import _option, out, warn
 from ekfviz.cli.sources import OpenedLog
-from ekfviz.core.filter import EkfSlam, FilterParams
-from ekfviz.core.model_filter import ModelEkfSlam
 from ekfviz.core.records import AnyEvent, EventRecord
-from ekfviz.core.reference import JUMP_M, ReferenceFit, fit_reference
 from ekfviz.core.truth import GroundTruth
+from ekfviz.evaluation.reference import JUMP_M, ReferenceFit, fit_reference
+from ekfviz.filters.ekf import EkfSlam, FilterParams
+from ekfviz.filters.model_ekf import ModelEkfSlam
 from ekfviz.io.detect import LogKind
 from ekfviz.io.errors import InputError
 from ekfviz.io.text import ProgressCallback

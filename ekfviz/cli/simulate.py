@@ -39,8 +39,8 @@ from ekfviz.cli.common import (
     true_noise,
     write_bytes_atomic,
 )
-from ekfviz.core.filter import FilterParams
 from ekfviz.core.truth import GroundTruth
+from ekfviz.filters.ekf import FilterParams
 from ekfviz.io.paths import OutputPathError, check_output_folder
 from ekfviz.sim.mrclam import MrclamNoise, MrclamWorld
 from ekfviz.sim.scenarios import ScenarioName

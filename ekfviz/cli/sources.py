@@ -13,9 +13,9 @@ from typing import Annotated
 import typer
 
 from ekfviz.cli.common import FILTER_NOISE, FILTER_OPTIONS, _option, log_events, warn
-from ekfviz.core.filter import FilterParams, MotionNoise
 from ekfviz.core.records import AnyEvent, Control
 from ekfviz.core.truth import GroundTruth
+from ekfviz.filters.ekf import FilterParams, MotionNoise
 from ekfviz.io.detect import LogSource, open_source
 from ekfviz.io.text import ProgressCallback
 from ekfviz.io.truth import checked_against, read_truth

@@ -27,10 +27,10 @@ from ekfviz.cli.common import (
     stopped_study,
     write_json,
 )
-from ekfviz.core.filter import FilterError
-from ekfviz.core.replay import FilterLineError
-from ekfviz.filters import FilterSpecError
+from ekfviz.filters.ekf import FilterError
+from ekfviz.filters.spec import FilterSpecError
 from ekfviz.io.errors import InputError
+from ekfviz.runner.replay import FilterLineError
 from ekfviz.studies.executors import Executor, ExecutorError
 from ekfviz.studies.runs import RunSpec, Summary
 

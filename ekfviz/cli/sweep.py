@@ -45,7 +45,7 @@ from ekfviz.cli.scans import (
     study_association,
 )
 from ekfviz.cli.study import run_study
-from ekfviz.filters import BUILTIN, FilterSpec
+from ekfviz.filters.spec import BUILTIN, FilterSpec
 from ekfviz.io.errors import InputError
 from ekfviz.studies.executors import ExecutorName
 

@@ -7,7 +7,7 @@ nothing of ekfviz's. What it prints is captured (never on ekfviz's stdout); one 
 bounded by ``timeout_s``; its address space by ``memory_mb``. Its state crosses as raw
 float64 buffers with their shapes (see ``_worker.py``), never as numpy pickles.
 
-:class:`RemoteFilter` is the filter protocol (:class:`~ekfviz.core.protocol.SlamFilter`)
+:class:`RemoteFilter` is the filter protocol (:class:`~ekfviz.filters.protocol.SlamFilter`)
 on this side: the runner drives it as any other filter. Numpy only.
 """
 
@@ -34,10 +34,10 @@ from typing import Any
 
 import numpy as np
 
-from ekfviz.core.filter import FilterParams
-from ekfviz.core.plugged import PluginError
-from ekfviz.core.protocol import Capabilities
 from ekfviz.core.types import FloatArray, IntArray
+from ekfviz.filters.ekf import FilterParams
+from ekfviz.filters.plugged import PluginError
+from ekfviz.filters.protocol import Capabilities
 
 WORKER_SCRIPT = Path(__file__).with_name("_worker.py")
 DEFAULT_TIMEOUT_S = 60.0

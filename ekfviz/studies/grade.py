@@ -17,7 +17,7 @@ import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from ekfviz.core.filter import FilterParams
+from ekfviz.filters.ekf import FilterParams
 
 STATUSES = ("match", "diverged", "error", "timeout", "memory", "crashed")
 # how a failure's kind (WorkerFault, FilterSpecError) reads in the table
@@ -132,8 +132,8 @@ def spec_text(module: Path) -> str:
 def grade_one(task: GradeTask) -> GradeRow:
     """Check one submission on every log of ``task``; never raises for what it does."""
     from ekfviz import pipeline
-    from ekfviz.core.filter import FilterError
-    from ekfviz.filters import FilterSpec, FilterSpecError
+    from ekfviz.filters.ekf import FilterError
+    from ekfviz.filters.spec import FilterSpec, FilterSpecError
     from ekfviz.filters.worker import WorkerOptions
     from ekfviz.io.errors import InputError
 

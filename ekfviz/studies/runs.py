@@ -19,17 +19,17 @@ import numpy as np
 
 from ekfviz.association import AssociationParams, Associator
 from ekfviz.association.evaluation import AssociationTally
-from ekfviz.core.consistency import Consistency, reading
-from ekfviz.core.evaluation import Evaluation, evaluate
-from ekfviz.core.filter import FilterParams
-from ekfviz.core.plugged import FilterFactory, PluginError
-from ekfviz.core.protocol import SlamFilter
 from ekfviz.core.records import EventRecord
-from ekfviz.core.replay import FilterLineError, replay
 from ekfviz.core.truth import GroundTruth
-from ekfviz.filters import BUILTIN, FilterSpec, FilterSpecError, release
+from ekfviz.evaluation.consistency import Consistency, reading
+from ekfviz.evaluation.errors import Evaluation, evaluate
+from ekfviz.filters.ekf import FilterParams
+from ekfviz.filters.plugged import FilterFactory, PluginError
+from ekfviz.filters.protocol import SlamFilter
+from ekfviz.filters.spec import BUILTIN, FilterSpec, FilterSpecError, release
 from ekfviz.io.detect import read_log
 from ekfviz.models.range_bearing import RangeBearing
+from ekfviz.runner.replay import FilterLineError, replay
 from ekfviz.studies.executors import Executor, LocalExecutor
 
 VARIABLE = ("sigma_x", "sigma_y", "sigma_alpha", "sigma_bearing", "sigma_range")

@@ -20,7 +20,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
-from ekfviz.core.filter import FilterParams
+from ekfviz.filters.ekf import FilterParams
 from ekfviz.studies.runs import VARIABLE, RunSpec
 
 _VALUE = re.compile(r"(?P<op>[x*/]?)(?P<number>(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)")

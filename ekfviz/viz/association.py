@@ -24,9 +24,9 @@ import rerun as rr
 
 from ekfviz.association.evaluation import AssociationTally
 from ekfviz.core.records import EventRecord, Fate
-from ekfviz.core.reference import ReferenceFit
 from ekfviz.core.truth import GroundTruth
 from ekfviz.core.types import FloatArray
+from ekfviz.evaluation.reference import ReferenceFit
 from ekfviz.models.range_bearing import RangeBearing
 from ekfviz.viz import style
 from ekfviz.viz.ellipses import ellipse_outlines

@@ -7,8 +7,8 @@ from collections.abc import Collection, Mapping, Sequence
 import rerun as rr
 import rerun.blueprint as rrb
 
-from ekfviz.core.consistency import chi2_bounds
 from ekfviz.core.types import FloatArray
+from ekfviz.evaluation.consistency import chi2_bounds
 from ekfviz.viz import style
 
 # The x axis of a plot on the ``time`` timeline spans the whole run. Without it a plot of

@@ -44,7 +44,7 @@ from ekfviz.viz.run import Recording, finish_recorders
 from ekfviz.viz.study import SUMMARY, log_runs
 
 if TYPE_CHECKING:
-    from ekfviz.core.check import CheckResult, Divergence
+    from ekfviz.check.lockstep import CheckResult, Divergence
 
 DIVERGENCE = "world/divergence"
 EXPECTED = "world/divergence/expected"

@@ -14,7 +14,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from ekfviz import __version__
-from ekfviz.sim.montecarlo import MonteCarlo
+from ekfviz.studies.montecarlo import MonteCarlo
 from ekfviz.viz import style
 from ekfviz.viz.run import temporary_beside
 

@@ -51,9 +51,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from ekfviz import __version__
-from ekfviz.core.consistency import chi2_bounds, pose_nees
 from ekfviz.core.correlation import Correlation, CorrelationCadence, correlation_of
-from ekfviz.core.evaluation import Evaluation, landmark_errors
 from ekfviz.core.health import (
     CovarianceCheck,
     check_covariance,
@@ -64,6 +62,8 @@ from ekfviz.core.health import (
 from ekfviz.core.records import EventKind, EventRecord, Observations, snapshot
 from ekfviz.core.truth import GroundTruth
 from ekfviz.core.types import FloatArray, IntArray
+from ekfviz.evaluation.consistency import chi2_bounds, pose_nees
+from ekfviz.evaluation.errors import Evaluation, landmark_errors
 from ekfviz.models.angles import wrap_angles
 from ekfviz.models.range_bearing import RangeBearing
 from ekfviz.viz import style

@@ -32,10 +32,10 @@ import rerun as rr
 from rerun.any_batch_value import ComponentValueLike
 
 from ekfviz import __version__, signals
-from ekfviz.core.evaluation import Evaluation
-from ekfviz.core.filter import HAVE_KERNEL
 from ekfviz.core.records import EventRecord
 from ekfviz.core.truth import GroundTruth
+from ekfviz.evaluation.errors import Evaluation
+from ekfviz.filters.ekf import HAVE_KERNEL
 from ekfviz.io.errors import InputError
 from ekfviz.io.paths import OutputPathError, check_output_path, unused_path
 from ekfviz.models.range_bearing import RangeBearing

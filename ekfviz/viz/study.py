@@ -10,11 +10,11 @@ from __future__ import annotations
 import numpy as np
 import rerun as rr
 
-from ekfviz.core.consistency import chi2_bounds, update_nis
-from ekfviz.core.evaluation import Evaluation, landmark_errors
 from ekfviz.core.records import EventKind
 from ekfviz.core.truth import GroundTruth
 from ekfviz.core.types import FloatArray
+from ekfviz.evaluation.consistency import chi2_bounds, update_nis
+from ekfviz.evaluation.errors import Evaluation, landmark_errors
 from ekfviz.studies.runs import Run
 from ekfviz.viz import style
 from ekfviz.viz.blueprint import sweep_blueprint

@@ -1,10 +1,10 @@
 /* The filter's inner loops for small maps, compiled.
  *
  * With a few landmarks, EKF-SLAM's arithmetic is tiny (P is 15 x 15 for the classic six
- * landmarks) and the numpy version of ekfviz/core/filter.py spends its time in the
+ * landmarks) and the numpy version of ekfviz/filters/ekf.py spends its time in the
  * overhead of a dozen numpy calls per landmark. These two functions do the same algebra
  * as EkfSlam.predict and EkfSlam._update_sequential, in the same order, in plain C
- * loops over the filter's own buffers; filter.py calls predict at any size and the
+ * loops over the filter's own buffers; ekf.py calls predict at any size and the
  * update below KERNEL_MAX_DIM, and falls back to numpy when this module was not built
  * (no C compiler at install time).
  *

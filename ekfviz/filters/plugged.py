@@ -1,10 +1,10 @@
-"""Run any :class:`~ekfviz.core.protocol.SlamFilter` as the runner runs the built-in EKF.
+"""Run any :class:`~ekfviz.filters.protocol.SlamFilter` as the runner runs the built-in EKF.
 
 A protocol filter only shows its state. :class:`Plugged` wraps it, checks what it shows
 after every event (shapes, finiteness, symmetry, landmark ids) and derives what the
 built-in filter reports itself: for every observation of an update, the prediction,
 innovation, innovation covariance S = H P H^T + R and NIS, by running ekfviz's own update
-(:class:`~ekfviz.core.filter.EkfSlam`, with the run's parameters: sequential or joint)
+(:class:`~ekfviz.filters.ekf.EkfSlam`, with the run's parameters: sequential or joint)
 from the filter's state just before the update. A correct filter thus gets the very
 numbers the built-in one reports, and a wrong one the numbers its prior state implies.
 """
@@ -17,9 +17,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from ekfviz.core.filter import EkfSlam, FilterError, FilterParams
 from ekfviz.core.health import CovarianceCheck
-from ekfviz.core.protocol import DeclaresCapabilities, SlamFilter, state_of
 from ekfviz.core.records import (
     EventKind,
     EventRecord,
@@ -29,6 +27,8 @@ from ekfviz.core.records import (
     snapshot,
 )
 from ekfviz.core.types import FloatArray, IntArray
+from ekfviz.filters.ekf import EkfSlam, FilterError, FilterParams
+from ekfviz.filters.protocol import DeclaresCapabilities, SlamFilter, state_of
 
 # P counts as symmetric when |P - P^T| <= SYMMETRY_TOLERANCE * max |P|
 SYMMETRY_TOLERANCE = 1e-9

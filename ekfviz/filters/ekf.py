@@ -32,7 +32,7 @@ from ekfviz.models.angles import wrap_angle, wrap_angles
 from ekfviz.models.classic import landmark_from_measurement, landmark_init_jacobians
 
 try:
-    from ekfviz.core import _kernel
+    from ekfviz.filters import _kernel
 except ImportError:  # installed without a C compiler: numpy throughout
     _kernel = None  # type: ignore[assignment]
 
@@ -87,7 +87,7 @@ class FilterParams:
     """Noise levels, prior and options of the filter; defaults are the classic ones.
 
     ``motion_noise`` says how the motion sigmas scale (see :class:`MotionNoise`);
-    ``gate`` rejects outliers (see :mod:`ekfviz.core.gating`).
+    ``gate`` rejects outliers (see :mod:`ekfviz.association.gating`).
     """
 
     sigma_x: float = 0.25
@@ -101,7 +101,7 @@ class FilterParams:
     update: UpdateMode = UpdateMode.SEQUENTIAL
     motion_noise: MotionNoise = MotionNoise.PER_STEP
     # NIS (2 dof) beyond which an observation of a known landmark is rejected as an
-    # outlier (see ekfviz.core.gating); None: no gate
+    # outlier (see ekfviz.association.gating); None: no gate
     gate: float | None = None
     # systematic odometry errors the replay takes out of every control before the filter
     # sees it (see corrected): scales on the distance and on the turn, and a turn bias in
@@ -455,7 +455,7 @@ class EkfSlam:
         )
 
     def update(self, ids: Sequence[int] | IntArray, z: FloatArray) -> None:
-        """:meth:`observe` as the :class:`~ekfviz.core.protocol.SlamFilter` protocol has it."""
+        """:meth:`observe` as the :class:`~ekfviz.filters.protocol.SlamFilter` protocol has it."""
         self.observe(ids, z)
 
     def _update_compiled(self, ids: list[int], z: FloatArray) -> tuple[FloatArray, BoolArray]:

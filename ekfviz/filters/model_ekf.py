@@ -1,6 +1,6 @@
 """The built-in EKF-SLAM with pluggable models: a vehicle and a sensor off its origin.
 
-:class:`ModelEkfSlam` is :class:`~ekfviz.core.filter.EkfSlam` (same buffers, records,
+:class:`ModelEkfSlam` is :class:`~ekfviz.filters.ekf.EkfSlam` (same buffers, records,
 landmark removal) with the measurement model of :mod:`ekfviz.models.range_bearing` (a
 sensor mounted ``a`` ahead and ``b`` left of the pose's origin) and, for :class:`Drive`
 events, the vehicle of :mod:`ekfviz.models.ackermann`. Classic logs keep the classic
@@ -22,7 +22,9 @@ from typing import Any
 
 import numpy as np
 
-from ekfviz.core.filter import (
+from ekfviz.core.records import EventRecord
+from ekfviz.core.types import FloatArray
+from ekfviz.filters.ekf import (
     MIN_PREDICTED_RANGE,
     EkfSlam,
     FilterError,
@@ -30,8 +32,6 @@ from ekfviz.core.filter import (
     _not_definite,
     _zero_range,
 )
-from ekfviz.core.records import EventRecord
-from ekfviz.core.types import FloatArray
 from ekfviz.models.ackermann import Ackermann
 from ekfviz.models.angles import wrap_angle
 from ekfviz.models.range_bearing import RangeBearing

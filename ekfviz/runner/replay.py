@@ -10,11 +10,9 @@ from typing import Any
 import numpy as np
 
 from ekfviz.association.associator import AssociationError, Associator
+from ekfviz.association.gating import gated
 from ekfviz.core.correlation import CorrelationCadence, correlation_of
-from ekfviz.core.filter import EkfSlam, FilterError, FilterParams
-from ekfviz.core.gating import gated
 from ekfviz.core.health import check_covariance, check_interval
-from ekfviz.core.plugged import FilterFactory, Plugged, PluginError
 from ekfviz.core.records import (
     AnyEvent,
     Control,
@@ -26,6 +24,8 @@ from ekfviz.core.records import (
     Sighting,
     frozen,
 )
+from ekfviz.filters.ekf import EkfSlam, FilterError, FilterParams
+from ekfviz.filters.plugged import FilterFactory, Plugged, PluginError
 
 
 class FilterLineError(FilterError):
@@ -85,12 +85,12 @@ def replay(
 ) -> Iterator[EventRecord]:
     """Run EKF-SLAM over ``events`` lazily, one record per event.
 
-    The filter is the built-in :class:`~ekfviz.core.filter.EkfSlam` unless
+    The filter is the built-in :class:`~ekfviz.filters.ekf.EkfSlam` unless
     ``make_filter`` names another class of the
-    :class:`~ekfviz.core.protocol.SlamFilter` protocol (constructed as
+    :class:`~ekfviz.filters.protocol.SlamFilter` protocol (constructed as
     ``make_filter(params)``, called ``name`` in messages): its state is checked after
     every event, and what it saw at an update is derived from its state before it
-    (:class:`~ekfviz.core.plugged.Plugged`). A filter with a ``finish()`` method works
+    (:class:`~ekfviz.filters.plugged.Plugged`). A filter with a ``finish()`` method works
     offline (a batch smoother): it takes every event, ``finish()`` is called after the
     last, and its records are the initialisation and the state after ``finish()``, at the
     last step.
@@ -110,7 +110,7 @@ def replay(
     Id-less scans go through ``associator`` (:mod:`ekfviz.association`), which pairs
     them and folds them into the filter; at the last event the landmarks still tentative
     are removed. Drive events (a vehicle's raw controls) need a filter with a vehicle
-    model (:class:`~ekfviz.core.model_filter.ModelEkfSlam`).
+    model (:class:`~ekfviz.filters.model_ekf.ModelEkfSlam`).
 
     :param full_cov: also keep the full (3+2N)^2 covariance in every record
     :param slam: the built-in filter to run, made by the caller (with its models)

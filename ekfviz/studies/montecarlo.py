@@ -16,14 +16,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ekfviz.association import AssociationParams, Associator
-from ekfviz.core.consistency import CONFIDENCE, BoundCount, chi2_quantile, pose_nees, update_nis
-from ekfviz.core.filter import FilterParams
 from ekfviz.core.records import EventKind
-from ekfviz.core.replay import replay
+from ekfviz.core.stats import chi2_quantile
 from ekfviz.core.truth import GroundTruth
 from ekfviz.core.types import FloatArray, IntArray
-from ekfviz.filters import BUILTIN, load_filter
+from ekfviz.evaluation.consistency import CONFIDENCE, BoundCount, pose_nees, update_nis
+from ekfviz.filters.ekf import FilterParams
+from ekfviz.filters.spec import BUILTIN, load_filter
 from ekfviz.models.range_bearing import RangeBearing
+from ekfviz.runner.replay import replay
 from ekfviz.sim.scenarios import Scenario
 from ekfviz.sim.simulate import Detection, Noise
 from ekfviz.studies.executors import LocalExecutor

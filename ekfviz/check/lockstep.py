@@ -1,6 +1,6 @@
 """``ekfviz check``: a protocol filter in lockstep with the reference, event by event.
 
-Before every event the reference (the built-in :class:`~ekfviz.core.filter.EkfSlam`)
+Before every event the reference (the built-in :class:`~ekfviz.filters.ekf.EkfSlam`)
 starts from the checked filter's **own** state (x, P, landmark ids) and applies the same
 event with the same parameters; the two results are compared by landmark id. Every
 difference found is therefore that event's own: errors do not pile up, and every event
@@ -9,7 +9,7 @@ that differs by more than the tolerance is a place where the filter's algebra di
 A difference is scaled as |got - expected| / max(1, |expected|): absolute for the small
 entries of a covariance, relative for large ones. A divergent event's cause is found by
 re-running it from the same state with the mistakes of the catalogue
-(:mod:`ekfviz.core.mistakes`), combined with those already found: a set that reproduces
+(:mod:`ekfviz.check.mistakes`), combined with those already found: a set that reproduces
 what the filter did is named; otherwise the hint says which part of the algebra produces
 the quantity that differs.
 """
@@ -23,8 +23,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ekfviz.core.filter import EkfSlam, FilterParams
-from ekfviz.core.mistakes import (
+from ekfviz.check.mistakes import (
     UNKNOWN,
     Explanation,
     State,
@@ -32,11 +31,12 @@ from ekfviz.core.mistakes import (
     explain_predict,
     explain_update,
 )
-from ekfviz.core.plugged import FilterFactory, Plugged, PluginError
 from ekfviz.core.records import Control, EventKind, EventRecord, LogEvent, Sighting
-from ekfviz.core.replay import plugged
 from ekfviz.core.types import IntArray
+from ekfviz.filters.ekf import EkfSlam, FilterParams
+from ekfviz.filters.plugged import FilterFactory, Plugged, PluginError
 from ekfviz.models.angles import wrap_angle
+from ekfviz.runner.replay import plugged
 
 DEFAULT_TOLERANCE = 1e-6
 # the mistakes are re-run (dense algebra) only up to this state dimension
@@ -449,7 +449,7 @@ def explain(
     tolerance: float,
     found: frozenset[str] = frozenset(),
 ) -> Explanation:
-    """The causes of a divergence at ``event`` (see :mod:`ekfviz.core.mistakes`), combined
+    """The causes of a divergence at ``event`` (see :mod:`ekfviz.check.mistakes`), combined
     with the causes already ``found``; none where the state is too large to re-run."""
     if worst.quantity is Quantity.LANDMARK_IDS or len(before.x) > HYPOTHESIS_MAX_DIM:
         return Explanation(())

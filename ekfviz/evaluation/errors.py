@@ -19,10 +19,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ekfviz.core.consistency import Consistency
 from ekfviz.core.records import EventRecord
 from ekfviz.core.truth import GroundTruth
 from ekfviz.core.types import FloatArray
+from ekfviz.evaluation.consistency import Consistency
 from ekfviz.models.angles import wrap_angle
 
 INSIDE_SIGMA = 3.0

@@ -1,0 +1,1 @@
+"""How good a run is: errors against truth, alignment, consistency (NEES, NIS), the GPS fit."""

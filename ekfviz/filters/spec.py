@@ -1,0 +1,236 @@
+"""Which filter a run uses: ``--filter ekf``, a registered backend, or a user's code.
+
+``--filter`` takes
+
+- ``ekf``: the built-in EKF-SLAM (:class:`~ekfviz.filters.ekf.EkfSlam`), the default;
+- a registered name (:data:`REGISTRY`), imported only when asked for, so that optional
+  backends (GTSAM) cost nothing when unused;
+- ``PATH.py``: a course module of functions ``init_landmarks``, ``predict``, ``update``
+  (the handout's shapes), as handed in;
+- ``PATH.py:ClassName``: a class in a Python file;
+- ``package.module:ClassName``: a class in an importable module;
+- any of these as ``LABEL=SPEC``: the same, called LABEL in tables and recordings.
+
+The built-in and registered filters run in ekfviz's process; a user's code runs in a
+worker process of its own (:mod:`ekfviz.filters.worker`), under ``--python`` if given.
+Every class is constructed as ``Class(params)`` and follows the
+:class:`~ekfviz.filters.protocol.SlamFilter` protocol. Numpy only: nothing here imports a
+backend until it is asked for.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib
+import importlib.util
+import re
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ekfviz.filters.plugged import FilterFactory
+from ekfviz.filters.worker import Target, WorkerFactory, WorkerFault, WorkerOptions
+
+BUILTIN = "ekf"
+# name -> ("module:Class", the extra that provides its dependency, or None)
+REGISTRY: dict[str, tuple[str, str | None]] = {
+    BUILTIN: ("ekfviz.filters.ekf:EkfSlam", None),
+    "isam2": ("ekfviz.filters.gtsam:Isam2Slam", "gtsam"),
+    "batch": ("ekfviz.filters.gtsam:BatchSlam", "gtsam"),
+}
+
+
+class FilterSpecError(ValueError):
+    """A ``--filter`` that cannot be loaded; the message is one line.
+
+    :param kind: as :class:`~ekfviz.filters.worker.WorkerFault`'s (``error`` where the
+        spec itself is wrong)
+    """
+
+    def __init__(self, message: str, kind: str = "error", user_traceback: str = "") -> None:
+        super().__init__(message)
+        self.kind = kind
+        self.user_traceback = user_traceback
+
+    def __reduce__(self) -> tuple[object, ...]:
+        return type(self), (str(self), self.kind, self.user_traceback)
+
+
+_LABEL = re.compile(r"^([A-Za-z0-9_.-]+)=(.+)$")
+
+
+@dataclass(frozen=True, slots=True)
+class FilterSpec:
+    """A ``--filter`` value, loadable in any process (it pickles as its text and options).
+
+    :param text: as given on the command line, without a ``LABEL=`` prefix
+    :param name: the label asked for (``--label`` or ``LABEL=SPEC``), if any
+    :param worker: how a user's code runs (interpreter, time and memory bounds)
+    """
+
+    text: str
+    name: str | None = None
+    worker: WorkerOptions = field(default_factory=WorkerOptions)
+
+    @classmethod
+    def parse(
+        cls, text: str, label: str | None = None, worker: WorkerOptions | None = None
+    ) -> FilterSpec:
+        """A spec from ``--filter`` text, which may be ``LABEL=SPEC``."""
+        match = _LABEL.match(text)
+        if match and not Path(text).exists():
+            label, text = label or match.group(1), match.group(2)
+        return cls(text, label, worker if worker is not None else WorkerOptions())
+
+    @property
+    def is_builtin(self) -> bool:
+        return self.text == BUILTIN
+
+    @property
+    def in_process(self) -> bool:
+        """Whether it is ekfviz's own code (built-in or registered), run in this process."""
+        return self.text in REGISTRY
+
+    @property
+    def label(self) -> str:
+        """A short name: the label given, ``ekf``, ``isam2``, a class name, a file's stem."""
+        if self.name:
+            return self.name
+        if self.text in REGISTRY:
+            return self.text
+        where, sep, name = self.text.rpartition(":")
+        if sep and name.isidentifier() and where:
+            return name
+        return Path(self.text).stem or self.text
+
+    @property
+    def key(self) -> str:
+        """The label, safe in an entity path."""
+        return re.sub(r"[^A-Za-z0-9_.-]+", "_", self.label)
+
+    def load(self) -> FilterFactory:
+        """The filter class, or for a user's code a factory of workers running it.
+
+        :raises FilterSpecError: the file, module or class cannot be had; one line
+        """
+        return load_filter(self.text, self.worker)
+
+
+def release(make_filter: object) -> None:
+    """End what a loaded filter holds: the spare worker a user's filter keeps started
+    (:class:`~ekfviz.filters.worker.WorkerFactory`); nothing for the others."""
+    if isinstance(make_filter, WorkerFactory):
+        make_filter.close()
+
+
+def target_of(text: str) -> Target:
+    """What a user's ``--filter`` names: a file or module, and a class or functions.
+
+    :raises FilterSpecError: neither ``PATH.py``, ``PATH.py:Class`` nor ``module:Class``
+    """
+    where, sep, name = text.rpartition(":")
+    if sep and where and name.isidentifier():
+        if where.endswith(".py") or "/" in where or "\\" in where:
+            return Target(_python_file(Path(where), text), None, name)
+        return Target(None, where, name)
+    if text.endswith(".py") or Path(text).is_dir():
+        return Target(_python_file(Path(text), text), None, None)
+    names = ", ".join(REGISTRY)
+    raise FilterSpecError(
+        f"--filter {text}: expected one of {names}, PATH.py (a course module),"
+        " PATH.py:ClassName or package.module:ClassName"
+    )
+
+
+def _python_file(path: Path, text: str) -> str:
+    if path.is_dir():
+        raise FilterSpecError(f"--filter {text}: {path} is a directory, expected a Python file")
+    if not path.is_file():
+        raise FilterSpecError(f"--filter {text}: {path}: no such file")
+    return str(path.resolve())
+
+
+def load_filter(text: str, worker: WorkerOptions | None = None) -> FilterFactory:
+    """The filter class that ``--filter text`` names, or a factory of workers running a
+    user's code (see the module docstring).
+
+    :raises FilterSpecError: one line naming what is wrong and what was expected
+    """
+    if text in REGISTRY:
+        target, extra = REGISTRY[text]
+        try:
+            return _class_in(_import(target.partition(":")[0]), target, text)
+        except ModuleNotFoundError as error:
+            if extra is None:
+                raise
+            raise FilterSpecError(
+                f"--filter {text} needs the optional dependency {error.name!r}:"
+                f" the {extra} extra (pip install -e '.[{extra}]' in a clone of ekfviz)"
+            ) from error
+    user = target_of(text)
+    options = worker if worker is not None else WorkerOptions()
+    label = f"filter {Path(user.path).name if user.path else user.describe()}"
+    try:
+        return WorkerFactory(user, options, label)
+    except WorkerFault as fault:
+        message = f"--filter {text}: {fault}"
+        raise FilterSpecError(message, fault.kind, fault.user_traceback) from None
+
+
+def _import(module: str) -> object:
+    try:
+        return importlib.import_module(module)
+    except ModuleNotFoundError:
+        raise
+    except Exception as error:  # the user's module failed while importing
+        raise FilterSpecError(
+            f"--filter: importing {module} raised {type(error).__name__}: {error}"
+        ) from error
+
+
+def load_in_process(text: str) -> FilterFactory:
+    """The class that ``PATH.py:Class`` or ``module:Class`` names, imported into this
+    process: for trusted code (tests, a library user's own class); ``--filter`` never
+    does this with a user's code.
+
+    :raises FilterSpecError: one line naming what is wrong
+    """
+    if text in REGISTRY:
+        return load_filter(text)
+    target = target_of(text)
+    if target.name is None:
+        raise FilterSpecError(f"--filter {text}: expected PATH.py:ClassName")
+    module = _import_file(Path(target.path), text) if target.path else _import(str(target.module))
+    return _class_in(module, target.name, text)
+
+
+def _import_file(path: Path, text: str) -> object:
+    """Import a Python file as a module of its own (named after its path's hash)."""
+    if not path.is_file():
+        raise FilterSpecError(f"--filter {text}: {path}: no such file")
+    resolved = path.resolve()
+    module_name = "ekfviz_plugin_" + hashlib.sha256(str(resolved).encode()).hexdigest()[:16]
+    if module_name in sys.modules:
+        return sys.modules[module_name]
+    spec = importlib.util.spec_from_file_location(module_name, resolved)
+    if spec is None or spec.loader is None:
+        raise FilterSpecError(f"--filter {text}: {path}: not a Python file")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[module_name] = module  # before running it: dataclasses and pickling need it
+    try:
+        spec.loader.exec_module(module)
+    except Exception as error:  # the user's file: any exception is its fault
+        del sys.modules[module_name]
+        raise FilterSpecError(
+            f"--filter {text}: importing {path} raised {type(error).__name__}: {error}"
+        ) from error
+    return module
+
+
+def _class_in(module: object, target: str, text: str) -> FilterFactory:
+    name = target.rpartition(":")[2]
+    found = getattr(module, name, None)
+    if not isinstance(found, type):
+        where = getattr(module, "__file__", None) or getattr(module, "__name__", "")
+        raise FilterSpecError(f"--filter {text}: {where} has no class {name}")
+    return found
