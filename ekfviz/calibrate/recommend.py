@@ -20,13 +20,13 @@ import numpy as np
 
 from ekfviz.association.gating import gated
 from ekfviz.calibrate.fit import NO_CORRECTION, WINDOW_S, Calibration, calibrate
-from ekfviz.core.records import Control, EventKind, LogEvent, Sighting
+from ekfviz.core.records import Control, EventKind, EventRecord, LogEvent, Sighting
 from ekfviz.core.truth import GroundTruth
 from ekfviz.core.types import FloatArray
 from ekfviz.evaluation.consistency import Consistency, chi2_bounds, pose_nees, update_nis
 from ekfviz.evaluation.errors import MapSummary, evaluate
 from ekfviz.filters.ekf import EkfSlam, FilterError, FilterParams
-from ekfviz.runner.replay import replay
+from ekfviz.runner.run import run
 
 FIT_SHARE = 0.6  # the first 60 % of the run are fitted, the rest judges
 NEES_TARGET = 3.0  # the mean of chi-square with 3 degrees of freedom
@@ -89,6 +89,32 @@ class RunStats:
 FAILED = RunStats(math.inf, math.inf, 0.0, 0.0, "failed", None)
 
 
+class _HeldOut:
+    """A consumer of a candidate's run: NEES, NIS and the consistency counts after ``after``
+    (a time, or a step where the log has none)."""
+
+    def __init__(self, truth: GroundTruth, after: float | None) -> None:
+        self.truth, self.after = truth, after
+        self.consistency = Consistency(truth)
+        self.nees: list[float] = []
+        self.nis_total = self.dof_total = 0.0
+
+    def add(self, record: EventRecord) -> None:
+        if self.after is not None:
+            when = record.time if record.time is not None else float(record.step)
+            if when <= self.after:
+                return
+        self.consistency.add(record)
+        if record.kind is EventKind.UPDATE:
+            value = pose_nees(record, self.truth)
+            if value is not None:
+                self.nees.append(value)
+            nis = update_nis(record)
+            if nis is not None:
+                self.nis_total += nis[0]
+                self.dof_total += nis[1]
+
+
 def run_stats(
     events: Sequence[LogEvent],
     truth: GroundTruth,
@@ -101,30 +127,15 @@ def run_stats(
     :param after: count NEES and NIS only after this time (timed) or step (untimed);
         the map is judged at the end either way
     """
-    consistency = Consistency(truth)
-    nees: list[float] = []
-    nis_total = dof_total = 0.0
-    last = None
+    held_out = _HeldOut(truth, after)
     try:
-        for record in replay(events, params):
-            last = record
-            if after is not None:
-                when = record.time if record.time is not None else float(record.step)
-                if when <= after:
-                    continue
-            consistency.add(record)
-            if record.kind is EventKind.UPDATE:
-                value = pose_nees(record, truth)
-                if value is not None:
-                    nees.append(value)
-                nis = update_nis(record)
-                if nis is not None:
-                    nis_total += nis[0]
-                    dof_total += nis[1]
+        last = run(events, params, [held_out])
     except FilterError:
         return FAILED
     if last is None:
         return FAILED
+    consistency, nees = held_out.consistency, held_out.nees
+    nis_total, dof_total = held_out.nis_total, held_out.dof_total
     evaluation = evaluate(last, truth, consistency)
     both = consistency.combined()
     return RunStats(
@@ -405,7 +416,8 @@ def split_run(events: Sequence[LogEvent], truth: GroundTruth, share: float = FIT
 
 
 def _steps(events: Sequence[LogEvent]) -> int:
-    """The step the replay of ``events`` ends at (counted as :func:`replay` counts)."""
+    """The step the replay of ``events`` ends at (counted as
+    :func:`~ekfviz.runner.replay.replay` counts)."""
     step = 0
     step_has_update = False
     for k, event in enumerate(events):

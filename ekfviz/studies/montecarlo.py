@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ekfviz.association import AssociationParams, Associator
-from ekfviz.core.records import EventKind
+from ekfviz.core.records import EventKind, EventRecord
 from ekfviz.core.stats import chi2_quantile
 from ekfviz.core.truth import GroundTruth
 from ekfviz.core.types import FloatArray, IntArray
@@ -24,7 +24,7 @@ from ekfviz.evaluation.consistency import CONFIDENCE, BoundCount, pose_nees, upd
 from ekfviz.filters.ekf import FilterParams
 from ekfviz.filters.spec import BUILTIN, load_filter
 from ekfviz.models.range_bearing import RangeBearing
-from ekfviz.runner.replay import replay
+from ekfviz.runner.run import run as replay_run
 from ekfviz.sim.scenarios import Scenario
 from ekfviz.sim.simulate import Detection, Noise
 from ekfviz.studies.executors import LocalExecutor
@@ -55,6 +55,26 @@ class TrialResult:
     nis_dof: IntArray
 
 
+class _Trial:
+    """A trial's consumer: the pose NEES and the NIS of every step that has them."""
+
+    def __init__(self, truth: GroundTruth, steps: int) -> None:
+        self.truth = truth
+        self.nees = np.full(steps, np.nan)
+        self.nis = np.full(steps, np.nan)
+        self.nis_dof = np.zeros(steps, dtype=np.int64)
+
+    def add(self, record: EventRecord) -> None:
+        if record.kind is EventKind.PREDICT:
+            return
+        value = pose_nees(record, self.truth)
+        if value is not None:
+            self.nees[record.step] = value
+        found = update_nis(record)
+        if found is not None:
+            self.nis[record.step], self.nis_dof[record.step] = found
+
+
 def run_trial(trials: Trials, seed: int) -> TrialResult:
     """Simulate and replay one trial."""
     run = trials.scenario.run(
@@ -65,23 +85,12 @@ def run_trial(trials: Trials, seed: int) -> TrialResult:
     associator = None
     if trials.association is not None and run.scan_events is not None:
         associator = Associator(trials.association, RangeBearing(), trials.params.R)
-    steps = len(run.poses_xytheta)
-    nees = np.full(steps, np.nan)
-    nis = np.full(steps, np.nan)
-    nis_dof = np.zeros(steps, dtype=np.int64)
     make_filter = load_filter(trials.filter)
     events = run.scan_events if run.scan_events is not None else run.events
-    for record in replay(
-        events, trials.params, make_filter=make_filter, name=trials.filter, associator=associator
-    ):
-        if record.kind is EventKind.PREDICT:
-            continue
-        value = pose_nees(record, truth)
-        if value is not None:
-            nees[record.step] = value
-        found = update_nis(record)
-        if found is not None:
-            nis[record.step], nis_dof[record.step] = found
+    trial = _Trial(truth, len(run.poses_xytheta))
+    replay_run(events, trials.params, [trial], make_filter=make_filter, name=trials.filter,
+               associator=associator)  # fmt: skip
+    nees, nis, nis_dof = trial.nees, trial.nis, trial.nis_dof
     return TrialResult(nees, nis, nis_dof)
 
 

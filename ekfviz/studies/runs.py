@@ -29,7 +29,8 @@ from ekfviz.filters.protocol import SlamFilter
 from ekfviz.filters.spec import BUILTIN, FilterSpec, FilterSpecError, release
 from ekfviz.io.detect import read_log
 from ekfviz.models.range_bearing import RangeBearing
-from ekfviz.runner.replay import FilterLineError, replay
+from ekfviz.runner.replay import FilterLineError
+from ekfviz.runner.run import Consumer, Kept, run
 from ekfviz.studies.executors import Executor, LocalExecutor
 
 VARIABLE = ("sigma_x", "sigma_y", "sigma_alpha", "sigma_bearing", "sigma_range")
@@ -116,23 +117,20 @@ def run_spec(
     make_filter = loaded if spec.filter.in_process else _Timed(loaded)
     started = time.perf_counter()
     consistency = Consistency(truth)
-    records = []
+    kept = Kept()
+    consumers: list[Consumer] = [consistency, kept]
     associator, tally = None, None
     if spec.association is not None:  # a run of its own: its own tentative landmarks
         sensor = RangeBearing()
         scan_truth = None if truth is None else truth.scan_ids
         associator = Associator(spec.association, sensor, spec.params.R, scan_truth=scan_truth)
         tally = AssociationTally(truth, sensor)
+        consumers.append(tally)
+    records = kept.records
     failure = None
     try:
-        for record in replay(
-            read_log(path), spec.params, make_filter=make_filter, name=spec.filter.text,
-            associator=associator,
-        ):  # fmt: skip
-            consistency.add(record)
-            records.append(record)
-            if tally is not None and record.association is not None:
-                tally.add(record)
+        run(read_log(path), spec.params, consumers, make_filter=make_filter,
+            name=spec.filter.text, associator=associator)  # fmt: skip
     except FilterLineError as error:
         if not keep_going or not isinstance(error.__cause__, PluginError):
             raise  # not the filter's own failure: the input's, for every filter alike
