@@ -58,8 +58,10 @@ def write_battery(folder: Path) -> list[tuple[Path, Path, tuple[float, float, fl
     import contextlib
     import io
 
-    from ekfviz.cli import app
-    from ekfviz.cli.common import OUT_STREAM
+    # the app's module, not the package: the package imports `check`, which imports this
+    # (importing a module of ekfviz.cli runs the package's __init__, which registers every
+    # command on the app either way)
+    from ekfviz.cli.common import OUT_STREAM, app
     from ekfviz.sim.scenarios import EDGE_START
 
     logs: list[tuple[Path, Path, tuple[float, float, float] | None]] = []
@@ -80,7 +82,7 @@ def write_battery(folder: Path) -> list[tuple[Path, Path, tuple[float, float, fl
 
 
 def main(argv: list[str]) -> None:
-    from ekfviz.cli import app
+    from ekfviz.cli.common import app
 
     folder = Path(argv[0]) if argv else Path("data")
     folder.mkdir(parents=True, exist_ok=True)

@@ -97,22 +97,33 @@ def test_without_the_compiled_kernel_the_numpy_code_stands_in() -> None:
 
 
 def _imports(package: Path, root: str) -> dict[str, set[str]]:
-    """The ekfviz modules each module of ``package`` imports (TYPE_CHECKING ones too)."""
+    """The ekfviz modules each module of ``package`` imports (TYPE_CHECKING ones too).
+
+    ``from pkg import name`` imports the module ``pkg.name`` where there is one (a
+    package's ``__init__`` importing its own modules imports them, not itself), else
+    ``pkg``."""
     import ast
 
-    graph: dict[str, set[str]] = {}
+    raw: dict[str, list[tuple[str, str | None]]] = {}
     for path in package.rglob("*.py"):
         name = ".".join((root, *path.relative_to(package).with_suffix("").parts))
         name = name.removesuffix(".__init__")
-        found: set[str] = set()
+        found: list[tuple[str, str | None]] = []
         for node in ast.walk(ast.parse(path.read_text())):
             if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
-                found.add(node.module)
-                found.update(f"{node.module}.{alias.name}" for alias in node.names)
+                found.extend((node.module, alias.name) for alias in node.names)
             elif isinstance(node, ast.Import):
-                found.update(alias.name for alias in node.names)
-        graph[name] = found
-    return {name: {m for m in found if m in graph} for name, found in graph.items()}
+                found.extend((alias.name, None) for alias in node.names)
+        raw[name] = found
+    graph: dict[str, set[str]] = {}
+    for name, found in raw.items():
+        targets = set()
+        for module, attribute in found:
+            target = f"{module}.{attribute}" if f"{module}.{attribute}" in raw else module
+            if target in raw:
+                targets.add(target)
+        graph[name] = targets
+    return graph
 
 
 # The layers, lowest first: a module imports only from its own layer or lower ones. The
@@ -162,19 +173,23 @@ def _upward(graph: dict[str, set[str]]) -> list[str]:
 
 
 def _circles(graph: dict[str, set[str]]) -> list[str]:
-    """Every module that imports itself through others."""
+    """Every module that imports itself through others, with the shortest such path."""
     found = []
     for start in sorted(graph):
-        stack, seen = [start], set[str]()
-        while stack:
-            for target in graph[stack.pop()]:
-                if target == start:
-                    found.append(f"{start} imports itself through {sorted(seen)}")
-                    stack = []
-                    break
-                if target not in seen:
-                    seen.add(target)
-                    stack.append(target)
+        parent: dict[str, str] = {}
+        queue = [start]
+        while queue and start not in parent:
+            module = queue.pop(0)
+            for target in sorted(graph[module]):
+                if target not in parent:
+                    parent[target] = module
+                    queue.append(target)
+        if start in parent:  # walk back from start to start
+            path, module = [start], parent[start]
+            while module != start:
+                path.append(module)
+                module = parent[module]
+            found.append(" -> ".join([start, *reversed(path)]))
     return found
 
 
