@@ -28,8 +28,8 @@ from ekfviz.core.records import EventRecord
 from ekfviz.core.replay import FilterLineError, replay
 from ekfviz.core.truth import GroundTruth
 from ekfviz.filters import BUILTIN, FilterSpec, FilterSpecError, release
-from ekfviz.io.detect import read_log
 from ekfviz.models.range_bearing import RangeBearing
+from ekfviz.sources import read_log
 from ekfviz.studies.executors import Executor, LocalExecutor
 
 VARIABLE = ("sigma_x", "sigma_y", "sigma_alpha", "sigma_bearing", "sigma_range")
