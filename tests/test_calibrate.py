@@ -29,8 +29,8 @@ from ekfviz.core.filter import FilterParams, MotionNoise
 from ekfviz.core.records import Control, LogEvent, with_ids
 from ekfviz.core.replay import replay
 from ekfviz.core.truth import GroundTruth
-from ekfviz.io.detect import open_source
 from ekfviz.sim.mrclam import MrclamNoise, MrclamWorld, simulate_mrclam
+from ekfviz.sources import open_source
 
 runner = CliRunner()
 
@@ -53,9 +53,10 @@ def skewed(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def events_and_truth(directory: Path) -> tuple[list[LogEvent], GroundTruth]:
-    source = open_source(directory, 1)
-    truth = source.own_truth()
-    assert truth is not None and truth.track_xytheta is not None
+    source = open_source(directory)  # robot 1
+    own = source.own_truth(lambda _: None)
+    assert own is not None and own.truth.track_xytheta is not None
+    truth = own.truth
     return list(with_ids(source.events(None, None))), truth
 
 

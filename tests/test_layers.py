@@ -15,7 +15,7 @@ def test_core_io_and_sim_do_not_import_rerun_typer_gtsam_or_dask() -> None:
         "import ekfviz.core.consistency, ekfviz.sim.montecarlo, ekfviz.studies.sweep\n"
         "import ekfviz.studies.runs, ekfviz.filters, ekfviz.core.check, ekfviz.models.classic\n"
         "import ekfviz.io.classic, ekfviz.io.extended, ekfviz.io.truth, ekfviz.sim.scenarios\n"
-        "import ekfviz.io.mrclam, ekfviz.io.detect, ekfviz.sim.mrclam\n"
+        "import ekfviz.io.mrclam, ekfviz.sim.mrclam, ekfviz.sources, ekfviz.sources.rosbag\n"
         "import ekfviz.core.calibrate, ekfviz.core.gating\n"
         "import ekfviz.models.classic, ekfviz.core.correlation, ekfviz.filters\n"
         "import ekfviz.studies.executors, ekfviz.io.trajectory\n"
