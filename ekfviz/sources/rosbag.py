@@ -13,12 +13,14 @@ takes three topics of the bag directory (the one holding ``metadata.yaml``):
 - landmark detections, ``visualization_msgs/msg/MarkerArray``: one observation per
   array, each marker a landmark seen at its position (x ahead, y left) in the robot's
   frame, as (bearing, range); the marker's id is the landmark's. An array whose ids
-  are all negative is an id-less scan: the association decides which landmark each is.
+  are all negative is an id-less scan: the association decides which landmark each is
+  (an empty array is a scan too when the bag's first detections are id-less).
   ``DELETE`` and ``DELETEALL`` markers are not detections and are skipped;
 - truth (optional), ``nav_msgs/msg/Odometry`` or ``geometry_msgs/msg/PoseStamped``:
   the true track by time (the bag knows no true landmarks: ``--truth FILE`` gives them).
 
-Times are the messages' header stamps; at equal stamps the motion comes before the
+Times are the messages' header stamps (a MarkerArray's: its first marker's; an empty
+one's: the time the bag recorded it); at equal stamps the motion comes before the
 detections. An event's "line" is its message's number among the topics read, in the
 bag's order. ``rosbags`` is an optional dependency (``pip install 'ekfviz[rosbag]'``),
 imported only when a bag is opened.
@@ -116,8 +118,9 @@ class RosbagSource(Source):
             wanted = [topics[self.odom], topics[self.landmarks]]
             total = sum(p.stat().st_size for p in self.progress_paths)
             count = max(1, sum(c.msgcount for c in wanted))
-            for number, (connection, message) in enumerate(_messages(self.path, reader, wanted)):
-                row = (_stamp(message), number + 1, message)
+            messages = _messages(self.path, reader, wanted)
+            for number, (connection, recorded, message) in enumerate(messages):
+                row = (_stamp(message, recorded), number + 1, message)
                 (odometry if connection.topic == self.odom else detections).append(row)
                 if progress is not None and number % 256 == 0:
                     progress(total * number // count)
@@ -132,6 +135,9 @@ class RosbagSource(Source):
         self._check_order(self.odom, odometry)
         self._check_order(self.landmarks, detections)
         previous = None if not odometry else (odometry[0][0], _pose(odometry[0][2]))
+        # an empty array (nothing in view) is a scan in a bag of id-less detections
+        first = next((m for _, _, m in detections if _detections(m)), None)
+        idless = first is not None and all(m.id < 0 for m in _detections(first))
         k, j = 1, 0
         while k < len(odometry) or j < len(detections):
             if k < len(odometry) and (j == len(detections) or odometry[k][0] <= detections[j][0]):
@@ -143,11 +149,11 @@ class RosbagSource(Source):
                 previous = (time, pose)
                 k += 1
             else:
-                yield self._observation(*detections[j])
+                yield self._observation(*detections[j], idless)
                 j += 1
 
-    def _observation(self, time: float, line: int, message: Any) -> Sighting | Scan:
-        markers = [m for m in message.markers if m.action not in (DELETE, DELETEALL)]
+    def _observation(self, time: float, line: int, message: Any, idless: bool) -> Sighting | Scan:
+        markers = _detections(message)
         z = np.array(
             [
                 (math.atan2(m.pose.position.y, m.pose.position.x),
@@ -158,7 +164,7 @@ class RosbagSource(Source):
         ).reshape(-1, 2)  # fmt: skip
         ids = np.array([m.id for m in markers], dtype=np.int64)
         where = f"{self.landmarks} message {line}"
-        if ids.size and (ids < 0).all():
+        if (ids < 0).all() and (ids.size or idless):
             return Scan(line=line, z=z, time=time)
         if (ids < 0).any():
             raise InputError(
@@ -190,8 +196,8 @@ class RosbagSource(Source):
         with _Bag(self.path) as reader:
             connection = self._topics(reader)[self.truth_topic]
             rows = [
-                (_stamp(message), _pose(message))
-                for _, message in _messages(self.path, reader, [connection])
+                (_stamp(message, recorded), _pose(message))
+                for _, recorded, message in _messages(self.path, reader, [connection])
             ]
         rows.sort(key=lambda row: row[0])
         truth = GroundTruth(
@@ -262,23 +268,35 @@ class _Bag:
         self.reader.close()
 
 
-def _messages(path: Path, reader: Any, connections: list[Any]) -> Iterator[tuple[Any, Any]]:
-    """(connection, message) of the connections, in the bag's order, decoded."""
+def _messages(path: Path, reader: Any, connections: list[Any]) -> Iterator[tuple[Any, int, Any]]:
+    """(connection, time recorded in ns, message) of the connections, in the bag's order."""
     try:
-        for connection, _, raw in reader.messages(connections=connections):
-            yield connection, reader.deserialize(raw, connection.msgtype)
+        for connection, recorded, raw in reader.messages(connections=connections):
+            yield connection, recorded, reader.deserialize(raw, connection.msgtype)
     except InputError:
         raise
     except Exception as error:  # a storage or serialisation error of rosbags
         raise InputError(path, 0, f"cannot read the bag: {_said(error)}") from None
 
 
+def _detections(message: Any) -> list[Any]:
+    """The markers of an array that detect something (not DELETE or DELETEALL)."""
+    return [m for m in message.markers if m.action not in (DELETE, DELETEALL)]
+
+
 def _said(error: Exception) -> str:
-    return str(error) or type(error).__name__
+    """What ``rosbags`` said, in one line (its first: a YAML error goes on for eight)."""
+    lines = str(error).strip().splitlines()
+    return lines[0].strip() if lines else type(error).__name__
 
 
-def _stamp(message: Any) -> float:
-    """The header stamp in seconds."""
+def _stamp(message: Any, recorded: int) -> float:
+    """The message's stamp in seconds: its header's; a MarkerArray's first marker's, or
+    when empty the time the bag recorded it."""
+    if hasattr(message, "markers"):
+        if not message.markers:
+            return recorded * 1e-9
+        message = message.markers[0]
     stamp = message.header.stamp
     return float(stamp.sec) + float(stamp.nanosec) * 1e-9
 
