@@ -413,7 +413,8 @@ LogArgument = Annotated[
     Path,
     typer.Argument(
         help="A log in the classic or the extended format, an MRCLAM dataset directory"
-        " (with --robot) or the Victoria Park directory.",
+        " (with --robot), the Victoria Park directory or a ROS 2 bag directory (with --odom,"
+        " --landmarks).",
         show_default=False,
     ),
 ]
