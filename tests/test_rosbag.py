@@ -22,6 +22,7 @@ from ekfviz.cli import app
 from ekfviz.core.filter import FilterParams, MotionNoise
 from ekfviz.core.records import AnyEvent, Control, EventRecord, Scan, Sighting
 from ekfviz.core.replay import replay
+from ekfviz.core.types import FloatArray
 from ekfviz.io.errors import InputError
 from ekfviz.io.extended import format_extended, read_extended
 from ekfviz.io.truth import truth_json
@@ -71,7 +72,7 @@ def _pose(x: float, y: float, theta: float) -> Any:
     )
 
 
-def odometry(time: float, pose: Sequence[float]) -> Any:
+def odometry(time: float, pose: FloatArray) -> Any:
     types = STORE.types
     twist = types["geometry_msgs/msg/Twist"](
         linear=types["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0),
