@@ -247,7 +247,7 @@ def replay(
         ):
             warnings = FilterWarnings(data)
             if progress is not None:
-                events = setup.events(opened, progress)  # read from the start, with a bar
+                events = opened.events(progress)  # read from the start, with a bar
             evaluation = pipeline.replay_log(
                 events, params, make_filter=make_filter, name=filter_spec, data=data,
                 truth=truth_xy, logger=logger, on_record=warnings.add, scans=setup,

@@ -4,7 +4,6 @@ reference and the association report."""
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
@@ -17,10 +16,9 @@ from ekfviz.association.evaluation import AssociationTally
 from ekfviz.cli.common import _option, out, warn
 from ekfviz.cli.sources import OpenedLog
 from ekfviz.core.filter import EkfSlam, FilterParams
-from ekfviz.core.records import AnyEvent, EventRecord
+from ekfviz.core.records import EventRecord
 from ekfviz.core.truth import GroundTruth
 from ekfviz.io.errors import InputError
-from ekfviz.io.text import ProgressCallback
 from ekfviz.models.range_bearing import RangeBearing
 from ekfviz.sources import Reference, open_source
 
@@ -115,10 +113,6 @@ class ReplaySetup:
     _scans: bool = False
     _last: EventRecord | None = None
     _summaries: list[str] = field(default_factory=list)
-
-    def events(self, opened: OpenedLog, progress: ProgressCallback | None) -> Iterator[AnyEvent]:
-        """The log's events."""
-        return opened.events(progress)
 
     def add(self, record: EventRecord) -> None:
         self._last = record

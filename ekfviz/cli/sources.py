@@ -41,7 +41,7 @@ InitPoseOption = Annotated[
     tuple[float, float, float] | None,
     _option(
         "The filter's initial pose [default: the true pose at the first event where the"
-        " log comes with a timestamped truth (MRCLAM), else 0 0 0].",
+        " log comes with a timestamped truth (MRCLAM, a bag's --truth-topic), else 0 0 0].",
         FILTER_OPTIONS,
         metavar="X Y THETA",
         show_default=False,
@@ -52,8 +52,8 @@ MotionNoiseOption = Annotated[
     _option(
         "What the motion sigmas mean: per-step, Q = diag(sigma^2) per control (m, rad);"
         " per-sqrt-second, Q = diag(sigma^2) * dt for a control spanning dt seconds"
-        " (m/sqrt(s), rad/sqrt(s)); auto: per-sqrt-second for velocity odometry (MRCLAM),"
-        " else per-step.",
+        " (m/sqrt(s), rad/sqrt(s)); auto: what the source implies, per-sqrt-second for"
+        " odometry over known times (MRCLAM, ROS 2 bags), else per-step.",
         FILTER_NOISE,
     ),
 ]
