@@ -23,6 +23,7 @@ from ekfviz.core.reference import ReferenceFit
 from ekfviz.core.truth import GroundTruth
 from ekfviz.core.types import FloatArray
 from ekfviz.io.errors import InputError
+from ekfviz.io.extended import LogNoise
 from ekfviz.io.text import ProgressCallback, WarningCallback
 from ekfviz.models.range_bearing import RangeBearing
 
@@ -186,6 +187,14 @@ class Source(abc.ABC):
         """The truth the source comes with, if any (``warn``: why it has none, if it
         should have)."""
         return None
+
+    def stated_noise(self) -> LogNoise:
+        """The noise the input states of itself (an extended log's ``# noise:`` header),
+        the filter's defaults where no option is given; empty when it states none.
+
+        :raises InputError: a statement that does not read
+        """
+        return {}
 
     def models(self, params: FilterParams, given: Given) -> Models:
         """The built-in filter for this source (classic models unless it says otherwise).

@@ -13,6 +13,7 @@ from pathlib import Path
 
 from ekfviz.core.records import AnyEvent
 from ekfviz.io.classic import read_classic
+from ekfviz.io.extended import LogNoise, read_log_noise
 from ekfviz.io.text import ProgressCallback, WarningCallback
 from ekfviz.sources.base import Source, register
 
@@ -37,3 +38,6 @@ class ClassicSource(Source):
         self, progress: ProgressCallback | None = None, warn: WarningCallback | None = None
     ) -> Iterator[AnyEvent]:
         return read_classic(self.path, progress, warn)
+
+    def stated_noise(self) -> LogNoise:
+        return read_log_noise(self.path)  # a "# noise:" comment reads in either format

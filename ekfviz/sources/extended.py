@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ekfviz.core.records import AnyEvent
-from ekfviz.io.extended import is_extended, read_extended
+from ekfviz.io.extended import LogNoise, is_extended, read_extended, read_log_noise
 from ekfviz.io.text import ProgressCallback, WarningCallback
 from ekfviz.sources.base import Source, register
 
@@ -35,3 +35,6 @@ class ExtendedSource(Source):
         self, progress: ProgressCallback | None = None, warn: WarningCallback | None = None
     ) -> Iterator[AnyEvent]:
         return read_extended(self.path, progress, warn)
+
+    def stated_noise(self) -> LogNoise:
+        return read_log_noise(self.path)
