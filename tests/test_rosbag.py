@@ -131,11 +131,17 @@ def write_bag(
     *,
     truth: bool = True,
     skip: Sequence[str] = (),
+    stamped: bool = True,
 ) -> Path:
     """The run as a bag: /odom integrated from its commanded controls from (0, 0, 0),
     /landmarks one MarkerArray per observation, /ground_truth its true poses. At each
     stamp the detections are written before the odometry: the source puts motion first.
+    Not ``stamped``: every header stamp left at zero (the bag's times only).
     """
+
+    def stamp(time: float) -> float:
+        return time if stamped else 0.0
+
     events = timed(run.scan_events if run.scan_events is not None else run.events)
     with Writer(path, version=9, storage_plugin=storage) as writer:
         topics = {
@@ -155,21 +161,21 @@ def write_bag(
                 writer.write(connections[topic], round(time * 1e9), data)
 
         pose = np.zeros(3)
-        write("/odom", T0, odometry(T0, pose))
+        write("/odom", T0, odometry(stamp(T0), pose))
         step = 0
         for event in events:
             assert event.time is not None
             if isinstance(event, Control):
                 pose = motion(pose, event.d, event.alpha)
                 step += 1
-                write("/odom", event.time, odometry(event.time, pose))
+                write("/odom", event.time, odometry(stamp(event.time), pose))
             else:
                 assert isinstance(event, Sighting | Scan)
-                write("/landmarks", event.time, markers(event.time, event))
+                write("/landmarks", event.time, markers(stamp(event.time), event))
             if not isinstance(event, Control):
                 true = run.poses_xytheta[step]
                 write("/ground_truth", event.time, STORE.types["geometry_msgs/msg/PoseStamped"](
-                    header=_header(event.time, "map"), pose=_pose(*true)
+                    header=_header(stamp(event.time), "map"), pose=_pose(*true)
                 ))  # fmt: skip
     return path
 
@@ -213,6 +219,16 @@ def test_a_bag_replays_to_the_final_state_of_the_extended_log(
     assert [c.dt for c in controls] == pytest.approx([DT] * len(run.events[1::2]), abs=1e-6)
     commanded = np.array([(e.d, e.alpha) for e in run.events if isinstance(e, Control)])
     np.testing.assert_allclose([(c.d, c.alpha) for c in controls], commanded, atol=1e-12)
+
+
+def test_stamps_left_at_zero_are_the_times_the_bag_recorded(
+    tmp_path: Path, run: Simulation
+) -> None:
+    stamped = list(open_source(write_bag(tmp_path / "stamped", run)).events())
+    unstamped = list(open_source(write_bag(tmp_path / "zero", run, stamped=False)).events())
+    assert [type(e) for e in unstamped] == [type(e) for e in stamped]
+    assert [e.time for e in unstamped] == pytest.approx([e.time for e in stamped], abs=1e-6)
+    assert all(e.dt == pytest.approx(DT) for e in unstamped if isinstance(e, Control))
 
 
 def test_replay_of_a_bag_matches_the_log_end_to_end(tmp_path: Path, run: Simulation) -> None:

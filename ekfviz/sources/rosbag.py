@@ -19,11 +19,11 @@ takes three topics of the bag directory (the one holding ``metadata.yaml``):
 - truth (optional), ``nav_msgs/msg/Odometry`` or ``geometry_msgs/msg/PoseStamped``:
   the true track by time (the bag knows no true landmarks: ``--truth FILE`` gives them).
 
-Times are the messages' header stamps (a MarkerArray's: its first marker's; an empty
-one's: the time the bag recorded it); at equal stamps the motion comes before the
-detections. An event's "line" is its message's number among the topics read, in the
-bag's order. ``rosbags`` is an optional dependency (``pip install 'ekfviz[rosbag]'``),
-imported only when a bag is opened.
+Times are the messages' header stamps (a MarkerArray's: its first marker's); an empty
+array's, or a stamp left at zero, is the time the bag recorded the message. At equal
+times the motion comes before the detections. An event's "line" is its message's number
+among the topics read, in the bag's order. ``rosbags`` is an optional dependency
+(``pip install 'ekfviz[rosbag]'``), imported only when a bag is opened.
 """
 
 from __future__ import annotations
@@ -291,13 +291,15 @@ def _said(error: Exception) -> str:
 
 
 def _stamp(message: Any, recorded: int) -> float:
-    """The message's stamp in seconds: its header's; a MarkerArray's first marker's, or
-    when empty the time the bag recorded it."""
+    """The message's stamp in seconds: its header's (a MarkerArray's: its first
+    marker's); the time the bag recorded it for an empty array or a header left at 0."""
     if hasattr(message, "markers"):
         if not message.markers:
             return recorded * 1e-9
         message = message.markers[0]
     stamp = message.header.stamp
+    if stamp.sec == 0 and stamp.nanosec == 0:  # never filled in: 1970 is no robot's time
+        return recorded * 1e-9
     return float(stamp.sec) + float(stamp.nanosec) * 1e-9
 
 
