@@ -9,7 +9,7 @@ takes three topics of the bag directory (the one holding ``metadata.yaml``):
   negative when it goes backwards, ``alpha`` the change of heading. The control spans
   the time between the two stamps, so the motion noise is time-scaled by default, as
   for MRCLAM's velocity odometry. Odometry integrated from drive-then-turn controls
-  (a simulated run's) gives those controls back exactly;
+  (a simulated run's) gives those controls back, to rounding (1e-12);
 - landmark detections, ``visualization_msgs/msg/MarkerArray``: one observation per
   array, each marker a landmark seen at its position (x ahead, y left) in the robot's
   frame, as (bearing, range); the marker's id is the landmark's. An array whose ids
