@@ -81,22 +81,24 @@ def with_source_options(command: Command) -> Command:
     place of its ``source_args: SourceArgs`` parameter, which receives them.
 
     A new format's options so reach every command that opens a log without an edit here.
+    The options of the main panel (``--robot``) stand where ``source_args`` stands; those
+    of a panel of their own come last, so that their panels follow the command's own.
     """
     signature = inspect.signature(command)
     hints = typing.get_type_hints(command, include_extras=True)
     options = source_options()
     parameters: list[inspect.Parameter] = []
+    last: list[inspect.Parameter] = []
     for parameter in signature.parameters.values():
         if parameter.name != "source_args":
             parameters.append(parameter.replace(annotation=hints[parameter.name]))
             continue
         for option in options:
-            parameters.append(
-                inspect.Parameter(
-                    option.name, parameter.kind, default=option.default,
-                    annotation=_annotated(option),
-                )
-            )  # fmt: skip
+            declared = inspect.Parameter(
+                option.name, parameter.kind, default=option.default, annotation=_annotated(option)
+            )
+            (parameters if option.panel is None else last).append(declared)
+    parameters += last
 
     @functools.wraps(command)
     def run(*args: Any, **kwargs: Any) -> Any:

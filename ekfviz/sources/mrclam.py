@@ -17,9 +17,7 @@ from ekfviz.io import mrclam
 from ekfviz.io.text import ProgressCallback, WarningCallback
 from ekfviz.sources.base import OwnTruth, Source, SourceArgs, SourceOption, register
 
-ROBOT = SourceOption(
-    "robot", int, "The robot of an MRCLAM dataset directory [default: 1].", metavar="INTEGER"
-)
+ROBOT = SourceOption("robot", int, "The robot of an MRCLAM dataset directory [default: 1].")
 
 
 @register

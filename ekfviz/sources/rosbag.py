@@ -55,16 +55,16 @@ EXTRA = "reading a ROS 2 bag needs the rosbags library: pip install 'ekfviz[rosb
 
 ODOM = SourceOption(
     "odom", str, f"The bag's odometry topic ({ODOMETRY}).", default="/odom",
-    show_default=True, panel=PANEL, metavar="TOPIC",
+    show_default=True, panel=PANEL, metavar="<topic>",
 )  # fmt: skip
 LANDMARKS = SourceOption(
     "landmarks", str, f"The bag's landmark detections topic ({MARKERS}).",
-    default="/landmarks", show_default=True, panel=PANEL, metavar="TOPIC",
+    default="/landmarks", show_default=True, panel=PANEL, metavar="<topic>",
 )  # fmt: skip
 TRUTH_TOPIC = SourceOption(
     "truth_topic", str,
     f"The bag's true poses topic ({ODOMETRY} or {POSE}) \\[default: none].",
-    panel=PANEL, metavar="TOPIC",
+    panel=PANEL, metavar="<topic>",
 )  # fmt: skip
 
 
