@@ -368,12 +368,14 @@ def test_a_missing_topic_a_wrong_type_or_an_empty_bag_is_one_line(
     assert "--robot is for an MRCLAM dataset directory" in _failure(tmp_path, bag, "--robot", "2")
 
 
-def test_markers_with_and_without_ids_or_a_repeated_id_are_refused(tmp_path: Path) -> None:
+def test_markers_with_and_without_ids_a_repeated_id_or_nan_are_refused(tmp_path: Path) -> None:
     both = Sighting(1, np.array([3, -1]), np.array([[0.1, 2.0], [0.2, 3.0]]))
     twice = Sighting(1, np.array([3, 3]), np.array([[0.1, 2.0], [0.2, 3.0]]))
+    nowhere = Sighting(1, np.array([3]), np.array([[0.1, np.nan]]))
     for name, sighting, expected in [
-        ("both", both, "found markers with and without ids"),
-        ("twice", twice, "found marker id 3 twice"),
+        ("both", both, "message 1: found markers with and without ids"),
+        ("twice", twice, "message 1: found marker id 3 twice"),
+        ("nowhere", nowhere, "/landmarks message 1: found a position that is not finite"),
     ]:
         run = Simulation((sighting,), np.zeros((1, 3)), np.array([3]), np.zeros((1, 2)))
         bag = write_bag(tmp_path / name, run, truth=False)

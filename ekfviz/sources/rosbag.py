@@ -22,7 +22,8 @@ takes three topics of the bag directory (the one holding ``metadata.yaml``):
 Times are the messages' header stamps (a MarkerArray's: its first marker's); an empty
 array's, or a stamp left at zero, is the time the bag recorded the message. At equal
 times the motion comes before the detections. An event's "line" is its message's number
-among the topics read, in the bag's order. ``rosbags`` is an optional dependency
+among the topics read, in the bag's order; an error names a topic's message by its
+number on that topic. ``rosbags`` is an optional dependency
 (``pip install 'ekfviz[rosbag]'``), imported only when a bag is opened.
 """
 
@@ -40,6 +41,7 @@ import numpy as np
 from ekfviz.core.filter import MotionNoise
 from ekfviz.core.records import AnyEvent, Control, Scan, Sighting
 from ekfviz.core.truth import GroundTruth
+from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.io.errors import InputError
 from ekfviz.io.text import ProgressCallback, WarningCallback
 from ekfviz.models.angles import wrap_angle
@@ -51,6 +53,7 @@ ODOMETRY = "nav_msgs/msg/Odometry"
 MARKERS = "visualization_msgs/msg/MarkerArray"
 POSE = "geometry_msgs/msg/PoseStamped"
 DELETE, DELETEALL = 2, 3  # visualization_msgs/msg/Marker actions that detect nothing
+Pose = tuple[float, float, float]  # x, y, heading
 EXTRA = "reading a ROS 2 bag needs the rosbags library: pip install 'ekfviz[rosbag]'"
 
 ODOM = SourceOption(
@@ -111,8 +114,8 @@ class RosbagSource(Source):
         self, progress: ProgressCallback | None = None, warn: WarningCallback | None = None
     ) -> Iterator[AnyEvent]:
         """The controls and observations in time order (read whole, then merged)."""
-        odometry: list[tuple[float, int, Any]] = []
-        detections: list[tuple[float, int, Any]] = []
+        odometry: list[tuple[float, int, Pose]] = []
+        detections: list[tuple[float, int, IntArray, FloatArray]] = []
         with _Bag(self.path) as reader:
             topics = self._topics(reader)
             wanted = [topics[self.odom], topics[self.landmarks]]
@@ -120,8 +123,14 @@ class RosbagSource(Source):
             count = max(1, sum(c.msgcount for c in wanted))
             messages = _messages(self.path, reader, wanted)
             for number, (connection, recorded, message) in enumerate(messages):
-                row = (_stamp(message, recorded), number + 1, message)
-                (odometry if connection.topic == self.odom else detections).append(row)
+                # kept as numbers, not messages: a long bag's messages would not fit
+                time, line = _stamp(message, recorded), number + 1
+                if connection.topic == self.odom:
+                    nth = len(odometry) + 1  # errors count a topic's messages
+                    odometry.append((time, line, self._pose(message, self.odom, nth)))
+                else:
+                    nth = len(detections) + 1
+                    detections.append((time, line, *self._detected(message, nth)))
                 if progress is not None and number % 256 == 0:
                     progress(total * number // count)
         if progress is not None:
@@ -129,31 +138,44 @@ class RosbagSource(Source):
         yield from self._merged(odometry, detections)
 
     def _merged(
-        self, odometry: list[tuple[float, int, Any]], detections: list[tuple[float, int, Any]]
+        self,
+        odometry: list[tuple[float, int, Pose]],
+        detections: list[tuple[float, int, IntArray, FloatArray]],
     ) -> Iterator[AnyEvent]:
         """Controls between consecutive poses and observations, by stamp (motion first)."""
-        self._check_order(self.odom, odometry)
-        self._check_order(self.landmarks, detections)
-        previous = None if not odometry else (odometry[0][0], _pose(odometry[0][2]))
+        self._check_order(self.odom, [t for t, _, _ in odometry])
+        self._check_order(self.landmarks, [t for t, _, _, _ in detections])
         # an empty array (nothing in view) is a scan in a bag of id-less detections
-        first = next((m for _, _, m in detections if _detections(m)), None)
-        idless = first is not None and all(m.id < 0 for m in _detections(first))
+        first = next((ids for _, _, ids, _ in detections if ids.size), None)
+        idless = first is not None and bool((first < 0).all())
         k, j = 1, 0
         while k < len(odometry) or j < len(detections):
             if k < len(odometry) and (j == len(detections) or odometry[k][0] <= detections[j][0]):
-                time, line, message = odometry[k]
-                assert previous is not None
-                pose = _pose(message)
-                d, alpha = _control(previous[1], pose)
-                yield Control(line=line, d=d, alpha=alpha, time=time, dt=time - previous[0])
-                previous = (time, pose)
+                (before, _, start), (time, line, pose) = odometry[k - 1], odometry[k]
+                d, alpha = _control(start, pose)
+                yield Control(line=line, d=d, alpha=alpha, time=time, dt=time - before)
                 k += 1
             else:
-                yield self._observation(*detections[j], idless)
+                time, line, ids, z = detections[j]
+                if (ids < 0).all() and (ids.size or idless):
+                    yield Scan(line=line, z=z, time=time)
+                else:
+                    yield Sighting(line=line, ids=ids, z=z, time=time)
                 j += 1
 
-    def _observation(self, time: float, line: int, message: Any, idless: bool) -> Sighting | Scan:
-        markers = _detections(message)
+    def _pose(self, message: Any, topic: str, nth: int) -> Pose:
+        """The pose of the topic's ``nth`` message, refused when not finite."""
+        pose = _pose(message)
+        if not all(math.isfinite(v) for v in pose):
+            raise InputError(
+                self.path, 0, f"{topic} message {nth}: found a pose that is not finite"
+            )
+        return pose
+
+    def _detected(self, message: Any, nth: int) -> tuple[IntArray, FloatArray]:
+        """The ids (negative: none) and (bearing, range) of the topic's ``nth`` array's
+        markers, checked."""
+        markers = [m for m in message.markers if m.action not in (DELETE, DELETEALL)]
         z = np.array(
             [
                 (math.atan2(m.pose.position.y, m.pose.position.x),
@@ -163,29 +185,27 @@ class RosbagSource(Source):
             dtype=np.float64,
         ).reshape(-1, 2)  # fmt: skip
         ids = np.array([m.id for m in markers], dtype=np.int64)
-        where = f"{self.landmarks} message {line}"
-        if (ids < 0).all() and (ids.size or idless):
-            return Scan(line=line, z=z, time=time)
-        if (ids < 0).any():
+        where = f"{self.landmarks} message {nth}"
+        if not np.isfinite(z).all():
+            raise InputError(self.path, 0, f"{where}: found a position that is not finite")
+        if (ids < 0).any() and not (ids < 0).all():
             raise InputError(
                 self.path, 0, f"{where}: found markers with and without ids (negative),"
                 " expected all landmarks named or none",
             )  # fmt: skip
-        unique, counts = np.unique(ids, return_counts=True)
+        unique, counts = np.unique(ids[ids >= 0], return_counts=True)
         if (counts > 1).any():
             raise InputError(
                 self.path, 0, f"{where}: found marker id {int(unique[counts > 1][0])} twice,"
                 " expected each landmark once an array",
             )  # fmt: skip
-        if not np.isfinite(z).all():
-            raise InputError(self.path, 0, f"{where}: found a position that is not finite")
-        return Sighting(line=line, ids=ids, z=z, time=time)
+        return ids, z
 
-    def _check_order(self, topic: str, rows: list[tuple[float, int, Any]]) -> None:
-        for (before, _, _), (time, line, _) in itertools.pairwise(rows):
+    def _check_order(self, topic: str, times: list[float]) -> None:
+        for nth, (before, time) in enumerate(itertools.pairwise(times), start=2):
             if time < before:
                 raise InputError(
-                    self.path, 0, f"{topic} message {line}: found stamp {time:.9f} s after"
+                    self.path, 0, f"{topic} message {nth}: found stamp {time:.9f} s after"
                     f" {before:.9f} s, expected stamps that never decrease",
                 )  # fmt: skip
 
@@ -196,8 +216,10 @@ class RosbagSource(Source):
         with _Bag(self.path) as reader:
             connection = self._topics(reader)[self.truth_topic]
             rows = [
-                (_stamp(message, recorded), _pose(message))
-                for _, recorded, message in _messages(self.path, reader, [connection])
+                (_stamp(message, recorded), self._pose(message, self.truth_topic, number + 1))
+                for number, (_, recorded, message) in enumerate(
+                    _messages(self.path, reader, [connection])
+                )
             ]
         rows.sort(key=lambda row: row[0])
         truth = GroundTruth(
@@ -279,11 +301,6 @@ def _messages(path: Path, reader: Any, connections: list[Any]) -> Iterator[tuple
         raise InputError(path, 0, f"cannot read the bag: {_said(error)}") from None
 
 
-def _detections(message: Any) -> list[Any]:
-    """The markers of an array that detect something (not DELETE or DELETEALL)."""
-    return [m for m in message.markers if m.action not in (DELETE, DELETEALL)]
-
-
 def _said(error: Exception) -> str:
     """What ``rosbags`` said, in one line (its first: a YAML error goes on for eight)."""
     lines = str(error).strip().splitlines()
@@ -303,7 +320,7 @@ def _stamp(message: Any, recorded: int) -> float:
     return float(stamp.sec) + float(stamp.nanosec) * 1e-9
 
 
-def _pose(message: Any) -> tuple[float, float, float]:
+def _pose(message: Any) -> Pose:
     """(x, y, heading) of an Odometry's or a PoseStamped's pose (the heading: the yaw of
     its quaternion)."""
     pose = message.pose.pose if hasattr(message.pose, "pose") else message.pose
@@ -312,9 +329,7 @@ def _pose(message: Any) -> tuple[float, float, float]:
     return float(pose.position.x), float(pose.position.y), yaw
 
 
-def _control(
-    before: tuple[float, float, float], after: tuple[float, float, float]
-) -> tuple[float, float]:
+def _control(before: Pose, after: Pose) -> tuple[float, float]:
     """The drive-then-turn (d, alpha) from one pose to the next.
 
     ``d`` is the length of the step, negative when it goes against the heading; a
