@@ -416,3 +416,20 @@ def test_source_args_reach_the_source(tmp_path: Path, run: Simulation) -> None:
     assert own is not None and own.truth.track_xytheta is not None
     np.testing.assert_allclose(own.truth.track_xytheta[0], run.poses_xytheta[0], atol=1e-12)
     assert source.command_options(args) == ["--truth-topic", "/ground_truth"]
+
+
+def test_rosbags_is_imported_only_when_a_bag_is_opened(tmp_path: Path, run: Simulation) -> None:
+    bag = write_bag(tmp_path / "run_bag", run)
+    code = (
+        "import sys\n"
+        "from pathlib import Path\n"
+        "import ekfviz.cli\n"
+        "from ekfviz.sources import open_source\n"
+        "before = 'rosbags' in sys.modules\n"
+        "open_source(Path(sys.argv[1]))\n"
+        "print(before, 'rosbags' in sys.modules)\n"
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", code, str(bag)], capture_output=True, text=True, check=True
+    )
+    assert result.stdout.split() == ["False", "True"]
