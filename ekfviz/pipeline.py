@@ -24,12 +24,11 @@ from ekfviz.evaluation.errors import Evaluation, evaluate
 from ekfviz.filters.ekf import FilterParams
 from ekfviz.filters.plugged import FilterFactory
 from ekfviz.filters.spec import FilterSpec, FilterSpecError, release
-from ekfviz.io.detect import read_log
 from ekfviz.io.errors import InputError
-from ekfviz.io.extended import is_extended
 from ekfviz.io.text import ProgressCallback, WarningCallback
 from ekfviz.io.truth import checked_against, read_truth
 from ekfviz.runner.replay import FilterLineError, replay
+from ekfviz.sources import open_source
 from ekfviz.studies.executors import Executor
 from ekfviz.studies.runs import Run, RunFailure, RunSpec, Summary, run_specs, summarise
 
@@ -48,19 +47,21 @@ def log_events(
     progress: ProgressCallback | None = None,
     warn: WarningCallback | None = None,
 ) -> Iterator[AnyEvent]:
-    """The log's events, checked against the truth's landmarks when there is one."""
-    events = read_log(data, progress, warn)
+    """The log's events (its source's options at their defaults), checked against the
+    truth's landmarks when there is one."""
+    source = open_source(data)
+    events = source.events(progress, warn)
     if truth is not None and truth_path is not None:
-        # only the classic format names every landmark on its first line
-        classic = data.is_file() and not is_extended(data)
-        events = checked_against(events, truth, truth_path, every_id=classic)
+        every_id = source.names_every_landmark
+        events = checked_against(events, truth, truth_path, every_id=every_id)
     return events
 
 
 class ScanHooks(Protocol):
-    """What a replay of id-less scans adds (see :mod:`ekfviz.cli.scans`): the built-in
-    filter with its models, the associator, a look at every record and the truth under
-    the association's pairing."""
+    """What a replay adds to the filter (see :mod:`ekfviz.cli.scans`): the built-in
+    filter with the models its source implies, the associator of id-less scans, a look
+    at every record (the source's reference) and the truth under the association's
+    pairing."""
 
     @property
     def slam(self) -> EkfSlam | None: ...
@@ -118,9 +119,8 @@ def replay_log(
     Bad input, a filter that cannot go on, Ctrl-C or SIGTERM stop the replay with the
     recording of everything before it kept and its last log line saying why.
 
-    :param scans: the built-in filter with its models and the associator, for logs with
-        id-less scans (Victoria Park); the evaluation then sees the truth under the
-        association's pairing
+    :param scans: the built-in filter with its source's models and the associator of
+        id-less scans; the evaluation then sees the truth under the association's pairing
     :raises RunStopped: the replay was cut short (why, where, and whether it was kept)
     """
     last: EventRecord | None = None

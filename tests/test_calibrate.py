@@ -21,9 +21,9 @@ from ekfviz.core.truth import GroundTruth
 from ekfviz.evaluation.consistency import Consistency, Verdict, reading
 from ekfviz.evaluation.errors import evaluate, rigid_alignment, semi_major_3sigma, summarise_map
 from ekfviz.filters.ekf import FilterParams, MotionNoise
-from ekfviz.io.detect import open_source
 from ekfviz.runner.replay import replay
 from ekfviz.sim.mrclam import MrclamNoise, MrclamWorld, simulate_mrclam
+from ekfviz.sources import open_source
 
 runner = CliRunner()
 
@@ -46,9 +46,10 @@ def skewed(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def events_and_truth(directory: Path) -> tuple[list[LogEvent], GroundTruth]:
-    source = open_source(directory, 1)
-    truth = source.own_truth()
-    assert truth is not None and truth.track_xytheta is not None
+    source = open_source(directory)  # robot 1
+    own = source.own_truth(lambda _: None)
+    assert own is not None and own.truth.track_xytheta is not None
+    truth = own.truth
     return list(with_ids(source.events(None, None))), truth
 
 

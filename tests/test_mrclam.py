@@ -17,10 +17,11 @@ from ekfviz.calibrate.fit import calibrate
 from ekfviz.cli import app
 from ekfviz.core.records import Control, EventKind, EventRecord, Sighting
 from ekfviz.core.truth import GroundTruth
-from ekfviz.io.detect import LogKind, open_source
+from ekfviz.filters.ekf import MotionNoise
 from ekfviz.io.errors import InputError
 from ekfviz.io.mrclam import open_dataset, read_mrclam, read_truth
 from ekfviz.sim.mrclam import MrclamNoise, MrclamWorld, simulate_mrclam
+from ekfviz.sources import open_source
 from ekfviz.viz.thinning import PredictThinning
 
 runner = CliRunner()
@@ -99,7 +100,7 @@ def test_truth_interpolates_on_the_circle_and_not_outside_the_track(tmp_path: Pa
 
 def test_simulated_dataset_reads_back_with_its_truth(dataset: Path) -> None:
     source = open_source(dataset)
-    assert source.kind is LogKind.MRCLAM and source.velocity_odometry
+    assert source.kind == "mrclam" and source.motion_noise is MotionNoise.PER_SQRT_SECOND
     warnings: list[str] = []
     events = list(source.events(warn=warnings.append))
     times = [e.time for e in events]
@@ -114,8 +115,13 @@ def test_simulated_dataset_reads_back_with_its_truth(dataset: Path) -> None:
     ids = np.concatenate([s.ids for s in sightings])
     assert ids.min() >= 6 and ids.max() <= 20
     assert len(warnings) == 1 and "of robots" in warnings[0]
-    truth = source.own_truth()
-    assert truth is not None and truth.track_times is not None and len(truth.ids) == 15
+    own = source.own_truth(warnings.append)
+    assert own is not None and own.files == [
+        dataset / "Landmark_Groundtruth.dat",
+        dataset / "Robot1_Groundtruth.dat",
+    ]
+    assert own.truth.track_times is not None and len(own.truth.ids) == 15
+    assert len(warnings) == 1  # nothing said of a truth that is there
 
 
 def test_simulation_is_deterministic_in_the_seed() -> None:

@@ -20,11 +20,11 @@ from test_victoria import make_park
 from typer.testing import CliRunner
 
 from ekfviz.cli import app
-from ekfviz.io.detect import LogKind, open_source
 from ekfviz.io.errors import InputError
 from ekfviz.io.extended import read_log_noise
 from ekfviz.io.jsontext import MAX_JSON_DEPTH, load_json
 from ekfviz.io.text import BLOCK_BYTES, numeric_blocks, token_lines
+from ekfviz.sources import open_source
 
 runner = CliRunner()
 
@@ -525,7 +525,7 @@ def test_a_dataset_without_its_landmark_truth_says_so(
 
 def test_victoria_progress_counts_against_both_files(made: dict[str, Path]) -> None:
     source = open_source(made["park"])
-    assert source.kind is LogKind.VICTORIA
+    assert source.kind == "victoria"
     total = sum(p.stat().st_size for p in source.progress_paths)
     done: list[int] = []
     for _ in source.events(done.append):

@@ -40,17 +40,26 @@ from ekfviz.cli.common import (
     warn,
     write_json,
 )
-from ekfviz.cli.sources import MotionNoiseChoice, RobotOption, first_time, open_log, resolve
+from ekfviz.cli.sources import (
+    NO_SOURCE_ARGS,
+    MotionNoiseChoice,
+    first_time,
+    open_log,
+    resolve,
+    with_source_options,
+)
 from ekfviz.core.records import NeedsIds, with_ids
 from ekfviz.filters.ekf import MotionNoise
 from ekfviz.io.errors import InputError
+from ekfviz.sources import SourceArgs
 
 
 @app.command(name="calibrate")
+@with_source_options
 def calibrate_command(
     data: StudyLogArgument,
     truth: TruthOption = None,
-    robot: RobotOption = None,
+    source_args: SourceArgs = NO_SOURCE_ARGS,  # every format's options (--robot, --odom...)
     window: Annotated[
         float,
         typer.Option(help="Seconds of odometry per motion window of a timestamped log.", min=0.01),
@@ -85,7 +94,7 @@ def calibrate_command(
         DEFAULT.init_pose_sigma, DEFAULT.landmark_init, DEFAULT.update, log=data,
     )  # fmt: skip
     try:
-        opened = open_log(data, robot, truth, no_truth=False)
+        opened = open_log(data, source_args, truth, no_truth=False)
         if opened.truth is None or not opened.truth.has_poses:
             fail(
                 f"{truth or data}: calibrate needs true poses: --truth FILE.json with"
@@ -116,8 +125,7 @@ def calibrate_command(
     for note in result.notes:
         warn(note)
     best = result.best
-    command = _replay_line(best, data, robot if opened.source.dataset is not None else None,
-                           truth)  # fmt: skip
+    command = _replay_line(best, data, opened.source.command_options(source_args), truth)
     if report is not None:
         try:
             write_json(report, _report(result, data, command))
@@ -131,12 +139,12 @@ def calibrate_command(
     out.print(shlex.join(command), soft_wrap=True, markup=False, highlight=False)
 
 
-def _replay_line(best: Candidate, data: Path, robot: int | None, truth: Path | None) -> list[str]:
+def _replay_line(
+    best: Candidate, data: Path, source_options: list[str], truth: Path | None
+) -> list[str]:
     """The replay command of a candidate: only the options that differ from a plain
-    replay's, sigmas with 6 significant digits."""
-    command = ["ekfviz", "replay", str(data)]
-    if robot is not None:
-        command += ["--robot", str(robot)]
+    replay's, sigmas with 6 significant digits; ``source_options`` open the source."""
+    command = ["ekfviz", "replay", str(data), *source_options]
     if truth is not None:
         command += ["--truth", str(truth)]
     p = best.params

@@ -413,7 +413,8 @@ LogArgument = Annotated[
     Path,
     typer.Argument(
         help="A log in the classic or the extended format, an MRCLAM dataset directory"
-        " (with --robot) or the Victoria Park directory.",
+        " (with --robot), the Victoria Park directory or a ROS 2 bag directory (with --odom,"
+        " --landmarks).",
         show_default=False,
     ),
 ]
@@ -545,9 +546,10 @@ def filter_params(
 ) -> FilterParams:
     """The filter's parameters from the command line, refusing what cannot work.
 
-    :param log: the log replayed: the noise its header states (see
-        :func:`ekfviz.io.extended.read_log_noise`) replaces the defaults of the options
-        not given on the command line, and a note says so
+    :param log: the log replayed: the noise its source states (see
+        :meth:`ekfviz.sources.Source.stated_noise`) replaces the defaults of the options
+        not given on the command line, and a note says so (a log file: a directory's
+        source needs its own options to open)
     """
     names = ("--sigma-x", "--sigma-y", "--sigma-alpha", "--sigma-bearing", "--sigma-range")
     for name, value in [
@@ -579,10 +581,11 @@ def _log_noise(
     log: Path, sigmas: tuple[float, float, float, float, float], init_pose_sigma: Triple
 ) -> tuple[tuple[float, float, float, float, float], Triple]:
     """The sigmas and prior with the log's stated noise where no option was given."""
-    from ekfviz.io.extended import NOISE_NAMES, read_log_noise
+    from ekfviz.io.extended import NOISE_NAMES
+    from ekfviz.sources import open_source
 
     try:
-        stated = read_log_noise(log)
+        stated = open_source(log).stated_noise()
     except InputError as error:
         fail(str(error))
     context = get_current_context(silent=True)

@@ -49,37 +49,37 @@ from ekfviz.cli.common import (
 )
 from ekfviz.cli.scans import (
     DEFAULT_ASSOCIATION,
-    VICTORIA,
     AssociationOption,
     Confirm,
     ConfirmWindow,
     GateProbability,
-    SigmaSpeed,
-    SigmaSteering,
     replay_setup,
 )
 from ekfviz.cli.sources import (
+    NO_SOURCE_ARGS,
     GateOption,
     InitPoseOption,
     MotionNoiseChoice,
     MotionNoiseOption,
     NoTruthOption,
-    RobotOption,
     first_time,
     open_log,
     resolve,
+    with_source_options,
 )
 from ekfviz.filters.ekf import EkfSlam, FilterError
 from ekfviz.filters.spec import BUILTIN, FilterSpecError, load_filter
 from ekfviz.io.errors import InputError
+from ekfviz.sources import SourceArgs
 
 
 @app.command()
+@with_source_options
 def replay(
     ctx: typer.Context,
     data: LogArgument,
     truth: TruthOption = None,
-    robot: RobotOption = None,
+    source_args: SourceArgs = NO_SOURCE_ARGS,  # every format's options (--robot, --odom...)
     no_truth: NoTruthOption = False,
     report: Annotated[
         Path | None, typer.Option(help="Write the evaluation as JSON here.", show_default=False)
@@ -151,8 +151,6 @@ def replay(
     gate_probability: GateProbability = DEFAULT_ASSOCIATION.gate_probability,
     confirm: Confirm = DEFAULT_ASSOCIATION.confirm,
     confirm_window: ConfirmWindow = DEFAULT_ASSOCIATION.confirm_window,
-    sigma_speed: SigmaSpeed = VICTORIA.sigma_speed,
-    sigma_steering: SigmaSteering = VICTORIA.sigma_steering,
     detail: Annotated[
         bool,
         typer.Option(
@@ -206,7 +204,7 @@ def replay(
         fail(str(error))
     logger: viz.RunLogger | None = None
     try:
-        opened = open_log(data, robot, truth, no_truth)
+        opened = open_log(data, source_args, truth, no_truth)
         truth_xy = opened.truth
         start, events = first_time(opened.events())
         params, notes = resolve(params, opened, start, init_pose, motion_noise, gate)
@@ -214,11 +212,9 @@ def replay(
             out.print(text, soft_wrap=True)
         setup = replay_setup(
             ctx, opened, params, make_filter is None or make_filter is EkfSlam, truth_xy,
-            association, gate_probability, confirm, confirm_window, sigma_speed, sigma_steering,
+            association, gate_probability, confirm, confirm_window,
         )  # fmt: skip
         params = setup.params
-        if setup.victoria:
-            events = setup.events(opened, None)
         sinks, note = viz.resolve_default_sinks(
             viz.Sinks(
                 save=save, spawn=spawn, serve=serve, connect=connect, bind=bind or viz.LOOPBACK
@@ -245,13 +241,13 @@ def replay(
                 detail=detail,
                 history=history,
                 sensor=setup.sensor,
-                gps_reference=setup.victoria,
+                gps_reference=setup.reference is not None,
             ) as logger,
             signals.as_exceptions(),
         ):
             warnings = FilterWarnings(data)
             if progress is not None:
-                events = setup.events(opened, progress)  # read from the start, with a bar
+                events = opened.events(progress)  # read from the start, with a bar
             evaluation = pipeline.replay_log(
                 events, params, make_filter=make_filter, name=filter_spec, data=data,
                 truth=truth_xy, logger=logger, on_record=warnings.add, scans=setup,

@@ -1,24 +1,30 @@
-"""What ``replay`` and ``calibrate`` share about the log they read: its kind (a file or an
-MRCLAM dataset directory), its truth, the start pose and the motion-noise model."""
+"""What the commands share about the input they open: its source (see
+:mod:`ekfviz.sources`), the source options of every format, its truth, the start pose and
+the motion-noise model."""
 
 from __future__ import annotations
 
 import enum
+import functools
+import inspect
 import itertools
-from collections.abc import Iterator
+import typing
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any, TypeVar
 
 import typer
+from typer._click.core import ParameterSource
+from typer._click.globals import get_current_context
 
-from ekfviz.cli.common import FILTER_NOISE, FILTER_OPTIONS, _option, log_events, warn
+from ekfviz.cli.common import FILTER_NOISE, FILTER_OPTIONS, _option, warn
 from ekfviz.core.records import AnyEvent, Control
 from ekfviz.core.truth import GroundTruth
 from ekfviz.filters.ekf import FilterParams, MotionNoise
-from ekfviz.io.detect import LogSource, open_source
 from ekfviz.io.text import ProgressCallback
 from ekfviz.io.truth import checked_against, read_truth
+from ekfviz.sources import Source, SourceArgs, SourceOption, open_source, source_options
 
 
 class MotionNoiseChoice(str, enum.Enum):
@@ -27,10 +33,6 @@ class MotionNoiseChoice(str, enum.Enum):
     PER_SQRT_SECOND = MotionNoise.PER_SQRT_SECOND.value
 
 
-RobotOption = Annotated[
-    int | None,
-    typer.Option(help="The robot of an MRCLAM dataset directory [default: 1].", show_default=False),
-]
 NoTruthOption = Annotated[
     bool,
     typer.Option("--no-truth", help="Ignore a dataset's own ground-truth files."),
@@ -39,7 +41,7 @@ InitPoseOption = Annotated[
     tuple[float, float, float] | None,
     _option(
         "The filter's initial pose [default: the true pose at the first event where the"
-        " log comes with a timestamped truth (MRCLAM), else 0 0 0].",
+        " log comes with a timestamped truth (MRCLAM, a bag's --truth-topic), else 0 0 0].",
         FILTER_OPTIONS,
         metavar="X Y THETA",
         show_default=False,
@@ -50,8 +52,8 @@ MotionNoiseOption = Annotated[
     _option(
         "What the motion sigmas mean: per-step, Q = diag(sigma^2) per control (m, rad);"
         " per-sqrt-second, Q = diag(sigma^2) * dt for a control spanning dt seconds"
-        " (m/sqrt(s), rad/sqrt(s)); auto: per-sqrt-second for velocity odometry (MRCLAM),"
-        " else per-step.",
+        " (m/sqrt(s), rad/sqrt(s)); auto: what the source implies, per-sqrt-second for"
+        " odometry over known times (MRCLAM, ROS 2 bags), else per-step.",
         FILTER_NOISE,
     ),
 ]
@@ -70,48 +72,101 @@ GateOption = Annotated[
 ]
 
 
+Command = TypeVar("Command", bound=Callable[..., Any])
+NO_SOURCE_ARGS = SourceArgs()  # the default of a command's source_args (replaced)
+
+
+def with_source_options(command: Command) -> Command:
+    """Give a command every format's options (:func:`ekfviz.sources.source_options`) in
+    place of its ``source_args: SourceArgs`` parameter, which receives them.
+
+    A new format's options so reach every command that opens a log without an edit here.
+    The options of the main panel (``--robot``) stand where ``source_args`` stands; those
+    of a panel of their own come last, so that their panels follow the command's own.
+    """
+    signature = inspect.signature(command)
+    hints = typing.get_type_hints(command, include_extras=True)
+    options = source_options()
+    parameters: list[inspect.Parameter] = []
+    last: list[inspect.Parameter] = []
+    for parameter in signature.parameters.values():
+        if parameter.name != "source_args":
+            parameters.append(parameter.replace(annotation=hints[parameter.name]))
+            continue
+        for option in options:
+            declared = inspect.Parameter(
+                option.name, parameter.kind, default=option.default, annotation=_annotated(option)
+            )
+            (parameters if option.panel is None else last).append(declared)
+    parameters += last
+
+    @functools.wraps(command)
+    def run(*args: Any, **kwargs: Any) -> Any:
+        values = {option.name: kwargs.pop(option.name) for option in options}
+        context = get_current_context(silent=True)
+        given = frozenset(
+            name
+            for name in values
+            if context is not None
+            and context.get_parameter_source(name) not in (ParameterSource.DEFAULT, None)
+        )
+        return command(*args, source_args=SourceArgs(values, given), **kwargs)
+
+    run.__signature__ = signature.replace(parameters=parameters)  # type: ignore[attr-defined]
+    run.__annotations__ = {p.name: p.annotation for p in parameters} | {"return": None}
+    return typing.cast(Command, run)
+
+
+def _annotated(option: SourceOption) -> Any:
+    """The Typer declaration of a source option."""
+    extra: dict[str, Any] = {}
+    if option.metavar is not None:
+        extra["metavar"] = option.metavar
+    if option.min is not None:
+        extra["min"] = option.min
+    declared = _option(option.help, option.panel, show_default=option.show_default, **extra)
+    kind = option.kind if option.default is not None else option.kind | None
+    return Annotated[kind, declared]
+
+
 @dataclass(frozen=True, slots=True)
 class OpenedLog:
     """A log opened for a replay: its source, its truth and where that came from.
 
-    :param truth_files: the files the truth was read from (``--truth`` or the dataset's)
+    :param truth_files: the files the truth was read from (``--truth`` or the source's)
+    :param truth_given: the truth is a ``--truth`` file (checked against the events)
     """
 
-    source: LogSource
+    source: Source
+    args: SourceArgs
     truth: GroundTruth | None
     truth_files: list[Path]
+    truth_given: bool = False
 
     def events(self, progress: ProgressCallback | None = None) -> Iterator[AnyEvent]:
-        """The log's events, checked against a ``--truth`` file's landmarks."""
-        if self.source.dataset is not None:
-            events = self.source.events(progress, warn)
-            if self.truth is not None and len(self.truth_files) == 1:  # not the dataset's
-                # a --truth file must know every landmark seen, as for a log file
-                return checked_against(events, self.truth, self.truth_files[0], every_id=False)
-            return events
-        if self.truth is not None and self.truth_files:
-            return log_events(self.source.path, self.truth, self.truth_files[0], progress)
-        return log_events(self.source.path, None, None, progress)
+        """The source's events, checked against a ``--truth`` file's landmarks."""
+        events = self.source.events(progress, warn)
+        if self.truth is not None and self.truth_given:
+            every_id = self.source.names_every_landmark
+            return checked_against(events, self.truth, self.truth_files[0], every_id=every_id)
+        return events
 
 
-def open_log(data: Path, robot: int | None, truth_path: Path | None, no_truth: bool) -> OpenedLog:
-    """Open a log file or dataset directory and its truth (``--truth``, else the dataset's
-    own unless ``--no-truth``).
+def open_log(
+    data: Path, source_args: SourceArgs, truth_path: Path | None, no_truth: bool
+) -> OpenedLog:
+    """Open a log's source and its truth (``--truth``, else the source's own unless
+    ``--no-truth``).
 
     :raises InputError: a path that is no log, a truth file that cannot be read
     """
-    source = open_source(data, robot)
+    source = open_source(data, source_args)
     if truth_path is not None:
-        return OpenedLog(source, read_truth(truth_path), [truth_path])
-    if not no_truth and source.dataset is not None:
-        if source.dataset.has_truth:
-            return OpenedLog(source, source.own_truth(), source.dataset.truth_files)
-        missing = [p.name for p in source.dataset.truth_files if not p.is_file()]
-        warn(
-            f"{data}: no {' or '.join(missing)}, replaying without the dataset's truth"
-            " (expected both truth files beside Barcodes.dat; --no-truth to go without)"
-        )
-    return OpenedLog(source, None, [])
+        return OpenedLog(source, source_args, read_truth(truth_path), [truth_path], True)
+    own = None if no_truth else source.own_truth(warn)
+    if own is not None:
+        return OpenedLog(source, source_args, own.truth, own.files)
+    return OpenedLog(source, source_args, None, [])
 
 
 def first_time(events: Iterator[AnyEvent]) -> tuple[float | None, Iterator[AnyEvent]]:
@@ -136,9 +191,7 @@ def resolve(
     """The filter's start pose and motion-noise model, and notes saying what was chosen."""
     notes: list[str] = []
     if motion_noise is MotionNoiseChoice.AUTO:
-        model = (
-            MotionNoise.PER_SQRT_SECOND if opened.source.velocity_odometry else MotionNoise.PER_STEP
-        )
+        model = opened.source.motion_noise
     else:
         model = MotionNoise(motion_noise.value)
     if init_pose is None and opened.truth is not None and opened.truth.track_times is not None:

@@ -60,7 +60,7 @@ def read_log(
     warn: WarningCallback | None = None,
 ) -> Iterator[AnyEvent]:
     """Stream the events of a log file in either format, told apart by its first data
-    line (:func:`ekfviz.io.detect.read_log` also takes an MRCLAM dataset directory).
+    line (:func:`ekfviz.sources.read_log` takes any input: a dataset directory, a bag).
 
     :param progress: called now and then with the number of bytes read so far
     :param warn: told once when bearings outside (-pi, pi] are wrapped into range

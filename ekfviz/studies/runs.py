@@ -27,10 +27,10 @@ from ekfviz.filters.ekf import FilterParams
 from ekfviz.filters.plugged import FilterFactory, PluginError
 from ekfviz.filters.protocol import SlamFilter
 from ekfviz.filters.spec import BUILTIN, FilterSpec, FilterSpecError, release
-from ekfviz.io.detect import read_log
 from ekfviz.models.range_bearing import RangeBearing
 from ekfviz.runner.replay import FilterLineError
 from ekfviz.runner.run import Consumer, Kept, run
+from ekfviz.sources import read_log
 from ekfviz.studies.executors import Executor, LocalExecutor
 
 VARIABLE = ("sigma_x", "sigma_y", "sigma_alpha", "sigma_bearing", "sigma_range")
