@@ -35,8 +35,8 @@ from ekfviz.cli.common import (
     worker_options,
     write_bytes_atomic,
 )
+from ekfviz.pipeline.grade import GradeRow
 from ekfviz.studies.executors import ExecutorError, ExecutorName
-from ekfviz.studies.grade import GradeRow
 
 
 @app.command()
@@ -95,7 +95,7 @@ def grade(
     and a time limit for the whole submission (--timeout); a broken or hostile one gets
     its row (error, timeout, memory, crashed) and the others go on.
     """
-    from ekfviz.studies.grade import GradeTask, grade_one, submissions, to_csv
+    from ekfviz.pipeline.grade import GradeTask, grade_one, submissions, to_csv
 
     if json_output:
         human_output_to_stderr()

@@ -3,7 +3,8 @@
 The commands of :mod:`ekfviz.cli` parse options and print; what happens between reading
 a log and writing a recording lives here, so that a newcomer reads the steps of a study
 in one place: read and check the input, run every pipeline (in parallel), summarise,
-record. Rerun is imported only when a recording is made.
+record. Rerun is imported only when a recording is made. :mod:`.grade` checks a class's
+submissions, each apart, with :func:`check`.
 """
 
 from __future__ import annotations
