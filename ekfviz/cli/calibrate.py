@@ -12,18 +12,15 @@ import typer
 from rich.table import Table
 
 from ekfviz.cli.common import (
-    DEFAULT,
-    StudyLogArgument,
-    TruthOption,
     app,
     check_outputs,
     command_hint,
     fail,
-    filter_params,
     out,
     warn,
     write_json,
 )
+from ekfviz.cli.options import FilterForm, FilterNoise, StudyLogArgument, TruthOption
 from ekfviz.cli.sources import MotionNoiseChoice, RobotOption, first_time, open_log, resolve
 from ekfviz.core.calibrate import (
     FIT_SHARE,
@@ -43,32 +40,36 @@ from ekfviz.core.gating import CHI2_2_999
 from ekfviz.core.records import NeedsIds, with_ids
 from ekfviz.io.errors import InputError
 
+Window = Annotated[
+    float,
+    typer.Option(help="Seconds of odometry per motion window of a timestamped log.", min=0.01),
+]
+FitShare = Annotated[
+    float,
+    typer.Option(
+        help="The share of the run (by time, untimed: by events) the noise is fitted on;"
+        " the rest judges the candidate settings.",
+        min=0.2,
+        max=0.9,
+    ),
+]
+CalibrationReport = Annotated[
+    Path | None,
+    typer.Option(
+        help="Write every estimate, candidate and held-out figure as JSON here.",
+        show_default=False,
+    ),
+]
+
 
 @app.command(name="calibrate")
 def calibrate_command(
     data: StudyLogArgument,
     truth: TruthOption = None,
     robot: RobotOption = None,
-    window: Annotated[
-        float,
-        typer.Option(help="Seconds of odometry per motion window of a timestamped log.", min=0.01),
-    ] = WINDOW_S,
-    fit_share: Annotated[
-        float,
-        typer.Option(
-            help="The share of the run (by time, untimed: by events) the noise is fitted on;"
-            " the rest judges the candidate settings.",
-            min=0.2,
-            max=0.9,
-        ),
-    ] = FIT_SHARE,
-    report: Annotated[
-        Path | None,
-        typer.Option(
-            help="Write every estimate, candidate and held-out figure as JSON here.",
-            show_default=False,
-        ),
-    ] = None,
+    window: Window = WINDOW_S,
+    fit_share: FitShare = FIT_SHARE,
+    report: CalibrationReport = None,
 ) -> None:
     """Estimate the measurement noise, the motion noise and the systematic odometry errors
     from ground truth on the first part of the run, judge the candidates (the defaults, the
@@ -77,11 +78,25 @@ def calibrate_command(
     The truth is --truth (with true poses: a JSON file with "poses") or a dataset's own.
     """
     check_outputs(("--report", report))
-    defaults_given = filter_params(
-        (DEFAULT.sigma_x, DEFAULT.sigma_y, DEFAULT.sigma_alpha, DEFAULT.sigma_bearing,
-         DEFAULT.sigma_range),
-        DEFAULT.init_pose_sigma, DEFAULT.landmark_init, DEFAULT.update, log=data,
-    )  # fmt: skip
+    result, command = run_calibrate(data, truth, robot, window, fit_share)
+    if report is not None:
+        try:
+            write_json(report, _report(result, data, command))
+        except OSError as error:
+            fail(f"{report}: cannot write the report: {error.strerror or error}")
+    out.print(f"Replay with the recommended setting ({result.best.name}):")
+    program = command_hint("ekfviz")
+    if program != "ekfviz":
+        out.print(f"(ekfviz is not on your PATH: run it as {program})", markup=False)
+    # the line starts with "ekfviz replay", whatever runs here: scripts look for it
+    out.print(shlex.join(command), soft_wrap=True, markup=False, highlight=False)
+
+
+def run_calibrate(
+    data: Path, truth: Path | None, robot: int | None, window: float, fit_share: float
+) -> tuple[Recommendation, list[str]]:
+    """The noise estimated and the candidates judged, printed; the best's replay line."""
+    defaults_given = FilterForm().params(FilterNoise(), log=data)
     try:
         opened = open_log(data, robot, truth, no_truth=False)
         if opened.truth is None or not opened.truth.has_poses:
@@ -113,20 +128,8 @@ def calibrate_command(
     _print_candidates(result)
     for note in result.notes:
         warn(note)
-    best = result.best
-    command = _replay_line(best, data, robot if opened.source.dataset is not None else None,
-                           truth)  # fmt: skip
-    if report is not None:
-        try:
-            write_json(report, _report(result, data, command))
-        except OSError as error:
-            fail(f"{report}: cannot write the report: {error.strerror or error}")
-    out.print(f"Replay with the recommended setting ({best.name}):")
-    program = command_hint("ekfviz")
-    if program != "ekfviz":
-        out.print(f"(ekfviz is not on your PATH: run it as {program})", markup=False)
-    # the line starts with "ekfviz replay", whatever runs here: scripts look for it
-    out.print(shlex.join(command), soft_wrap=True, markup=False, highlight=False)
+    dataset_robot = robot if opened.source.dataset is not None else None
+    return result, _replay_line(result.best, data, dataset_robot, truth)
 
 
 def _replay_line(best: Candidate, data: Path, robot: int | None, truth: Path | None) -> list[str]:

@@ -16,6 +16,7 @@ from typing import Annotated, Any, NoReturn
 
 import numpy as np
 import typer
+from rich import box
 from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, DownloadColumn, Progress, TimeRemainingColumn
@@ -25,7 +26,7 @@ from typer._click.core import ParameterSource
 from typer._click.globals import get_current_context
 
 from ekfviz import __version__, signals
-from ekfviz.core.evaluation import Evaluation, summary_lines
+from ekfviz.core.evaluation import Evaluation
 from ekfviz.core.filter import HAVE_KERNEL, FilterParams, LandmarkInit, UpdateMode
 from ekfviz.core.records import AnyEvent, EventRecord
 from ekfviz.core.truth import GroundTruth
@@ -40,6 +41,7 @@ from ekfviz.studies.executors import (
     ExecutorName,
     make_executor,
 )
+from ekfviz.tables import Cell, Styled, TextTable
 
 
 class LogFormat(str, enum.Enum):
@@ -124,35 +126,6 @@ RECORDINGS_DIR = Path("recordings")
 # as ekfviz.filters.worker.DEFAULT_TIMEOUT_S (a test holds them equal; that module is
 # not imported at start-up)
 DEFAULT_FILTER_TIMEOUT_S = 60.0
-PythonOption = Annotated[
-    Path | None,
-    typer.Option(
-        "--python",
-        help="Run a user's filter under this interpreter (any Python >= 3.8 with numpy >="
-        " 1.17, without ekfviz): a solution written for numpy 1 runs in its own environment.",
-        rich_help_panel="User filters",
-        show_default=False,
-    ),
-]
-FilterTimeout = Annotated[
-    float,
-    typer.Option(
-        "--filter-timeout",
-        help="Seconds one call of a user's filter may take; it is stopped after that.",
-        rich_help_panel="User filters",
-        min=0.1,
-    ),
-]
-FilterMemory = Annotated[
-    int | None,
-    typer.Option(
-        "--filter-memory",
-        help="Megabytes of address space a user's filter may take (none: no limit).",
-        rich_help_panel="User filters",
-        min=64,
-        show_default=False,
-    ),
-]
 
 
 def worker_options(
@@ -173,6 +146,32 @@ def worker_options(
         memory_mb=memory_mb,
         echo=echo,
     )
+
+
+def rendered(cell: Cell) -> Text:
+    """A cell of a table or a line as rich text (no markup read in it)."""
+    if isinstance(cell, Styled):
+        return Text(cell.text, style=cell.style or "")
+    return Text(cell)
+
+
+def show(table: TextTable) -> None:
+    """Print a table (see :mod:`ekfviz.tables`)."""
+    rich_table = Table(title=table.title, title_justify="left")
+    if not table.lines:
+        rich_table.box = box.SIMPLE_HEAD
+    for column in table.columns:
+        rich_table.add_column(column, justify="left" if column in table.left else "right")
+    for row in table.rows:
+        rich_table.add_row(*(rendered(cell) for cell in row))
+    out.print(rich_table)
+
+
+def say(lines: Sequence[Cell]) -> None:
+    """Print lines (see :mod:`ekfviz.tables`)."""
+    for line in lines:
+        wrap = not isinstance(line, Styled) or line.wrap
+        out.print(rendered(line), soft_wrap=not wrap)
 
 
 def plain(text: object) -> Text:
@@ -349,115 +348,14 @@ def warn(message: str) -> None:
 
 FILTER_NOISE = "Filter noise"
 FILTER_OPTIONS = "Filter options"
-TRUE_NOISE = "True noise (default: the scenario's)"
-LOOP = "Loop scenario"
-SENSOR = "Detection"
 
 
 def _option(help: str, panel: str | None = None, **kwargs: Any) -> Any:
     return typer.Option(help=help, rich_help_panel=panel, **kwargs)
 
 
-SigmaX = Annotated[
-    float, _option("Motion noise sigma along the heading (m).", FILTER_NOISE, min=0.0)
-]
-SigmaY = Annotated[float, _option("Motion noise sigma sideways (m).", FILTER_NOISE, min=0.0)]
-SigmaAlpha = Annotated[
-    float, _option("Motion noise sigma of the turn (rad).", FILTER_NOISE, min=0.0)
-]
-SigmaBearing = Annotated[
-    float, _option("Measurement noise sigma of the bearing (rad); positive.", FILTER_NOISE)
-]
-SigmaRange = Annotated[
-    float, _option("Measurement noise sigma of the range (m); positive.", FILTER_NOISE)
-]
-OdometryScale = Annotated[
-    tuple[float, float],
-    _option(
-        "Systematic odometry error to take out of every control: the true distance is"
-        " DISTANCE times the odometry's, the true turn TURN times its turn (plus"
-        " --odometry-bias); ekfviz calibrate estimates them.",
-        FILTER_NOISE,
-        metavar="DISTANCE TURN",
-        min=0.0,
-    ),
-]
-OdometryBias = Annotated[
-    float,
-    _option(
-        "Systematic turn per metre driven to add to every control (rad/m), as wheels of"
-        " unequal size turn a robot; a robot standing still does not turn.",
-        FILTER_NOISE,
-    ),
-]
-LandmarkInitOption = Annotated[
-    LandmarkInit,
-    _option("Keep the new landmark's cross-covariances (correlated) or drop them.", FILTER_OPTIONS),
-]
-UpdateOption = Annotated[
-    UpdateMode,
-    _option("Fold a line's landmarks one after another, or all at once.", FILTER_OPTIONS),
-]
 Triple = tuple[float, float, float]
 DEFAULT = FilterParams()  # the classic defaults, stated once
-InitPoseSigma = Annotated[
-    Triple,
-    _option(
-        "Sigma of the initial pose prior, around the start pose: (0, 0, 0), the true pose of"
-        " the first event of a dataset with truth, or --init-pose.",
-        FILTER_OPTIONS,
-        metavar="SX SY STHETA",
-    ),
-]
-LogArgument = Annotated[
-    Path,
-    typer.Argument(
-        help="A log in the classic or the extended format, an MRCLAM dataset directory"
-        " (with --robot) or the Victoria Park directory.",
-        show_default=False,
-    ),
-]
-# sweep, compare, check and calibrate: Victoria Park has no ids nor true poses
-StudyLogArgument = Annotated[
-    Path,
-    typer.Argument(
-        help="A log in the classic or the extended format, or an MRCLAM dataset directory"
-        " (with --robot); the Victoria Park directory is for replay only.",
-        show_default=False,
-    ),
-]
-TruthOption = Annotated[
-    Path | None, _option("True landmark positions: 'x y' per line, or JSON.", show_default=False)
-]
-
-
-FilterOption = Annotated[
-    str,
-    typer.Option(
-        "--filter",
-        help="The filter: ekf (built-in), a registered backend, PATH.py:ClassName or"
-        " package.module:ClassName (a class of the filter protocol, see the README).",
-        rich_help_panel=FILTER_OPTIONS,
-    ),
-]
-Workers = Annotated[
-    int | None, _option("Processes to use \\[default: one per core].", min=1, show_default=False)
-]
-STUDY = "Where the runs execute"
-ExecutorOption = Annotated[
-    ExecutorName,
-    _option("local: processes on this machine; dask: a Dask cluster (--scheduler).", STUDY),
-]
-SchedulerOption = Annotated[
-    str | None,
-    _option(
-        "The Dask scheduler's address, e.g. tcp://10.0.0.5:8786 (needs the dask extra:"
-        " pip install -e '.\\[dask]' in a clone).",
-        STUDY,
-        metavar="ADDRESS",
-        show_default=False,
-    ),
-]
 
 
 def study_executor(name: ExecutorName, scheduler: str | None, workers: int | None) -> Executor:
@@ -466,65 +364,6 @@ def study_executor(name: ExecutorName, scheduler: str | None, workers: int | Non
         return make_executor(name, scheduler, workers)
     except ExecutorError as error:
         fail(str(error))
-
-
-def _true(what: str) -> Any:
-    return _option(f"True {what}.", TRUE_NOISE, min=0.0, show_default=False)
-
-
-TrueSigmaX = Annotated[float | None, _true("motion noise sigma along the heading")]
-TrueSigmaY = Annotated[float | None, _true("motion noise sigma sideways")]
-TrueSigmaAlpha = Annotated[float | None, _true("motion noise sigma of the turn")]
-TrueSigmaBearing = Annotated[float | None, _true("bearing noise sigma")]
-TrueSigmaRange = Annotated[float | None, _true("range noise sigma")]
-ScenarioOption = Annotated[ScenarioName, _option("The world and route.")]
-Steps = Annotated[
-    int | None,
-    _option("loop: controls in one lap \\[default: 1000].", LOOP, min=4, show_default=False),
-]
-Landmarks = Annotated[
-    int | None,
-    _option("loop: number of landmarks \\[default: 200].", LOOP, min=1, show_default=False),
-]
-MaxRange = Annotated[
-    float | None,
-    _option("loop: sensor range in metres \\[default: 15].", LOOP, min=0.0, show_default=False),
-]
-Fov = Annotated[
-    float | None,
-    _option(
-        "loop: sensor field of view in degrees \\[default: 180].",
-        LOOP,
-        min=0.0,
-        max=360.0,
-        show_default=False,
-    ),
-]
-
-
-UnknownIds = Annotated[
-    bool,
-    typer.Option(
-        "--unknown-ids",
-        help="Write id-less 'scan' lines (extended format); the truth's scan_ids keep"
-        " each measurement's landmark (null for clutter).",
-        rich_help_panel=SENSOR,
-    ),
-]
-Clutter = Annotated[
-    float,
-    _option(
-        "Mean false alarms per scan (Poisson), uniform over the field.",
-        SENSOR,
-        min=0.0,
-        metavar="RATE",
-    ),
-]
-DetectionProbability = Annotated[
-    float,
-    _option("Probability of detecting a landmark in reach (0 to 1).", SENSOR, metavar="P"),
-]
-Laps = Annotated[int, _option("Drive the route this many times.", min=1)]
 
 
 def detection_of(unknown_ids: bool, clutter: float, probability: float) -> Detection:
@@ -699,41 +538,8 @@ def open_progress(paths: list[Path]) -> Iterator[ProgressCallback | None]:
 
 def print_evaluation(evaluation: Evaluation, truth: GroundTruth | None) -> None:
     """The final landmark table and pose, with errors when the truth is known."""
-    table = Table(title="Landmarks at the end of the run", title_justify="left")
-    for column in ("id", "x", "y", "σ x", "σ y"):
-        table.add_column(column, justify="right")
-    if truth is not None:
-        for column in ("error (m)", "aligned (m)", "Mahalanobis", "in 3σ"):
-            table.add_column(column, justify="right")
-    for r in evaluation.landmarks:
-        cells = [str(r.id), *(f"{v:.4f}" for v in (*r.estimate, *r.sigma))]
-        if truth is not None:
-            if r.mahalanobis is None or r.euclidean is None:
-                cells += ["-", "-", "-", "no truth"]
-            else:
-                verdict = "[green]yes[/]" if r.inside_3sigma else "[bold red]no[/]"
-                aligned = "-" if r.aligned is None else f"{r.aligned:.4f}"
-                cells += [f"{r.euclidean:.4f}", aligned, f"{r.mahalanobis:.3f}", verdict]
-        table.add_row(*cells)
-    out.print(table)
-    x, y, theta = evaluation.pose
-    sx, sy, st = evaluation.pose_sigma
-    out.print(
-        f"Final pose: x {x:.4f} ± {sx:.4f} m, y {y:.4f} ± {sy:.4f} m, "
-        f"theta {theta:.4f} ± {st:.4f} rad (± one sigma)"
-    )
-    if truth is not None:
-        inside = sum(bool(r.inside_3sigma) for r in evaluation.landmarks)
-        out.print(f"{inside} of {len(evaluation.landmarks)} landmarks inside their 3-sigma ellipse")
-        if evaluation.summary is not None:  # inside because right, or because huge?
-            for line in summary_lines(evaluation.summary):
-                out.print(line, soft_wrap=True)
-        missing = set(truth.ids.tolist()) - {r.id for r in evaluation.landmarks}
-        if missing:
-            out.print(f"[yellow]never observed: landmarks {sorted(missing)}[/]")
-    if evaluation.consistency is not None:
-        for line in evaluation.consistency.summary():
-            out.print(line)
+    show(evaluation.table(truth))
+    say(evaluation.lines(truth))
 
 
 def mismatch_note(params: FilterParams, truth: GroundTruth) -> None:

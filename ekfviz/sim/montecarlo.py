@@ -16,7 +16,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ekfviz.association import AssociationParams, Associator
-from ekfviz.core.consistency import CONFIDENCE, BoundCount, chi2_quantile, pose_nees, update_nis
+from ekfviz.core.consistency import (
+    CONFIDENCE,
+    BoundCount,
+    Verdict,
+    chi2_quantile,
+    pose_nees,
+    update_nis,
+)
 from ekfviz.core.filter import FilterParams
 from ekfviz.core.records import EventKind
 from ekfviz.core.replay import replay
@@ -27,6 +34,7 @@ from ekfviz.models.range_bearing import RangeBearing
 from ekfviz.sim.scenarios import Scenario
 from ekfviz.sim.simulate import Detection, Noise
 from ekfviz.studies.executors import LocalExecutor
+from ekfviz.tables import Styled, TextTable
 
 
 @dataclass(frozen=True, slots=True)
@@ -101,6 +109,25 @@ class MonteCarlo:
     nis_bounds: FloatArray
     nees: BoundCount
     nis: BoundCount
+
+    def table(self, title: str) -> TextTable:
+        """The NEES and NIS counts against their bounds, with a verdict each."""
+        colours = {Verdict.CONSISTENT: "green", Verdict.BORDERLINE: "yellow"}
+        rows = []
+        for name, count in (("mean NEES per step", self.nees), ("mean NIS per step", self.nis)):
+            verdict = count.verdict
+            colour = colours.get(verdict or Verdict.CONSISTENT, "bold red")
+            inside = (
+                f"{count.inside}/{count.total} ({count.fraction_inside:.1%})"
+                if count.total
+                else "-"
+            )
+            rows.append((
+                name, inside, str(count.above), str(count.below),
+                "-" if verdict is None else Styled(verdict.value, colour),
+            ))  # fmt: skip
+        columns = ("statistic", "inside 95%", "above", "below", "verdict")
+        return TextTable(title, columns, tuple(rows), left=frozenset({"statistic", "verdict"}))
 
     def to_json(self) -> dict[str, object]:
         def listed(values: FloatArray) -> list[float | None]:

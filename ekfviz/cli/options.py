@@ -1,0 +1,472 @@
+"""The options the commands share, declared once: each group a frozen dataclass of typer
+parameters that a command takes as one argument (``noise: FilterNoise``).
+
+:func:`expands_options` spreads a group's fields into the command's signature where the
+group stands, so that typer shows them as before (same names, help, panels and order), and
+gathers them back into the dataclass before the command runs. A field added to a group
+appears on every command that takes the group, by that one edit.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import inspect
+import typing
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Any, ClassVar
+
+import typer
+
+from ekfviz.association import AssociationParams
+from ekfviz.cli.common import (
+    DEFAULT,
+    DEFAULT_FILTER_TIMEOUT_S,
+    FILTER_NOISE,
+    FILTER_OPTIONS,
+    Triple,
+    _option,
+    detection_of,
+    filter_params,
+    scenario_world,
+    study_executor,
+    true_noise,
+    worker_options,
+)
+from ekfviz.cli.scans import (  # the association's options stay beside its set-up
+    DEFAULT_ASSOCIATION,
+    AssociationOption,
+    Confirm,
+    ConfirmWindow,
+    GateProbability,
+    association_params,
+    study_association,
+)
+from ekfviz.core.filter import FilterParams, LandmarkInit, UpdateMode
+from ekfviz.sim.scenarios import Scenario, ScenarioName
+from ekfviz.sim.simulate import Detection, Noise
+from ekfviz.studies.executors import Executor, ExecutorName
+
+# -- the declarations --------------------------------------------------------------------
+
+TRUE_NOISE = "True noise (default: the scenario's)"
+LOOP = "Loop scenario"
+SENSOR = "Detection"
+USER_FILTERS = "User filters"
+STUDY = "Where the runs execute"
+
+SigmaX = Annotated[
+    float, _option("Motion noise sigma along the heading (m).", FILTER_NOISE, min=0.0)
+]
+SigmaY = Annotated[float, _option("Motion noise sigma sideways (m).", FILTER_NOISE, min=0.0)]
+SigmaAlpha = Annotated[
+    float, _option("Motion noise sigma of the turn (rad).", FILTER_NOISE, min=0.0)
+]
+SigmaBearing = Annotated[
+    float, _option("Measurement noise sigma of the bearing (rad); positive.", FILTER_NOISE)
+]
+SigmaRange = Annotated[
+    float, _option("Measurement noise sigma of the range (m); positive.", FILTER_NOISE)
+]
+OdometryScale = Annotated[
+    tuple[float, float],
+    _option(
+        "Systematic odometry error to take out of every control: the true distance is"
+        " DISTANCE times the odometry's, the true turn TURN times its turn (plus"
+        " --odometry-bias); ekfviz calibrate estimates them.",
+        FILTER_NOISE,
+        metavar="DISTANCE TURN",
+        min=0.0,
+    ),
+]
+OdometryBias = Annotated[
+    float,
+    _option(
+        "Systematic turn per metre driven to add to every control (rad/m), as wheels of"
+        " unequal size turn a robot; a robot standing still does not turn.",
+        FILTER_NOISE,
+    ),
+]
+LandmarkInitOption = Annotated[
+    LandmarkInit,
+    _option("Keep the new landmark's cross-covariances (correlated) or drop them.", FILTER_OPTIONS),
+]
+UpdateOption = Annotated[
+    UpdateMode,
+    _option("Fold a line's landmarks one after another, or all at once.", FILTER_OPTIONS),
+]
+InitPoseSigma = Annotated[
+    Triple,
+    _option(
+        "Sigma of the initial pose prior, around the start pose: (0, 0, 0), the true pose of"
+        " the first event of a dataset with truth, or --init-pose.",
+        FILTER_OPTIONS,
+        metavar="SX SY STHETA",
+    ),
+]
+# consistency: the same option, read as the prior of the simulated start as well
+ScenarioInitPoseSigma = Annotated[
+    Triple | None,
+    _option(
+        "The prior the true start is drawn from AND the filter's initial covariance"
+        " \\[default: the scenario's: classic 0.02 0.02 0.1, loop 0.01 0.01 0.005].",
+        FILTER_OPTIONS,
+        metavar="SX SY STHETA",
+        show_default=False,
+    ),
+]
+LogArgument = Annotated[
+    Path,
+    typer.Argument(
+        help="A log in the classic or the extended format, an MRCLAM dataset directory"
+        " (with --robot) or the Victoria Park directory.",
+        show_default=False,
+    ),
+]
+# sweep, compare, check and calibrate: Victoria Park has no ids nor true poses
+StudyLogArgument = Annotated[
+    Path,
+    typer.Argument(
+        help="A log in the classic or the extended format, or an MRCLAM dataset directory"
+        " (with --robot); the Victoria Park directory is for replay only.",
+        show_default=False,
+    ),
+]
+TruthOption = Annotated[
+    Path | None, _option("True landmark positions: 'x y' per line, or JSON.", show_default=False)
+]
+FilterOption = Annotated[
+    str,
+    typer.Option(
+        "--filter",
+        help="The filter: ekf (built-in), a registered backend, PATH.py:ClassName or"
+        " package.module:ClassName (a class of the filter protocol, see the README).",
+        rich_help_panel=FILTER_OPTIONS,
+    ),
+]
+PythonOption = Annotated[
+    Path | None,
+    typer.Option(
+        "--python",
+        help="Run a user's filter under this interpreter (any Python >= 3.8 with numpy >="
+        " 1.17, without ekfviz): a solution written for numpy 1 runs in its own environment.",
+        rich_help_panel=USER_FILTERS,
+        show_default=False,
+    ),
+]
+FilterTimeout = Annotated[
+    float,
+    typer.Option(
+        "--filter-timeout",
+        help="Seconds one call of a user's filter may take; it is stopped after that.",
+        rich_help_panel=USER_FILTERS,
+        min=0.1,
+    ),
+]
+FilterMemory = Annotated[
+    int | None,
+    typer.Option(
+        "--filter-memory",
+        help="Megabytes of address space a user's filter may take (none: no limit).",
+        rich_help_panel=USER_FILTERS,
+        min=64,
+        show_default=False,
+    ),
+]
+Workers = Annotated[
+    int | None, _option("Processes to use \\[default: one per core].", min=1, show_default=False)
+]
+ExecutorOption = Annotated[
+    ExecutorName,
+    _option("local: processes on this machine; dask: a Dask cluster (--scheduler).", STUDY),
+]
+SchedulerOption = Annotated[
+    str | None,
+    _option(
+        "The Dask scheduler's address, e.g. tcp://10.0.0.5:8786 (needs the dask extra:"
+        " pip install -e '.\\[dask]' in a clone).",
+        STUDY,
+        metavar="ADDRESS",
+        show_default=False,
+    ),
+]
+
+
+def _true(what: str) -> Any:
+    return _option(f"True {what}.", TRUE_NOISE, min=0.0, show_default=False)
+
+
+TrueSigmaX = Annotated[float | None, _true("motion noise sigma along the heading")]
+TrueSigmaY = Annotated[float | None, _true("motion noise sigma sideways")]
+TrueSigmaAlpha = Annotated[float | None, _true("motion noise sigma of the turn")]
+TrueSigmaBearing = Annotated[float | None, _true("bearing noise sigma")]
+TrueSigmaRange = Annotated[float | None, _true("range noise sigma")]
+ScenarioOption = Annotated[ScenarioName, _option("The world and route.")]
+Steps = Annotated[
+    int | None,
+    _option("loop: controls in one lap \\[default: 1000].", LOOP, min=4, show_default=False),
+]
+Landmarks = Annotated[
+    int | None,
+    _option("loop: number of landmarks \\[default: 200].", LOOP, min=1, show_default=False),
+]
+MaxRange = Annotated[
+    float | None,
+    _option("loop: sensor range in metres \\[default: 15].", LOOP, min=0.0, show_default=False),
+]
+Fov = Annotated[
+    float | None,
+    _option(
+        "loop: sensor field of view in degrees \\[default: 180].",
+        LOOP,
+        min=0.0,
+        max=360.0,
+        show_default=False,
+    ),
+]
+UnknownIds = Annotated[
+    bool,
+    typer.Option(
+        "--unknown-ids",
+        help="Write id-less 'scan' lines (extended format); the truth's scan_ids keep"
+        " each measurement's landmark (null for clutter).",
+        rich_help_panel=SENSOR,
+    ),
+]
+Clutter = Annotated[
+    float,
+    _option(
+        "Mean false alarms per scan (Poisson), uniform over the field.",
+        SENSOR,
+        min=0.0,
+        metavar="RATE",
+    ),
+]
+DetectionProbability = Annotated[
+    float,
+    _option("Probability of detecting a landmark in reach (0 to 1).", SENSOR, metavar="P"),
+]
+Laps = Annotated[int, _option("Drive the route this many times.", min=1)]
+Seed = Annotated[int, _option("Seed of the first run; run k uses seed + k.")]
+
+
+# -- the groups ----------------------------------------------------------------------------
+
+
+class OptionGroup:
+    """A frozen dataclass of options that commands take whole (see the module).
+
+    Every field is ``name: Annotated[type, typer.Option(...)] = default``; the field's
+    name is the parameter's (``--sigma-x`` for ``sigma_x``).
+    """
+
+    __dataclass_fields__: ClassVar[dict[str, Any]]
+
+    @classmethod
+    def parameters(cls) -> list[inspect.Parameter]:
+        """The fields as keyword parameters of a command, in their order."""
+        hints = typing.get_type_hints(cls, include_extras=True)
+        return [
+            inspect.Parameter(
+                field.name,
+                inspect.Parameter.KEYWORD_ONLY,
+                annotation=hints[field.name],
+                default=field.default,
+            )
+            for field in dataclasses.fields(cls)
+        ]
+
+    @classmethod
+    def option_names(cls) -> list[str]:
+        """The flags of the group as a user types them (``--sigma-x``)."""
+        names = []
+        for parameter in cls.parameters():
+            declared = next(
+                (d for info in parameter.annotation.__metadata__ for d in info.param_decls or ()),
+                None,
+            )
+            names.append(declared or "--" + parameter.name.replace("_", "-"))
+        return names
+
+
+def expands_options(command: Callable[..., None]) -> Callable[..., None]:
+    """The command with each parameter annotated by an :class:`OptionGroup` replaced by the
+    group's fields (for typer), the fields gathered back into the group at the call."""
+    signature = inspect.signature(command, eval_str=True)
+    flat: list[inspect.Parameter] = []
+    groups: dict[str, tuple[type[OptionGroup], list[str]]] = {}
+    for parameter in signature.parameters.values():
+        group = parameter.annotation
+        if isinstance(group, type) and issubclass(group, OptionGroup):
+            fields = group.parameters()
+            groups[parameter.name] = (group, [field.name for field in fields])
+            flat += fields
+        else:  # keyword-only: a group's defaults may come before a required option
+            flat.append(parameter.replace(kind=inspect.Parameter.KEYWORD_ONLY))
+    names = [parameter.name for parameter in flat]
+    if len(set(names)) != len(names):
+        raise TypeError(f"{command.__name__}: an option is given twice: {sorted(names)}")
+
+    @functools.wraps(command)
+    def gathered(**values: Any) -> None:
+        for name, (group, fields) in groups.items():
+            values[name] = group(**{field: values.pop(field) for field in fields})
+        command(**values)
+
+    gathered.__signature__ = signature.replace(parameters=flat)  # type: ignore[attr-defined]
+    gathered.__annotations__ = {p.name: p.annotation for p in flat}
+    gathered.__option_groups__ = {n: g for n, (g, _) in groups.items()}  # type: ignore[attr-defined]
+    return gathered
+
+
+@dataclass(frozen=True, slots=True)
+class FilterNoise(OptionGroup):
+    """The filter's motion and measurement sigmas."""
+
+    sigma_x: SigmaX = DEFAULT.sigma_x
+    sigma_y: SigmaY = DEFAULT.sigma_y
+    sigma_alpha: SigmaAlpha = DEFAULT.sigma_alpha
+    sigma_bearing: SigmaBearing = DEFAULT.sigma_bearing
+    sigma_range: SigmaRange = DEFAULT.sigma_range
+
+    @property
+    def sigmas(self) -> tuple[float, float, float, float, float]:
+        return (self.sigma_x, self.sigma_y, self.sigma_alpha, self.sigma_bearing, self.sigma_range)
+
+
+@dataclass(frozen=True, slots=True)
+class FilterForm(OptionGroup):
+    """The filter's initial pose prior and how it adds and updates landmarks."""
+
+    init_pose_sigma: InitPoseSigma = DEFAULT.init_pose_sigma
+    landmark_init: LandmarkInitOption = DEFAULT.landmark_init
+    update: UpdateOption = DEFAULT.update
+
+    def params(
+        self, noise: FilterNoise, log: Path | None = None, prior: Triple | None = None
+    ) -> FilterParams:
+        """The filter's parameters (see :func:`~ekfviz.cli.common.filter_params`).
+
+        :param prior: the initial pose sigma instead of ``init_pose_sigma``
+        """
+        start = self.init_pose_sigma if prior is None else prior
+        return filter_params(noise.sigmas, start, self.landmark_init, self.update, log=log)
+
+
+@dataclass(frozen=True, slots=True)
+class ScenarioFilterForm(OptionGroup):
+    """:class:`FilterForm` for a simulated scenario: the prior defaults to the
+    scenario's own (and is the one its true start is drawn from)."""
+
+    init_pose_sigma: ScenarioInitPoseSigma = None
+    landmark_init: LandmarkInitOption = DEFAULT.landmark_init
+    update: UpdateOption = DEFAULT.update
+
+    def prior(self, world: Scenario) -> Triple:
+        return world.init_pose_sigma if self.init_pose_sigma is None else self.init_pose_sigma
+
+    def params(self, noise: FilterNoise, world: Scenario) -> FilterParams:
+        form = FilterForm(self.prior(world), self.landmark_init, self.update)
+        return form.params(noise)
+
+
+@dataclass(frozen=True, slots=True)
+class UserFilter(OptionGroup):
+    """How a user's filter runs: its interpreter and limits."""
+
+    python: PythonOption = None
+    filter_timeout: FilterTimeout = DEFAULT_FILTER_TIMEOUT_S
+    filter_memory: FilterMemory = None
+
+    def worker(self) -> Any:
+        """The :class:`~ekfviz.filters.worker.WorkerOptions`, the interpreter checked."""
+        return worker_options(self.python, self.filter_timeout, self.filter_memory)
+
+
+@dataclass(frozen=True, slots=True)
+class Association(OptionGroup):
+    """How id-less scans are associated with landmarks."""
+
+    association: AssociationOption = None
+    gate_probability: GateProbability = DEFAULT_ASSOCIATION.gate_probability
+    confirm: Confirm = DEFAULT_ASSOCIATION.confirm
+    confirm_window: ConfirmWindow = DEFAULT_ASSOCIATION.confirm_window
+
+    def params(self) -> AssociationParams | None:
+        """None for ``known``, else the method (jcbb by default) with its settings."""
+        return association_params(
+            self.association, self.gate_probability, self.confirm, self.confirm_window
+        )
+
+    def for_study(self, data: Path) -> AssociationParams | None:
+        """As :meth:`params`, for the runs of a study of ``data`` (Victoria Park refused).
+
+        :raises ekfviz.io.errors.InputError: for the Victoria Park directory
+        """
+        return study_association(
+            data, self.association, self.gate_probability, self.confirm, self.confirm_window
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class Execution(OptionGroup):
+    """Where the runs of a study execute."""
+
+    workers: Workers = None
+    executor: ExecutorOption = ExecutorName.LOCAL
+    scheduler: SchedulerOption = None
+
+    def make(self) -> Executor:
+        """The executor asked for, or a one-line error."""
+        return study_executor(self.executor, self.scheduler, self.workers)
+
+
+@dataclass(frozen=True, slots=True)
+class TrueNoise(OptionGroup):
+    """The simulator's noise where it is not the scenario's."""
+
+    true_sigma_x: TrueSigmaX = None
+    true_sigma_y: TrueSigmaY = None
+    true_sigma_alpha: TrueSigmaAlpha = None
+    true_sigma_bearing: TrueSigmaBearing = None
+    true_sigma_range: TrueSigmaRange = None
+
+    @property
+    def given(self) -> tuple[float | None, float | None, float | None, float | None, float | None]:
+        return (
+            self.true_sigma_x, self.true_sigma_y, self.true_sigma_alpha,
+            self.true_sigma_bearing, self.true_sigma_range,
+        )  # fmt: skip
+
+    def of(self, world: Scenario) -> Noise:
+        """The scenario's noise with the values given instead."""
+        return true_noise(world, *self.given)
+
+
+@dataclass(frozen=True, slots=True)
+class LoopShape(OptionGroup):
+    """The loop scenario's size and sensor."""
+
+    steps: Steps = None
+    landmarks: Landmarks = None
+    max_range: MaxRange = None
+    fov: Fov = None
+
+    def world(self, scenario: ScenarioName, seed: int) -> Scenario:
+        """The scenario asked for (the loop options refused for the others)."""
+        return scenario_world(scenario, seed, self.steps, self.landmarks, self.max_range, self.fov)
+
+
+@dataclass(frozen=True, slots=True)
+class Sensing(OptionGroup):
+    """The simulated sensor's ids, false alarms and misses."""
+
+    unknown_ids: UnknownIds = False
+    clutter: Clutter = 0.0
+    detection_probability: DetectionProbability = 1.0
+
+    def detection(self) -> Detection:
+        """The detection asked for, refusing what cannot be."""
+        return detection_of(self.unknown_ids, self.clutter, self.detection_probability)

@@ -1,0 +1,332 @@
+"""What ``ekfviz replay`` does once its options are read: open the input, set the filter
+up, record the run, print and write the evaluation, and say in one line what stopped it."""
+
+from __future__ import annotations
+
+import shlex
+import sys
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated, Any
+
+import typer
+
+from ekfviz import signals
+from ekfviz.association import AssociationError
+from ekfviz.cli.common import (
+    DEFAULT,
+    RECORDINGS_DIR,
+    FilterWarnings,
+    check_outputs,
+    fail,
+    human_output_to_stderr,
+    mismatch_note,
+    open_progress,
+    out,
+    print_evaluation,
+    print_json,
+    report_json,
+    write_json,
+)
+from ekfviz.cli.options import (
+    Association,
+    FilterForm,
+    FilterNoise,
+    OdometryBias,
+    OdometryScale,
+    OptionGroup,
+    UserFilter,
+)
+from ekfviz.cli.scans import VICTORIA, ReplaySetup, SigmaSpeed, SigmaSteering, replay_setup
+from ekfviz.cli.sources import MotionNoiseChoice, OpenedLog, first_time, open_log, resolve
+from ekfviz.core.filter import EkfSlam, FilterError, FilterParams
+from ekfviz.core.records import AnyEvent
+from ekfviz.filters import FilterSpecError, load_filter
+from ekfviz.io.errors import InputError
+
+if TYPE_CHECKING:
+    from collections.abc import Iterator
+
+    from ekfviz.core.plugged import FilterFactory
+    from ekfviz.viz.run import RunLogger
+
+RERUN = "Rerun output"
+
+
+@dataclass(frozen=True, slots=True)
+class Odometry(OptionGroup):
+    """The systematic odometry errors taken out of every control."""
+
+    odometry_scale: OdometryScale = DEFAULT.odometry_scale
+    odometry_bias: OdometryBias = DEFAULT.odometry_bias
+
+
+@dataclass(frozen=True, slots=True)
+class VictoriaNoise(OptionGroup):
+    """The vehicle's input noise of a Victoria Park replay."""
+
+    sigma_speed: SigmaSpeed = VICTORIA.sigma_speed
+    sigma_steering: SigmaSteering = VICTORIA.sigma_steering
+
+
+@dataclass(frozen=True, slots=True)
+class RerunOutput(OptionGroup):
+    """Where the recording goes and how much of it is logged."""
+
+    save: Annotated[
+        Path | None,
+        typer.Option(
+            help="Write the recording to this .rrd file.",
+            show_default=False,
+            rich_help_panel=RERUN,
+        ),
+    ] = None
+    spawn: Annotated[
+        bool, typer.Option("--spawn", help="Open the native Rerun viewer.", rich_help_panel=RERUN)
+    ] = False
+    serve: Annotated[
+        bool,
+        typer.Option(
+            "--serve",
+            help="Serve the web viewer on localhost (see --bind) until Ctrl-C.",
+            rich_help_panel=RERUN,
+        ),
+    ] = False
+    bind: Annotated[
+        str | None,
+        typer.Option(
+            help="With --serve: the IP address to listen on \\[default: 127.0.0.1, this"
+            " machine only]; 0.0.0.0 serves the recording to the whole network.",
+            show_default=False,
+            metavar="ADDRESS",
+            rich_help_panel=RERUN,
+        ),
+    ] = None
+    connect: Annotated[
+        str | None,
+        typer.Option(
+            help="Stream to a running viewer at this gRPC URL.",
+            show_default=False,
+            rich_help_panel=RERUN,
+        ),
+    ] = None
+    detail: Annotated[
+        bool,
+        typer.Option(
+            "--detail",
+            help="Log every landmark's ellipse at every update, even in a large map"
+            " (by default a map of over 32 landmarks is logged whole every 25 steps).",
+            rich_help_panel=RERUN,
+        ),
+    ] = False
+    history: Annotated[
+        bool,
+        typer.Option(
+            "--history",
+            help="The classic figure: the map keeps every predicted (magenta) and updated"
+            " (blue) robot ellipse up to the time cursor.",
+            rich_help_panel=RERUN,
+        ),
+    ] = False
+
+    def check(self) -> None:
+        """Refuse a --bind without --serve or a bad address, before any work."""
+        from ekfviz import viz
+
+        if self.bind is not None:
+            if not self.serve:
+                fail("--bind is the address of --serve: add --serve")
+            try:
+                viz.check_bind(self.bind)
+            except viz.SinkError as error:
+                fail(str(error))
+
+
+@dataclass(frozen=True, slots=True)
+class ReplayRequest:
+    """A replay as the command line asks for it."""
+
+    ctx: typer.Context
+    data: Path
+    truth: Path | None
+    robot: int | None
+    no_truth: bool
+    report: Path | None
+    as_json: bool
+    noise: FilterNoise
+    odometry: Odometry
+    motion_noise: MotionNoiseChoice
+    init_pose: tuple[float, float, float] | None
+    gate: float | None
+    form: FilterForm
+    filter_spec: str
+    user: UserFilter
+    output: RerunOutput
+    association: Association
+    victoria: VictoriaNoise
+
+
+@dataclass(slots=True)
+class Opened:
+    """The input opened and the filter set up for it."""
+
+    log: OpenedLog
+    setup: ReplaySetup
+    params: FilterParams
+    events: Iterator[AnyEvent]
+
+
+def run_replay(request: ReplayRequest) -> None:
+    """Replay as asked; every error is one line and its exit code (see the module)."""
+    from ekfviz import pipeline, viz  # rerun loads only for commands that record
+
+    check_outputs_of(request)
+    params = _params(request)
+    make_filter = _filter(request)
+    logger: list[RunLogger] = []  # the logger once open, for what a stop kept
+    sinks = None
+    try:
+        opened = open_input(request, params, make_filter is None or make_filter is EkfSlam)
+        sinks, note = viz.resolve_default_sinks(
+            viz.Sinks(
+                save=request.output.save, spawn=request.output.spawn, serve=request.output.serve,
+                connect=request.output.connect, bind=request.output.bind or viz.LOOPBACK,
+            ),
+            request.data, RECORDINGS_DIR, name=opened.log.source.name,
+        )  # fmt: skip
+        _record(request, opened, make_filter, sinks, note, logger)
+    except pipeline.RunStopped as stopped:
+        fail(_stopped(stopped, logger, sinks), code=stopped.exit_code)
+    except (InputError, FilterError, AssociationError, viz.SinkError) as error:
+        fail(str(error))
+    except (KeyboardInterrupt, signals.Terminated) as signal_error:  # outside the replay itself
+        name = "SIGTERM" if isinstance(signal_error, signals.Terminated) else "SIGINT"
+        saved_to = logger[0].recording.saved_to if logger else None
+        kept = (
+            f"the finished recording is saved in {saved_to}"
+            if saved_to is not None
+            else "nothing was written; existing files are left as they were"
+        )
+        fail(
+            f"{request.data}: interrupted ({name}): {kept}", code=143 if name == "SIGTERM" else 130
+        )
+
+
+def check_outputs_of(request: ReplayRequest) -> None:
+    """Refuse bad output paths and options before any work; --json keeps stdout."""
+    check_outputs(("--save", request.output.save), ("--report", request.report))
+    request.output.check()
+    if request.as_json:
+        human_output_to_stderr()
+
+
+def _params(request: ReplayRequest) -> FilterParams:
+    params = request.form.params(request.noise, log=request.data)
+    odometry = request.odometry
+    if min(odometry.odometry_scale) <= 0:
+        fail("--odometry-scale values must be positive")
+    return replace(
+        params, odometry_scale=odometry.odometry_scale, odometry_bias=odometry.odometry_bias
+    )
+
+
+def _filter(request: ReplayRequest) -> FilterFactory | None:
+    try:
+        return load_filter(request.filter_spec, request.user.worker())
+    except FilterSpecError as error:
+        fail(str(error))
+
+
+def open_input(request: ReplayRequest, params: FilterParams, builtin: bool) -> Opened:
+    """The input opened, its defaults applied, the filter and associator set up for it."""
+    opened = open_log(request.data, request.robot, request.truth, request.no_truth)
+    start, events = first_time(opened.events())
+    params, notes = resolve(
+        params, opened, start, request.init_pose, request.motion_noise, request.gate
+    )
+    for text in notes:
+        out.print(text, soft_wrap=True)
+    association, victoria = request.association, request.victoria
+    setup = replay_setup(
+        request.ctx, opened, params, builtin, opened.truth,
+        association.association, association.gate_probability, association.confirm,
+        association.confirm_window, victoria.sigma_speed, victoria.sigma_steering,
+    )  # fmt: skip
+    if setup.victoria:
+        events = setup.events(opened, None)
+    return Opened(log=opened, setup=setup, params=setup.params, events=events)
+
+
+def _record(
+    request: ReplayRequest,
+    opened: Opened,
+    make_filter: FilterFactory | None,
+    sinks: Any,
+    note: str | None,
+    logger: list[RunLogger],
+) -> None:
+    """Replay into the recording, then print and write the evaluation."""
+    from ekfviz import pipeline, viz
+
+    setup, params, truth_xy = opened.setup, opened.params, opened.log.truth
+    info = viz.run_info(
+        name=opened.log.source.name,
+        command=shlex.join(["ekfviz", *sys.argv[1:]]),
+        parameters={**params.as_dict(), "filter": request.filter_spec, **setup.parameters},
+        input_path=request.data,
+        truth=truth_xy,
+        truth_path=opened.log.truth_files[0] if opened.log.truth_files else None,
+        input_files=opened.log.source.files,
+        truth_files=opened.log.truth_files,
+    )
+    output = request.output
+    with (
+        open_progress(opened.log.source.progress_paths) as progress,
+        viz.open_run(
+            info, sinks, detail=output.detail, history=output.history, sensor=setup.sensor,
+            gps_reference=setup.victoria,
+        ) as run,
+        signals.as_exceptions(),
+    ):  # fmt: skip
+        logger.append(run)
+        warnings = FilterWarnings(request.data)
+        events = opened.events
+        if progress is not None:
+            events = setup.events(opened.log, progress)  # read from the start, with a bar
+        evaluation = pipeline.replay_log(
+            events, params, make_filter=make_filter, name=request.filter_spec,
+            data=request.data, truth=truth_xy, logger=run, on_record=warnings.add, scans=setup,
+        )  # fmt: skip
+        extra = setup.finish(run)
+        warnings.summarise()
+        print_evaluation(evaluation, setup.truth_of_last())
+        setup.print_summary(extra)
+        document = {
+            **report_json(evaluation, params, request.data, info.input_sha256),
+            "filter": request.filter_spec,
+            **extra,
+        }
+        if request.report is not None:
+            write_json(request.report, document)
+        if request.as_json:
+            print_json(document)
+        if truth_xy is not None:
+            mismatch_note(params, truth_xy)
+        if note:
+            out.print(note)
+        if run.url:
+            out.print(f"Serving the web viewer at [bold]{run.url}[/] (Ctrl-C to stop)")
+        run.wait_while_serving()
+
+
+def _stopped(stopped: Any, logger: list[RunLogger], sinks: Any) -> str:
+    """The line of a replay cut short: why, and what it kept where."""
+    where = ""
+    saved_to = logger[0].recording.saved_to if logger else None
+    if stopped.kept and saved_to is not None:
+        where = f"; the recording of everything before it is saved in {saved_to}"
+        if saved_to != sinks.save:
+            where += f" ({sinks.save} is left as it was)"
+    elif sinks is not None and sinks.save is not None and sinks.save.exists():
+        where = f"; {sinks.save} is left as it was"
+    return f"{stopped.reason}{where}"
