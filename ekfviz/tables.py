@@ -17,7 +17,8 @@ class Styled:
     wrap: bool = True  # False: a line never broken at the terminal's width
 
 
-Cell = str | Styled
+Spans = tuple[Styled, ...]  # one line of several styles
+Cell = str | Styled | Spans
 
 
 @dataclass(frozen=True, slots=True)

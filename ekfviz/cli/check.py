@@ -19,6 +19,9 @@ from ekfviz.cli.common import (
     fail,
     out,
     plain,
+    rendered,
+    say,
+    show,
     write_json,
 )
 from ekfviz.cli.options import FilterForm, FilterNoise, TruthOption, UserFilter, expands_options
@@ -29,6 +32,7 @@ from ekfviz.core.replay import FilterLineError
 from ekfviz.filters import FilterSpec, FilterSpecError
 from ekfviz.io.errors import InputError
 from ekfviz.samples import write_battery
+from ekfviz.tables import Styled
 
 if TYPE_CHECKING:
     from ekfviz.core.check import CheckResult
@@ -146,7 +150,7 @@ def run_check(request: CheckRequest) -> None:
                 params = replace(params, init_pose=start)
             target = save if data is not None or save is None else _per_log(save, log)
             result, exercised = _run(log, log_truth, spec, params, request.tolerance, target, every)
-            _print(log, result, exercised, request.tolerance, every, battery=data is None)
+            _print(log, result, exercised, every, battery=data is None)
             diverged |= result.first_divergence is not None
             failed |= result.error is not None
             results.append({"log": str(log) if data is not None else log.stem,
@@ -189,84 +193,23 @@ def _run(
 
 
 def _print(
-    log: Path,
-    result: CheckResult,
-    exercised: list[Item],
-    tolerance: float,
-    every: bool,
-    *,
-    battery: bool,
+    log: Path, result: CheckResult, exercised: list[Item], every: bool, *, battery: bool
 ) -> None:
     """The verdict on one log, as the report says it (no markup read in any name)."""
-    from rich.text import Text
-
     name = log.stem if battery else str(log)
     if battery:
-        out.print(Text.assemble(("log ", "bold"), (name, "bold"), f" ({log.name})"))
-    if result.convention:
-        shapes = {"X": "X (3+2k, 1)", "control": "control (2, 1)", "measure": "measure (2k, 1)"}
-        flat = {"X": "X (3+2k,)", "control": "control (2,)", "measure": "measure (2k,)"}
-        said = [
-            (shapes if how == "column" else flat)[what]
-            for what, how in result.convention.items()
-            if how is not None
-        ]
-        out.print(plain(f"course module, shapes detected: {', '.join(said)}"))
-    if result.match:
-        out.print(Text.assemble(
-            ("match:", "green"),
-            f" all {result.events_checked} events agree with the reference (largest"
-            f" difference {result.max_difference:.3g}, tolerance {tolerance:g})",
-        ))  # fmt: skip
-    first = result.first_divergence
-    if first is not None:
-        worst = first.worst
-        landmark = "" if worst.landmark_id is None else f" of landmark {worst.landmark_id}"
-        where = f"{name}:{first.line}"
-        out.print(Text.assemble(
-            ("divergence", "bold red"),
-            f" at event {first.event} (step {first.step}, {first.kind.value}, {where}): the"
-            f" {worst.quantity.value}{landmark} differs\n  worst entry {worst.entry}: expected"
-            f" {worst.expected:.9g}, got {worst.got:.9g} (difference {worst.difference:.3g},"
-            f" tolerance {tolerance:g})\n  cause: {first.cause}\n  hint: {first.hint}",
-        ))  # fmt: skip
-        more = len(result.divergences) - 1
-        if more and not every:
-            out.print(plain(
-                f"  {more} more event(s) diverge; --all finds the cause of every one"
-            ))  # fmt: skip
-        elif every and result.divergences:
-            _print_groups(result)
+        say([(Styled("log ", "bold"), Styled(name, "bold"), Styled(f" ({log.name})"))])
+    say(result.verdict_lines(name, every))
+    if result.first_divergence is not None and every and result.divergences:
+        show(result.groups_table())
+        say(result.group_lines())
     if result.error is not None:
-        err.print(Text.assemble(("error: ", "bold red"), f"{name}:{result.error_line}:"
-                                f" {result.error}"))  # fmt: skip
+        err.print(rendered((Styled("error: ", "bold red"),
+                            Styled(f"{name}:{result.error_line}: {result.error}"))))  # fmt: skip
     missing = [item for item in exercised if not item.exercised]
     if missing:
-        out.print(plain(f"  not exercised by {name}:"))
-        for item in missing:
-            out.print(plain(f"    - {item.untested}"))
-
-
-def _print_groups(result: CheckResult) -> None:
-    from rich.table import Table
-
-    table = Table(title="every divergent event, grouped", title_justify="left")
-    for column in ("kind", "quantity", "events", "first", "line", "cause"):
-        table.add_column(
-            column, justify="right" if column in ("events", "first", "line") else "left"
-        )
-    for group in result.groups:
-        first = group.first
-        values = (group.kind, group.quantity, group.count, first.event, first.line, group.cause)
-        table.add_row(*(plain(v) for v in values))
-    out.print(table)
-    causes = result.causes
-    out.print(plain("causes: " + (", ".join(causes) if causes else "none found")))
-    for group in result.groups:
-        if group.cause != "unknown":
-            continue
-        out.print(plain(f"  unknown at event {group.first.event} ({group.quantity}): "
-                        f"{group.first.hint}"))  # fmt: skip
+        say([Styled(f"  not exercised by {name}:")])
+        say([Styled(f"    - {item.untested}") for item in missing])
 
 
 def _battery_report(results: list[dict[str, Any]]) -> dict[str, Any]:

@@ -9,8 +9,6 @@ import shutil
 import sys
 import tempfile
 from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
-from dataclasses import astuple
 from pathlib import Path
 from typing import Annotated, Any, NoReturn
 
@@ -19,28 +17,15 @@ import typer
 from rich import box
 from rich.console import Console
 from rich.markup import escape
-from rich.progress import BarColumn, DownloadColumn, Progress, TimeRemainingColumn
 from rich.table import Table
 from rich.text import Text
-from typer._click.core import ParameterSource
-from typer._click.globals import get_current_context
 
 from ekfviz import __version__, signals
-from ekfviz.core.evaluation import Evaluation
-from ekfviz.core.filter import HAVE_KERNEL, FilterParams, LandmarkInit, UpdateMode
-from ekfviz.core.records import AnyEvent, EventRecord
+from ekfviz.core.filter import HAVE_KERNEL, FilterParams
+from ekfviz.core.records import AnyEvent
 from ekfviz.core.truth import GroundTruth
-from ekfviz.io.errors import InputError
 from ekfviz.io.paths import OutputPathError, check_output_path, distinct_paths, unused_path
-from ekfviz.io.text import MAX_MAGNITUDE, RANGE_TEXT, ProgressCallback
-from ekfviz.sim.scenarios import Scenario, ScenarioName
-from ekfviz.sim.simulate import Detection, Noise
-from ekfviz.studies.executors import (
-    Executor,
-    ExecutorError,
-    ExecutorName,
-    make_executor,
-)
+from ekfviz.io.text import ProgressCallback
 from ekfviz.tables import Cell, Styled, TextTable
 
 
@@ -119,7 +104,6 @@ def print_json(document: object) -> None:
     sys.stdout.flush()
 
 
-PROGRESS_MIN_BYTES = 1 << 20  # files under 1 MiB replay in well under a second
 RECORDINGS_DIR = Path("recordings")
 
 
@@ -128,30 +112,12 @@ RECORDINGS_DIR = Path("recordings")
 DEFAULT_FILTER_TIMEOUT_S = 60.0
 
 
-def worker_options(
-    python: Path | None, timeout_s: float, memory_mb: int | None, echo: bool = True
-) -> Any:
-    """How a user's filter runs (:class:`~ekfviz.filters.worker.WorkerOptions`), the
-    interpreter checked first."""
-    from ekfviz.filters.worker import WorkerOptions
-
-    if python is not None:
-        found = shutil.which(str(python))
-        if found is None or not Path(found).is_file():
-            fail(f"--python {python}: no such interpreter (expected a Python executable)")
-        python = Path(found)
-    return WorkerOptions(
-        python=None if python is None else str(python),
-        timeout_s=timeout_s,
-        memory_mb=memory_mb,
-        echo=echo,
-    )
-
-
 def rendered(cell: Cell) -> Text:
     """A cell of a table or a line as rich text (no markup read in it)."""
     if isinstance(cell, Styled):
         return Text(cell.text, style=cell.style or "")
+    if isinstance(cell, tuple):
+        return Text.assemble(*((span.text, span.style or "") for span in cell))
     return Text(cell)
 
 
@@ -358,126 +324,6 @@ Triple = tuple[float, float, float]
 DEFAULT = FilterParams()  # the classic defaults, stated once
 
 
-def study_executor(name: ExecutorName, scheduler: str | None, workers: int | None) -> Executor:
-    """The executor of ``--executor``/``--scheduler``/``--workers``, or a one-line error."""
-    try:
-        return make_executor(name, scheduler, workers)
-    except ExecutorError as error:
-        fail(str(error))
-
-
-def detection_of(unknown_ids: bool, clutter: float, probability: float) -> Detection:
-    """The simulated sensor's misses, false alarms and ids, refusing what cannot be."""
-    if not 0.0 <= probability <= 1.0:
-        fail(f"--detection-probability: {probability:g} is not between 0 and 1")
-    if clutter > 0 and not unknown_ids:
-        fail("--clutter: only with --unknown-ids (a log with ids names no false alarms)")
-    return Detection(unknown_ids, clutter, probability)
-
-
-def filter_params(
-    sigmas: tuple[float, float, float, float, float],
-    init_pose_sigma: Triple,
-    landmark_init: LandmarkInit,
-    update: UpdateMode,
-    log: Path | None = None,
-) -> FilterParams:
-    """The filter's parameters from the command line, refusing what cannot work.
-
-    :param log: the log replayed: the noise its header states (see
-        :func:`ekfviz.io.extended.read_log_noise`) replaces the defaults of the options
-        not given on the command line, and a note says so
-    """
-    names = ("--sigma-x", "--sigma-y", "--sigma-alpha", "--sigma-bearing", "--sigma-range")
-    for name, value in [
-        *zip(names, sigmas, strict=True),
-        ("--init-pose-sigma", max(init_pose_sigma)),
-    ]:
-        if not value <= MAX_MAGNITUDE:  # nan too
-            fail(f"{name} {value:g}: expected a sigma within {RANGE_TEXT}")
-    if log is not None and log.is_file():
-        sigmas, init_pose_sigma = _log_noise(log, sigmas, init_pose_sigma)
-    sigma_x, sigma_y, sigma_alpha, sigma_bearing, sigma_range = sigmas
-    if sigma_bearing <= 0 or sigma_range <= 0:
-        fail("--sigma-bearing and --sigma-range must be positive: R must be invertible")
-    if min(init_pose_sigma) < 0:
-        fail("--init-pose-sigma values must not be negative")
-    return FilterParams(
-        sigma_x=sigma_x,
-        sigma_y=sigma_y,
-        sigma_alpha=sigma_alpha,
-        sigma_bearing=sigma_bearing,
-        sigma_range=sigma_range,
-        init_pose_sigma=init_pose_sigma,
-        landmark_init=landmark_init,
-        update=update,
-    )
-
-
-def _log_noise(
-    log: Path, sigmas: tuple[float, float, float, float, float], init_pose_sigma: Triple
-) -> tuple[tuple[float, float, float, float, float], Triple]:
-    """The sigmas and prior with the log's stated noise where no option was given."""
-    from ekfviz.io.extended import NOISE_NAMES, read_log_noise
-
-    try:
-        stated = read_log_noise(log)
-    except InputError as error:
-        fail(str(error))
-    context = get_current_context(silent=True)
-
-    def given(name: str) -> bool:
-        source = None if context is None else context.get_parameter_source(name)
-        return source not in (None, ParameterSource.DEFAULT)
-
-    values = dict(zip(NOISE_NAMES, sigmas, strict=True))
-    used = []
-    for name in NOISE_NAMES:
-        value = stated.get(name)
-        if isinstance(value, float) and not given(name):
-            values[name] = value
-            used.append(f"--{name.replace('_', '-')} {value:g}")
-    prior = stated.get("init_pose_sigma")
-    if isinstance(prior, tuple) and not given("init_pose_sigma"):
-        init_pose_sigma = prior
-        used.append("--init-pose-sigma " + " ".join(f"{v:g}" for v in prior))
-    if used:
-        out.print(f"{log}: the noise its header states: {' '.join(used)}", soft_wrap=True)
-    sigma_x, sigma_y, sigma_alpha, sigma_bearing, sigma_range = (values[n] for n in NOISE_NAMES)
-    return (sigma_x, sigma_y, sigma_alpha, sigma_bearing, sigma_range), init_pose_sigma
-
-
-def scenario_world(
-    scenario: ScenarioName,
-    seed: int,
-    steps: int | None,
-    landmarks: int | None,
-    max_range: float | None,
-    fov: float | None,
-) -> Scenario:
-    """The scenario asked for; the loop options are refused for the classic one."""
-    from ekfviz.sim import scenarios
-
-    options: dict[str, Any] = {
-        "steps": steps, "landmarks": landmarks, "max_range": max_range, "fov_deg": fov
-    }  # fmt: skip
-    given = {name: value for name, value in options.items() if value is not None}
-    if scenario in (ScenarioName.CLASSIC, ScenarioName.EDGE):
-        if given:
-            flags = (f"--{name.removesuffix('_deg').replace('_', '-')}" for name in given)
-            fail(f"{', '.join(flags)}: only for --scenario loop")
-        return scenarios.classic() if scenario is ScenarioName.CLASSIC else scenarios.edge()
-    return scenarios.loop(seed=seed, **given)
-
-
-def true_noise(world: Scenario, *given: float | None) -> Noise:
-    """The scenario's own noise, with the values given on the command line instead."""
-    return Noise(*(d if g is None else g for g, d in zip(given, astuple(world.noise), strict=True)))
-
-
-# -- helpers ---------------------------------------------------------------------------
-
-
 def log_events(
     data: Path,
     truth: GroundTruth | None,
@@ -488,85 +334,6 @@ def log_events(
     from ekfviz.pipeline import log_events as events
 
     return events(data, truth, truth_path, progress, warn)
-
-
-class FilterWarnings:
-    """Print the filter's warnings as ``FILE:LINE: warning: ...``, the first few only:
-    the recording's log holds all of them."""
-
-    PRINTED = 10
-
-    def __init__(self, data: Path) -> None:
-        self._data = data
-        self.count = 0
-
-    def add(self, record: EventRecord) -> None:
-        for text in record.warnings:
-            self.count += 1
-            if self.count <= self.PRINTED:
-                where = f"{self._data}:{record.line}" if record.line else str(self._data)
-                warn(escape(f"{where}: {text}"))
-
-    def summarise(self) -> None:
-        if self.count > self.PRINTED:
-            warn(
-                f"{self.count - self.PRINTED} more filter warnings"
-                f" ({self.count} in all) are in the recording's log"
-            )
-
-
-@contextmanager
-def open_progress(paths: list[Path]) -> Iterator[ProgressCallback | None]:
-    """A progress bar over the bytes of ``paths`` (read side by side, the callback told
-    the sum of the bytes read) when they are long, else nothing."""
-    size = sum(path.stat().st_size for path in paths if path.is_file())  # else the reader says
-    path = paths[0]
-    if size < PROGRESS_MIN_BYTES:
-        yield None
-        return
-    with Progress(
-        "[progress.description]{task.description}",
-        BarColumn(),
-        DownloadColumn(),
-        TimeRemainingColumn(),
-        console=err,
-        transient=True,
-    ) as bar:
-        task = bar.add_task(f"replaying {path.name}", total=size)
-        yield lambda done: bar.update(task, completed=done)
-
-
-def print_evaluation(evaluation: Evaluation, truth: GroundTruth | None) -> None:
-    """The final landmark table and pose, with errors when the truth is known."""
-    show(evaluation.table(truth))
-    say(evaluation.lines(truth))
-
-
-def mismatch_note(params: FilterParams, truth: GroundTruth) -> None:
-    """Say so when the filter was told other noise levels than the simulator used."""
-    told = params.as_dict()
-    flags = [
-        f"--{name.replace('_', '-')} " + " ".join(f"{v:g}" for v in np.atleast_1d(value))
-        for name, value in (truth.simulated_with or {}).items()
-        if name in told and not np.allclose(np.asarray(told[name], dtype=float), value)
-    ]
-    if flags:
-        out.print(
-            "[yellow]note:[/] the truth file says the log was simulated with other noise"
-            f" levels than the filter was told; to match them: {' '.join(flags)}",
-            soft_wrap=True,
-        )
-
-
-def report_json(
-    evaluation: Evaluation, params: FilterParams, data: Path, sha256: str
-) -> dict[str, object]:
-    return {
-        "ekfviz_version": __version__,
-        "input": {"name": data.name, "sha256": sha256},
-        "parameters": params.as_dict(),
-        **evaluation.to_json(),
-    }
 
 
 def write_json(path: Path, document: dict[str, object]) -> None:

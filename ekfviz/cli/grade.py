@@ -19,10 +19,16 @@ from ekfviz.cli.common import (
     plain,
     print_json,
     show,
-    worker_options,
     write_bytes_atomic,
 )
-from ekfviz.cli.options import Execution, FilterForm, FilterNoise, PythonOption, expands_options
+from ekfviz.cli.options import (
+    Execution,
+    FilterForm,
+    FilterNoise,
+    PythonOption,
+    expands_options,
+    worker_options,
+)
 from ekfviz.studies.executors import ExecutorError
 from ekfviz.studies.grade import Battery, GradeRow, GradeTask
 

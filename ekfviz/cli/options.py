@@ -12,13 +12,16 @@ from __future__ import annotations
 import dataclasses
 import functools
 import inspect
+import shutil
 import typing
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import astuple, dataclass
 from pathlib import Path
 from typing import Annotated, Any, ClassVar
 
 import typer
+from typer._click.core import ParameterSource
+from typer._click.globals import get_current_context
 
 from ekfviz.association import AssociationParams
 from ekfviz.cli.common import (
@@ -28,12 +31,8 @@ from ekfviz.cli.common import (
     FILTER_OPTIONS,
     Triple,
     _option,
-    detection_of,
-    filter_params,
-    scenario_world,
-    study_executor,
-    true_noise,
-    worker_options,
+    fail,
+    out,
 )
 from ekfviz.cli.scans import (  # the association's options stay beside its set-up
     DEFAULT_ASSOCIATION,
@@ -45,9 +44,11 @@ from ekfviz.cli.scans import (  # the association's options stay beside its set-
     study_association,
 )
 from ekfviz.core.filter import FilterParams, LandmarkInit, UpdateMode
+from ekfviz.io.errors import InputError
+from ekfviz.io.text import MAX_MAGNITUDE, RANGE_TEXT
 from ekfviz.sim.scenarios import Scenario, ScenarioName
 from ekfviz.sim.simulate import Detection, Noise
-from ekfviz.studies.executors import Executor, ExecutorName
+from ekfviz.studies.executors import Executor, ExecutorError, ExecutorName, make_executor
 
 # -- the declarations --------------------------------------------------------------------
 
@@ -250,6 +251,146 @@ DetectionProbability = Annotated[
 ]
 Laps = Annotated[int, _option("Drive the route this many times.", min=1)]
 Seed = Annotated[int, _option("Seed of the first run; run k uses seed + k.")]
+
+
+# -- reading them ---------------------------------------------------------------------------
+
+
+def worker_options(
+    python: Path | None, timeout_s: float, memory_mb: int | None, echo: bool = True
+) -> Any:
+    """How a user's filter runs (:class:`~ekfviz.filters.worker.WorkerOptions`), the
+    interpreter checked first."""
+    from ekfviz.filters.worker import WorkerOptions
+
+    if python is not None:
+        found = shutil.which(str(python))
+        if found is None or not Path(found).is_file():
+            fail(f"--python {python}: no such interpreter (expected a Python executable)")
+        python = Path(found)
+    return WorkerOptions(
+        python=None if python is None else str(python),
+        timeout_s=timeout_s,
+        memory_mb=memory_mb,
+        echo=echo,
+    )
+
+
+def study_executor(name: ExecutorName, scheduler: str | None, workers: int | None) -> Executor:
+    """The executor of ``--executor``/``--scheduler``/``--workers``, or a one-line error."""
+    try:
+        return make_executor(name, scheduler, workers)
+    except ExecutorError as error:
+        fail(str(error))
+
+
+def detection_of(unknown_ids: bool, clutter: float, probability: float) -> Detection:
+    """The simulated sensor's misses, false alarms and ids, refusing what cannot be."""
+    if not 0.0 <= probability <= 1.0:
+        fail(f"--detection-probability: {probability:g} is not between 0 and 1")
+    if clutter > 0 and not unknown_ids:
+        fail("--clutter: only with --unknown-ids (a log with ids names no false alarms)")
+    return Detection(unknown_ids, clutter, probability)
+
+
+def filter_params(
+    sigmas: tuple[float, float, float, float, float],
+    init_pose_sigma: Triple,
+    landmark_init: LandmarkInit,
+    update: UpdateMode,
+    log: Path | None = None,
+) -> FilterParams:
+    """The filter's parameters from the command line, refusing what cannot work.
+
+    :param log: the log replayed: the noise its header states (see
+        :func:`ekfviz.io.extended.read_log_noise`) replaces the defaults of the options
+        not given on the command line, and a note says so
+    """
+    names = ("--sigma-x", "--sigma-y", "--sigma-alpha", "--sigma-bearing", "--sigma-range")
+    for name, value in [
+        *zip(names, sigmas, strict=True),
+        ("--init-pose-sigma", max(init_pose_sigma)),
+    ]:
+        if not value <= MAX_MAGNITUDE:  # nan too
+            fail(f"{name} {value:g}: expected a sigma within {RANGE_TEXT}")
+    if log is not None and log.is_file():
+        sigmas, init_pose_sigma = _log_noise(log, sigmas, init_pose_sigma)
+    sigma_x, sigma_y, sigma_alpha, sigma_bearing, sigma_range = sigmas
+    if sigma_bearing <= 0 or sigma_range <= 0:
+        fail("--sigma-bearing and --sigma-range must be positive: R must be invertible")
+    if min(init_pose_sigma) < 0:
+        fail("--init-pose-sigma values must not be negative")
+    return FilterParams(
+        sigma_x=sigma_x,
+        sigma_y=sigma_y,
+        sigma_alpha=sigma_alpha,
+        sigma_bearing=sigma_bearing,
+        sigma_range=sigma_range,
+        init_pose_sigma=init_pose_sigma,
+        landmark_init=landmark_init,
+        update=update,
+    )
+
+
+def _log_noise(
+    log: Path, sigmas: tuple[float, float, float, float, float], init_pose_sigma: Triple
+) -> tuple[tuple[float, float, float, float, float], Triple]:
+    """The sigmas and prior with the log's stated noise where no option was given."""
+    from ekfviz.io.extended import NOISE_NAMES, read_log_noise
+
+    try:
+        stated = read_log_noise(log)
+    except InputError as error:
+        fail(str(error))
+    context = get_current_context(silent=True)
+
+    def given(name: str) -> bool:
+        source = None if context is None else context.get_parameter_source(name)
+        return source not in (None, ParameterSource.DEFAULT)
+
+    values = dict(zip(NOISE_NAMES, sigmas, strict=True))
+    used = []
+    for name in NOISE_NAMES:
+        value = stated.get(name)
+        if isinstance(value, float) and not given(name):
+            values[name] = value
+            used.append(f"--{name.replace('_', '-')} {value:g}")
+    prior = stated.get("init_pose_sigma")
+    if isinstance(prior, tuple) and not given("init_pose_sigma"):
+        init_pose_sigma = prior
+        used.append("--init-pose-sigma " + " ".join(f"{v:g}" for v in prior))
+    if used:
+        out.print(f"{log}: the noise its header states: {' '.join(used)}", soft_wrap=True)
+    sigma_x, sigma_y, sigma_alpha, sigma_bearing, sigma_range = (values[n] for n in NOISE_NAMES)
+    return (sigma_x, sigma_y, sigma_alpha, sigma_bearing, sigma_range), init_pose_sigma
+
+
+def scenario_world(
+    scenario: ScenarioName,
+    seed: int,
+    steps: int | None,
+    landmarks: int | None,
+    max_range: float | None,
+    fov: float | None,
+) -> Scenario:
+    """The scenario asked for; the loop options are refused for the classic one."""
+    from ekfviz.sim import scenarios
+
+    options: dict[str, Any] = {
+        "steps": steps, "landmarks": landmarks, "max_range": max_range, "fov_deg": fov
+    }  # fmt: skip
+    given = {name: value for name, value in options.items() if value is not None}
+    if scenario in (ScenarioName.CLASSIC, ScenarioName.EDGE):
+        if given:
+            flags = (f"--{name.removesuffix('_deg').replace('_', '-')}" for name in given)
+            fail(f"{', '.join(flags)}: only for --scenario loop")
+        return scenarios.classic() if scenario is ScenarioName.CLASSIC else scenarios.edge()
+    return scenarios.loop(seed=seed, **given)
+
+
+def true_noise(world: Scenario, *given: float | None) -> Noise:
+    """The scenario's own noise, with the values given on the command line instead."""
+    return Noise(*(d if g is None else g for g, d in zip(given, astuple(world.noise), strict=True)))
 
 
 # -- the groups ----------------------------------------------------------------------------

@@ -5,27 +5,31 @@ from __future__ import annotations
 
 import shlex
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
+import numpy as np
 import typer
+from rich.markup import escape
+from rich.progress import BarColumn, DownloadColumn, Progress, TimeRemainingColumn
 
-from ekfviz import signals
+from ekfviz import __version__, signals
 from ekfviz.association import AssociationError
 from ekfviz.cli.common import (
     DEFAULT,
     RECORDINGS_DIR,
-    FilterWarnings,
     check_outputs,
+    err,
     fail,
     human_output_to_stderr,
-    mismatch_note,
-    open_progress,
     out,
-    print_evaluation,
     print_json,
-    report_json,
+    say,
+    show,
+    warn,
     write_json,
 )
 from ekfviz.cli.options import (
@@ -39,18 +43,20 @@ from ekfviz.cli.options import (
 )
 from ekfviz.cli.scans import VICTORIA, ReplaySetup, SigmaSpeed, SigmaSteering, replay_setup
 from ekfviz.cli.sources import MotionNoiseChoice, OpenedLog, first_time, open_log, resolve
+from ekfviz.core.evaluation import Evaluation
 from ekfviz.core.filter import EkfSlam, FilterError, FilterParams
-from ekfviz.core.records import AnyEvent
+from ekfviz.core.records import AnyEvent, EventRecord
+from ekfviz.core.truth import GroundTruth
 from ekfviz.filters import FilterSpecError, load_filter
 from ekfviz.io.errors import InputError
+from ekfviz.io.text import ProgressCallback
 
 if TYPE_CHECKING:
-    from collections.abc import Iterator
-
     from ekfviz.core.plugged import FilterFactory
     from ekfviz.viz.run import RunLogger
 
 RERUN = "Rerun output"
+PROGRESS_MIN_BYTES = 1 << 20  # files under 1 MiB replay in well under a second
 
 
 @dataclass(frozen=True, slots=True)
@@ -330,3 +336,82 @@ def _stopped(stopped: Any, logger: list[RunLogger], sinks: Any) -> str:
     elif sinks is not None and sinks.save is not None and sinks.save.exists():
         where = f"; {sinks.save} is left as it was"
     return f"{stopped.reason}{where}"
+
+
+class FilterWarnings:
+    """Print the filter's warnings as ``FILE:LINE: warning: ...``, the first few only:
+    the recording's log holds all of them."""
+
+    PRINTED = 10
+
+    def __init__(self, data: Path) -> None:
+        self._data = data
+        self.count = 0
+
+    def add(self, record: EventRecord) -> None:
+        for text in record.warnings:
+            self.count += 1
+            if self.count <= self.PRINTED:
+                where = f"{self._data}:{record.line}" if record.line else str(self._data)
+                warn(escape(f"{where}: {text}"))
+
+    def summarise(self) -> None:
+        if self.count > self.PRINTED:
+            warn(
+                f"{self.count - self.PRINTED} more filter warnings"
+                f" ({self.count} in all) are in the recording's log"
+            )
+
+
+@contextmanager
+def open_progress(paths: list[Path]) -> Iterator[ProgressCallback | None]:
+    """A progress bar over the bytes of ``paths`` (read side by side, the callback told
+    the sum of the bytes read) when they are long, else nothing."""
+    size = sum(path.stat().st_size for path in paths if path.is_file())  # else the reader says
+    path = paths[0]
+    if size < PROGRESS_MIN_BYTES:
+        yield None
+        return
+    with Progress(
+        "[progress.description]{task.description}",
+        BarColumn(),
+        DownloadColumn(),
+        TimeRemainingColumn(),
+        console=err,
+        transient=True,
+    ) as bar:
+        task = bar.add_task(f"replaying {path.name}", total=size)
+        yield lambda done: bar.update(task, completed=done)
+
+
+def print_evaluation(evaluation: Evaluation, truth: GroundTruth | None) -> None:
+    """The final landmark table and pose, with errors when the truth is known."""
+    show(evaluation.table(truth))
+    say(evaluation.lines(truth))
+
+
+def mismatch_note(params: FilterParams, truth: GroundTruth) -> None:
+    """Say so when the filter was told other noise levels than the simulator used."""
+    told = params.as_dict()
+    flags = [
+        f"--{name.replace('_', '-')} " + " ".join(f"{v:g}" for v in np.atleast_1d(value))
+        for name, value in (truth.simulated_with or {}).items()
+        if name in told and not np.allclose(np.asarray(told[name], dtype=float), value)
+    ]
+    if flags:
+        out.print(
+            "[yellow]note:[/] the truth file says the log was simulated with other noise"
+            f" levels than the filter was told; to match them: {' '.join(flags)}",
+            soft_wrap=True,
+        )
+
+
+def report_json(
+    evaluation: Evaluation, params: FilterParams, data: Path, sha256: str
+) -> dict[str, object]:
+    return {
+        "ekfviz_version": __version__,
+        "input": {"name": data.name, "sha256": sha256},
+        "parameters": params.as_dict(),
+        **evaluation.to_json(),
+    }
