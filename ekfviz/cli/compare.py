@@ -7,16 +7,18 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from ekfviz.cli.common import _option, app, fail
+from ekfviz.cli.common import app, fail
 from ekfviz.cli.options import (
     Association,
     Execution,
     FilterForm,
     FilterNoise,
     StudyLogArgument,
+    SummaryReport,
     TruthOption,
     UserFilter,
     expands_options,
+    study_save,
 )
 from ekfviz.cli.study import run_study
 from ekfviz.filters import FilterSpec
@@ -47,16 +49,7 @@ LabelsOption = Annotated[
         show_default=False,
     ),
 ]
-CompareSave = Annotated[
-    Path | None,
-    _option(
-        "Write the recording here \\[default: recordings/<input>-compare.rrd].",
-        show_default=False,
-    ),
-]
-SummaryReport = Annotated[
-    Path | None, _option("Write the summary as JSON here.", show_default=False)
-]
+CompareSave = Annotated[Path | None, study_save("compare")]
 
 
 @app.command()

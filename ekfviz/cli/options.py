@@ -250,6 +250,20 @@ DetectionProbability = Annotated[
     _option("Probability of detecting a landmark in reach (0 to 1).", SENSOR, metavar="P"),
 ]
 Laps = Annotated[int, _option("Drive the route this many times.", min=1)]
+# sweep and compare: a study's outputs
+SummaryReport = Annotated[
+    Path | None, _option("Write the summary as JSON here.", show_default=False)
+]
+
+
+def study_save(kind: str) -> Any:
+    """The ``--save`` of a study (``sweep``, ``compare``): its default file named."""
+    return _option(
+        f"Write the recording here \\[default: recordings/<input>-{kind}.rrd].",
+        show_default=False,
+    )
+
+
 Seed = Annotated[int, _option("Seed of the first run; run k uses seed + k.")]
 
 

@@ -17,9 +17,11 @@ from ekfviz.cli.options import (
     FilterNoise,
     FilterOption,
     StudyLogArgument,
+    SummaryReport,
     TruthOption,
     UserFilter,
     expands_options,
+    study_save,
 )
 from ekfviz.cli.study import run_study
 from ekfviz.filters import BUILTIN, FilterSpec
@@ -34,16 +36,7 @@ class Preset(str, enum.Enum):
     TUNING = "tuning"
 
 
-SweepSave = Annotated[
-    Path | None,
-    _option(
-        "Write the recording here \\[default: recordings/<input>-sweep.rrd].",
-        show_default=False,
-    ),
-]
-SummaryReport = Annotated[
-    Path | None, _option("Write the summary as JSON here.", show_default=False)
-]
+SweepSave = Annotated[Path | None, study_save("sweep")]
 VaryOption = Annotated[
     list[str] | None,
     _option(
