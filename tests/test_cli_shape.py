@@ -41,7 +41,7 @@ MAX_COMMAND_LINES = 60
 # declares the options again by hand) fails here
 TAKES: dict[type[OptionGroup], set[str]] = {
     FilterNoise: {"replay", "check", "compare", "sweep", "consistency", "grade"},
-    FilterForm: {"replay", "check", "compare", "sweep", "grade"},
+    FilterForm: {"replay", "check", "compare", "sweep", "consistency", "grade"},
     UserFilter: {"replay", "check", "compare", "sweep"},
     Association: {"replay", "compare", "sweep", "consistency"},
     Execution: {"compare", "sweep", "consistency", "grade"},

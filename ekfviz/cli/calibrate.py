@@ -10,6 +10,7 @@ from typing import Annotated
 import typer
 
 from ekfviz.cli.common import (
+    DEFAULT,
     app,
     check_outputs,
     command_hint,
@@ -98,7 +99,7 @@ def run_calibrate(
     data: Path, truth: Path | None, robot: int | None, window: float, fit_share: float
 ) -> tuple[Recommendation, list[str]]:
     """The noise estimated and the candidates judged, printed; the best's replay line."""
-    defaults_given = FilterForm().params(FilterNoise(), log=data)
+    defaults_given = FilterForm().params(FilterNoise(), DEFAULT.init_pose_sigma, log=data)
     try:
         opened = open_log(data, robot, truth, no_truth=False)
         if opened.truth is None or not opened.truth.has_poses:

@@ -11,6 +11,8 @@ import typer
 
 from ekfviz import __version__
 from ekfviz.cli.common import (
+    DEFAULT,
+    Triple,
     _option,
     app,
     check_outputs,
@@ -24,7 +26,14 @@ from ekfviz.cli.common import (
     show,
     write_json,
 )
-from ekfviz.cli.options import FilterForm, FilterNoise, TruthOption, UserFilter, expands_options
+from ekfviz.cli.options import (
+    FilterForm,
+    FilterNoise,
+    InitPoseSigma,
+    TruthOption,
+    UserFilter,
+    expands_options,
+)
 from ekfviz.cli.sources import InitPoseOption
 from ekfviz.core.check import DEFAULT_TOLERANCE
 from ekfviz.core.filter import FilterError
@@ -93,6 +102,7 @@ class CheckRequest:
     user: UserFilter
     init_pose: tuple[float, float, float] | None
     noise: FilterNoise
+    init_pose_sigma: Triple
     form: FilterForm
 
 
@@ -110,6 +120,7 @@ def check(
     user: UserFilter,
     init_pose: InitPoseOption = None,
     noise: FilterNoise,
+    init_pose_sigma: InitPoseSigma = DEFAULT.init_pose_sigma,
     form: FilterForm,
 ) -> None:
     """Check a filter against the built-in reference, event by event.
@@ -124,7 +135,8 @@ def check(
     run_check(
         CheckRequest(
             data=data, filter_text=filter_text, every=every, truth=truth, tolerance=tolerance,
-            report=report, save=save, user=user, init_pose=init_pose, noise=noise, form=form,
+            report=report, save=save, user=user, init_pose=init_pose, noise=noise,
+            init_pose_sigma=init_pose_sigma, form=form,
         )
     )  # fmt: skip
 
@@ -145,7 +157,7 @@ def run_check(request: CheckRequest) -> None:
         results: list[dict[str, Any]] = []
         diverged = failed = False
         for log, log_truth, start in logs:
-            params = request.form.params(request.noise, log=log)
+            params = request.form.params(request.noise, request.init_pose_sigma, log=log)
             if start is not None:
                 params = replace(params, init_pose=start)
             target = save if data is not None or save is None else _per_log(save, log)

@@ -7,12 +7,13 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from ekfviz.cli.common import app, fail
+from ekfviz.cli.common import DEFAULT, app, fail
 from ekfviz.cli.options import (
     Association,
     Execution,
     FilterForm,
     FilterNoise,
+    InitPoseSigma,
     StudyLogArgument,
     SummaryReport,
     TruthOption,
@@ -64,6 +65,7 @@ def compare(
     save: CompareSave = None,
     report: SummaryReport = None,
     noise: FilterNoise,
+    init_pose_sigma: InitPoseSigma = DEFAULT.init_pose_sigma,
     form: FilterForm,
     execution: Execution,
     association: Association,
@@ -74,7 +76,7 @@ def compare(
     together; a grid of maps sits above overlaid NIS (and NEES, landmark error) plots,
     and a table compares them, the first filter being the baseline.
     """
-    params = form.params(noise, log=data)
+    params = form.params(noise, init_pose_sigma, log=data)
     try:
         pairing = association.for_study(data)
     except InputError as error:

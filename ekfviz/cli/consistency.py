@@ -15,6 +15,7 @@ from rich.progress import Progress
 from ekfviz import __version__, signals
 from ekfviz.association import Method
 from ekfviz.cli.common import (
+    Triple,
     _option,
     app,
     check_outputs,
@@ -30,11 +31,12 @@ from ekfviz.cli.common import (
 from ekfviz.cli.options import (
     Association,
     Execution,
+    FilterForm,
     FilterNoise,
     FilterOption,
     Laps,
     LoopShape,
-    ScenarioFilterForm,
+    ScenarioInitPoseSigma,
     ScenarioOption,
     Seed,
     Sensing,
@@ -67,7 +69,8 @@ class ConsistencyRequest:
     runs: int
     seed: int
     noise: FilterNoise
-    form: ScenarioFilterForm
+    init_pose_sigma: Triple | None
+    form: FilterForm
     filter_spec: str
     true_noise: TrueNoise
     loop: LoopShape
@@ -87,7 +90,8 @@ def consistency(
     runs: Runs = 50,
     seed: Seed = 0,
     noise: FilterNoise,
-    form: ScenarioFilterForm,
+    init_pose_sigma: ScenarioInitPoseSigma = None,
+    form: FilterForm,
     filter_spec: FilterOption = BUILTIN,
     true_noise: TrueNoise,
     loop: LoopShape,
@@ -105,7 +109,8 @@ def consistency(
     """
     run_consistency(
         ConsistencyRequest(
-            scenario=scenario, runs=runs, seed=seed, noise=noise, form=form,
+            scenario=scenario, runs=runs, seed=seed, noise=noise,
+            init_pose_sigma=init_pose_sigma, form=form,
             filter_spec=filter_spec, true_noise=true_noise, loop=loop, report=report, save=save,
             execution=execution, sensing=sensing, laps=laps, association=association,
         )
@@ -134,8 +139,8 @@ def _trials(request: ConsistencyRequest) -> Trials:
     from ekfviz.sim.montecarlo import Trials
 
     world = request.loop.world(request.scenario, request.seed)
-    prior = request.form.prior(world)
-    params = request.form.params(request.noise, world)
+    prior = world.init_pose_sigma if request.init_pose_sigma is None else request.init_pose_sigma
+    params = request.form.params(request.noise, prior)
     noise = request.true_noise.of(world)
     detection = request.sensing.detection()
     unknown_ids, association = request.sensing.unknown_ids, request.association.association

@@ -10,6 +10,8 @@ from typing import Annotated
 import typer
 
 from ekfviz.cli.common import (
+    DEFAULT,
+    Triple,
     _option,
     app,
     check_outputs,
@@ -25,6 +27,7 @@ from ekfviz.cli.options import (
     Execution,
     FilterForm,
     FilterNoise,
+    InitPoseSigma,
     PythonOption,
     expands_options,
     worker_options,
@@ -77,6 +80,7 @@ class GradeRequest:
     python: Path | None
     execution: Execution
     noise: FilterNoise
+    init_pose_sigma: Triple
     form: FilterForm
 
 
@@ -94,6 +98,7 @@ def grade(
     python: PythonOption = None,
     execution: Execution,
     noise: FilterNoise,
+    init_pose_sigma: InitPoseSigma = DEFAULT.init_pose_sigma,
     form: FilterForm,
 ) -> None:
     """Check every submission of a class (check --all) and tabulate the results.
@@ -107,7 +112,7 @@ def grade(
         GradeRequest(
             folder=folder, logs=logs, timeout=timeout, memory=memory, report=report,
             json_output=json_output, save_dir=save_dir, python=python, execution=execution,
-            noise=noise, form=form,
+            noise=noise, init_pose_sigma=init_pose_sigma, form=form,
         )
     )  # fmt: skip
 
@@ -123,7 +128,7 @@ def run_grade(request: GradeRequest) -> None:
     if not entries:
         fail(f"{request.folder}: no submissions in it (expected .py files or directories)")
     python_text = worker_options(request.python, request.timeout, request.memory).python
-    params = request.form.params(request.noise)
+    params = request.form.params(request.noise, request.init_pose_sigma)
     try:
         chosen = request.execution.make()
     except ExecutorError as error:

@@ -493,38 +493,18 @@ class FilterNoise(OptionGroup):
 
 @dataclass(frozen=True, slots=True)
 class FilterForm(OptionGroup):
-    """The filter's initial pose prior and how it adds and updates landmarks."""
+    """How the filter adds landmarks and folds a line's observations in."""
 
-    init_pose_sigma: InitPoseSigma = DEFAULT.init_pose_sigma
     landmark_init: LandmarkInitOption = DEFAULT.landmark_init
     update: UpdateOption = DEFAULT.update
 
     def params(
-        self, noise: FilterNoise, log: Path | None = None, prior: Triple | None = None
+        self, noise: FilterNoise, init_pose_sigma: Triple, log: Path | None = None
     ) -> FilterParams:
-        """The filter's parameters (see :func:`~ekfviz.cli.common.filter_params`).
-
-        :param prior: the initial pose sigma instead of ``init_pose_sigma``
-        """
-        start = self.init_pose_sigma if prior is None else prior
-        return filter_params(noise.sigmas, start, self.landmark_init, self.update, log=log)
-
-
-@dataclass(frozen=True, slots=True)
-class ScenarioFilterForm(OptionGroup):
-    """:class:`FilterForm` for a simulated scenario: the prior defaults to the
-    scenario's own (and is the one its true start is drawn from)."""
-
-    init_pose_sigma: ScenarioInitPoseSigma = None
-    landmark_init: LandmarkInitOption = DEFAULT.landmark_init
-    update: UpdateOption = DEFAULT.update
-
-    def prior(self, world: Scenario) -> Triple:
-        return world.init_pose_sigma if self.init_pose_sigma is None else self.init_pose_sigma
-
-    def params(self, noise: FilterNoise, world: Scenario) -> FilterParams:
-        form = FilterForm(self.prior(world), self.landmark_init, self.update)
-        return form.params(noise)
+        """The filter's parameters (see :func:`filter_params`)."""
+        return filter_params(
+            noise.sigmas, init_pose_sigma, self.landmark_init, self.update, log=log
+        )
 
 
 @dataclass(frozen=True, slots=True)

@@ -7,12 +7,13 @@ from typing import Annotated
 
 import typer
 
-from ekfviz.cli.common import app
+from ekfviz.cli.common import DEFAULT, app
 from ekfviz.cli.options import (
     Association,
     FilterForm,
     FilterNoise,
     FilterOption,
+    InitPoseSigma,
     LogArgument,
     TruthOption,
     UserFilter,
@@ -62,6 +63,7 @@ def replay(
     motion_noise: MotionNoiseOption = MotionNoiseChoice.AUTO,
     init_pose: InitPoseOption = None,
     gate: GateOption = None,
+    init_pose_sigma: InitPoseSigma = DEFAULT.init_pose_sigma,
     form: FilterForm,
     filter_spec: FilterOption = BUILTIN,
     user: UserFilter,
@@ -78,7 +80,8 @@ def replay(
         ReplayRequest(
             ctx=ctx, data=data, truth=truth, robot=robot, no_truth=no_truth, report=report,
             as_json=as_json, noise=noise, odometry=odometry, motion_noise=motion_noise,
-            init_pose=init_pose, gate=gate, form=form, filter_spec=filter_spec, user=user,
+            init_pose=init_pose, gate=gate,
+            init_pose_sigma=init_pose_sigma, form=form, filter_spec=filter_spec, user=user,
             output=output, association=association, victoria=victoria,
         )
     )  # fmt: skip

@@ -164,6 +164,7 @@ class ReplayRequest:
     motion_noise: MotionNoiseChoice
     init_pose: tuple[float, float, float] | None
     gate: float | None
+    init_pose_sigma: tuple[float, float, float]
     form: FilterForm
     filter_spec: str
     user: UserFilter
@@ -227,7 +228,7 @@ def check_outputs_of(request: ReplayRequest) -> None:
 
 
 def _params(request: ReplayRequest) -> FilterParams:
-    params = request.form.params(request.noise, log=request.data)
+    params = request.form.params(request.noise, request.init_pose_sigma, log=request.data)
     odometry = request.odometry
     if min(odometry.odometry_scale) <= 0:
         fail("--odometry-scale values must be positive")

@@ -9,13 +9,14 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from ekfviz.cli.common import _option, app, fail
+from ekfviz.cli.common import DEFAULT, _option, app, fail
 from ekfviz.cli.options import (
     Association,
     Execution,
     FilterForm,
     FilterNoise,
     FilterOption,
+    InitPoseSigma,
     StudyLogArgument,
     SummaryReport,
     TruthOption,
@@ -73,6 +74,7 @@ def sweep(
     one_at_a_time: OneAtATime = False,
     preset: PresetOption = None,
     noise: FilterNoise,
+    init_pose_sigma: InitPoseSigma = DEFAULT.init_pose_sigma,
     form: FilterForm,
     filter_spec: FilterOption = BUILTIN,
     user: UserFilter,
@@ -84,7 +86,7 @@ def sweep(
     Every variant lands in one recording under variants/<name>/ on shared timelines, so
     that scrubbing moves them all together; a table compares them.
     """
-    baseline = form.params(noise, log=data)
+    baseline = form.params(noise, init_pose_sigma, log=data)
     try:
         pairing = association.for_study(data)
     except InputError as error:
