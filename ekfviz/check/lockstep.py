@@ -32,6 +32,7 @@ from ekfviz.check.mistakes import (
     explain_update,
 )
 from ekfviz.core.records import Control, EventKind, EventRecord, LogEvent, Sighting
+from ekfviz.core.tables import Cell, Styled, TextTable
 from ekfviz.core.types import IntArray
 from ekfviz.filters.ekf import EkfSlam, FilterParams
 from ekfviz.filters.plugged import FilterFactory, Plugged, PluginError
@@ -196,6 +197,69 @@ class CheckResult:
                     seen.setdefault(cause, None)
         return list(seen)
 
+    def verdict_lines(self, name: str, every: bool) -> list[Cell]:
+        """The verdict on the log called ``name``: the shapes of a course module, the match
+        or the first divergence with its cause and hint, how many more diverge."""
+        lines: list[Cell] = []
+        tolerance = self.tolerance
+        if self.convention:
+            said = [
+                (_SHAPES if how == "column" else _FLAT)[what]
+                for what, how in self.convention.items()
+                if how is not None
+            ]
+            lines.append(Styled(f"course module, shapes detected: {', '.join(said)}"))
+        if self.match:
+            lines.append((
+                Styled("match:", "green"),
+                Styled(f" all {self.events_checked} events agree with the reference (largest"
+                       f" difference {self.max_difference:.3g}, tolerance {tolerance:g})"),
+            ))  # fmt: skip
+        first = self.first_divergence
+        if first is None:
+            return lines
+        worst = first.worst
+        landmark = "" if worst.landmark_id is None else f" of landmark {worst.landmark_id}"
+        lines.append((
+            Styled("divergence", "bold red"),
+            Styled(
+                f" at event {first.event} (step {first.step}, {first.kind.value},"
+                f" {name}:{first.line}): the {worst.quantity.value}{landmark} differs\n  worst"
+                f" entry {worst.entry}: expected {worst.expected:.9g}, got {worst.got:.9g}"
+                f" (difference {worst.difference:.3g}, tolerance {tolerance:g})\n  cause:"
+                f" {first.cause}\n  hint: {first.hint}"
+            ),
+        ))  # fmt: skip
+        more = len(self.divergences) - 1
+        if more and not every:
+            lines.append(
+                Styled(f"  {more} more event(s) diverge; --all finds the cause of every one")
+            )
+        return lines
+
+    def groups_table(self) -> TextTable:
+        """Every divergent event, grouped by kind, quantity and cause."""
+        columns = ("kind", "quantity", "events", "first", "line", "cause")
+        rows = []
+        for group in self.groups:
+            first = group.first
+            values = (group.kind, group.quantity, group.count, first.event, first.line, group.cause)
+            rows.append(tuple(Styled(str(value)) for value in values))
+        left = frozenset({"kind", "quantity", "cause"})
+        return TextTable("every divergent event, grouped", columns, tuple(rows), left=left)
+
+    def group_lines(self) -> list[Cell]:
+        """The causes found, and the hint of each group whose cause is unknown."""
+        causes = self.causes
+        lines: list[Cell] = [Styled("causes: " + (", ".join(causes) if causes else "none found"))]
+        for group in self.groups:
+            if group.cause == "unknown":
+                lines.append(Styled(
+                    f"  unknown at event {group.first.event} ({group.quantity}):"
+                    f" {group.first.hint}"
+                ))  # fmt: skip
+        return lines
+
     def to_json(self) -> dict[str, object]:
         return {
             "match": self.match,
@@ -214,6 +278,10 @@ class CheckResult:
             if self.error is None
             else {"message": self.error, "line": self.error_line, "kind": self.error_kind},
         }
+
+
+_SHAPES = {"X": "X (3+2k, 1)", "control": "control (2, 1)", "measure": "measure (2k, 1)"}
+_FLAT = {"X": "X (3+2k,)", "control": "control (2,)", "measure": "measure (2k,)"}
 
 
 def reference_params(params: FilterParams, slam: object) -> FilterParams:

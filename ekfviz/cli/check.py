@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import tempfile
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
@@ -12,32 +13,30 @@ from ekfviz import __version__
 from ekfviz.check.lockstep import DEFAULT_TOLERANCE
 from ekfviz.cli.common import (
     DEFAULT,
-    DEFAULT_FILTER_TIMEOUT_S,
-    FilterMemory,
-    FilterTimeout,
-    InitPoseSigma,
-    LandmarkInitOption,
-    PythonOption,
-    SigmaAlpha,
-    SigmaBearing,
-    SigmaRange,
-    SigmaX,
-    SigmaY,
-    TruthOption,
-    UpdateOption,
+    Triple,
     _option,
     app,
     check_outputs,
     command_hint,
     err,
     fail,
-    filter_params,
     out,
     plain,
-    worker_options,
+    rendered,
+    say,
+    show,
     write_json,
 )
+from ekfviz.cli.options import (
+    FilterForm,
+    FilterNoise,
+    InitPoseSigma,
+    TruthOption,
+    UserFilter,
+    expands_options,
+)
 from ekfviz.cli.sources import InitPoseOption
+from ekfviz.core.tables import Styled
 from ekfviz.filters.ekf import FilterError
 from ekfviz.filters.spec import FilterSpec, FilterSpecError
 from ekfviz.io.errors import InputError
@@ -49,62 +48,80 @@ if TYPE_CHECKING:
     from ekfviz.check.lockstep import CheckResult
 
 
+CheckLog = Annotated[
+    Path | None,
+    typer.Argument(
+        help="A log in the classic or the extended format, or an MRCLAM dataset directory"
+        " (with --robot) [default: the bundled battery: the classic sample and the edge"
+        " log]; the Victoria Park directory is for replay only.",
+        show_default=False,
+    ),
+]
+CheckFilter = Annotated[
+    str,
+    typer.Option(
+        "--filter",
+        help="The filter to check: PATH.py (a course module of init_landmarks, predict,"
+        " update), PATH.py:ClassName or package.module:ClassName.",
+        show_default=False,
+    ),
+]
+EveryOption = Annotated[
+    bool,
+    typer.Option(
+        "--all",
+        help="Go on after a divergence: find the cause of every divergent event and"
+        " report them grouped.",
+    ),
+]
+Tolerance = Annotated[
+    float, _option("Largest difference allowed, |got - expected| / max(1, |expected|).", min=0.0)
+]
+CheckReport = Annotated[Path | None, _option("Write the result as JSON here.", show_default=False)]
+CheckSave = Annotated[
+    Path | None,
+    _option(
+        "Write a recording of the filter and the reference side by side here (with the"
+        " battery, one per log: NAME-classic.rrd, NAME-edge.rrd).",
+        show_default=False,
+    ),
+]
+
+
+@dataclass(frozen=True, slots=True)
+class CheckRequest:
+    """A check as the command line asks for it."""
+
+    data: Path | None
+    filter_text: str
+    every: bool
+    truth: Path | None
+    tolerance: float
+    report: Path | None
+    save: Path | None
+    user: UserFilter
+    init_pose: tuple[float, float, float] | None
+    noise: FilterNoise
+    init_pose_sigma: Triple
+    form: FilterForm
+
+
 @app.command()
+@expands_options
 def check(
-    data: Annotated[
-        Path | None,
-        typer.Argument(
-            help="A log in the classic or the extended format, or an MRCLAM dataset directory"
-            " (with --robot) [default: the bundled battery: the classic sample and the edge"
-            " log]; the Victoria Park directory is for replay only.",
-            show_default=False,
-        ),
-    ] = None,
-    filter_text: Annotated[
-        str,
-        typer.Option(
-            "--filter",
-            help="The filter to check: PATH.py (a course module of init_landmarks, predict,"
-            " update), PATH.py:ClassName or package.module:ClassName.",
-            show_default=False,
-        ),
-    ] = "",
-    every: Annotated[
-        bool,
-        typer.Option(
-            "--all",
-            help="Go on after a divergence: find the cause of every divergent event and"
-            " report them grouped.",
-        ),
-    ] = False,
+    *,
+    data: CheckLog = None,
+    filter_text: CheckFilter = "",
+    every: EveryOption = False,
     truth: TruthOption = None,
-    tolerance: Annotated[
-        float,
-        _option("Largest difference allowed, |got - expected| / max(1, |expected|).", min=0.0),
-    ] = DEFAULT_TOLERANCE,
-    report: Annotated[
-        Path | None, _option("Write the result as JSON here.", show_default=False)
-    ] = None,
-    save: Annotated[
-        Path | None,
-        _option(
-            "Write a recording of the filter and the reference side by side here (with the"
-            " battery, one per log: NAME-classic.rrd, NAME-edge.rrd).",
-            show_default=False,
-        ),
-    ] = None,
-    python: PythonOption = None,
-    filter_timeout: FilterTimeout = DEFAULT_FILTER_TIMEOUT_S,
-    filter_memory: FilterMemory = None,
+    tolerance: Tolerance = DEFAULT_TOLERANCE,
+    report: CheckReport = None,
+    save: CheckSave = None,
+    user: UserFilter,
     init_pose: InitPoseOption = None,
-    sigma_x: SigmaX = DEFAULT.sigma_x,
-    sigma_y: SigmaY = DEFAULT.sigma_y,
-    sigma_alpha: SigmaAlpha = DEFAULT.sigma_alpha,
-    sigma_bearing: SigmaBearing = DEFAULT.sigma_bearing,
-    sigma_range: SigmaRange = DEFAULT.sigma_range,
+    noise: FilterNoise,
     init_pose_sigma: InitPoseSigma = DEFAULT.init_pose_sigma,
-    landmark_init: LandmarkInitOption = DEFAULT.landmark_init,
-    update: UpdateOption = DEFAULT.update,
+    form: FilterForm,
 ) -> None:
     """Check a filter against the built-in reference, event by event.
 
@@ -115,28 +132,37 @@ def check(
     Exit status 0 when every event matches, 1 at a divergence, 2 for bad input or a
     filter that fails.
     """
-    from dataclasses import replace
+    run_check(
+        CheckRequest(
+            data=data, filter_text=filter_text, every=every, truth=truth, tolerance=tolerance,
+            report=report, save=save, user=user, init_pose=init_pose, noise=noise,
+            init_pose_sigma=init_pose_sigma, form=form,
+        )
+    )  # fmt: skip
 
-    if not filter_text:
+
+def run_check(request: CheckRequest) -> None:
+    """Check the filter on the log (or the battery), print and write the verdicts; exit 1
+    at a divergence, 2 for a filter that fails."""
+    if not request.filter_text:
         fail("give the filter to check: --filter PATH.py (or PATH.py:ClassName)")
-    check_outputs(("--report", report), ("--save", save))
-    spec = FilterSpec.parse(
-        filter_text, worker=worker_options(python, filter_timeout, filter_memory)
-    )
-    sigmas = (sigma_x, sigma_y, sigma_alpha, sigma_bearing, sigma_range)
+    data, save, every = request.data, request.save, request.every
+    check_outputs(("--report", request.report), ("--save", save))
+    spec = FilterSpec.parse(request.filter_text, worker=request.user.worker())
     with tempfile.TemporaryDirectory(prefix="ekfviz-battery-") as folder:
-        logs = [(data, truth, init_pose)] if data is not None else write_battery(Path(folder))
-        if data is None and truth is not None:
+        battery = write_battery(Path(folder)) if data is None else []
+        logs = [(data, request.truth, request.init_pose)] if data is not None else battery
+        if data is None and request.truth is not None:
             fail("--truth needs a log (DATA); the battery brings its own truth")
         results: list[dict[str, Any]] = []
         diverged = failed = False
         for log, log_truth, start in logs:
-            params = filter_params(sigmas, init_pose_sigma, landmark_init, update, log=log)
+            params = request.form.params(request.noise, request.init_pose_sigma, log=log)
             if start is not None:
                 params = replace(params, init_pose=start)
             target = save if data is not None or save is None else _per_log(save, log)
-            result, exercised = _run(log, log_truth, spec, params, tolerance, target, every)
-            _print(log, result, exercised, tolerance, every, battery=data is None)
+            result, exercised = _run(log, log_truth, spec, params, request.tolerance, target, every)
+            _print(log, result, exercised, every, battery=data is None)
             diverged |= result.first_divergence is not None
             failed |= result.error is not None
             results.append({"log": str(log) if data is not None else log.stem,
@@ -144,14 +170,11 @@ def check(
                             "coverage": [item.to_json() for item in exercised]})  # fmt: skip
             if target is not None:
                 out.print(plain(f"Saved {target}; open it with: {command_hint('rerun')} {target}"))
-    if report is not None:
+    if request.report is not None:
         document: dict[str, Any] = {"ekfviz_version": __version__, "filter": spec.text,
                                     "parameters": params.as_dict()}  # fmt: skip
-        if data is not None:
-            document.update(results[0])
-        else:
-            document.update(_battery_report(results))
-        write_json(report, document)
+        document.update(results[0] if data is not None else _battery_report(results))
+        write_json(request.report, document)
     if failed:
         raise typer.Exit(2)
     if diverged:
@@ -182,84 +205,23 @@ def _run(
 
 
 def _print(
-    log: Path,
-    result: CheckResult,
-    exercised: list[Item],
-    tolerance: float,
-    every: bool,
-    *,
-    battery: bool,
+    log: Path, result: CheckResult, exercised: list[Item], every: bool, *, battery: bool
 ) -> None:
     """The verdict on one log, as the report says it (no markup read in any name)."""
-    from rich.text import Text
-
     name = log.stem if battery else str(log)
     if battery:
-        out.print(Text.assemble(("log ", "bold"), (name, "bold"), f" ({log.name})"))
-    if result.convention:
-        shapes = {"X": "X (3+2k, 1)", "control": "control (2, 1)", "measure": "measure (2k, 1)"}
-        flat = {"X": "X (3+2k,)", "control": "control (2,)", "measure": "measure (2k,)"}
-        said = [
-            (shapes if how == "column" else flat)[what]
-            for what, how in result.convention.items()
-            if how is not None
-        ]
-        out.print(plain(f"course module, shapes detected: {', '.join(said)}"))
-    if result.match:
-        out.print(Text.assemble(
-            ("match:", "green"),
-            f" all {result.events_checked} events agree with the reference (largest"
-            f" difference {result.max_difference:.3g}, tolerance {tolerance:g})",
-        ))  # fmt: skip
-    first = result.first_divergence
-    if first is not None:
-        worst = first.worst
-        landmark = "" if worst.landmark_id is None else f" of landmark {worst.landmark_id}"
-        where = f"{name}:{first.line}"
-        out.print(Text.assemble(
-            ("divergence", "bold red"),
-            f" at event {first.event} (step {first.step}, {first.kind.value}, {where}): the"
-            f" {worst.quantity.value}{landmark} differs\n  worst entry {worst.entry}: expected"
-            f" {worst.expected:.9g}, got {worst.got:.9g} (difference {worst.difference:.3g},"
-            f" tolerance {tolerance:g})\n  cause: {first.cause}\n  hint: {first.hint}",
-        ))  # fmt: skip
-        more = len(result.divergences) - 1
-        if more and not every:
-            out.print(plain(
-                f"  {more} more event(s) diverge; --all finds the cause of every one"
-            ))  # fmt: skip
-        elif every and result.divergences:
-            _print_groups(result)
+        say([(Styled("log ", "bold"), Styled(name, "bold"), Styled(f" ({log.name})"))])
+    say(result.verdict_lines(name, every))
+    if result.first_divergence is not None and every and result.divergences:
+        show(result.groups_table())
+        say(result.group_lines())
     if result.error is not None:
-        err.print(Text.assemble(("error: ", "bold red"), f"{name}:{result.error_line}:"
-                                f" {result.error}"))  # fmt: skip
+        err.print(rendered((Styled("error: ", "bold red"),
+                            Styled(f"{name}:{result.error_line}: {result.error}"))))  # fmt: skip
     missing = [item for item in exercised if not item.exercised]
     if missing:
-        out.print(plain(f"  not exercised by {name}:"))
-        for item in missing:
-            out.print(plain(f"    - {item.untested}"))
-
-
-def _print_groups(result: CheckResult) -> None:
-    from rich.table import Table
-
-    table = Table(title="every divergent event, grouped", title_justify="left")
-    for column in ("kind", "quantity", "events", "first", "line", "cause"):
-        table.add_column(
-            column, justify="right" if column in ("events", "first", "line") else "left"
-        )
-    for group in result.groups:
-        first = group.first
-        values = (group.kind, group.quantity, group.count, first.event, first.line, group.cause)
-        table.add_row(*(plain(v) for v in values))
-    out.print(table)
-    causes = result.causes
-    out.print(plain("causes: " + (", ".join(causes) if causes else "none found")))
-    for group in result.groups:
-        if group.cause != "unknown":
-            continue
-        out.print(plain(f"  unknown at event {group.first.event} ({group.quantity}): "
-                        f"{group.first.hint}"))  # fmt: skip
+        say([Styled(f"  not exercised by {name}:")])
+        say([Styled(f"    - {item.untested}") for item in missing])
 
 
 def _battery_report(results: list[dict[str, Any]]) -> dict[str, Any]:

@@ -9,37 +9,24 @@ import shutil
 import sys
 import tempfile
 from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
-from dataclasses import astuple
 from pathlib import Path
 from typing import Annotated, Any, NoReturn
 
 import numpy as np
 import typer
+from rich import box
 from rich.console import Console
 from rich.markup import escape
-from rich.progress import BarColumn, DownloadColumn, Progress, TimeRemainingColumn
 from rich.table import Table
 from rich.text import Text
-from typer._click.core import ParameterSource
-from typer._click.globals import get_current_context
 
 from ekfviz import __version__, signals
-from ekfviz.core.records import AnyEvent, EventRecord
+from ekfviz.core.records import AnyEvent
+from ekfviz.core.tables import Cell, Styled, TextTable
 from ekfviz.core.truth import GroundTruth
-from ekfviz.evaluation.errors import Evaluation, summary_lines
-from ekfviz.filters.ekf import HAVE_KERNEL, FilterParams, LandmarkInit, UpdateMode
-from ekfviz.io.errors import InputError
+from ekfviz.filters.ekf import HAVE_KERNEL, FilterParams
 from ekfviz.io.paths import OutputPathError, check_output_path, distinct_paths, unused_path
-from ekfviz.io.text import MAX_MAGNITUDE, RANGE_TEXT, ProgressCallback
-from ekfviz.sim.scenarios import Scenario, ScenarioName
-from ekfviz.sim.simulate import Detection, Noise
-from ekfviz.studies.executors import (
-    Executor,
-    ExecutorError,
-    ExecutorName,
-    make_executor,
-)
+from ekfviz.io.text import ProgressCallback
 
 
 class LogFormat(str, enum.Enum):
@@ -117,62 +104,40 @@ def print_json(document: object) -> None:
     sys.stdout.flush()
 
 
-PROGRESS_MIN_BYTES = 1 << 20  # files under 1 MiB replay in well under a second
 RECORDINGS_DIR = Path("recordings")
 
 
 # as ekfviz.filters.worker.DEFAULT_TIMEOUT_S (a test holds them equal; that module is
 # not imported at start-up)
 DEFAULT_FILTER_TIMEOUT_S = 60.0
-PythonOption = Annotated[
-    Path | None,
-    typer.Option(
-        "--python",
-        help="Run a user's filter under this interpreter (any Python >= 3.8 with numpy >="
-        " 1.17, without ekfviz): a solution written for numpy 1 runs in its own environment.",
-        rich_help_panel="User filters",
-        show_default=False,
-    ),
-]
-FilterTimeout = Annotated[
-    float,
-    typer.Option(
-        "--filter-timeout",
-        help="Seconds one call of a user's filter may take; it is stopped after that.",
-        rich_help_panel="User filters",
-        min=0.1,
-    ),
-]
-FilterMemory = Annotated[
-    int | None,
-    typer.Option(
-        "--filter-memory",
-        help="Megabytes of address space a user's filter may take (none: no limit).",
-        rich_help_panel="User filters",
-        min=64,
-        show_default=False,
-    ),
-]
 
 
-def worker_options(
-    python: Path | None, timeout_s: float, memory_mb: int | None, echo: bool = True
-) -> Any:
-    """How a user's filter runs (:class:`~ekfviz.filters.worker.WorkerOptions`), the
-    interpreter checked first."""
-    from ekfviz.filters.worker import WorkerOptions
+def rendered(cell: Cell) -> Text:
+    """A cell of a table or a line as rich text (no markup read in it)."""
+    if isinstance(cell, Styled):
+        return Text(cell.text, style=cell.style or "")
+    if isinstance(cell, tuple):
+        return Text.assemble(*((span.text, span.style or "") for span in cell))
+    return Text(cell)
 
-    if python is not None:
-        found = shutil.which(str(python))
-        if found is None or not Path(found).is_file():
-            fail(f"--python {python}: no such interpreter (expected a Python executable)")
-        python = Path(found)
-    return WorkerOptions(
-        python=None if python is None else str(python),
-        timeout_s=timeout_s,
-        memory_mb=memory_mb,
-        echo=echo,
-    )
+
+def show(table: TextTable) -> None:
+    """Print a table (see :mod:`ekfviz.core.tables`)."""
+    rich_table = Table(title=table.title, title_justify="left")
+    if not table.lines:
+        rich_table.box = box.SIMPLE_HEAD
+    for column in table.columns:
+        rich_table.add_column(column, justify="left" if column in table.left else "right")
+    for row in table.rows:
+        rich_table.add_row(*(rendered(cell) for cell in row))
+    out.print(rich_table)
+
+
+def say(lines: Sequence[Cell]) -> None:
+    """Print lines (see :mod:`ekfviz.core.tables`)."""
+    for line in lines:
+        wrap = not isinstance(line, Styled) or line.wrap
+        out.print(rendered(line), soft_wrap=not wrap)
 
 
 def plain(text: object) -> Text:
@@ -349,297 +314,14 @@ def warn(message: str) -> None:
 
 FILTER_NOISE = "Filter noise"
 FILTER_OPTIONS = "Filter options"
-TRUE_NOISE = "True noise (default: the scenario's)"
-LOOP = "Loop scenario"
-SENSOR = "Detection"
 
 
 def _option(help: str, panel: str | None = None, **kwargs: Any) -> Any:
     return typer.Option(help=help, rich_help_panel=panel, **kwargs)
 
 
-SigmaX = Annotated[
-    float, _option("Motion noise sigma along the heading (m).", FILTER_NOISE, min=0.0)
-]
-SigmaY = Annotated[float, _option("Motion noise sigma sideways (m).", FILTER_NOISE, min=0.0)]
-SigmaAlpha = Annotated[
-    float, _option("Motion noise sigma of the turn (rad).", FILTER_NOISE, min=0.0)
-]
-SigmaBearing = Annotated[
-    float, _option("Measurement noise sigma of the bearing (rad); positive.", FILTER_NOISE)
-]
-SigmaRange = Annotated[
-    float, _option("Measurement noise sigma of the range (m); positive.", FILTER_NOISE)
-]
-OdometryScale = Annotated[
-    tuple[float, float],
-    _option(
-        "Systematic odometry error to take out of every control: the true distance is"
-        " DISTANCE times the odometry's, the true turn TURN times its turn (plus"
-        " --odometry-bias); ekfviz calibrate estimates them.",
-        FILTER_NOISE,
-        metavar="DISTANCE TURN",
-        min=0.0,
-    ),
-]
-OdometryBias = Annotated[
-    float,
-    _option(
-        "Systematic turn per metre driven to add to every control (rad/m), as wheels of"
-        " unequal size turn a robot; a robot standing still does not turn.",
-        FILTER_NOISE,
-    ),
-]
-LandmarkInitOption = Annotated[
-    LandmarkInit,
-    _option("Keep the new landmark's cross-covariances (correlated) or drop them.", FILTER_OPTIONS),
-]
-UpdateOption = Annotated[
-    UpdateMode,
-    _option("Fold a line's landmarks one after another, or all at once.", FILTER_OPTIONS),
-]
 Triple = tuple[float, float, float]
 DEFAULT = FilterParams()  # the classic defaults, stated once
-InitPoseSigma = Annotated[
-    Triple,
-    _option(
-        "Sigma of the initial pose prior, around the start pose: (0, 0, 0), the true pose of"
-        " the first event of a dataset with truth, or --init-pose.",
-        FILTER_OPTIONS,
-        metavar="SX SY STHETA",
-    ),
-]
-LogArgument = Annotated[
-    Path,
-    typer.Argument(
-        help="A log in the classic or the extended format, an MRCLAM dataset directory"
-        " (with --robot), the Victoria Park directory or a ROS 2 bag directory (with --odom,"
-        " --landmarks).",
-        show_default=False,
-    ),
-]
-# sweep, compare, check and calibrate: Victoria Park has no ids nor true poses
-StudyLogArgument = Annotated[
-    Path,
-    typer.Argument(
-        help="A log in the classic or the extended format, or an MRCLAM dataset directory"
-        " (with --robot); the Victoria Park directory is for replay only.",
-        show_default=False,
-    ),
-]
-TruthOption = Annotated[
-    Path | None, _option("True landmark positions: 'x y' per line, or JSON.", show_default=False)
-]
-
-
-FilterOption = Annotated[
-    str,
-    typer.Option(
-        "--filter",
-        help="The filter: ekf (built-in), a registered backend, PATH.py:ClassName or"
-        " package.module:ClassName (a class of the filter protocol, see the README).",
-        rich_help_panel=FILTER_OPTIONS,
-    ),
-]
-Workers = Annotated[
-    int | None, _option("Processes to use \\[default: one per core].", min=1, show_default=False)
-]
-STUDY = "Where the runs execute"
-ExecutorOption = Annotated[
-    ExecutorName,
-    _option("local: processes on this machine; dask: a Dask cluster (--scheduler).", STUDY),
-]
-SchedulerOption = Annotated[
-    str | None,
-    _option(
-        "The Dask scheduler's address, e.g. tcp://10.0.0.5:8786 (needs the dask extra:"
-        " pip install -e '.\\[dask]' in a clone).",
-        STUDY,
-        metavar="ADDRESS",
-        show_default=False,
-    ),
-]
-
-
-def study_executor(name: ExecutorName, scheduler: str | None, workers: int | None) -> Executor:
-    """The executor of ``--executor``/``--scheduler``/``--workers``, or a one-line error."""
-    try:
-        return make_executor(name, scheduler, workers)
-    except ExecutorError as error:
-        fail(str(error))
-
-
-def _true(what: str) -> Any:
-    return _option(f"True {what}.", TRUE_NOISE, min=0.0, show_default=False)
-
-
-TrueSigmaX = Annotated[float | None, _true("motion noise sigma along the heading")]
-TrueSigmaY = Annotated[float | None, _true("motion noise sigma sideways")]
-TrueSigmaAlpha = Annotated[float | None, _true("motion noise sigma of the turn")]
-TrueSigmaBearing = Annotated[float | None, _true("bearing noise sigma")]
-TrueSigmaRange = Annotated[float | None, _true("range noise sigma")]
-ScenarioOption = Annotated[ScenarioName, _option("The world and route.")]
-Steps = Annotated[
-    int | None,
-    _option("loop: controls in one lap \\[default: 1000].", LOOP, min=4, show_default=False),
-]
-Landmarks = Annotated[
-    int | None,
-    _option("loop: number of landmarks \\[default: 200].", LOOP, min=1, show_default=False),
-]
-MaxRange = Annotated[
-    float | None,
-    _option("loop: sensor range in metres \\[default: 15].", LOOP, min=0.0, show_default=False),
-]
-Fov = Annotated[
-    float | None,
-    _option(
-        "loop: sensor field of view in degrees \\[default: 180].",
-        LOOP,
-        min=0.0,
-        max=360.0,
-        show_default=False,
-    ),
-]
-
-
-UnknownIds = Annotated[
-    bool,
-    typer.Option(
-        "--unknown-ids",
-        help="Write id-less 'scan' lines (extended format); the truth's scan_ids keep"
-        " each measurement's landmark (null for clutter).",
-        rich_help_panel=SENSOR,
-    ),
-]
-Clutter = Annotated[
-    float,
-    _option(
-        "Mean false alarms per scan (Poisson), uniform over the field.",
-        SENSOR,
-        min=0.0,
-        metavar="RATE",
-    ),
-]
-DetectionProbability = Annotated[
-    float,
-    _option("Probability of detecting a landmark in reach (0 to 1).", SENSOR, metavar="P"),
-]
-Laps = Annotated[int, _option("Drive the route this many times.", min=1)]
-
-
-def detection_of(unknown_ids: bool, clutter: float, probability: float) -> Detection:
-    """The simulated sensor's misses, false alarms and ids, refusing what cannot be."""
-    if not 0.0 <= probability <= 1.0:
-        fail(f"--detection-probability: {probability:g} is not between 0 and 1")
-    if clutter > 0 and not unknown_ids:
-        fail("--clutter: only with --unknown-ids (a log with ids names no false alarms)")
-    return Detection(unknown_ids, clutter, probability)
-
-
-def filter_params(
-    sigmas: tuple[float, float, float, float, float],
-    init_pose_sigma: Triple,
-    landmark_init: LandmarkInit,
-    update: UpdateMode,
-    log: Path | None = None,
-) -> FilterParams:
-    """The filter's parameters from the command line, refusing what cannot work.
-
-    :param log: the log replayed: the noise its source states (see
-        :meth:`ekfviz.sources.Source.stated_noise`) replaces the defaults of the options
-        not given on the command line, and a note says so (a log file: a directory's
-        source needs its own options to open)
-    """
-    names = ("--sigma-x", "--sigma-y", "--sigma-alpha", "--sigma-bearing", "--sigma-range")
-    for name, value in [
-        *zip(names, sigmas, strict=True),
-        ("--init-pose-sigma", max(init_pose_sigma)),
-    ]:
-        if not value <= MAX_MAGNITUDE:  # nan too
-            fail(f"{name} {value:g}: expected a sigma within {RANGE_TEXT}")
-    if log is not None and log.is_file():
-        sigmas, init_pose_sigma = _log_noise(log, sigmas, init_pose_sigma)
-    sigma_x, sigma_y, sigma_alpha, sigma_bearing, sigma_range = sigmas
-    if sigma_bearing <= 0 or sigma_range <= 0:
-        fail("--sigma-bearing and --sigma-range must be positive: R must be invertible")
-    if min(init_pose_sigma) < 0:
-        fail("--init-pose-sigma values must not be negative")
-    return FilterParams(
-        sigma_x=sigma_x,
-        sigma_y=sigma_y,
-        sigma_alpha=sigma_alpha,
-        sigma_bearing=sigma_bearing,
-        sigma_range=sigma_range,
-        init_pose_sigma=init_pose_sigma,
-        landmark_init=landmark_init,
-        update=update,
-    )
-
-
-def _log_noise(
-    log: Path, sigmas: tuple[float, float, float, float, float], init_pose_sigma: Triple
-) -> tuple[tuple[float, float, float, float, float], Triple]:
-    """The sigmas and prior with the log's stated noise where no option was given."""
-    from ekfviz.io.extended import NOISE_NAMES
-    from ekfviz.sources import open_source
-
-    try:
-        stated = open_source(log).stated_noise()
-    except InputError as error:
-        fail(str(error))
-    context = get_current_context(silent=True)
-
-    def given(name: str) -> bool:
-        source = None if context is None else context.get_parameter_source(name)
-        return source not in (None, ParameterSource.DEFAULT)
-
-    values = dict(zip(NOISE_NAMES, sigmas, strict=True))
-    used = []
-    for name in NOISE_NAMES:
-        value = stated.get(name)
-        if isinstance(value, float) and not given(name):
-            values[name] = value
-            used.append(f"--{name.replace('_', '-')} {value:g}")
-    prior = stated.get("init_pose_sigma")
-    if isinstance(prior, tuple) and not given("init_pose_sigma"):
-        init_pose_sigma = prior
-        used.append("--init-pose-sigma " + " ".join(f"{v:g}" for v in prior))
-    if used:
-        out.print(f"{log}: the noise its header states: {' '.join(used)}", soft_wrap=True)
-    sigma_x, sigma_y, sigma_alpha, sigma_bearing, sigma_range = (values[n] for n in NOISE_NAMES)
-    return (sigma_x, sigma_y, sigma_alpha, sigma_bearing, sigma_range), init_pose_sigma
-
-
-def scenario_world(
-    scenario: ScenarioName,
-    seed: int,
-    steps: int | None,
-    landmarks: int | None,
-    max_range: float | None,
-    fov: float | None,
-) -> Scenario:
-    """The scenario asked for; the loop options are refused for the classic one."""
-    from ekfviz.sim import scenarios
-
-    options: dict[str, Any] = {
-        "steps": steps, "landmarks": landmarks, "max_range": max_range, "fov_deg": fov
-    }  # fmt: skip
-    given = {name: value for name, value in options.items() if value is not None}
-    if scenario in (ScenarioName.CLASSIC, ScenarioName.EDGE):
-        if given:
-            flags = (f"--{name.removesuffix('_deg').replace('_', '-')}" for name in given)
-            fail(f"{', '.join(flags)}: only for --scenario loop")
-        return scenarios.classic() if scenario is ScenarioName.CLASSIC else scenarios.edge()
-    return scenarios.loop(seed=seed, **given)
-
-
-def true_noise(world: Scenario, *given: float | None) -> Noise:
-    """The scenario's own noise, with the values given on the command line instead."""
-    return Noise(*(d if g is None else g for g, d in zip(given, astuple(world.noise), strict=True)))
-
-
-# -- helpers ---------------------------------------------------------------------------
 
 
 def log_events(
@@ -652,118 +334,6 @@ def log_events(
     from ekfviz.pipeline import log_events as events
 
     return events(data, truth, truth_path, progress, warn)
-
-
-class FilterWarnings:
-    """Print the filter's warnings as ``FILE:LINE: warning: ...``, the first few only:
-    the recording's log holds all of them."""
-
-    PRINTED = 10
-
-    def __init__(self, data: Path) -> None:
-        self._data = data
-        self.count = 0
-
-    def add(self, record: EventRecord) -> None:
-        for text in record.warnings:
-            self.count += 1
-            if self.count <= self.PRINTED:
-                where = f"{self._data}:{record.line}" if record.line else str(self._data)
-                warn(escape(f"{where}: {text}"))
-
-    def summarise(self) -> None:
-        if self.count > self.PRINTED:
-            warn(
-                f"{self.count - self.PRINTED} more filter warnings"
-                f" ({self.count} in all) are in the recording's log"
-            )
-
-
-@contextmanager
-def open_progress(paths: list[Path]) -> Iterator[ProgressCallback | None]:
-    """A progress bar over the bytes of ``paths`` (read side by side, the callback told
-    the sum of the bytes read) when they are long, else nothing."""
-    size = sum(path.stat().st_size for path in paths if path.is_file())  # else the reader says
-    path = paths[0]
-    if size < PROGRESS_MIN_BYTES:
-        yield None
-        return
-    with Progress(
-        "[progress.description]{task.description}",
-        BarColumn(),
-        DownloadColumn(),
-        TimeRemainingColumn(),
-        console=err,
-        transient=True,
-    ) as bar:
-        task = bar.add_task(f"replaying {path.name}", total=size)
-        yield lambda done: bar.update(task, completed=done)
-
-
-def print_evaluation(evaluation: Evaluation, truth: GroundTruth | None) -> None:
-    """The final landmark table and pose, with errors when the truth is known."""
-    table = Table(title="Landmarks at the end of the run", title_justify="left")
-    for column in ("id", "x", "y", "σ x", "σ y"):
-        table.add_column(column, justify="right")
-    if truth is not None:
-        for column in ("error (m)", "aligned (m)", "Mahalanobis", "in 3σ"):
-            table.add_column(column, justify="right")
-    for r in evaluation.landmarks:
-        cells = [str(r.id), *(f"{v:.4f}" for v in (*r.estimate, *r.sigma))]
-        if truth is not None:
-            if r.mahalanobis is None or r.euclidean is None:
-                cells += ["-", "-", "-", "no truth"]
-            else:
-                verdict = "[green]yes[/]" if r.inside_3sigma else "[bold red]no[/]"
-                aligned = "-" if r.aligned is None else f"{r.aligned:.4f}"
-                cells += [f"{r.euclidean:.4f}", aligned, f"{r.mahalanobis:.3f}", verdict]
-        table.add_row(*cells)
-    out.print(table)
-    x, y, theta = evaluation.pose
-    sx, sy, st = evaluation.pose_sigma
-    out.print(
-        f"Final pose: x {x:.4f} ± {sx:.4f} m, y {y:.4f} ± {sy:.4f} m, "
-        f"theta {theta:.4f} ± {st:.4f} rad (± one sigma)"
-    )
-    if truth is not None:
-        inside = sum(bool(r.inside_3sigma) for r in evaluation.landmarks)
-        out.print(f"{inside} of {len(evaluation.landmarks)} landmarks inside their 3-sigma ellipse")
-        if evaluation.summary is not None:  # inside because right, or because huge?
-            for line in summary_lines(evaluation.summary):
-                out.print(line, soft_wrap=True)
-        missing = set(truth.ids.tolist()) - {r.id for r in evaluation.landmarks}
-        if missing:
-            out.print(f"[yellow]never observed: landmarks {sorted(missing)}[/]")
-    if evaluation.consistency is not None:
-        for line in evaluation.consistency.summary():
-            out.print(line)
-
-
-def mismatch_note(params: FilterParams, truth: GroundTruth) -> None:
-    """Say so when the filter was told other noise levels than the simulator used."""
-    told = params.as_dict()
-    flags = [
-        f"--{name.replace('_', '-')} " + " ".join(f"{v:g}" for v in np.atleast_1d(value))
-        for name, value in (truth.simulated_with or {}).items()
-        if name in told and not np.allclose(np.asarray(told[name], dtype=float), value)
-    ]
-    if flags:
-        out.print(
-            "[yellow]note:[/] the truth file says the log was simulated with other noise"
-            f" levels than the filter was told; to match them: {' '.join(flags)}",
-            soft_wrap=True,
-        )
-
-
-def report_json(
-    evaluation: Evaluation, params: FilterParams, data: Path, sha256: str
-) -> dict[str, object]:
-    return {
-        "ekfviz_version": __version__,
-        "input": {"name": data.name, "sha256": sha256},
-        "parameters": params.as_dict(),
-        **evaluation.to_json(),
-    }
 
 
 def write_json(path: Path, document: dict[str, object]) -> None:

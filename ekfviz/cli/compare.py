@@ -3,101 +3,72 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from ekfviz.cli.common import (
-    DEFAULT,
-    DEFAULT_FILTER_TIMEOUT_S,
-    ExecutorOption,
-    FilterMemory,
-    FilterTimeout,
+from ekfviz.cli.common import DEFAULT, app, fail
+from ekfviz.cli.options import (
+    Association,
+    Execution,
+    FilterForm,
+    FilterNoise,
     InitPoseSigma,
-    LandmarkInitOption,
-    PythonOption,
-    SchedulerOption,
-    SigmaAlpha,
-    SigmaBearing,
-    SigmaRange,
-    SigmaX,
-    SigmaY,
     StudyLogArgument,
+    SummaryReport,
     TruthOption,
-    UpdateOption,
-    Workers,
-    _option,
-    app,
-    fail,
-    filter_params,
-    study_executor,
-    worker_options,
-)
-from ekfviz.cli.scans import (
-    DEFAULT_ASSOCIATION,
-    AssociationOption,
-    Confirm,
-    ConfirmWindow,
-    GateProbability,
-    study_association,
+    UserFilter,
+    expands_options,
+    study_save,
 )
 from ekfviz.cli.study import run_study
 from ekfviz.filters.spec import FilterSpec
 from ekfviz.io.errors import InputError
-from ekfviz.studies.executors import ExecutorName
+
+if TYPE_CHECKING:
+    from ekfviz.association import AssociationParams
+    from ekfviz.filters.ekf import FilterParams
+    from ekfviz.studies.runs import RunSpec
+
+
+FiltersOption = Annotated[
+    list[str],
+    typer.Option(
+        "--filter",
+        help="A filter to compare (ekf, a registered backend, PATH.py (a course module),"
+        " PATH.py:ClassName, package.module:ClassName, any as LABEL=SPEC); repeat for"
+        " each, the first is the baseline.",
+        show_default=False,
+    ),
+]
+LabelsOption = Annotated[
+    list[str] | None,
+    typer.Option(
+        "--label",
+        help="A name for each --filter, in order (repeat; fewer labels than filters"
+        " leave the rest named by their file or class).",
+        show_default=False,
+    ),
+]
+CompareSave = Annotated[Path | None, study_save("compare")]
 
 
 @app.command()
+@expands_options
 def compare(
+    *,
     data: StudyLogArgument,
-    filters: Annotated[
-        list[str],
-        typer.Option(
-            "--filter",
-            help="A filter to compare (ekf, a registered backend, PATH.py (a course module),"
-            " PATH.py:ClassName, package.module:ClassName, any as LABEL=SPEC); repeat for"
-            " each, the first is the baseline.",
-            show_default=False,
-        ),
-    ],
-    labels: Annotated[
-        list[str] | None,
-        typer.Option(
-            "--label",
-            help="A name for each --filter, in order (repeat; fewer labels than filters"
-            " leave the rest named by their file or class).",
-            show_default=False,
-        ),
-    ] = None,
-    python: PythonOption = None,
-    filter_timeout: FilterTimeout = DEFAULT_FILTER_TIMEOUT_S,
-    filter_memory: FilterMemory = None,
+    filters: FiltersOption,
+    labels: LabelsOption = None,
+    user: UserFilter,
     truth: TruthOption = None,
-    save: Annotated[
-        Path | None,
-        _option(
-            "Write the recording here \\[default: recordings/<input>-compare.rrd].",
-            show_default=False,
-        ),
-    ] = None,
-    report: Annotated[
-        Path | None, _option("Write the summary as JSON here.", show_default=False)
-    ] = None,
-    sigma_x: SigmaX = DEFAULT.sigma_x,
-    sigma_y: SigmaY = DEFAULT.sigma_y,
-    sigma_alpha: SigmaAlpha = DEFAULT.sigma_alpha,
-    sigma_bearing: SigmaBearing = DEFAULT.sigma_bearing,
-    sigma_range: SigmaRange = DEFAULT.sigma_range,
+    save: CompareSave = None,
+    report: SummaryReport = None,
+    noise: FilterNoise,
     init_pose_sigma: InitPoseSigma = DEFAULT.init_pose_sigma,
-    landmark_init: LandmarkInitOption = DEFAULT.landmark_init,
-    update: UpdateOption = DEFAULT.update,
-    workers: Workers = None,
-    executor: ExecutorOption = ExecutorName.LOCAL,
-    scheduler: SchedulerOption = None,
-    association: AssociationOption = None,
-    gate_probability: GateProbability = DEFAULT_ASSOCIATION.gate_probability,
-    confirm: Confirm = DEFAULT_ASSOCIATION.confirm,
-    confirm_window: ConfirmWindow = DEFAULT_ASSOCIATION.confirm_window,
+    form: FilterForm,
+    execution: Execution,
+    association: Association,
 ) -> None:
     """Replay one log with several filters, each under filters/<name>/ in one recording.
 
@@ -105,25 +76,36 @@ def compare(
     together; a grid of maps sits above overlaid NIS (and NEES, landmark error) plots,
     and a table compares them, the first filter being the baseline.
     """
-    from ekfviz.studies.runs import RunSpec
-
-    params = filter_params(
-        (sigma_x, sigma_y, sigma_alpha, sigma_bearing, sigma_range),
-        init_pose_sigma,
-        landmark_init,
-        update,
-        log=data,
-    )
+    params = form.params(noise, init_pose_sigma, log=data)
     try:
-        pairing = study_association(data, association, gate_probability, confirm, confirm_window)
+        pairing = association.for_study(data)
     except InputError as error:
         fail(str(error))
+    run_study(
+        data, truth, _specs(filters, labels, user, params, pairing), target=save, report=report,
+        workers=execution.workers, root="filters",
+        parameters={"filters": filters, "parameters": params.as_dict()},
+        report_extra={"parameters": params.as_dict()}, executor=execution.make(),
+        keep_going=True,
+    )  # fmt: skip
+
+
+def _specs(
+    filters: list[str],
+    labels: list[str] | None,
+    user: UserFilter,
+    params: FilterParams,
+    pairing: AssociationParams | None,
+) -> list[RunSpec]:
+    """One run a filter, labelled (given labels first) and keyed apart (ekf, ekf-2)."""
+    from ekfviz.studies.runs import RunSpec
+
     specs: list[RunSpec] = []
     keys: set[str] = set()
     given = list(labels or [])
     if len(given) > len(filters):
         fail(f"{len(given)} --label for {len(filters)} --filter: give at most one label a filter")
-    worker = worker_options(python, filter_timeout, filter_memory)
+    worker = user.worker()
     parsed = [
         FilterSpec.parse(text, given[index] if index < len(given) else None, worker)
         for index, text in enumerate(filters)
@@ -139,19 +121,7 @@ def compare(
         specs.append(RunSpec(label=label, key=key, params=params, filter=spec, association=pairing))
     if not specs:
         fail("give at least one --filter")
-    run_study(
-        data,
-        truth,
-        specs,
-        target=save,
-        report=report,
-        workers=workers,
-        root="filters",
-        parameters={"filters": filters, "parameters": params.as_dict()},
-        report_extra={"parameters": params.as_dict()},
-        executor=study_executor(executor, scheduler, workers),
-        keep_going=True,
-    )
+    return specs
 
 
 def _by_folder(specs: list[FilterSpec]) -> list[FilterSpec]:

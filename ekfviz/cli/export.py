@@ -15,35 +15,57 @@ def _output(help: str) -> object:
     return typer.Option(help=help, show_default=False, dir_okay=False)
 
 
+Recording = Annotated[
+    Path, typer.Argument(help="A recording of `ekfviz replay`.", show_default=False)
+]
+Tum = Annotated[Path | None, _output("The estimated pose of every step, in TUM format (for evo).")]
+TruthTum = Annotated[
+    Path | None,
+    _output("The true pose of every step, in TUM format (the replay needs true poses)."),
+]
+LandmarksCsv = Annotated[Path | None, _output("The last landmark estimates as CSV: id,x,y.")]
+PosesCsv = Annotated[
+    Path | None,
+    _output("The estimated poses as CSV: step[,time],x,y,theta and their sigmas."),
+]
+
+
 @app.command()
 def export(
-    recording: Annotated[
-        Path, typer.Argument(help="A recording of `ekfviz replay`.", show_default=False)
-    ],
-    tum: Annotated[
-        Path | None, _output("The estimated pose of every step, in TUM format (for evo).")
-    ] = None,
-    truth_tum: Annotated[
-        Path | None,
-        _output("The true pose of every step, in TUM format (the replay needs true poses)."),
-    ] = None,
-    landmarks: Annotated[
-        Path | None, _output("The last landmark estimates as CSV: id,x,y.")
-    ] = None,
-    csv: Annotated[
-        Path | None,
-        _output("The estimated poses as CSV: step[,time],x,y,theta and their sigmas."),
-    ] = None,
+    recording: Recording,
+    tum: Tum = None,
+    truth_tum: TruthTum = None,
+    landmarks: LandmarksCsv = None,
+    csv: PosesCsv = None,
 ) -> None:
     """Write a recording's estimated (and true) trajectory and its map for other tools.
 
     Time stamps are the log's own, in seconds, where it had them, else the step numbers:
     `evo_ape tum truth.tum est.tum` compares the two trajectories.
     """
-    from ekfviz import viz
-
     if tum is None and truth_tum is None and landmarks is None and csv is None:
         fail("nothing to export: give --tum, --truth-tum, --landmarks or --csv")
+    files = _files(recording, tum, truth_tum, landmarks, csv)
+    for path, _ in files:
+        if path.is_dir():
+            fail(f"{path}: is a directory, expected a file name")
+        if not path.parent.is_dir():
+            fail(f"{path.parent}: no such directory")
+    for path, text in files:
+        write_bytes_atomic(path, text.encode("utf-8"))
+        out.print(f"Wrote {path}")
+
+
+def _files(
+    recording: Path,
+    tum: Path | None,
+    truth_tum: Path | None,
+    landmarks: Path | None,
+    csv: Path | None,
+) -> list[tuple[Path, str]]:
+    """Every file asked for and its text, all built before any is written."""
+    from ekfviz import viz
+
     try:
         run = viz.read_recorded_run(recording)
     except viz.NotARecordingError as error:
@@ -53,7 +75,7 @@ def export(
             f"{recording}: the recording holds no true poses (replay with --truth FILE.json"
             ' whose "poses" give one per step)'
         )
-    files: list[tuple[Path, str]] = []  # all built before any is written
+    files: list[tuple[Path, str]] = []
     if tum is not None:
         files.append((tum, format_tum(run.estimate.stamps, run.estimate.poses_xytheta)))
     if truth_tum is not None and run.truth is not None:
@@ -62,19 +84,8 @@ def export(
         files.append((landmarks, format_landmarks_csv(run.landmark_ids, run.landmarks_xy)))
     if csv is not None:
         estimate = run.estimate
-        files.append(
-            (
-                csv,
-                format_poses_csv(
-                    estimate.steps, estimate.seconds, estimate.poses_xytheta, run.sigmas_xytheta
-                ),
-            )
+        poses = format_poses_csv(
+            estimate.steps, estimate.seconds, estimate.poses_xytheta, run.sigmas_xytheta
         )
-    for path, _ in files:
-        if path.is_dir():
-            fail(f"{path}: is a directory, expected a file name")
-        if not path.parent.is_dir():
-            fail(f"{path.parent}: no such directory")
-    for path, text in files:
-        write_bytes_atomic(path, text.encode("utf-8"))
-        out.print(f"Wrote {path}")
+        files.append((csv, poses))
+    return files

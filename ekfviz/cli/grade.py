@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import tempfile
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated
 
@@ -10,83 +11,95 @@ import typer
 
 from ekfviz.cli.common import (
     DEFAULT,
-    ExecutorOption,
-    InitPoseSigma,
-    LandmarkInitOption,
-    PythonOption,
-    SchedulerOption,
-    SigmaAlpha,
-    SigmaBearing,
-    SigmaRange,
-    SigmaX,
-    SigmaY,
-    UpdateOption,
-    Workers,
+    Triple,
     _option,
     app,
     check_outputs,
     fail,
-    filter_params,
     human_output_to_stderr,
     out,
     plain,
     print_json,
-    study_executor,
-    worker_options,
+    show,
     write_bytes_atomic,
 )
-from ekfviz.pipeline.grade import GradeRow
-from ekfviz.studies.executors import ExecutorError, ExecutorName
+from ekfviz.cli.options import (
+    Execution,
+    FilterForm,
+    FilterNoise,
+    InitPoseSigma,
+    PythonOption,
+    expands_options,
+    worker_options,
+)
+from ekfviz.pipeline.grade import Battery, GradeRow, GradeTask
+from ekfviz.studies.executors import ExecutorError
+
+Submissions = Annotated[
+    Path,
+    typer.Argument(
+        help="The submissions: a folder of .py files or of directories (one each).",
+        show_default=False,
+    ),
+]
+LogsOption = Annotated[
+    list[Path] | None,
+    typer.Option(
+        "--log",
+        help="Check on this log (repeat for several) \\[default: the battery: the classic"
+        " sample and the edge log].",
+        show_default=False,
+        metavar="FILE",
+    ),
+]
+Timeout = Annotated[
+    float, _option("Seconds one submission may take in all (its row says timeout).", min=0.1)
+]
+Memory = Annotated[int, _option("Megabytes of address space one submission may take.", min=64)]
+CsvReport = Annotated[
+    Path | None, _option("Write the table as CSV here (grades.csv).", show_default=False)
+]
+JsonOutput = Annotated[bool, typer.Option("--json", help="Print the table as JSON on stdout.")]
+SaveDir = Annotated[
+    Path | None,
+    _option("Write one check recording per submission and log here.", show_default=False),
+]
+
+
+@dataclass(frozen=True, slots=True)
+class GradeRequest:
+    """A class's grading as the command line asks for it."""
+
+    folder: Path
+    logs: list[Path] | None
+    timeout: float
+    memory: int
+    report: Path | None
+    json_output: bool
+    save_dir: Path | None
+    python: Path | None
+    execution: Execution
+    noise: FilterNoise
+    init_pose_sigma: Triple
+    form: FilterForm
 
 
 @app.command()
+@expands_options
 def grade(
-    folder: Annotated[
-        Path,
-        typer.Argument(
-            help="The submissions: a folder of .py files or of directories (one each).",
-            show_default=False,
-        ),
-    ],
-    logs: Annotated[
-        list[Path] | None,
-        typer.Option(
-            "--log",
-            help="Check on this log (repeat for several) \\[default: the battery: the classic"
-            " sample and the edge log].",
-            show_default=False,
-            metavar="FILE",
-        ),
-    ] = None,
-    timeout: Annotated[
-        float, _option("Seconds one submission may take in all (its row says timeout).", min=0.1)
-    ] = 60.0,
-    memory: Annotated[
-        int, _option("Megabytes of address space one submission may take.", min=64)
-    ] = 2048,
-    report: Annotated[
-        Path | None,
-        _option("Write the table as CSV here (grades.csv).", show_default=False),
-    ] = None,
-    json_output: Annotated[
-        bool, typer.Option("--json", help="Print the table as JSON on stdout.")
-    ] = False,
-    save_dir: Annotated[
-        Path | None,
-        _option("Write one check recording per submission and log here.", show_default=False),
-    ] = None,
+    *,
+    folder: Submissions,
+    logs: LogsOption = None,
+    timeout: Timeout = 60.0,
+    memory: Memory = 2048,
+    report: CsvReport = None,
+    json_output: JsonOutput = False,
+    save_dir: SaveDir = None,
     python: PythonOption = None,
-    workers: Workers = None,
-    executor: ExecutorOption = ExecutorName.LOCAL,
-    scheduler: SchedulerOption = None,
-    sigma_x: SigmaX = DEFAULT.sigma_x,
-    sigma_y: SigmaY = DEFAULT.sigma_y,
-    sigma_alpha: SigmaAlpha = DEFAULT.sigma_alpha,
-    sigma_bearing: SigmaBearing = DEFAULT.sigma_bearing,
-    sigma_range: SigmaRange = DEFAULT.sigma_range,
+    execution: Execution,
+    noise: FilterNoise,
     init_pose_sigma: InitPoseSigma = DEFAULT.init_pose_sigma,
-    landmark_init: LandmarkInitOption = DEFAULT.landmark_init,
-    update: UpdateOption = DEFAULT.update,
+    form: FilterForm,
 ) -> None:
     """Check every submission of a class (check --all) and tabulate the results.
 
@@ -95,68 +108,79 @@ def grade(
     and a time limit for the whole submission (--timeout); a broken or hostile one gets
     its row (error, timeout, memory, crashed) and the others go on.
     """
-    from ekfviz.pipeline.grade import GradeTask, grade_one, submissions, to_csv
+    run_grade(
+        GradeRequest(
+            folder=folder, logs=logs, timeout=timeout, memory=memory, report=report,
+            json_output=json_output, save_dir=save_dir, python=python, execution=execution,
+            noise=noise, init_pose_sigma=init_pose_sigma, form=form,
+        )
+    )  # fmt: skip
 
-    if json_output:
+
+def run_grade(request: GradeRequest) -> None:
+    """Grade every submission, print the table, write the CSV and JSON asked for."""
+    from ekfviz.pipeline.grade import grade_one, grades_table, submissions, to_csv
+
+    if request.json_output:
         human_output_to_stderr()
-    if not folder.is_dir():
-        fail(f"{folder}: {'no such directory' if not folder.exists() else 'not a directory'}"
-             " (expected a folder of submissions)")  # fmt: skip
-    check_outputs(("--report", report))
-    if save_dir is not None and save_dir.exists() and not save_dir.is_dir():
-        fail(f"--save-dir {save_dir}: not a directory")
-    for log in logs or []:
-        if not log.is_file():
-            fail(f"--log {log}: no such file")
-    entries = submissions(folder)
+    _check_inputs(request)
+    entries = submissions(request.folder)
     if not entries:
-        fail(f"{folder}: no submissions in it (expected .py files or directories)")
-    python_text = worker_options(python, timeout, memory).python
-    sigmas = (sigma_x, sigma_y, sigma_alpha, sigma_bearing, sigma_range)
-    params = filter_params(sigmas, init_pose_sigma, landmark_init, update)
+        fail(f"{request.folder}: no submissions in it (expected .py files or directories)")
+    python_text = worker_options(request.python, request.timeout, request.memory).python
+    params = request.form.params(request.noise, request.init_pose_sigma)
     try:
-        chosen = study_executor(executor, scheduler, workers)
+        chosen = request.execution.make()
     except ExecutorError as error:
         fail(str(error))
-    if save_dir is not None:
-        save_dir.mkdir(parents=True, exist_ok=True)
+    if request.save_dir is not None:
+        request.save_dir.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="ekfviz-battery-") as battery_folder:
-        battery: tuple[tuple[Path, Path | None, tuple[float, float, float] | None], ...]
-        if logs:
-            battery = tuple((log.resolve(), None, None) for log in logs)
-        else:
-            from ekfviz.samples import write_battery
-
-            battery = tuple(write_battery(Path(battery_folder)))
+        battery = _battery(request, battery_folder)
         tasks = [
-            GradeTask(name=entry.name, path=entry.resolve(), logs=battery, params=params,
-                      timeout_s=timeout, memory_mb=memory, python=python_text,
-                      save_dir=None if save_dir is None else save_dir.resolve())
+            GradeTask(name=entry.name, path=entry.resolve(), logs=battery,
+                      params=params, timeout_s=request.timeout, memory_mb=request.memory,
+                      python=python_text,
+                      save_dir=None if request.save_dir is None else request.save_dir.resolve())
             for entry in entries
         ]  # fmt: skip
         try:
             rows = chosen.map(grade_one, tasks)
         except ExecutorError as error:
             fail(str(error))
-    _table(rows)
-    if report is not None:
-        write_bytes_atomic(report, to_csv(rows).encode("utf-8"))
-        out.print(plain(f"Wrote {report}"))
-    if json_output:
+    show(grades_table(rows))
+    out.print(plain(", ".join(f"{n} {status}" for status, n in _counts(rows).items())))
+    if request.report is not None:
+        write_bytes_atomic(request.report, to_csv(rows).encode("utf-8"))
+        out.print(plain(f"Wrote {request.report}"))
+    if request.json_output:
         print_json({"submissions": [row.to_json() for row in rows]})
 
 
-def _table(rows: list[GradeRow]) -> None:
-    from rich.table import Table
+def _check_inputs(request: GradeRequest) -> None:
+    folder, save_dir = request.folder, request.save_dir
+    if not folder.is_dir():
+        fail(f"{folder}: {'no such directory' if not folder.exists() else 'not a directory'}"
+             " (expected a folder of submissions)")  # fmt: skip
+    check_outputs(("--report", request.report))
+    if save_dir is not None and save_dir.exists() and not save_dir.is_dir():
+        fail(f"--save-dir {save_dir}: not a directory")
+    for log in request.logs or []:
+        if not log.is_file():
+            fail(f"--log {log}: no such file")
 
-    table = Table(title="grades", title_justify="left")
-    for column in ("submission", "status", "causes", "first divergence", "s"):
-        table.add_column(column, justify="right" if column == "s" else "left")
-    for row in rows:
-        table.add_row(plain(row.submission), plain(row.status), plain(", ".join(row.causes)),
-                      plain(row.first or row.detail), plain(f"{row.seconds:.1f}"))  # fmt: skip
-    out.print(table)
+
+def _battery(request: GradeRequest, folder: str) -> Battery:
+    """The logs to check on: --log, else the battery written into ``folder``."""
+    if request.logs:
+        return tuple((log.resolve(), None, None) for log in request.logs)
+    from ekfviz.samples import write_battery
+
+    return tuple(write_battery(Path(folder)))
+
+
+def _counts(rows: list[GradeRow]) -> dict[str, int]:
     counts: dict[str, int] = {}
     for row in rows:
         counts[row.status] = counts.get(row.status, 0) + 1
-    out.print(plain(", ".join(f"{n} {status}" for status, n in counts.items())))
+    return counts

@@ -4,40 +4,31 @@ from __future__ import annotations
 
 import enum
 import math
-from dataclasses import asdict, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
 from ekfviz.cli.common import (
-    Clutter,
-    DetectionProbability,
     ForceOption,
-    Fov,
-    Landmarks,
-    Laps,
     LogFormat,
-    MaxRange,
-    ScenarioOption,
-    Steps,
-    TrueSigmaAlpha,
-    TrueSigmaBearing,
-    TrueSigmaRange,
-    TrueSigmaX,
-    TrueSigmaY,
-    UnknownIds,
     _option,
     app,
     check_outputs,
     command_hint,
-    detection_of,
     fail,
     out,
     refuse_overwrite,
-    scenario_world,
-    true_noise,
     write_bytes_atomic,
+)
+from ekfviz.cli.options import (
+    Laps,
+    LoopShape,
+    ScenarioOption,
+    Sensing,
+    TrueNoise,
+    expands_options,
 )
 from ekfviz.core.truth import GroundTruth
 from ekfviz.filters.ekf import FilterParams
@@ -45,142 +36,212 @@ from ekfviz.io.paths import OutputPathError, check_output_folder
 from ekfviz.sim.mrclam import MrclamNoise, MrclamWorld
 from ekfviz.sim.scenarios import ScenarioName
 
+if TYPE_CHECKING:
+    from ekfviz.cli.common import Triple
+    from ekfviz.sim.scenarios import Scenario
+    from ekfviz.sim.simulate import Noise, Simulation
+
 
 class Layout(str, enum.Enum):
     FILE = "file"
     MRCLAM = "mrclam"
 
 
+OutputOption = Annotated[
+    Path,
+    typer.Option(
+        "-o",
+        "--output",
+        help="Where to write the log (with --layout mrclam: the dataset directory).",
+        show_default=False,
+    ),
+]
+TruthOut = Annotated[
+    Path | None,
+    typer.Option(
+        help="Where to write the truth (JSON: landmarks, poses); not for --layout mrclam.",
+        show_default=False,
+    ),
+]
+LayoutOption = Annotated[
+    Layout,
+    typer.Option(
+        help="file: one log (and --truth-out); mrclam: a UTIAS MRCLAM dataset directory"
+        " (robot 1, odometry at 50 Hz, camera at 5 Hz, Vicon-like truth), noise per"
+        " sqrt(s) for the motion.",
+    ),
+]
+DEFAULT_DURATION = MrclamWorld().duration_s
+Duration = Annotated[float, typer.Option(help="mrclam: seconds of the run.", min=1.0)]
+NoiseSeed = Annotated[int, _option("Seed of the noise (and of the loop's landmark field).")]
+FormatOption = Annotated[
+    LogFormat | None,
+    typer.Option(
+        "--format",
+        help="Log format; default classic for classic, extended for loop.",
+        show_default=False,
+    ),
+]
+TrueInitPoseSigma = Annotated[
+    tuple[float, float, float] | None,
+    typer.Option(
+        metavar="SX SY STHETA",
+        help="The true start is drawn from N(0, diag(sigma^2)), the prior a filter should"
+        " assume \\[default: classic 0.02 0.02 0.1, loop 0.01 0.01 0.005].",
+        show_default=False,
+    ),
+]
+Precision = Annotated[int, typer.Option(min=1, max=17, help="Decimals written.")]
+
+
+@dataclass(frozen=True, slots=True)
+class SimulateRequest:
+    """A simulation as the command line asks for it."""
+
+    output: Path
+    truth_out: Path | None
+    layout: Layout
+    duration: float
+    scenario: ScenarioName
+    seed: int
+    log_format: LogFormat | None
+    loop: LoopShape
+    true_noise: TrueNoise
+    init_pose_sigma: tuple[float, float, float] | None
+    precision: int
+    sensing: Sensing
+    laps: int
+    force: bool
+
+
 @app.command()
+@expands_options
 def simulate(
-    output: Annotated[
-        Path,
-        typer.Option(
-            "-o",
-            "--output",
-            help="Where to write the log (with --layout mrclam: the dataset directory).",
-            show_default=False,
-        ),
-    ],
-    truth_out: Annotated[
-        Path | None,
-        typer.Option(
-            help="Where to write the truth (JSON: landmarks, poses); not for --layout mrclam.",
-            show_default=False,
-        ),
-    ] = None,
-    layout: Annotated[
-        Layout,
-        typer.Option(
-            help="file: one log (and --truth-out); mrclam: a UTIAS MRCLAM dataset directory"
-            " (robot 1, odometry at 50 Hz, camera at 5 Hz, Vicon-like truth), noise per"
-            " sqrt(s) for the motion.",
-        ),
-    ] = Layout.FILE,
-    duration: Annotated[
-        float, typer.Option(help="mrclam: seconds of the run.", min=1.0)
-    ] = MrclamWorld().duration_s,
+    *,
+    output: OutputOption,
+    truth_out: TruthOut = None,
+    layout: LayoutOption = Layout.FILE,
+    duration: Duration = DEFAULT_DURATION,
     scenario: ScenarioOption = ScenarioName.CLASSIC,
-    seed: Annotated[int, _option("Seed of the noise (and of the loop's landmark field).")] = 0,
-    log_format: Annotated[
-        LogFormat | None,
-        typer.Option(
-            "--format",
-            help="Log format; default classic for classic, extended for loop.",
-            show_default=False,
-        ),
-    ] = None,
-    steps: Steps = None,
-    landmarks: Landmarks = None,
-    max_range: MaxRange = None,
-    fov: Fov = None,
-    true_sigma_x: TrueSigmaX = None,
-    true_sigma_y: TrueSigmaY = None,
-    true_sigma_alpha: TrueSigmaAlpha = None,
-    true_sigma_bearing: TrueSigmaBearing = None,
-    true_sigma_range: TrueSigmaRange = None,
-    init_pose_sigma: Annotated[
-        tuple[float, float, float] | None,
-        typer.Option(
-            metavar="SX SY STHETA",
-            help="The true start is drawn from N(0, diag(sigma^2)), the prior a filter should"
-            " assume \\[default: classic 0.02 0.02 0.1, loop 0.01 0.01 0.005].",
-            show_default=False,
-        ),
-    ] = None,
-    precision: Annotated[int, typer.Option(min=1, max=17, help="Decimals written.")] = 6,
-    unknown_ids: UnknownIds = False,
-    clutter: Clutter = 0.0,
-    detection_probability: DetectionProbability = 1.0,
+    seed: NoiseSeed = 0,
+    log_format: FormatOption = None,
+    loop: LoopShape,
+    true_noise: TrueNoise,
+    init_pose_sigma: TrueInitPoseSigma = None,
+    precision: Precision = 6,
+    sensing: Sensing,
     laps: Laps = 1,
     force: ForceOption = False,
 ) -> None:
     """Simulate a run with known truth and write its log and truth files (deterministic)."""
+    request = SimulateRequest(
+        output=output, truth_out=truth_out, layout=layout, duration=duration, scenario=scenario,
+        seed=seed, log_format=log_format, loop=loop, true_noise=true_noise,
+        init_pose_sigma=init_pose_sigma, precision=precision, sensing=sensing, laps=laps,
+        force=force,
+    )  # fmt: skip
     if layout is Layout.MRCLAM:
-        _simulate_mrclam(
-            output, seed, duration, truth_out,
-            (true_sigma_x, true_sigma_y, true_sigma_alpha, true_sigma_bearing, true_sigma_range),
-            force,
-        )  # fmt: skip
-        return
+        _simulate_mrclam(output, seed, duration, truth_out, true_noise.given, force)
+    else:
+        run_simulate(request)
+
+
+def run_simulate(request: SimulateRequest) -> None:
+    """Write the simulated log and its truth, and say how to replay it."""
+    output, truth_out = request.output, request.truth_out
     if truth_out is None:
         fail("--truth-out FILE is needed (except with --layout mrclam)")
-    from ekfviz.io.classic import format_classic
-    from ekfviz.io.extended import format_extended
     from ekfviz.io.truth import truth_json
 
     check_outputs(("--output", output), ("--truth-out", truth_out))
-    refuse_overwrite(force, ("--output", output), ("--truth-out", truth_out))
-    world = scenario_world(scenario, seed, steps, landmarks, max_range, fov)
-    noise = true_noise(
-        world, true_sigma_x, true_sigma_y, true_sigma_alpha, true_sigma_bearing, true_sigma_range
-    )
+    refuse_overwrite(request.force, ("--output", output), ("--truth-out", truth_out))
+    world = request.loop.world(request.scenario, request.seed)
+    noise = request.true_noise.of(world)
+    init_pose_sigma = request.init_pose_sigma
     if init_pose_sigma is None:
         init_pose_sigma = world.init_pose_sigma
-    if unknown_ids and log_format is LogFormat.CLASSIC:
+    if request.sensing.unknown_ids and request.log_format is LogFormat.CLASSIC:
         fail("--unknown-ids: the classic format has no id-less scans; use --format extended")
-    detection = detection_of(unknown_ids, clutter, detection_probability)
+    detection = request.sensing.detection()
     run = world.run(
-        noise, seed=seed, init_pose_sigma=init_pose_sigma, detection=detection, laps=laps
-    )
+        noise, seed=request.seed, init_pose_sigma=init_pose_sigma, detection=detection,
+        laps=request.laps,
+    )  # fmt: skip
+    log_format = request.log_format
     if log_format is None:
-        classic = scenario in (ScenarioName.CLASSIC, ScenarioName.EDGE) and not unknown_ids
+        classic = request.scenario in (ScenarioName.CLASSIC, ScenarioName.EDGE)
+        classic = classic and not request.sensing.unknown_ids
         log_format = LogFormat.CLASSIC if classic else LogFormat.EXTENDED
+    text = _log_text(run, log_format, request.precision, noise, init_pose_sigma)
+    extra = _truth_extra(request, world, run, noise, init_pose_sigma)
+    truth = GroundTruth(run.landmark_ids, run.landmarks_xy, run.poses_xytheta)
+    write_bytes_atomic(output, text.encode("utf-8"))
+    write_bytes_atomic(truth_out, truth_json(truth, **extra).encode("utf-8"))
+    out.print(f"Wrote {output} ({len(run.events)} events) and {truth_out}")
+    _replay_hint(request, world, noise, init_pose_sigma, log_format)
+
+
+def _log_text(
+    run: Simulation, log_format: LogFormat, precision: int, noise: Noise, init_pose_sigma: Triple
+) -> str:
+    """The log in its format; one line for a run the classic format cannot hold."""
+    from ekfviz.io.classic import format_classic
+    from ekfviz.io.extended import format_extended
+
     try:
-        text = (
-            format_classic(run.events, precision)
-            if log_format is LogFormat.CLASSIC
-            else format_extended(
-                run.scan_events or run.events,
-                precision,
-                noise={**asdict(noise), "init_pose_sigma": (*init_pose_sigma,)},
-            )
+        if log_format is LogFormat.CLASSIC:
+            return format_classic(run.events, precision)
+        return format_extended(
+            run.scan_events or run.events,
+            precision,
+            noise={**asdict(noise), "init_pose_sigma": (*init_pose_sigma,)},
         )
     except ValueError as error:
         fail(f"--format classic: {error}")
-    truth = GroundTruth(run.landmark_ids, run.landmarks_xy, run.poses_xytheta)
+
+
+def _truth_extra(
+    request: SimulateRequest,
+    world: Scenario,
+    run: Simulation,
+    noise: Noise,
+    init_pose_sigma: Triple,
+) -> dict[str, object]:
+    """What the truth file says of the simulation besides the truth."""
     extra: dict[str, object] = {
-        "scenario": scenario.value,
-        "seed": seed,
+        "scenario": request.scenario.value,
+        "seed": request.seed,
         "noise": asdict(noise),
         "init_pose_sigma": list(init_pose_sigma),
         "sensor": {
             "max_range": world.sensor.max_range if math.isfinite(world.sensor.max_range) else None,
             "fov_deg": math.degrees(world.sensor.fov),
         },
-        "steps": len(world.controls) * laps,
+        "steps": len(world.controls) * request.laps,
     }
     if any(world.start_xytheta):
         extra["init_pose"] = list(world.start_xytheta)
-    if laps > 1:
-        extra["laps"] = laps
-    if unknown_ids or detection_probability < 1.0:
-        extra["detection"] = {"clutter": clutter, "probability": detection_probability}
+    if request.laps > 1:
+        extra["laps"] = request.laps
+    sensing = request.sensing
+    if sensing.unknown_ids or sensing.detection_probability < 1.0:
+        extra["detection"] = {
+            "clutter": sensing.clutter, "probability": sensing.detection_probability
+        }  # fmt: skip
     if run.scan_ids is not None:
         extra["scan_ids"] = [list(ids) for ids in run.scan_ids]
-    write_bytes_atomic(output, text.encode("utf-8"))
-    write_bytes_atomic(truth_out, truth_json(truth, **extra).encode("utf-8"))
-    out.print(f"Wrote {output} ({len(run.events)} events) and {truth_out}")
+    return extra
+
+
+def _replay_hint(
+    request: SimulateRequest,
+    world: Scenario,
+    noise: Noise,
+    init_pose_sigma: Triple,
+    log_format: LogFormat,
+) -> None:
+    """The replay line of the simulated log with the filter told the true noise."""
+    output, truth_out, unknown_ids = request.output, request.truth_out, request.sensing.unknown_ids
     replay_noise = [
         f"--sigma-{name.removeprefix('sigma_').replace('_', '-')} {value:g}"
         for name, value in asdict(noise).items()

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ekfviz.core.records import EventRecord
+from ekfviz.core.tables import Cell, Styled, TextTable
 from ekfviz.core.truth import GroundTruth
 from ekfviz.core.types import FloatArray
 from ekfviz.evaluation.consistency import Consistency
@@ -236,6 +237,49 @@ class Evaluation:
         if self.consistency is not None:
             document["consistency"] = self.consistency.to_json()
         return document
+
+    def table(self, truth: GroundTruth | None) -> TextTable:
+        """The landmarks at the end of the run, with their errors when the truth is known."""
+        columns = ["id", "x", "y", "σ x", "σ y"]
+        if truth is not None:
+            columns += ["error (m)", "aligned (m)", "Mahalanobis", "in 3σ"]
+        rows = []
+        for r in self.landmarks:
+            cells: list[Cell] = [str(r.id), *(f"{v:.4f}" for v in (*r.estimate, *r.sigma))]
+            if truth is not None:
+                if r.mahalanobis is None or r.euclidean is None:
+                    cells += ["-", "-", "-", "no truth"]
+                else:
+                    verdict = (
+                        Styled("yes", "green") if r.inside_3sigma else Styled("no", "bold red")
+                    )
+                    aligned = "-" if r.aligned is None else f"{r.aligned:.4f}"
+                    cells += [f"{r.euclidean:.4f}", aligned, f"{r.mahalanobis:.3f}", verdict]
+            rows.append(tuple(cells))
+        return TextTable("Landmarks at the end of the run", tuple(columns), tuple(rows))
+
+    def lines(self, truth: GroundTruth | None) -> list[Cell]:
+        """The final pose and, with truth, how many landmarks are inside 3 sigma, the map's
+        errors and the landmarks never observed; the consistency sentences."""
+        x, y, theta = self.pose
+        sx, sy, st = self.pose_sigma
+        lines: list[Cell] = [
+            f"Final pose: x {x:.4f} ± {sx:.4f} m, y {y:.4f} ± {sy:.4f} m, "
+            f"theta {theta:.4f} ± {st:.4f} rad (± one sigma)"
+        ]
+        if truth is not None:
+            inside = sum(bool(r.inside_3sigma) for r in self.landmarks)
+            lines.append(
+                f"{inside} of {len(self.landmarks)} landmarks inside their 3-sigma ellipse"
+            )
+            if self.summary is not None:  # inside because right, or because huge?
+                lines += [Styled(line, wrap=False) for line in summary_lines(self.summary)]
+            missing = set(truth.ids.tolist()) - {r.id for r in self.landmarks}
+            if missing:
+                lines.append(Styled(f"never observed: landmarks {sorted(missing)}", "yellow"))
+        if self.consistency is not None:
+            lines += self.consistency.summary()
+        return lines
 
     def to_markdown(self) -> str:
         """The evaluation as a markdown table, for a recording's document."""

@@ -17,6 +17,7 @@ import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+from ekfviz.core.tables import Styled, TextTable
 from ekfviz.filters.ekf import FilterParams
 
 STATUSES = ("match", "diverged", "error", "timeout", "memory", "crashed")
@@ -24,6 +25,8 @@ STATUSES = ("match", "diverged", "error", "timeout", "memory", "crashed")
 _STATUS_OF_KIND = {"timeout": "timeout", "memory": "memory", "crashed": "crashed",
                    "exit": "crashed", "start": "error"}  # fmt: skip
 MODULE_NAMES = ("ekf_slam.py", "ekf.py", "slam.py")
+# the logs a submission is checked on: (log, truth, initial pose or None)
+Battery = tuple[tuple[Path, Path | None, tuple[float, float, float] | None], ...]
 
 
 @dataclass(frozen=True, slots=True)
@@ -37,7 +40,7 @@ class GradeTask:
 
     name: str
     path: Path
-    logs: tuple[tuple[Path, Path | None, tuple[float, float, float] | None], ...]
+    logs: Battery
     params: FilterParams
     timeout_s: float
     memory_mb: int | None
@@ -62,6 +65,12 @@ class GradeRow:
     detail: str = ""
     module: str = ""
 
+    def cells(self) -> tuple[Styled, ...]:
+        """The row in the table of grades (no markup read in a submission's name)."""
+        texts = (self.submission, self.status, ", ".join(self.causes), self.first or self.detail,
+                 f"{self.seconds:.1f}")  # fmt: skip
+        return tuple(Styled(text) for text in texts)
+
     def to_json(self) -> dict[str, object]:
         return {
             "submission": self.submission,
@@ -72,6 +81,13 @@ class GradeRow:
             "detail": self.detail,
             "module": self.module,
         }
+
+
+def grades_table(rows: list[GradeRow]) -> TextTable:
+    """The table of grades, a row a submission."""
+    columns = ("submission", "status", "causes", "first divergence", "s")
+    left = frozenset(columns) - {"s"}
+    return TextTable("grades", columns, tuple(row.cells() for row in rows), left=left)
 
 
 class NoModule(Exception):

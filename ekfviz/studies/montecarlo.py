@@ -18,9 +18,16 @@ import numpy as np
 from ekfviz.association import AssociationParams, Associator
 from ekfviz.core.records import EventKind, EventRecord
 from ekfviz.core.stats import chi2_quantile
+from ekfviz.core.tables import Styled, TextTable
 from ekfviz.core.truth import GroundTruth
 from ekfviz.core.types import FloatArray, IntArray
-from ekfviz.evaluation.consistency import CONFIDENCE, BoundCount, pose_nees, update_nis
+from ekfviz.evaluation.consistency import (
+    CONFIDENCE,
+    BoundCount,
+    Verdict,
+    pose_nees,
+    update_nis,
+)
 from ekfviz.filters.ekf import FilterParams
 from ekfviz.filters.spec import BUILTIN, load_filter
 from ekfviz.models.range_bearing import RangeBearing
@@ -111,6 +118,25 @@ class MonteCarlo:
     nis_bounds: FloatArray
     nees: BoundCount
     nis: BoundCount
+
+    def table(self, title: str) -> TextTable:
+        """The NEES and NIS counts against their bounds, with a verdict each."""
+        colours = {Verdict.CONSISTENT: "green", Verdict.BORDERLINE: "yellow"}
+        rows = []
+        for name, count in (("mean NEES per step", self.nees), ("mean NIS per step", self.nis)):
+            verdict = count.verdict
+            colour = colours.get(verdict or Verdict.CONSISTENT, "bold red")
+            inside = (
+                f"{count.inside}/{count.total} ({count.fraction_inside:.1%})"
+                if count.total
+                else "-"
+            )
+            rows.append((
+                name, inside, str(count.above), str(count.below),
+                "-" if verdict is None else Styled(verdict.value, colour),
+            ))  # fmt: skip
+        columns = ("statistic", "inside 95%", "above", "below", "verdict")
+        return TextTable(title, columns, tuple(rows), left=frozenset({"statistic", "verdict"}))
 
     def to_json(self) -> dict[str, object]:
         def listed(values: FloatArray) -> list[float | None]:

@@ -20,6 +20,7 @@ import numpy as np
 from ekfviz.association import AssociationParams, Associator
 from ekfviz.association.evaluation import AssociationTally
 from ekfviz.core.records import EventRecord
+from ekfviz.core.tables import TextTable
 from ekfviz.core.truth import GroundTruth
 from ekfviz.evaluation.consistency import Consistency, reading
 from ekfviz.evaluation.errors import Evaluation, evaluate
@@ -231,3 +232,55 @@ def summarise(run: Run, baseline: Run) -> Summary:
         aligned_mean_error=None if summary is None else summary.aligned_mean_error,
         aligned_max_error=None if summary is None else summary.aligned_worst_error,
     )
+
+
+def study_table(
+    summaries: list[Summary], has_truth: bool, what: str, own_noise: set[str] | None = None
+) -> TextTable:
+    """The study's table for the terminal (the report has every column)."""
+    columns = [what]
+    if has_truth:
+        columns += ["mean err", "worst", "aligned", "3σ axis", "Mahal.", "in 3σ"]
+    columns += ["Δ base", "NIS in", "ms/step", "reading"]
+    rows = []
+    for s in summaries:
+        cells = [s.label + ("*" if own_noise and s.label in own_noise else "")]
+        if has_truth:
+            inside = "-" if s.inside is None else f"{s.inside}/{s.landmarks}"
+            cells += [
+                _num(s.mean_error, 3), _num(s.max_error, 3), _num(s.aligned_mean_error, 3),
+                _num(s.mean_semi_major, 3), _num(s.mean_mahalanobis, 2), inside,
+            ]  # fmt: skip
+        nis_inside = "-" if s.nis_inside is None else f"{s.nis_inside:.0%}"
+        cells += [f"{s.from_baseline:.3f}", nis_inside, _num(s.ms_per_step, 3), s.reading]
+        rows.append(tuple(cells))
+    left = frozenset({what, "reading"})
+    return TextTable(f"{what.capitalize()}s", tuple(columns), tuple(rows), left=left, lines=False)
+
+
+def study_markdown(summaries: list[Summary], what: str) -> str:
+    """The study's table as markdown, for the recording."""
+    columns = [what, "mean error", "max error", "aligned mean error", "mean 3σ semi-major",
+               "mean Mahalanobis", "in 3σ", "final pose",
+               "Δ baseline", "mean NIS", "NIS in 95%", "ms per step", "reading"]  # fmt: skip
+    rows = [
+        "# Sweep" if what == "variant" else "# Comparison",
+        "",
+        "| " + " | ".join(columns) + " |",
+        "|" + "---|" * len(columns),
+    ]
+    for s in summaries:
+        pose = ", ".join(f"{v:.3f}" for v in s.final_pose)
+        inside = "-" if s.inside is None else f"{s.inside}/{s.landmarks}"
+        nis_inside = "-" if s.nis_inside is None else f"{s.nis_inside:.0%}"
+        rows.append(
+            f"| {s.label} | {_num(s.mean_error, 3)} | {_num(s.max_error, 3)} |"
+            f" {_num(s.aligned_mean_error, 3)} | {_num(s.mean_semi_major, 3)} |"
+            f" {_num(s.mean_mahalanobis, 2)} | {inside} | {pose} | {s.from_baseline:.3f} |"
+            f" {_num(s.mean_nis, 2)} | {nis_inside} | {_num(s.ms_per_step, 3)} | {s.reading} |"
+        )
+    return "\n".join(rows) + "\n"
+
+
+def _num(value: float | None, digits: int) -> str:
+    return "-" if value is None else f"{value:.{digits}f}"
