@@ -1,11 +1,13 @@
 """``ekfviz`` and ``python -m ekfviz``: the command line."""
 
-from ekfviz import signals
+from ekfviz import signals, startup
 
 
 def main() -> None:
-    """Defer SIGINT and SIGTERM before the slow imports (see ``ekfviz.signals``), then run."""
+    """Defer SIGINT and SIGTERM before the slow imports (see ``ekfviz.signals``), keep
+    pyarrow from importing pandas (see ``ekfviz.startup``), then run."""
     signals.defer()
+    startup.pyarrow_without_pandas()
     import sys
 
     import typer

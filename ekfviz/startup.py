@@ -1,0 +1,82 @@
+"""Start-up of the command line: what a command does not use, the process does not import.
+
+pyarrow (which Rerun imports) asks, the first time it converts a Python list, whether
+pandas is installed, and finds out by importing it: 0.3-0.4 s, a third of replaying the
+bundled sample, for a library that no ekfviz command uses (nor Rerun's logging or its
+recording reader). :func:`pyarrow_without_pandas` has that question answered "no" as
+soon as pyarrow is imported, in the ``ekfviz`` process only (the command line calls it;
+a program importing ekfviz keeps pyarrow's pandas conversions). pandas itself stays
+importable: only pyarrow's own conversions to and from pandas are off in this process.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import importlib.abc
+import importlib.machinery
+import importlib.util
+import sys
+from collections.abc import Sequence
+from types import ModuleType
+
+
+def _answer_no(pyarrow: ModuleType) -> None:
+    """Have pyarrow look for pandas while an empty module stands in for it.
+
+    pyarrow looks twice: its Cython shim (``pyarrow.lib._pandas_api``), which tries
+    once and remembers, and its C++ converter, which tries again at every conversion
+    until an import succeeds (a failed import is a few microseconds each time, too dear
+    for a long log's hundreds of thousands of conversions). The stand-in answers both:
+    the shim finds no version (pandas absent), the converter finds none of pandas'
+    types (it never meets a pandas value here) and stops looking.
+    """
+    if "pandas" in sys.modules:  # already imported by someone: nothing to save
+        return
+    shim = getattr(getattr(pyarrow, "lib", None), "_pandas_api", None)
+    if shim is None:  # another pyarrow: leave it alone
+        return
+    sys.modules["pandas"] = ModuleType("pandas")
+    try:
+        with contextlib.suppress(AttributeError):  # its one attempt fails: no __version__
+            shim.have_pandas  # noqa: B018
+        pyarrow.array([0.0])  # the converter's attempt succeeds, with nothing in it
+    except Exception:  # pragma: no cover - whatever a future pyarrow does, go on
+        pass
+    finally:
+        del sys.modules["pandas"]
+
+
+class _AfterPyarrow(importlib.abc.MetaPathFinder):
+    """Finds nothing itself: wraps pyarrow's own loader so that :func:`_answer_no` runs
+    right after pyarrow's package is executed, before anything converts with it."""
+
+    def find_spec(
+        self,
+        fullname: str,
+        path: Sequence[str] | None,
+        target: ModuleType | None = None,
+    ) -> importlib.machinery.ModuleSpec | None:
+        if fullname != "pyarrow":
+            return None
+        sys.meta_path.remove(self)  # once, and not to find pyarrow through itself
+        spec = importlib.util.find_spec(fullname)
+        loader = None if spec is None else spec.loader
+        if spec is None or loader is None or not hasattr(loader, "exec_module"):
+            return spec
+        execute = loader.exec_module
+
+        def exec_module(module: ModuleType) -> None:
+            execute(module)
+            _answer_no(module)
+
+        loader.exec_module = exec_module  # type: ignore[method-assign]
+        return spec
+
+
+def pyarrow_without_pandas() -> None:
+    """From now on in this process, pyarrow takes pandas for absent (see the module)."""
+    pyarrow = sys.modules.get("pyarrow")
+    if pyarrow is not None:
+        _answer_no(pyarrow)
+    elif not any(isinstance(finder, _AfterPyarrow) for finder in sys.meta_path):
+        sys.meta_path.insert(0, _AfterPyarrow())
