@@ -65,14 +65,31 @@ def commands(folder: Path) -> list[tuple[str, list[str]]]:
         ("check", ["check", sample, "--filter", FILTER]),
         (
             "compare",
-            ["compare", sample, "--filter", "ekf", "--filter", FILTER, "--workers", "1",
-             "--save", str(folder / "compare.rrd")],
-        ),  # fmt: skip
+            [
+                "compare",
+                sample,
+                "--filter",
+                "ekf",
+                "--filter",
+                FILTER,
+                "--workers",
+                "1",
+                "--save",
+                str(folder / "compare.rrd"),
+            ],
+        ),
         (
             "consistency",
-            ["consistency", "--runs", "10", "--workers", "1", "--save",
-             str(folder / "consistency.rrd")],
-        ),  # fmt: skip
+            [
+                "consistency",
+                "--runs",
+                "10",
+                "--workers",
+                "1",
+                "--save",
+                str(folder / "consistency.rrd"),
+            ],
+        ),
     ]
 
 
@@ -160,7 +177,7 @@ def startup_section(folder: Path, repeats: int = REPEATS) -> str:
         "## Start-up and wrap-up",
         "",
         "Each command on the bundled classic sample (`data/classic.txt`, 59 lines) as a"
-        " child process, beside `python -c \"import rerun, numpy, typer\"` in the same run"
+        ' child process, beside `python -c "import rerun, numpy, typer"` in the same run'
         f" (interleaved, median of {repeats}). *Start-up*: from the spawn to the built-in"
         " filter's first step (interpreter, imports, options, reading, the recording"
         " opened); *work*: from there to its last step; *wrap-up*: from there to the exit"
