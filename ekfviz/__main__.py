@@ -5,8 +5,10 @@ from ekfviz import signals, startup
 
 def main() -> None:
     """Defer SIGINT and SIGTERM before the slow imports (see ``ekfviz.signals``), keep
-    pyarrow from importing pandas (see ``ekfviz.startup``), then run."""
+    pyarrow from importing pandas and numpy to one BLAS thread (see ``ekfviz.startup``),
+    then run."""
     signals.defer()
+    startup.one_blas_thread()
     startup.pyarrow_without_pandas()
     import sys
 

@@ -166,3 +166,23 @@ def test_the_model_filters_deferred_update_is_the_textbook_sequential_one() -> N
     np.testing.assert_allclose(slam.P, P, rtol=0, atol=1e-9 * float(np.abs(P).max()))
     assert np.array_equal(slam.P, slam.P.T)  # exactly symmetric, as the filter promises
     assert math.isfinite(float(np.linalg.eigvalsh(slam.P)[0]))
+
+
+def test_the_command_line_runs_blas_on_one_thread_unless_the_user_chose(
+    tmp_path: Path,
+) -> None:
+    code = """
+import os, sys
+from ekfviz import startup
+startup.one_blas_thread()
+import numpy
+print(" ".join(os.environ.get(name, "-") for name in startup.BLAS_THREADS))
+"""
+    env = {k: v for k, v in _env(tmp_path).items() if not k.endswith("_NUM_THREADS")}
+    plain = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
+    assert plain.stdout.split() == ["1", "1", "1"], plain.stderr
+    chosen = subprocess.run(
+        [sys.executable, "-c", code], env={**env, "OMP_NUM_THREADS": "2"},
+        capture_output=True, text=True,
+    )  # fmt: skip
+    assert chosen.stdout.split() == ["-", "2", "-"], chosen.stderr
