@@ -51,7 +51,7 @@ def _leave_now(code: int) -> None:
     0.1-0.3 s to every command. The exit handlers still run (Rerun's flush of its
     sinks, a worker's end, a process pool's), then stdout and stderr are flushed. While
     a thread other than the main one is still running, Python's exit waits for it: so
-    does this, by leaving it to Python.
+    does this, by leaving it to Python; so it does under a profiler or a tracer.
     """
     import atexit
     import contextlib
@@ -61,6 +61,8 @@ def _leave_now(code: int) -> None:
 
     if any(not t.daemon and t is not threading.main_thread() for t in threading.enumerate()):
         return
+    if sys.getprofile() is not None or sys.gettrace() is not None:
+        return  # a profiler or a coverage tool writes its results at the normal exit
     atexit._run_exitfuncs()
     for stream in (sys.stdout, sys.stderr):
         with contextlib.suppress(OSError, ValueError):  # a closed pipe: nothing to say
