@@ -114,7 +114,8 @@ class AssociationView:
             )
         else:
             outlines = np.zeros((0, 2, 2))
-        rec.log(path(GATES), rr.LineStrips2D(outlines, colors=[GATE_COLOR]))
+        # float32 as Rerun stores points (what it would convert them to)
+        rec.log(path(GATES), rr.LineStrips2D(outlines.astype(np.float32), colors=[GATE_COLOR]))
         tentative = [where[i] for i in association.tentative.tolist() if i in where]
         rec.log(
             path(TENTATIVE),
