@@ -26,7 +26,7 @@ import importlib.machinery
 import importlib.util
 import os
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from types import ModuleType
 
 BLAS_THREADS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
@@ -66,9 +66,13 @@ def _answer_no(pyarrow: ModuleType) -> None:
         del sys.modules["pandas"]
 
 
-class _AfterPyarrow(importlib.abc.MetaPathFinder):
-    """Finds nothing itself: wraps pyarrow's own loader so that :func:`_answer_no` runs
-    right after pyarrow's package is executed, before anything converts with it."""
+class _AfterImport(importlib.abc.MetaPathFinder):
+    """Finds nothing itself: wraps the loader of module ``name`` so that ``callback``
+    runs on the module right after it is executed, before anyone uses it."""
+
+    def __init__(self, name: str, callback: Callable[[ModuleType], None]) -> None:
+        self.name = name
+        self.callback = callback
 
     def find_spec(
         self,
@@ -76,27 +80,37 @@ class _AfterPyarrow(importlib.abc.MetaPathFinder):
         path: Sequence[str] | None,
         target: ModuleType | None = None,
     ) -> importlib.machinery.ModuleSpec | None:
-        if fullname != "pyarrow":
+        if fullname != self.name:
             return None
-        sys.meta_path.remove(self)  # once, and not to find pyarrow through itself
+        sys.meta_path.remove(self)  # once, and not to find the module through itself
         spec = importlib.util.find_spec(fullname)
         loader = None if spec is None else spec.loader
         if spec is None or loader is None or not hasattr(loader, "exec_module"):
             return spec
-        execute = loader.exec_module
+        execute, callback = loader.exec_module, self.callback
 
         def exec_module(module: ModuleType) -> None:
             execute(module)
-            _answer_no(module)
+            callback(module)
 
         loader.exec_module = exec_module  # type: ignore[method-assign]
         return spec
 
 
+def after_import(name: str, callback: Callable[[ModuleType], None]) -> None:
+    """Run ``callback`` on module ``name`` now if it is imported, else right after its
+    import, whoever imports it (so that a module a run may not need is not imported
+    only to be adjusted)."""
+    module = sys.modules.get(name)
+    if module is not None:
+        callback(module)
+    elif not any(
+        isinstance(finder, _AfterImport) and finder.name == name and finder.callback == callback
+        for finder in sys.meta_path
+    ):
+        sys.meta_path.insert(0, _AfterImport(name, callback))
+
+
 def pyarrow_without_pandas() -> None:
     """From now on in this process, pyarrow takes pandas for absent (see the module)."""
-    pyarrow = sys.modules.get("pyarrow")
-    if pyarrow is not None:
-        _answer_no(pyarrow)
-    elif not any(isinstance(finder, _AfterPyarrow) for finder in sys.meta_path):
-        sys.meta_path.insert(0, _AfterPyarrow())
+    after_import("pyarrow", _answer_no)

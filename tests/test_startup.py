@@ -50,6 +50,9 @@ NOT_IMPORTED = (
     "rerun.dataframe",
     "pyarrow.dataset",
     "ekfviz.filters.gtsam",
+    "typer.rich_utils",  # typer's help pages and boxed errors, with rich's markdown
+    "markdown_it",
+    "pygments",
 )
 
 
@@ -186,3 +189,22 @@ print(" ".join(os.environ.get(name, "-") for name in startup.BLAS_THREADS))
         capture_output=True, text=True,
     )  # fmt: skip
     assert chosen.stdout.split() == ["-", "2", "-"], chosen.stderr
+
+
+def test_after_import_adjusts_a_module_when_it_comes_and_only_then(tmp_path: Path) -> None:
+    code = """
+import sys
+from ekfviz import startup
+seen = []
+startup.after_import("json.tool", lambda module: seen.append(module.__name__))
+assert "json.tool" not in sys.modules and seen == []
+import json.tool
+assert seen == ["json.tool"], seen
+startup.after_import("json.tool", lambda module: seen.append("again"))  # imported: now
+assert seen == ["json.tool", "again"], seen
+print("ok")
+"""
+    done = subprocess.run(
+        [sys.executable, "-c", code], env=_env(tmp_path), capture_output=True, text=True
+    )
+    assert done.stdout.strip() == "ok", done.stderr
