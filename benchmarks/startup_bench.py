@@ -185,7 +185,8 @@ def startup_section(folder: Path, repeats: int = REPEATS) -> str:
         " printed). *CPU*: user + system seconds of the child and its own children."
         " `check` runs `examples/my_filter.py:MyFilter` against the reference; `compare`"
         " the built-in filter and that one (`--workers 1`); `consistency` 10 runs of the"
-        " classic scenario (`--workers 1`).",
+        " classic scenario (`--workers 1`), which imports Rerun only to record the averaged"
+        " curves, after its runs: its wrap-up holds that import.",
         "",
         "| command | wall s | CPU s | start-up s | work s | wrap-up s | wall - imports s |",
         "|---|---:|---:|---:|---:|---:|---:|",
