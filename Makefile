@@ -51,10 +51,13 @@ clean:
 	rm -rf $(VENV) .venv-numpy1 .mypy_cache .ruff_cache .pytest_cache .hypothesis build
 	rm -f ekfviz/filters/_kernel*.so
 
-# Benchmarks (not part of make test): core against dense, the bandwidth bound and end-to-end
-# replays, measured in one run (a few minutes); writes benchmarks/RESULTS.md.
+# Benchmarks (not part of make test): core against dense, the bandwidth bound, end-to-end
+# replays, each command's start-up and wrap-up, and the scaling curves (drawn as PNGs beside
+# RESULTS.md), measured in one run; writes benchmarks/RESULTS.md. The 1,000,000-step replay
+# of the scaling curves alone takes a few minutes; BENCH_ARGS=--quick runs smaller cases
+# without it (a smoke test, not the reference numbers).
 bench: $(VENV)/.installed-dev
-	$(BIN)/python benchmarks/bench.py
+	$(BIN)/python benchmarks/bench.py $(BENCH_ARGS)
 
 # The README's screenshots from the current layouts, in the real viewer off screen (not part
 # of make test; needs Xvfb without a display). With the datasets: make screenshots

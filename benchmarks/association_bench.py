@@ -22,6 +22,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import resource
 import subprocess
 import sys
 import time
@@ -75,6 +76,7 @@ def rigid_rmse(xy: np.ndarray, reference: np.ndarray) -> float:
 @dataclass(frozen=True, slots=True)
 class Victoria:
     wall_s: float
+    cpu_s: float  # user + system of the replay, its own threads included
     landmarks: int
     rmse_m: float
     fixes: int
@@ -85,11 +87,14 @@ class Victoria:
 
 def victoria_run(dataset: Path, folder: Path) -> Victoria:
     rrd, report = folder / "victoria.rrd", folder / "victoria.json"
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     wall, _ = _run(
         [str(BIN / "ekfviz"), "replay", str(dataset), "--save", str(rrd), "--report",
          str(report)],
         folder,
     )  # fmt: skip
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     run = read_recorded_run(rrd)
     times = run.estimate.seconds
     if times is None:
@@ -113,7 +118,7 @@ def victoria_run(dataset: Path, folder: Path) -> Victoria:
     c, s_ = np.cos(heading), np.sin(heading)
     rear = xy - np.column_stack([3.78 * c - 0.5 * s_, 3.78 * s_ + 0.5 * c])
     return Victoria(
-        wall, landmarks, rigid_rmse(xy, gps[:, 1:3]), len(gps),
+        wall, cpu, landmarks, rigid_rmse(xy, gps[:, 1:3]), len(gps),
         rigid_rmse(xy[~fast], gps[~fast, 1:3]), rigid_rmse(rear, gps[:, 1:3]), int(fast.sum()),
     )  # fmt: skip
 
@@ -224,7 +229,8 @@ def association_section(folder: Path, quick: bool = False) -> str:
             "",
             "| target | measured | met |",
             "|---|---|---|",
-            f"| end to end <= 60 s | {v.wall_s:.1f} s | {'yes' if v.wall_s <= 60 else '**no**'} |",
+            f"| end to end <= 10 s (issue 26; 60 s before) | {v.wall_s:.1f} s (CPU"
+            f" {v.cpu_s:.1f} s) | {'yes' if v.wall_s <= 10 else '**no**'} |",
             f"| 80 to 500 landmarks | {v.landmarks} |"
             f" {'yes' if 80 <= v.landmarks <= 500 else '**no**'} |",
             f"| RMSE vs GPS <= 5 m | {v.rmse_m:.2f} m | {'yes' if v.rmse_m <= 5 else '**no**'} |",
@@ -233,7 +239,8 @@ def association_section(folder: Path, quick: bool = False) -> str:
             f" line between their neighbours, {v.without_jump_m:.2f} m; the rear axle's"
             " point (3.78 m behind the laser and 0.50 m right) instead of the laser's,"
             " where the GPS antenna sits and which the recording reports,"
-            f" {v.rear_axle_m:.2f} m.",
+            f" {v.rear_axle_m:.2f} m. Before issue 26's speed work: 290 landmarks, 3.52 m"
+            " (2.86 m without the jump), 23 s end to end on a quiet machine.",
             "",
         ]
     cases = CASES[:1] if quick else CASES

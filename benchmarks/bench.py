@@ -26,6 +26,14 @@
    landmarks, RMSE against GPS read back from the recording) and simulated id-less
    two-lap runs with clutter judged as the hidden check is; ``--association-only`` runs
    just this.
+9. Start-up (``startup_bench.py``): replay, check, compare and consistency on the classic
+   sample, each one's start-up (to its first event) and wrap-up (after its last) apart,
+   beside ``import rerun, numpy, typer`` in the same run; ``--startup-only`` runs just this.
+10. Scaling (``scaling_bench.py``): end-to-end time and peak memory against the log's
+   length (10,000 to 1,000,000 classic-size steps) and the map's size (N = 10 ... 2000,
+   10 observed), drawn as ``scaling_length.png`` and ``scaling_map.png`` beside
+   RESULTS.md; ``--scaling-only`` runs just this (the 1,000,000-step run alone takes a
+   few minutes; ``--quick`` leaves it out).
 
 It prints the tables and writes them, with the machine, the date and the command, to
 ``benchmarks/RESULTS.md``. Timings are medians (bounds: best) of repeated runs; where
@@ -66,7 +74,9 @@ from ekfviz.sim.simulate import CLASSIC_LANDMARKS_XY, Noise, classic_controls, s
 sys.path.insert(0, str(Path(__file__).parent))
 from association_bench import association_section
 from mrclam_bench import mrclam_section, splice
+from scaling_bench import scaling_section
 from smoother_bench import smoother_section
+from startup_bench import startup_section
 from textbook_ekf import TextbookEkfSlam
 from worker_bench import worker_section
 
@@ -872,6 +882,14 @@ def main(argv: Sequence[str] | None = None) -> None:
         "--worker-only", action="store_true", help="only the worker section of RESULTS.md"
     )
     parser.add_argument(
+        "--startup-only", action="store_true", help="only the start-up section of RESULTS.md"
+    )
+    parser.add_argument(
+        "--scaling-only",
+        action="store_true",
+        help="only the scaling section (and its plots) of RESULTS.md",
+    )
+    parser.add_argument(
         "--association-only",
         action="store_true",
         help="only the association section (Victoria Park, simulated clutter) of RESULTS.md",
@@ -884,9 +902,19 @@ def main(argv: Sequence[str] | None = None) -> None:
         args.out.write_text(splice(old, section))
         print(section)
         return
-    if args.mrclam_only or args.smoother_only or args.association_only:
+    if (
+        args.mrclam_only
+        or args.smoother_only
+        or args.association_only
+        or args.startup_only
+        or args.scaling_only
+    ):
         with tempfile.TemporaryDirectory() as tmp:
-            if args.association_only:
+            if args.startup_only:
+                section = startup_section(Path(tmp))
+            elif args.scaling_only:
+                section = scaling_section(Path(tmp), args.quick, args.out.parent)
+            elif args.association_only:
                 section = association_section(Path(tmp), args.quick)
             else:
                 make = mrclam_section if args.mrclam_only else smoother_section
@@ -915,6 +943,9 @@ def main(argv: Sequence[str] | None = None) -> None:
         smoothers = smoother_section(Path(tmp), args.quick)
         print("association: Victoria Park, simulated clutter", flush=True)
         association = association_section(Path(tmp), args.quick)
+        print("start-up and wrap-up of four commands", flush=True)
+        startups = startup_section(Path(tmp))
+        scaling = scaling_section(Path(tmp), args.quick, args.out.parent)
     print("core against dense (one BLAS thread)", flush=True)
     rows = core_rows(args.quick)
     flops = dgemm_flops()
@@ -926,6 +957,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     print("a user's filter in its worker", flush=True)
     workers = worker_section(worker_worlds(args.quick))
     text = splice(splice(splice(splice(text, mrclam), smoothers), association), workers)
+    text = splice(splice(text, startups), scaling)
     args.out.write_text(text)
     print()
     print(text)

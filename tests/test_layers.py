@@ -130,7 +130,7 @@ def _imports(package: Path, root: str) -> dict[str, set[str]]:
 # shared vocabulary (types, events and records, truth, statistics) is at the bottom; the
 # command line at the top. Where a module sits is said by the longest prefix that names it.
 LAYERS: tuple[tuple[str, ...], ...] = (
-    ("ekfviz.core", "ekfviz.signals", "ekfviz.io.errors", "ekfviz.io.paths"),
+    ("ekfviz.core", "ekfviz.signals", "ekfviz.startup", "ekfviz.io.errors", "ekfviz.io.paths"),
     ("ekfviz.models",),
     ("ekfviz.io",),
     ("ekfviz.sim",),

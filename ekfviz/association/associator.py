@@ -269,12 +269,7 @@ class Associator:
         ``wide_pairs`` of them."""
         paired = np.flatnonzero(column >= 0)
         rows = gate_rows[column[paired]]
-        areas = np.array(
-            [
-                gate_area(predictions.S[k], predictions.z_pred[k, 1], self._gate)
-                for k in rows.tolist()
-            ]
-        )
+        areas = gate_areas(predictions.S[rows], predictions.z_pred[rows, 1], self._gate)
         wide = paired[areas > self.params.single_gate_area]
         if wide.size == 0 or wide.size >= self.params.wide_pairs:
             return column
@@ -295,6 +290,18 @@ def gate_area(S: FloatArray, range_m: float, threshold: float) -> float:
     its (bearing, range) innovation covariance ``S``, bearings scaled by the range."""
     det = float(np.linalg.det(S))
     return math.pi * threshold * math.sqrt(max(det, 0.0)) * max(range_m, 0.0)
+
+
+def gate_areas(S: FloatArray, range_m: FloatArray, threshold: float) -> FloatArray:
+    """:func:`gate_area` of many gates at once (the 2x2 determinants written out).
+
+    :param S: (k, 2, 2); :param range_m: (k,)
+    """
+    det = S[:, 0, 0] * S[:, 1, 1] - S[:, 0, 1] * S[:, 1, 0]
+    areas: FloatArray = (
+        math.pi * threshold * np.sqrt(np.maximum(det, 0.0)) * np.maximum(range_m, 0.0)
+    )
+    return areas
 
 
 def state_rows(rows: IntArray) -> IntArray:

@@ -17,6 +17,8 @@ from typing import Any
 
 import typer
 
+from ekfviz import startup
+
 
 def reflow(doc: str) -> str:
     """A docstring's paragraphs, each on one line (blank lines separate paragraphs)."""
@@ -68,13 +70,15 @@ def polish(app: typer.Typer) -> None:
             return re.sub(r"\{([^}]*)\}", lambda m: m.group(1).upper(), name)
 
         argument._usage_display_name = usage_display_name
-    try:
-        from typer import rich_utils
-    except ImportError:  # pragma: no cover - a typer without rich: click's own lines
-        return
-    utils: Any = rich_utils
-    if hasattr(utils, "rich_format_error"):
-        utils.rich_format_error = one_line_usage_error
+    # typer imports its rich_utils (and rich's markdown and syntax highlighting with it,
+    # about 0.1 s) for a help page or an error only: patched when it comes, if it does
+    startup.after_import("typer.rich_utils", _one_line_errors)
+
+
+def _one_line_errors(rich_utils: Any) -> None:
+    """typer's boxed usage errors as :func:`one_line_usage_error`."""
+    if hasattr(rich_utils, "rich_format_error"):
+        rich_utils.rich_format_error = one_line_usage_error
 
 
 def one_line_usage_error(error: Any) -> None:

@@ -25,6 +25,8 @@ import numpy as np
 from ekfviz.core.records import EventRecord
 from ekfviz.core.types import FloatArray
 from ekfviz.filters.ekf import (
+    DEFER_LANDMARKS,
+    DEFER_MIN_DIM,
     MIN_PREDICTED_RANGE,
     EkfSlam,
     FilterError,
@@ -127,41 +129,79 @@ class ModelEkfSlam(EkfSlam):
         skipped: list[bool],
     ) -> None:
         """EKF updates with the known landmarks one after another, in file order, with
-        the sensor model (H has the 5 non-zero columns 0, 1, 2, j, j+1)."""
+        the sensor model (H has the 5 non-zero columns 0, 1, 2, j, j+1).
+
+        As in :meth:`EkfSlam._update_sequential`: with S = L L^T, A = L^-1 H P (2 x n) and
+        w = L^-1 nu, x += A^T w at once and P -= A^T A deferred. The rank-2 changes of a
+        scan are kept as the rows of U, so that the current P is P - U^T U: its rows c
+        (all that H P needs) cost O(rank n), and P itself is changed once per
+        ``DEFER_LANDMARKS`` landmarks (one pass) instead of once per landmark (Victoria
+        Park's state has 600 to 900 rows and a scan sees 5 landmarks).
+        """
         n = self._n
-        x, P = self._x[:n], self._P[:n, :n]
-        R = self._R
+        x = self._x[:n]
+        P_buffer = self._P
+        spare = P_buffer.shape[0] > n
+        r00, r01, r11 = (float(v) for v in (self._R[0, 0], self._R[0, 1], self._R[1, 1]))
+        defer = n >= DEFER_MIN_DIM
+        U = np.empty((2 * min(len(known), DEFER_LANDMARKS), n)) if defer else x[None]
+        rank = 0  # rows of U in use: the current P is P - U[:rank]^T U[:rank]
+        sensor = self.sensor
         for k in known:
             landmark_id = ids[k]
             j = self._slot[landmark_id]
-            rows = np.array((0, 1, 2, j, j + 1))
+            rows = self._rows.get(j)
+            if rows is None:
+                rows = self._rows[j] = np.array((0, 1, 2, j, j + 1))
             pose, landmark = x[:3], x[j : j + 2]
-            z_pred = self.sensor.measure(pose, landmark)
-            if not z_pred[1] > MIN_PREDICTED_RANGE:
-                self._skip(k, landmark_id, skipped, _zero_range(float(z_pred[1])))
+            z_pred = sensor.measure(pose, landmark)
+            bearing, rng = float(z_pred[0]), float(z_pred[1])
+            if not rng > MIN_PREDICTED_RANGE:
+                self._skip(k, landmark_id, skipped, _zero_range(rng))
                 continue
-            z_D_pose, z_D_landmark = self.sensor.jacobians(pose, landmark)
-            H = np.hstack([z_D_pose, z_D_landmark])
-            HP = H @ P[rows]
-            S = HP[:, rows] @ H.T + R
-            S = 0.5 * (S + S.T)
-            nu = np.array(z[k]) - z_pred
-            nu[0] = wrap_angle(float(nu[0]))
-            s00, s01, s11 = float(S[0, 0]), float(S[0, 1]), float(S[1, 1])
+            z_D_pose, z_D_landmark = sensor.jacobians(pose, landmark)
+            H = np.concatenate((z_D_pose, z_D_landmark), axis=1)
+            P_c = P_buffer.take(rows, 0)  # the rows c of P (5 x capacity)
+            HP = H.dot(P_c[:, :n] if spare else P_c)
+            if rank:
+                HP -= H.dot(U[:rank].take(rows, 1).T).dot(U[:rank])
+            S = HP.take(rows, 1).dot(H.T)
+            s00, s11 = float(S[0, 0]) + r00, float(S[1, 1]) + r11
+            s01 = 0.5 * (float(S[0, 1]) + float(S[1, 0])) + r01
             if not math.isfinite(s00 + s01 + s11):
                 raise FilterError(f"the covariance became non-finite (S of landmark {landmark_id})")
-            try:
-                L = np.linalg.cholesky(S)
-            except np.linalg.LinAlgError:
-                table[k] = (*z_pred.tolist(), *nu.tolist(), s00, s01, s01, s11, math.nan)
+            z_bearing, z_range = z[k]
+            nu0 = wrap_angle(z_bearing - bearing)
+            nu1 = z_range - rng
+            # Cholesky of the 2x2 S in floats; "not >" also catches NaN
+            l00 = math.sqrt(s00) if s00 > 0.0 else 0.0
+            l10 = s01 / l00 if l00 > 0.0 else 0.0
+            d11 = s11 - l10 * l10
+            if not (l00 > 0.0 and d11 > 0.0):
+                table[k] = (bearing, rng, nu0, nu1, s00, s01, s01, s11, math.nan)
                 self._skip(k, landmark_id, skipped, _not_definite(s00, s01, s11))
                 continue
-            A = np.linalg.solve(L, HP)
-            w = np.linalg.solve(L, nu)
-            x += w @ A
-            P -= A.T @ A
+            l11 = math.sqrt(d11)
+            w0 = nu0 / l00
+            w1 = (nu1 - l10 * w0) / l11
+            i00, i11 = 1.0 / l00, 1.0 / l11
+            i10 = -l10 * i00 * i11
+            # rows: A = L^-1 H P, then w^T A, the change of x
+            B = np.array(((i00, 0.0), (i10, i11), (w0 * i00 + w1 * i10, w1 * i11))).dot(HP)
+            np.add(x, B[2], out=x)
             x[2] = wrap_angle(float(x[2]))
-            table[k] = (*z_pred.tolist(), *nu.tolist(), s00, s01, s01, s11, float(w @ w))
+            if defer:
+                U[rank : rank + 2] = B[:2]
+                rank += 2
+                if rank == U.shape[0]:
+                    self._subtract_gram(U)
+                    rank = 0
+            else:
+                A = B[:2]  # C-contiguous: np.dot takes A^T A as a symmetric rank-k update
+                self._P[:n, :n] -= A.T.dot(A)
+            table[k] = (bearing, rng, nu0, nu1, s00, s01, s01, s11, w0 * w0 + w1 * w1)
+        if rank:
+            self._subtract_gram(U[:rank])
 
     def _update_joint(
         self,
