@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import subprocess
 import sys
 from collections.abc import Iterator, Sequence
@@ -317,8 +318,7 @@ def _failure(tmp_path: Path, bag: Path, *options: str) -> str:
         [env_python, "-m", "ekfviz", "replay", str(bag), *options, "--save",
          str(tmp_path / "x.rrd")],
         capture_output=True, text=True, timeout=120,
-        env={"XDG_CONFIG_HOME": str(tmp_path), "XDG_DATA_HOME": str(tmp_path),
-             "PATH": "/usr/bin:/bin", "HOME": str(tmp_path)},
+        env={**os.environ, "XDG_CONFIG_HOME": str(tmp_path), "XDG_DATA_HOME": str(tmp_path)},
     )  # fmt: skip
     assert result.returncode == 2, result.stderr
     assert "Traceback" not in result.stderr and result.stdout == ""
