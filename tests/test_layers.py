@@ -124,3 +124,34 @@ def test_the_circle_check_can_fail(tmp_path: Path) -> None:
                                    "    from pkg.a import y\n")  # fmt: skip
     graph = _imports(tmp_path, "pkg")
     assert "pkg.b" in graph["pkg.a"] and "pkg.a" in graph["pkg.b"]
+
+
+def test_no_import_circles_in_the_viz_package() -> None:
+    """The recorder's parts, the association view and the rest of ``ekfviz.viz`` import
+    one another one way only (``from ekfviz.viz import style`` imports ``style``, not the
+    package's ``__init__``, which gathers the API)."""
+    package = Path(__file__).parents[1] / "ekfviz"
+    graph = _imports(package, "ekfviz")
+    viz = {
+        name: {m for m in found if m.startswith("ekfviz.viz.")}
+        for name, found in graph.items()
+        if name.startswith("ekfviz.viz.")
+    }
+    assert "ekfviz.viz.layers.landmarks" in viz["ekfviz.viz.recorder"]
+    for start in viz:
+        stack, seen = [start], set[str]()
+        while stack:
+            for target in viz.get(stack.pop(), set()):
+                assert target != start, f"{start} imports itself through {sorted(seen)}"
+                if target not in seen:
+                    seen.add(target)
+                    stack.append(target)
+
+
+def test_the_recorder_is_in_parts_of_at_most_400_lines() -> None:
+    viz = Path(__file__).parents[1] / "ekfviz" / "viz"
+    parts = [viz / "recorder.py", *sorted((viz / "layers").glob("*.py"))]
+    assert len(parts) >= 10
+    for path in parts:
+        lines = len(path.read_text().splitlines())
+        assert lines <= 400, f"{path.name}: {lines} lines"
