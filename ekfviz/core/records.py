@@ -326,14 +326,14 @@ def snapshot(
         landmark_ids = frozen(np.array(landmark_ids, dtype=np.int64))
     if landmark_covs is None or not _kept(landmark_covs, np.float64):
         landmark_covs = frozen(landmark_marginals(P, n_landmarks))
-    mean = frozen(np.array(x, dtype=np.float64))  # pose and landmarks: views of one copy
+    mean = frozen(x.astype(np.float64))  # pose and landmarks: views of one copy
     return EventRecord(
         event=event,
         step=step,
         kind=kind,
         line=line,
         pose=mean[:3],
-        pose_cov=frozen(np.array(P[:3, :3], dtype=np.float64)),
+        pose_cov=frozen(P[:3, :3].astype(np.float64)),
         landmark_ids=landmark_ids,
         landmarks_xy=mean[3:].reshape(n_landmarks, 2),
         landmark_covs=landmark_covs,

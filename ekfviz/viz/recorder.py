@@ -48,7 +48,6 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from ekfviz import __version__
-from ekfviz.core.correlation import Correlation
 from ekfviz.core.evaluation import Evaluation
 from ekfviz.core.records import EventKind, EventRecord
 from ekfviz.core.truth import GroundTruth
@@ -57,7 +56,7 @@ from ekfviz.models.range_bearing import RangeBearing
 from ekfviz.viz import style
 from ekfviz.viz.association import AssociationView
 from ekfviz.viz.blueprint import ASSOCIATION_SERIES, REFERENCE_SERIES, default_blueprint
-from ekfviz.viz.correlation import log_correlation, log_correlation_styling
+from ekfviz.viz.correlation import CorrelationLayer
 from ekfviz.viz.layers.arrays import CHECK_ALL_DIM, ArrayInput
 from ekfviz.viz.layers.arrow import EPOCH_MIN_S, MIN_AXIS, frame_id, time_is_epoch
 from ekfviz.viz.layers.batch import Batch
@@ -145,7 +144,6 @@ class Recorder:
         self._sensor = sensor if sensor is not None else RangeBearing()
         self.association: AssociationView | None = None  # made at the first scan
         self._history = history
-        self._last_correlation: Correlation | None = None  # the last one logged
         self._truth = truth
         self._arrays = ArrayInput(landmark_ids)
         self._thinning = PredictThinning(None if detail else predict_interval_s)
@@ -160,6 +158,7 @@ class Recorder:
         self._metrics = MetricsLayer(canvas)
         self._truth_layer = TruthLayer(canvas, self._metrics)
         self._text = TextLayer(canvas)
+        self._correlation = CorrelationLayer(canvas)
         # records not sent yet, each with whether it logs the whole map's ellipses
         self._pending: list[tuple[EventRecord, bool]] = []
         self._pending_landmarks = 0
@@ -176,7 +175,7 @@ class Recorder:
             properties.with_component_from_data("kind", "recorder")
             rec.send_property("ekfviz", properties)
         self._log_styling()
-        log_correlation_styling(self._rec)
+        self._correlation.log_styling()
         seed_ids = list(self._arrays.order)
         if truth is not None:
             seed_ids += truth.ids.tolist()
@@ -341,10 +340,6 @@ class Recorder:
                 )
             self.association.log(record)
         self._truth_layer.log_metrics(record, whole_map, self.association is not None)
-        if record.correlation is not None:  # a few per run: logged at once
-            self._canvas.set_times(record.step, record.event, record.time)
-            log_correlation(self._rec, record.correlation, self._last_correlation)
-            self._last_correlation = record.correlation
         self._pending.append((record, whole_map))
         self._pending_landmarks += len(record.landmark_ids)
         if len(self._pending) >= FLUSH_EVERY or self._pending_landmarks >= FLUSH_LANDMARKS:
@@ -372,6 +367,7 @@ class Recorder:
         self._map.send(batch)
         self._metrics.send_health(batch)
         self._text.send(batch)
+        self._correlation.send(batch)
 
     # -- static data -----------------------------------------------------------------------
 

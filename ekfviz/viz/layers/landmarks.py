@@ -53,6 +53,7 @@ class MapLayer:
         self._canvas = canvas
         self._labels = labels
         self._thinned = thinned
+        self._detail = canvas.detail
         self.seen_ids: set[int] = set()  # every landmark id in the map so far (for the layout)
         self._last_ids: IntArray | None = None  # landmark ids of the last update, annotated
         self._map_step: int | None = None  # step of the last update that logged the whole map
@@ -96,9 +97,9 @@ class MapLayer:
         """Whether an update logs the whole map's ellipses only now and then (and the
         observed landmarks' at every update): beyond ``SMALL_MAP`` landmarks, and in a
         timestamped log whose predicts are thinned (see :mod:`ekfviz.viz.thinning`)."""
-        if self._canvas.detail:
-            return False
-        return record.n_landmarks > SMALL_MAP or (record.time is not None and self._thinned)
+        return not self._detail and (
+            len(record.landmark_ids) > SMALL_MAP or (self._thinned and record.time is not None)
+        )
 
     def admit(self, record: EventRecord) -> bool:
         """Take note of a record's map; whether it logs the whole map's ellipses."""
@@ -202,32 +203,66 @@ class MapLayer:
         ``--detail``.
         """
         shown: list[Update] = []
-        for k, record, whole in updates:
-            if self._canvas.detail:
+        if self._canvas.detail:
+            for k, record, whole in updates:
                 shown.append((k, record, whole))
                 self._map_shown = None
                 self._map_shown_event = record.event
-                continue
-            shape = shapes(record.landmarks_xy, record.landmark_covs)
-            if (
-                self._map_shown is not None
-                and record.event != self._final_event
-                and not (whole and self.sparse(record))
-                and np.array_equal(self._map_shown[0], record.landmark_ids)
+            return shown
+        start = 0
+        while start < len(updates):  # runs of updates of one map (the same landmark ids)
+            ids = updates[start][1].landmark_ids
+            end = start + 1
+            while end < len(updates) and (
+                (other := updates[end][1].landmark_ids) is ids or np.array_equal(other, ids)
             ):
-                before = self._map_shown[1]
-                # the point at angle t of an outline, m + 3 sqrt(C) [cos t, sin t], moves by
-                # at most |dm| + 3 ||d sqrt(C)||_F; the semi-major axis is at least
-                # 3 ||sqrt(C)||_F / sqrt(2)
-                moved = np.linalg.norm(shape[:, :2] - before[:, :2], axis=1) + np.linalg.norm(
-                    shape[:, 2:] - before[:, 2:], axis=1
+                end += 1
+            shown += self._changes_of_one_map(updates[start:end])
+            start = end
+        return shown
+
+    def _changes_of_one_map(self, updates: list[Update]) -> list[Update]:
+        """:meth:`_map_changes` of updates of the same landmarks, in a few numpy calls: the
+        shapes of all at once, then from each update logged, the first that has moved
+        from it, looked for in windows that grow while none has."""
+        records = [record for _, record, _ in updates]
+        n = records[0].n_landmarks
+        every = shapes(
+            np.concatenate([record.landmarks_xy for record in records]),
+            np.concatenate([record.landmark_covs for record in records]),
+        ).reshape(len(records), n, 6)
+        # the point at angle t of an outline, m + 3 sqrt(C) [cos t, sin t], moves by at most
+        # |dm| + 3 ||d sqrt(C)||_F; the semi-major axis is at least 3 ||sqrt(C)||_F / sqrt(2)
+        tolerance = MAP_TOLERANCE * np.linalg.norm(every[:, :, 2:], axis=2) / math.sqrt(2.0)
+        forced = np.array(
+            [
+                record.event == self._final_event or (whole and self.sparse(record))
+                for _, record, whole in updates
+            ]
+        )
+        if self._map_shown is None or not np.array_equal(
+            self._map_shown[0], records[0].landmark_ids
+        ):
+            forced[0] = True
+        shown: list[Update] = []
+        k, window = 0, 16
+        while k < len(records):
+            if not forced[k]:
+                before = self._map_shown[1]  # type: ignore[index]
+                ahead = every[k : k + window]
+                moved = np.linalg.norm(ahead[:, :, :2] - before[:, :2], axis=2) + np.linalg.norm(
+                    ahead[:, :, 2:] - before[:, 2:], axis=2
                 )
-                semi_major = np.linalg.norm(shape[:, 2:], axis=1) / math.sqrt(2.0)
-                if np.all(moved <= MAP_TOLERANCE * semi_major):
+                due = forced[k : k + window] | ~np.all(moved <= tolerance[k : k + window], axis=1)
+                hits = np.flatnonzero(due)
+                if not hits.size:
+                    k, window = k + len(ahead), 2 * window
                     continue
-            self._map_shown = (record.landmark_ids, shape)
-            self._map_shown_event = record.event
-            shown.append((k, record, whole))
+                k += int(hits[0])
+            self._map_shown = (records[k].landmark_ids, every[k])
+            self._map_shown_event = records[k].event
+            shown.append(updates[k])
+            k, window = k + 1, 16
         return shown
 
     def _send_points(self, times: list[rr.TimeColumnLike], updates: list[EventRecord]) -> None:
