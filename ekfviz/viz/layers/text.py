@@ -12,18 +12,21 @@ from ekfviz.viz.layers.arrow import INFO, WARN, column
 from ekfviz.viz.layers.batch import Batch
 from ekfviz.viz.layers.canvas import Canvas
 
+_KIND = {kind: kind.value for kind in EventKind}  # (an enum's value is a slow lookup)
+
 
 def describe(record: EventRecord, seen: int, new: int, nis: float, nis_used: int) -> str:
     """The log line of a record; for an update, ``seen`` observations of which ``new``
     first sightings, and the NIS summed over the ``nis_used`` landmarks it used."""
-    where = f"step {record.step} {record.kind.value}"
+    kind = record.kind
+    where = f"step {record.step} {_KIND[kind]}"
     if record.line:
         where += f" line {record.line}"
-    if record.kind is EventKind.PREDICT:
-        if record.control is None:
+    if kind is EventKind.PREDICT:
+        control = record.control
+        if control is None:
             return where
-        d, alpha = record.control.tolist()
-        return f"{where}: d {d:.3f}, alpha {alpha:.4f}"
+        return f"{where}: d {control[0]:.3f}, alpha {control[1]:.4f}"
     if record.observations is None:
         return f"{where}: {record.n_landmarks} landmarks in the map"
     text = f"{where}: {seen} landmarks"
