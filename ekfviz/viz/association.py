@@ -110,7 +110,8 @@ class AssociationView:
         rays[:, 1] = points
         rows.rays.append(rays)
         rows.ray_colors.append(FATE_COLORS[fate])
-        where = {int(i): k for k, i in enumerate(record.landmark_ids.tolist())}
+        landmark_ids = record.landmark_ids.tolist()
+        where = {i: k for k, i in enumerate(landmark_ids)}
         matched = [
             (k, where[i])
             for k, (f, i) in enumerate(
@@ -148,12 +149,15 @@ class AssociationView:
                     self._sizes[i] = size if old is None else 0.8 * old + 0.2 * size
             for i in association.removed.tolist():
                 self._sizes.pop(i, None)
-            ids = [i for i in record.landmark_ids.tolist() if i in self._sizes]
+            picked_rows, radii = [], []
+            for row, i in enumerate(landmark_ids):
+                size = self._sizes.get(i)
+                if size is not None:
+                    picked_rows.append(row)
+                    radii.append(max(size, 0.05) / 2)
             rows.sized.append(len(rows.steps) - 1)
-            rows.sizes.append(record.landmarks_xy[[where[i] for i in ids]])
-            rows.size_radii.append(
-                np.array([max(self._sizes[i], 0.05) / 2 for i in ids], dtype=np.float64)
-            )
+            rows.sizes.append(record.landmarks_xy[picked_rows])
+            rows.size_radii.append(np.array(radii, dtype=np.float64))
         score = self.tally.add(record)
         values = {
             "matched": association.count(Fate.MATCHED),
