@@ -74,7 +74,9 @@ class AssociationView:
         self._path = path
         self._sensor = sensor
         self.tally = AssociationTally(truth, sensor)
-        self._sizes: dict[int, float] = {}
+        # each landmark's smoothed object size, by id (known: it has one)
+        self._size_value = np.zeros(0)
+        self._size_known = np.zeros(0, dtype=bool)
         self._series: dict[str, list[tuple[int, int, float, float]]] = {}
         self._rows = _ScanRows()
         rec.log(path(RAYS), rr.LineStrips2D([], radii=rr.Radius.ui_points(0.75)), static=True)
@@ -138,26 +140,33 @@ class AssociationView:
         rows.tentative.append(record.landmarks_xy[[where[i] for i in tentative_ids]])
         rows.tentative_labels.extend(f"L{i} (tentative)" for i in tentative_ids)
         if association.diameters is not None:
-            for f, i, size in zip(
-                fate.tolist(),
-                association.landmark.tolist(),
-                association.diameters.tolist(),
-                strict=True,
-            ):
-                if f != Fate.REJECTED:
-                    old = self._sizes.get(i)
-                    self._sizes[i] = size if old is None else 0.8 * old + 0.2 * size
-            for i in association.removed.tolist():
-                self._sizes.pop(i, None)
-            picked_rows, radii = [], []
-            for row, i in enumerate(landmark_ids):
-                size = self._sizes.get(i)
-                if size is not None:
-                    picked_rows.append(row)
-                    radii.append(max(size, 0.05) / 2)
+            updates = [
+                (i, size)
+                for f, i, size in zip(
+                    fate.tolist(),
+                    association.landmark.tolist(),
+                    association.diameters.tolist(),
+                    strict=True,
+                )
+                if f != Fate.REJECTED
+            ]
+            self._grow_sizes(max([i for i, _ in updates], default=-1))
+            known, smoothed = self._size_known, self._size_value
+            for i, size in updates:
+                smoothed[i] = 0.8 * smoothed[i] + 0.2 * size if known[i] else size
+                known[i] = True
+            removed = association.removed
+            known[removed[(removed >= 0) & (removed < len(known))]] = False
+            # the landmarks with a size, in the record's order (ids of the associator: >= 0)
+            ids = record.landmark_ids
+            has = np.zeros(len(ids), dtype=bool)
+            inside = (ids >= 0) & (ids < len(known))
+            has[inside] = known[ids[inside]]
+            picked_rows = np.flatnonzero(has)
+            radii = np.maximum(smoothed[ids[picked_rows]], 0.05) / 2
             rows.sized.append(len(rows.steps) - 1)
             rows.sizes.append(record.landmarks_xy[picked_rows])
-            rows.size_radii.append(np.array(radii, dtype=np.float64))
+            rows.size_radii.append(radii)
         score = self.tally.add(record)
         values = {
             "matched": association.count(Fate.MATCHED),
@@ -192,6 +201,15 @@ class AssociationView:
             self._send_scans()
         if len(self._series["matched"]) >= _SERIES_FLUSH:
             self._send_series()
+
+    def _grow_sizes(self, largest_id: int) -> None:
+        """Room in the size arrays for ids up to ``largest_id``."""
+        n = len(self._size_known)
+        if largest_id < n:
+            return
+        grown = max(largest_id + 1, 2 * n, 64)
+        self._size_value = np.concatenate([self._size_value, np.zeros(grown - n)])
+        self._size_known = np.concatenate([self._size_known, np.zeros(grown - n, dtype=bool)])
 
     def flush(self) -> None:
         """Send everything buffered: the scans' shapes and texts, and the series."""
