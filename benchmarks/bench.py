@@ -34,6 +34,9 @@
    10 observed), drawn as ``scaling_length.png`` and ``scaling_map.png`` beside
    RESULTS.md; ``--scaling-only`` runs just this (the 1,000,000-step run alone takes a
    few minutes; ``--quick`` leaves it out).
+11. Targets (``targets_bench.py``): issue 26's three speed targets measured together in
+   one run (the classic sample against the imports, a 102,000-step log, Victoria Park);
+   ``--targets-only`` runs just this.
 
 It prints the tables and writes them, with the machine, the date and the command, to
 ``benchmarks/RESULTS.md``. Timings are medians (bounds: best) of repeated runs; where
@@ -890,6 +893,12 @@ def main(argv: Sequence[str] | None = None) -> None:
         help="only the scaling section (and its plots) of RESULTS.md",
     )
     parser.add_argument(
+        "--targets-only",
+        action="store_true",
+        help="only the section of issue 26's targets (classic start-up, 102,000 steps,"
+        " Victoria Park), in one run",
+    )
+    parser.add_argument(
         "--association-only",
         action="store_true",
         help="only the association section (Victoria Park, simulated clutter) of RESULTS.md",
@@ -898,6 +907,16 @@ def main(argv: Sequence[str] | None = None) -> None:
     started = time.perf_counter()
     if args.worker_only:
         section = worker_section(worker_worlds(args.quick))
+        old = args.out.read_text() if args.out.exists() else ""
+        args.out.write_text(splice(old, section))
+        print(section)
+        return
+    if args.targets_only:
+        from association_bench import find_dataset
+        from targets_bench import targets_section
+
+        with tempfile.TemporaryDirectory() as tmp:
+            section = targets_section(Path(tmp), find_dataset())
         old = args.out.read_text() if args.out.exists() else ""
         args.out.write_text(splice(old, section))
         print(section)
@@ -945,6 +964,11 @@ def main(argv: Sequence[str] | None = None) -> None:
         association = association_section(Path(tmp), args.quick)
         print("start-up and wrap-up of four commands", flush=True)
         startups = startup_section(Path(tmp))
+        print("issue 26's targets in one run", flush=True)
+        from association_bench import find_dataset
+        from targets_bench import targets_section
+
+        targets = targets_section(Path(tmp), find_dataset())
         scaling = scaling_section(Path(tmp), args.quick, args.out.parent)
     print("core against dense (one BLAS thread)", flush=True)
     rows = core_rows(args.quick)
@@ -957,7 +981,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     print("a user's filter in its worker", flush=True)
     workers = worker_section(worker_worlds(args.quick))
     text = splice(splice(splice(splice(text, mrclam), smoothers), association), workers)
-    text = splice(splice(text, startups), scaling)
+    text = splice(splice(splice(text, startups), scaling), targets)
     args.out.write_text(text)
     print()
     print(text)

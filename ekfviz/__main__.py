@@ -14,13 +14,15 @@ def main() -> None:
 
     import typer
 
-    from ekfviz.cli import app
+    from ekfviz.cli import COMMANDS, command_of, load
     from ekfviz.cli.common import prepare_argv
 
     try:
         argv = prepare_argv(sys.argv[1:])
     except typer.Exit as stop:  # outside the app: exit with the code it carries
         raise SystemExit(stop.exit_code) from None
+    name = command_of(argv)  # only that command's module: the others cost start-up
+    app = load(COMMANDS if name is None else (name,))
     try:
         try:
             app(args=argv, prog_name="ekfviz")

@@ -221,3 +221,12 @@ def test_the_circle_check_can_fail(tmp_path: Path) -> None:
     graph = _imports(tmp_path, "pkg")
     assert "pkg.b" in graph["pkg.a"] and "pkg.a" in graph["pkg.b"]
     assert len(_circles(graph)) == 2
+
+
+def test_the_recorder_is_in_parts_of_at_most_400_lines() -> None:
+    viz = Path(__file__).parents[1] / "ekfviz" / "viz"
+    parts = [viz / "recorder.py", *sorted((viz / "layers").glob("*.py"))]
+    assert len(parts) >= 10
+    for path in parts:
+        lines = len(path.read_text().splitlines())
+        assert lines <= 400, f"{path.name}: {lines} lines"

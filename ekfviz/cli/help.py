@@ -40,12 +40,26 @@ def escape_defaults(callback: Any) -> None:
 
 
 def polish(app: typer.Typer) -> None:
-    """Reflow every command's help and tidy typer's placeholders (see the module)."""
+    """Reflow every command's help and tidy typer's placeholders (see the module); again
+    for commands registered since (each is polished once)."""
     for command in app.registered_commands:
-        if command.help is None and command.callback is not None and command.callback.__doc__:
+        if command.callback is None or command.callback in _POLISHED:
+            continue
+        _POLISHED.add(command.callback)
+        if command.help is None and command.callback.__doc__:
             command.help = reflow(command.callback.__doc__)
-        if command.callback is not None:
-            escape_defaults(command.callback)
+        escape_defaults(command.callback)
+    if not _POLISHED_TYPER:
+        _POLISHED_TYPER.append(True)
+        _tidy_typer()
+
+
+_POLISHED: set[Any] = set()
+_POLISHED_TYPER: list[bool] = []  # typer's classes are patched once a process
+
+
+def _tidy_typer() -> None:
+    """No ``<bool>`` after a flag, arguments in capitals, usage errors in one line."""
     try:
         from typer import core
     except ImportError:  # pragma: no cover - a typer without the module: keep its pages

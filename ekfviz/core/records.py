@@ -291,21 +291,29 @@ def snapshot(
     kind: EventKind,
     line: int = 0,
     landmark_ids: IntArray | None = None,
-    control: FloatArray | None = None,
+    control: FloatArray | tuple[float, float] | None = None,
     observations: Observations | None = None,
     full_cov: bool = False,
     time: float | None = None,
     warnings: tuple[str, ...] = (),
     covariance: CovarianceCheck | None = None,
+    association: ScanAssociation | None = None,
+    landmark_covs: FloatArray | None = None,
 ) -> EventRecord:
     """Build a record from a state in the classic layout x = [x, y, theta, l1x, l1y, ...].
 
-    Copies what it keeps: the caller may go on changing ``x`` and ``P``.
+    The one way records are made, by the built-in filter and by a plugged one alike.
+    Copies what it keeps: the caller may go on changing ``x`` and ``P``. A read-only
+    int64 ``landmark_ids`` and ``landmark_covs`` are kept as they are, without a copy: a
+    filter hands the same arrays to every record until its map changes (consumers
+    then compare them by identity), which at a few landmarks halves a record's cost.
 
     :param x: (3+2N,) state mean
     :param P: (3+2N, 3+2N) state covariance (only the diagonal blocks are read unless
         ``full_cov``)
     :param landmark_ids: (N,) ids in state order; default 1..N
+    :param landmark_covs: (N, 2, 2) the marginals of ``P``'s landmarks, read-only, when
+        the caller has them already (see :func:`landmark_marginals`)
     """
     n_landmarks = (x.shape[0] - 3) // 2
     if x.shape[0] != 3 + 2 * n_landmarks or P.shape != (x.shape[0], x.shape[0]):
@@ -314,21 +322,31 @@ def snapshot(
         )
     if landmark_ids is None:
         landmark_ids = np.arange(1, n_landmarks + 1, dtype=np.int64)
-    mean = frozen(np.array(x, dtype=np.float64))  # pose and landmarks: views of one copy
+    if not _kept(landmark_ids, np.int64):
+        landmark_ids = frozen(np.array(landmark_ids, dtype=np.int64))
+    if landmark_covs is None or not _kept(landmark_covs, np.float64):
+        landmark_covs = frozen(landmark_marginals(P, n_landmarks))
+    mean = frozen(x.astype(np.float64))  # pose and landmarks: views of one copy
     return EventRecord(
         event=event,
         step=step,
         kind=kind,
         line=line,
         pose=mean[:3],
-        pose_cov=frozen(np.array(P[:3, :3], dtype=np.float64)),
-        landmark_ids=frozen(np.array(landmark_ids, dtype=np.int64)),
+        pose_cov=frozen(P[:3, :3].astype(np.float64)),
+        landmark_ids=landmark_ids,
         landmarks_xy=mean[3:].reshape(n_landmarks, 2),
-        landmark_covs=frozen(landmark_marginals(P, n_landmarks)),
+        landmark_covs=landmark_covs,
         control=None if control is None else frozen(np.array(control, dtype=np.float64)),
         observations=observations,
         full_cov=frozen(np.array(P, dtype=np.float64)) if full_cov else None,
         time=time,
         warnings=warnings,
         covariance=covariance,
+        association=association,
     )
+
+
+def _kept(array: object, dtype: type[np.generic]) -> bool:
+    """Whether an array can go into a record as it is: read-only, of the record's type."""
+    return isinstance(array, np.ndarray) and array.dtype == dtype and not array.flags.writeable

@@ -26,7 +26,14 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from ekfviz.core.health import CovarianceCheck
-from ekfviz.core.records import EventKind, EventRecord, Observations, ScanAssociation, frozen
+from ekfviz.core.records import (
+    EventKind,
+    EventRecord,
+    Observations,
+    ScanAssociation,
+    frozen,
+    snapshot,
+)
 from ekfviz.core.types import BoolArray, FloatArray, IntArray
 from ekfviz.models.angles import wrap_angle, wrap_angles
 from ekfviz.models.classic import landmark_from_measurement, landmark_init_jacobians
@@ -213,7 +220,8 @@ class EkfSlam:
         self._ids_array: IntArray | None = None  # self._ids as a frozen array, built lazily
         self._rows: dict[int, IntArray] = {}  # slot j -> [0, 1, 2, j, j+1]
         self._landmark_covs: FloatArray | None = None  # for records, until P's map changes
-        # rows and columns of P holding the landmarks' 2x2 marginals, (N, 2, 2) each
+        # rows and columns of P holding the landmarks' 2x2 marginals, (N, 2, 2) each: one
+        # fancy index, twice as fast as records.landmark_marginals at a few landmarks
         self._marginal_index: tuple[IntArray, IntArray] = (
             np.zeros((0, 2, 2), dtype=np.int64),
             np.zeros((0, 2, 2), dtype=np.int64),
@@ -296,50 +304,30 @@ class EkfSlam:
         covariance: CovarianceCheck | None = None,
         association: ScanAssociation | None = None,
     ) -> EventRecord:
-        """Snapshot the current state as an immutable record.
-
-        What :func:`~ekfviz.core.records.snapshot` does, without its checks and with the
-        landmark ids and the index of the marginals kept between records: at a few
-        landmarks a record costs as much as a predict.
+        """Snapshot the current state as an immutable record (see
+        :func:`~ekfviz.core.records.snapshot`, the one way records are made), with the
+        landmark ids and marginals kept between records while they do not change: at a
+        few landmarks a record costs as much as a predict.
         """
         n = self._n
-        n_landmarks = (n - 3) // 2
         if self._ids_array is None:
             self._ids_array = frozen(np.array(self._ids, dtype=np.int64))
+        n_landmarks = (n - 3) // 2
         if self._marginal_index[0].shape[0] != n_landmarks:
             i = 3 + 2 * np.arange(n_landmarks)
             self._marginal_index = (
                 np.stack([i, i, i + 1, i + 1], axis=1).reshape(n_landmarks, 2, 2),
                 np.stack([i, i + 1, i, i + 1], axis=1).reshape(n_landmarks, 2, 2),
             )
-        mean = self._x[:n].copy()
-        mean.setflags(write=False)  # pose and landmarks_xy are read-only views of it
-        pose_cov = self._P[:3, :3].copy()
-        pose_cov.setflags(write=False)
-        landmark_covs = self._landmark_covs  # unchanged by a predict: kept since the update
-        if landmark_covs is None:
-            landmark_covs = self._landmark_covs = frozen(self._P[self._marginal_index])
-        if control is not None:
-            control = np.array(control, dtype=np.float64)
-            control.setflags(write=False)
-        return EventRecord(
-            event=event,
-            step=step,
-            kind=kind,
-            line=line,
-            pose=mean[:3],
-            pose_cov=pose_cov,
+        if self._landmark_covs is None:  # unchanged by a predict: kept since the update
+            self._landmark_covs = frozen(self._P[self._marginal_index])
+        return snapshot(
+            self._x[:n], self._P[:n, :n], event=event, step=step, kind=kind, line=line,
             landmark_ids=self._ids_array,  # read-only, replaced when the map grows
-            landmarks_xy=mean[3:].reshape(n_landmarks, 2),
-            landmark_covs=landmark_covs,
-            control=control,
-            observations=observations,
-            full_cov=frozen(self._P[:n, :n].copy()) if full_cov else None,
-            time=time,
-            warnings=warnings,
-            covariance=covariance,
-            association=association,
-        )
+            control=control, observations=observations, full_cov=full_cov, time=time,
+            warnings=warnings, covariance=covariance, association=association,
+            landmark_covs=self._landmark_covs,
+        )  # fmt: skip
 
     # -- predict -----------------------------------------------------------------------
 

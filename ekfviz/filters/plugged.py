@@ -201,13 +201,14 @@ class Plugged:
         covariance: CovarianceCheck | None = None,
         association: ScanAssociation | None = None,
     ) -> EventRecord:
-        record = snapshot(
+        """Snapshot the filter's state as an immutable record (see
+        :func:`~ekfviz.core.records.snapshot`, the one way records are made)."""
+        return snapshot(
             self._x, self._P, event=event, step=step, kind=kind, line=line,
-            landmark_ids=self._ids, control=None if control is None else np.asarray(control),
-            observations=observations, full_cov=full_cov, time=time, warnings=warnings,
-            covariance=covariance,
+            landmark_ids=self._ids, control=control, observations=observations,
+            full_cov=full_cov, time=time, warnings=warnings, covariance=covariance,
+            association=association,
         )  # fmt: skip
-        return record if association is None else replace(record, association=association)
 
     # -- checks -------------------------------------------------------------------------
 

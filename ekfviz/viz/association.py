@@ -33,6 +33,7 @@ from ekfviz.evaluation.reference import ReferenceFit
 from ekfviz.models.range_bearing import RangeBearing
 from ekfviz.viz import style
 from ekfviz.viz.ellipses import ellipse_outlines
+from ekfviz.viz.layers.arrow import time_is_epoch  # the recorder's choice of the time's type
 
 RAYS = "world/association/rays"
 LINKS = "world/association/links"
@@ -426,14 +427,6 @@ def _strips(polylines: list[FloatArray]) -> pa.Array:
 def _colors(rgb: npt.NDArray[np.integer]) -> pa.Array:
     """(K, 3) colours as Rerun's packed RGBA."""
     return rr.components.ColorBatch(np.asarray(rgb, dtype=np.uint8)).as_arrow_array()
-
-
-def time_is_epoch(time: float) -> bool:
-    """The recorder's choice of the ``time`` timeline's type (see
-    :func:`ekfviz.viz.recorder.time_is_epoch`)."""
-    from ekfviz.viz.recorder import time_is_epoch as recorder_choice
-
-    return recorder_choice(time)
 
 
 def _time_column(times: FloatArray) -> rr.TimeColumn:

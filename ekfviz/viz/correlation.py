@@ -16,11 +16,15 @@ from typing import Protocol
 
 import numpy as np
 import numpy.typing as npt
+import pyarrow as pa  # type: ignore[import-untyped]
 import rerun as rr
 
 from ekfviz.core.correlation import Correlation
 from ekfviz.core.types import FloatArray
 from ekfviz.viz import style
+from ekfviz.viz.layers.arrow import column
+from ekfviz.viz.layers.batch import Batch
+from ekfviz.viz.layers.canvas import Canvas
 
 MAX_LABELLED_BLOCKS = 32  # landmark blocks (or groups of them) outlined and labelled
 NAN_RGB = (160, 160, 160)  # a correlation with a zero variance: undefined
@@ -47,6 +51,14 @@ _LUT: npt.NDArray[np.uint8] = np.rint(
 ).astype(np.uint8)
 PALETTE: npt.NDArray[np.uint8] = np.vstack([_LUT, np.array([NAN_RGB], dtype=np.uint8)])
 NAN_INDEX = LUT_SIZE
+# The Arrow types of a segmentation image's pixels and format, from the SDK's conversion
+_SAMPLE = {
+    batch.component_descriptor(): batch.as_arrow_array()
+    for batch in rr.SegmentationImage(np.zeros((1, 1), np.uint8)).as_component_batches()
+}
+_BUFFER = _SAMPLE[rr.SegmentationImage.descriptor_buffer()].type
+_FORMAT = _SAMPLE[rr.SegmentationImage.descriptor_format()].type
+_U8 = _SAMPLE[rr.SegmentationImage.descriptor_format()].field("channel_datatype")[0].as_py()
 
 
 def color_indices(C: FloatArray) -> npt.NDArray[np.uint8]:
@@ -125,19 +137,63 @@ def log_correlation_styling(rec: _Logger) -> None:
     rec.style(style.CORRELATION_MATRIX, palette_classes())
 
 
-def log_correlation(
-    rec: _Logger, correlation: Correlation, previous: Correlation | None = None
-) -> None:
-    """The image at the current time; its block outlines and description too when they
-    differ from those of the ``previous`` one logged (the map or its averaging changed)."""
-    rec.log(style.CORRELATION_MATRIX, rr.SegmentationImage(color_indices(correlation.matrix)))
-    if (
-        previous is not None
-        and previous.dim == correlation.dim
-        and previous.factor == correlation.factor
-        and np.array_equal(previous.landmark_ids, correlation.landmark_ids)
-    ):
-        return
-    mins, sizes, labels = block_outlines(correlation)
-    rec.log(style.CORRELATION_BLOCKS, rr.Boxes2D(mins=mins, sizes=sizes, labels=labels))
-    rec.log(style.CORRELATION_NOTE, rr.TextDocument(correlation.describe()))
+class CorrelationLayer:
+    """The correlation matrices of a run's records: the images sent in columns with the
+    batch they belong to (a ``log`` call each cost more than the filter's step), their
+    blocks and description logged where they change."""
+
+    def __init__(self, canvas: Canvas) -> None:
+        self._canvas = canvas
+        self._last: Correlation | None = None  # the last one logged
+
+    def log_styling(self) -> None:
+        log_correlation_styling(self._canvas.entities)
+
+    def send(self, batch: Batch) -> None:
+        at = [k for k, record in enumerate(batch.records) if record.correlation is not None]
+        if not at:
+            return
+        correlations = [batch.records[k].correlation for k in at]
+        images = [color_indices(c.matrix) for c in correlations]  # type: ignore[union-attr]
+        sizes = np.array([image.size for image in images], dtype=np.int64)
+        offsets = np.zeros(len(images) + 1, dtype=np.int32)
+        np.cumsum(sizes, out=offsets[1:])
+        pixels = pa.array(np.concatenate([image.reshape(-1) for image in images]), pa.uint8())
+        heights = np.array([image.shape[0] for image in images], dtype=np.uint32)
+        widths = np.array([image.shape[1] for image in images], dtype=np.uint32)
+        n = len(images)
+        formats = pa.StructArray.from_arrays(
+            [pa.array(widths), pa.array(heights), pa.nulls(n, pa.uint8()),
+             pa.nulls(n, pa.uint8()), pa.array(np.full(n, _U8, dtype=np.uint8))],
+            fields=list(_FORMAT),
+        )  # fmt: skip
+        self._canvas.send(
+            style.CORRELATION_MATRIX,
+            batch.rows.pick(at),
+            [
+                column(
+                    rr.SegmentationImage.descriptor_buffer(),
+                    pa.ListArray.from_arrays(pa.array(offsets), pixels, type=_BUFFER),
+                ),
+                column(rr.SegmentationImage.descriptor_format(), formats),
+            ],
+        )
+        for k, correlation in zip(at, correlations, strict=True):
+            assert correlation is not None
+            previous = self._last
+            self._last = correlation
+            if (
+                previous is not None
+                and previous.dim == correlation.dim
+                and previous.factor == correlation.factor
+                and np.array_equal(previous.landmark_ids, correlation.landmark_ids)
+            ):
+                continue
+            record = batch.records[k]
+            self._canvas.set_times(record.step, record.event, record.time)
+            mins, sizes_xy, labels = block_outlines(correlation)
+            entities = self._canvas.entities
+            entities.log(
+                style.CORRELATION_BLOCKS, rr.Boxes2D(mins=mins, sizes=sizes_xy, labels=labels)
+            )
+            entities.log(style.CORRELATION_NOTE, rr.TextDocument(correlation.describe()))

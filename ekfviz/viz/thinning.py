@@ -57,6 +57,18 @@ class PredictThinning:
             self._last_time = record.time
         return out
 
+    def passes(self, record: EventRecord) -> bool:
+        """Whether ``record`` is logged at once with nothing before it (what :meth:`admit`
+        would return as ``[record]``): the common case, answered without a list."""
+        if self._held is not None:
+            return False
+        if record.time is None:
+            return True
+        if self.interval_s is None or record.kind is not EventKind.PREDICT:
+            self._last_time = record.time
+            return True
+        return False
+
     def drain(self) -> list[EventRecord]:
         """The predict held back, if any: the run ended, or an update or note follows."""
         held, self._held = self._held, None

@@ -1,0 +1,121 @@
+"""The bookkeeping of the recorder's array API: a filter of the user's own hands in x,
+P and what it observed; this turns them into the records a replay would make."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from ekfviz.core.correlation import CorrelationCadence, correlation_of
+from ekfviz.core.health import check_covariance, check_interval
+from ekfviz.core.records import EventKind, EventRecord, Observations, snapshot
+from ekfviz.core.types import FloatArray, IntArray
+from ekfviz.models.angles import wrap_angles
+
+CHECK_ALL_DIM = 64  # the array API checks a covariance up to this size at every call
+
+
+class ArrayInput:
+    """Landmark ids, observations, covariance checks and correlations from plain arrays.
+
+    :param landmark_ids: (N,) ids of the state's landmarks in state order, if known up
+        front; otherwise the order of first sighting, and 1..N when no ids are given
+    """
+
+    def __init__(self, landmark_ids: Sequence[int] | None) -> None:
+        self.order: list[int] = [int(i) for i in landmark_ids] if landmark_ids else []
+        self._in_order: set[int] = set(self.order)
+        self._seen: set[int] = set()  # ids observed so far through the array API
+        self._correlation = CorrelationCadence()  # (a replay's records own theirs)
+        self.checked_step: int | None = None  # of the last covariance check
+        self._round_off_said = False  # a round-off asymmetry of P is a warning once a run
+
+    def state_ids(self, x: FloatArray) -> IntArray:
+        """The ids of the landmarks of ``x``, in state order."""
+        n = (len(x) - 3) // 2
+        if len(self.order) < n:
+            start = max(self.order, default=0) + 1
+            self.order += range(start, start + n - len(self.order))
+            self._in_order.update(self.order)
+        return np.asarray(self.order[:n], dtype=np.int64)
+
+    def record(
+        self,
+        x: FloatArray,
+        P: FloatArray,
+        event: int,
+        step: int,
+        kind: EventKind,
+        line: int,
+        observations: Observations | None = None,
+        control: FloatArray | None = None,
+    ) -> EventRecord:
+        """The record of a state handed in, its covariance checked as a replay checks its
+        own, with the correlation matrix where due (at an initialisation or update)."""
+        record = snapshot(
+            x, P, event=event, step=step, kind=kind, line=line, landmark_ids=self.state_ids(x),
+            control=control, observations=observations, **self.check(P, step),
+        )  # fmt: skip
+        return record if kind is EventKind.PREDICT else self.correlated(record, P)
+
+    def correlated(self, record: EventRecord, P: FloatArray) -> EventRecord:
+        """The record with the correlation matrix of ``P`` where it is due."""
+        if self._correlation.due(record.step, record.n_landmarks, last=False):
+            return replace(record, correlation=correlation_of(P, record.landmark_ids))
+        return record
+
+    def check(self, P: FloatArray, step: int) -> dict[str, Any]:
+        """The check of a whole covariance handed in through the array API: at every call
+        while it is small (``CHECK_ALL_DIM``), else as often as a replay checks its own."""
+        P = np.asarray(P, dtype=np.float64)
+        dim = P.shape[0]
+        if (
+            dim > CHECK_ALL_DIM
+            and self.checked_step is not None
+            and step - self.checked_step < check_interval(dim)
+        ):
+            return {}
+        self.checked_step = step
+        check = check_covariance(P)
+        problems = check.problems(round_off=not self._round_off_said)
+        self._round_off_said |= check.round_off_asymmetry
+        return {"covariance": check, "warnings": tuple(problems)}
+
+    def observations(
+        self,
+        landmark_ids: Sequence[int] | IntArray | None,
+        z: FloatArray | None,
+        z_pred: FloatArray | None,
+        S: FloatArray | None,
+    ) -> Observations | None:
+        """Build what an update did from plain arrays; ids not met before are new."""
+        if landmark_ids is None or z is None:
+            return None
+        ids = np.asarray(landmark_ids, dtype=np.int64).reshape(-1)
+        m = len(ids)
+        z = np.asarray(z, dtype=np.float64).reshape(m, 2)
+        initialised = np.array([i not in self._seen for i in ids.tolist()], dtype=bool)
+        for landmark_id in ids[initialised].tolist():
+            self._seen.add(landmark_id)
+            if landmark_id not in self._in_order:
+                self.order.append(landmark_id)
+                self._in_order.add(landmark_id)
+        nan2 = np.full((m, 2), np.nan)
+        z_pred = nan2.copy() if z_pred is None else np.asarray(z_pred, np.float64).reshape(m, 2)
+        innovation = z - z_pred
+        innovation[:, 0] = wrap_angles(innovation[:, 0])
+        S = np.full((m, 2, 2), np.nan) if S is None else np.asarray(S, np.float64).reshape(m, 2, 2)
+        nis = np.full(m, np.nan)
+        known = ~initialised & np.isfinite(innovation).all(axis=1) & np.isfinite(S).all(axis=(1, 2))
+        if known.any():
+            whitened = np.linalg.solve(S[known], innovation[known][:, :, None])[:, :, 0]
+            nis[known] = np.einsum("ij,ij->i", innovation[known], whitened)
+        z_pred[initialised] = innovation[initialised] = np.nan
+        S[initialised] = np.nan
+        return Observations(
+            ids=ids, z=z, z_pred=z_pred, innovation=innovation, S=S, nis=nis,
+            initialised=initialised, skipped=np.zeros(m, dtype=bool),
+        )  # fmt: skip
