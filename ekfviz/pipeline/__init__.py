@@ -28,7 +28,8 @@ from ekfviz.filters.spec import FilterSpec, FilterSpecError, release
 from ekfviz.io.errors import InputError
 from ekfviz.io.text import ProgressCallback, WarningCallback
 from ekfviz.io.truth import checked_against, read_truth
-from ekfviz.runner.replay import FilterLineError, replay
+from ekfviz.runner.replay import FilterLineError
+from ekfviz.runner.run import Consumer, run
 from ekfviz.sources import open_source
 from ekfviz.studies.executors import Executor
 from ekfviz.studies.runs import Run, RunFailure, RunSpec, Summary, run_specs, summarise
@@ -124,36 +125,55 @@ def replay_log(
         id-less scans; the evaluation then sees the truth under the association's pairing
     :raises RunStopped: the replay was cut short (why, where, and whether it was kept)
     """
-    last: EventRecord | None = None
     consistency = Consistency(truth)
+    last = _Last()
+    consumers: list[Consumer] = [_Each(logger.log), consistency]
+    if on_record is not None:
+        consumers.append(_Each(on_record))
+    consumers.append(last)
+    if scans is not None:
+        consumers.append(scans)
     slam = None if scans is None else scans.slam
     associator = None if scans is None else scans.associator
     try:
-        for record in replay(
-            events, params, make_filter=make_filter, name=name, slam=slam, associator=associator
-        ):
-            logger.log(record)
-            consistency.add(record)
-            if on_record is not None:
-                on_record(record)
-            last = record
-            if record.event == 0:  # a signal during start-up: stop, with a recording
-                signals.raise_pending()
-            if scans is not None:
-                scans.add(record)
+        run(events, params, consumers, make_filter=make_filter, name=name, slam=slam,
+            associator=associator)  # fmt: skip
     except (InputError, FilterLineError, KeyboardInterrupt, signals.Terminated) as cause:
-        if scans is not None and last is not None:
-            truth = scans.truth_of(last)
-        final = None if last is None else evaluate(last, truth, consistency)
-        reason = stop_reason(cause, data, last)
+        if scans is not None and last.record is not None:
+            truth = scans.truth_of(last.record)
+        final = None if last.record is None else evaluate(last.record, truth, consistency)
+        reason = stop_reason(cause, data, last.record)
         kept = logger.stop(reason, final)
         raise RunStopped(reason, cause, kept) from cause
-    assert last is not None  # replay always yields the initialisation
+    assert last.record is not None  # replay always yields the initialisation
     if scans is not None:
-        truth = scans.truth_of(last)
-    evaluation = evaluate(last, truth, consistency)
+        truth = scans.truth_of(last.record)
+    evaluation = evaluate(last.record, truth, consistency)
     logger.finish(evaluation)
     return evaluation
+
+
+class _Each:
+    """A consumer that calls a function with every record."""
+
+    def __init__(self, call: Callable[[EventRecord], object]) -> None:
+        self.call = call
+
+    def add(self, record: EventRecord) -> None:
+        self.call(record)
+
+
+class _Last:
+    """The last record so far; a signal that came during start-up stops the run at the
+    initialisation, with its recording."""
+
+    def __init__(self) -> None:
+        self.record: EventRecord | None = None
+
+    def add(self, record: EventRecord) -> None:
+        self.record = record
+        if record.event == 0:
+            signals.raise_pending()
 
 
 @dataclass(frozen=True, slots=True)
