@@ -410,7 +410,7 @@ class EkfSlam:
         values: FloatArray
         skipped: list[bool] | BoolArray
         if any_new and all(new):
-            values, skipped = np.full((m, 9), np.nan), [False] * m
+            values, skipped = np.full((m, 9), np.nan), _no_flags(m)
         elif (
             self._compiled
             and self._n < KERNEL_MAX_DIM
@@ -436,6 +436,7 @@ class EkfSlam:
                 if new[k]:
                     self._add_landmark(ids_list[k], z[k].tolist())
         values = frozen(values.reshape(m, 9))  # its views below are read-only too
+        flags_none = _NO_FLAGS.get(m)  # where nothing was skipped, shared
         return Observations(
             ids=frozen(ids_arr),
             z=frozen(z),
@@ -443,8 +444,8 @@ class EkfSlam:
             innovation=values[:, 2:4],
             S=values[:, 4:8].reshape(m, 2, 2),
             nis=values[:, 8],
-            initialised=frozen(np.array(new, dtype=bool)),
-            skipped=frozen(np.asarray(skipped, dtype=bool)),
+            initialised=frozen(np.array(new, dtype=bool)) if any_new else _no_flags(m),
+            skipped=skipped if skipped is flags_none else frozen(np.asarray(skipped, dtype=bool)),
         )
 
     def update(self, ids: Sequence[int] | IntArray, z: FloatArray) -> None:
@@ -473,7 +474,7 @@ class EkfSlam:
                 elif why == _NOT_DEFINITE:
                     s00, s01, _, s11 = table[k, 4:8].tolist()
                     self._warnings.append(_skip_warning(ids[k], _not_definite(s00, s01, s11)))
-        return table, status >= _ZERO_RANGE
+        return table, status >= _ZERO_RANGE if n_skipped else _no_flags(len(ids))
 
     def _update_sequential(
         self,
@@ -762,6 +763,18 @@ class EkfSlam:
         self._ids.append(landmark_id)
         self._ids_array = None
         self._n = n + 2
+
+
+_NO_FLAGS: dict[int, BoolArray] = {}
+
+
+def _no_flags(m: int) -> BoolArray:
+    """(m,) False, read-only: shared by every observation line of m landmarks that
+    initialised (or skipped) none, instead of a new array per line."""
+    flags = _NO_FLAGS.get(m)
+    if flags is None:
+        flags = _NO_FLAGS.setdefault(m, frozen(np.zeros(m, dtype=bool)))
+    return flags
 
 
 # what the compiled update says of an observation, and of the whole line (see _kernel.c)
