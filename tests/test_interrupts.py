@@ -33,11 +33,12 @@ def ekfviz(*args: str) -> subprocess.CompletedProcess[str]:
 
 @pytest.fixture(scope="module")
 def long_log(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
-    """A loop of 3000 steps: long enough that no study of it ends within seconds."""
+    """A loop of 12,000 steps: long enough that no study of it, and no replay (logging is
+    fast now), ends within seconds."""
     folder = tmp_path_factory.mktemp("long")
     log, truth = folder / "long.txt", folder / "long.json"
     made = ekfviz(
-        "simulate", "--scenario", "loop", "--steps", "3000", "--landmarks", "40",
+        "simulate", "--scenario", "loop", "--steps", "12000", "--landmarks", "40",
         "-o", str(log), "--truth-out", str(truth),
     )  # fmt: skip
     assert made.returncode == 0, made.stderr

@@ -245,12 +245,9 @@ def open_input(request: ReplayRequest, params: FilterParams, builtin: bool) -> O
     )
     for text in notes:
         out.print(text, soft_wrap=True)
-    association = request.association
     setup = replay_setup(
-        request.ctx, opened, params, builtin, opened.truth,
-        association.association, association.gate_probability, association.confirm,
-        association.confirm_window,
-    )  # fmt: skip
+        request.ctx, opened, params, builtin=builtin, assoc=request.association.params()
+    )
     return Opened(log=opened, setup=setup, params=setup.params, events=events)
 
 

@@ -170,15 +170,16 @@ def replay_setup(
     ctx: typer.Context,
     opened: OpenedLog,
     params: FilterParams,
+    *,
     builtin: bool,
-    truth: GroundTruth | None,
-    association: Method | None,
-    gate_probability: float,
-    confirm: int,
-    confirm_window: int,
+    assoc: AssociationParams | None,
 ) -> ReplaySetup:
-    """The filter with the models the source implies, the associator and the reference."""
-    data = opened.source.path
+    """The filter with the models the source implies, the associator and the reference.
+
+    :param builtin: the run's filter is the built-in (a source may need it)
+    :param assoc: the association of id-less scans (``--association`` and its settings)
+    """
+    data, truth = opened.source.path, opened.truth
 
     def given(name: str) -> bool:
         return ctx.get_parameter_source(name) not in (ParameterSource.DEFAULT, None)
@@ -189,7 +190,6 @@ def replay_setup(
     params = models.params
     parameters = dict(models.parameters)
     associator: Associator | None = None
-    assoc = association_params(association, gate_probability, confirm, confirm_window)
     if assoc is not None:
         Associator.check_filter(models.slam, assoc)
         associator = Associator(

@@ -55,7 +55,7 @@ class Ackermann:
 
         :return: new pose (3,), theta wrapped to (-pi, pi]
         """
-        x, y, theta = (float(v) for v in pose_xytheta)
+        x, y, theta = np.asarray(pose_xytheta, dtype=np.float64).tolist()
         v_c = self.centre_speed(speed, steering)
         return np.array(
             [

@@ -36,7 +36,8 @@ class RangeBearing:
 
         :return: (s_x, s_y, ds_x/dtheta, ds_y/dtheta)
         """
-        x, y, theta = (float(v) for v in pose_xytheta[:3])
+        # one conversion to Python floats (a generator of float() cost more than the rest)
+        x, y, theta = np.asarray(pose_xytheta[:3], dtype=np.float64).tolist()
         c, s = math.cos(theta), math.sin(theta)
         ox, oy = self.a * c - self.b * s, self.a * s + self.b * c
         return x + ox, y + oy, -oy, ox
