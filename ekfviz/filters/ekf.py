@@ -32,7 +32,7 @@ from ekfviz.core.records import (
     Observations,
     ScanAssociation,
     frozen,
-    snapshot,
+    kept_record,
 )
 from ekfviz.core.types import BoolArray, FloatArray, IntArray
 from ekfviz.models.angles import wrap_angle, wrap_angles
@@ -220,6 +220,7 @@ class EkfSlam:
         self._ids_array: IntArray | None = None  # self._ids as a frozen array, built lazily
         self._rows: dict[int, IntArray] = {}  # slot j -> [0, 1, 2, j, j+1]
         self._landmark_covs: FloatArray | None = None  # for records, until P's map changes
+        self._landmarks_xy: FloatArray | None = None  # ... and x's: both set together
         # rows and columns of P holding the landmarks' 2x2 marginals, (N, 2, 2) each: one
         # fancy index, twice as fast as records.landmark_marginals at a few landmarks
         self._marginal_index: tuple[IntArray, IntArray] = (
@@ -304,29 +305,33 @@ class EkfSlam:
         covariance: CovarianceCheck | None = None,
         association: ScanAssociation | None = None,
     ) -> EventRecord:
-        """Snapshot the current state as an immutable record (see
-        :func:`~ekfviz.core.records.snapshot`, the one way records are made), with the
-        landmark ids and marginals kept between records while they do not change: at a
-        few landmarks a record costs as much as a predict.
+        """Snapshot the current state as an immutable record, as
+        :func:`~ekfviz.core.records.snapshot` makes it, with the landmark ids, means and
+        marginals kept between records while they do not change (a predict moves the
+        pose alone): a record then copies the pose and its covariance, and is put
+        together by :func:`~ekfviz.core.records.kept_record` without further checks.
         """
         n = self._n
         if self._ids_array is None:
             self._ids_array = frozen(np.array(self._ids, dtype=np.int64))
         n_landmarks = (n - 3) // 2
-        if self._marginal_index[0].shape[0] != n_landmarks:
-            i = 3 + 2 * np.arange(n_landmarks)
-            self._marginal_index = (
-                np.stack([i, i, i + 1, i + 1], axis=1).reshape(n_landmarks, 2, 2),
-                np.stack([i, i + 1, i, i + 1], axis=1).reshape(n_landmarks, 2, 2),
-            )
         if self._landmark_covs is None:  # unchanged by a predict: kept since the update
+            if self._marginal_index[0].shape[0] != n_landmarks:
+                i = 3 + 2 * np.arange(n_landmarks)
+                self._marginal_index = (
+                    np.stack([i, i, i + 1, i + 1], axis=1).reshape(n_landmarks, 2, 2),
+                    np.stack([i, i + 1, i, i + 1], axis=1).reshape(n_landmarks, 2, 2),
+                )
             self._landmark_covs = frozen(self._P[self._marginal_index])
-        return snapshot(
-            self._x[:n], self._P[:n, :n], event=event, step=step, kind=kind, line=line,
-            landmark_ids=self._ids_array,  # read-only, replaced when the map grows
-            control=control, observations=observations, full_cov=full_cov, time=time,
-            warnings=warnings, covariance=covariance, association=association,
-            landmark_covs=self._landmark_covs,
+            self._landmarks_xy = frozen(self._x[3:n].reshape(n_landmarks, 2).copy())
+        assert self._landmarks_xy is not None  # set with the marginals
+        x, P = self._x, self._P
+        return kept_record(
+            event, step, kind, line, frozen(x[:3].copy()), frozen(P[:3, :3].copy()),
+            self._ids_array, self._landmarks_xy, self._landmark_covs,  # read-only, kept
+            None if control is None else frozen(np.array(control, dtype=np.float64)),
+            observations, frozen(P[:n, :n].copy()) if full_cov else None,
+            time, warnings, covariance, association,
         )  # fmt: skip
 
     # -- predict -----------------------------------------------------------------------
@@ -405,7 +410,7 @@ class EkfSlam:
         values: FloatArray
         skipped: list[bool] | BoolArray
         if any_new and all(new):
-            values, skipped = np.full((m, 9), np.nan), [False] * m
+            values, skipped = np.full((m, 9), np.nan), _no_flags(m)
         elif (
             self._compiled
             and self._n < KERNEL_MAX_DIM
@@ -431,6 +436,7 @@ class EkfSlam:
                 if new[k]:
                     self._add_landmark(ids_list[k], z[k].tolist())
         values = frozen(values.reshape(m, 9))  # its views below are read-only too
+        flags_none = _NO_FLAGS.get(m)  # where nothing was skipped, shared
         return Observations(
             ids=frozen(ids_arr),
             z=frozen(z),
@@ -438,8 +444,8 @@ class EkfSlam:
             innovation=values[:, 2:4],
             S=values[:, 4:8].reshape(m, 2, 2),
             nis=values[:, 8],
-            initialised=frozen(np.array(new, dtype=bool)),
-            skipped=frozen(np.asarray(skipped, dtype=bool)),
+            initialised=frozen(np.array(new, dtype=bool)) if any_new else _no_flags(m),
+            skipped=skipped if skipped is flags_none else frozen(np.asarray(skipped, dtype=bool)),
         )
 
     def update(self, ids: Sequence[int] | IntArray, z: FloatArray) -> None:
@@ -468,7 +474,7 @@ class EkfSlam:
                 elif why == _NOT_DEFINITE:
                     s00, s01, _, s11 = table[k, 4:8].tolist()
                     self._warnings.append(_skip_warning(ids[k], _not_definite(s00, s01, s11)))
-        return table, status >= _ZERO_RANGE
+        return table, status >= _ZERO_RANGE if n_skipped else _no_flags(len(ids))
 
     def _update_sequential(
         self,
@@ -757,6 +763,18 @@ class EkfSlam:
         self._ids.append(landmark_id)
         self._ids_array = None
         self._n = n + 2
+
+
+_NO_FLAGS: dict[int, BoolArray] = {}
+
+
+def _no_flags(m: int) -> BoolArray:
+    """(m,) False, read-only: shared by every observation line of m landmarks that
+    initialised (or skipped) none, instead of a new array per line."""
+    flags = _NO_FLAGS.get(m)
+    if flags is None:
+        flags = _NO_FLAGS.setdefault(m, frozen(np.zeros(m, dtype=bool)))
+    return flags
 
 
 # what the compiled update says of an observation, and of the whole line (see _kernel.c)

@@ -12,7 +12,7 @@ import numpy as np
 from ekfviz.association.associator import AssociationError, Associator
 from ekfviz.association.gating import gated
 from ekfviz.core.correlation import CorrelationCadence, correlation_of
-from ekfviz.core.health import check_covariance, check_interval
+from ekfviz.core.health import CovarianceCheck, check_covariance, check_interval
 from ekfviz.core.records import (
     AnyEvent,
     Control,
@@ -142,12 +142,19 @@ def replay(
 
     def checked(line: int, warnings: tuple[str, ...]) -> dict[str, Any]:
         """Check the whole covariance; its problems join the event's warnings."""
+        check, warnings = checked_pair(line, warnings)
+        return {"covariance": check, "warnings": warnings}
+
+    def checked_pair(
+        line: int, warnings: tuple[str, ...]
+    ) -> tuple[CovarianceCheck, tuple[str, ...]]:
+        """:func:`checked` as the check and the warnings (no dictionary per event)."""
         nonlocal next_check
         check = check_covariance(ekf.P)
         next_check = step + check_interval(ekf.dim)
         if not check.finite:
             raise FilterLineError(line, check.problems()[0])
-        return {"covariance": check, "warnings": warnings + tuple(check.problems())}
+        return check, warnings + tuple(check.problems())
 
     step = 0
     stream = _with_last(events)
@@ -182,7 +189,9 @@ def replay(
 
     step_has_update = True  # the initialisation counts as step 0's update
     event = 0
-    no_extra: dict[str, Any] = {}
+    # per event, below: the record's arguments by name (no dictionary unpacked), the
+    # correlation's cadence asked only where it can be due (updates, the last event)
+    covariance: CovarianceCheck | None
     offline = isinstance(ekf, Plugged) and ekf.offline  # records only after finish()
     for event, (log_event, last) in enumerate(chain(pending, stream), start=1):
         # the filter's own errors name the line; "try" costs nothing until one is raised
@@ -198,13 +207,18 @@ def replay(
                     associator.finish(ekf)
                 if offline:
                     continue
-                extra = checked(log_event.line, ()) if step >= next_check or last else no_extra
-                yield correlated(ekf.record(
+                if step >= next_check or last:
+                    covariance, warnings = checked_pair(log_event.line, ())
+                else:
+                    covariance, warnings = None, ()
+                record = ekf.record(
                     event=event, step=step, kind=EventKind.PREDICT, line=log_event.line,
                     time=log_event.time,
-                    control=_control(log_event),
-                    full_cov=full_cov, **extra,
-                ), last)  # fmt: skip
+                    control=(log_event.d, log_event.alpha) if type(log_event) is Control
+                    else _control(log_event),
+                    full_cov=full_cov, warnings=warnings, covariance=covariance,
+                )  # fmt: skip
+                yield correlated(record, last) if last else record
             else:
                 if step_has_update:
                     step += 1
@@ -216,15 +230,14 @@ def replay(
                 if offline:
                     continue
                 warnings = rejected + ekf.warnings
-                extra = (
-                    checked(log_event.line, warnings)
-                    if step >= next_check or last or warnings
-                    else no_extra
-                )
+                if step >= next_check or last or warnings:
+                    covariance, warnings = checked_pair(log_event.line, warnings)
+                else:
+                    covariance = None
                 yield correlated(ekf.record(
                     event=event, step=step, kind=EventKind.UPDATE, line=log_event.line,
                     time=log_event.time, observations=observations, full_cov=full_cov,
-                    **association, **extra,
+                    warnings=warnings, covariance=covariance, **association,
                 ), last)  # fmt: skip
         except FilterLineError:
             raise
