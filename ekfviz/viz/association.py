@@ -33,6 +33,7 @@ from ekfviz.evaluation.reference import ReferenceFit
 from ekfviz.models.range_bearing import RangeBearing
 from ekfviz.viz import style
 from ekfviz.viz.ellipses import ellipse_outlines
+from ekfviz.viz.layers import arrow
 from ekfviz.viz.layers.arrow import time_is_epoch  # the recorder's choice of the time's type
 
 RAYS = "world/association/rays"
@@ -242,67 +243,37 @@ class AssociationView:
             RAYS,
             everything,
             [
-                _column(rr.LineStrips2D.descriptor_strips(), _strips(rows.rays), counts),
-                _column(
+                arrow.column(rr.LineStrips2D.descriptor_strips(), _strips(rows.rays), counts),
+                arrow.column(
                     rr.LineStrips2D.descriptor_colors(),
                     _colors(np.concatenate(rows.ray_colors).reshape(-1, 3)),
                     counts,
                 ),
             ],
         )
-        send(
-            LINKS,
-            everything,
-            [
-                _column(
-                    rr.LineStrips2D.descriptor_strips(),
-                    _strips(rows.links),
-                    np.array([len(r) for r in rows.links], dtype=np.int64),
-                ),
-                _column(
-                    rr.LineStrips2D.descriptor_colors(),
-                    _colors(np.repeat([LINK_COLOR], len(steps), axis=0)),
-                    ones,
-                ),
-            ],
-        )
-        send(
-            GATES,
-            everything,
-            [
-                _column(
-                    rr.LineStrips2D.descriptor_strips(),
-                    _strips(rows.gates),
-                    np.array([len(r) for r in rows.gates], dtype=np.int64),
-                ),
-                _column(
-                    rr.LineStrips2D.descriptor_colors(),
-                    _colors(np.repeat([GATE_COLOR], len(steps), axis=0)),
-                    ones,
-                ),
-            ],
-        )
+        send(LINKS, everything, _one_colour_strips(rows.links, LINK_COLOR, ones))
+        send(GATES, everything, _one_colour_strips(rows.gates, GATE_COLOR, ones))
         counts = np.array([len(r) for r in rows.tentative], dtype=np.int64)
         send(
             TENTATIVE,
             everything,
             [
-                _column(
+                arrow.column(
                     rr.Points2D.descriptor_positions(),
-                    _xy(np.concatenate(rows.tentative).reshape(-1, 2)),
+                    arrow.xy(np.concatenate(rows.tentative).reshape(-1, 2)),
                     counts,
                 ),
-                _column(
+                arrow.column(
                     rr.Points2D.descriptor_radii(),
                     pa.array(np.full(len(steps), -6.0, dtype=np.float32)),
                     ones,
                 ),
-                _column(
+                arrow.column(
                     rr.Points2D.descriptor_colors(),
                     _colors(np.repeat([TENTATIVE_COLOR], len(steps), axis=0)),
                     ones,
                 ),
-                _column(
+                arrow.column(
                     rr.Points2D.descriptor_labels(),
                     pa.array(rows.tentative_labels, type=pa.utf8()),
                     counts,
@@ -316,17 +287,17 @@ class AssociationView:
                 SIZES,
                 at,
                 [
-                    _column(
+                    arrow.column(
                         rr.Points2D.descriptor_positions(),
-                        _xy(np.concatenate(rows.sizes).reshape(-1, 2)),
+                        arrow.xy(np.concatenate(rows.sizes).reshape(-1, 2)),
                         counts,
                     ),
-                    _column(
+                    arrow.column(
                         rr.Points2D.descriptor_radii(),
                         pa.array(np.concatenate(rows.size_radii).astype(np.float32)),
                         counts,
                     ),
-                    _column(
+                    arrow.column(
                         rr.Points2D.descriptor_colors(),
                         _colors(np.repeat([style.LANDMARK_COLOR], len(at), axis=0)),
                         np.ones(len(at), dtype=np.int64),
@@ -380,37 +351,19 @@ class _ScanRows:
     levels: list[rr.TextLogLevel] = field(default_factory=list)
 
 
-@dataclass(frozen=True, slots=True)
-class _Arrow:
-    """An Arrow array built here, as the SDK's ``ComponentBatchLike``."""
-
-    array: pa.Array
-
-    def as_arrow_array(self) -> pa.Array:
-        return self.array
-
-
-_XY = rr.components.Position2DBatch([[0.0, 0.0]]).as_arrow_array().type
-_STRIP = rr.components.LineStrip2DBatch([[[0.0, 0.0], [0.0, 0.0]]]).as_arrow_array().type
-
-
-def _column(
-    descriptor: rr.ComponentDescriptor, values: pa.Array, counts: IntArray
-) -> rr.ComponentColumn:
-    """``values`` as a column of rows of ``counts[i]`` values each.
-
-    Built straight from Arrow, as the recorder does: the SDK's archetype ``columns``
-    convert line strips point by point in Python.
-    """
-    offsets = np.zeros(len(counts) + 1, dtype=np.int32)
-    np.cumsum(counts, out=offsets[1:])
-    return rr.ComponentColumn(descriptor, _Arrow(values), offsets=offsets)
-
-
-def _xy(points: FloatArray) -> pa.Array:
-    """(K, 2) points as Rerun's float32 pairs."""
-    flat = pa.array(np.ascontiguousarray(points, dtype=np.float32).reshape(-1))
-    return pa.FixedSizeListArray.from_arrays(flat, type=_XY)
+def _one_colour_strips(
+    polylines: list[FloatArray], color: tuple[int, int, int], ones: IntArray
+) -> list[rr.ComponentColumn]:
+    """Each scan's polylines (see :func:`_strips`) as line strips of one colour."""
+    counts = np.array([len(p) for p in polylines], dtype=np.int64)
+    return [
+        arrow.column(rr.LineStrips2D.descriptor_strips(), _strips(polylines), counts),
+        arrow.column(
+            rr.LineStrips2D.descriptor_colors(),
+            _colors(np.repeat([color], len(polylines), axis=0)),
+            ones,
+        ),
+    ]
 
 
 def _strips(polylines: list[FloatArray]) -> pa.Array:
@@ -421,7 +374,7 @@ def _strips(polylines: list[FloatArray]) -> pa.Array:
     offsets = np.zeros(len(lengths) + 1, dtype=np.int32)
     np.cumsum(lengths, out=offsets[1:])
     points = np.concatenate([p.reshape(-1, 2) for p in polylines] or [np.zeros((0, 2))])
-    return pa.ListArray.from_arrays(pa.array(offsets), _xy(points), type=_STRIP)
+    return pa.ListArray.from_arrays(pa.array(offsets), arrow.xy(points), type=arrow.STRIP)
 
 
 def _colors(rgb: npt.NDArray[np.integer]) -> pa.Array:
