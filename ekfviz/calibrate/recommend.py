@@ -24,7 +24,7 @@ from ekfviz.core.records import Control, EventKind, EventRecord, LogEvent, Sight
 from ekfviz.core.truth import GroundTruth
 from ekfviz.core.types import FloatArray
 from ekfviz.evaluation.consistency import Consistency, chi2_bounds, pose_nees, update_nis
-from ekfviz.evaluation.errors import MapSummary, evaluate
+from ekfviz.evaluation.errors import Evaluation, MapSummary, evaluate
 from ekfviz.filters.ekf import EkfSlam, FilterError, FilterParams
 from ekfviz.runner.run import run
 
@@ -61,6 +61,26 @@ class RunStats:
     nis_inside: float
     verdict: str
     map: MapSummary | None
+
+    @classmethod
+    def of(
+        cls,
+        nees: list[float],
+        nis_total: float,
+        dof_total: float,
+        consistency: Consistency,
+        evaluation: Evaluation,
+    ) -> RunStats:
+        """The figures of a run from its NEES values, NIS totals, counts and evaluation."""
+        both = consistency.combined()
+        return cls(
+            nees=float(np.mean(nees)) if nees else math.nan,
+            nis=nis_total / dof_total if dof_total else math.nan,
+            nees_inside=consistency.nees.fraction_inside,
+            nis_inside=consistency.nis.fraction_inside,
+            verdict="no update" if both is None else both[0].value,
+            map=evaluation.summary,
+        )
 
     @property
     def credible(self) -> bool:
@@ -134,18 +154,11 @@ def run_stats(
         return FAILED
     if last is None:
         return FAILED
-    consistency, nees = held_out.consistency, held_out.nees
-    nis_total, dof_total = held_out.nis_total, held_out.dof_total
-    evaluation = evaluate(last, truth, consistency)
-    both = consistency.combined()
-    return RunStats(
-        nees=float(np.mean(nees)) if nees else math.nan,
-        nis=nis_total / dof_total if dof_total else math.nan,
-        nees_inside=consistency.nees.fraction_inside,
-        nis_inside=consistency.nis.fraction_inside,
-        verdict="no update" if both is None else both[0].value,
-        map=evaluation.summary,
-    )
+    consistency = held_out.consistency
+    return RunStats.of(
+        held_out.nees, held_out.nis_total, held_out.dof_total, consistency,
+        evaluate(last, truth, consistency),
+    )  # fmt: skip
 
 
 def judge(
@@ -212,16 +225,7 @@ def judge(
     except FilterError:
         return FAILED
     last = ekf.record(event=len(events), step=step, kind=EventKind.UPDATE, time=time)
-    evaluation = evaluate(last, truth)
-    both = consistency.combined()
-    return RunStats(
-        nees=float(np.mean(nees_values)) if nees_values else math.nan,
-        nis=nis_total / dof_total if dof_total else math.nan,
-        nees_inside=consistency.nees.fraction_inside,
-        nis_inside=consistency.nis.fraction_inside,
-        verdict="no update" if both is None else both[0].value,
-        map=evaluation.summary,
-    )
+    return RunStats.of(nees_values, nis_total, dof_total, consistency, evaluate(last, truth))
 
 
 def mean_nees(events: Sequence[LogEvent], truth: GroundTruth, params: FilterParams) -> float:
