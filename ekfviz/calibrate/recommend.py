@@ -149,7 +149,7 @@ def run_stats(
     """
     held_out = _HeldOut(truth, after)
     try:
-        last = run(events, params, [held_out])
+        last = run(events, params, [held_out.add])
     except FilterError:
         return FAILED
     if last is None:

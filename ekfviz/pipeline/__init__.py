@@ -127,12 +127,12 @@ def replay_log(
     """
     consistency = Consistency(truth)
     last = _Last()
-    consumers: list[Consumer] = [_Each(logger.log), consistency]
+    consumers: list[Consumer] = [logger.log, consistency.add]
     if on_record is not None:
-        consumers.append(_Each(on_record))
-    consumers.append(last)
+        consumers.append(on_record)
+    consumers.append(last.add)
     if scans is not None:
-        consumers.append(scans)
+        consumers.append(scans.add)
     slam = None if scans is None else scans.slam
     associator = None if scans is None else scans.associator
     try:
@@ -151,16 +151,6 @@ def replay_log(
     evaluation = evaluate(last.record, truth, consistency)
     logger.finish(evaluation)
     return evaluation
-
-
-class _Each:
-    """A consumer that calls a function with every record."""
-
-    def __init__(self, call: Callable[[EventRecord], object]) -> None:
-        self.call = call
-
-    def add(self, record: EventRecord) -> None:
-        self.call(record)
 
 
 class _Last:

@@ -7,7 +7,7 @@ command       consumers of the records
 ============  ==========================================================================
 replay        the recorder (Rerun), the consistency counts, the association's tally or
               the GPS reference fit of a source that has one; the evaluation at the end
-compare,      per filter: :class:`Kept` (the records, for the study's recording), the
+compare,      per filter: the records kept (for the study's recording), the
 sweep         consistency counts, the association's tally; the evaluation at the end
 consistency   per trial: the NEES and NIS of every step (:mod:`ekfviz.studies.montecarlo`)
 calibrate     per candidate: NEES and NIS after the fitted time, the consistency counts
@@ -15,17 +15,18 @@ check, grade  not a run: the checked filter event by event, the reference re-run
               its state before each (:mod:`ekfviz.check.lockstep`)
 ============  ==========================================================================
 
-A consumer is anything with ``add(record)``; :class:`~ekfviz.evaluation.consistency.
-Consistency` and :class:`~ekfviz.association.evaluation.AssociationTally` are consumers as
-they are. The filter is the built-in unless ``make_filter`` names another (see
+A consumer is a function called with every record, in event order: a bound ``add`` of
+:class:`~ekfviz.evaluation.consistency.Consistency` or
+:class:`~ekfviz.association.evaluation.AssociationTally`, a list's ``append``, the
+recorder's ``log`` (no wrapper between them and the loop: a long log has 200,000
+records). The filter is the built-in unless ``make_filter`` names another (see
 :func:`~ekfviz.runner.replay.replay` for how a protocol filter is driven).
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Protocol
+from collections.abc import Callable, Iterable, Sequence
+from typing import TYPE_CHECKING
 
 from ekfviz.core.records import AnyEvent, EventRecord
 from ekfviz.runner.replay import replay
@@ -36,21 +37,8 @@ if TYPE_CHECKING:
     from ekfviz.filters.plugged import FilterFactory
 
 
-class Consumer(Protocol):
-    """What takes a run's records, one at a time, in event order."""
-
-    def add(self, record: EventRecord) -> object:
-        """Take one record (what it returns is the consumer's own business)."""
-
-
-@dataclass(slots=True)
-class Kept:
-    """A consumer that keeps every record (a study's runs are recorded after they end)."""
-
-    records: list[EventRecord] = field(default_factory=list)
-
-    def add(self, record: EventRecord) -> None:
-        self.records.append(record)
+# what takes a run's records, one at a time (what it returns is its own business)
+Consumer = Callable[[EventRecord], object]
 
 
 def run(
@@ -63,7 +51,7 @@ def run(
     slam: EkfSlam | None = None,
     associator: Associator | None = None,
 ) -> EventRecord | None:
-    """Replay ``events`` and hand every record to each consumer in turn.
+    """Replay ``events`` and call each consumer with every record, in turn.
 
     :param slam: the built-in filter made with other models (Victoria Park's vehicle and
         laser), instead of one made from ``params``
@@ -77,6 +65,6 @@ def run(
         events, params, make_filter=make_filter, name=name, slam=slam, associator=associator
     ):
         for consumer in consumers:
-            consumer.add(record)
+            consumer(record)
         last = record
     return last

@@ -95,7 +95,7 @@ def run_trial(trials: Trials, seed: int) -> TrialResult:
     make_filter = load_filter(trials.filter)
     events = run.scan_events if run.scan_events is not None else run.events
     trial = _Trial(truth, len(run.poses_xytheta))
-    replay_run(events, trials.params, [trial], make_filter=make_filter, name=trials.filter,
+    replay_run(events, trials.params, [trial.add], make_filter=make_filter, name=trials.filter,
                associator=associator)  # fmt: skip
     nees, nis, nis_dof = trial.nees, trial.nis, trial.nis_dof
     return TrialResult(nees, nis, nis_dof)

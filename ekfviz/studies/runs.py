@@ -30,7 +30,7 @@ from ekfviz.filters.protocol import SlamFilter
 from ekfviz.filters.spec import BUILTIN, FilterSpec, FilterSpecError, release
 from ekfviz.models.range_bearing import RangeBearing
 from ekfviz.runner.replay import FilterLineError
-from ekfviz.runner.run import Consumer, Kept, run
+from ekfviz.runner.run import Consumer, run
 from ekfviz.sources import read_log
 from ekfviz.studies.executors import Executor, LocalExecutor
 
@@ -118,16 +118,15 @@ def run_spec(
     make_filter = loaded if spec.filter.in_process else _Timed(loaded)
     started = time.perf_counter()
     consistency = Consistency(truth)
-    kept = Kept()
-    consumers: list[Consumer] = [consistency, kept]
+    records: list[EventRecord] = []
+    consumers: list[Consumer] = [consistency.add, records.append]
     associator, tally = None, None
     if spec.association is not None:  # a run of its own: its own tentative landmarks
         sensor = RangeBearing()
         scan_truth = None if truth is None else truth.scan_ids
         associator = Associator(spec.association, sensor, spec.params.R, scan_truth=scan_truth)
         tally = AssociationTally(truth, sensor)
-        consumers.append(tally)
-    records = kept.records
+        consumers.append(tally.add)
     failure = None
     try:
         run(read_log(path), spec.params, consumers, make_filter=make_filter,
