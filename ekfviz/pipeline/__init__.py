@@ -75,6 +75,11 @@ class ScanHooks(Protocol):
 
     def truth_of(self, last: EventRecord) -> GroundTruth | None: ...
 
+    def finish(self, logger: RunLogger) -> object:
+        """After the last record, before the recording's layout is made: what the run
+        adds to the recording (the source's reference, which the map then frames)."""
+        ...
+
 
 class RunStopped(Exception):
     """A replay cut short; ``kept`` says whether its recording was kept."""
@@ -148,6 +153,7 @@ def replay_log(
     assert last.record is not None  # replay always yields the initialisation
     if scans is not None:
         truth = scans.truth_of(last.record)
+        scans.finish(logger)  # before the layout: the map frames what it draws
     evaluation = evaluate(last.record, truth, consistency)
     logger.finish(evaluation)
     return evaluation

@@ -119,6 +119,8 @@ class Recorder:
     :param sensor: the measurement model, to draw id-less scans from the sensor's position
     :param gps_reference: a GPS reference will be logged after ``finish`` (Victoria Park,
         see :func:`ekfviz.viz.association.log_reference`): the layout has its plot
+    :param offline: the run of an offline filter (a batch smoother: its start and its
+        optimum at the end): its series are drawn as points, not joined by a line
     """
 
     def __init__(
@@ -137,8 +139,9 @@ class Recorder:
         predict_interval_s: float | None = PREDICT_INTERVAL_S,
         sensor: RangeBearing | None = None,
         gps_reference: bool = False,
+        offline: bool = False,
     ) -> None:
-        self._canvas = canvas = Canvas(rec, prefix, truth, detail)
+        self._canvas = canvas = Canvas(rec, prefix, truth, detail, points=offline)
         self._rec = canvas.entities  # the stream under the prefix (log_reference uses it)
         self._gps_reference = gps_reference
         self._sensor = sensor if sensor is not None else RangeBearing()
@@ -274,6 +277,23 @@ class Recorder:
             self._rec.send_blueprint(self._layout(self._canvas.bounds_xy, final=True))
         self._rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
 
+    def frame(self, points_xy: FloatArray, label_room: float = 0.0) -> None:
+        """Grow the map's frame, which the layout sent by :meth:`finish` shows, to take in
+        ``points_xy`` that are not the run's (a source's reference track).
+
+        :param points_xy: (K, 2) world points
+        :param label_room: the share of the frame's width a label beside a point needs
+            on either side of it (a label is drawn centred on its point)
+        """
+        if not len(points_xy):
+            return
+        self._canvas.grow_bounds(points_xy)
+        box = self._canvas.bounds_xy
+        if label_room > 0.0 and box is not None:
+            room = label_room * float(box[1, 0] - box[0, 0])
+            self._canvas.grow_bounds(points_xy + np.array([[room, 0.0]]))
+            self._canvas.grow_bounds(points_xy - np.array([[room, 0.0]]))
+
     def note(self, text: str, level: str | rr.TextLogLevel = rr.TextLogLevel.WARN) -> None:
         """A line in the text log at the latest event: a warning, or why a run stopped."""
         for record in self._thinning.drain():
@@ -298,7 +318,13 @@ class Recorder:
             bounds_xy=bounds_xy,
             has_time=self._canvas.clock.span is not None,
             history=self._history,
+            offline=self.offline,
         )
+
+    @property
+    def offline(self) -> bool:
+        """Whether the run is an offline filter's (its series drawn as points)."""
+        return self._rec.points
 
     # -- records -------------------------------------------------------------------------
 
@@ -333,6 +359,14 @@ class Recorder:
             self._log_record(admitted)
 
     def _log_record(self, record: EventRecord) -> None:
+        if (
+            record.kind is EventKind.UPDATE and record.observations is None
+        ) and not self._rec.points:
+            # an offline filter's optimum after finish() (an update without observations;
+            # its run's records: the start and this): its series as points, a line between
+            # two records would look like a value at every step (nothing of the run is
+            # sent before its second record)
+            self._rec.series_as_points()
         self._event, self._step = record.event, record.step
         self._step_has_update = corrects = record.kind is not EventKind.PREDICT
         whole_map = corrects and self._map.admit(record)

@@ -104,14 +104,33 @@ class Clock:
         return times
 
 
+def as_points(lines: rr.SeriesLines) -> rr.SeriesPoints:
+    """The points of a series styled as ``lines``: its colours, names and visible series."""
+
+    def values(batch: Any) -> Any:
+        return None if batch is None else batch.as_arrow_array().to_pylist()
+
+    colors = values(lines.colors)
+    return rr.SeriesPoints(
+        colors=None if colors is None else np.array(colors, dtype=np.uint32),  # packed RGBA
+        names=values(lines.names),
+        visible_series=values(lines.visible_series),
+        marker_sizes=OFFLINE_MARKER_SIZE,
+    )
+
+
+OFFLINE_MARKER_SIZE = 4.0  # ui points: an offline run's two records, each a dot
+
+
 class Entities:
     """The recording stream with every entity path under ``prefix`` (none when empty),
     so that several runs can share one recording (``variants/<key>/world/...``)."""
 
-    def __init__(self, rec: rr.RecordingStream, prefix: str) -> None:
+    def __init__(self, rec: rr.RecordingStream, prefix: str, *, points: bool = False) -> None:
         self.rec = rec
         self._prefix = prefix.strip("/") + "/" if prefix.strip("/") else ""
         self._styles: dict[str, tuple[rr.AsComponents, ...]] = {}  # path -> styling unsent
+        self.points = points  # series drawn as points (see style())
         self.sent: set[str] = set()  # the entities (without the prefix) given data so far
 
     def path(self, entity: str) -> str:
@@ -124,8 +143,23 @@ class Entities:
         bytes of colours; in the first row of the entity's data it is a column more. It
         holds from the entity's first row on (nothing is drawn before it) and is sent
         static by :meth:`send_styles` if the entity never gets data.
+
+        With ``points`` (an offline filter's run, whose records are its start and its
+        optimum at the end), a series' lines are drawn as points of the same colours and
+        names: a line between two records would look like a value at every step.
         """
+        if self.points:
+            styling = tuple(as_points(s) if isinstance(s, rr.SeriesLines) else s for s in styling)
         self._styles[self.path(entity)] = styling
+
+    def series_as_points(self) -> None:
+        """From now on, and for every styling not sent yet, series as points (see
+        :meth:`style`): a replay learns that its filter is offline at its last record."""
+        self.points = True
+        for path, styling in self._styles.items():
+            self._styles[path] = tuple(
+                as_points(s) if isinstance(s, rr.SeriesLines) else s for s in styling
+            )
 
     def send_styles(self) -> None:
         """Send as static data the styling of every entity that has had no data yet."""
@@ -200,9 +234,15 @@ class Canvas:
     """
 
     def __init__(
-        self, rec: rr.RecordingStream, prefix: str, truth: GroundTruth | None, detail: bool
+        self,
+        rec: rr.RecordingStream,
+        prefix: str,
+        truth: GroundTruth | None,
+        detail: bool,
+        *,
+        points: bool = False,
     ) -> None:
-        self.entities = Entities(rec, prefix)
+        self.entities = Entities(rec, prefix, points=points)
         self.clock = Clock()
         self.series = SeriesBuffer(self.entities, self.clock)
         self.truth = truth
