@@ -31,14 +31,14 @@ from ekfviz.io.truth import checked_against, read_truth
 from ekfviz.runner.replay import FilterLineError
 from ekfviz.runner.run import Consumer, run
 from ekfviz.sources import open_source
-from ekfviz.studies.executors import Executor
-from ekfviz.studies.runs import Run, RunFailure, RunSpec, Summary, run_specs, summarise
 
-if TYPE_CHECKING:
+if TYPE_CHECKING:  # the studies' modules: imported by the functions that run them
     from ekfviz.association.associator import Associator
     from ekfviz.check.coverage import Item as CoverageItem
     from ekfviz.check.lockstep import CheckResult
     from ekfviz.filters.ekf import EkfSlam
+    from ekfviz.studies.executors import Executor
+    from ekfviz.studies.runs import Run, RunFailure, RunSpec, Summary
     from ekfviz.viz.run import RunLogger
 
 
@@ -211,6 +211,7 @@ def study(
     :raises InputError, FilterLineError, FilterSpecError, SinkError: one line each
     """
     from ekfviz import viz
+    from ekfviz.studies.runs import Run, RunFailure, run_specs, summarise
     from ekfviz.viz.study import record_study
 
     truth = read_truth(truth_path) if truth_path is not None else None
@@ -320,6 +321,8 @@ def _record_check(
             differences=result.differences[:kept],
             divergences=(first,),
         )
+    from ekfviz.studies.runs import Run, RunSpec
+
     runs = []
     for label, key, records in (
         ("reference (ekf)", "reference", result.reference),
