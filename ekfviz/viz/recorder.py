@@ -26,17 +26,9 @@ logged once as static data. Everything else is buffered and sent in columns
 entity and event would cost more than the filter itself.
 
 What is logged when, by default: the robot and its ellipses at every event, a log line
-a step, the observation rays at the updates with some; all landmark positions where the
-map grew or some landmark moved by over ``MAP_TOLERANCE`` of its ellipse (the viewer
-shows the latest). The 3-sigma ellipses of all landmarks likewise while the map holds
-at most ``SMALL_MAP`` landmarks; beyond that, at
-every update only those of the landmarks observed (``world/landmarks/ellipses/observed``)
-and the whole map every ``MAP_EVERY_STEPS`` steps and at the end (the viewer shows the
-latest of each, so every landmark keeps an ellipse at any time). A timestamped log
-(high-rate odometry) logs its predicts thinned (:mod:`ekfviz.viz.thinning`) and its map
-like a large one, the whole map every ``MAP_EVERY_S`` seconds of log time. With truth, the error
-series of a landmark get a value whenever its ellipse is logged. ``detail=True`` logs
-every ellipse and error at every update.
+a step, the observation rays at the updates with some, the map as
+:mod:`ekfviz.viz.layers.landmarks` says; a timestamped log's predicts thinned
+(:mod:`ekfviz.viz.thinning`). ``detail=True`` logs every ellipse and error at every update.
 """
 
 from __future__ import annotations
@@ -119,8 +111,7 @@ class Recorder:
     :param sensor: the measurement model, to draw id-less scans from the sensor's position
     :param gps_reference: a GPS reference will be logged after ``finish`` (Victoria Park,
         see :func:`ekfviz.viz.association.log_reference`): the layout has its plot
-    :param offline: the run of an offline filter (a batch smoother: its start and its
-        optimum at the end): its series are drawn as points, not joined by a line
+    :param offline: an offline filter's run (its start and its optimum): series as points
     """
 
     def __init__(
@@ -278,21 +269,9 @@ class Recorder:
         self._rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
 
     def frame(self, points_xy: FloatArray, label_room: float = 0.0) -> None:
-        """Grow the map's frame, which the layout sent by :meth:`finish` shows, to take in
-        ``points_xy`` that are not the run's (a source's reference track).
-
-        :param points_xy: (K, 2) world points
-        :param label_room: the share of the frame's width a label beside a point needs
-            on either side of it (a label is drawn centred on its point)
-        """
-        if not len(points_xy):
-            return
-        self._canvas.grow_bounds(points_xy)
-        box = self._canvas.bounds_xy
-        if label_room > 0.0 and box is not None:
-            room = label_room * float(box[1, 0] - box[0, 0])
-            self._canvas.grow_bounds(points_xy + np.array([[room, 0.0]]))
-            self._canvas.grow_bounds(points_xy - np.array([[room, 0.0]]))
+        """The layout sent by :meth:`finish` frames ``points_xy`` too (a source's reference
+        track), see :meth:`~ekfviz.viz.layers.canvas.Canvas.frame`."""
+        self._canvas.frame(points_xy, label_room)
 
     def note(self, text: str, level: str | rr.TextLogLevel = rr.TextLogLevel.WARN) -> None:
         """A line in the text log at the latest event: a warning, or why a run stopped."""
@@ -359,14 +338,8 @@ class Recorder:
             self._log_record(admitted)
 
     def _log_record(self, record: EventRecord) -> None:
-        if (
-            record.kind is EventKind.UPDATE and record.observations is None
-        ) and not self._rec.points:
-            # an offline filter's optimum after finish() (an update without observations;
-            # its run's records: the start and this): its series as points, a line between
-            # two records would look like a value at every step (nothing of the run is
-            # sent before its second record)
-            self._rec.series_as_points()
+        if record.kind is EventKind.UPDATE and record.observations is None:
+            self._rec.series_as_points()  # an offline filter's optimum, after finish()
         self._event, self._step = record.event, record.step
         self._step_has_update = corrects = record.kind is not EventKind.PREDICT
         whole_map = corrects and self._map.admit(record)

@@ -154,7 +154,11 @@ class Entities:
 
     def series_as_points(self) -> None:
         """From now on, and for every styling not sent yet, series as points (see
-        :meth:`style`): a replay learns that its filter is offline at its last record."""
+        :meth:`style`): a replay learns that its filter is offline at its last record,
+        the optimum after ``finish()`` (an update without observations), before anything
+        of the run was sent."""
+        if self.points:
+            return
         self.points = True
         for path, styling in self._styles.items():
             self._styles[path] = tuple(
@@ -276,6 +280,22 @@ class Canvas:
         self.entities.set_time(style.STEP, sequence=step)
         self.entities.set_time(style.EVENT, sequence=event)
         self.set_time(time)
+
+    def frame(self, points_xy: FloatArray, label_room: float = 0.0) -> None:
+        """Grow the map's frame to take in ``points_xy`` that are not the run's.
+
+        :param points_xy: (K, 2) world points
+        :param label_room: the share of the frame's width a label beside a point needs
+            on either side of it (a label is drawn centred on its point)
+        """
+        if not len(points_xy):
+            return
+        self.grow_bounds(points_xy)
+        box = self.bounds_xy
+        if label_room > 0.0 and box is not None:
+            room = np.array([[label_room * float(box[1, 0] - box[0, 0]), 0.0]])
+            self.grow_bounds(points_xy + room)
+            self.grow_bounds(points_xy - room)
 
     def grow_bounds(self, points_xy: FloatArray) -> None:
         box = np.stack([points_xy.min(axis=0), points_xy.max(axis=0)])
