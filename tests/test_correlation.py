@@ -186,5 +186,10 @@ def test_the_image_is_coloured_by_classes_of_the_palette(
         assert entry["class_id"] == info["id"] == i
         color = info["color"]  # packed RGBA
         rgb = [(color >> 24) & 0xFF, (color >> 16) & 0xFF, (color >> 8) & 0xFF]
-        assert rgb == PALETTE[i].tolist()
+        assert rgb == PALETTE[i].tolist() and color & 0xFF == 0xFF
+        # hovering a pixel names its correlation (the last class: NaN's grey)
+        label = "undefined" if i == 255 else f"{-1.0 + i * 2.0 / 254:+.3f}"
+        assert info["label"] == label
+        assert entry["class_description"]["keypoint_annotations"] == []
+        assert entry["class_description"]["keypoint_connections"] == []
     assert colormap(np.array([[np.nan]]))[0, 0].tolist() == PALETTE[-1].tolist()
