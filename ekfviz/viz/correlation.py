@@ -22,6 +22,7 @@ import rerun as rr
 from ekfviz.core.correlation import Correlation
 from ekfviz.core.types import FloatArray
 from ekfviz.viz import style
+from ekfviz.viz.annotations import annotation_context
 from ekfviz.viz.layers.arrow import column
 from ekfviz.viz.layers.batch import Batch
 from ekfviz.viz.layers.canvas import Canvas
@@ -91,33 +92,7 @@ def palette_classes() -> rr.AnnotationContext:
     step = 2.0 / (LUT_SIZE - 1)
     labels = [f"{-1.0 + i * step:+.3f}" for i in range(LUT_SIZE)]
     labels.append("undefined")
-    # the component's Arrow array built at once: 256 AnnotationInfo objects converted one
-    # by one cost some 15 ms of every replay's start (the same array, a test checks)
-    context: pa.ListType = rr.components.AnnotationContextBatch._ARROW_DATATYPE
-    element: pa.StructType = context.value_type
-    description: pa.StructType = element.field("class_description").type
-    ids = pa.array(np.arange(len(labels), dtype=np.uint16))
-    rgb = PALETTE.astype(np.uint32)
-    packed = (rgb[:, 0] << 24) | (rgb[:, 1] << 16) | (rgb[:, 2] << 8) | 0xFF  # RGBA
-    info = pa.StructArray.from_arrays(
-        [ids, pa.array(labels, pa.utf8()), pa.array(packed, pa.uint32())],
-        fields=list(description.field("info").type),
-    )
-    no_items = pa.array(np.zeros(len(labels) + 1, dtype=np.int32))  # every list empty
-    empty = [
-        pa.ListArray.from_arrays(no_items, pa.array([], kind.value_type), type=kind)
-        for kind in (
-            description.field(n).type for n in ("keypoint_annotations", "keypoint_connections")
-        )
-    ]
-    classes = pa.StructArray.from_arrays(
-        [ids, pa.StructArray.from_arrays([info, *empty], fields=list(description))],
-        fields=list(element),
-    )
-    one_list = pa.ListArray.from_arrays(
-        pa.array([0, len(labels)], pa.int32()), classes, type=context
-    )
-    return rr.AnnotationContext.from_fields(context=one_list)
+    return annotation_context(range(len(labels)), labels, PALETTE)
 
 
 def block_outlines(correlation: Correlation) -> tuple[FloatArray, FloatArray, list[str]]:

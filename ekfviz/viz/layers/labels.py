@@ -9,6 +9,7 @@ import rerun as rr
 from ekfviz.core.records import EventRecord
 from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.viz import style
+from ekfviz.viz.annotations import annotation_context
 from ekfviz.viz.layers.arrow import column, radius, xy
 from ekfviz.viz.layers.canvas import MAX_CLASS_ID, Canvas
 
@@ -161,6 +162,6 @@ class LabelsLayer:
         classes = [*range(self._class_top + 1), *sorted(self._class_extra)]
         self._canvas.entities.log(
             style.WORLD,
-            rr.AnnotationContext([(i, f"L{i}") for i in classes]),
+            annotation_context(classes, [f"L{i}" for i in classes]),
             static=True,
         )
