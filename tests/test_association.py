@@ -53,6 +53,67 @@ def test_ackermann_jacobians_match_finite_differences() -> None:
     assert np.allclose(W, W_fd, atol=1e-7)
 
 
+def test_ackermann_step_is_motion_and_jacobians_in_floats() -> None:
+    car = Ackermann()
+    for pose, speed, steering, dt in (
+        (np.array([1.0, -2.0, 0.7]), 3.0, 0.2, 0.025),
+        (np.array([-40.0, 7.5, 3.1]), 5.5, -0.4, 0.3),  # theta' wraps past pi
+    ):
+        x, y, theta, g02, g12, *w = car.step(*pose.tolist(), speed, steering, dt)
+        G, W = car.jacobians(pose, speed, steering, dt)
+        assert np.array_equal([x, y, theta], car.motion(pose, speed, steering, dt))
+        assert np.allclose([g02, g12], G[:2, 2], rtol=1e-15, atol=0.0)
+        assert np.allclose(w, W.ravel(), rtol=1e-15, atol=0.0)
+
+
+def test_model_drive_equals_a_dense_predict_per_span() -> None:
+    """drive() (floats per span, the map's rows once) against P' = F P F^T + F W Q W^T F^T
+    with the whole F of each span, on a state with landmarks."""
+    from ekfviz.filters.model_ekf import ModelEkfSlam
+
+    car = Ackermann()
+    ekf = ModelEkfSlam(vehicle=car, sensor=RangeBearing(3.78, 0.5))
+    ekf.observe([1, 2, 3], np.array([[0.3, 12.0], [-0.2, 9.0], [1.0, 20.0]]))
+    x, P = ekf.x.copy(), ekf.P.copy()
+    spans = np.array([[3.0, 0.2, 0.05], [2.5, -0.1, 0.0], [2.0, 0.3, 0.08], [4.0, 0.0, 0.1]])
+    ekf.drive(spans)
+    for speed, steering, dt in spans.tolist():
+        if dt <= 0.0:
+            continue
+        G, W = car.jacobians(x[:3], speed, steering, dt)
+        F = np.eye(len(x))
+        F[:3, :3] = G
+        x[:3] = car.motion(x[:3], speed, steering, dt)
+        P = F @ P @ F.T
+        P[:3, :3] += W @ car.Q @ W.T
+    assert np.allclose(ekf.x, x, rtol=0.0, atol=1e-12)
+    assert np.allclose(ekf.P, P, rtol=1e-12, atol=1e-12)
+    assert np.array_equal(ekf.P, ekf.P.T)
+
+
+def test_predicted_innovation_covariances_equal_dense_h_p_h_t() -> None:
+    """predict_landmarks' S (written out entry by entry) against H P H^T + R with each
+    landmark's dense H, on a random covariance."""
+    from ekfviz.association.gating import predict_landmarks
+
+    rng = np.random.default_rng(7)
+    sensor, R = RangeBearing(3.78, 0.5), np.array([[0.01, 0.002], [0.002, 0.25]])
+    n = 3 + 2 * 6
+    x = rng.normal(size=n) * 20.0
+    A = rng.normal(size=(n, n))
+    P = A @ A.T / n
+    predictions = predict_landmarks(x, P, sensor, R)
+    for i in range(6):
+        j = 3 + 2 * i
+        z_D_pose, z_D_landmark = sensor.jacobians(x[:3], x[j : j + 2])
+        H = np.zeros((2, n))
+        H[:, :3], H[:, j : j + 2] = z_D_pose, z_D_landmark
+        assert np.allclose(predictions.S[i], H @ P @ H.T + R, rtol=1e-12, atol=1e-14)
+        assert np.allclose(predictions.z_pred[i], sensor.measure(x[:3], x[j : j + 2]))
+        assert np.array_equal(predictions.H[i], np.concatenate([z_D_pose, z_D_landmark], axis=1))
+    assert np.array_equal(predictions.S, predictions.S.transpose(0, 2, 1))
+
+
 def test_offset_measurement_jacobians_match_finite_differences() -> None:
     sensor = RangeBearing(3.78, 0.5)
     pose, landmark = np.array([1.0, 2.0, 0.4]), np.array([12.0, 9.0])

@@ -100,25 +100,46 @@ class ModelEkfSlam(EkfSlam):
             raise FilterError("this filter has no vehicle model for speed and steering controls")
         n = self._n
         x, P = self._x, self._P
-        pose = x[:3].copy()
-        P_rr = P[:3, :3].copy()
-        G_all = np.eye(3)
-        Q = self.vehicle.Q
+        vehicle = self.vehicle
+        qv, qs = vehicle.sigma_speed**2, vehicle.sigma_steering**2  # Q = diag(qv, qs)
+        # the pose and the upper triangle of its covariance in floats: a span costs a few
+        # dozen float operations where 3x3 products cost a few microseconds each
+        px, py, pt = x[:3].tolist()
+        (p00, p01, p02), (_, p11, p12), (_, _, p22) = P[:3, :3].tolist()
+        # the product of the spans' G is the identity but for column theta: (a, b, 1)
+        a_all = b_all = 0.0
         for speed, steering, dt in np.asarray(segments, dtype=np.float64).tolist():
             if dt <= 0.0:
                 continue
-            G, W = self.vehicle.jacobians(pose, speed, steering, dt)
-            pose = self.vehicle.motion(pose, speed, steering, dt)
-            P_rr = G @ P_rr @ G.T + W @ Q @ W.T
-            G_all = G @ G_all
-        if not (np.isfinite(pose).all() and np.isfinite(P_rr).all()):
+            (nx, ny, nt, g02, g12, w00, w01, w10, w11, w20, w21) = vehicle.step(
+                px, py, pt, speed, steering, dt
+            )
+            # G P G^T, G the identity but for G[0, 2] = g02 and G[1, 2] = g12
+            r02 = p02 + g02 * p22
+            r12 = p12 + g12 * p22
+            m00 = (p00 + g02 * p02) + g02 * r02
+            m01 = (p01 + g02 * p12) + g12 * r02
+            m11 = (p11 + g12 * p12) + g12 * r12
+            # + W Q W^T
+            p00 = m00 + (qv * w00 * w00 + qs * w01 * w01)
+            p01 = m01 + (qv * w00 * w10 + qs * w01 * w11)
+            p02 = r02 + (qv * w00 * w20 + qs * w01 * w21)
+            p11 = m11 + (qv * w10 * w10 + qs * w11 * w11)
+            p12 = r12 + (qv * w10 * w20 + qs * w11 * w21)
+            p22 = p22 + (qv * w20 * w20 + qs * w21 * w21)
+            a_all += g02
+            b_all += g12
+            px, py, pt = nx, ny, nt
+        if not math.isfinite(px + py + pt + p00 + p01 + p02 + p11 + p12 + p22):
             raise FilterError("the state became non-finite in predict")
-        x[:3] = pose
+        x[:3] = (px, py, pt)
         if n > 3:
-            P_rm = G_all @ P[:3, 3:n]
-            P[:3, 3:n] = P_rm
-            P[3:n, :3] = P_rm.T
-        P[:3, :3] = 0.5 * (P_rr + P_rr.T)
+            # rows x and y of G_all P_rm (row theta unchanged), and their mirror
+            P[0, 3:n] += a_all * P[2, 3:n]
+            P[1, 3:n] += b_all * P[2, 3:n]
+            P[3:n, 0] = P[0, 3:n]
+            P[3:n, 1] = P[1, 3:n]
+        P[:3, :3] = ((p00, p01, p02), (p01, p11, p12), (p02, p12, p22))
 
     def _update_sequential(
         self,
