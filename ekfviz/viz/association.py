@@ -53,6 +53,7 @@ GATE_COLOR = (120, 120, 220)
 TENTATIVE_COLOR = (255, 140, 0)
 REFERENCE_COLOR = (128, 0, 128)
 _SERIES_FLUSH = 1024
+_MATCHED, _REJECTED = int(Fate.MATCHED), int(Fate.REJECTED)
 # the scans' shapes and texts are sent every this many scans: one send per entity instead of
 # a log per scan (7,200 scans x 6 entities cost Victoria Park a third of its time), in
 # chunks small enough for ``rerun rrd verify`` (see recorder.SHAPES_EVERY)
@@ -90,15 +91,6 @@ class AssociationView:
         association = record.association
         if association is None:
             return
-        rec = self._rec
-        # the stream's clock as before, for whatever the recorder logs next
-        rec.set_time(style.STEP, sequence=record.step)
-        rec.set_time(style.EVENT, sequence=record.event)
-        if record.time is not None:
-            if time_is_epoch(record.time):
-                rec.set_time(style.TIME, timestamp=record.time)
-            else:
-                rec.set_time(style.TIME, duration=record.time)
         if self._rows.steps and math.isnan(self._rows.times[-1]) != (record.time is None):
             self._send_scans()  # a batch's rows all have a time or none has
         rows = self._rows
@@ -106,53 +98,50 @@ class AssociationView:
         rows.events.append(record.event)
         rows.times.append(math.nan if record.time is None else record.time)
         pose = record.pose
-        sx, sy, _, _ = self._sensor.sensor(pose)
-        points = _points(self._sensor, pose, association.z)
         fate = association.fate.astype(np.int64)
-        rays = np.empty((len(points), 2, 2))
+        m = len(fate)
+        gate_z = association.gate_z
+        # the measurements and the gates' centres through the inverse model at once
+        ends, l_D_z, (sx, sy) = _inverse_all(
+            self._sensor, pose, np.concatenate([association.z, gate_z])
+        )
+        points = ends[:m]
+        rays = np.empty((m, 2, 2))
         rays[:, 0] = sx, sy
         rays[:, 1] = points
         rows.rays.append(rays)
         rows.ray_colors.append(FATE_COLORS[fate])
-        landmark_ids = record.landmark_ids.tolist()
-        where = {i: k for k, i in enumerate(landmark_ids)}
-        matched = [
-            (k, where[i])
-            for k, (f, i) in enumerate(
-                zip(fate.tolist(), association.landmark.tolist(), strict=True)
-            )
-            if f == Fate.MATCHED and i in where
-        ]
-        links = np.empty((len(matched), 2, 2))
-        if matched:
-            picked = np.array(matched)
-            links[:, 0] = points[picked[:, 0]]
-            links[:, 1] = record.landmarks_xy[picked[:, 1]]
+        landmark_ids = record.landmark_ids
+        matched = np.flatnonzero(fate == _MATCHED)
+        rows_of = _rows_of(landmark_ids, association.landmark[matched])
+        found = rows_of >= 0
+        links = np.empty((int(found.sum()), 2, 2))
+        links[:, 0] = points[matched[found]]
+        links[:, 1] = record.landmarks_xy[rows_of[found]]
         rows.links.append(links)
-        if len(association.gate_ids):
-            centres, jacobians = _inverse_all(self._sensor, pose, association.gate_z)
+        if len(gate_z):
+            jacobians = l_D_z[m:]
             covs = jacobians @ association.gate_S @ jacobians.transpose(0, 2, 1)
             outlines = ellipse_outlines(
-                centres, covs, n_sigma=math.sqrt(association.gate_threshold)
+                ends[m:], covs, n_sigma=math.sqrt(association.gate_threshold)
             )
         else:
             outlines = np.zeros((0, 2, 2))
         rows.gates.append(outlines)
-        tentative_ids = [i for i in association.tentative.tolist() if i in where]
-        rows.tentative.append(record.landmarks_xy[[where[i] for i in tentative_ids]])
-        rows.tentative_labels.extend(f"L{i} (tentative)" for i in tentative_ids)
+        tentative_rows = _rows_of(landmark_ids, association.tentative)
+        tentative_rows = tentative_rows[tentative_rows >= 0]
+        rows.tentative.append(record.landmarks_xy[tentative_rows])
+        rows.tentative_labels.extend(
+            f"L{i} (tentative)" for i in landmark_ids[tentative_rows].tolist()
+        )
         if association.diameters is not None:
-            updates = [
-                (i, size)
-                for f, i, size in zip(
-                    fate.tolist(),
-                    association.landmark.tolist(),
-                    association.diameters.tolist(),
-                    strict=True,
-                )
-                if f != Fate.REJECTED
-            ]
-            self._grow_sizes(max([i for i, _ in updates], default=-1))
+            kept = fate != _REJECTED
+            updates = zip(
+                association.landmark[kept].tolist(),
+                association.diameters[kept].tolist(),
+                strict=True,
+            )
+            self._grow_sizes(int(association.landmark[kept].max(initial=-1)))
             known, smoothed = self._size_known, self._size_value
             for i, size in updates:
                 smoothed[i] = 0.8 * smoothed[i] + 0.2 * size if known[i] else size
@@ -160,7 +149,7 @@ class AssociationView:
             removed = association.removed
             known[removed[(removed >= 0) & (removed < len(known))]] = False
             # the landmarks with a size, in the record's order (ids of the associator: >= 0)
-            ids = record.landmark_ids
+            ids = landmark_ids
             has = np.zeros(len(ids), dtype=bool)
             inside = (ids >= 0) & (ids < len(known))
             has[inside] = known[ids[inside]]
@@ -170,10 +159,11 @@ class AssociationView:
             rows.sizes.append(record.landmarks_xy[picked_rows])
             rows.size_radii.append(radii)
         score = self.tally.add(record)
+        matched_n, new_n, rejected_n = np.bincount(fate, minlength=3)[:3].tolist()
         values = {
-            "matched": association.count(Fate.MATCHED),
-            "new": association.count(Fate.NEW),
-            "rejected": association.count(Fate.REJECTED),
+            "matched": matched_n,
+            "new": new_n,
+            "rejected": rejected_n,
             "confirmed": len(association.confirmed),
             "removed": len(association.removed),
             "landmarks": record.n_landmarks - len(association.tentative),
@@ -223,6 +213,17 @@ class AssociationView:
         rows, self._rows = self._rows, _ScanRows()
         if not rows.steps:
             return
+        # the stream's clock at the last scan, as a log per scan left it, for whatever
+        # is logged next without setting it
+        rec = self._rec
+        rec.set_time(style.STEP, sequence=rows.steps[-1])
+        rec.set_time(style.EVENT, sequence=rows.events[-1])
+        last_time = rows.times[-1]
+        if not math.isnan(last_time):
+            if time_is_epoch(last_time):
+                rec.set_time(style.TIME, timestamp=last_time)
+            else:
+                rec.set_time(style.TIME, duration=last_time)
         steps = np.array(rows.steps, dtype=np.int64)
         events = np.array(rows.events, dtype=np.int64)
         times = np.array(rows.times, dtype=np.float64)
@@ -398,31 +399,41 @@ def _rounded_time_column(times: FloatArray) -> rr.TimeColumn:
     return rr.TimeColumn(style.TIME, duration=nanos.astype("timedelta64[ns]"))
 
 
-def _points(sensor: RangeBearing, pose: FloatArray, z: FloatArray) -> FloatArray:
-    """Where each measurement (K, 2) puts its landmark (K, 2)."""
-    return _inverse_all(sensor, pose, z)[0]
-
-
 def _inverse_all(
     sensor: RangeBearing, pose: FloatArray, z: FloatArray
-) -> tuple[FloatArray, FloatArray]:
+) -> tuple[FloatArray, FloatArray, tuple[float, float]]:
     """:meth:`RangeBearing.inverse` and its ``l_D_z`` of many measurements at once.
 
     :param z: (K, 2) (bearing, range)
-    :return: landmarks (K, 2), l_D_z (K, 2, 2)
+    :return: landmarks (K, 2), l_D_z (K, 2, 2), and the sensor's position
     """
     z = np.asarray(z, dtype=np.float64).reshape(-1, 2)
     sx, sy, _, _ = sensor.sensor(pose)
     rng = z[:, 1]
     phi = float(pose[2]) + z[:, 0]
     c, s = np.cos(phi), np.sin(phi)
-    points = np.stack([sx + rng * c, sy + rng * s], axis=1)
+    points = np.empty((len(z), 2))
+    points[:, 0] = sx + rng * c
+    points[:, 1] = sy + rng * s
     l_D_z = np.empty((len(z), 2, 2))
     l_D_z[:, 0, 0] = -rng * s
     l_D_z[:, 0, 1] = c
     l_D_z[:, 1, 0] = rng * c
     l_D_z[:, 1, 1] = s
-    return points, l_D_z
+    return points, l_D_z, (sx, sy)
+
+
+def _rows_of(ids: IntArray, wanted: IntArray) -> IntArray:
+    """The row of each of ``wanted`` in ``ids`` (distinct), -1 where it is not there."""
+    wanted = np.asarray(wanted, dtype=np.int64)
+    if not len(ids) or not len(wanted):
+        return np.full(len(wanted), -1, dtype=np.int64)
+    order = None if bool((ids[1:] > ids[:-1]).all()) else np.argsort(ids, kind="stable")
+    ordered = ids if order is None else ids[order]
+    at = np.minimum(np.searchsorted(ordered, wanted), len(ids) - 1)
+    found = ordered[at] == wanted
+    rows = at if order is None else order[at]
+    return np.where(found, rows, -1).astype(np.int64)
 
 
 # A GPS dropout: a gap between fixes this many times their median interval (and at least
