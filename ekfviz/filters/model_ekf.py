@@ -167,21 +167,31 @@ class ModelEkfSlam(EkfSlam):
         defer = n >= DEFER_MIN_DIM
         U = np.empty((2 * min(len(known), DEFER_LANDMARKS), n)) if defer else x[None]
         rank = 0  # rows of U in use: the current P is P - U[:rank]^T U[:rank]
-        sensor = self.sensor
+        a, b = self.sensor.a, self.sensor.b
         for k in known:
             landmark_id = ids[k]
             j = self._slot[landmark_id]
             rows = self._rows.get(j)
             if rows is None:
                 rows = self._rows[j] = np.array((0, 1, 2, j, j + 1))
-            pose, landmark = x[:3], x[j : j + 2]
-            z_pred = sensor.measure(pose, landmark)
-            bearing, rng = float(z_pred[0]), float(z_pred[1])
+            # the sensor model's measure() and jacobians(), the same operations in floats
+            px, py, theta, lx, ly = x.take(rows).tolist()
+            c, s = math.cos(theta), math.sin(theta)
+            ox, oy = a * c - b * s, a * s + b * c  # the sensor's offset; d/dtheta: (-oy, ox)
+            dx, dy = lx - (px + ox), ly - (py + oy)
+            bearing = wrap_angle(math.atan2(dy, dx) - theta)
+            rng = math.hypot(dx, dy)
             if not rng > MIN_PREDICTED_RANGE:
                 self._skip(k, landmark_id, skipped, _zero_range(rng))
                 continue
-            z_D_pose, z_D_landmark = sensor.jacobians(pose, landmark)
-            H = np.concatenate((z_D_pose, z_D_landmark), axis=1)
+            q = dx * dx + dy * dy
+            r = math.sqrt(q)
+            H = np.array(
+                (
+                    (dy / q, -dx / q, (dy * -oy - dx * ox) / q - 1.0, -dy / q, dx / q),
+                    (-dx / r, -dy / r, (-dx * -oy - dy * ox) / r, dx / r, dy / r),
+                )
+            )
             P_c = P_buffer.take(rows, 0)  # the rows c of P (5 x capacity)
             HP = H.dot(P_c[:, :n] if spare else P_c)
             if rank:
