@@ -75,15 +75,23 @@ class ModelEkfSlam(EkfSlam):
             return record
         x, y, theta = record.pose.tolist()
         c, s = math.cos(theta), math.sin(theta)
-        J = np.eye(3)
-        J[0, 2], J[1, 2] = -a * s - b * c, a * c - b * s
+        j0, j1 = -a * s - b * c, a * c - b * s  # J's column of theta
         pose = np.array((x + a * c - b * s, y + a * s + b * c, theta))
-        pose_cov = J @ record.pose_cov @ J.T
+        # J P J^T in floats (J the identity but for J[0, 2], J[1, 2]), exactly symmetric
+        (p00, p01, p02), (_, p11, p12), (_, _, p22) = record.pose_cov.tolist()
+        r02, r12 = p02 + j0 * p22, p12 + j1 * p22
+        m00 = (p00 + j0 * p02) + j0 * r02
+        m01 = (p01 + j0 * p12) + j1 * r02
+        m11 = (p11 + j1 * p12) + j1 * r12
+        pose_cov = np.array(((m00, m01, r02), (m01, m11, r12), (r02, r12, p22)))
         full_cov = record.full_cov
         if full_cov is not None:
+            J = np.eye(3)
+            J[0, 2], J[1, 2] = j0, j1
             T = np.eye(len(full_cov))
             T[:3, :3] = J
             full_cov = T @ full_cov @ T.T
+            full_cov[:3, :3] = pose_cov  # the same floats as the record's pose block
         for array in (pose, pose_cov, full_cov):
             if array is not None:
                 array.setflags(write=False)
