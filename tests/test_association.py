@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 from collections.abc import Callable
@@ -263,6 +264,43 @@ def test_victoria_reader_refuses_malformed_lines(tmp_path: Path, text: str, mess
     path = _victoria(tmp_path, text)
     with pytest.raises(InputError, match=message.replace(".", r"\.")):
         list(read_victoria(path))
+
+
+@pytest.mark.parametrize("fault", [None, "range", "time"])
+def test_victoria_scans_span_blocks_and_a_late_fault_keeps_the_scans_before(
+    tmp_path: Path, fault: str | None
+) -> None:
+    """Measurements over several of the reader's blocks (it converts a block at once):
+    every scan comes out whole, in order, even one whose lines straddle two blocks; a bad
+    line far into the file ends the stream with its line named, after every scan that
+    ended before it (the one it belongs to is not yielded)."""
+    from ekfviz.io.text import BLOCK_BYTES
+
+    rows = []
+    k = 0
+    while 30 * len(rows) < 3 * BLOCK_BYTES:  # some 30 bytes a line: three blocks and more
+        rows += [(0.25 * k, 5.0 + j + 0.001 * k, 0.5 + 0.1 * j, 0.1 + 0.01 * j) for j in range(3)]
+        k += 1
+    bad = len(rows) - 40  # a line well past the first blocks, the second of its scan
+    if fault == "range":
+        rows[bad] = (rows[bad][0], -2.0, 1.0, 0.2)
+    elif fault == "time":
+        rows[bad] = (rows[bad][0] - 10.0, 2.0, 1.0, 0.2)
+    path = _victoria(tmp_path, "".join(f"{t!r} {r!r} {b!r} {d!r}\n" for t, r, b, d in rows))
+    scans: list[Scan] = []
+    with contextlib.ExitStack() as stack:
+        if fault is not None:
+            stack.enter_context(
+                pytest.raises(InputError, match=rf"measurements\.dat:{bad + 1}: found {fault}")
+            )
+        scans.extend(e for e in read_victoria(path) if isinstance(e, Scan))
+    expected = k if fault is None else bad // 3
+    assert len(scans) == expected
+    for i, scan in enumerate(scans):
+        assert scan.time == 0.25 * i and scan.line == 3 * i + 1
+        assert scan.diameters is not None
+        assert np.array_equal(scan.diameters, [0.1 + 0.01 * j for j in range(3)])
+        assert np.allclose(scan.z[:, 1], [5.0 + 0.001 * i, 6.0 + 0.001 * i, 7.0 + 0.001 * i])
 
 
 def _z_of(pose: tuple[float, float, float], points: list[tuple[float, float]]) -> FloatArray:
