@@ -109,13 +109,11 @@ def jcbb(
         return JcbbResult(
             nearest_neighbour(d2, compatible), 0, 0.0, exhausted=True, fallback=FALLBACK_NN
         )
-    candidates = [
-        [
-            int(k)
-            for k in np.flatnonzero(compatible[i])[np.argsort(d2[i, compatible[i]], kind="stable")]
-        ]
-        for i in order
-    ]
+    # each measurement's compatible candidates, nearest first (ties in column order): a
+    # stable sort of the rows with the incompatible as NaN, which sorts after any number
+    nearest = np.argsort(np.where(compatible, d2, np.nan), axis=1, kind="stable")
+    counts = np.count_nonzero(compatible, axis=1).tolist()
+    candidates = [nearest[i, : counts[i]].tolist() for i in order]
     depth_total = len(order)
     r00, r01, r11 = float(R[0, 0]), float(R[0, 1]), float(R[1, 1])
     # per candidate k, its own block of C plus R, and each measurement's innovations, as
