@@ -32,7 +32,7 @@ from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.evaluation.reference import ReferenceFit
 from ekfviz.models.range_bearing import RangeBearing
 from ekfviz.viz import style
-from ekfviz.viz.ellipses import ellipse_outlines
+from ekfviz.viz.ellipses import N_POINTS, ellipse_outlines
 from ekfviz.viz.layers import arrow
 from ekfviz.viz.layers.arrow import time_is_epoch  # the recorder's choice of the time's type
 
@@ -97,37 +97,22 @@ class AssociationView:
         rows.steps.append(record.step)
         rows.events.append(record.event)
         rows.times.append(math.nan if record.time is None else record.time)
-        pose = record.pose
+        # the geometry (rays, links, gates) is computed at the send, for every scan of the
+        # batch at once: here only what it needs is kept
+        x, y, theta = record.pose.tolist()
         fate = association.fate.astype(np.int64)
-        m = len(fate)
-        gate_z = association.gate_z
-        # the measurements and the gates' centres through the inverse model at once
-        ends, l_D_z, (sx, sy) = _inverse_all(
-            self._sensor, pose, np.concatenate([association.z, gate_z])
-        )
-        points = ends[:m]
-        rays = np.empty((m, 2, 2))
-        rays[:, 0] = sx, sy
-        rays[:, 1] = points
-        rows.rays.append(rays)
-        rows.ray_colors.append(FATE_COLORS[fate])
+        rows.poses.append((x, y, theta))
+        rows.z.append(association.z)
+        rows.fates.append(fate)
         landmark_ids = record.landmark_ids
         matched = np.flatnonzero(fate == _MATCHED)
         rows_of = _rows_of(landmark_ids, association.landmark[matched])
         found = rows_of >= 0
-        links = np.empty((int(found.sum()), 2, 2))
-        links[:, 0] = points[matched[found]]
-        links[:, 1] = record.landmarks_xy[rows_of[found]]
-        rows.links.append(links)
-        if len(gate_z):
-            jacobians = l_D_z[m:]
-            covs = jacobians @ association.gate_S @ jacobians.transpose(0, 2, 1)
-            outlines = ellipse_outlines(
-                ends[m:], covs, n_sigma=math.sqrt(association.gate_threshold)
-            )
-        else:
-            outlines = np.zeros((0, 2, 2))
-        rows.gates.append(outlines)
+        rows.link_from.append(matched[found])
+        rows.link_to.append(record.landmarks_xy[rows_of[found]])
+        rows.gate_z.append(association.gate_z)
+        rows.gate_covs.append(association.gate_S)
+        rows.gate_threshold.append(association.gate_threshold)
         tentative_rows = _rows_of(landmark_ids, association.tentative)
         tentative_rows = tentative_rows[tentative_rows >= 0]
         rows.tentative.append(record.landmarks_xy[tentative_rows])
@@ -239,21 +224,33 @@ class AssociationView:
             self._rec.send_columns(self._path(entity), indexes=indexes, columns=columns)
 
         ones = np.ones(len(steps), dtype=np.int64)
-        counts = np.array([len(r) for r in rows.rays], dtype=np.int64)
+        geometry = _geometry(self._sensor, rows)
         send(
             RAYS,
             everything,
             [
-                arrow.column(rr.LineStrips2D.descriptor_strips(), _strips(rows.rays), counts),
+                arrow.column(
+                    rr.LineStrips2D.descriptor_strips(),
+                    _strips(geometry.rays),
+                    geometry.rays_per_scan,
+                ),
                 arrow.column(
                     rr.LineStrips2D.descriptor_colors(),
-                    _colors(np.concatenate(rows.ray_colors).reshape(-1, 3)),
-                    counts,
+                    _colors(FATE_COLORS[np.concatenate(rows.fates)]),
+                    geometry.rays_per_scan,
                 ),
             ],
         )
-        send(LINKS, everything, _one_colour_strips(rows.links, LINK_COLOR, ones))
-        send(GATES, everything, _one_colour_strips(rows.gates, GATE_COLOR, ones))
+        send(
+            LINKS,
+            everything,
+            _one_colour_strips(geometry.links, geometry.links_per_scan, LINK_COLOR, ones),
+        )
+        send(
+            GATES,
+            everything,
+            _one_colour_strips(geometry.gates, geometry.gates_per_scan, GATE_COLOR, ones),
+        )
         counts = np.array([len(r) for r in rows.tentative], dtype=np.int64)
         send(
             TENTATIVE,
@@ -339,10 +336,14 @@ class _ScanRows:
     steps: list[int] = field(default_factory=list)
     events: list[int] = field(default_factory=list)
     times: list[float] = field(default_factory=list)  # nan: the log has no times
-    rays: list[FloatArray] = field(default_factory=list)  # (k, 2, 2) each
-    ray_colors: list[npt.NDArray[np.uint8]] = field(default_factory=list)  # (k, 3) each
-    links: list[FloatArray] = field(default_factory=list)  # (m, 2, 2) each
-    gates: list[FloatArray] = field(default_factory=list)  # (g, n, 2) each
+    poses: list[tuple[float, float, float]] = field(default_factory=list)
+    z: list[FloatArray] = field(default_factory=list)  # (k, 2) each: the measurements
+    fates: list[IntArray] = field(default_factory=list)  # (k,) each
+    link_from: list[IntArray] = field(default_factory=list)  # (l,) each: measurements ...
+    link_to: list[FloatArray] = field(default_factory=list)  # (l, 2) each: ... to landmarks
+    gate_z: list[FloatArray] = field(default_factory=list)  # (g, 2) each
+    gate_covs: list[FloatArray] = field(default_factory=list)  # (g, 2, 2) each: S
+    gate_threshold: list[float] = field(default_factory=list)
     tentative: list[FloatArray] = field(default_factory=list)  # (t, 2) each
     tentative_labels: list[str] = field(default_factory=list)
     sized: list[int] = field(default_factory=list)  # the scans with sizes (their index)
@@ -352,29 +353,84 @@ class _ScanRows:
     levels: list[rr.TextLogLevel] = field(default_factory=list)
 
 
+@dataclass(frozen=True, slots=True)
+class _Geometry:
+    """The batch's shapes, every scan's in order: (k, n, 2) polylines and their count per
+    scan."""
+
+    rays: FloatArray
+    rays_per_scan: IntArray
+    links: FloatArray
+    links_per_scan: IntArray
+    gates: FloatArray
+    gates_per_scan: IntArray
+
+
+def _geometry(sensor: RangeBearing, rows: _ScanRows) -> _Geometry:
+    """The rays, links and gates of the buffered scans, a few array operations for all.
+
+    Each measurement and each gate's centre through the sensor's inverse model at its
+    scan's pose; each gate's covariance mapped to the plane through that model's Jacobian
+    (``l_D_z S l_D_z^T``); a link from its measurement's point to its landmark.
+    """
+    poses = np.array(rows.poses, dtype=np.float64).reshape(-1, 3)
+    origins = np.array([sensor.sensor(pose)[:2] for pose in poses], dtype=np.float64)
+    rays_per_scan = np.array([len(z) for z in rows.z], dtype=np.int64)
+    gates_per_scan = np.array([len(z) for z in rows.gate_z], dtype=np.int64)
+    z = np.concatenate([*rows.z, *rows.gate_z]).reshape(-1, 2)
+    scan = np.concatenate(
+        [
+            np.repeat(np.arange(len(poses)), rays_per_scan),
+            np.repeat(np.arange(len(poses)), gates_per_scan),
+        ]
+    )
+    ends, l_D_z = _inverse_at(origins[scan], poses[scan, 2], z)
+    m = int(rays_per_scan.sum())
+    rays = np.empty((m, 2, 2))
+    rays[:, 0] = origins[scan[:m]]
+    rays[:, 1] = ends[:m]
+    first = np.zeros(len(poses), dtype=np.int64)  # each scan's first measurement
+    np.cumsum(rays_per_scan[:-1], out=first[1:])
+    links_per_scan = np.array([len(k) for k in rows.link_from], dtype=np.int64)
+    links = np.empty((int(links_per_scan.sum()), 2, 2))
+    if len(links):
+        picked = np.concatenate(rows.link_from) + np.repeat(first, links_per_scan)
+        links[:, 0] = ends[picked]
+        links[:, 1] = np.concatenate(rows.link_to).reshape(-1, 2)
+    gates = np.zeros((0, 2, 2))
+    if len(z) > m:
+        jacobians = l_D_z[m:]
+        covs = jacobians @ np.concatenate(rows.gate_covs) @ jacobians.transpose(0, 2, 1)
+        threshold = np.repeat(np.array(rows.gate_threshold, dtype=np.float64), gates_per_scan)
+        values = np.unique(threshold)
+        if len(values) == 1:
+            gates = ellipse_outlines(ends[m:], covs, n_sigma=math.sqrt(float(values[0])))
+        else:  # scans of several gates: each group at its own size
+            gates = np.empty((len(covs), N_POINTS, 2))
+            for value in values.tolist():
+                at = np.flatnonzero(threshold == value)
+                gates[at] = ellipse_outlines(ends[m:][at], covs[at], n_sigma=math.sqrt(value))
+    return _Geometry(rays, rays_per_scan, links, links_per_scan, gates, gates_per_scan)
+
+
 def _one_colour_strips(
-    polylines: list[FloatArray], color: tuple[int, int, int], ones: IntArray
+    polylines: FloatArray, per_scan: IntArray, color: tuple[int, int, int], ones: IntArray
 ) -> list[rr.ComponentColumn]:
-    """Each scan's polylines (see :func:`_strips`) as line strips of one colour."""
-    counts = np.array([len(p) for p in polylines], dtype=np.int64)
+    """Polylines (k, n, 2), ``per_scan`` of them a scan, as line strips of one colour."""
     return [
-        arrow.column(rr.LineStrips2D.descriptor_strips(), _strips(polylines), counts),
+        arrow.column(rr.LineStrips2D.descriptor_strips(), _strips(polylines), per_scan),
         arrow.column(
             rr.LineStrips2D.descriptor_colors(),
-            _colors(np.repeat([color], len(polylines), axis=0)),
+            _colors(np.repeat([color], len(per_scan), axis=0)),
             ones,
         ),
     ]
 
 
-def _strips(polylines: list[FloatArray]) -> pa.Array:
-    """Polylines, (k, n, 2) per scan (n may differ between scans), as Rerun's line strips."""
-    lengths = np.concatenate(
-        [np.full(len(p), p.shape[1], dtype=np.int32) for p in polylines] or [np.zeros(0, np.int32)]
-    )
-    offsets = np.zeros(len(lengths) + 1, dtype=np.int32)
-    np.cumsum(lengths, out=offsets[1:])
-    points = np.concatenate([p.reshape(-1, 2) for p in polylines] or [np.zeros((0, 2))])
+def _strips(polylines: FloatArray) -> pa.Array:
+    """Polylines (k, n, 2) as Rerun's line strips."""
+    offsets = np.arange(len(polylines) + 1, dtype=np.int32) * np.int32(polylines.shape[1])
+    points = polylines.reshape(-1, 2)
     return pa.ListArray.from_arrays(pa.array(offsets), arrow.xy(points), type=arrow.STRIP)
 
 
@@ -399,28 +455,28 @@ def _rounded_time_column(times: FloatArray) -> rr.TimeColumn:
     return rr.TimeColumn(style.TIME, duration=nanos.astype("timedelta64[ns]"))
 
 
-def _inverse_all(
-    sensor: RangeBearing, pose: FloatArray, z: FloatArray
-) -> tuple[FloatArray, FloatArray, tuple[float, float]]:
-    """:meth:`RangeBearing.inverse` and its ``l_D_z`` of many measurements at once.
+def _inverse_at(
+    origins: FloatArray, headings: FloatArray, z: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """:meth:`RangeBearing.inverse` and its ``l_D_z`` of many measurements at once, each
+    from its own sensor position and heading.
 
+    :param origins: (K, 2) the sensor's position; :param headings: (K,) the vehicle's
     :param z: (K, 2) (bearing, range)
-    :return: landmarks (K, 2), l_D_z (K, 2, 2), and the sensor's position
+    :return: landmarks (K, 2), l_D_z (K, 2, 2)
     """
-    z = np.asarray(z, dtype=np.float64).reshape(-1, 2)
-    sx, sy, _, _ = sensor.sensor(pose)
     rng = z[:, 1]
-    phi = float(pose[2]) + z[:, 0]
+    phi = headings + z[:, 0]
     c, s = np.cos(phi), np.sin(phi)
     points = np.empty((len(z), 2))
-    points[:, 0] = sx + rng * c
-    points[:, 1] = sy + rng * s
+    points[:, 0] = origins[:, 0] + rng * c
+    points[:, 1] = origins[:, 1] + rng * s
     l_D_z = np.empty((len(z), 2, 2))
     l_D_z[:, 0, 0] = -rng * s
     l_D_z[:, 0, 1] = c
     l_D_z[:, 1, 0] = rng * c
     l_D_z[:, 1, 1] = s
-    return points, l_D_z, (sx, sy)
+    return points, l_D_z
 
 
 def _rows_of(ids: IntArray, wanted: IntArray) -> IntArray:
