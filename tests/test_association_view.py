@@ -97,7 +97,8 @@ def test_a_batchs_geometry_is_each_scans_through_the_inverse_model() -> None:
 
     sensor = RangeBearing(3.78, 0.5)
     rows = view._ScanRows()
-    scans = [
+    Scan = tuple[tuple[float, float, float], list[list[float]], list[int], list[list[float]], float]
+    scans: list[Scan] = [
         ((1.0, 2.0, 0.3), [[0.1, 10.0], [-0.4, 7.0]], [1], [[4.0, 9.0]], 9.21),
         ((-3.0, 5.0, -2.9), [[1.2, 4.0]], [0], [[0.5, 1.0]], 13.8),
     ]
@@ -118,13 +119,15 @@ def test_a_batchs_geometry_is_each_scans_through_the_inverse_model() -> None:
         origin = sensor.sensor(np.array(pose))[:2]
         for i, zi in enumerate(z):
             point = sensor.inverse(np.array(pose), np.array(zi))
-            assert np.allclose(geometry.rays[ray + i], [origin, point], rtol=0, atol=1e-12)
+            assert np.allclose(
+                geometry.rays[ray + i], np.array([origin, point]), rtol=0, atol=1e-12
+            )
             centre = sensor.inverse(np.array(pose), np.array(zi) + 0.05)
             _, l_D_z = sensor.inverse_jacobians(np.array(pose), np.array(zi) + 0.05)
             cov = l_D_z @ rows.gate_covs[k][i] @ l_D_z.T
             outline = ellipse_outlines(centre[None], cov[None], n_sigma=np.sqrt(threshold))[0]
             assert np.allclose(geometry.gates[gate + i], outline, rtol=0, atol=1e-9)
         start = sensor.inverse(np.array(pose), np.array(z[link_from[0]]))
-        assert np.allclose(geometry.links[k], [start, link_to[0]], rtol=0, atol=1e-12)
+        assert np.allclose(geometry.links[k], np.array([start, link_to[0]]), rtol=0, atol=1e-12)
         ray += len(z)
         gate += len(z)
