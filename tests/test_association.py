@@ -60,7 +60,8 @@ def test_ackermann_step_is_motion_and_jacobians_in_floats() -> None:
         (np.array([1.0, -2.0, 0.7]), 3.0, 0.2, 0.025),
         (np.array([-40.0, 7.5, 3.1]), 5.5, -0.4, 0.3),  # theta' wraps past pi
     ):
-        x, y, theta, g02, g12, *w = car.step(*pose.tolist(), speed, steering, dt)
+        px, py, pt = pose.tolist()
+        x, y, theta, g02, g12, *w = car.step(px, py, pt, speed, steering, dt)
         G, W = car.jacobians(pose, speed, steering, dt)
         assert np.array_equal([x, y, theta], car.motion(pose, speed, steering, dt))
         assert np.allclose([g02, g12], G[:2, 2], rtol=1e-15, atol=0.0)
@@ -276,7 +277,7 @@ def test_victoria_scans_span_blocks_and_a_late_fault_keeps_the_scans_before(
     ended before it (the one it belongs to is not yielded)."""
     from ekfviz.io.text import BLOCK_BYTES
 
-    rows = []
+    rows: list[tuple[float, float, float, float]] = []
     k = 0
     while 30 * len(rows) < 3 * BLOCK_BYTES:  # some 30 bytes a line: three blocks and more
         rows += [(0.25 * k, 5.0 + j + 0.001 * k, 0.5 + 0.1 * j, 0.1 + 0.01 * j) for j in range(3)]
@@ -419,3 +420,24 @@ def test_consistency_runs_scans_with_clutter_and_says_how(tmp_path: Path) -> Non
     ):
         done = runner.invoke(app, [*base, *wrong])
         assert done.exit_code == 2 and message in done.output, done.output
+
+
+def test_joint_covariance_of_candidates_equals_the_dense_h_p_h_t() -> None:
+    """JCBB's C (the candidates' predicted measurements' joint covariance) against the
+    dense stacked H P H^T, each candidate's H over the pose and its own two rows."""
+    from ekfviz.association.associator import _joint_covariance, state_rows
+
+    rng = np.random.default_rng(0)
+    n = 3 + 2 * 20
+    A = rng.normal(size=(n, n))
+    P = A @ A.T
+    for k in (1, 2, 7):
+        H = rng.normal(size=(k, 2, 5))
+        rows = np.sort(rng.choice(20, k, replace=False))
+        dense = np.zeros((2 * k, n))
+        for j, row in enumerate(rows.tolist()):
+            dense[2 * j : 2 * j + 2, :3] = H[j, :, :3]
+            dense[2 * j : 2 * j + 2, 3 + 2 * row : 5 + 2 * row] = H[j, :, 3:]
+        C = _joint_covariance(P, H, state_rows(rows))
+        assert np.allclose(C, dense @ P @ dense.T, rtol=1e-12, atol=1e-9)
+        assert np.array_equal(C, C.T)

@@ -320,7 +320,9 @@ def _joint_covariance(P: FloatArray, H: FloatArray, rows: IntArray) -> FloatArra
     k = H.shape[0]
     H_stacked = np.zeros((2 * k, 3 + 2 * k))
     H_stacked[:, :3] = H[:, :, :3].reshape(2 * k, 3)
-    for j in range(k):
-        H_stacked[2 * j : 2 * j + 2, 3 + 2 * j : 5 + 2 * j] = H[j, :, 3:]
+    # each candidate's own 2x2 block on the diagonal of the landmarks' columns, at once
+    blocks = H_stacked[:, 3:].reshape(k, 2, k, 2)  # a view: (row pair, row, column pair, column)
+    at = np.arange(k)
+    blocks[at, :, at, :] = H[:, :, 3:]
     C = H_stacked @ P[np.ix_(rows, rows)] @ H_stacked.T
     return np.asarray(0.5 * (C + C.T), dtype=np.float64)
