@@ -104,7 +104,7 @@ def jcbb(
     :param work_budget: units of work per scan
     """
     m = nu.shape[0]
-    order = [i for i in range(m) if compatible[i].any()]
+    order: list[int] = np.flatnonzero(compatible.any(axis=1)).tolist()
     if len(order) > MAX_JOINT:
         return JcbbResult(
             nearest_neighbour(d2, compatible), 0, 0.0, exhausted=True, fallback=FALLBACK_NN
@@ -127,7 +127,7 @@ def jcbb(
             strict=True,
         )
     )
-    nu_of = [nu[i].tolist() for i in order]  # nu_of[depth][k] = [bearing, range]
+    nu_of = nu[order].tolist()  # nu_of[depth][k] = [bearing, range]
     thresholds: dict[int, float] = {}
     best_pairs = 0
     best_d2 = 0.0

@@ -204,9 +204,9 @@ class ModelEkfSlam(EkfSlam):
             HP = H.dot(P_c[:, :n] if spare else P_c)
             if rank:
                 HP -= H.dot(U[:rank].take(rows, 1).T).dot(U[:rank])
-            S = HP.take(rows, 1).dot(H.T)
-            s00, s11 = float(S[0, 0]) + r00, float(S[1, 1]) + r11
-            s01 = 0.5 * (float(S[0, 1]) + float(S[1, 0])) + r01
+            (S00, S01), (S10, S11) = HP.take(rows, 1).dot(H.T).tolist()
+            s00, s11 = S00 + r00, S11 + r11
+            s01 = 0.5 * (S01 + S10) + r01
             if not math.isfinite(s00 + s01 + s11):
                 raise FilterError(f"the covariance became non-finite (S of landmark {landmark_id})")
             z_bearing, z_range = z[k]
