@@ -112,7 +112,8 @@ def test_predicted_innovation_covariances_equal_dense_h_p_h_t() -> None:
         H[:, :3], H[:, j : j + 2] = z_D_pose, z_D_landmark
         assert np.allclose(predictions.S[i], H @ P @ H.T + R, rtol=1e-12, atol=1e-14)
         assert np.allclose(predictions.z_pred[i], sensor.measure(x[:3], x[j : j + 2]))
-        assert np.array_equal(predictions.H[i], np.concatenate([z_D_pose, z_D_landmark], axis=1))
+        H_i = predictions.H(np.array([i]))[0]
+        assert np.array_equal(H_i, np.concatenate([z_D_pose, z_D_landmark], axis=1))
     assert np.array_equal(predictions.S, predictions.S.transpose(0, 2, 1))
 
 

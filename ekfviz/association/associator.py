@@ -205,7 +205,7 @@ class Associator:
                         nu[:, gate_rows],
                         d2[:, gate_rows],
                         ic[:, gate_rows],
-                        _joint_covariance(P, predictions.H[gate_rows], state_rows(gate_rows)),
+                        _joint_covariance(P, predictions.H(gate_rows), state_rows(gate_rows)),
                         self._R,
                         self.params.gate_probability,
                         self.params.budget,

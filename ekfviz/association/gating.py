@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ekfviz.core.records import Sighting
-from ekfviz.core.types import BoolArray, FloatArray
+from ekfviz.core.types import BoolArray, FloatArray, IntArray
 from ekfviz.models.angles import wrap_angles
 from ekfviz.models.range_bearing import RangeBearing
 
@@ -45,12 +45,22 @@ class Predictions:
 
     :param z_pred: (N, 2) predicted (bearing, range)
     :param S: (N, 2, 2) innovation covariances
-    :param H: (N, 2, 5) measurement Jacobians over (x, y, theta, l_x, l_y)
+    :param M: (6, N) the entries of each landmark's measurement Jacobian that are its own:
+        H = [[-a0, -a1, a2, a0, a1], [-b0, -b1, b2, b0, b1]] over (x, y, theta, l_x, l_y),
+        rows (a0, a1, a2, b0, b1, b2)
     """
 
     z_pred: FloatArray
     S: FloatArray
-    H: FloatArray
+    M: FloatArray
+
+    def H(self, rows: IntArray) -> FloatArray:
+        """The (k, 2, 5) measurement Jacobians of the landmarks at ``rows``."""
+        a0, a1, a2, b0, b1, b2 = self.M[:, rows]
+        H = np.empty((len(rows), 2, 5))
+        H[:, 0, 0], H[:, 0, 1], H[:, 0, 2], H[:, 0, 3], H[:, 0, 4] = -a0, -a1, a2, a0, a1
+        H[:, 1, 0], H[:, 1, 1], H[:, 1, 2], H[:, 1, 3], H[:, 1, 4] = -b0, -b1, b2, b0, b1
+        return H
 
 
 def predict_landmarks(
@@ -62,17 +72,29 @@ def predict_landmarks(
     v = (l_x - x, l_y - y, theta): H_i = [-M_xy | m_theta | M_xy] with M = [M_xy | m_theta]
     (2x3), so S_i = M cov(v) M^T + R, where cov(v) (3x3) is P_ll - P_lp - P_pl + P_pp over
     x and y, P_l,theta - P_p,theta, and P_theta,theta. Written out per entry on the N
-    landmarks at once: a few dozen vector operations, not N small matrix products.
+    landmarks at once: a few dozen vector operations, not N small matrix products. M is
+    :meth:`RangeBearing.predict_all`'s z_D_landmark and z_D_pose[:, :, 2].
 
     :param x: (3+2N,) state mean
     :param P: (3+2N, 3+2N) state covariance
     """
     n_landmarks = (x.shape[0] - 3) // 2
-    landmarks_xy = x[3:].reshape(n_landmarks, 2)
-    z_pred, H_p, H_l = sensor.predict_all(x[:3], landmarks_xy)
-    # M's entries per landmark: bearing row (a0, a1, a2), range row (b0, b1, b2)
-    a0, a1, a2 = H_l[:, 0, 0], H_l[:, 0, 1], H_p[:, 0, 2]
-    b0, b1, b2 = H_l[:, 1, 0], H_l[:, 1, 1], H_p[:, 1, 2]
+    sx, sy, sx_D_theta, sy_D_theta = sensor.sensor(x[:3])
+    dx = x[3::2] - sx
+    dy = x[4::2] - sy
+    q = dx * dx + dy * dy
+    r = np.sqrt(q)
+    z_pred = np.empty((n_landmarks, 2))
+    z_pred[:, 0] = wrap_angles(np.arctan2(dy, dx) - float(x[2]))
+    z_pred[:, 1] = r
+    M = np.empty((6, n_landmarks))
+    a0, a1, a2, b0, b1, b2 = M  # views: filled in place
+    np.divide(-dy, q, out=a0)
+    np.divide(dx, q, out=a1)
+    np.subtract((dy * sx_D_theta - dx * sy_D_theta) / q, 1.0, out=a2)
+    np.divide(dx, r, out=b0)
+    np.divide(dy, r, out=b1)
+    np.divide(-dx * sx_D_theta - dy * sy_D_theta, r, out=b2)
     (p00, p01, p02), (_, p11, p12), (_, _, p22) = P[:3, :3].tolist()
     P_pl = P[:3, 3:]  # rows x, y, theta against the landmarks' columns
     lx_x, ly_x = P_pl[0, 0::2], P_pl[0, 1::2]
@@ -99,7 +121,7 @@ def predict_landmarks(
     S[:, 0, 1] = s01 + 0.5 * (float(R[0, 1]) + float(R[1, 0]))
     S[:, 1, 0] = S[:, 0, 1]
     S[:, 1, 1] = rb0 * b0 + rb1 * b1 + rb2 * b2 + float(R[1, 1])
-    return Predictions(z_pred=z_pred, S=S, H=np.concatenate([H_p, H_l], axis=2))
+    return Predictions(z_pred=z_pred, S=S, M=M)
 
 
 def innovations(z: FloatArray, z_pred: FloatArray) -> FloatArray:
