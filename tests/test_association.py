@@ -442,3 +442,29 @@ def test_joint_covariance_of_candidates_equals_the_dense_h_p_h_t() -> None:
         C = _joint_covariance(P, H, state_rows(rows))
         assert np.allclose(C, dense @ P @ dense.T, rtol=1e-12, atol=1e-9)
         assert np.array_equal(C, C.T)
+
+
+def test_the_gates_innovation_parts_are_the_innovations() -> None:
+    """The associator's gate takes the innovations' bearing and range parts apart: the
+    same numbers as innovations() (bearings wrapped across +-pi) and the same distances."""
+    from ekfviz.association.gating import (
+        innovation_parts,
+        innovations,
+        mahalanobis2,
+        mahalanobis2_of,
+    )
+
+    rng = np.random.default_rng(4)
+    z = np.column_stack([rng.uniform(-math.pi, math.pi, 5), rng.uniform(1, 30, 5)])
+    z_pred = np.column_stack([rng.uniform(-math.pi, math.pi, 9), rng.uniform(1, 30, 9)])
+    A = rng.normal(size=(9, 2, 2))
+    S = A @ A.transpose(0, 2, 1) + 0.1 * np.eye(2)
+    S[3] = [[1.0, 2.0], [2.0, 1.0]]  # not positive definite: infinitely far
+    nu = innovations(z, z_pred)
+    u, v = innovation_parts(z, z_pred)
+    assert np.array_equal(u, nu[:, :, 0]) and np.array_equal(v, nu[:, :, 1])
+    assert (np.abs(u) <= math.pi).all()
+    d2 = mahalanobis2_of(u, v, S)
+    assert np.array_equal(d2, mahalanobis2(nu, S)) and np.isinf(d2[:, 3]).all()
+    k = 2
+    assert d2[1, k] == pytest.approx(nu[1, k] @ np.linalg.solve(S[k], nu[1, k]), rel=1e-12)

@@ -37,8 +37,8 @@ from ekfviz.association.gating import (
     Predictions,
     compatible,
     gate_threshold,
-    innovations,
-    mahalanobis2,
+    innovation_parts,
+    mahalanobis2_of,
     predict_landmarks,
 )
 from ekfviz.association.jcbb import DEFAULT_BUDGET, DEFAULT_WORK_BUDGET, jcbb
@@ -192,17 +192,18 @@ class Associator:
         if m and n_landmarks:
             x, P = np.asarray(slam.x), np.asarray(slam.P)
             predictions = predict_landmarks(x, P, self._sensor, self._R)
-            nu = innovations(z, predictions.z_pred)
-            d2 = mahalanobis2(nu, predictions.S)
+            u, v = innovation_parts(z, predictions.z_pred)
+            d2 = mahalanobis2_of(u, v, predictions.S)
             ic = compatible(d2, self._gate)
             gate_rows = np.flatnonzero(ic.any(axis=0))
+            nu = np.stack((u[:, gate_rows], v[:, gate_rows]), axis=-1)  # the candidates'
             z_pred, S = predictions.z_pred[gate_rows], predictions.S[gate_rows]
             if gate_rows.size:
                 if self.params.method is Method.NN:
                     column = nearest_neighbour(d2[:, gate_rows], ic[:, gate_rows])
                 else:
                     result = jcbb(
-                        nu[:, gate_rows],
+                        nu,
                         d2[:, gate_rows],
                         ic[:, gate_rows],
                         _joint_covariance(P, predictions.H(gate_rows), state_rows(gate_rows)),

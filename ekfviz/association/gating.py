@@ -141,11 +141,24 @@ def mahalanobis2(nu: FloatArray, S: FloatArray) -> FloatArray:
     :param nu: (m, N, 2); :param S: (N, 2, 2)
     :return: (m, N); +inf where S is not positive definite
     """
+    return mahalanobis2_of(nu[:, :, 0], nu[:, :, 1], S)
+
+
+def innovation_parts(z: FloatArray, z_pred: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """:func:`innovations` as its bearing (wrapped) and range parts, (m, N) each: the
+    gate needs them apart, and only its candidates need them together."""
+    bearing = wrap_angles(z[:, 0, None] - z_pred[None, :, 0])
+    rng: FloatArray = z[:, 1, None] - z_pred[None, :, 1]
+    return bearing, rng
+
+
+def mahalanobis2_of(u: FloatArray, v: FloatArray, S: FloatArray) -> FloatArray:
+    """:func:`mahalanobis2` of the innovations' bearing parts ``u`` and range parts ``v``
+    (m, N) each."""
     a, b, d = S[:, 0, 0], S[:, 0, 1], S[:, 1, 1]
     det = a * d - b * b
     ok = (a > 0.0) & (det > 0.0)
     safe = np.where(ok, det, 1.0)
-    u, v = nu[:, :, 0], nu[:, :, 1]
     d2 = (d * u * u - 2.0 * b * u * v + a * v * v) / safe
     return np.where(ok[None, :], d2, np.inf)
 
