@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 from collections.abc import Callable
@@ -51,6 +52,69 @@ def test_ackermann_jacobians_match_finite_differences() -> None:
     )
     W_fd = numeric_jacobian(lambda u: car.motion(pose, u[0], u[1], dt), [speed, steering])
     assert np.allclose(W, W_fd, atol=1e-7)
+
+
+def test_ackermann_step_is_motion_and_jacobians_in_floats() -> None:
+    car = Ackermann()
+    for pose, speed, steering, dt in (
+        (np.array([1.0, -2.0, 0.7]), 3.0, 0.2, 0.025),
+        (np.array([-40.0, 7.5, 3.1]), 5.5, -0.4, 0.3),  # theta' wraps past pi
+    ):
+        px, py, pt = pose.tolist()
+        x, y, theta, g02, g12, *w = car.step(px, py, pt, speed, steering, dt)
+        G, W = car.jacobians(pose, speed, steering, dt)
+        assert np.array_equal([x, y, theta], car.motion(pose, speed, steering, dt))
+        assert np.allclose([g02, g12], G[:2, 2], rtol=1e-15, atol=0.0)
+        assert np.allclose(w, W.ravel(), rtol=1e-15, atol=0.0)
+
+
+def test_model_drive_equals_a_dense_predict_per_span() -> None:
+    """drive() (floats per span, the map's rows once) against P' = F P F^T + F W Q W^T F^T
+    with the whole F of each span, on a state with landmarks."""
+    from ekfviz.filters.model_ekf import ModelEkfSlam
+
+    car = Ackermann()
+    ekf = ModelEkfSlam(vehicle=car, sensor=RangeBearing(3.78, 0.5))
+    ekf.observe([1, 2, 3], np.array([[0.3, 12.0], [-0.2, 9.0], [1.0, 20.0]]))
+    x, P = ekf.x.copy(), ekf.P.copy()
+    spans = np.array([[3.0, 0.2, 0.05], [2.5, -0.1, 0.0], [2.0, 0.3, 0.08], [4.0, 0.0, 0.1]])
+    ekf.drive(spans)
+    for speed, steering, dt in spans.tolist():
+        if dt <= 0.0:
+            continue
+        G, W = car.jacobians(x[:3], speed, steering, dt)
+        F = np.eye(len(x))
+        F[:3, :3] = G
+        x[:3] = car.motion(x[:3], speed, steering, dt)
+        P = F @ P @ F.T
+        P[:3, :3] += W @ car.Q @ W.T
+    assert np.allclose(ekf.x, x, rtol=0.0, atol=1e-12)
+    assert np.allclose(ekf.P, P, rtol=1e-12, atol=1e-12)
+    assert np.array_equal(ekf.P, ekf.P.T)
+
+
+def test_predicted_innovation_covariances_equal_dense_h_p_h_t() -> None:
+    """predict_landmarks' S (written out entry by entry) against H P H^T + R with each
+    landmark's dense H, on a random covariance."""
+    from ekfviz.association.gating import predict_landmarks
+
+    rng = np.random.default_rng(7)
+    sensor, R = RangeBearing(3.78, 0.5), np.array([[0.01, 0.002], [0.002, 0.25]])
+    n = 3 + 2 * 6
+    x = rng.normal(size=n) * 20.0
+    A = rng.normal(size=(n, n))
+    P = A @ A.T / n
+    predictions = predict_landmarks(x, P, sensor, R)
+    for i in range(6):
+        j = 3 + 2 * i
+        z_D_pose, z_D_landmark = sensor.jacobians(x[:3], x[j : j + 2])
+        H = np.zeros((2, n))
+        H[:, :3], H[:, j : j + 2] = z_D_pose, z_D_landmark
+        assert np.allclose(predictions.S[i], H @ P @ H.T + R, rtol=1e-12, atol=1e-14)
+        assert np.allclose(predictions.z_pred[i], sensor.measure(x[:3], x[j : j + 2]))
+        H_i = predictions.H(np.array([i]))[0]
+        assert np.array_equal(H_i, np.concatenate([z_D_pose, z_D_landmark], axis=1))
+    assert np.array_equal(predictions.S, predictions.S.transpose(0, 2, 1))
 
 
 def test_offset_measurement_jacobians_match_finite_differences() -> None:
@@ -204,6 +268,43 @@ def test_victoria_reader_refuses_malformed_lines(tmp_path: Path, text: str, mess
         list(read_victoria(path))
 
 
+@pytest.mark.parametrize("fault", [None, "range", "time"])
+def test_victoria_scans_span_blocks_and_a_late_fault_keeps_the_scans_before(
+    tmp_path: Path, fault: str | None
+) -> None:
+    """Measurements over several of the reader's blocks (it converts a block at once):
+    every scan comes out whole, in order, even one whose lines straddle two blocks; a bad
+    line far into the file ends the stream with its line named, after every scan that
+    ended before it (the one it belongs to is not yielded)."""
+    from ekfviz.io.text import BLOCK_BYTES
+
+    rows: list[tuple[float, float, float, float]] = []
+    k = 0
+    while 30 * len(rows) < 3 * BLOCK_BYTES:  # some 30 bytes a line: three blocks and more
+        rows += [(0.25 * k, 5.0 + j + 0.001 * k, 0.5 + 0.1 * j, 0.1 + 0.01 * j) for j in range(3)]
+        k += 1
+    bad = len(rows) - 40  # a line well past the first blocks, the second of its scan
+    if fault == "range":
+        rows[bad] = (rows[bad][0], -2.0, 1.0, 0.2)
+    elif fault == "time":
+        rows[bad] = (rows[bad][0] - 10.0, 2.0, 1.0, 0.2)
+    path = _victoria(tmp_path, "".join(f"{t!r} {r!r} {b!r} {d!r}\n" for t, r, b, d in rows))
+    scans: list[Scan] = []
+    with contextlib.ExitStack() as stack:
+        if fault is not None:
+            stack.enter_context(
+                pytest.raises(InputError, match=rf"measurements\.dat:{bad + 1}: found {fault}")
+            )
+        scans.extend(e for e in read_victoria(path) if isinstance(e, Scan))
+    expected = k if fault is None else bad // 3
+    assert len(scans) == expected
+    for i, scan in enumerate(scans):
+        assert scan.time == 0.25 * i and scan.line == 3 * i + 1
+        assert scan.diameters is not None
+        assert np.array_equal(scan.diameters, [0.1 + 0.01 * j for j in range(3)])
+        assert np.allclose(scan.z[:, 1], [5.0 + 0.001 * i, 6.0 + 0.001 * i, 7.0 + 0.001 * i])
+
+
 def _z_of(pose: tuple[float, float, float], points: list[tuple[float, float]]) -> FloatArray:
     x, y, theta = pose
     return np.array(
@@ -320,3 +421,50 @@ def test_consistency_runs_scans_with_clutter_and_says_how(tmp_path: Path) -> Non
     ):
         done = runner.invoke(app, [*base, *wrong])
         assert done.exit_code == 2 and message in done.output, done.output
+
+
+def test_joint_covariance_of_candidates_equals_the_dense_h_p_h_t() -> None:
+    """JCBB's C (the candidates' predicted measurements' joint covariance) against the
+    dense stacked H P H^T, each candidate's H over the pose and its own two rows."""
+    from ekfviz.association.associator import _joint_covariance, state_rows
+
+    rng = np.random.default_rng(0)
+    n = 3 + 2 * 20
+    A = rng.normal(size=(n, n))
+    P = A @ A.T
+    for k in (1, 2, 7):
+        H = rng.normal(size=(k, 2, 5))
+        rows = np.sort(rng.choice(20, k, replace=False))
+        dense = np.zeros((2 * k, n))
+        for j, row in enumerate(rows.tolist()):
+            dense[2 * j : 2 * j + 2, :3] = H[j, :, :3]
+            dense[2 * j : 2 * j + 2, 3 + 2 * row : 5 + 2 * row] = H[j, :, 3:]
+        C = _joint_covariance(P, H, state_rows(rows))
+        assert np.allclose(C, dense @ P @ dense.T, rtol=1e-12, atol=1e-9)
+        assert np.array_equal(C, C.T)
+
+
+def test_the_gates_innovation_parts_are_the_innovations() -> None:
+    """The associator's gate takes the innovations' bearing and range parts apart: the
+    same numbers as innovations() (bearings wrapped across +-pi) and the same distances."""
+    from ekfviz.association.gating import (
+        innovation_parts,
+        innovations,
+        mahalanobis2,
+        mahalanobis2_of,
+    )
+
+    rng = np.random.default_rng(4)
+    z = np.column_stack([rng.uniform(-math.pi, math.pi, 5), rng.uniform(1, 30, 5)])
+    z_pred = np.column_stack([rng.uniform(-math.pi, math.pi, 9), rng.uniform(1, 30, 9)])
+    A = rng.normal(size=(9, 2, 2))
+    S = A @ A.transpose(0, 2, 1) + 0.1 * np.eye(2)
+    S[3] = [[1.0, 2.0], [2.0, 1.0]]  # not positive definite: infinitely far
+    nu = innovations(z, z_pred)
+    u, v = innovation_parts(z, z_pred)
+    assert np.array_equal(u, nu[:, :, 0]) and np.array_equal(v, nu[:, :, 1])
+    assert (np.abs(u) <= math.pi).all()
+    d2 = mahalanobis2_of(u, v, S)
+    assert np.array_equal(d2, mahalanobis2(nu, S)) and np.isinf(d2[:, 3]).all()
+    k = 2
+    assert d2[1, k] == pytest.approx(nu[1, k] @ np.linalg.solve(S[k], nu[1, k]), rel=1e-12)

@@ -86,3 +86,48 @@ def test_batches_of_any_size_record_the_same_rows(
     expected = [round(float(t) * 1e9) for t in scan_times]
     for entity in ENTITIES[:-1]:
         assert _nanos(small, entity) == expected, entity
+
+
+def test_a_batchs_geometry_is_each_scans_through_the_inverse_model() -> None:
+    """The rays, links and gates of two buffered scans (the second's gates at another
+    threshold), computed for the batch at once, against each scan's own: the sensor's
+    inverse model at its pose, and the gates' ellipses of l_D_z S l_D_z^T."""
+    from ekfviz.models.range_bearing import RangeBearing
+    from ekfviz.viz.ellipses import ellipse_outlines
+
+    sensor = RangeBearing(3.78, 0.5)
+    rows = view._ScanRows()
+    Scan = tuple[tuple[float, float, float], list[list[float]], list[int], list[list[float]], float]
+    scans: list[Scan] = [
+        ((1.0, 2.0, 0.3), [[0.1, 10.0], [-0.4, 7.0]], [1], [[4.0, 9.0]], 9.21),
+        ((-3.0, 5.0, -2.9), [[1.2, 4.0]], [0], [[0.5, 1.0]], 13.8),
+    ]
+    for pose, z, link_from, link_to, threshold in scans:
+        rows.poses.append(pose)
+        rows.z.append(np.array(z))
+        rows.fates.append(np.zeros(len(z), dtype=np.int64))
+        rows.link_from.append(np.array(link_from))
+        rows.link_to.append(np.array(link_to))
+        rows.gate_z.append(np.array(z) + 0.05)  # a gate near each measurement
+        rows.gate_covs.append(np.tile([[0.01, 0.002], [0.002, 0.3]], (len(z), 1, 1)))
+        rows.gate_threshold.append(threshold)
+    geometry = view._geometry(sensor, rows)
+    assert geometry.rays_per_scan.tolist() == [2, 1] and geometry.gates_per_scan.tolist() == [2, 1]
+    assert geometry.links_per_scan.tolist() == [1, 1]
+    ray, gate = 0, 0
+    for k, (pose, z, link_from, link_to, threshold) in enumerate(scans):
+        origin = sensor.sensor(np.array(pose))[:2]
+        for i, zi in enumerate(z):
+            point = sensor.inverse(np.array(pose), np.array(zi))
+            assert np.allclose(
+                geometry.rays[ray + i], np.array([origin, point]), rtol=0, atol=1e-12
+            )
+            centre = sensor.inverse(np.array(pose), np.array(zi) + 0.05)
+            _, l_D_z = sensor.inverse_jacobians(np.array(pose), np.array(zi) + 0.05)
+            cov = l_D_z @ rows.gate_covs[k][i] @ l_D_z.T
+            outline = ellipse_outlines(centre[None], cov[None], n_sigma=np.sqrt(threshold))[0]
+            assert np.allclose(geometry.gates[gate + i], outline, rtol=0, atol=1e-9)
+        start = sensor.inverse(np.array(pose), np.array(z[link_from[0]]))
+        assert np.allclose(geometry.links[k], np.array([start, link_to[0]]), rtol=0, atol=1e-12)
+        ray += len(z)
+        gate += len(z)

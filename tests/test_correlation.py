@@ -115,6 +115,28 @@ def test_block_average_leaves_nan_out_and_keeps_small_matrices() -> None:
     assert factor == 2 and averaged[0, 0] == 1.0
 
 
+@pytest.mark.parametrize("with_nan", [False, True])
+def test_block_average_is_the_mean_of_each_block_ragged_edges_included(with_nan: bool) -> None:
+    """Both paths (finite: plain sums and the blocks' sizes; with NaN: finite entries
+    counted) against the mean of each block taken one by one, on a side that leaves
+    a smaller last block."""
+    rng = np.random.default_rng(3)
+    C = rng.uniform(-1.0, 1.0, size=(23, 23))
+    if with_nan:
+        C[4, :] = C[:, 4] = np.nan
+        C[20:, 20:] = np.nan  # a last block of NaN only
+    averaged, factor = block_average(C, max_side=5)
+    assert factor == 5 and averaged.shape == (5, 5)
+    for i in range(5):
+        for j in range(5):
+            block = C[5 * i : 5 * i + 5, 5 * j : 5 * j + 5]
+            values = block[np.isfinite(block)]
+            if values.size:
+                assert averaged[i, j] == pytest.approx(values.mean(), rel=1e-12)
+            else:
+                assert math.isnan(averaged[i, j])
+
+
 def test_cadence_every_update_for_small_maps_then_every_25_steps_and_the_last() -> None:
     cadence = CorrelationCadence()
     assert all(cadence.due(step, SMALL_MAP, last=False) for step in range(10))

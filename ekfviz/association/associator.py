@@ -37,8 +37,8 @@ from ekfviz.association.gating import (
     Predictions,
     compatible,
     gate_threshold,
-    innovations,
-    mahalanobis2,
+    innovation_parts,
+    mahalanobis2_of,
     predict_landmarks,
 )
 from ekfviz.association.jcbb import DEFAULT_BUDGET, DEFAULT_WORK_BUDGET, jcbb
@@ -192,20 +192,21 @@ class Associator:
         if m and n_landmarks:
             x, P = np.asarray(slam.x), np.asarray(slam.P)
             predictions = predict_landmarks(x, P, self._sensor, self._R)
-            nu = innovations(z, predictions.z_pred)
-            d2 = mahalanobis2(nu, predictions.S)
+            u, v = innovation_parts(z, predictions.z_pred)
+            d2 = mahalanobis2_of(u, v, predictions.S)
             ic = compatible(d2, self._gate)
             gate_rows = np.flatnonzero(ic.any(axis=0))
+            nu = np.stack((u[:, gate_rows], v[:, gate_rows]), axis=-1)  # the candidates'
             z_pred, S = predictions.z_pred[gate_rows], predictions.S[gate_rows]
             if gate_rows.size:
                 if self.params.method is Method.NN:
                     column = nearest_neighbour(d2[:, gate_rows], ic[:, gate_rows])
                 else:
                     result = jcbb(
-                        nu[:, gate_rows],
+                        nu,
                         d2[:, gate_rows],
                         ic[:, gate_rows],
-                        _joint_covariance(P, predictions.H[gate_rows], state_rows(gate_rows)),
+                        _joint_covariance(P, predictions.H(gate_rows), state_rows(gate_rows)),
                         self._R,
                         self.params.gate_probability,
                         self.params.budget,
@@ -320,7 +321,9 @@ def _joint_covariance(P: FloatArray, H: FloatArray, rows: IntArray) -> FloatArra
     k = H.shape[0]
     H_stacked = np.zeros((2 * k, 3 + 2 * k))
     H_stacked[:, :3] = H[:, :, :3].reshape(2 * k, 3)
-    for j in range(k):
-        H_stacked[2 * j : 2 * j + 2, 3 + 2 * j : 5 + 2 * j] = H[j, :, 3:]
+    # each candidate's own 2x2 block on the diagonal of the landmarks' columns, at once
+    blocks = H_stacked[:, 3:].reshape(k, 2, k, 2)  # a view: (row pair, row, column pair, column)
+    at = np.arange(k)
+    blocks[at, :, at, :] = H[:, :, 3:]
     C = H_stacked @ P[np.ix_(rows, rows)] @ H_stacked.T
     return np.asarray(0.5 * (C + C.T), dtype=np.float64)

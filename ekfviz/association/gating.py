@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ekfviz.core.records import Sighting
-from ekfviz.core.types import BoolArray, FloatArray
+from ekfviz.core.types import BoolArray, FloatArray, IntArray
 from ekfviz.models.angles import wrap_angles
 from ekfviz.models.range_bearing import RangeBearing
 
@@ -45,12 +45,22 @@ class Predictions:
 
     :param z_pred: (N, 2) predicted (bearing, range)
     :param S: (N, 2, 2) innovation covariances
-    :param H: (N, 2, 5) measurement Jacobians over (x, y, theta, l_x, l_y)
+    :param M: (6, N) the entries of each landmark's measurement Jacobian that are its own:
+        H = [[-a0, -a1, a2, a0, a1], [-b0, -b1, b2, b0, b1]] over (x, y, theta, l_x, l_y),
+        rows (a0, a1, a2, b0, b1, b2)
     """
 
     z_pred: FloatArray
     S: FloatArray
-    H: FloatArray
+    M: FloatArray
+
+    def H(self, rows: IntArray) -> FloatArray:
+        """The (k, 2, 5) measurement Jacobians of the landmarks at ``rows``."""
+        a0, a1, a2, b0, b1, b2 = self.M[:, rows]
+        H = np.empty((len(rows), 2, 5))
+        H[:, 0, 0], H[:, 0, 1], H[:, 0, 2], H[:, 0, 3], H[:, 0, 4] = -a0, -a1, a2, a0, a1
+        H[:, 1, 0], H[:, 1, 1], H[:, 1, 2], H[:, 1, 3], H[:, 1, 4] = -b0, -b1, b2, b0, b1
+        return H
 
 
 def predict_landmarks(
@@ -58,30 +68,60 @@ def predict_landmarks(
 ) -> Predictions:
     """Predicted measurement and innovation covariance of every landmark; O(N).
 
+    H_i P_cc H_i^T is taken through the three quantities the measurement depends on,
+    v = (l_x - x, l_y - y, theta): H_i = [-M_xy | m_theta | M_xy] with M = [M_xy | m_theta]
+    (2x3), so S_i = M cov(v) M^T + R, where cov(v) (3x3) is P_ll - P_lp - P_pl + P_pp over
+    x and y, P_l,theta - P_p,theta, and P_theta,theta. Written out per entry on the N
+    landmarks at once: a few dozen vector operations, not N small matrix products. M is
+    :meth:`RangeBearing.predict_all`'s z_D_landmark and z_D_pose[:, :, 2].
+
     :param x: (3+2N,) state mean
     :param P: (3+2N, 3+2N) state covariance
     """
     n_landmarks = (x.shape[0] - 3) // 2
-    landmarks_xy = x[3:].reshape(n_landmarks, 2)
-    z_pred, H_p, H_l = sensor.predict_all(x[:3], landmarks_xy)
-    P_pp = P[:3, :3]
-    P_pl = P[:3, 3:].reshape(3, n_landmarks, 2).transpose(1, 0, 2)  # (N, 3, 2)
-    idx = 3 + 2 * np.arange(n_landmarks)
-    P_ll = np.empty((n_landmarks, 2, 2))
-    P_ll[:, 0, 0] = P[idx, idx]
-    P_ll[:, 0, 1] = P[idx, idx + 1]
-    P_ll[:, 1, 0] = P[idx + 1, idx]
-    P_ll[:, 1, 1] = P[idx + 1, idx + 1]
-    cross = H_p @ P_pl @ H_l.transpose(0, 2, 1)
-    S = (
-        H_p @ P_pp @ H_p.transpose(0, 2, 1)
-        + cross
-        + cross.transpose(0, 2, 1)
-        + H_l @ P_ll @ H_l.transpose(0, 2, 1)
-        + R
-    )
-    S = 0.5 * (S + S.transpose(0, 2, 1))
-    return Predictions(z_pred=z_pred, S=S, H=np.concatenate([H_p, H_l], axis=2))
+    sx, sy, sx_D_theta, sy_D_theta = sensor.sensor(x[:3])
+    dx = x[3::2] - sx
+    dy = x[4::2] - sy
+    q = dx * dx + dy * dy
+    r = np.sqrt(q)
+    z_pred = np.empty((n_landmarks, 2))
+    z_pred[:, 0] = wrap_angles(np.arctan2(dy, dx) - float(x[2]))
+    z_pred[:, 1] = r
+    M = np.empty((6, n_landmarks))
+    a0, a1, a2, b0, b1, b2 = M  # views: filled in place
+    np.divide(-dy, q, out=a0)
+    np.divide(dx, q, out=a1)
+    np.subtract((dy * sx_D_theta - dx * sy_D_theta) / q, 1.0, out=a2)
+    np.divide(dx, r, out=b0)
+    np.divide(dy, r, out=b1)
+    np.divide(-dx * sx_D_theta - dy * sy_D_theta, r, out=b2)
+    (p00, p01, p02), (_, p11, p12), (_, _, p22) = P[:3, :3].tolist()
+    P_pl = P[:3, 3:]  # rows x, y, theta against the landmarks' columns
+    lx_x, ly_x = P_pl[0, 0::2], P_pl[0, 1::2]
+    lx_y, ly_y = P_pl[1, 0::2], P_pl[1, 1::2]
+    lx_t, ly_t = P_pl[2, 0::2], P_pl[2, 1::2]
+    diagonal = np.diagonal(P)[3:]
+    off = np.diagonal(P, 1)[3::2]  # P[l_x, l_y]
+    # cov(v), v = (l_x - x, l_y - y, theta)
+    c00 = diagonal[0::2] - 2.0 * lx_x + p00
+    c11 = diagonal[1::2] - 2.0 * ly_y + p11
+    c01 = off - lx_y - ly_x + p01
+    c02 = lx_t - p02
+    c12 = ly_t - p12
+    S = np.empty((n_landmarks, 2, 2))
+    # (M C)_r . M_s for rows r, s of M
+    ra0 = a0 * c00 + a1 * c01 + a2 * c02
+    ra1 = a0 * c01 + a1 * c11 + a2 * c12
+    ra2 = a0 * c02 + a1 * c12 + a2 * p22
+    rb0 = b0 * c00 + b1 * c01 + b2 * c02
+    rb1 = b0 * c01 + b1 * c11 + b2 * c12
+    rb2 = b0 * c02 + b1 * c12 + b2 * p22
+    S[:, 0, 0] = ra0 * a0 + ra1 * a1 + ra2 * a2 + float(R[0, 0])
+    s01 = 0.5 * ((ra0 * b0 + ra1 * b1 + ra2 * b2) + (rb0 * a0 + rb1 * a1 + rb2 * a2))
+    S[:, 0, 1] = s01 + 0.5 * (float(R[0, 1]) + float(R[1, 0]))
+    S[:, 1, 0] = S[:, 0, 1]
+    S[:, 1, 1] = rb0 * b0 + rb1 * b1 + rb2 * b2 + float(R[1, 1])
+    return Predictions(z_pred=z_pred, S=S, M=M)
 
 
 def innovations(z: FloatArray, z_pred: FloatArray) -> FloatArray:
@@ -101,11 +141,24 @@ def mahalanobis2(nu: FloatArray, S: FloatArray) -> FloatArray:
     :param nu: (m, N, 2); :param S: (N, 2, 2)
     :return: (m, N); +inf where S is not positive definite
     """
+    return mahalanobis2_of(nu[:, :, 0], nu[:, :, 1], S)
+
+
+def innovation_parts(z: FloatArray, z_pred: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """:func:`innovations` as its bearing (wrapped) and range parts, (m, N) each: the
+    gate needs them apart, and only its candidates need them together."""
+    bearing = wrap_angles(z[:, 0, None] - z_pred[None, :, 0])
+    rng: FloatArray = z[:, 1, None] - z_pred[None, :, 1]
+    return bearing, rng
+
+
+def mahalanobis2_of(u: FloatArray, v: FloatArray, S: FloatArray) -> FloatArray:
+    """:func:`mahalanobis2` of the innovations' bearing parts ``u`` and range parts ``v``
+    (m, N) each."""
     a, b, d = S[:, 0, 0], S[:, 0, 1], S[:, 1, 1]
     det = a * d - b * b
     ok = (a > 0.0) & (det > 0.0)
     safe = np.where(ok, det, 1.0)
-    u, v = nu[:, :, 0], nu[:, :, 1]
     d2 = (d * u * u - 2.0 * b * u * v + a * v * v) / safe
     return np.where(ok[None, :], d2, np.inf)
 

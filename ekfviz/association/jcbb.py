@@ -104,20 +104,31 @@ def jcbb(
     :param work_budget: units of work per scan
     """
     m = nu.shape[0]
-    order = [i for i in range(m) if compatible[i].any()]
+    order: list[int] = np.flatnonzero(compatible.any(axis=1)).tolist()
     if len(order) > MAX_JOINT:
         return JcbbResult(
             nearest_neighbour(d2, compatible), 0, 0.0, exhausted=True, fallback=FALLBACK_NN
         )
-    candidates = [
-        [
-            int(k)
-            for k in np.flatnonzero(compatible[i])[np.argsort(d2[i, compatible[i]], kind="stable")]
-        ]
-        for i in order
-    ]
+    # each measurement's compatible candidates, nearest first (ties in column order): a
+    # stable sort of the rows with the incompatible as NaN, which sorts after any number
+    nearest = np.argsort(np.where(compatible, d2, np.nan), axis=1, kind="stable")
+    counts = np.count_nonzero(compatible, axis=1).tolist()
+    candidates = [nearest[i, : counts[i]].tolist() for i in order]
     depth_total = len(order)
     r00, r01, r11 = float(R[0, 0]), float(R[0, 1]), float(R[1, 1])
+    # per candidate k, its own block of C plus R, and each measurement's innovations, as
+    # floats: a hypothesis's work is then float arithmetic but for the products with L^-1
+    diagonal, above = np.diagonal(C), np.diagonal(C, 1)
+    own = list(
+        zip(
+            (diagonal[0::2] + r00).tolist(),
+            (above[0::2] + r01).tolist(),
+            (diagonal[1::2] + r11).tolist(),
+            strict=True,
+        )
+    )
+    nu_of = nu[order].tolist()  # nu_of[depth][k] = [bearing, range]
+    thresholds: dict[int, float] = {}
     best_pairs = 0
     best_d2 = 0.0
     best: list[tuple[int, int]] = []
@@ -141,8 +152,12 @@ def jcbb(
         if reachable < best_pairs or (reachable == best_pairs and best_pairs and dist2 >= best_d2):
             return  # the bound: no completion of this branch can beat the best
         i = order[depth]
-        cols = np.array([2 * k + t for _, k in chosen for t in (0, 1)], dtype=np.int64)
+        nu_i = nu_of[depth]
         cost = (2 * pairs + 2) ** 2
+        threshold = thresholds.get(pairs)
+        if threshold is None:
+            threshold = thresholds[pairs] = joint_threshold(probability, 2 * (pairs + 1))
+        M: FloatArray | None = None  # L^-1 times the rows of the chosen pairs in C, once
         for k in candidates[depth]:
             if k in used:
                 continue
@@ -151,18 +166,21 @@ def jcbb(
                 return
             nodes += 1
             work += cost
-            s = C[2 * k : 2 * k + 2, 2 * k : 2 * k + 2]
-            a00, a01, a11 = float(s[0, 0]) + r00, float(s[0, 1]) + r01, float(s[1, 1]) + r11
-            nu0, nu1 = float(nu[i, k, 0]), float(nu[i, k, 1])
-            B = np.zeros((2, 0))
+            a00, a01, a11 = own[k]
+            nu0, nu1 = nu_i[k]
             if pairs:
-                B = (L_inv @ C[cols, 2 * k : 2 * k + 2]).T  # (2, 2p): L^-1 S_cross^T, transposed
-                a00 -= float(B[0] @ B[0])
-                a01 -= float(B[0] @ B[1])
-                a11 -= float(B[1] @ B[1])
-                shift = B @ w
-                nu0 -= float(shift[0])
-                nu1 -= float(shift[1])
+                if M is None:
+                    cols = [2 * kk + t for _, kk in chosen for t in (0, 1)]
+                    M = L_inv @ C[cols]  # (2p, 2K): column 2k + t is L^-1 S_cross^T's
+                    squares = np.einsum("ij,ij->j", M, M).tolist()
+                    crosses = np.einsum("ij,ij->j", M[:, 0::2], M[:, 1::2]).tolist()
+                    shifts = (w @ M).tolist()
+                # S_new - B B^T and nu_new - B w, B = (L^-1 S_cross^T)^T (2 x 2p)
+                a00 -= squares[2 * k]
+                a01 -= crosses[k]
+                a11 -= squares[2 * k + 1]
+                nu0 -= shifts[2 * k]
+                nu1 -= shifts[2 * k + 1]
             # 2x2 Cholesky of the Schur complement, in floats
             if not a00 > 0.0:
                 continue
@@ -175,15 +193,15 @@ def jcbb(
             w0 = nu0 / l00
             w1 = (nu1 - l10 * w0) / l11
             grown = dist2 + w0 * w0 + w1 * w1
-            if not grown < joint_threshold(probability, 2 * (pairs + 1)):
+            if not grown < threshold:
                 continue
             # [[L, 0], [B, L22]]^-1 = [[L^-1, 0], [-L22^-1 B L^-1, L22^-1]]
             size = 2 * pairs
             L22_inv = np.array(((1.0 / l00, 0.0), (-l10 / (l00 * l11), 1.0 / l11)))
             inv_new = np.zeros((size + 2, size + 2))
-            if pairs:
+            if M is not None:
                 inv_new[:size, :size] = L_inv
-                inv_new[size:, :size] = -(L22_inv @ B) @ L_inv
+                inv_new[size:, :size] = -(L22_inv @ M[:, 2 * k : 2 * k + 2].T) @ L_inv
             inv_new[size:, size:] = L22_inv
             chosen.append((i, k))
             used.add(k)

@@ -186,7 +186,8 @@ def check_covariance(P: FloatArray) -> CovarianceCheck:
     if not np.isfinite(P).all():
         nan = float("nan")
         return CovarianceCheck(dim, nan, nan, nan, finite=False)
-    asymmetry = float(np.abs(P - P.T).max()) if dim else 0.0
+    # exactly symmetric by construction as a rule: one comparison, the difference only if not
+    asymmetry = 0.0 if not dim or np.array_equal(P, P.T) else float(np.abs(P - P.T).max())
     eigenvalues = np.linalg.eigvalsh(0.5 * (P + P.T)) if asymmetry else np.linalg.eigvalsh(P)
     smallest, largest = float(eigenvalues[0]), float(eigenvalues[-1])
     smallest = float(_clip_round_off(np.array(smallest), np.array(largest)))

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from ekfviz.core.records import EventRecord
+from ekfviz.core.records import EventRecord, kept_record
 from ekfviz.core.types import FloatArray
 from ekfviz.filters.ekf import (
     DEFER_LANDMARKS,
@@ -75,19 +75,35 @@ class ModelEkfSlam(EkfSlam):
             return record
         x, y, theta = record.pose.tolist()
         c, s = math.cos(theta), math.sin(theta)
-        J = np.eye(3)
-        J[0, 2], J[1, 2] = -a * s - b * c, a * c - b * s
+        j0, j1 = -a * s - b * c, a * c - b * s  # J's column of theta
         pose = np.array((x + a * c - b * s, y + a * s + b * c, theta))
-        pose_cov = J @ record.pose_cov @ J.T
+        # J P J^T in floats (J the identity but for J[0, 2], J[1, 2]), exactly symmetric
+        (p00, p01, p02), (_, p11, p12), (_, _, p22) = record.pose_cov.tolist()
+        r02, r12 = p02 + j0 * p22, p12 + j1 * p22
+        m00 = (p00 + j0 * p02) + j0 * r02
+        m01 = (p01 + j0 * p12) + j1 * r02
+        m11 = (p11 + j1 * p12) + j1 * r12
+        pose_cov = np.array(((m00, m01, r02), (m01, m11, r12), (r02, r12, p22)))
         full_cov = record.full_cov
         if full_cov is not None:
+            J = np.eye(3)
+            J[0, 2], J[1, 2] = j0, j1
             T = np.eye(len(full_cov))
             T[:3, :3] = J
             full_cov = T @ full_cov @ T.T
+            full_cov[:3, :3] = pose_cov  # the same floats as the record's pose block
         for array in (pose, pose_cov, full_cov):
             if array is not None:
                 array.setflags(write=False)
-        return dataclasses.replace(record, pose=pose, pose_cov=pose_cov, full_cov=full_cov)
+        if record.correlation is not None or record.path_xytheta is not None:
+            return dataclasses.replace(record, pose=pose, pose_cov=pose_cov, full_cov=full_cov)
+        # the record with its pose moved, by kept_record: replace() costs three times as much
+        return kept_record(
+            record.event, record.step, record.kind, record.line, pose, pose_cov,
+            record.landmark_ids, record.landmarks_xy, record.landmark_covs, record.control,
+            record.observations, full_cov, record.time, record.warnings, record.covariance,
+            record.association,
+        )  # fmt: skip
 
     def drive(self, segments: FloatArray) -> None:
         """Drive the vehicle through (speed, steering, dt) spans in one predict; O(N).
@@ -100,25 +116,46 @@ class ModelEkfSlam(EkfSlam):
             raise FilterError("this filter has no vehicle model for speed and steering controls")
         n = self._n
         x, P = self._x, self._P
-        pose = x[:3].copy()
-        P_rr = P[:3, :3].copy()
-        G_all = np.eye(3)
-        Q = self.vehicle.Q
+        vehicle = self.vehicle
+        qv, qs = vehicle.sigma_speed**2, vehicle.sigma_steering**2  # Q = diag(qv, qs)
+        # the pose and the upper triangle of its covariance in floats: a span costs a few
+        # dozen float operations where 3x3 products cost a few microseconds each
+        px, py, pt = x[:3].tolist()
+        (p00, p01, p02), (_, p11, p12), (_, _, p22) = P[:3, :3].tolist()
+        # the product of the spans' G is the identity but for column theta: (a, b, 1)
+        a_all = b_all = 0.0
         for speed, steering, dt in np.asarray(segments, dtype=np.float64).tolist():
             if dt <= 0.0:
                 continue
-            G, W = self.vehicle.jacobians(pose, speed, steering, dt)
-            pose = self.vehicle.motion(pose, speed, steering, dt)
-            P_rr = G @ P_rr @ G.T + W @ Q @ W.T
-            G_all = G @ G_all
-        if not (np.isfinite(pose).all() and np.isfinite(P_rr).all()):
+            (nx, ny, nt, g02, g12, w00, w01, w10, w11, w20, w21) = vehicle.step(
+                px, py, pt, speed, steering, dt
+            )
+            # G P G^T, G the identity but for G[0, 2] = g02 and G[1, 2] = g12
+            r02 = p02 + g02 * p22
+            r12 = p12 + g12 * p22
+            m00 = (p00 + g02 * p02) + g02 * r02
+            m01 = (p01 + g02 * p12) + g12 * r02
+            m11 = (p11 + g12 * p12) + g12 * r12
+            # + W Q W^T
+            p00 = m00 + (qv * w00 * w00 + qs * w01 * w01)
+            p01 = m01 + (qv * w00 * w10 + qs * w01 * w11)
+            p02 = r02 + (qv * w00 * w20 + qs * w01 * w21)
+            p11 = m11 + (qv * w10 * w10 + qs * w11 * w11)
+            p12 = r12 + (qv * w10 * w20 + qs * w11 * w21)
+            p22 = p22 + (qv * w20 * w20 + qs * w21 * w21)
+            a_all += g02
+            b_all += g12
+            px, py, pt = nx, ny, nt
+        if not math.isfinite(px + py + pt + p00 + p01 + p02 + p11 + p12 + p22):
             raise FilterError("the state became non-finite in predict")
-        x[:3] = pose
+        x[:3] = (px, py, pt)
         if n > 3:
-            P_rm = G_all @ P[:3, 3:n]
-            P[:3, 3:n] = P_rm
-            P[3:n, :3] = P_rm.T
-        P[:3, :3] = 0.5 * (P_rr + P_rr.T)
+            # rows x and y of G_all P_rm (row theta unchanged), and their mirror
+            P[0, 3:n] += a_all * P[2, 3:n]
+            P[1, 3:n] += b_all * P[2, 3:n]
+            P[3:n, 0] = P[0, 3:n]
+            P[3:n, 1] = P[1, 3:n]
+        P[:3, :3] = ((p00, p01, p02), (p01, p11, p12), (p02, p12, p22))
 
     def _update_sequential(
         self,
@@ -146,28 +183,38 @@ class ModelEkfSlam(EkfSlam):
         defer = n >= DEFER_MIN_DIM
         U = np.empty((2 * min(len(known), DEFER_LANDMARKS), n)) if defer else x[None]
         rank = 0  # rows of U in use: the current P is P - U[:rank]^T U[:rank]
-        sensor = self.sensor
+        a, b = self.sensor.a, self.sensor.b
         for k in known:
             landmark_id = ids[k]
             j = self._slot[landmark_id]
             rows = self._rows.get(j)
             if rows is None:
                 rows = self._rows[j] = np.array((0, 1, 2, j, j + 1))
-            pose, landmark = x[:3], x[j : j + 2]
-            z_pred = sensor.measure(pose, landmark)
-            bearing, rng = float(z_pred[0]), float(z_pred[1])
+            # the sensor model's measure() and jacobians(), the same operations in floats
+            px, py, theta, lx, ly = x.take(rows).tolist()
+            c, s = math.cos(theta), math.sin(theta)
+            ox, oy = a * c - b * s, a * s + b * c  # the sensor's offset; d/dtheta: (-oy, ox)
+            dx, dy = lx - (px + ox), ly - (py + oy)
+            bearing = wrap_angle(math.atan2(dy, dx) - theta)
+            rng = math.hypot(dx, dy)
             if not rng > MIN_PREDICTED_RANGE:
                 self._skip(k, landmark_id, skipped, _zero_range(rng))
                 continue
-            z_D_pose, z_D_landmark = sensor.jacobians(pose, landmark)
-            H = np.concatenate((z_D_pose, z_D_landmark), axis=1)
+            q = dx * dx + dy * dy
+            r = math.sqrt(q)
+            H = np.array(
+                (
+                    (dy / q, -dx / q, (dy * -oy - dx * ox) / q - 1.0, -dy / q, dx / q),
+                    (-dx / r, -dy / r, (-dx * -oy - dy * ox) / r, dx / r, dy / r),
+                )
+            )
             P_c = P_buffer.take(rows, 0)  # the rows c of P (5 x capacity)
             HP = H.dot(P_c[:, :n] if spare else P_c)
             if rank:
                 HP -= H.dot(U[:rank].take(rows, 1).T).dot(U[:rank])
-            S = HP.take(rows, 1).dot(H.T)
-            s00, s11 = float(S[0, 0]) + r00, float(S[1, 1]) + r11
-            s01 = 0.5 * (float(S[0, 1]) + float(S[1, 0])) + r01
+            (S00, S01), (S10, S11) = HP.take(rows, 1).dot(H.T).tolist()
+            s00, s11 = S00 + r00, S11 + r11
+            s01 = 0.5 * (S01 + S10) + r01
             if not math.isfinite(s00 + s01 + s11):
                 raise FilterError(f"the covariance became non-finite (S of landmark {landmark_id})")
             z_bearing, z_range = z[k]

@@ -25,7 +25,7 @@ import numpy as np
 from ekfviz.core.records import AnyEvent, Drive, Scan
 from ekfviz.core.types import FloatArray
 from ekfviz.io.errors import InputError
-from ekfviz.io.text import ProgressCallback, numeric_lines
+from ekfviz.io.text import ProgressCallback, numeric_blocks
 
 INPUTS = "inputs.dat"
 MEASUREMENTS = "measurements.dat"
@@ -88,52 +88,85 @@ def read_victoria(path: Path, progress: ProgressCallback | None = None) -> Itera
         yield Drive(line=line, segments=np.array(segments).reshape(-1, 3), time=clock)
 
 
-def _rows(
+def _blocks(
     path: Path, count: int, what: str, progress: ProgressCallback | None
-) -> Iterator[tuple[int, list[float]]]:
-    """Numeric lines of ``count`` values with a first column (time) that never decreases."""
+) -> Iterator[tuple[list[int], FloatArray]]:
+    """Blocks of numeric lines of ``count`` values (line numbers, (k, count)) whose first
+    column (time) never decreases: a block is converted at once (see
+    :func:`~ekfviz.io.text.numeric_blocks`); the rows before a bad line are yielded
+    before its error is raised."""
     last = -math.inf
     rows = 0
-    for line, values in numeric_lines(path, progress):
-        rows += 1
-        if len(values) != count:
-            raise InputError(path, line, f"found {len(values)} numbers, expected {count}: {what}")
-        if values[0] < last:
+    for lines, table in numeric_blocks(path, count, what, progress):
+        times = table[:, 0]
+        before = np.empty_like(times)
+        before[0] = last
+        before[1:] = times[:-1]
+        backwards = np.flatnonzero(times < before)
+        if backwards.size:
+            k = int(backwards[0])
+            if k:
+                yield lines[:k], table[:k]
             raise InputError(
-                path, line, f"found time {values[0]:g} after {last:g}, expected times in order"
+                path,
+                lines[k],
+                f"found time {times[k]:g} after {before[k]:g}, expected times in order",
             )
-        last = values[0]
-        yield line, values
+        rows += len(lines)
+        last = float(times[-1])
+        yield lines, table
     if not rows:
         raise InputError(path, 0, f"found no data, expected '{what}' lines")
 
 
+def _rows(
+    path: Path, count: int, what: str, progress: ProgressCallback | None
+) -> Iterator[tuple[int, list[float]]]:
+    """Numeric lines of ``count`` values with a first column (time) that never decreases."""
+    for lines, table in _blocks(path, count, what, progress):
+        yield from zip(lines, table.tolist(), strict=True)
+
+
 def _scans(path: Path, progress: ProgressCallback | None) -> Iterator[Scan]:
-    """The detections grouped by time: one Scan per time stamp."""
-    rows: list[list[float]] = []
+    """The detections grouped by time: one Scan per time stamp.
+
+    Checked and grouped a block of lines at a time; a bad line ends the stream with its
+    error once the scans complete before it are yielded (the scan it belongs to is not).
+    """
+    pending: list[FloatArray] = []  # the rows of the scan in progress, in pieces
     first_line = 0
-    for line, values in _rows(path, 4, "time range bearing diameter", progress):
-        _, rng, bearing, diameter = values
-        if not rng > 0:
-            raise InputError(path, line, f"found range {rng:g}, expected a positive range")
-        if not 0.0 <= bearing <= math.pi:
-            raise InputError(
-                path, line, f"found bearing {bearing:g}, expected the laser's 0 to pi (rad)"
-            )
-        if diameter < 0:
-            raise InputError(path, line, f"found diameter {diameter:g}, expected >= 0")
-        if rows and values[0] != rows[0][0]:
-            yield _scan(rows, first_line)
-            rows = []
-        if not rows:
-            first_line = line
-        rows.append(values)
-    if rows:
-        yield _scan(rows, first_line)
+    for lines, table in _blocks(path, 4, "time range bearing diameter", progress):
+        rng, bearing, diameter = table[:, 1], table[:, 2], table[:, 3]
+        bad = ~(rng > 0) | ~((bearing >= 0.0) & (bearing <= math.pi)) | (diameter < 0)
+        faults = np.flatnonzero(bad)
+        good = int(faults[0]) if faults.size else len(lines)
+        times = table[:good, 0]
+        # the rows where a new scan starts: a time other than the row's before
+        starts = (np.flatnonzero(times[1:] != times[:-1]) + 1).tolist()
+        for begin, end in zip([0, *starts], [*starts, good], strict=True):
+            if begin == end:
+                continue
+            if pending and float(times[begin]) != float(pending[0][0, 0]):
+                yield _scan(pending, first_line)
+                pending = []
+            if not pending:
+                first_line = lines[begin]
+            pending.append(table[begin:end])
+        if faults.size:
+            k, line = int(faults[0]), lines[int(faults[0])]
+            if not rng[k] > 0:
+                raise InputError(path, line, f"found range {rng[k]:g}, expected a positive range")
+            if not 0.0 <= bearing[k] <= math.pi:
+                raise InputError(
+                    path, line, f"found bearing {bearing[k]:g}, expected the laser's 0 to pi (rad)"
+                )
+            raise InputError(path, line, f"found diameter {diameter[k]:g}, expected >= 0")
+    if pending:
+        yield _scan(pending, first_line)
 
 
-def _scan(rows: list[list[float]], line: int) -> Scan:
-    table = np.array(rows)
+def _scan(pieces: list[FloatArray], line: int) -> Scan:
+    table = pieces[0] if len(pieces) == 1 else np.concatenate(pieces)
     z = np.column_stack([table[:, 2] - LASER_BEARING_AHEAD, table[:, 1]])
     return Scan(line=line, z=z, time=float(table[0, 0]), diameters=table[:, 3].copy())
 
@@ -146,6 +179,5 @@ def read_gps(path: Path) -> tuple[FloatArray, FloatArray]:
     """
     if path.is_dir():
         path = path / GPS
-    rows = [values for _, values in _rows(path, 3, "time x y", None)]
-    table = np.array(rows)
+    table = np.concatenate([block for _, block in _blocks(path, 3, "time x y", None)])
     return table[:, 0], table[:, 1:3]

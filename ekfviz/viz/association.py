@@ -32,7 +32,7 @@ from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.evaluation.reference import ReferenceFit
 from ekfviz.models.range_bearing import RangeBearing
 from ekfviz.viz import style
-from ekfviz.viz.ellipses import ellipse_outlines
+from ekfviz.viz.ellipses import N_POINTS, ellipse_outlines
 from ekfviz.viz.layers import arrow
 from ekfviz.viz.layers.arrow import time_is_epoch  # the recorder's choice of the time's type
 
@@ -53,6 +53,7 @@ GATE_COLOR = (120, 120, 220)
 TENTATIVE_COLOR = (255, 140, 0)
 REFERENCE_COLOR = (128, 0, 128)
 _SERIES_FLUSH = 1024
+_MATCHED, _REJECTED = int(Fate.MATCHED), int(Fate.REJECTED)
 # the scans' shapes and texts are sent every this many scans: one send per entity instead of
 # a log per scan (7,200 scans x 6 entities cost Victoria Park a third of its time), in
 # chunks small enough for ``rerun rrd verify`` (see recorder.SHAPES_EVERY)
@@ -90,69 +91,42 @@ class AssociationView:
         association = record.association
         if association is None:
             return
-        rec = self._rec
-        # the stream's clock as before, for whatever the recorder logs next
-        rec.set_time(style.STEP, sequence=record.step)
-        rec.set_time(style.EVENT, sequence=record.event)
-        if record.time is not None:
-            if time_is_epoch(record.time):
-                rec.set_time(style.TIME, timestamp=record.time)
-            else:
-                rec.set_time(style.TIME, duration=record.time)
         if self._rows.steps and math.isnan(self._rows.times[-1]) != (record.time is None):
             self._send_scans()  # a batch's rows all have a time or none has
         rows = self._rows
         rows.steps.append(record.step)
         rows.events.append(record.event)
         rows.times.append(math.nan if record.time is None else record.time)
-        pose = record.pose
-        sx, sy, _, _ = self._sensor.sensor(pose)
-        points = _points(self._sensor, pose, association.z)
+        # the geometry (rays, links, gates) is computed at the send, for every scan of the
+        # batch at once: here only what it needs is kept
+        x, y, theta = record.pose.tolist()
         fate = association.fate.astype(np.int64)
-        rays = np.empty((len(points), 2, 2))
-        rays[:, 0] = sx, sy
-        rays[:, 1] = points
-        rows.rays.append(rays)
-        rows.ray_colors.append(FATE_COLORS[fate])
-        landmark_ids = record.landmark_ids.tolist()
-        where = {i: k for k, i in enumerate(landmark_ids)}
-        matched = [
-            (k, where[i])
-            for k, (f, i) in enumerate(
-                zip(fate.tolist(), association.landmark.tolist(), strict=True)
-            )
-            if f == Fate.MATCHED and i in where
-        ]
-        links = np.empty((len(matched), 2, 2))
-        if matched:
-            picked = np.array(matched)
-            links[:, 0] = points[picked[:, 0]]
-            links[:, 1] = record.landmarks_xy[picked[:, 1]]
-        rows.links.append(links)
-        if len(association.gate_ids):
-            centres, jacobians = _inverse_all(self._sensor, pose, association.gate_z)
-            covs = jacobians @ association.gate_S @ jacobians.transpose(0, 2, 1)
-            outlines = ellipse_outlines(
-                centres, covs, n_sigma=math.sqrt(association.gate_threshold)
-            )
-        else:
-            outlines = np.zeros((0, 2, 2))
-        rows.gates.append(outlines)
-        tentative_ids = [i for i in association.tentative.tolist() if i in where]
-        rows.tentative.append(record.landmarks_xy[[where[i] for i in tentative_ids]])
-        rows.tentative_labels.extend(f"L{i} (tentative)" for i in tentative_ids)
+        rows.poses.append((x, y, theta))
+        rows.z.append(association.z)
+        rows.fates.append(fate)
+        landmark_ids = record.landmark_ids
+        matched = np.flatnonzero(fate == _MATCHED)
+        rows_of = _rows_of(landmark_ids, association.landmark[matched])
+        found = rows_of >= 0
+        rows.link_from.append(matched[found])
+        rows.link_to.append(record.landmarks_xy[rows_of[found]])
+        rows.gate_z.append(association.gate_z)
+        rows.gate_covs.append(association.gate_S)
+        rows.gate_threshold.append(association.gate_threshold)
+        tentative_rows = _rows_of(landmark_ids, association.tentative)
+        tentative_rows = tentative_rows[tentative_rows >= 0]
+        rows.tentative.append(record.landmarks_xy[tentative_rows])
+        rows.tentative_labels.extend(
+            f"L{i} (tentative)" for i in landmark_ids[tentative_rows].tolist()
+        )
         if association.diameters is not None:
-            updates = [
-                (i, size)
-                for f, i, size in zip(
-                    fate.tolist(),
-                    association.landmark.tolist(),
-                    association.diameters.tolist(),
-                    strict=True,
-                )
-                if f != Fate.REJECTED
-            ]
-            self._grow_sizes(max([i for i, _ in updates], default=-1))
+            kept = fate != _REJECTED
+            updates = zip(
+                association.landmark[kept].tolist(),
+                association.diameters[kept].tolist(),
+                strict=True,
+            )
+            self._grow_sizes(int(association.landmark[kept].max(initial=-1)))
             known, smoothed = self._size_known, self._size_value
             for i, size in updates:
                 smoothed[i] = 0.8 * smoothed[i] + 0.2 * size if known[i] else size
@@ -160,7 +134,7 @@ class AssociationView:
             removed = association.removed
             known[removed[(removed >= 0) & (removed < len(known))]] = False
             # the landmarks with a size, in the record's order (ids of the associator: >= 0)
-            ids = record.landmark_ids
+            ids = landmark_ids
             has = np.zeros(len(ids), dtype=bool)
             inside = (ids >= 0) & (ids < len(known))
             has[inside] = known[ids[inside]]
@@ -170,10 +144,11 @@ class AssociationView:
             rows.sizes.append(record.landmarks_xy[picked_rows])
             rows.size_radii.append(radii)
         score = self.tally.add(record)
+        matched_n, new_n, rejected_n = np.bincount(fate, minlength=3)[:3].tolist()
         values = {
-            "matched": association.count(Fate.MATCHED),
-            "new": association.count(Fate.NEW),
-            "rejected": association.count(Fate.REJECTED),
+            "matched": matched_n,
+            "new": new_n,
+            "rejected": rejected_n,
             "confirmed": len(association.confirmed),
             "removed": len(association.removed),
             "landmarks": record.n_landmarks - len(association.tentative),
@@ -223,6 +198,17 @@ class AssociationView:
         rows, self._rows = self._rows, _ScanRows()
         if not rows.steps:
             return
+        # the stream's clock at the last scan, as a log per scan left it, for whatever
+        # is logged next without setting it
+        rec = self._rec
+        rec.set_time(style.STEP, sequence=rows.steps[-1])
+        rec.set_time(style.EVENT, sequence=rows.events[-1])
+        last_time = rows.times[-1]
+        if not math.isnan(last_time):
+            if time_is_epoch(last_time):
+                rec.set_time(style.TIME, timestamp=last_time)
+            else:
+                rec.set_time(style.TIME, duration=last_time)
         steps = np.array(rows.steps, dtype=np.int64)
         events = np.array(rows.events, dtype=np.int64)
         times = np.array(rows.times, dtype=np.float64)
@@ -238,21 +224,33 @@ class AssociationView:
             self._rec.send_columns(self._path(entity), indexes=indexes, columns=columns)
 
         ones = np.ones(len(steps), dtype=np.int64)
-        counts = np.array([len(r) for r in rows.rays], dtype=np.int64)
+        geometry = _geometry(self._sensor, rows)
         send(
             RAYS,
             everything,
             [
-                arrow.column(rr.LineStrips2D.descriptor_strips(), _strips(rows.rays), counts),
+                arrow.column(
+                    rr.LineStrips2D.descriptor_strips(),
+                    _strips(geometry.rays),
+                    geometry.rays_per_scan,
+                ),
                 arrow.column(
                     rr.LineStrips2D.descriptor_colors(),
-                    _colors(np.concatenate(rows.ray_colors).reshape(-1, 3)),
-                    counts,
+                    _colors(FATE_COLORS[np.concatenate(rows.fates)]),
+                    geometry.rays_per_scan,
                 ),
             ],
         )
-        send(LINKS, everything, _one_colour_strips(rows.links, LINK_COLOR, ones))
-        send(GATES, everything, _one_colour_strips(rows.gates, GATE_COLOR, ones))
+        send(
+            LINKS,
+            everything,
+            _one_colour_strips(geometry.links, geometry.links_per_scan, LINK_COLOR, ones),
+        )
+        send(
+            GATES,
+            everything,
+            _one_colour_strips(geometry.gates, geometry.gates_per_scan, GATE_COLOR, ones),
+        )
         counts = np.array([len(r) for r in rows.tentative], dtype=np.int64)
         send(
             TENTATIVE,
@@ -338,10 +336,14 @@ class _ScanRows:
     steps: list[int] = field(default_factory=list)
     events: list[int] = field(default_factory=list)
     times: list[float] = field(default_factory=list)  # nan: the log has no times
-    rays: list[FloatArray] = field(default_factory=list)  # (k, 2, 2) each
-    ray_colors: list[npt.NDArray[np.uint8]] = field(default_factory=list)  # (k, 3) each
-    links: list[FloatArray] = field(default_factory=list)  # (m, 2, 2) each
-    gates: list[FloatArray] = field(default_factory=list)  # (g, n, 2) each
+    poses: list[tuple[float, float, float]] = field(default_factory=list)
+    z: list[FloatArray] = field(default_factory=list)  # (k, 2) each: the measurements
+    fates: list[IntArray] = field(default_factory=list)  # (k,) each
+    link_from: list[IntArray] = field(default_factory=list)  # (l,) each: measurements ...
+    link_to: list[FloatArray] = field(default_factory=list)  # (l, 2) each: ... to landmarks
+    gate_z: list[FloatArray] = field(default_factory=list)  # (g, 2) each
+    gate_covs: list[FloatArray] = field(default_factory=list)  # (g, 2, 2) each: S
+    gate_threshold: list[float] = field(default_factory=list)
     tentative: list[FloatArray] = field(default_factory=list)  # (t, 2) each
     tentative_labels: list[str] = field(default_factory=list)
     sized: list[int] = field(default_factory=list)  # the scans with sizes (their index)
@@ -351,29 +353,84 @@ class _ScanRows:
     levels: list[rr.TextLogLevel] = field(default_factory=list)
 
 
+@dataclass(frozen=True, slots=True)
+class _Geometry:
+    """The batch's shapes, every scan's in order: (k, n, 2) polylines and their count per
+    scan."""
+
+    rays: FloatArray
+    rays_per_scan: IntArray
+    links: FloatArray
+    links_per_scan: IntArray
+    gates: FloatArray
+    gates_per_scan: IntArray
+
+
+def _geometry(sensor: RangeBearing, rows: _ScanRows) -> _Geometry:
+    """The rays, links and gates of the buffered scans, a few array operations for all.
+
+    Each measurement and each gate's centre through the sensor's inverse model at its
+    scan's pose; each gate's covariance mapped to the plane through that model's Jacobian
+    (``l_D_z S l_D_z^T``); a link from its measurement's point to its landmark.
+    """
+    poses = np.array(rows.poses, dtype=np.float64).reshape(-1, 3)
+    origins = np.array([sensor.sensor(pose)[:2] for pose in poses], dtype=np.float64)
+    rays_per_scan = np.array([len(z) for z in rows.z], dtype=np.int64)
+    gates_per_scan = np.array([len(z) for z in rows.gate_z], dtype=np.int64)
+    z = np.concatenate([*rows.z, *rows.gate_z]).reshape(-1, 2)
+    scan = np.concatenate(
+        [
+            np.repeat(np.arange(len(poses)), rays_per_scan),
+            np.repeat(np.arange(len(poses)), gates_per_scan),
+        ]
+    )
+    ends, l_D_z = _inverse_at(origins[scan], poses[scan, 2], z)
+    m = int(rays_per_scan.sum())
+    rays = np.empty((m, 2, 2))
+    rays[:, 0] = origins[scan[:m]]
+    rays[:, 1] = ends[:m]
+    first = np.zeros(len(poses), dtype=np.int64)  # each scan's first measurement
+    np.cumsum(rays_per_scan[:-1], out=first[1:])
+    links_per_scan = np.array([len(k) for k in rows.link_from], dtype=np.int64)
+    links = np.empty((int(links_per_scan.sum()), 2, 2))
+    if len(links):
+        picked = np.concatenate(rows.link_from) + np.repeat(first, links_per_scan)
+        links[:, 0] = ends[picked]
+        links[:, 1] = np.concatenate(rows.link_to).reshape(-1, 2)
+    gates = np.zeros((0, 2, 2))
+    if len(z) > m:
+        jacobians = l_D_z[m:]
+        covs = jacobians @ np.concatenate(rows.gate_covs) @ jacobians.transpose(0, 2, 1)
+        threshold = np.repeat(np.array(rows.gate_threshold, dtype=np.float64), gates_per_scan)
+        values = np.unique(threshold)
+        if len(values) == 1:
+            gates = ellipse_outlines(ends[m:], covs, n_sigma=math.sqrt(float(values[0])))
+        else:  # scans of several gates: each group at its own size
+            gates = np.empty((len(covs), N_POINTS, 2))
+            for value in values.tolist():
+                at = np.flatnonzero(threshold == value)
+                gates[at] = ellipse_outlines(ends[m:][at], covs[at], n_sigma=math.sqrt(value))
+    return _Geometry(rays, rays_per_scan, links, links_per_scan, gates, gates_per_scan)
+
+
 def _one_colour_strips(
-    polylines: list[FloatArray], color: tuple[int, int, int], ones: IntArray
+    polylines: FloatArray, per_scan: IntArray, color: tuple[int, int, int], ones: IntArray
 ) -> list[rr.ComponentColumn]:
-    """Each scan's polylines (see :func:`_strips`) as line strips of one colour."""
-    counts = np.array([len(p) for p in polylines], dtype=np.int64)
+    """Polylines (k, n, 2), ``per_scan`` of them a scan, as line strips of one colour."""
     return [
-        arrow.column(rr.LineStrips2D.descriptor_strips(), _strips(polylines), counts),
+        arrow.column(rr.LineStrips2D.descriptor_strips(), _strips(polylines), per_scan),
         arrow.column(
             rr.LineStrips2D.descriptor_colors(),
-            _colors(np.repeat([color], len(polylines), axis=0)),
+            _colors(np.repeat([color], len(per_scan), axis=0)),
             ones,
         ),
     ]
 
 
-def _strips(polylines: list[FloatArray]) -> pa.Array:
-    """Polylines, (k, n, 2) per scan (n may differ between scans), as Rerun's line strips."""
-    lengths = np.concatenate(
-        [np.full(len(p), p.shape[1], dtype=np.int32) for p in polylines] or [np.zeros(0, np.int32)]
-    )
-    offsets = np.zeros(len(lengths) + 1, dtype=np.int32)
-    np.cumsum(lengths, out=offsets[1:])
-    points = np.concatenate([p.reshape(-1, 2) for p in polylines] or [np.zeros((0, 2))])
+def _strips(polylines: FloatArray) -> pa.Array:
+    """Polylines (k, n, 2) as Rerun's line strips."""
+    offsets = np.arange(len(polylines) + 1, dtype=np.int32) * np.int32(polylines.shape[1])
+    points = polylines.reshape(-1, 2)
     return pa.ListArray.from_arrays(pa.array(offsets), arrow.xy(points), type=arrow.STRIP)
 
 
@@ -398,31 +455,41 @@ def _rounded_time_column(times: FloatArray) -> rr.TimeColumn:
     return rr.TimeColumn(style.TIME, duration=nanos.astype("timedelta64[ns]"))
 
 
-def _points(sensor: RangeBearing, pose: FloatArray, z: FloatArray) -> FloatArray:
-    """Where each measurement (K, 2) puts its landmark (K, 2)."""
-    return _inverse_all(sensor, pose, z)[0]
-
-
-def _inverse_all(
-    sensor: RangeBearing, pose: FloatArray, z: FloatArray
+def _inverse_at(
+    origins: FloatArray, headings: FloatArray, z: FloatArray
 ) -> tuple[FloatArray, FloatArray]:
-    """:meth:`RangeBearing.inverse` and its ``l_D_z`` of many measurements at once.
+    """:meth:`RangeBearing.inverse` and its ``l_D_z`` of many measurements at once, each
+    from its own sensor position and heading.
 
+    :param origins: (K, 2) the sensor's position; :param headings: (K,) the vehicle's
     :param z: (K, 2) (bearing, range)
     :return: landmarks (K, 2), l_D_z (K, 2, 2)
     """
-    z = np.asarray(z, dtype=np.float64).reshape(-1, 2)
-    sx, sy, _, _ = sensor.sensor(pose)
     rng = z[:, 1]
-    phi = float(pose[2]) + z[:, 0]
+    phi = headings + z[:, 0]
     c, s = np.cos(phi), np.sin(phi)
-    points = np.stack([sx + rng * c, sy + rng * s], axis=1)
+    points = np.empty((len(z), 2))
+    points[:, 0] = origins[:, 0] + rng * c
+    points[:, 1] = origins[:, 1] + rng * s
     l_D_z = np.empty((len(z), 2, 2))
     l_D_z[:, 0, 0] = -rng * s
     l_D_z[:, 0, 1] = c
     l_D_z[:, 1, 0] = rng * c
     l_D_z[:, 1, 1] = s
     return points, l_D_z
+
+
+def _rows_of(ids: IntArray, wanted: IntArray) -> IntArray:
+    """The row of each of ``wanted`` in ``ids`` (distinct), -1 where it is not there."""
+    wanted = np.asarray(wanted, dtype=np.int64)
+    if not len(ids) or not len(wanted):
+        return np.full(len(wanted), -1, dtype=np.int64)
+    order = None if bool((ids[1:] > ids[:-1]).all()) else np.argsort(ids, kind="stable")
+    ordered = ids if order is None else ids[order]
+    at = np.minimum(np.searchsorted(ordered, wanted), len(ids) - 1)
+    found = ordered[at] == wanted
+    rows = at if order is None else order[at]
+    return np.where(found, rows, -1).astype(np.int64)
 
 
 # A GPS dropout: a gap between fixes this many times their median interval (and at least
