@@ -34,8 +34,9 @@ BLAS_THREADS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
 def one_blas_thread() -> None:
     """One BLAS thread for this process and its children, unless the user set a number;
-    before numpy is imported (see the module)."""
-    if not any(name in os.environ for name in BLAS_THREADS):
+    before numpy is imported (see the module). A variable set to nothing (``VAR=``) is no
+    number: OpenBLAS would then take every core."""
+    if not any(os.environ.get(name, "").strip() for name in BLAS_THREADS):
         for name in BLAS_THREADS:
             os.environ[name] = "1"
 

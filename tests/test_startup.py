@@ -192,6 +192,11 @@ print(" ".join(os.environ.get(name, "-") for name in startup.BLAS_THREADS))
         capture_output=True, text=True,
     )  # fmt: skip
     assert chosen.stdout.split() == ["-", "2", "-"], chosen.stderr
+    empty = subprocess.run(  # set to nothing: no number chosen (OpenBLAS would take all)
+        [sys.executable, "-c", code], env={**env, "OPENBLAS_NUM_THREADS": ""},
+        capture_output=True, text=True,
+    )  # fmt: skip
+    assert empty.stdout.split() == ["1", "1", "1"], empty.stderr
 
 
 def test_after_import_adjusts_a_module_when_it_comes_and_only_then(tmp_path: Path) -> None:
