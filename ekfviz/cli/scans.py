@@ -114,6 +114,13 @@ class ReplaySetup:
     _last: EventRecord | None = None
     _summaries: list[str] = field(default_factory=list)
 
+    @property
+    def reads_predicts(self) -> bool:
+        """Whether :meth:`add` reads the predicts' records (the reference's: the tally
+        reads the association's updates alone); else a replay may give its predicts to
+        the recorder as columns."""
+        return self.reference is not None
+
     def add(self, record: EventRecord) -> None:
         self._last = record
         if record.association is not None:

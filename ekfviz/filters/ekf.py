@@ -218,6 +218,10 @@ class EkfSlam:
         self._warnings: list[str] = []  # of the last observe
         self._slot: dict[int, int] = {}  # landmark id -> index of its x in the state
         self._ids_array: IntArray | None = None  # self._ids as a frozen array, built lazily
+        # the last observation line whose landmarks were all known: its ids as a list, as
+        # the frozen array its records keep, and their slots (see observe); None once the
+        # map changes
+        self._known_line: tuple[list[int], IntArray, IntArray] | None = None
         self._rows: dict[int, IntArray] = {}  # slot j -> [0, 1, 2, j, j+1]
         self._landmark_covs: FloatArray | None = None  # for records, until P's map changes
         self._landmarks_xy: FloatArray | None = None  # ... and x's: both set together
@@ -271,6 +275,13 @@ class EkfSlam:
         view = self._P[: self._n, : self._n]
         view.flags.writeable = False
         return view
+
+    @property
+    def buffers(self) -> tuple[FloatArray, FloatArray]:
+        """The state's own buffers x and P, the state in their leading 3+2N rows (and
+        columns): for a reader that copies from them at once, without a view made per
+        read (a replay's predict rows); not to be written."""
+        return self._x, self._P
 
     @property
     def dim(self) -> int:
@@ -397,26 +408,77 @@ class EkfSlam:
         """
         self._landmark_covs = None
         self._warnings = []
-        ids_arr = np.array(ids, dtype=np.int64)  # copies: the record keeps them
-        z = np.array(z, dtype=np.float64).reshape(-1, 2)
-        ids_list: list[int] = ids_arr.tolist()
-        m = len(ids_list)
-        if len(set(ids_list)) != m:
-            raise FilterError("an observation names the same landmark twice")
-        slot = self._slot
-        new = [i not in slot for i in ids_list]
-        any_new = True in new
-        # per observation: z_pred (2), innovation (2), S (2x2, row-major) and NIS
-        values: FloatArray
-        skipped: list[bool] | BoolArray
-        if any_new and all(new):
-            values, skipped = np.full((m, 9), np.nan), _no_flags(m)
-        elif (
+        z = np.array(z, dtype=np.float64).reshape(-1, 2)  # copies: the record keeps it
+        # A log observes the same landmarks line after line (a classic log all of them,
+        # in one shared ids array): the line's ids, their copy and their slots are kept
+        # from the last line while the map has not changed, and compared as a list.
+        line = self._known_line
+        ids_list: list[int] = (
+            ids.tolist() if type(ids) is np.ndarray and ids.dtype == np.int64 else []
+        )
+        compiled = (
             self._compiled
             and self._n < KERNEL_MAX_DIM
             and self.params.update is UpdateMode.SEQUENTIAL
-        ):
-            values, skipped = self._update_compiled(ids_list, z)
+        )
+        skipped: list[bool] | BoolArray
+        if line is not None and compiled and ids_list == line[0] and z.shape[0] == len(ids_list):
+            ids_arr, m = line[1], len(ids_list)
+            values, skipped = self._update_compiled(ids_list, z, line[2])
+            new, any_new = [], False
+        else:
+            ids_arr = np.array(ids, dtype=np.int64)  # copies: the record keeps them
+            ids_list = ids_arr.tolist()
+            m = len(ids_list)
+            if len(set(ids_list)) != m:
+                raise FilterError("an observation names the same landmark twice")
+            slot = self._slot
+            new = [i not in slot for i in ids_list]
+            any_new = True in new
+            values, skipped = self._observe_line(ids_list, ids_arr, z, new, any_new, compiled)
+        if any_new:
+            self._reserve(sum(new))
+            for k in range(m):
+                if new[k]:
+                    self._add_landmark(ids_list[k], z[k].tolist())
+        values = frozen(values.reshape(m, 9))  # its views below are read-only too
+        flags_none = _NO_FLAGS.get(m)  # where nothing was skipped, shared
+        return Observations(
+            ids=ids_arr,
+            z=frozen(z),
+            z_pred=values[:, 0:2],
+            innovation=values[:, 2:4],
+            S=values[:, 4:8].reshape(m, 2, 2),
+            nis=values[:, 8],
+            initialised=frozen(np.array(new, dtype=bool)) if any_new else _no_flags(m),
+            skipped=skipped if skipped is flags_none else frozen(np.asarray(skipped, dtype=bool)),
+        )
+
+    def _observe_line(
+        self,
+        ids_list: list[int],
+        ids_arr: IntArray,
+        z: FloatArray,
+        new: list[bool],
+        any_new: bool,
+        compiled: bool,
+    ) -> tuple[FloatArray, list[bool] | BoolArray]:
+        """The update of a line not met just before: per observation z_pred (2),
+        innovation (2), S (2x2, row-major) and NIS, and the skipped flags. Freezes
+        ``ids_arr`` (the record keeps it) and, where every landmark is known and the
+        kernel updates, keeps the line for the next (see :meth:`observe`)."""
+        m = len(ids_list)
+        frozen(ids_arr)
+        values: FloatArray
+        skipped: list[bool] | BoolArray
+        if any_new and all(new):
+            values, skipped = _nan_table(m), _no_flags(m)
+        elif compiled:
+            slot = self._slot
+            slots = np.array([slot.get(i, -1) for i in ids_list], dtype=np.int64)  # new: -1
+            if not any_new:
+                self._known_line = (ids_list, ids_arr, slots)
+            values, skipped = self._update_compiled(ids_list, z, slots)
         else:
             known = [k for k, is_new in enumerate(new) if not is_new] if any_new else range(m)
             table: list[tuple[float, ...]] = [_NAN_ROW] * m
@@ -430,33 +492,20 @@ class EkfSlam:
             if not math.isfinite(float(self._x.sum())):
                 raise FilterError("the state became non-finite in update")
             values = np.fromiter(itertools.chain.from_iterable(table), np.float64, 9 * m)
-        if any_new:
-            self._reserve(sum(new))
-            for k in range(m):
-                if new[k]:
-                    self._add_landmark(ids_list[k], z[k].tolist())
-        values = frozen(values.reshape(m, 9))  # its views below are read-only too
-        flags_none = _NO_FLAGS.get(m)  # where nothing was skipped, shared
-        return Observations(
-            ids=frozen(ids_arr),
-            z=frozen(z),
-            z_pred=values[:, 0:2],
-            innovation=values[:, 2:4],
-            S=values[:, 4:8].reshape(m, 2, 2),
-            nis=values[:, 8],
-            initialised=frozen(np.array(new, dtype=bool)) if any_new else _no_flags(m),
-            skipped=skipped if skipped is flags_none else frozen(np.asarray(skipped, dtype=bool)),
-        )
+        return values, skipped
 
     def update(self, ids: Sequence[int] | IntArray, z: FloatArray) -> None:
         """:meth:`observe` as the :class:`~ekfviz.filters.protocol.SlamFilter` protocol has it."""
         self.observe(ids, z)
 
-    def _update_compiled(self, ids: list[int], z: FloatArray) -> tuple[FloatArray, BoolArray]:
-        """:meth:`_update_sequential` in the compiled kernel; its table and skipped flags."""
-        slot = self._slot
-        slots = np.array([slot.get(i, -1) for i in ids], dtype=np.int64)  # new ones: -1
-        table = np.full((len(ids), 9), np.nan)
+    def _update_compiled(
+        self, ids: list[int], z: FloatArray, slots: IntArray
+    ) -> tuple[FloatArray, BoolArray]:
+        """:meth:`_update_sequential` in the compiled kernel; its table and skipped flags.
+
+        :param slots: (m,) each landmark's row in the state, -1 for a new one
+        """
+        table = _nan_table(len(ids))
         status = np.zeros(len(ids), dtype=np.int8)
         r00, r11 = self._r
         code, k, n_skipped = _kernel.update_sequential(
@@ -708,6 +757,7 @@ class EkfSlam:
         self._ids = kept_ids
         self._slot = {i: 3 + 2 * k for k, i in enumerate(kept_ids)}
         self._ids_array = None
+        self._known_line = None
         self._rows = {}
         self._landmark_covs = None
 
@@ -762,7 +812,20 @@ class EkfSlam:
         self._slot[landmark_id] = n
         self._ids.append(landmark_id)
         self._ids_array = None
+        self._known_line = None
         self._n = n + 2
+
+
+_NAN_TABLES: dict[int, FloatArray] = {}
+
+
+def _nan_table(m: int) -> FloatArray:
+    """(m, 9) NaN, a new array (a copy of a kept one: np.full costs more at small m)."""
+    table = _NAN_TABLES.get(m)
+    if table is None:
+        table = _NAN_TABLES.setdefault(m, np.full((m, 9), np.nan))
+    copy: FloatArray = table.copy()
+    return copy
 
 
 _NO_FLAGS: dict[int, BoolArray] = {}

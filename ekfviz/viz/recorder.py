@@ -29,19 +29,20 @@ What is logged when, by default: the robot and its ellipses at every event, a lo
 a step, the observation rays at the updates with some; all landmark positions where the
 map grew or some landmark moved by over ``MAP_TOLERANCE`` of its ellipse (the viewer
 shows the latest). The 3-sigma ellipses of all landmarks likewise while the map holds
-at most ``SMALL_MAP`` landmarks; beyond that, at
-every update only those of the landmarks observed (``world/landmarks/ellipses/observed``)
-and the whole map every ``MAP_EVERY_STEPS`` steps and at the end (the viewer shows the
-latest of each, so every landmark keeps an ellipse at any time). A timestamped log
-(high-rate odometry) logs its predicts thinned (:mod:`ekfviz.viz.thinning`) and its map
-like a large one, the whole map every ``MAP_EVERY_S`` seconds of log time. With truth, the error
-series of a landmark get a value whenever its ellipse is logged. ``detail=True`` logs
-every ellipse and error at every update.
+at most ``SMALL_MAP`` landmarks; beyond that, at every update only those of the
+landmarks observed (``world/landmarks/ellipses/observed``) and the whole map every
+``MAP_EVERY_STEPS`` steps and at the end (the viewer shows the latest of each, so every
+landmark keeps an ellipse at any time). A timestamped log (high-rate odometry) logs its
+predicts thinned (:mod:`ekfviz.viz.thinning`) and its map like a large one, the whole
+map every ``MAP_EVERY_S`` seconds of log time. With truth, the error series of a
+landmark get a value whenever its ellipse is logged. ``detail=True`` logs every ellipse
+and error at every update.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from functools import partial
 
 import numpy as np
 import rerun as rr
@@ -73,6 +74,7 @@ from ekfviz.viz.layers.landmarks import (
 )
 from ekfviz.viz.layers.metrics import MetricsLayer
 from ekfviz.viz.layers.observations import ObservationsLayer
+from ekfviz.viz.layers.pending import FLUSH_EVERY, FLUSH_LANDMARKS, PendingEvents
 from ekfviz.viz.layers.robot import HEADING_LENGTH, RobotLayer
 from ekfviz.viz.layers.text import TextLayer
 from ekfviz.viz.layers.truth import TruthLayer
@@ -85,10 +87,6 @@ __all__ = [  # the constants of the parts, where callers and tests have found th
     "Recorder", "frame_id", "time_is_epoch", "unclutter",
 ]  # fmt: skip
 
-# Events between two sends of the buffered data, one chunk per entity: each chunk costs
-# ~0.1 ms in the main thread and as much in Rerun's encoder, whatever its size.
-FLUSH_EVERY = 4096
-FLUSH_LANDMARKS = 1 << 20  # ... or sooner, once the buffered records hold this many landmarks
 FLUSH_TIMEOUT_S = 30.0  # how long finish() waits for a slow or absent viewer
 
 
@@ -159,11 +157,10 @@ class Recorder:
         self._truth_layer = TruthLayer(canvas, self._metrics)
         self._text = TextLayer(canvas)
         self._correlation = CorrelationLayer(canvas)
-        # records not sent yet, each with whether it logs the whole map's ellipses
-        self._pending: list[tuple[EventRecord, bool]] = []
-        self._pending_landmarks = 0
-        self._event = 0
-        self._step = 0
+        self.pending = PendingEvents()
+        self._send_and_flush = partial(self._send_pending, series=True)
+        self._last_record: EventRecord | None = None  # the last record logged
+        self._event = self._step = 0
         self._step_has_update = True  # the initialisation counts as step 0's update
         self._blueprint = blueprint
         self._run_documents = run_documents
@@ -252,6 +249,7 @@ class Recorder:
     def finish(self, evaluation: Evaluation | None = None) -> None:
         """Send the buffered data, the whole map at the last update, the evaluation document
         if given, the layout framing the whole run, and flush."""
+        self._log_rows()
         for record in self._thinning.drain():
             self._log_record(record)
         self._map.mark_final()  # its map exactly, in the same send if pending
@@ -276,6 +274,7 @@ class Recorder:
 
     def note(self, text: str, level: str | rr.TextLogLevel = rr.TextLogLevel.WARN) -> None:
         """A line in the text log at the latest event: a warning, or why a run stopped."""
+        self._log_rows()
         for record in self._thinning.drain():
             self._log_record(record)
         self._send_pending()
@@ -326,11 +325,21 @@ class Recorder:
     def log_record(self, record: EventRecord) -> None:
         """Log one record of the core: the map, the metrics and a line of text (the
         predicts of a timestamped log thinned, see :mod:`ekfviz.viz.thinning`)."""
+        self._log_rows()
+        self._last_record = record
         if self._thinning.passes(record):
             self._log_record(record)
             return
         for admitted in self._thinning.admit(record):
             self._log_record(admitted)
+
+    def _log_rows(self) -> None:
+        """Hold the predict rows written since the last record (see PendingEvents)."""
+        last = self.pending.hold_rows(
+            self._last_record, self._thinning.held, self.log_record, self._send_and_flush
+        )
+        if last is not None:
+            self._event, self._step, self._step_has_update = *last, False
 
     def _log_record(self, record: EventRecord) -> None:
         self._event, self._step = record.event, record.step
@@ -344,19 +353,17 @@ class Recorder:
             self.association.log(record)
         if self._truth is not None:
             self._truth_layer.log_metrics(record, whole_map, self.association is not None)
-        self._pending.append((record, whole_map))
-        self._pending_landmarks += len(record.landmark_ids)
-        if len(self._pending) >= FLUSH_EVERY or self._pending_landmarks >= FLUSH_LANDMARKS:
-            self._send_pending()
-            self._canvas.series.flush()
+        if self.pending.add(record, whole_map):
+            self._send_pending(series=True)
 
-    def _send_pending(self) -> None:
-        """Send the buffered records: one batch of columns, drawn by every part."""
-        if not self._pending:
+    def _send_pending(self, series: bool = False) -> None:
+        """Send the buffered records: one batch of columns, drawn by every part; then,
+        with ``series``, the buffered scalar series."""
+        if not self.pending:
             return
-        batch = Batch.of(self._pending, self._canvas.clock)
-        self._pending = []
-        self._pending_landmarks = 0
+        records, rows_held = self.pending.take()
+        batch = Batch.of(records, self._canvas.clock, self.pending.rows, rows_held)
+        self.pending.release(rows_held)
         self._robot.send(batch)
         self._truth_layer.send(batch)
         for path, picked in (
@@ -372,6 +379,8 @@ class Recorder:
         self._metrics.send_health(batch)
         self._text.send(batch)
         self._correlation.send(batch)
+        if series:
+            self._canvas.series.flush()
 
     # -- static data -----------------------------------------------------------------------
 
