@@ -131,13 +131,21 @@ def numeric_lines(
         number within +-:data:`MAX_MAGNITUDE`
     """
     for number, tokens in token_lines(path, progress):
-        # one regex match a line for the usual case; token by token to name a bad one
-        if _NUMBERS.fullmatch(" ".join(tokens)):
-            values = list(map(float, tokens))
-            if all(-MAX_MAGNITUDE <= v <= MAX_MAGNITUDE for v in values):
-                yield number, values
-                continue
-        yield number, [parse_number(path, number, token) for token in tokens]
+        values = plain_numbers(tokens)
+        if values is None:  # token by token, to name the bad one
+            values = [parse_number(path, number, token) for token in tokens]
+        yield number, values
+
+
+def plain_numbers(tokens: list[str]) -> list[float] | None:
+    """The tokens as numbers where every one is a decimal number within
+    +-:data:`MAX_MAGNITUDE` (one regular expression for the lot: the usual case), else
+    None (:func:`parse_number` then names the bad one)."""
+    if _NUMBERS.fullmatch(" ".join(tokens)):
+        values = list(map(float, tokens))
+        if all(-MAX_MAGNITUDE <= v <= MAX_MAGNITUDE for v in values):
+            return values
+    return None
 
 
 # The bytes a block of plain decimal numbers is made of. float() accepts more ("nan",
