@@ -400,6 +400,37 @@ def kept_record(
     return record
 
 
+(_set_o_ids, _set_o_z, _set_o_z_pred, _set_o_innovation, _set_o_cov, _set_o_nis,
+ _set_o_initialised, _set_o_skipped) = (
+    Observations.__dict__[name].__set__
+    for name in ("ids", "z", "z_pred", "innovation", "S", "nis", "initialised", "skipped")
+)  # fmt: skip
+
+
+def kept_observations(
+    ids: IntArray,
+    z: FloatArray,
+    z_pred: FloatArray,
+    innovation: FloatArray,
+    S: FloatArray,
+    nis: FloatArray,
+    initialised: BoolArray,
+    skipped: BoolArray,
+) -> Observations:
+    """``Observations(...)`` of parts that are its already (read-only arrays of its shapes),
+    put together as :func:`kept_record` puts a record: an update makes one a line."""
+    observations: Observations = _new(Observations)
+    _set_o_ids(observations, ids)
+    _set_o_z(observations, z)
+    _set_o_z_pred(observations, z_pred)
+    _set_o_innovation(observations, innovation)
+    _set_o_cov(observations, S)
+    _set_o_nis(observations, nis)
+    _set_o_initialised(observations, initialised)
+    _set_o_skipped(observations, skipped)
+    return observations
+
+
 def _kept(array: object, dtype: type[np.generic]) -> bool:
     """Whether an array can go into a record as it is: read-only, of the record's type."""
     return isinstance(array, np.ndarray) and array.dtype == dtype and not array.flags.writeable

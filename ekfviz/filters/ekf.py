@@ -32,6 +32,7 @@ from ekfviz.core.records import (
     Observations,
     ScanAssociation,
     frozen,
+    kept_observations,
     kept_record,
 )
 from ekfviz.core.types import BoolArray, FloatArray, IntArray
@@ -447,15 +448,15 @@ class EkfSlam:
                     self._add_landmark(ids_list[k], z[k].tolist())
         values = frozen(values.reshape(m, 9))  # its views below are read-only too
         flags_none = _NO_FLAGS.get(m)  # where nothing was skipped, shared
-        return Observations(
-            ids=ids_arr,
-            z=frozen(z),
-            z_pred=values[:, 0:2],
-            innovation=values[:, 2:4],
-            S=values[:, 4:8].reshape(m, 2, 2),
-            nis=values[:, 8],
-            initialised=frozen(np.array(new, dtype=bool)) if any_new else _no_flags(m),
-            skipped=skipped if skipped is flags_none else frozen(np.asarray(skipped, dtype=bool)),
+        return kept_observations(  # Observations(...) without its per-field checks
+            ids_arr,
+            frozen(z),
+            values[:, 0:2],
+            values[:, 2:4],
+            values[:, 4:8].reshape(m, 2, 2),
+            values[:, 8],
+            frozen(np.array(new, dtype=bool)) if any_new else _no_flags(m),
+            skipped if skipped is flags_none else frozen(np.asarray(skipped, dtype=bool)),
         )
 
     def _observe_line(
