@@ -140,3 +140,23 @@ def test_a_plugged_filter_and_full_covariances_keep_a_record_per_event() -> None
     rows = PredictRows()
     kept = list(replay(events(20), FilterParams(), make_filter=Mine, predict_rows=rows))
     assert len(rows) == 0 and sum(r.kind is EventKind.PREDICT for r in kept) == 20
+
+
+def test_a_row_left_half_written_is_never_read() -> None:
+    """A signal raised inside add() (Ctrl-C becomes an exception anywhere) leaves a row
+    with some columns written: it does not count, and dropping the rows clears it."""
+    x, P = np.arange(5.0), np.eye(5)
+    rows = PredictRows(2)
+    for event in (1, 3, 5):
+        rows.add(event, event, 10 + event, None, (1.0, 0.0), x + event, P)
+    rows.events.append(7)  # the half-written row: its event only
+    rows.steps.append(7)
+    assert len(rows) == 3
+    before = next(iter(replay(events(3), FilterParams())))
+    latest = rows.latest(before)
+    assert latest is not None and latest.event == 5 and latest.line == 15
+    rows.drop(3)
+    assert len(rows) == 0 and rows.events == [] and rows.steps == []
+    assert rows.latest(before) is not None and rows.latest(before).event == 5  # type: ignore[union-attr]
+    rows.add(9, 9, 19, None, (1.0, 0.0), x, P)
+    assert (rows.events, rows.steps, rows.lines) == ([9], [9], [19])

@@ -459,13 +459,16 @@ class PredictRows:
         self.times: list[float | None] = []
         self.controls: list[tuple[float, float]] = []
         self.timed = False  # some row has a time
+        # rows complete: counted once all their columns are written (a signal raised in
+        # add() leaves a row that no one reads)
+        self._count = 0
         # the newest row ever written, kept when dropped: where a stopped run stopped
         self._newest: _Row | None = None
         self._newest_pose: FloatArray = np.zeros(3)
         self._newest_cov: FloatArray = np.zeros((3, 3))
 
     def __len__(self) -> int:
-        return len(self.events)
+        return self._count
 
     def add(
         self,
@@ -479,7 +482,7 @@ class PredictRows:
     ) -> None:
         """A predict's row: its timelines and control, and the pose and pose covariance
         copied from the state ``x`` (3+2N,...) and ``P`` (classic layout, any capacity)."""
-        row = len(self.events)
+        row = self._count
         if row == self.poses.shape[0]:
             self.poses = np.concatenate([self.poses, np.empty_like(self.poses)])
             self.pose_covs = np.concatenate([self.pose_covs, np.empty_like(self.pose_covs)])
@@ -492,10 +495,11 @@ class PredictRows:
         self.controls.append(control)
         if time is not None:
             self.timed = True
+        self._count = row + 1
 
     def drop(self, count: int) -> None:
         """Forget the first ``count`` rows (used); the newest is kept for :meth:`latest`."""
-        total = len(self.events)
+        total = self._count
         if count <= 0:
             return
         if count >= total:
@@ -507,6 +511,8 @@ class PredictRows:
         self.pose_covs[:rest] = self.pose_covs[count:total]
         for column in (self.events, self.steps, self.lines, self.times, self.controls):
             del column[:count]
+            del column[rest:]  # a row left half written
+        self._count = rest
         self.timed = any(time is not None for time in self.times)
 
     def _row(self, row: int) -> _Row:
@@ -520,10 +526,11 @@ class PredictRows:
         of ``before`` (the record before them) shared; the rows are forgotten here."""
         made = [
             self._record(self._row(row), self.poses[row], self.pose_covs[row], before)
-            for row in range(start, len(self.events))
+            for row in range(start, self._count)
         ]
         for column in (self.events, self.steps, self.lines, self.times, self.controls):
             del column[start:]
+        self._count = start
         self.timed = any(time is not None for time in self.times)
         return made
 
@@ -531,8 +538,8 @@ class PredictRows:
         """The newer of ``record`` and the newest row ever written (as a record): where
         a run that stopped got to."""
         newest: _Row | None
-        if self.events:
-            last = len(self.events) - 1
+        if self._count:
+            last = self._count - 1
             newest, pose, cov = self._row(last), self.poses[last], self.pose_covs[last]
         else:
             newest, pose, cov = self._newest, self._newest_pose, self._newest_cov

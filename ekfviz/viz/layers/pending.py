@@ -81,7 +81,7 @@ class PendingEvents:
             for record in rows.records(self.rows_held, before):
                 log(record)
             return None
-        last = rows.events[-1], rows.steps[-1]
+        last = rows.events[total - 1], rows.steps[total - 1]
         per_row = len(before.landmark_ids)  # a predict keeps the map of the record before
         count, landmarks = self.count + new, self.landmarks + per_row * new
         if count < FLUSH_EVERY and landmarks < FLUSH_LANDMARKS:  # no send due among them
