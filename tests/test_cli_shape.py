@@ -104,12 +104,20 @@ def test_a_shared_group_is_the_same_options_on_every_command_that_takes_it(
             shown = (
                 param.help,
                 param.default,
-                param.min,
-                param.max,
+                _bound(param, "min"),
+                _bound(param, "max"),
                 param.metavar,
                 param.rich_help_panel,
             )
             assert first.setdefault(flag, shown) == shown, f"{name} {flag} differs"
+
+
+def _bound(param: Any, which: str) -> Any:
+    """An option's ``min`` or ``max``: on the option (typer 0.29) or its click type
+    (typer 0.26-0.28, an IntRange or FloatRange)."""
+    if hasattr(param, which):
+        return getattr(param, which)
+    return getattr(getattr(param, "type", None), which, None)
 
 
 def _groups_of(command: Any) -> set[type[OptionGroup]]:

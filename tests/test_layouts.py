@@ -145,10 +145,16 @@ def test_a_check_recording_opens_on_the_divergence(tmp_path: Path) -> None:
     # the ERROR line is in the log view, at the divergent event
     (log,) = [view for view in layout.views if f"/{check_viz.LOG}" in view.shown]
     assert log.kind == "TextLog"
-    errors = entity_rows(save, f"/{check_viz.LOG}")
-    assert [row["TextLog:level"] for row in errors] == [["ERROR"]]
+    lines = entity_rows(save, f"/{check_viz.LOG}")
+    errors = [row for row in lines if row["TextLog:level"] == ["ERROR"]]
     assert [row["event"] for row in errors] == [2]
-    assert "landmark mean x[L2.x] expected 2.74994" in str(errors[0]["TextLog:text"])
+    assert "landmark mean x[L2.x]" in str(errors[0]["TextLog:text"])
+    # then its values and cause, on lines of their own (no level) that the view shows whole
+    rest = [str(row["TextLog:text"]) for row in lines if row["TextLog:level"] == [""]]
+    assert {row["event"] for row in lines} == {2} and len(rest) == len(lines) - 1
+    assert "expected 2.74994, got 2.16497" in rest[0]
+    assert any("likely cause" in line for line in rest)
+    assert all(len(line) <= style.LOG_WIDTH + 8 for line in rest)  # 8: the list's quoting
     # the time cursor: the event timeline, following to the end, which is the divergence
     assert layout.time_panel["TimePanelBlueprint:timeline"] == ["event"]
     assert [row["event"] for row in entity_rows(save, "/filters/NoRInS/world/robot")][-1] == 2

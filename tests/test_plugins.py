@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from blueprints import read_layout
 from conftest import entity_rows, rrd_verify
 from typer.testing import CliRunner
 
@@ -21,6 +22,7 @@ from ekfviz.filters.ekf import FilterParams, LandmarkInit, UpdateMode
 from ekfviz.filters.spec import FilterSpecError, load_filter, load_in_process
 from ekfviz.io.extended import read_log
 from ekfviz.runner.replay import replay
+from ekfviz.viz import style
 
 ROOT = Path(__file__).parents[1]
 DATA = ROOT / "data"
@@ -253,7 +255,9 @@ def test_check_saves_both_filters_and_marks_the_divergence(tmp_path: Path) -> No
     # without --all the recording ends at the first divergence, where it opens
     assert len(entity_rows(save, "/filters/reference/world/robot")) == 3  # events 0..2
     assert len(entity_rows(save, "/filters/NoRInS/world/robot")) == 3
-    marks = entity_rows(save, "/log/divergence")
+    marks = [
+        row for row in entity_rows(save, "/log/divergence") if row["TextLog:level"] == ["ERROR"]
+    ]
     assert len(marks) == 1 and marks[0]["event"] == 2
     described = runner.invoke(app, ["info", str(save)])
     assert described.exit_code == 0 and "checked against the reference" in described.output
@@ -545,3 +549,45 @@ def test_scans_where_they_cannot_go_are_one_line(tmp_path: Path, command: str) -
     assert result.exit_code == 2, result.output
     (line,) = result.output.strip().splitlines()
     assert line.startswith(f"error: {log}:1: ") and "scan" in line
+
+
+@pytest.mark.parametrize("spec", ["Offline", "OfflineWithPath"])
+def test_an_offline_filters_series_are_points_in_replay_and_compare(
+    tmp_path: Path, spec: str
+) -> None:
+    """Its two records (the start, the optimum after finish()) are not joined by a line
+    that would look like a value at every step: its series are points, in its own
+    recording and in its tab of a comparison, and its pose sigma plots still keep the
+    lengths and the angle apart."""
+    save = tmp_path / "replay.rrd"
+    done = runner.invoke(
+        app, ["replay", str(CLASSIC), "--truth", str(TRUTH), "--filter", plugin(spec),
+              "--save", str(save)],
+    )  # fmt: skip
+    assert done.exit_code == 0, done.output
+    compared = tmp_path / "compare.rrd"
+    done = runner.invoke(
+        app, ["compare", str(CLASSIC), "--truth", str(TRUTH), "--filter", "ekf", "--filter",
+              plugin(spec), "--workers", "1", "--save", str(compared)],
+    )  # fmt: skip
+    assert done.exit_code == 0, done.output
+    for rrd, prefix in ((save, ""), (compared, f"/filters/{spec}")):
+        for entity in (style.POSE_SIGMA, style.HEALTH_POSE_MIN_EIG):
+            rows = entity_rows(rrd, f"{prefix}/{entity}")
+            assert rows, (rrd.name, entity)
+            columns = {key for row in rows for key in row if row[key] is not None}
+            assert any(key.startswith("SeriesPoints:") for key in columns), (rrd.name, entity)
+            assert not any(key.startswith("SeriesLines:") for key in columns), (rrd.name, entity)
+    # the online filter beside it keeps its lines
+    ekf_rows = entity_rows(compared, f"/filters/ekf/{style.POSE_SIGMA}")
+    assert "SeriesLines:colors" in ekf_rows[0]
+    layout = read_layout(save)
+    sigma = [view for view in layout.views if view.name.startswith("Pose sigma")]
+    assert len(sigma) == 2
+    for view in sigma:  # the override that keeps the units apart draws points too
+        drawn_by = [
+            value["VisualizerInstruction:visualizer_type"]
+            for value in view.properties.values()
+            if "VisualizerInstruction:visualizer_type" in value
+        ]
+        assert drawn_by == [["SeriesPoints"]], view.name

@@ -53,6 +53,8 @@ NOT_IMPORTED = (
     "typer.rich_utils",  # typer's help pages and boxed errors, with rich's markdown
     "markdown_it",
     "pygments",
+    "pydantic",  # typer 0.29's per-parameter adapters (pyproject keeps typer below it)
+    "ekfviz.studies.runs",  # a study's runs
 )
 
 

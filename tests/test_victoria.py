@@ -152,3 +152,32 @@ def test_the_rigid_fit_recovers_a_known_transform_and_finds_jumps() -> None:
     assert found.tolist() == [k == 30 for k in range(61)]
     fit = fit_reference(t, estimate, t, gps)
     assert fit.jumps.sum() == 1 and fit.rmse > 5.0 > 1.0 > fit.rmse_without_jumps
+
+
+def test_the_map_frames_the_gps_track_and_its_jumps_label(
+    park: tuple[Path, dict[str, np.ndarray], Path],
+) -> None:
+    """The reference is drawn after the run; the layout sent after it frames the track and
+    the jump with room for its label (centred on the point) on either side."""
+    from blueprints import read_layout
+
+    _, _, out = park
+    rrd = out / "run.rrd"
+    (jump,) = entity_rows(rrd, "/world/reference/gps_jumps", static=True)
+    jx, jy = np.asarray(jump["Points2D:positions"], dtype=np.float64)[0]
+    (track,) = [r for r in entity_rows(rrd, "/world/reference/gps", static=True)
+                if "LineStrips2D:strips" in r]  # fmt: skip
+    gps = np.asarray(track["LineStrips2D:strips"][0], dtype=np.float64)  # type: ignore[index]
+    (bounds,) = [
+        value["VisualBounds2D:range"][0]
+        for view in read_layout(rrd).views
+        if view.name == "Map"
+        for value in view.properties.values()
+        if "VisualBounds2D:range" in value
+    ]
+    x_min, x_max = bounds["x_range"]
+    y_min, y_max = bounds["y_range"]  # mirrored: the view draws y down
+    width = x_max - x_min
+    assert x_min + 0.1 * width <= jx <= x_max - 0.1 * width  # its label fits beside it
+    assert x_min <= gps[:, 0].min() and gps[:, 0].max() <= x_max
+    assert y_min <= -max(jy, gps[:, 1].max()) and -min(jy, gps[:, 1].min()) <= y_max

@@ -76,17 +76,31 @@ def _tidy_typer() -> None:
             return result
 
         option.display_type_rich = display_type_rich
-    if argument is not None and hasattr(argument, "_usage_display_name"):
+    if argument is not None and hasattr(argument, "_usage_display_name"):  # typer 0.29
         usage = argument._usage_display_name
 
         def usage_display_name(self: Any) -> str:
-            name = str(usage(self))
-            return re.sub(r"\{([^}]*)\}", lambda m: m.group(1).upper(), name)
+            return _capitals(str(usage(self)))
 
         argument._usage_display_name = usage_display_name
+    elif argument is not None and hasattr(argument, "make_metavar"):  # typer 0.26-0.28
+        metavar = argument.make_metavar
+
+        def make_metavar(self: Any, ctx: Any, *, usage: bool = False) -> str:
+            name = str(metavar(self, ctx, usage=usage))
+            return _capitals(name) if usage else name
+
+        argument.make_metavar = make_metavar
     # typer imports its rich_utils (and rich's markdown and syntax highlighting with it,
     # about 0.1 s) for a help page or an error only: patched when it comes, if it does
     startup.after_import("typer.rich_utils", _one_line_errors)
+
+
+def _capitals(name: str) -> str:
+    """An argument of the usage line in capitals: ``{data}`` (required) as ``DATA``,
+    ``[data]`` (optional) as ``[DATA]``."""
+    name = re.sub(r"\{([^}]*)\}", lambda m: m.group(1).upper(), name)
+    return re.sub(r"\[([a-z_]+)\]", lambda m: f"[{m.group(1).upper()}]", name)
 
 
 def _one_line_errors(rich_utils: Any) -> None:

@@ -291,7 +291,7 @@ def _record(
             events, params, make_filter=make_filter, name=request.filter_spec,
             data=request.data, truth=truth_xy, logger=run, on_record=warnings.add, scans=setup,
         )  # fmt: skip
-        extra = setup.finish(run)
+        extra = setup.extra  # what the run added (scans, the reference): see finish()
         warnings.summarise()
         print_evaluation(evaluation, setup.truth_of_last())
         setup.print_summary(extra)

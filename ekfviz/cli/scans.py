@@ -113,6 +113,8 @@ class ReplaySetup:
     _scans: bool = False
     _last: EventRecord | None = None
     _summaries: list[str] = field(default_factory=list)
+    # what finish() found (the association's counts, the reference's results), by key
+    extra: dict[str, object] = field(default_factory=dict)
 
     @property
     def reads_predicts(self) -> bool:
@@ -140,8 +142,10 @@ class ReplaySetup:
         return self.truth if self._last is None else self.truth_of(self._last)
 
     def finish(self, logger: RunLogger) -> dict[str, object]:
-        """The association report and the source's reference, if any (logged too)."""
-        extra: dict[str, object] = {}
+        """The association report and the source's reference, if any (logged too, before
+        the recording's layout, which frames the reference in the map); kept in
+        :attr:`extra`."""
+        extra = self.extra
         last = self._last
         if last is None:
             return extra
@@ -154,6 +158,10 @@ class ReplaySetup:
 
                 recorder = logger.recorder
                 log_reference(recorder._rec.rec, recorder._rec.path, fitted.fit, fitted.steps)
+                # the map frames the GPS too, with room for a jump's label beside it
+                fit = fitted.fit
+                recorder.frame(fit.reference_xy[~fit.jumps])
+                recorder.frame(fit.reference_xy[fit.jumps], label_room=0.12)
                 extra[self.reference.key] = fitted.results
                 self._summaries.append(fitted.summary)
         if extra:  # for ekfviz info

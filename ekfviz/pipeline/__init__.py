@@ -31,14 +31,14 @@ from ekfviz.io.truth import checked_against, read_truth
 from ekfviz.runner.replay import FilterLineError
 from ekfviz.runner.run import Consumer, run
 from ekfviz.sources import open_source
-from ekfviz.studies.executors import Executor
-from ekfviz.studies.runs import Run, RunFailure, RunSpec, Summary, run_specs, summarise
 
-if TYPE_CHECKING:
+if TYPE_CHECKING:  # the studies' modules: imported by the functions that run them
     from ekfviz.association.associator import Associator
     from ekfviz.check.coverage import Item as CoverageItem
     from ekfviz.check.lockstep import CheckResult
     from ekfviz.filters.ekf import EkfSlam
+    from ekfviz.studies.executors import Executor
+    from ekfviz.studies.runs import Run, RunFailure, RunSpec, Summary
     from ekfviz.viz.run import RunLogger
 
 
@@ -77,6 +77,11 @@ class ScanHooks(Protocol):
     def add(self, record: EventRecord) -> None: ...
 
     def truth_of(self, last: EventRecord) -> GroundTruth | None: ...
+
+    def finish(self, logger: RunLogger) -> object:
+        """After the last record, before the recording's layout is made: what the run
+        adds to the recording (the source's reference, which the map then frames)."""
+        ...
 
 
 class RunStopped(Exception):
@@ -156,6 +161,7 @@ def replay_log(
     assert last.record is not None  # replay always yields the initialisation
     if scans is not None:
         truth = scans.truth_of(last.record)
+        scans.finish(logger)  # before the layout: the map frames what it draws
     evaluation = evaluate(last.record, truth, consistency)
     logger.finish(evaluation)
     return evaluation
@@ -213,6 +219,7 @@ def study(
     :raises InputError, FilterLineError, FilterSpecError, SinkError: one line each
     """
     from ekfviz import viz
+    from ekfviz.studies.runs import Run, RunFailure, run_specs, summarise
     from ekfviz.viz.study import record_study
 
     truth = read_truth(truth_path) if truth_path is not None else None
@@ -322,6 +329,8 @@ def _record_check(
             differences=result.differences[:kept],
             divergences=(first,),
         )
+    from ekfviz.studies.runs import Run, RunSpec
+
     runs = []
     for label, key, records in (
         ("reference (ekf)", "reference", result.reference),

@@ -10,12 +10,15 @@ from __future__ import annotations
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ekfviz.core.records import AnyEvent
 from ekfviz.core.truth import GroundTruth
 from ekfviz.io.text import ProgressCallback, WarningCallback
-from ekfviz.sim.simulate import Simulation
 from ekfviz.sources.base import OwnTruth, Source
+
+if TYPE_CHECKING:  # the simulator is imported by what simulates, not by every source
+    from ekfviz.sim.simulate import Simulation
 
 
 @dataclass(frozen=True, slots=True)

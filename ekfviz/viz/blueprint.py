@@ -107,6 +107,9 @@ HIDDEN = rrb.EntityBehavior(visible=False)
 # plots of it, each showing the series of one unit (a shared axis flattened theta).
 LENGTHS_ONLY = rr.SeriesLines.from_fields(visible_series=[True, True, False])
 ANGLE_ONLY = rr.SeriesLines.from_fields(visible_series=[False, False, True])
+# the same for an offline filter's run, whose series are points (see Entities.style)
+LENGTHS_ONLY_POINTS = rr.SeriesPoints.from_fields(visible_series=[True, True, False])
+ANGLE_ONLY_POINTS = rr.SeriesPoints.from_fields(visible_series=[False, False, True])
 # Series of the association of id-less scans and of a GPS reference (ekfviz.viz.association
 # owns them; named here so that the layout needs no import of that module)
 ASSOCIATION_SERIES = "metrics/association"
@@ -177,16 +180,21 @@ def run_plots(
     axis: rrb.archetypes.TimeAxis | None = None,
     landmark_ids: Sequence[int] = (),
     value_ranges: Mapping[str, tuple[float, float]] | None = None,
+    offline: bool = False,
 ) -> list[rrb.View | rrb.Container]:
     """The plots of one run, each only where its series have data (a plot of styling
     alone is an empty frame).
 
     :param has: the entity paths (without the prefix) that were given data
+    :param offline: an offline filter's run, whose series are points
     :param value_ranges: the y range of the NIS and NEES plots by entity path: all the
         data, and the 95% bounds inside the frame (a fit to the data alone put them on
         its edges)
     """
     root = root_of(prefix)
+    lengths, angle = (
+        (LENGTHS_ONLY_POINTS, ANGLE_ONLY_POINTS) if offline else (LENGTHS_ONLY, ANGLE_ONLY)
+    )
     plots: list[rrb.View | rrb.Container] = []
     for path, name in (
         (style.NIS, "NIS (blue) and 95% bounds"),
@@ -212,14 +220,14 @@ def run_plots(
                     name="Pose sigma x, y [m]",
                     origin=f"{root}{style.POSE_SIGMA}",
                     plot_legend=SMALL_LEGEND,
-                    overrides={f"{root}{style.POSE_SIGMA}": LENGTHS_ONLY},
+                    overrides={f"{root}{style.POSE_SIGMA}": lengths},
                 ),
                 rrb.TimeSeriesView(
                     axis_x=axis,
                     name="Pose sigma theta [rad]",
                     origin=f"{root}{style.POSE_SIGMA}",
                     plot_legend=NO_LEGEND,
-                    overrides={f"{root}{style.POSE_SIGMA}": ANGLE_ONLY},
+                    overrides={f"{root}{style.POSE_SIGMA}": angle},
                 ),
                 name="Pose sigma",
             )
@@ -299,6 +307,7 @@ def default_blueprint(
     landmark_ids: Sequence[int] = (),
     has: Collection[str] | None = None,
     value_ranges: Mapping[str, tuple[float, float]] | None = None,
+    offline: bool = False,
 ) -> rrb.Blueprint:
     """The layout: the map on the left, plots above and documents below on the right.
 
@@ -313,6 +322,7 @@ def default_blueprint(
     :param has: the entity paths given data; a plot is laid out only where its series
         have some (None: those a run of this kind has, before any data)
     :param value_ranges: the NIS and NEES plots' y ranges, see :func:`run_plots`
+    :param offline: an offline filter's run, see :func:`run_plots`
     """
     axis = WHOLE_RUN if has_time else None  # the default fits a sequence timeline already
     final = has is not None
@@ -322,7 +332,9 @@ def default_blueprint(
             has.add(style.NEES)
         if has_truth:
             has.add(f"{style.LANDMARK_ERROR_SUMMARY}/{style.MEAN}")
-    plots = run_plots(has, axis=axis, landmark_ids=landmark_ids, value_ranges=value_ranges)
+    plots = run_plots(
+        has, axis=axis, landmark_ids=landmark_ids, value_ranges=value_ranges, offline=offline
+    )
     texts: list[rrb.Container | rrb.View] = [log_view()]
     if style.CORRELATION_MATRIX in has or not final:
         texts.append(correlation_view())
@@ -341,7 +353,9 @@ def default_blueprint(
                 rrb.Tabs(*texts),
                 row_shares=[3, 2],
             ),
-            column_shares=[3, 2],
+            # as wide as the map: a log line (an association's counts, a warning) fits, and
+            # the map, framed square more often than not, is bounded by its height anyway
+            column_shares=[1, 1],
         ),
         rrb.TimePanel(
             timeline=style.TIME if has_time else style.STEP,
@@ -374,10 +388,11 @@ def run_details(
     axis: rrb.archetypes.TimeAxis | None = None,
     *,
     log: bool = False,
+    offline: bool = False,
 ) -> rrb.Container:
     """A tab of one run of a study: its own plots, correlation matrix and evaluation (and
-    its log, with ``log``)."""
-    plots = run_plots(has, prefix=prefix, axis=axis)
+    its log, with ``log``); ``offline``: see :func:`run_plots`."""
+    plots = run_plots(has, prefix=prefix, axis=axis, offline=offline)
     below: list[rrb.View | rrb.Container] = []
     if style.CORRELATION_MATRIX in has:
         below.append(correlation_view(prefix))
@@ -427,6 +442,7 @@ def sweep_blueprint(
     nis_range: tuple[float, float] | None = None,
     has: Mapping[str, Collection[str]] | None = None,
     summary: str | None = None,
+    offline: Collection[str] = (),
 ) -> rrb.Blueprint:
     """A grid of maps, one per run (baseline first), beside overlaid metric plots tall
     enough for a legend entry per run, the study's documents and a tab per run.
@@ -439,6 +455,7 @@ def sweep_blueprint(
     :param has: per prefix, the entity paths given data (see :func:`run_plots`); None
         leaves out the tabs of the runs
     :param summary: the entity of the study's summary document
+    :param offline: the prefixes of offline filters' runs (see :func:`run_plots`)
     """
     maps = [map_view(bounds_xy, prefix=prefix, name=label) for label, prefix in variants]
     first = variants[0][1]
@@ -480,7 +497,10 @@ def sweep_blueprint(
     prefixes = [prefix for _, prefix in variants]
     tabs: list[rrb.View | rrb.Container] = [*study_documents(prefixes, summary)]
     if has is not None:
-        tabs += [run_details(label, prefix, has[prefix]) for label, prefix in variants]
+        tabs += [
+            run_details(label, prefix, has[prefix], offline=prefix in offline)
+            for label, prefix in variants
+        ]
     return rrb.Blueprint(
         rrb.Horizontal(
             map_tiles(maps),

@@ -53,7 +53,9 @@ DIFFERENCE = "check/difference"
 TOLERANCE = "check/tolerance"
 DIVERGENT = "check/divergent"
 TABLE = "check/divergences"
-LOG = "log/divergence"  # under the log: its view shows it
+# under the log: its view shows it. A divergence is an ERROR line, then its values and
+# likely cause on lines without a level (on the same entity: the view keeps their order)
+LOG = "log/divergence"
 
 MARK_COLOR: style.Rgb = (220, 0, 0)
 EXPECTED_COLOR: style.Rgb = (110, 110, 110)
@@ -72,15 +74,21 @@ def divergences_of(result: CheckResult) -> tuple[Divergence, ...]:
     return () if result.first_divergence is None else (result.first_divergence,)
 
 
-def describe(divergence: Divergence, *, first: bool) -> str:
-    """The log line of a divergent event."""
+def describe(divergence: Divergence, *, first: bool) -> list[str]:
+    """The log lines of a divergent event: where and what (the ERROR line), then the
+    values and the likely cause, each within :data:`~ekfviz.viz.style.LOG_WIDTH`
+    characters (the log view cuts a line at its edge and cannot wrap one)."""
     worst = divergence.worst
-    return (
+    return [
         f"{'first divergence' if first else 'divergence'}: event {divergence.event}"
         f" ({divergence.kind.value}), line {divergence.line}: {worst.quantity.value}"
-        f" {worst.entry} expected {worst.expected:.6g}, got {worst.got:.6g}"
-        f" (difference {worst.difference:.3g}); likely cause: {divergence.hint}"
-    )
+        f" {worst.entry}",
+        *style.wrapped(
+            f"expected {worst.expected:.6g}, got {worst.got:.6g}"
+            f" (difference {worst.difference:.3g})"
+        ),
+        *style.wrapped(f"likely cause: {divergence.hint}"),
+    ]
 
 
 def record_check(
@@ -132,7 +140,10 @@ def record_check(
         for k, divergence in enumerate(divergences):
             rec.set_time(style.STEP, sequence=divergence.step)
             rec.set_time(style.EVENT, sequence=divergence.event)
-            rec.log(LOG, rr.TextLog(describe(divergence, first=k == 0), level="ERROR"))
+            where, *rest = describe(divergence, first=k == 0)
+            rec.log(LOG, rr.TextLog(where, level="ERROR"))
+            for line in rest:  # the ERROR line's continuation: no level of their own
+                rec.log(LOG, rr.TextLog(f"  {line}", level=""))
         rec.log(
             TABLE, rr.TextDocument(_table(divergences), media_type="text/markdown"), static=True
         )
@@ -264,18 +275,28 @@ def _table(divergences: Sequence[Divergence]) -> str:
     lines = [
         f"# {len(divergences)} divergent event{'s' * (len(divergences) != 1)}",
         "",
-        "| event | kind | line | entry | expected | got | difference | likely cause |",
-        "|---:|---|---:|---|---:|---:|---:|---|",
+        "| event | kind | line | entry | expected | got | difference |",
+        "|---:|---|---:|---|---:|---:|---:|",
     ]
-    for divergence in divergences[:TABLE_ROWS]:
+    shown = divergences[:TABLE_ROWS]
+    for divergence in shown:
         worst = divergence.worst
         lines.append(
             f"| {divergence.event} | {divergence.kind.value} | {divergence.line} |"
             f" {worst.quantity.value} {worst.entry} | {worst.expected:.6g} | {worst.got:.6g} |"
-            f" {worst.difference:.3g} | {divergence.hint} |"
+            f" {worst.difference:.3g} |"
         )
     if len(divergences) > TABLE_ROWS:
         lines.append(f"\n... and {len(divergences) - TABLE_ROWS} more (see the log)")
+    # the likely causes below the table, where a long one wraps (a table's last column
+    # would run off a narrow view): one item per cause, with the events it explains
+    events_of: dict[str, list[int]] = {}
+    for divergence in shown:
+        events_of.setdefault(divergence.hint, []).append(divergence.event)
+    lines += ["", "## Likely cause" + "s" * (len(events_of) != 1), ""]
+    for hint, events in events_of.items():
+        listed = ", ".join(str(event) for event in events[:8]) + ", ..." * (len(events) > 8)
+        lines.append(f"- event{'s' * (len(events) != 1)} {listed}: {hint}")
     return "\n".join(lines) + "\n"
 
 

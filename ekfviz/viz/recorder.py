@@ -26,23 +26,14 @@ logged once as static data. Everything else is buffered and sent in columns
 entity and event would cost more than the filter itself.
 
 What is logged when, by default: the robot and its ellipses at every event, a log line
-a step, the observation rays at the updates with some; all landmark positions where the
-map grew or some landmark moved by over ``MAP_TOLERANCE`` of its ellipse (the viewer
-shows the latest). The 3-sigma ellipses of all landmarks likewise while the map holds
-at most ``SMALL_MAP`` landmarks; beyond that, at every update only those of the
-landmarks observed (``world/landmarks/ellipses/observed``) and the whole map every
-``MAP_EVERY_STEPS`` steps and at the end (the viewer shows the latest of each, so every
-landmark keeps an ellipse at any time). A timestamped log (high-rate odometry) logs its
-predicts thinned (:mod:`ekfviz.viz.thinning`) and its map like a large one, the whole
-map every ``MAP_EVERY_S`` seconds of log time. With truth, the error series of a
-landmark get a value whenever its ellipse is logged. ``detail=True`` logs every ellipse
-and error at every update.
+a step, the observation rays at the updates with some, the map as
+:mod:`ekfviz.viz.layers.landmarks` says; a timestamped log's predicts thinned
+(:mod:`ekfviz.viz.thinning`). ``detail=True`` logs every ellipse and error at every update.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from functools import partial
 
 import numpy as np
 import rerun as rr
@@ -60,7 +51,6 @@ from ekfviz.viz.blueprint import ASSOCIATION_SERIES, REFERENCE_SERIES, default_b
 from ekfviz.viz.correlation import CorrelationLayer
 from ekfviz.viz.layers.arrays import CHECK_ALL_DIM, ArrayInput
 from ekfviz.viz.layers.arrow import EPOCH_MIN_S, MIN_AXIS, frame_id, time_is_epoch
-from ekfviz.viz.layers.batch import Batch
 from ekfviz.viz.layers.canvas import MAX_CLASS_ID, SHAPES_EVERY, Canvas
 from ekfviz.viz.layers.history import HistoryLayer
 from ekfviz.viz.layers.labels import LABEL_HEIGHT, LABEL_WIDTH, LabelsLayer, unclutter
@@ -117,6 +107,7 @@ class Recorder:
     :param sensor: the measurement model, to draw id-less scans from the sensor's position
     :param gps_reference: a GPS reference will be logged after ``finish`` (Victoria Park,
         see :func:`ekfviz.viz.association.log_reference`): the layout has its plot
+    :param offline: an offline filter's run (its start and its optimum): series as points
     """
 
     def __init__(
@@ -135,8 +126,9 @@ class Recorder:
         predict_interval_s: float | None = PREDICT_INTERVAL_S,
         sensor: RangeBearing | None = None,
         gps_reference: bool = False,
+        offline: bool = False,
     ) -> None:
-        self._canvas = canvas = Canvas(rec, prefix, truth, detail)
+        self._canvas = canvas = Canvas(rec, prefix, truth, detail, points=offline)
         self._rec = canvas.entities  # the stream under the prefix (log_reference uses it)
         self._gps_reference = gps_reference
         self._sensor = sensor if sensor is not None else RangeBearing()
@@ -158,7 +150,6 @@ class Recorder:
         self._text = TextLayer(canvas)
         self._correlation = CorrelationLayer(canvas)
         self.pending = PendingEvents()
-        self._send_and_flush = partial(self._send_pending, series=True)
         self._last_record: EventRecord | None = None  # the last record logged
         self._event = self._step = 0
         self._step_has_update = True  # the initialisation counts as step 0's update
@@ -272,6 +263,11 @@ class Recorder:
             self._rec.send_blueprint(self._layout(self._canvas.bounds_xy, final=True))
         self._rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
 
+    def frame(self, points_xy: FloatArray, label_room: float = 0.0) -> None:
+        """The layout sent by :meth:`finish` frames ``points_xy`` too (a source's reference
+        track), see :meth:`~ekfviz.viz.layers.canvas.Canvas.frame`."""
+        self._canvas.frame(points_xy, label_room)
+
     def note(self, text: str, level: str | rr.TextLogLevel = rr.TextLogLevel.WARN) -> None:
         """A line in the text log at the latest event: a warning, or why a run stopped."""
         self._log_rows()
@@ -297,14 +293,19 @@ class Recorder:
             bounds_xy=bounds_xy,
             has_time=self._canvas.clock.span is not None,
             history=self._history,
+            offline=self.offline,
         )
+
+    @property
+    def offline(self) -> bool:
+        """Whether the run is an offline filter's (its series drawn as points)."""
+        return self._rec.points
 
     # -- records -------------------------------------------------------------------------
 
     @property
     def entities_with_data(self) -> frozenset[str]:
-        """The entity paths (without the prefix) given data so far, and the GPS
-        reference's series if one is to come."""
+        """The entities (no prefix) given data so far, and a GPS reference's to come."""
         has = set(self._rec.sent)
         if self.association is not None:  # it logs through the stream itself
             has |= {f"{ASSOCIATION_SERIES}/matched", style.LOG}
@@ -336,12 +337,14 @@ class Recorder:
     def _log_rows(self) -> None:
         """Hold the predict rows written since the last record (see PendingEvents)."""
         last = self.pending.hold_rows(
-            self._last_record, self._thinning.held, self.log_record, self._send_and_flush
+            self._last_record, self._thinning.held, self.log_record, self._send_pending
         )
         if last is not None:
             self._event, self._step, self._step_has_update = *last, False
 
     def _log_record(self, record: EventRecord) -> None:
+        if record.kind is EventKind.UPDATE and record.observations is None:
+            self._rec.series_as_points()  # an offline filter's optimum, after finish()
         self._event, self._step = record.event, record.step
         self._step_has_update = corrects = record.kind is not EventKind.PREDICT
         whole_map = corrects and self._map.admit(record)
@@ -357,13 +360,10 @@ class Recorder:
             self._send_pending(series=True)
 
     def _send_pending(self, series: bool = False) -> None:
-        """Send the buffered records: one batch of columns, drawn by every part; then,
-        with ``series``, the buffered scalar series."""
+        """Send the events held as one batch drawn by every part (then the series too)."""
         if not self.pending:
             return
-        records, rows_held = self.pending.take()
-        batch = Batch.of(records, self._canvas.clock, self.pending.rows, rows_held)
-        self.pending.release(rows_held)
+        batch = self.pending.batch(self._canvas.clock)
         self._robot.send(batch)
         self._truth_layer.send(batch)
         for path, picked in (
@@ -388,8 +388,7 @@ class Recorder:
         """Every part's styling; the world mirrored in the root frame."""
         self._metrics.log_styling()
         self._truth_layer.log_styling()
-        # A 2-D view draws y down; mirroring "world" in the root frame shows the map y up
-        # as in the classic plots, while every entity keeps its true world coordinates.
+        # a 2-D view draws y down: "world" mirrored in the root frame shows the map y up
         self._rec.log(style.WORLD, rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)
         self._robot.log_styling()
         if self._history:

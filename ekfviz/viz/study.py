@@ -62,6 +62,11 @@ def record_study(
                 for run, (recorder, _) in zip(runs, recorders, strict=True)
             },
             summary=SUMMARY,
+            offline=[
+                f"{root}/{run.spec.key}"
+                for run, (recorder, _) in zip(runs, recorders, strict=True)
+                if recorder.offline
+            ],
         )
     )
 
@@ -78,7 +83,8 @@ def log_runs(
     bounds: list[FloatArray] = []
     for k, run in enumerate(runs):
         prefix = f"{root}/{run.spec.key}"
-        recorder = Recorder(rec, truth=truth, blueprint=False, prefix=prefix)
+        offline = is_offline(run, runs[0])
+        recorder = Recorder(rec, truth=truth, blueprint=False, prefix=prefix, offline=offline)
         colour = PALETTE[k % len(PALETTE)]
         marks = _series_style(run, runs[0], colour)
         for series in (style.NIS, style.NEES):  # one colour and name per run, overlaid

@@ -7,6 +7,8 @@ landmark's first sighting, black true landmarks.
 
 from __future__ import annotations
 
+import textwrap
+
 # -- entity paths ----------------------------------------------------------------------
 
 WORLD = "world"
@@ -63,6 +65,9 @@ CORRELATION_BLOCKS = "correlation/blocks"  # Boxes2D: the diagonal blocks, label
 CORRELATION_NOTE = "correlation/note"  # TextDocument: what is shown (block-averaged?)
 
 LOG = "log"  # TextLog, one line per event, and one per warning
+# the characters of a log line that a layout's log view shows whole at 1600 px (the view
+# cuts a line at its edge, and cannot wrap it): a long message goes on several lines
+LOG_WIDTH = 80
 RUN_INFO = "run/info"  # TextDocument (markdown), static
 RUN_INPUT = "run/input"  # TextDocument (the input log itself), static
 RUN_EVALUATION = "run/evaluation"  # TextDocument (markdown), static, at the end
@@ -116,3 +121,12 @@ ROBOT_RADIUS_UI = 6.0
 LINE_RADIUS_UI = 1.0
 THIN_LINE_RADIUS_UI = 0.5
 LABEL_ANCHOR_RADIUS_UI = 0.5  # the point a landmark's label hangs from
+
+
+def wrapped(text: str, width: int = LOG_WIDTH) -> list[str]:
+    """``text`` cut at spaces into lines of at most ``width`` characters (a word longer
+    than that stays whole), later lines indented."""
+    lines = textwrap.wrap(
+        text, width, subsequent_indent="  ", break_long_words=False, break_on_hyphens=False
+    )
+    return lines or [text]

@@ -104,14 +104,33 @@ class Clock:
         return times
 
 
+def as_points(lines: rr.SeriesLines) -> rr.SeriesPoints:
+    """The points of a series styled as ``lines``: its colours, names and visible series."""
+
+    def values(batch: Any) -> Any:
+        return None if batch is None else batch.as_arrow_array().to_pylist()
+
+    colors = values(lines.colors)
+    return rr.SeriesPoints(
+        colors=None if colors is None else np.array(colors, dtype=np.uint32),  # packed RGBA
+        names=values(lines.names),
+        visible_series=values(lines.visible_series),
+        marker_sizes=OFFLINE_MARKER_SIZE,
+    )
+
+
+OFFLINE_MARKER_SIZE = 4.0  # ui points: an offline run's two records, each a dot
+
+
 class Entities:
     """The recording stream with every entity path under ``prefix`` (none when empty),
     so that several runs can share one recording (``variants/<key>/world/...``)."""
 
-    def __init__(self, rec: rr.RecordingStream, prefix: str) -> None:
+    def __init__(self, rec: rr.RecordingStream, prefix: str, *, points: bool = False) -> None:
         self.rec = rec
         self._prefix = prefix.strip("/") + "/" if prefix.strip("/") else ""
         self._styles: dict[str, tuple[rr.AsComponents, ...]] = {}  # path -> styling unsent
+        self.points = points  # series drawn as points (see style())
         self.sent: set[str] = set()  # the entities (without the prefix) given data so far
 
     def path(self, entity: str) -> str:
@@ -124,8 +143,27 @@ class Entities:
         bytes of colours; in the first row of the entity's data it is a column more. It
         holds from the entity's first row on (nothing is drawn before it) and is sent
         static by :meth:`send_styles` if the entity never gets data.
+
+        With ``points`` (an offline filter's run, whose records are its start and its
+        optimum at the end), a series' lines are drawn as points of the same colours and
+        names: a line between two records would look like a value at every step.
         """
+        if self.points:
+            styling = tuple(as_points(s) if isinstance(s, rr.SeriesLines) else s for s in styling)
         self._styles[self.path(entity)] = styling
+
+    def series_as_points(self) -> None:
+        """From now on, and for every styling not sent yet, series as points (see
+        :meth:`style`): a replay learns that its filter is offline at its last record,
+        the optimum after ``finish()`` (an update without observations), before anything
+        of the run was sent."""
+        if self.points:
+            return
+        self.points = True
+        for path, styling in self._styles.items():
+            self._styles[path] = tuple(
+                as_points(s) if isinstance(s, rr.SeriesLines) else s for s in styling
+            )
 
     def send_styles(self) -> None:
         """Send as static data the styling of every entity that has had no data yet."""
@@ -200,9 +238,15 @@ class Canvas:
     """
 
     def __init__(
-        self, rec: rr.RecordingStream, prefix: str, truth: GroundTruth | None, detail: bool
+        self,
+        rec: rr.RecordingStream,
+        prefix: str,
+        truth: GroundTruth | None,
+        detail: bool,
+        *,
+        points: bool = False,
     ) -> None:
-        self.entities = Entities(rec, prefix)
+        self.entities = Entities(rec, prefix, points=points)
         self.clock = Clock()
         self.series = SeriesBuffer(self.entities, self.clock)
         self.truth = truth
@@ -236,6 +280,22 @@ class Canvas:
         self.entities.set_time(style.STEP, sequence=step)
         self.entities.set_time(style.EVENT, sequence=event)
         self.set_time(time)
+
+    def frame(self, points_xy: FloatArray, label_room: float = 0.0) -> None:
+        """Grow the map's frame to take in ``points_xy`` that are not the run's.
+
+        :param points_xy: (K, 2) world points
+        :param label_room: the share of the frame's width a label beside a point needs
+            on either side of it (a label is drawn centred on its point)
+        """
+        if not len(points_xy):
+            return
+        self.grow_bounds(points_xy)
+        box = self.bounds_xy
+        if label_room > 0.0 and box is not None:
+            room = np.array([[label_room * float(box[1, 0] - box[0, 0]), 0.0]])
+            self.grow_bounds(points_xy + room)
+            self.grow_bounds(points_xy - room)
 
     def grow_bounds(self, points_xy: FloatArray) -> None:
         box = np.stack([points_xy.min(axis=0), points_xy.max(axis=0)])

@@ -1,7 +1,18 @@
 """The map: every landmark's estimate (``world/landmarks``), its 3-sigma ellipse
 (``world/landmarks/ellipses``, ``.../observed`` beyond a small map) and its outline at
-first sighting (``world/landmarks/initial``). See :mod:`ekfviz.viz.recorder` for when
-each is logged."""
+first sighting (``world/landmarks/initial``).
+
+When, by default: all landmark positions where the map grew or some landmark moved by
+over ``MAP_TOLERANCE`` of its ellipse (the viewer shows the latest). The 3-sigma ellipses
+of all landmarks likewise while the map holds at most ``SMALL_MAP`` landmarks; beyond
+that, at every update only those of the landmarks observed
+(``world/landmarks/ellipses/observed``) and the whole map every ``MAP_EVERY_STEPS``
+steps and at the end (the viewer shows the latest of each, so every landmark keeps an
+ellipse at any time). A timestamped log (high-rate odometry) logs its map like a large
+one, the whole map every ``MAP_EVERY_S`` seconds of log time. With truth, the error
+series of a landmark get a value whenever its ellipse is logged; ``detail=True`` logs
+every ellipse and error at every update.
+"""
 
 from __future__ import annotations
 

@@ -12,6 +12,8 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from ekfviz.core.records import EventRecord, PredictRows
+from ekfviz.viz.layers.batch import Batch
+from ekfviz.viz.layers.canvas import Clock
 
 # Events between two sends of the buffered data, one chunk per entity: each chunk costs
 # ~0.1 ms in the main thread and as much in Rerun's encoder, whatever its size.
@@ -60,10 +62,10 @@ class PendingEvents:
         before: EventRecord | None,
         thinned: bool,
         log: Callable[[EventRecord], None],
-        send: Callable[[], None],
+        send: Callable[..., None],
     ) -> tuple[int, int] | None:
         """Hold the predict rows written since the record ``before``, if any, calling
-        ``send`` wherever a send falls due among them, as it would after their records;
+        ``send(series=True)`` wherever a send falls due among them, as after their records;
         or, where the thinning may drop some (it holds a predict back, ``thinned``, or
         the rows have times), ``log`` them as records one by one.
 
@@ -97,8 +99,15 @@ class PendingEvents:
             self.landmarks += per_row * held
             new -= held
             if self.due:
-                send()
+                send(series=True)
         return last
+
+    def batch(self, clock: Clock) -> Batch:
+        """Every event held, as one batch in event order; none is held after."""
+        records, held = self.take()
+        batch = Batch.of(records, clock, self.rows, held)
+        self.release(held)
+        return batch
 
     def take(self) -> tuple[list[tuple[EventRecord, bool]], int]:
         """The records held and how many rows (the first of :attr:`rows`); none is held
