@@ -207,8 +207,7 @@ def _plain_block(first: int, raw: list[bytes]) -> NumberBlock | None:
         joined = b"\n".join(raw)
     if joined.translate(None, _PLAIN_BYTES + b"\n"):
         return None  # a byte of something else: comments are cut, so not of a comment
-    split = [text.split() for text in raw]
-    counts_all = np.fromiter(map(len, split), np.int64, len(split))
+    counts_all = _token_counts(joined, len(raw))
     kept = np.flatnonzero(counts_all)
     try:
         values = np.array(list(map(float, joined.split())), dtype=np.float64)
@@ -220,6 +219,19 @@ def _plain_block(first: int, raw: list[bytes]) -> NumberBlock | None:
     starts = np.zeros(len(counts), dtype=np.int64)
     np.cumsum(counts[:-1], out=starts[1:])
     return NumberBlock((kept + first).tolist(), counts, starts, values)
+
+
+def _token_counts(joined: bytes, lines: int) -> IntArray:
+    """Tokens on each of the ``lines`` lines of ``joined`` (lines joined by LF, tokens
+    separated by spaces and tabs), counted at once: a token starts at a byte that is no
+    separator where the byte before is one, a line end, or nothing."""
+    text = np.frombuffer(joined, dtype=np.uint8)
+    line_end = text == 0x0A
+    gap = line_end | (text == 0x20) | (text == 0x09)
+    starts = ~gap
+    starts[1:] &= gap[:-1]
+    line_of = np.cumsum(line_end)  # the line of each byte (a line end: the next line's)
+    return np.bincount(line_of[starts], minlength=lines).astype(np.int64)
 
 
 def _checked_block(path: Path, first: int, raw: list[bytes]) -> NumberBlock:
