@@ -200,3 +200,31 @@ def test_truth_lookup_by_id_with_gaps_and_unknown_ids() -> None:
     found = truth.lookup(np.array([9, 3, 2, 5, 10]))
     np.testing.assert_array_equal(found[[0, 2, 3]], [[9, 9], [2, 2], [5, 5]])
     assert np.isnan(found[[1, 4]]).all()
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [b"nan", b"1_0", b"1e400", b"x", b"\xff\xfe", b"1.5e19", b"--1", b"# \xff"],
+)
+def test_block_reader_reads_as_line_by_line(tmp_path: Path, bad: bytes) -> None:
+    """number_blocks converts a block at once but gives the lines, numbers and first
+    error numeric_lines gives, even in a later block, after a comment or a blank line."""
+    from ekfviz.io import text as text_io
+
+    lines = [b"1.5 -2 3e-2 # c", b"", b"\t4 5  ", b"# only a comment", b"-0.5 .5 +1."] * 20000
+    lines[77777] = b"7 " + bad + b" 8"
+    path = tmp_path / "numbers.txt"
+    path.write_bytes(b"\r\n".join(lines) + b"\n")
+    expected: list[tuple[int, list[float]]] = []
+    with pytest.raises(InputError) as line_by_line:
+        expected.extend(text_io.numeric_lines(path))
+    got: list[tuple[int, list[float]]] = []
+    fault = None
+    for block in text_io.number_blocks(path):
+        for line, start, count in zip(block.lines, block.starts, block.counts, strict=True):
+            got.append((line, block.values[start : start + count].tolist()))
+        fault = block.fault
+    assert len(got) == len(expected) > 40000
+    assert got == expected
+    assert fault is not None and str(fault) == str(line_by_line.value)
+    assert fault.line == 77778

@@ -116,6 +116,13 @@ class ReplaySetup:
     # what finish() found (the association's counts, the reference's results), by key
     extra: dict[str, object] = field(default_factory=dict)
 
+    @property
+    def reads_predicts(self) -> bool:
+        """Whether :meth:`add` reads the predicts' records (the reference's: the tally
+        reads the association's updates alone); else a replay may give its predicts to
+        the recorder as columns."""
+        return self.reference is not None
+
     def add(self, record: EventRecord) -> None:
         self._last = record
         if record.association is not None:

@@ -400,6 +400,163 @@ def kept_record(
     return record
 
 
+(_set_o_ids, _set_o_z, _set_o_z_pred, _set_o_innovation, _set_o_cov, _set_o_nis,
+ _set_o_initialised, _set_o_skipped) = (
+    Observations.__dict__[name].__set__
+    for name in ("ids", "z", "z_pred", "innovation", "S", "nis", "initialised", "skipped")
+)  # fmt: skip
+
+
+def kept_observations(
+    ids: IntArray,
+    z: FloatArray,
+    z_pred: FloatArray,
+    innovation: FloatArray,
+    S: FloatArray,
+    nis: FloatArray,
+    initialised: BoolArray,
+    skipped: BoolArray,
+) -> Observations:
+    """``Observations(...)`` of parts that are its already (read-only arrays of its shapes),
+    put together as :func:`kept_record` puts a record: an update makes one a line."""
+    observations: Observations = _new(Observations)
+    _set_o_ids(observations, ids)
+    _set_o_z(observations, z)
+    _set_o_z_pred(observations, z_pred)
+    _set_o_innovation(observations, innovation)
+    _set_o_cov(observations, S)
+    _set_o_nis(observations, nis)
+    _set_o_initialised(observations, initialised)
+    _set_o_skipped(observations, skipped)
+    return observations
+
+
 def _kept(array: object, dtype: type[np.generic]) -> bool:
     """Whether an array can go into a record as it is: read-only, of the record's type."""
     return isinstance(array, np.ndarray) and array.dtype == dtype and not array.flags.writeable
+
+
+class PredictRows:
+    """The predicts of a replay as columns, written by the replay instead of a record each.
+
+    A long log's predicts are half its events and each record of one cost more than the
+    predict itself (two small copies, a control array, the object), while the recorder
+    only reads their pose, covariance, control and timelines, in columns. A replay given
+    a ``PredictRows`` (:func:`~ekfviz.runner.replay.replay`) writes every plain predict
+    of the built-in filter here (not the last event, nor one whose covariance is checked:
+    those stay records) and yields no record for it. The rows are in event order; the
+    consumer reads them beside the records it gets (a row comes before the record after
+    it) and :meth:`drop` s them once used. A row can be made a record (:meth:`record`)
+    with the map of the record before it: a predict does not change the map.
+    """
+
+    def __init__(self, capacity: int = 4096) -> None:
+        self.poses: FloatArray = np.empty((capacity, 3))
+        self.pose_covs: FloatArray = np.empty((capacity, 3, 3))
+        self.events: list[int] = []
+        self.steps: list[int] = []
+        self.lines: list[int] = []
+        self.times: list[float | None] = []
+        self.controls: list[tuple[float, float]] = []
+        self.timed = False  # some row has a time
+        # rows complete: counted once all their columns are written (a signal raised in
+        # add() leaves a row that no one reads)
+        self._count = 0
+        # the newest row ever written, kept when dropped: where a stopped run stopped
+        self._newest: _Row | None = None
+        self._newest_pose: FloatArray = np.zeros(3)
+        self._newest_cov: FloatArray = np.zeros((3, 3))
+
+    def __len__(self) -> int:
+        return self._count
+
+    def add(
+        self,
+        event: int,
+        step: int,
+        line: int,
+        time: float | None,
+        control: tuple[float, float],
+        x: FloatArray,
+        P: FloatArray,
+    ) -> None:
+        """A predict's row: its timelines and control, and the pose and pose covariance
+        copied from the state ``x`` (3+2N,...) and ``P`` (classic layout, any capacity)."""
+        row = self._count
+        if row == self.poses.shape[0]:
+            self.poses = np.concatenate([self.poses, np.empty_like(self.poses)])
+            self.pose_covs = np.concatenate([self.pose_covs, np.empty_like(self.pose_covs)])
+        self.poses[row] = x[:3]
+        self.pose_covs[row] = P[:3, :3]
+        self.events.append(event)
+        self.steps.append(step)
+        self.lines.append(line)
+        self.times.append(time)
+        self.controls.append(control)
+        if time is not None:
+            self.timed = True
+        self._count = row + 1
+
+    def drop(self, count: int) -> None:
+        """Forget the first ``count`` rows (used); the newest is kept for :meth:`latest`."""
+        total = self._count
+        if count <= 0:
+            return
+        if count >= total:
+            self._newest = self._row(total - 1)
+            self._newest_pose = self.poses[total - 1].copy()
+            self._newest_cov = self.pose_covs[total - 1].copy()
+        rest = total - count
+        self.poses[:rest] = self.poses[count:total]
+        self.pose_covs[:rest] = self.pose_covs[count:total]
+        for column in (self.events, self.steps, self.lines, self.times, self.controls):
+            del column[:count]
+            del column[rest:]  # a row left half written
+        self._count = rest
+        self.timed = any(time is not None for time in self.times)
+
+    def _row(self, row: int) -> _Row:
+        return (
+            self.events[row], self.steps[row], self.lines[row], self.times[row],
+            self.controls[row],
+        )  # fmt: skip
+
+    def records(self, start: int, before: EventRecord) -> list[EventRecord]:
+        """The rows from ``start`` on as the records the replay would have made, the map
+        of ``before`` (the record before them) shared; the rows are forgotten here."""
+        made = [
+            self._record(self._row(row), self.poses[row], self.pose_covs[row], before)
+            for row in range(start, self._count)
+        ]
+        for column in (self.events, self.steps, self.lines, self.times, self.controls):
+            del column[start:]
+        self._count = start
+        self.timed = any(time is not None for time in self.times)
+        return made
+
+    def latest(self, record: EventRecord | None) -> EventRecord | None:
+        """The newer of ``record`` and the newest row ever written (as a record): where
+        a run that stopped got to."""
+        newest: _Row | None
+        if self._count:
+            last = self._count - 1
+            newest, pose, cov = self._row(last), self.poses[last], self.pose_covs[last]
+        else:
+            newest, pose, cov = self._newest, self._newest_pose, self._newest_cov
+        if newest is None or record is None or newest[0] <= record.event:
+            return record
+        return self._record(newest, pose, cov, record)
+
+    @staticmethod
+    def _record(
+        row: _Row, pose: FloatArray, pose_cov: FloatArray, before: EventRecord
+    ) -> EventRecord:
+        event, step, line, time, control = row
+        return kept_record(
+            event, step, EventKind.PREDICT, line, frozen(pose.copy()), frozen(pose_cov.copy()),
+            before.landmark_ids, before.landmarks_xy, before.landmark_covs,
+            frozen(np.array(control, dtype=np.float64)), time=time,
+        )  # fmt: skip
+
+
+_Row = tuple[int, int, int, float | None, tuple[float, float]]  # event step line time control

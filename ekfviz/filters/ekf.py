@@ -32,6 +32,7 @@ from ekfviz.core.records import (
     Observations,
     ScanAssociation,
     frozen,
+    kept_observations,
     kept_record,
 )
 from ekfviz.core.types import BoolArray, FloatArray, IntArray
@@ -218,15 +219,18 @@ class EkfSlam:
         self._warnings: list[str] = []  # of the last observe
         self._slot: dict[int, int] = {}  # landmark id -> index of its x in the state
         self._ids_array: IntArray | None = None  # self._ids as a frozen array, built lazily
+        # the last observation line whose landmarks were all known: its ids as a list, as
+        # the frozen array its records keep, and their slots (see observe); None once the
+        # map changes
+        self._known_line: tuple[list[int], IntArray, IntArray] | None = None
         self._rows: dict[int, IntArray] = {}  # slot j -> [0, 1, 2, j, j+1]
         self._landmark_covs: FloatArray | None = None  # for records, until P's map changes
         self._landmarks_xy: FloatArray | None = None  # ... and x's: both set together
-        # rows and columns of P holding the landmarks' 2x2 marginals, (N, 2, 2) each: one
-        # fancy index, twice as fast as records.landmark_marginals at a few landmarks
-        self._marginal_index: tuple[IntArray, IntArray] = (
-            np.zeros((0, 2, 2), dtype=np.int64),
-            np.zeros((0, 2, 2), dtype=np.int64),
-        )
+        # where in the P buffer (flat) the pose's 3x3 block and then the landmarks' 2x2
+        # marginals lie, for the buffer's capacity and the state's dimension (the key):
+        # one take() gathers both, at a third of the cost of a fancy index
+        self._record_index: IntArray = np.zeros(0, dtype=np.int64)
+        self._record_index_key = (0, 0)
 
     @classmethod
     def from_state(
@@ -273,6 +277,13 @@ class EkfSlam:
         return view
 
     @property
+    def buffers(self) -> tuple[FloatArray, FloatArray]:
+        """The state's own buffers x and P, the state in their leading 3+2N rows (and
+        columns): for a reader that copies from them at once, without a view made per
+        read (a replay's predict rows); not to be written."""
+        return self._x, self._P
+
+    @property
     def dim(self) -> int:
         """Current state dimension 3 + 2N."""
         return self._n
@@ -315,19 +326,24 @@ class EkfSlam:
         if self._ids_array is None:
             self._ids_array = frozen(np.array(self._ids, dtype=np.int64))
         n_landmarks = (n - 3) // 2
-        if self._landmark_covs is None:  # unchanged by a predict: kept since the update
-            if self._marginal_index[0].shape[0] != n_landmarks:
-                i = 3 + 2 * np.arange(n_landmarks)
-                self._marginal_index = (
-                    np.stack([i, i, i + 1, i + 1], axis=1).reshape(n_landmarks, 2, 2),
-                    np.stack([i, i + 1, i, i + 1], axis=1).reshape(n_landmarks, 2, 2),
-                )
-            self._landmark_covs = frozen(self._P[self._marginal_index])
-            self._landmarks_xy = frozen(self._x[3:n].reshape(n_landmarks, 2).copy())
-        assert self._landmarks_xy is not None  # set with the marginals
         x, P = self._x, self._P
+        if self._landmark_covs is None:  # unchanged by a predict: kept since the update
+            # one copy of x and one gather of P, frozen, each record's arrays views of them
+            key = (n, P.shape[0])
+            if self._record_index_key != key:
+                self._record_index = _record_index(n_landmarks, P.shape[0])
+                self._record_index_key = key
+            gathered = frozen(P.take(self._record_index))
+            pose_cov = gathered[:9].reshape(3, 3)
+            self._landmark_covs = gathered[9:].reshape(n_landmarks, 2, 2)
+            mean = frozen(x[:n].copy())
+            pose = mean[:3]
+            self._landmarks_xy = mean[3:].reshape(n_landmarks, 2)
+        else:
+            pose, pose_cov = frozen(x[:3].copy()), frozen(P[:3, :3].copy())
+        assert self._landmarks_xy is not None  # set with the marginals
         return kept_record(
-            event, step, kind, line, frozen(x[:3].copy()), frozen(P[:3, :3].copy()),
+            event, step, kind, line, pose, pose_cov,
             self._ids_array, self._landmarks_xy, self._landmark_covs,  # read-only, kept
             None if control is None else frozen(np.array(control, dtype=np.float64)),
             observations, frozen(P[:n, :n].copy()) if full_cov else None,
@@ -397,26 +413,77 @@ class EkfSlam:
         """
         self._landmark_covs = None
         self._warnings = []
-        ids_arr = np.array(ids, dtype=np.int64)  # copies: the record keeps them
-        z = np.array(z, dtype=np.float64).reshape(-1, 2)
-        ids_list: list[int] = ids_arr.tolist()
-        m = len(ids_list)
-        if len(set(ids_list)) != m:
-            raise FilterError("an observation names the same landmark twice")
-        slot = self._slot
-        new = [i not in slot for i in ids_list]
-        any_new = True in new
-        # per observation: z_pred (2), innovation (2), S (2x2, row-major) and NIS
-        values: FloatArray
-        skipped: list[bool] | BoolArray
-        if any_new and all(new):
-            values, skipped = np.full((m, 9), np.nan), _no_flags(m)
-        elif (
+        z = np.array(z, dtype=np.float64).reshape(-1, 2)  # copies: the record keeps it
+        # A log observes the same landmarks line after line (a classic log all of them,
+        # in one shared ids array): the line's ids, their copy and their slots are kept
+        # from the last line while the map has not changed, and compared as a list.
+        line = self._known_line
+        ids_list: list[int] = (
+            ids.tolist() if type(ids) is np.ndarray and ids.dtype == np.int64 else []
+        )
+        compiled = (
             self._compiled
             and self._n < KERNEL_MAX_DIM
             and self.params.update is UpdateMode.SEQUENTIAL
-        ):
-            values, skipped = self._update_compiled(ids_list, z)
+        )
+        skipped: list[bool] | BoolArray
+        if line is not None and compiled and ids_list == line[0] and z.shape[0] == len(ids_list):
+            ids_arr, m = line[1], len(ids_list)
+            values, skipped = self._update_compiled(ids_list, z, line[2])
+            new, any_new = [], False
+        else:
+            ids_arr = np.array(ids, dtype=np.int64)  # copies: the record keeps them
+            ids_list = ids_arr.tolist()
+            m = len(ids_list)
+            if len(set(ids_list)) != m:
+                raise FilterError("an observation names the same landmark twice")
+            slot = self._slot
+            new = [i not in slot for i in ids_list]
+            any_new = True in new
+            values, skipped = self._observe_line(ids_list, ids_arr, z, new, any_new, compiled)
+        if any_new:
+            self._reserve(sum(new))
+            for k in range(m):
+                if new[k]:
+                    self._add_landmark(ids_list[k], z[k].tolist())
+        values = frozen(values.reshape(m, 9))  # its views below are read-only too
+        flags_none = _NO_FLAGS.get(m)  # where nothing was skipped, shared
+        return kept_observations(  # Observations(...) without its per-field checks
+            ids_arr,
+            frozen(z),
+            values[:, 0:2],
+            values[:, 2:4],
+            values[:, 4:8].reshape(m, 2, 2),
+            values[:, 8],
+            frozen(np.array(new, dtype=bool)) if any_new else _no_flags(m),
+            skipped if skipped is flags_none else frozen(np.asarray(skipped, dtype=bool)),
+        )
+
+    def _observe_line(
+        self,
+        ids_list: list[int],
+        ids_arr: IntArray,
+        z: FloatArray,
+        new: list[bool],
+        any_new: bool,
+        compiled: bool,
+    ) -> tuple[FloatArray, list[bool] | BoolArray]:
+        """The update of a line not met just before: per observation z_pred (2),
+        innovation (2), S (2x2, row-major) and NIS, and the skipped flags. Freezes
+        ``ids_arr`` (the record keeps it) and, where every landmark is known and the
+        kernel updates, keeps the line for the next (see :meth:`observe`)."""
+        m = len(ids_list)
+        frozen(ids_arr)
+        values: FloatArray
+        skipped: list[bool] | BoolArray
+        if any_new and all(new):
+            values, skipped = _nan_table(m), _no_flags(m)
+        elif compiled:
+            slot = self._slot
+            slots = np.array([slot.get(i, -1) for i in ids_list], dtype=np.int64)  # new: -1
+            if not any_new:
+                self._known_line = (ids_list, ids_arr, slots)
+            values, skipped = self._update_compiled(ids_list, z, slots)
         else:
             known = [k for k, is_new in enumerate(new) if not is_new] if any_new else range(m)
             table: list[tuple[float, ...]] = [_NAN_ROW] * m
@@ -430,33 +497,20 @@ class EkfSlam:
             if not math.isfinite(float(self._x.sum())):
                 raise FilterError("the state became non-finite in update")
             values = np.fromiter(itertools.chain.from_iterable(table), np.float64, 9 * m)
-        if any_new:
-            self._reserve(sum(new))
-            for k in range(m):
-                if new[k]:
-                    self._add_landmark(ids_list[k], z[k].tolist())
-        values = frozen(values.reshape(m, 9))  # its views below are read-only too
-        flags_none = _NO_FLAGS.get(m)  # where nothing was skipped, shared
-        return Observations(
-            ids=frozen(ids_arr),
-            z=frozen(z),
-            z_pred=values[:, 0:2],
-            innovation=values[:, 2:4],
-            S=values[:, 4:8].reshape(m, 2, 2),
-            nis=values[:, 8],
-            initialised=frozen(np.array(new, dtype=bool)) if any_new else _no_flags(m),
-            skipped=skipped if skipped is flags_none else frozen(np.asarray(skipped, dtype=bool)),
-        )
+        return values, skipped
 
     def update(self, ids: Sequence[int] | IntArray, z: FloatArray) -> None:
         """:meth:`observe` as the :class:`~ekfviz.filters.protocol.SlamFilter` protocol has it."""
         self.observe(ids, z)
 
-    def _update_compiled(self, ids: list[int], z: FloatArray) -> tuple[FloatArray, BoolArray]:
-        """:meth:`_update_sequential` in the compiled kernel; its table and skipped flags."""
-        slot = self._slot
-        slots = np.array([slot.get(i, -1) for i in ids], dtype=np.int64)  # new ones: -1
-        table = np.full((len(ids), 9), np.nan)
+    def _update_compiled(
+        self, ids: list[int], z: FloatArray, slots: IntArray
+    ) -> tuple[FloatArray, BoolArray]:
+        """:meth:`_update_sequential` in the compiled kernel; its table and skipped flags.
+
+        :param slots: (m,) each landmark's row in the state, -1 for a new one
+        """
+        table = _nan_table(len(ids))
         status = np.zeros(len(ids), dtype=np.int8)
         r00, r11 = self._r
         code, k, n_skipped = _kernel.update_sequential(
@@ -708,6 +762,7 @@ class EkfSlam:
         self._ids = kept_ids
         self._slot = {i: 3 + 2 * k for k, i in enumerate(kept_ids)}
         self._ids_array = None
+        self._known_line = None
         self._rows = {}
         self._landmark_covs = None
 
@@ -762,7 +817,31 @@ class EkfSlam:
         self._slot[landmark_id] = n
         self._ids.append(landmark_id)
         self._ids_array = None
+        self._known_line = None
         self._n = n + 2
+
+
+def _record_index(n_landmarks: int, capacity: int) -> IntArray:
+    """Flat indices into a (capacity, capacity) P of its 3x3 pose block, then of the
+    (N, 2, 2) marginals of its landmarks (see :meth:`EkfSlam.record`)."""
+    pose = np.arange(3)
+    i = 3 + 2 * np.arange(n_landmarks)
+    rows = np.stack([i, i, i + 1, i + 1], axis=1).ravel()
+    cols = np.stack([i, i + 1, i, i + 1], axis=1).ravel()
+    pose_flat = (pose[:, None] * capacity + pose[None, :]).ravel()
+    return np.concatenate([pose_flat, rows * capacity + cols]).astype(np.int64)
+
+
+_NAN_TABLES: dict[int, FloatArray] = {}
+
+
+def _nan_table(m: int) -> FloatArray:
+    """(m, 9) NaN, a new array (a copy of a kept one: np.full costs more at small m)."""
+    table = _NAN_TABLES.get(m)
+    if table is None:
+        table = _NAN_TABLES.setdefault(m, np.full((m, 9), np.nan))
+    copy: FloatArray = table.copy()
+    return copy
 
 
 _NO_FLAGS: dict[int, BoolArray] = {}

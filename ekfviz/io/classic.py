@@ -13,15 +13,16 @@ from pathlib import Path
 
 import numpy as np
 
-from ekfviz.core.records import Control, LogEvent, Sighting
+from ekfviz.core.records import Control, LogEvent, Sighting, frozen
 from ekfviz.core.types import IntArray
 from ekfviz.io.errors import InputError
 from ekfviz.io.text import (
     BearingWrapper,
+    NumberBlock,
     ProgressCallback,
     WarningCallback,
     format_number,
-    numeric_lines,
+    number_blocks,
 )
 
 
@@ -32,64 +33,92 @@ def read_classic(
 ) -> Iterator[LogEvent]:
     """Stream the events of a classic log; landmark ids are 1..k in pair order.
 
+    The file is read in blocks (:func:`~ekfviz.io.text.number_blocks`), each checked in
+    one go; the events of a block up to its first bad line are yielded before that
+    line's error is raised, as a line-by-line reader would.
+
     :param progress: called now and then with the number of bytes read so far
     :param warn: told once when bearings outside (-pi, pi] are wrapped into range
     :raises InputError: for the first bad line met, naming it and what was expected
     """
-    lines = numeric_lines(path, progress)
-    first = next(lines, None)
-    if first is None:
+    blocks = number_blocks(path, progress)
+    block = next(blocks, None)
+    if block is not None and not block.lines:
+        assert block.fault is not None  # a block is yielded with lines or a fault
+        raise block.fault
+    if block is None:
         raise InputError(
             path, 1, "found no data, expected a first line with the initial observation"
         )
-    line, values = first
-    k = len(values) // 2
-    if len(values) % 2 or k < 2:
+    line, count = block.lines[0], int(block.counts[0])
+    k = count // 2
+    if count % 2 or k < 2:
         raise InputError(
             path,
             line,
-            f"found {_count(len(values))} on the first line, expected the initial observation"
+            f"found {_count(count)} on the first line, expected the initial observation"
             " of k >= 2 landmarks: 2k numbers, a bearing and a range per landmark"
             + (
                 " (with one landmark, observations could not be told from controls)"
-                if k == 1 and not len(values) % 2
+                if k == 1 and not count % 2
                 else ""
             ),
         )
-    ids = np.arange(1, k + 1, dtype=np.int64)
+    ids = frozen(np.arange(1, k + 1, dtype=np.int64))
     wrap = BearingWrapper(path, warn)
-    yield _sighting(path, line, ids, values, wrap)
-    for line, values in lines:
-        if len(values) == 2:
-            yield Control(line=line, d=values[0], alpha=values[1])
-        elif len(values) == 2 * k:
-            yield _sighting(path, line, ids, values, wrap)
-        else:
-            raise InputError(
-                path,
-                line,
-                f"found {_count(len(values))}, expected 2 (a control: d alpha) or {2 * k}"
-                f" (an observation of the {k} landmarks of the first line)",
-            )
+    while block is not None:
+        yield from _block_events(path, block, k, ids, wrap)
+        block = next(blocks, None)
 
 
-def _sighting(
-    path: Path, line: int, ids: IntArray, values: list[float], wrap: BearingWrapper
-) -> Sighting:
-    # checks on the floats first: numpy's per-call cost would dominate on a short line
-    if min(values[1::2]) <= 0.0:
-        i = next(i for i, r in enumerate(values[1::2]) if r <= 0.0)
-        raise InputError(
+def _block_events(
+    path: Path, block: NumberBlock, k: int, ids: IntArray, wrap: BearingWrapper
+) -> Iterator[LogEvent]:
+    """The events of one block, in order; then the error of its first bad line, if any."""
+    counts, starts, values, lines = block.counts, block.starts, block.values, block.lines
+    # the first line whose count fits neither event ends the block's events
+    bad = np.flatnonzero((counts != 2) & (counts != 2 * k))
+    end = int(bad[0]) if len(bad) else len(lines)
+    sightings = np.flatnonzero(counts[:end] == 2 * k)
+    # every observation's (bearing, range) pairs at once: (sightings, k, 2)
+    z_all = values[starts[sightings, None] + np.arange(2 * k)].reshape(-1, k, 2)
+    fault = block.fault
+    not_positive = np.flatnonzero((z_all[:, :, 1] <= 0.0).any(axis=1))
+    if len(not_positive):  # a range error comes first: it is on an earlier line
+        row = int(not_positive[0])
+        at = int(sightings[row])
+        i = int(np.flatnonzero(z_all[row, :, 1] <= 0.0)[0])
+        fault = InputError(
             path,
-            line,
-            f"found range {values[2 * i + 1]:g} for landmark {int(ids[i])},"
+            lines[at],
+            f"found range {z_all[row, i, 1]:g} for landmark {int(ids[i])},"
             " expected a positive range",
         )
-    z = np.array(values, dtype=np.float64).reshape(-1, 2)
-    bearings = values[0::2]
-    if max(bearings) > math.pi or min(bearings) <= -math.pi:
-        z[:, 0] = wrap(line, z[:, 0])
-    return Sighting(line=line, ids=ids, z=z)
+        end = at
+    elif end < len(lines):
+        count = int(counts[end])
+        fault = InputError(
+            path,
+            lines[end],
+            f"found {_count(count)}, expected 2 (a control: d alpha) or {2 * k}"
+            f" (an observation of the {k} landmarks of the first line)",
+        )
+    bearings = z_all[:, :, 0]
+    outside = ((bearings > math.pi) | (bearings <= -math.pi)).any(axis=1).tolist()
+    controls = values[starts[:end, None] + np.arange(2)].tolist() if end else []
+    row = 0
+    for j, (line, count) in enumerate(zip(lines[:end], counts[:end].tolist(), strict=True)):
+        if count == 2:
+            d, alpha = controls[j]
+            yield Control(line, d, alpha)
+        else:
+            z = z_all[row]
+            if outside[row]:
+                z[:, 0] = wrap(line, z[:, 0])
+            row += 1
+            yield Sighting(line, ids, z)
+    if fault is not None:
+        raise fault
 
 
 def _count(n: int) -> str:

@@ -71,6 +71,9 @@ class ScanHooks(Protocol):
     @property
     def associator(self) -> Associator | None: ...
 
+    @property
+    def reads_predicts(self) -> bool: ...
+
     def add(self, record: EventRecord) -> None: ...
 
     def truth_of(self, last: EventRecord) -> GroundTruth | None: ...
@@ -140,10 +143,15 @@ def replay_log(
         consumers.append(scans.add)
     slam = None if scans is None else scans.slam
     associator = None if scans is None else scans.associator
+    # the plain predicts go to the recorder as columns (no other consumer reads a
+    # predict's record) unless the hooks read them (a source's reference)
+    rows = logger.predict_rows() if scans is None or not scans.reads_predicts else None
     try:
         run(events, params, consumers, make_filter=make_filter, name=name, slam=slam,
-            associator=associator)  # fmt: skip
+            associator=associator, predict_rows=rows)  # fmt: skip
     except (InputError, FilterLineError, KeyboardInterrupt, signals.Terminated) as cause:
+        if rows is not None:  # where it stopped: maybe a predict written as a row
+            last.record = rows.latest(last.record)
         if scans is not None and last.record is not None:
             truth = scans.truth_of(last.record)
         final = None if last.record is None else evaluate(last.record, truth, consistency)

@@ -20,6 +20,7 @@ from ekfviz.core.records import (
     EventKind,
     EventRecord,
     Observations,
+    PredictRows,
     Scan,
     Sighting,
     frozen,
@@ -82,6 +83,7 @@ def replay(
     full_cov: bool = False,
     slam: EkfSlam | None = None,
     associator: Associator | None = None,
+    predict_rows: PredictRows | None = None,
 ) -> Iterator[EventRecord]:
     """Run EKF-SLAM over ``events`` lazily, one record per event.
 
@@ -115,6 +117,10 @@ def replay(
     :param full_cov: also keep the full (3+2N)^2 covariance in every record
     :param slam: the built-in filter to run, made by the caller (with its models)
     :param associator: for logs with scans
+    :param predict_rows: where the built-in filter's plain predicts go as columns instead
+        of records (see :class:`~ekfviz.core.records.PredictRows`): every predict of a
+        control but the last event's and those whose covariance is checked; None: a
+        record for every event
     :raises FilterLineError: the filter cannot go on at a line (a non-finite state, a
         protocol filter that raised or showed a broken state, ...)
     """
@@ -129,6 +135,7 @@ def replay(
     else:
         ekf = plugged(make_filter, params, name)
     gate, R = params.gate, params.R
+    rows = predict_rows if isinstance(ekf, EkfSlam) and not full_cov else None
     next_check = 0  # the step from which the whole covariance is due for a check
     cadence = CorrelationCadence()
 
@@ -209,6 +216,11 @@ def replay(
                     continue
                 if step >= next_check or last:
                     covariance, warnings = checked_pair(log_event.line, ())
+                elif rows is not None and type(log_event) is Control:
+                    x, P = ekf.buffers  # type: ignore[union-attr]  # rows: the built-in filter's
+                    rows.add(event, step, log_event.line, log_event.time,
+                             (log_event.d, log_event.alpha), x, P)  # fmt: skip
+                    continue
                 else:
                     covariance, warnings = None, ()
                 record = ekf.record(

@@ -28,7 +28,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable, Sequence
 from typing import TYPE_CHECKING
 
-from ekfviz.core.records import AnyEvent, EventRecord
+from ekfviz.core.records import AnyEvent, EventRecord, PredictRows
 from ekfviz.runner.replay import replay
 
 if TYPE_CHECKING:
@@ -50,19 +50,28 @@ def run(
     name: str = "ekf",
     slam: EkfSlam | None = None,
     associator: Associator | None = None,
+    predict_rows: PredictRows | None = None,
 ) -> EventRecord | None:
     """Replay ``events`` and call each consumer with every record, in turn.
 
     :param slam: the built-in filter made with other models (Victoria Park's vehicle and
         laser), instead of one made from ``params``
     :param associator: pairs id-less scans with landmarks; None: the log's ids
+    :param predict_rows: the plain predicts go there as columns, not to the consumers
+        (see :func:`~ekfviz.runner.replay.replay`)
     :returns: the last record (None only if the replay yielded nothing)
     :raises FilterLineError: the filter cannot go on at a line of the log; the consumers
         have every record before it
     """
     last = None
     for record in replay(
-        events, params, make_filter=make_filter, name=name, slam=slam, associator=associator
+        events,
+        params,
+        make_filter=make_filter,
+        name=name,
+        slam=slam,
+        associator=associator,
+        predict_rows=predict_rows,
     ):
         for consumer in consumers:
             consumer(record)

@@ -146,10 +146,11 @@ class CorrelationLayer:
         log_correlation_styling(self._canvas.entities)
 
     def send(self, batch: Batch) -> None:
-        at = [k for k, record in enumerate(batch.records) if record.correlation is not None]
+        records = batch.records  # None at a predict of a segment: no correlation there
+        at = [k for k, r in enumerate(records) if r is not None and r.correlation is not None]
         if not at:
             return
-        correlations = [batch.records[k].correlation for k in at]
+        correlations = [record.correlation for k in at if (record := records[k]) is not None]
         images = [color_indices(c.matrix) for c in correlations]  # type: ignore[union-attr]
         sizes = np.array([image.size for image in images], dtype=np.int64)
         offsets = np.zeros(len(images) + 1, dtype=np.int32)
@@ -185,7 +186,8 @@ class CorrelationLayer:
                 and np.array_equal(previous.landmark_ids, correlation.landmark_ids)
             ):
                 continue
-            record = batch.records[k]
+            record = records[k]
+            assert record is not None  # it has a correlation
             self._canvas.set_times(record.step, record.event, record.time)
             mins, sizes_xy, labels = block_outlines(correlation)
             entities = self._canvas.entities

@@ -51,7 +51,6 @@ from ekfviz.viz.blueprint import ASSOCIATION_SERIES, REFERENCE_SERIES, default_b
 from ekfviz.viz.correlation import CorrelationLayer
 from ekfviz.viz.layers.arrays import CHECK_ALL_DIM, ArrayInput
 from ekfviz.viz.layers.arrow import EPOCH_MIN_S, MIN_AXIS, frame_id, time_is_epoch
-from ekfviz.viz.layers.batch import Batch
 from ekfviz.viz.layers.canvas import MAX_CLASS_ID, SHAPES_EVERY, Canvas
 from ekfviz.viz.layers.history import HistoryLayer
 from ekfviz.viz.layers.labels import LABEL_HEIGHT, LABEL_WIDTH, LabelsLayer, unclutter
@@ -65,6 +64,7 @@ from ekfviz.viz.layers.landmarks import (
 )
 from ekfviz.viz.layers.metrics import MetricsLayer
 from ekfviz.viz.layers.observations import ObservationsLayer
+from ekfviz.viz.layers.pending import FLUSH_EVERY, FLUSH_LANDMARKS, PendingEvents
 from ekfviz.viz.layers.robot import HEADING_LENGTH, RobotLayer
 from ekfviz.viz.layers.text import TextLayer
 from ekfviz.viz.layers.truth import TruthLayer
@@ -77,10 +77,6 @@ __all__ = [  # the constants of the parts, where callers and tests have found th
     "Recorder", "frame_id", "time_is_epoch", "unclutter",
 ]  # fmt: skip
 
-# Events between two sends of the buffered data, one chunk per entity: each chunk costs
-# ~0.1 ms in the main thread and as much in Rerun's encoder, whatever its size.
-FLUSH_EVERY = 4096
-FLUSH_LANDMARKS = 1 << 20  # ... or sooner, once the buffered records hold this many landmarks
 FLUSH_TIMEOUT_S = 30.0  # how long finish() waits for a slow or absent viewer
 
 
@@ -153,11 +149,9 @@ class Recorder:
         self._truth_layer = TruthLayer(canvas, self._metrics)
         self._text = TextLayer(canvas)
         self._correlation = CorrelationLayer(canvas)
-        # records not sent yet, each with whether it logs the whole map's ellipses
-        self._pending: list[tuple[EventRecord, bool]] = []
-        self._pending_landmarks = 0
-        self._event = 0
-        self._step = 0
+        self.pending = PendingEvents()
+        self._last_record: EventRecord | None = None  # the last record logged
+        self._event = self._step = 0
         self._step_has_update = True  # the initialisation counts as step 0's update
         self._blueprint = blueprint
         self._run_documents = run_documents
@@ -246,6 +240,7 @@ class Recorder:
     def finish(self, evaluation: Evaluation | None = None) -> None:
         """Send the buffered data, the whole map at the last update, the evaluation document
         if given, the layout framing the whole run, and flush."""
+        self._log_rows()
         for record in self._thinning.drain():
             self._log_record(record)
         self._map.mark_final()  # its map exactly, in the same send if pending
@@ -275,6 +270,7 @@ class Recorder:
 
     def note(self, text: str, level: str | rr.TextLogLevel = rr.TextLogLevel.WARN) -> None:
         """A line in the text log at the latest event: a warning, or why a run stopped."""
+        self._log_rows()
         for record in self._thinning.drain():
             self._log_record(record)
         self._send_pending()
@@ -309,8 +305,7 @@ class Recorder:
 
     @property
     def entities_with_data(self) -> frozenset[str]:
-        """The entity paths (without the prefix) given data so far, and the GPS
-        reference's series if one is to come."""
+        """The entities (no prefix) given data so far, and a GPS reference's to come."""
         has = set(self._rec.sent)
         if self.association is not None:  # it logs through the stream itself
             has |= {f"{ASSOCIATION_SERIES}/matched", style.LOG}
@@ -331,11 +326,21 @@ class Recorder:
     def log_record(self, record: EventRecord) -> None:
         """Log one record of the core: the map, the metrics and a line of text (the
         predicts of a timestamped log thinned, see :mod:`ekfviz.viz.thinning`)."""
+        self._log_rows()
+        self._last_record = record
         if self._thinning.passes(record):
             self._log_record(record)
             return
         for admitted in self._thinning.admit(record):
             self._log_record(admitted)
+
+    def _log_rows(self) -> None:
+        """Hold the predict rows written since the last record (see PendingEvents)."""
+        last = self.pending.hold_rows(
+            self._last_record, self._thinning.held, self.log_record, self._send_pending
+        )
+        if last is not None:
+            self._event, self._step, self._step_has_update = *last, False
 
     def _log_record(self, record: EventRecord) -> None:
         if record.kind is EventKind.UPDATE and record.observations is None:
@@ -351,19 +356,14 @@ class Recorder:
             self.association.log(record)
         if self._truth is not None:
             self._truth_layer.log_metrics(record, whole_map, self.association is not None)
-        self._pending.append((record, whole_map))
-        self._pending_landmarks += len(record.landmark_ids)
-        if len(self._pending) >= FLUSH_EVERY or self._pending_landmarks >= FLUSH_LANDMARKS:
-            self._send_pending()
-            self._canvas.series.flush()
+        if self.pending.add(record, whole_map):
+            self._send_pending(series=True)
 
-    def _send_pending(self) -> None:
-        """Send the buffered records: one batch of columns, drawn by every part."""
-        if not self._pending:
+    def _send_pending(self, series: bool = False) -> None:
+        """Send the events held as one batch drawn by every part (then the series too)."""
+        if not self.pending:
             return
-        batch = Batch.of(self._pending, self._canvas.clock)
-        self._pending = []
-        self._pending_landmarks = 0
+        batch = self.pending.batch(self._canvas.clock)
         self._robot.send(batch)
         self._truth_layer.send(batch)
         for path, picked in (
@@ -379,6 +379,8 @@ class Recorder:
         self._metrics.send_health(batch)
         self._text.send(batch)
         self._correlation.send(batch)
+        if series:
+            self._canvas.series.flush()
 
     # -- static data -----------------------------------------------------------------------
 
@@ -386,8 +388,7 @@ class Recorder:
         """Every part's styling; the world mirrored in the root frame."""
         self._metrics.log_styling()
         self._truth_layer.log_styling()
-        # A 2-D view draws y down; mirroring "world" in the root frame shows the map y up
-        # as in the classic plots, while every entity keeps its true world coordinates.
+        # a 2-D view draws y down: "world" mirrored in the root frame shows the map y up
         self._rec.log(style.WORLD, rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)
         self._robot.log_styling()
         if self._history:

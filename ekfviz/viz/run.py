@@ -32,7 +32,7 @@ import rerun as rr
 from rerun.any_batch_value import ComponentValueLike
 
 from ekfviz import __version__, signals
-from ekfviz.core.records import EventRecord
+from ekfviz.core.records import EventRecord, PredictRows
 from ekfviz.core.truth import GroundTruth
 from ekfviz.evaluation.errors import Evaluation
 from ekfviz.filters.ekf import HAVE_KERNEL
@@ -537,6 +537,7 @@ class RunLogger:
         self.url = recording.url
         self.logged = 0  # records logged so far
         self.last: EventRecord | None = None  # the last record logged
+        self._rows: PredictRows | None = None  # the predicts logged as rows, if any
 
     @property
     def finished(self) -> bool:
@@ -547,6 +548,12 @@ class RunLogger:
         self.recorder.log_record(record)
         self.logged += 1
         self.last = record
+
+    def predict_rows(self) -> PredictRows:
+        """Where a replay writes its plain predicts as columns, for the recorder to log
+        before the next record (see :class:`~ekfviz.viz.layers.pending.PendingEvents`)."""
+        self._rows = self.recorder.pending.predict_rows()
+        return self._rows
 
     def finish(self, evaluation: Evaluation | None) -> None:
         """Log the evaluation document and send the buffered series: the run is complete;
@@ -576,7 +583,7 @@ class RunLogger:
             return False
         self.recording.partial = True
         self.recorder.note(reason, level=rr.TextLogLevel.ERROR)
-        last = self.last
+        last = self.last if self._rows is None else self._rows.latest(self.last)
         finish_recorders(
             self.recording,
             [(self.recorder, evaluation)],

@@ -57,6 +57,11 @@ class PredictThinning:
             self._last_time = record.time
         return out
 
+    @property
+    def held(self) -> bool:
+        """Whether a predict is held back (logged, or not, once the next record comes)."""
+        return self._held is not None
+
     def passes(self, record: EventRecord) -> bool:
         """Whether ``record`` is logged at once with nothing before it (what :meth:`admit`
         would return as ``[record]``): the common case, answered without a list."""

@@ -4,13 +4,14 @@ picture draws from, built once per send (see :mod:`ekfviz.viz.layers`)."""
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 import numpy.typing as npt
 
-from ekfviz.core.records import EventKind, EventRecord
+from ekfviz.core.records import EventKind, EventRecord, PredictRows
 from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.viz.layers.canvas import Clock, Rows
 
@@ -43,7 +44,7 @@ class Observed:
     skipped: IntArray
 
     @staticmethod
-    def of(records: list[EventRecord], corrected: IntArray) -> Observed:
+    def of(records: list[EventRecord | None], corrected: IntArray) -> Observed:
         count = len(records)
         observed = [
             (k, observations)
@@ -75,15 +76,18 @@ class Observed:
 class Batch:
     """The records of one send as columns, built once and read by every part.
 
-    :param records: the records, in order
+    :param records: the records, in order; None at a predict of a segment (see
+        :class:`PredictSegment`), whose line and control are in ``lines`` and ``controls``
     :param whole: (count,) whether each update logs the whole map's ellipses
     :param rows: their timelines
     :param poses: (count, 3) and ``pose_covs`` (count, 3, 3)
     :param is_predict: (count,) which records are predicts; ``corrected`` the others' rows
     :param observed: what their updates did with their observations
+    :param lines: the log line of each predict of a segment (0 elsewhere)
+    :param controls: the (d, alpha) of each predict of a segment (None elsewhere)
     """
 
-    records: list[EventRecord]
+    records: list[EventRecord | None]
     whole: list[bool]
     rows: Rows
     poses: FloatArray
@@ -91,36 +95,98 @@ class Batch:
     is_predict: npt.NDArray[np.bool_]
     corrected: IntArray
     observed: Observed
+    lines: list[int]
+    controls: list[tuple[float, float] | None]
 
     @staticmethod
-    def of(pending: list[tuple[EventRecord, bool]], clock: Clock) -> Batch:
-        records = [record for record, _ in pending]
+    def of(
+        pending: list[tuple[EventRecord, bool]],
+        clock: Clock,
+        rows: PredictRows | None = None,
+        held: int = 0,
+    ) -> Batch:
+        """The batch of the records ``pending`` (each with whether it logs the whole map)
+        and of the first ``held`` predict ``rows``, merged in event order."""
+        records: list[EventRecord | None] = [record for record, _ in pending]
+        whole = [is_whole for _, is_whole in pending]
         count = len(records)
-        rows = clock.rows(
-            np.fromiter((record.step for record in records), np.int64, count),
-            np.fromiter((record.event for record in records), np.int64, count),
-            np.fromiter(
-                (math.nan if record.time is None else record.time for record in records),
-                np.float64,
-                count,
-            ),
+        steps = np.fromiter((record.step for record in pending_records(pending)), np.int64, count)
+        events = np.fromiter((record.event for record in pending_records(pending)), np.int64, count)
+        times = np.fromiter(
+            (math.nan if r.time is None else r.time for r in pending_records(pending)),
+            np.float64,
+            count,
         )
+        # concatenated and reshaped: np.stack costs three times as much per record
+        poses, covs = np.zeros((0, 3)), np.zeros((0, 3, 3))
+        if count:
+            poses = np.concatenate([record.pose for record, _ in pending]).reshape(count, 3)
+            covs = np.concatenate([r.pose_cov for r, _ in pending]).reshape(count, 3, 3)
+        lines: list[int] = [0] * count
+        controls: list[tuple[float, float] | None] = [None] * count
+        if rows is not None and held:
+            # the rows' events interleave the records': each column in event order
+            row_events = np.array(rows.events[:held], dtype=np.int64)
+            order = np.argsort(np.concatenate([events, row_events]), kind="stable")
+            at = np.empty(count + held, dtype=np.int64)
+            at[order] = np.arange(count + held)  # where each record, then each row, goes
+            mine, theirs = at[:count], at[count:]
+            count += held
+            merged: list[EventRecord | None] = [None] * count
+            for k, record in zip(mine.tolist(), records, strict=True):
+                merged[k] = record
+            records = merged
+            whole_all = [False] * count
+            for k, is_whole in zip(mine.tolist(), whole, strict=True):
+                whole_all[k] = is_whole
+            whole = whole_all
+            lines, controls = [0] * count, [None] * count
+            for k, line, control in zip(
+                theirs.tolist(), rows.lines[:held], rows.controls[:held], strict=True
+            ):
+                lines[k], controls[k] = line, control
+            steps = _merged(steps, np.array(rows.steps[:held], dtype=np.int64), mine, theirs)
+            events = _merged(events, row_events, mine, theirs)
+            row_times = np.array(
+                [math.nan if time is None else time for time in rows.times[:held]], np.float64
+            )
+            times = _merged(times, row_times, mine, theirs)
+            poses = _merged(poses, rows.poses[:held], mine, theirs)
+            covs = _merged(covs, rows.pose_covs[:held], mine, theirs)
         is_predict = np.fromiter(
-            (record.kind is EventKind.PREDICT for record in records), bool, count
+            (record is None or record.kind is EventKind.PREDICT for record in records),
+            bool,
+            count,
         )
         corrected = np.flatnonzero(~is_predict)
         return Batch(
             records=records,
-            whole=[whole for _, whole in pending],
-            rows=rows,
-            # concatenated and reshaped: np.stack costs three times as much per record
-            poses=np.concatenate([record.pose for record in records]).reshape(count, 3),
-            pose_covs=np.concatenate([record.pose_cov for record in records]).reshape(count, 3, 3),
+            whole=whole,
+            rows=clock.rows(steps, events, times),
+            poses=poses,
+            pose_covs=covs,
             is_predict=is_predict,
             corrected=corrected,
             observed=Observed.of(records, corrected),
+            lines=lines,
+            controls=controls,
         )
 
     def updates(self) -> list[tuple[int, EventRecord, bool]]:
         """(row, record, logs the whole map) of every update and initialisation."""
         return [(k, self.records[k], self.whole[k]) for k in self.corrected.tolist()]
+
+
+def pending_records(pending: list[tuple[EventRecord, bool]]) -> Iterator[EventRecord]:
+    return (record for record, _ in pending)
+
+
+ArrayT = TypeVar("ArrayT", bound=np.ndarray)
+
+
+def _merged(first: ArrayT, second: ArrayT, at_first: IntArray, at_second: IntArray) -> ArrayT:
+    """The rows of ``first`` and ``second`` at the rows ``at_first`` and ``at_second``."""
+    out = np.empty((len(first) + len(second), *first.shape[1:]), dtype=first.dtype)
+    out[at_first] = first
+    out[at_second] = second
+    return out  # type: ignore[return-value]

@@ -123,7 +123,7 @@ class MetricsLayer:
         checked = [
             (k, check)
             for k, record in enumerate(records)
-            if (check := record.covariance) is not None
+            if record is not None and (check := record.covariance) is not None
         ]
         if checked:
             self._send_checks(rows, checked)

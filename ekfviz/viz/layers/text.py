@@ -37,6 +37,15 @@ def describe(record: EventRecord, seen: int, new: int, nis: float, nis_used: int
     return text
 
 
+def describe_predict(step: int, line: int, control: tuple[float, float] | None) -> str:
+    """:func:`describe` of a predict given as columns (see
+    :class:`~ekfviz.viz.layers.batch.Batch`)."""
+    where = f"step {step} predict line {line}" if line else f"step {step} predict"
+    if control is None:
+        return where
+    return f"{where}: d {control[0]:.3f}, alpha {control[1]:.4f}"
+
+
 class TextLayer:
     """The lines of the text log."""
 
@@ -47,14 +56,17 @@ class TextLayer:
         """A line per step: a predict's goes into the line of the update that follows it in
         the same step, both at the update; then one per warning at the same event."""
         records, observed = batch.records, batch.observed
+        steps = batch.rows.steps.tolist()
         text: list[str] = []
         level: list[str] = []
         line_of: list[int] = []
         held: tuple[str, tuple[str, ...]] | None = None  # a predict's line and warnings
         count = len(records)
-        for k, (record, seen, new, nis_sum, nis_used) in enumerate(
+        no_warnings: tuple[str, ...] = ()
+        for k, (record, is_predict, seen, new, nis_sum, nis_used) in enumerate(
             zip(
                 records,
+                batch.is_predict.tolist(),
                 observed.seen.tolist(),
                 observed.new.tolist(),
                 observed.nis_sum.tolist(),
@@ -62,16 +74,21 @@ class TextLayer:
                 strict=True,
             )
         ):
-            line = describe(record, seen, new, nis_sum, nis_used)
+            if record is None:  # a predict of a segment: its line and control in columns
+                line = describe_predict(steps[k], batch.lines[k], batch.controls[k])
+                warnings = no_warnings
+            else:
+                line = describe(record, seen, new, nis_sum, nis_used)
+                warnings = record.warnings
             if (
-                record.kind is EventKind.PREDICT
+                is_predict
                 and k + 1 < count
-                and records[k + 1].kind is EventKind.UPDATE
-                and records[k + 1].step == record.step
+                and (following := records[k + 1]) is not None
+                and following.kind is EventKind.UPDATE
+                and steps[k + 1] == steps[k]
             ):
-                held = (line, record.warnings)
+                held = (line, warnings)
                 continue
-            warnings = record.warnings
             if held is not None:
                 line = f"{held[0]}; {line.split(' ', 2)[2]}"  # "step N predict ...; update ..."
                 warnings = held[1] + warnings
@@ -80,6 +97,7 @@ class TextLayer:
             level.append(INFO)
             line_of.append(k)
             for warning in warnings:
+                assert record is not None  # a predict of a segment has no warnings
                 text.append(f"step {record.step} line {record.line}: {warning}")
                 level.append(WARN)
                 line_of.append(k)

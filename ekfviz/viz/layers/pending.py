@@ -1,0 +1,124 @@
+"""What the recorder holds until its next send: records, and predicts given as columns.
+
+A send is due after ``FLUSH_EVERY`` events or once the events held carry
+``FLUSH_LANDMARKS`` landmarks: the same events go into every send whether the predicts
+came as records or as columns (:class:`~ekfviz.core.records.PredictRows`), so that the
+recording does not depend on it (the text log joins a predict's line to the update
+after it within one send).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from ekfviz.core.records import EventRecord, PredictRows
+from ekfviz.viz.layers.batch import Batch
+from ekfviz.viz.layers.canvas import Clock
+
+# Events between two sends of the buffered data, one chunk per entity: each chunk costs
+# ~0.1 ms in the main thread and as much in Rerun's encoder, whatever its size.
+FLUSH_EVERY = 4096
+FLUSH_LANDMARKS = 1 << 20  # ... or sooner, once the buffered records hold this many landmarks
+
+
+class PendingEvents:
+    """The events not sent yet: the records, in order, and the first ``rows_held`` rows
+    of the replay's predict rows (:meth:`predict_rows`), if any, which the records'
+    events interleave (both in event order)."""
+
+    def __init__(self) -> None:
+        self.records: list[tuple[EventRecord, bool]] = []  # with: logs the whole map
+        self.count = 0  # events held, records and rows
+        self.landmarks = 0  # landmarks of the maps of the events held
+        self.rows: PredictRows | None = None  # where a replay writes its predicts, if asked
+        self.rows_held = 0
+
+    def __bool__(self) -> bool:
+        return self.count > 0
+
+    def predict_rows(self) -> PredictRows:
+        """The rows a replay writes its plain predicts to, made at the first call."""
+        if self.rows is None:
+            self.rows = PredictRows(FLUSH_EVERY)
+        return self.rows
+
+    def latest(self, record: EventRecord | None) -> EventRecord | None:
+        """The newer of ``record`` and the newest predict row (:meth:`PredictRows.latest`)."""
+        return record if self.rows is None else self.rows.latest(record)
+
+    @property
+    def due(self) -> bool:
+        return self.count >= FLUSH_EVERY or self.landmarks >= FLUSH_LANDMARKS
+
+    def add(self, record: EventRecord, whole: bool) -> bool:
+        """Hold a record (with whether it logs the whole map); whether a send is due."""
+        self.records.append((record, whole))
+        self.count += 1
+        self.landmarks += len(record.landmark_ids)
+        return self.count >= FLUSH_EVERY or self.landmarks >= FLUSH_LANDMARKS
+
+    def hold_rows(
+        self,
+        before: EventRecord | None,
+        thinned: bool,
+        log: Callable[[EventRecord], None],
+        send: Callable[..., None],
+    ) -> tuple[int, int] | None:
+        """Hold the predict rows written since the record ``before``, if any, calling
+        ``send(series=True)`` wherever a send falls due among them, as after their records;
+        or, where the thinning may drop some (it holds a predict back, ``thinned``, or
+        the rows have times), ``log`` them as records one by one.
+
+        :return: the (event, step) of the last row held, None if none was
+        """
+        rows = self.rows
+        if rows is None:
+            return None
+        total = len(rows)
+        new = total - self.rows_held
+        if not new:
+            return None
+        assert before is not None  # a replay's first event is a record
+        if thinned or rows.timed:
+            for record in rows.records(self.rows_held, before):
+                log(record)
+            return None
+        last = rows.events[total - 1], rows.steps[total - 1]
+        per_row = len(before.landmark_ids)  # a predict keeps the map of the record before
+        count, landmarks = self.count + new, self.landmarks + per_row * new
+        if count < FLUSH_EVERY and landmarks < FLUSH_LANDMARKS:  # no send due among them
+            self.count, self.landmarks, self.rows_held = count, landmarks, total
+            return last
+        while new:
+            due = FLUSH_EVERY - self.count  # rows until a send is due
+            if per_row:
+                due = min(due, -(-(FLUSH_LANDMARKS - self.landmarks) // per_row))
+            held = min(new, max(due, 1))
+            self.rows_held += held
+            self.count += held
+            self.landmarks += per_row * held
+            new -= held
+            if self.due:
+                send(series=True)
+        return last
+
+    def batch(self, clock: Clock) -> Batch:
+        """Every event held, as one batch in event order; none is held after."""
+        records, held = self.take()
+        batch = Batch.of(records, clock, self.rows, held)
+        self.release(held)
+        return batch
+
+    def take(self) -> tuple[list[tuple[EventRecord, bool]], int]:
+        """The records held and how many rows (the first of :attr:`rows`); none is held
+        after. The caller :meth:`release` s the rows once it has read them."""
+        records, held = self.records, self.rows_held
+        self.records = []
+        self.count = self.landmarks = 0
+        return records, held
+
+    def release(self, rows_read: int) -> None:
+        """Forget the first ``rows_read`` rows (sent)."""
+        if self.rows is not None and rows_read:
+            self.rows.drop(rows_read)
+        self.rows_held -= rows_read
