@@ -5,8 +5,8 @@ from ekfviz import signals, startup
 
 def main() -> None:
     """Defer SIGINT and SIGTERM before the slow imports (see ``ekfviz.signals``), keep
-    pyarrow from importing pandas and numpy to one BLAS thread (see ``ekfviz.startup``),
-    then run."""
+    pyarrow from importing pandas and numpy to one BLAS thread, collect garbage less
+    often (see ``ekfviz.startup``), then run."""
     signals.defer()
     startup.one_blas_thread()
     startup.pyarrow_without_pandas()
@@ -23,6 +23,7 @@ def main() -> None:
         raise SystemExit(stop.exit_code) from None
     name = command_of(argv)  # only that command's module: the others cost start-up
     app = load(COMMANDS if name is None else (name,))
+    startup.collect_less()  # after the command's imports: see ekfviz.startup
     try:
         try:
             app(args=argv, prog_name="ekfviz")

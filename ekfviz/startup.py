@@ -41,6 +41,24 @@ def one_blas_thread() -> None:
             os.environ[name] = "1"
 
 
+def collect_less() -> None:
+    """Set the objects made so far (the imported modules, their functions and classes)
+    apart from the cyclic garbage collector, and run its youngest generation every
+    10,000 allocations instead of 700.
+
+    A long log's records, rows and columns are made by the hundred thousand and hold no
+    reference cycles; collecting them at Python's default pace took 0.45 s of the
+    102,000-step log's 6.5 s, 0.07 s so. Cycles are still collected, less often.
+    """
+    import gc
+
+    gc.freeze()
+    gc.set_threshold(GC_YOUNG, 20, 20)
+
+
+GC_YOUNG = 10_000  # allocations between two collections of the youngest generation
+
+
 def _answer_no(pyarrow: ModuleType) -> None:
     """Have pyarrow look for pandas while an empty module stands in for it.
 

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from ekfviz import startup
 from ekfviz.filters.ekf import DEFER_MIN_DIM, FilterParams
 from ekfviz.filters.model_ekf import ModelEkfSlam
 from ekfviz.models.angles import wrap_angle
@@ -76,6 +77,34 @@ def test_a_classic_replay_imports_nothing_it_does_not_use(tmp_path: Path) -> Non
     imported = set(json.loads(modules.read_text()))
     assert "rerun" in imported and "pyarrow" in imported  # it did record
     assert sorted(m for m in imported if m.split(".")[0] in NOT_IMPORTED or m in NOT_IMPORTED) == []
+
+
+GC_AT_EXIT = """
+import atexit, gc, json, sys
+out = sys.argv.pop(1)
+def dump():
+    with open(out, "w") as handle:
+        json.dump({"threshold": gc.get_threshold(), "frozen": gc.get_freeze_count()}, handle)
+atexit.register(dump)
+sys.argv = ["ekfviz", *sys.argv[1:]]
+from ekfviz.__main__ import main
+main()
+"""
+
+
+def test_the_command_line_collects_garbage_less_often_with_its_imports_set_apart(
+    tmp_path: Path,
+) -> None:
+    found, recording = tmp_path / "gc.json", tmp_path / "run.rrd"
+    done = subprocess.run(
+        [sys.executable, "-c", GC_AT_EXIT, str(found), "replay",
+         str(ROOT / "data" / "classic.txt"), "--save", str(recording)],
+        env=_env(tmp_path), capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    state = json.loads(found.read_text())
+    assert state["threshold"][0] == startup.GC_YOUNG > 700  # Python's default: 700
+    assert state["frozen"] > 10_000  # the imported modules' objects
 
 
 def test_pyarrow_converts_without_importing_pandas_which_stays_importable(
