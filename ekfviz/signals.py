@@ -158,6 +158,24 @@ def raise_pending() -> None:
 
 
 @contextmanager
+def held() -> Iterator[None]:
+    """Inside the block SIGINT and SIGTERM are remembered, not acted on; one that came is
+    handled as before the block once the block is done (a recording being finished: cut
+    short there it would be lost whole, finished it is kept)."""
+    before = (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM))
+    defer()
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, before[0])
+        signal.signal(signal.SIGTERM, before[1])
+    signum = _take_pending()
+    handler = None if signum is None else before[0 if signum == signal.SIGINT else 1]
+    if signum is not None and callable(handler):
+        handler(signum, None)
+
+
+@contextmanager
 def as_exceptions() -> Iterator[None]:
     """Inside the block SIGINT raises KeyboardInterrupt and SIGTERM :class:`Terminated`;
     one that came earlier waits for :func:`raise_pending`. The usual handlers after it."""

@@ -179,9 +179,9 @@ def test_info_on_what_is_not_a_whole_ekfviz_recording_is_one_line(
 
 
 def test_info_says_a_run_cut_by_sigterm_stopped_early_and_where(tmp_path: Path) -> None:
-    log = tmp_path / "long.txt"
+    log = tmp_path / "long.txt"  # long enough to be still replaying a second in (~5 s)
     made = ekfviz(
-        "simulate", "--scenario", "loop", "--steps", "4000", "--landmarks", "40",
+        "simulate", "--scenario", "loop", "--steps", "20000", "--landmarks", "40",
         "-o", str(log), "--truth-out", str(tmp_path / "t.json"),
     )  # fmt: skip
     assert made.returncode == 0, made.stderr

@@ -303,3 +303,21 @@ def test_an_interrupt_python_had_to_drop_is_raised_again(capfd: pytest.CaptureFi
         signals.reset()
     signals.raise_if_interrupted()  # nothing left once reset
     assert capfd.readouterr().err == ""
+
+
+def test_a_signal_while_a_recording_is_finished_is_acted_on_once_it_is() -> None:
+    """signals.held(): SIGTERM inside the block (a replay finishing its recording) waits
+    for the block's end, then raises as the replay's handlers do; none: nothing raised."""
+    from ekfviz import signals
+
+    done: list[str] = []
+    with signals.as_exceptions():
+        with pytest.raises(signals.Terminated), signals.held():
+            signal.raise_signal(signal.SIGTERM)  # remembered, not raised here
+            done.append("finished")
+        assert done == ["finished"]
+        with signals.held():
+            done.append("again")  # no signal: the block ends as usual
+        with pytest.raises(KeyboardInterrupt):  # the replay's handlers are back
+            signal.raise_signal(signal.SIGINT)
+    assert done == ["finished", "again"]

@@ -159,11 +159,13 @@ def replay_log(
         kept = logger.stop(reason, final)
         raise RunStopped(reason, cause, kept) from cause
     assert last.record is not None  # replay always yields the initialisation
-    if scans is not None:
-        truth = scans.truth_of(last.record)
-        scans.finish(logger)  # before the layout: the map frames what it draws
-    evaluation = evaluate(last.record, truth, consistency)
-    logger.finish(evaluation)
+    # a signal while the recording is finished is acted on once it is (and so kept)
+    with signals.held():
+        if scans is not None:
+            truth = scans.truth_of(last.record)
+            scans.finish(logger)  # before the layout: the map frames what it draws
+        evaluation = evaluate(last.record, truth, consistency)
+        logger.finish(evaluation)
     return evaluation
 
 
