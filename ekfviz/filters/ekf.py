@@ -226,11 +226,8 @@ class EkfSlam:
         self._rows: dict[int, IntArray] = {}  # slot j -> [0, 1, 2, j, j+1]
         self._landmark_covs: FloatArray | None = None  # for records, until P's map changes
         self._landmarks_xy: FloatArray | None = None  # ... and x's: both set together
-        # where in the P buffer (flat) the pose's 3x3 block and then the landmarks' 2x2
-        # marginals lie, for the buffer's capacity and the state's dimension (the key):
-        # one take() gathers both, at a third of the cost of a fancy index
-        self._record_index: IntArray = np.zeros(0, dtype=np.int64)
-        self._record_index_key = (0, 0)
+        # the views a record copies (see _record_views), for the buffer P and dimension
+        self._record_views: _RecordViews | None = None
 
     @classmethod
     def from_state(
@@ -328,15 +325,15 @@ class EkfSlam:
         n_landmarks = (n - 3) // 2
         x, P = self._x, self._P
         if self._landmark_covs is None:  # unchanged by a predict: kept since the update
-            # one copy of x and one gather of P, frozen, each record's arrays views of them
-            key = (n, P.shape[0])
-            if self._record_index_key != key:
-                self._record_index = _record_index(n_landmarks, P.shape[0])
-                self._record_index_key = key
-            gathered = frozen(P.take(self._record_index))
-            pose_cov = gathered[:9].reshape(3, 3)
-            self._landmark_covs = gathered[9:].reshape(n_landmarks, 2, 2)
-            mean = frozen(x[:n].copy())
+            # copies of views kept while the buffers and the dimension are the same: the
+            # pose block, the landmarks' 2x2 marginals (a strided view of P's diagonal
+            # blocks) and x, each a single copy
+            views = self._record_views
+            if views is None or views[0] is not P or views[1] != n:
+                views = self._record_views = _record_views(x, P, n)
+            pose_cov = frozen(views[2].copy())
+            self._landmark_covs = frozen(views[3].copy())
+            mean = frozen(views[4].copy())
             pose = mean[:3]
             self._landmarks_xy = mean[3:].reshape(n_landmarks, 2)
         else:
@@ -821,15 +818,21 @@ class EkfSlam:
         self._n = n + 2
 
 
-def _record_index(n_landmarks: int, capacity: int) -> IntArray:
-    """Flat indices into a (capacity, capacity) P of its 3x3 pose block, then of the
-    (N, 2, 2) marginals of its landmarks (see :meth:`EkfSlam.record`)."""
-    pose = np.arange(3)
-    i = 3 + 2 * np.arange(n_landmarks)
-    rows = np.stack([i, i, i + 1, i + 1], axis=1).ravel()
-    cols = np.stack([i, i + 1, i, i + 1], axis=1).ravel()
-    pose_flat = (pose[:, None] * capacity + pose[None, :]).ravel()
-    return np.concatenate([pose_flat, rows * capacity + cols]).astype(np.int64)
+# P (the buffer), the dimension n, then views of P's pose block, of its landmarks' (N, 2,
+# 2) marginals and of x[:n]
+_RecordViews = tuple[FloatArray, int, FloatArray, FloatArray, FloatArray]
+
+
+def _record_views(x: FloatArray, P: FloatArray, n: int) -> _RecordViews:
+    """Views of the buffers ``x`` and ``P`` (C order) that a record copies: the 3x3 pose
+    block, the N diagonal 2x2 blocks of the landmarks (P's rows and columns 3 + 2i and
+    4 + 2i: one strided view, a step of 2 rows and 2 columns per landmark) and x[:n]."""
+    row, item = P.strides
+    marginals = np.lib.stride_tricks.as_strided(
+        P[3:, 3:], shape=((n - 3) // 2, 2, 2), strides=(2 * row + 2 * item, row, item),
+        writeable=False,
+    )  # fmt: skip
+    return P, n, P[:3, :3], marginals, x[:n]
 
 
 _NAN_TABLES: dict[int, FloatArray] = {}
