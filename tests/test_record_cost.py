@@ -64,3 +64,27 @@ def test_filter_records_equal_snapshots_of_its_state_and_stay_as_made() -> None:
         np.testing.assert_array_equal(record.landmarks_xy.reshape(-1), x[3:])
     moved = [r.landmarks_xy for r, _ in records if r.kind is EventKind.UPDATE]
     assert len({id(m) for m in moved}) == len(moved)  # a fresh copy at every update
+
+
+def test_update_records_hold_the_states_blocks_as_the_map_and_its_buffers_grow() -> None:
+    """A record's pose block, landmark marginals and means are copies of P's and x's
+    blocks, also after the buffers grew (new arrays: the kept views are made again)."""
+    slam = EkfSlam()
+    rng = np.random.default_rng(4)
+    for k in range(45):
+        slam.predict(1.0, 0.1)
+        ids = list(range(1, 2 + k))  # one more landmark each line: P grows, then moves
+        z = np.column_stack([rng.uniform(-1, 1, len(ids)), rng.uniform(2, 10, len(ids))])
+        slam.observe(ids, z)
+        record = slam.record(event=2 * k + 2, step=k + 1, kind=EventKind.UPDATE)
+        x, P = slam.x, slam.P
+        assert np.array_equal(record.pose, x[:3]) and np.array_equal(record.pose_cov, P[:3, :3])
+        for i in range(len(ids)):
+            block = slice(3 + 2 * i, 5 + 2 * i)
+            assert np.array_equal(record.landmark_covs[i], P[block, block])
+            assert np.array_equal(record.landmarks_xy[i], x[block])
+        assert not record.landmark_covs.flags.writeable
+        slam.predict(0.5, 0.0)  # the predict's record: the pose moved, the map kept
+        moved = slam.record(event=2 * k + 3, step=k + 2, kind=EventKind.PREDICT)
+        assert np.array_equal(moved.pose_cov, slam.P[:3, :3])
+        assert moved.landmark_covs is record.landmark_covs
