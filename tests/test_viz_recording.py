@@ -611,3 +611,20 @@ def test_a_long_run_across_flushes_keeps_every_row_and_small_strip_chunks(
     for chunk in RrdReader(rrd).stream().filter(is_static=False):
         if chunk.entity_path in strips:
             assert chunk.to_record_batch().num_rows <= SHAPES_EVERY, chunk.entity_path
+
+
+def test_first_sighting_outlines_are_smooth_the_maps_light(run: Run) -> None:
+    """An outline drawn once per landmark at its first sighting has 32 points (metres wide
+    on real data, 16 showed corners); the map's, logged again and again, 16."""
+    from ekfviz.viz.layers.landmarks import INITIAL_POINTS, MAP_POINTS
+
+    for entity, points in (
+        (style.LANDMARK_INITIAL, INITIAL_POINTS),
+        (style.LANDMARK_ELLIPSES, MAP_POINTS),
+    ):
+        strips = [
+            strip
+            for row in entity_rows(run.rrd, f"/{entity}")
+            for strip in row.get("LineStrips2D:strips") or []  # type: ignore[attr-defined]
+        ]
+        assert strips and {len(strip) for strip in strips} == {points}, entity

@@ -36,6 +36,9 @@ MAP_EVERY_STEPS = 25  # beyond: the whole map every this many steps
 # more than this fraction of its ellipse's semi-major axis (the viewer shows the latest).
 MAP_TOLERANCE = 0.02
 MAP_POINTS = 16  # points of a landmark outline: within 2 % of its radius, as MAP_TOLERANCE
+# a first-sighting outline is logged once, and on real data it is metres wide: 16 points
+# showed corners there, 32 do not (within 0.5 % of its radius)
+INITIAL_POINTS = 32
 MAP_EVERY_S = 5.0  # ... and in a thinned timestamped log, every this many seconds of log time
 
 Update = tuple[int, EventRecord, bool]  # a batch's row, the update, whether whole map
@@ -173,6 +176,7 @@ class MapLayer:
                 for k, record, _ in updates
                 if new[k] and record.association is None
             ],
+            INITIAL_POINTS,
         )
         self._send_confirmed_first_sightings(rows, updates)
 
@@ -295,18 +299,23 @@ class MapLayer:
         self._labels.send(times, updates, ids, positions, counts)
 
     def _send_ellipses(
-        self, entity: str, rows: Rows, batches: list[tuple[int, EventRecord, IntArray]]
+        self,
+        entity: str,
+        rows: Rows,
+        batches: list[tuple[int, EventRecord, IntArray]],
+        points: int = MAP_POINTS,
     ) -> None:
         """3-sigma outlines of some landmarks of some updates, class id = landmark id.
 
         :param batches: per row to send, its index in ``rows``, the update and the rows of
             the landmarks to draw
+        :param points: the most points of an outline
         """
         if not batches:
             return
         counts = np.array([len(picked) for _, _, picked in batches])
         # one outline size per send, from the largest batch (see ellipses.outline_points)
-        n_points = min(MAP_POINTS, outline_points(int(counts.max())))
+        n_points = min(points, outline_points(int(counts.max())))
         means, covs, ids = [], [], []
         for _, record, picked in batches:
             if len(picked) == record.n_landmarks:  # all of them: no copy
@@ -352,7 +361,7 @@ class MapLayer:
         if not at:
             return
         counts = np.array([len(group) for group in ids])
-        n_points = min(MAP_POINTS, outline_points(int(counts.max())))
+        n_points = min(INITIAL_POINTS, outline_points(int(counts.max())))
         outlines = ellipse_outlines(np.array(means), np.array(covs), n_points=n_points)
         self._canvas.send_strips(
             style.LANDMARK_INITIAL, rows, np.array(at, dtype=np.int64), outlines, counts,
