@@ -16,8 +16,6 @@ from typer.testing import CliRunner
 
 from ekfviz.association import AssociationParams, Associator, Method
 from ekfviz.association.jcbb import (
-    DEFAULT_BUDGET,
-    DEFAULT_WORK_BUDGET,
     FALLBACK_BEST,
     FALLBACK_NN,
     MAX_JOINT,
@@ -25,6 +23,7 @@ from ekfviz.association.jcbb import (
     joint_threshold,
 )
 from ekfviz.association.nn import nearest_neighbour
+from ekfviz.association.params import DEFAULT_BUDGET, DEFAULT_WORK_BUDGET
 from ekfviz.cli import app
 from ekfviz.core.records import Scan
 from ekfviz.core.types import FloatArray

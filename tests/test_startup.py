@@ -56,6 +56,9 @@ NOT_IMPORTED = (
     "pygments",
     "pydantic",  # typer 0.29's per-parameter adapters (pyproject keeps typer below it)
     "ekfviz.studies.runs",  # a study's runs
+    "ekfviz.association.associator",  # the association of id-less scans, and its view
+    "ekfviz.association.jcbb",
+    "ekfviz.viz.association",
     "pyarrow.compute",  # what the SDK's casts and masked list arrays import (30-45 ms)
 )
 

@@ -13,11 +13,21 @@ The association never touches P: it returns a pairing and what it rejected, and 
 runner folds the pairing into the filter.
 """
 
-from ekfviz.association.associator import (
-    AssociationError,
-    AssociationParams,
-    Associator,
-    Method,
-)
+from typing import TYPE_CHECKING
+
+from ekfviz.association.params import AssociationError, AssociationParams, Method
+
+if TYPE_CHECKING:
+    from ekfviz.association.associator import Associator
 
 __all__ = ["AssociationError", "AssociationParams", "Associator", "Method"]
+
+
+def __getattr__(name: str) -> object:
+    """``Associator`` when first asked for: a replay of a log with ids asks for the
+    parameters alone and never loads the association (see ``tests/test_startup.py``)."""
+    if name == "Associator":
+        from ekfviz.association.associator import Associator
+
+        return Associator
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -35,13 +35,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from ekfviz.association.nn import nearest_neighbour
+from ekfviz.association.params import DEFAULT_BUDGET, DEFAULT_WORK_BUDGET
 from ekfviz.core.stats import chi2_quantile
 from ekfviz.core.types import BoolArray, FloatArray, IntArray
 
-DEFAULT_BUDGET = 10_000  # hypotheses per scan
-# Units of work per scan, (2p + 2)^2 per hypothesis of p pairs: about 0.1-0.3 s of numpy
-# on a laptop core; a first, greedy descent through 150 measurements needs 18 million.
-DEFAULT_WORK_BUDGET = 40_000_000
 # Measurements in some gate beyond which a scan is paired by nearest neighbour without a
 # search: the search recurses once per measurement, and its greedy first descent alone
 # would cost (2m)^3 / 6 units of work.

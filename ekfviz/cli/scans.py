@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 from typer._click.core import ParameterSource
 
-from ekfviz.association import AssociationParams, Associator, Method
+from ekfviz.association import AssociationParams, Method
 from ekfviz.association.evaluation import AssociationTally
 from ekfviz.cli.common import _option, out, warn
 from ekfviz.cli.sources import OpenedLog
@@ -23,6 +23,7 @@ from ekfviz.models.range_bearing import RangeBearing
 from ekfviz.sources import Reference, open_source
 
 if TYPE_CHECKING:
+    from ekfviz.association.associator import Associator
     from ekfviz.viz.run import RunLogger
 
 ASSOCIATION_PANEL = "Association (id-less scans)"
@@ -205,15 +206,16 @@ def replay_setup(
     params = models.params
     parameters = dict(models.parameters)
     associator: Associator | None = None
-    if assoc is not None:
+    # only where it applies: a source whose observations all name their landmark has no
+    # scans (nor is the association loaded for it, unless asked for)
+    if assoc is not None and (not opened.source.ids_only or given("association")):
+        from ekfviz.association.associator import Associator
+
         Associator.check_filter(models.slam, assoc)
         associator = Associator(
             assoc, models.sensor, params.R, scan_truth=None if truth is None else truth.scan_ids
         )
-        # only where it applies: a source whose observations all name their landmark
-        # has no scans
-        if not opened.source.ids_only or given("association"):
-            parameters.update(assoc.as_dict())
+        parameters.update(assoc.as_dict())
     return ReplaySetup(
         data=data, params=params, truth=truth, slam=models.slam if builtin else None,
         sensor=models.recorded_sensor, associator=associator,

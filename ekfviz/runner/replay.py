@@ -5,12 +5,10 @@ from __future__ import annotations
 from collections.abc import Iterable, Iterator
 from dataclasses import replace
 from itertools import chain
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ekfviz.association.associator import AssociationError, Associator
-from ekfviz.association.gating import gated
 from ekfviz.core.correlation import CorrelationCadence, correlation_of
 from ekfviz.core.health import CovarianceCheck, check_covariance, check_interval
 from ekfviz.core.records import (
@@ -27,6 +25,9 @@ from ekfviz.core.records import (
 )
 from ekfviz.filters.ekf import EkfSlam, FilterError, FilterParams
 from ekfviz.filters.plugged import FilterFactory, Plugged, PluginError
+
+if TYPE_CHECKING:  # the association is loaded by a log with scans (or --gate) only
+    from ekfviz.association.associator import Associator
 
 
 class FilterLineError(FilterError):
@@ -237,6 +238,8 @@ def replay(
                 step_has_update = True
                 rejected: tuple[str, ...] = ()
                 if gate is not None and isinstance(log_event, Sighting):
+                    from ekfviz.association.gating import gated  # --gate only
+
                     log_event, rejected = gated(ekf.x, ekf.P, ekf.landmark_ids, log_event, R, gate)
                 observations, association = _observe(ekf, log_event, associator, last)
                 if offline:
@@ -284,6 +287,9 @@ def _observe(
         return ekf.observe(event.ids, event.z), {}
     if associator is None:
         raise FilterError("a scan has no landmark ids: it needs --association nn or jcbb")
+    from ekfviz.association.associator import Associator
+    from ekfviz.association.params import AssociationError
+
     if isinstance(ekf, Plugged):  # at the first scan: a log with ids needs no removal
         try:
             Associator.check_filter(ekf, associator.params)

@@ -17,13 +17,11 @@ numpy arrays in the classic layout x = [x, y, theta, l1x, l1y, ...] (``initialis
     recorder.finish()
 
 The parts of the picture live in :mod:`ekfviz.viz.layers`, one module each over one
-shared batch of records; this facade buffers the records and hands each batch to them.
-
-Every call sets both timelines: ``step`` (0 at the initialisation, +1 per predict, or
-per update when the step already had one) and ``event`` (+1 per call). Styling is
-logged once as static data. Everything else is buffered and sent in columns
-(``send_columns``) every ``FLUSH_EVERY`` events and at ``finish``: a ``rec.log`` per
-entity and event would cost more than the filter itself.
+shared batch of records; this facade buffers the records and hands each batch to them,
+every ``FLUSH_EVERY`` events and at ``finish``, sent in columns (a ``rec.log`` per entity
+and event would cost more than the filter). Every call sets both timelines: ``step`` (0
+at the initialisation, +1 per predict, or per update when the step had one) and
+``event`` (+1 per call). Styling is logged once as static data.
 
 What is logged when, by default: the robot and its ellipses at every event, a log line
 a step, the observation rays at the updates with some, the map as
@@ -34,6 +32,7 @@ a step, the observation rays at the updates with some, the map as
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 import rerun as rr
@@ -46,7 +45,6 @@ from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.evaluation.errors import Evaluation
 from ekfviz.models.range_bearing import RangeBearing
 from ekfviz.viz import style
-from ekfviz.viz.association import AssociationView
 from ekfviz.viz.blueprint import ASSOCIATION_SERIES, REFERENCE_SERIES, default_blueprint
 from ekfviz.viz.correlation import CorrelationLayer
 from ekfviz.viz.layers.arrays import CHECK_ALL_DIM, ArrayInput
@@ -69,6 +67,9 @@ from ekfviz.viz.layers.robot import HEADING_LENGTH, RobotLayer
 from ekfviz.viz.layers.text import TextLayer
 from ekfviz.viz.layers.truth import TruthLayer
 from ekfviz.viz.thinning import PREDICT_INTERVAL_S, PredictThinning
+
+if TYPE_CHECKING:  # made at a run's first scan: a log with ids never loads it
+    from ekfviz.viz.association import AssociationView
 
 __all__ = [  # the constants of the parts, where callers and tests have found them
     "CHECK_ALL_DIM", "EPOCH_MIN_S", "FLUSH_EVERY", "FLUSH_LANDMARKS", "FLUSH_TIMEOUT_S",
@@ -350,9 +351,9 @@ class Recorder:
         whole_map = corrects and self._map.admit(record)
         if record.association is not None:
             if self.association is None:  # association ids are not the truth's ids
-                self.association = AssociationView(
-                    self._rec.rec, self._rec.path, self._sensor, self._truth
-                )
+                from ekfviz.viz.association import AssociationView as View
+
+                self.association = View(self._rec.rec, self._rec.path, self._sensor, self._truth)
             self.association.log(record)
         if self._truth is not None:
             self._truth_layer.log_metrics(record, whole_map, self.association is not None)
