@@ -23,7 +23,15 @@ $(VENV)/.installed-dev: $(BUILD_INPUTS) | $(BIN)/python
 	$(BIN)/python -m pip install --quiet -e '.[dev]'
 	touch $(VENV)/.installed $@
 
-demo: $(VENV)/.installed
+# ekfviz's bytecode, written once its sources change: an editable install compiles none,
+# and where PYTHONDONTWRITEBYTECODE is set (as on CI machines) every command would compile
+# its ~90 modules from source at each start (0.1-0.3 s; see benchmarks/RESULTS.md)
+SOURCES := $(shell find ekfviz -name '*.py')
+$(VENV)/.compiled: $(SOURCES) | $(BIN)/python
+	$(BIN)/python -m compileall -q ekfviz
+	touch $@
+
+demo: $(VENV)/.installed $(VENV)/.compiled
 	$(BIN)/ekfviz replay data/classic.txt --truth data/classic_truth.json \
 		--save $(RECORDING) --report recordings/classic.json
 	@echo
@@ -37,14 +45,14 @@ $(NUMPY1):
 	.venv-numpy1/bin/python -m pip install --quiet \
 		"numpy==$$($(PYTHON) -c 'import sys; print("1.23.5" if sys.version_info < (3, 12) else "1.26.4")')"
 
-test: $(VENV)/.installed-dev $(NUMPY1)
+test: $(VENV)/.installed-dev $(VENV)/.compiled $(NUMPY1)
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
 	$(BIN)/mypy
 	$(BIN)/pytest
 
 # Regenerate the bundled sample (a test checks data/ matches this).
-sample: $(VENV)/.installed
+sample: $(VENV)/.installed $(VENV)/.compiled
 	$(BIN)/python -m ekfviz.samples data
 
 clean:
@@ -56,11 +64,11 @@ clean:
 # RESULTS.md), measured in one run; writes benchmarks/RESULTS.md. The 1,000,000-step replay
 # of the scaling curves alone takes a few minutes; BENCH_ARGS=--quick runs smaller cases
 # without it (a smoke test, not the reference numbers).
-bench: $(VENV)/.installed-dev
+bench: $(VENV)/.installed-dev $(VENV)/.compiled
 	$(BIN)/python benchmarks/bench.py $(BENCH_ARGS)
 
 # The README's screenshots from the current layouts, in the real viewer off screen (not part
 # of make test; needs Xvfb without a display). With the datasets: make screenshots
 # MRCLAM=PATH/MRCLAM_Dataset6 VICTORIA=PATH/VictoriaPark (else a simulated MRCLAM run).
-screenshots: $(VENV)/.installed-dev
+screenshots: $(VENV)/.installed-dev $(VENV)/.compiled
 	$(BIN)/python docs/screenshots.py $(if $(MRCLAM),--mrclam $(MRCLAM)) $(if $(VICTORIA),--victoria $(VICTORIA))
