@@ -27,18 +27,32 @@ from ekfviz.models.range_bearing import RangeBearing
 ROOT = Path(__file__).resolve().parents[1]
 
 # Runs the command line as the `ekfviz` script does; at its exit (the command line's
-# own, which runs the exit handlers) writes the modules the process imported.
-MODULES_AT_EXIT = """
-import atexit, json, sys
+# own, which runs the exit handlers) writes, as JSON, what STATE evaluates to then.
+AT_EXIT = """
+import atexit, gc, json, sys
 out = sys.argv.pop(1)
 def dump():
     with open(out, "w") as handle:
-        json.dump(sorted(sys.modules), handle)
+        json.dump(STATE, handle)
 atexit.register(dump)
 sys.argv = ["ekfviz", *sys.argv[1:]]
 from ekfviz.__main__ import main
 main()
 """
+
+
+def _classic_replay_at_exit(tmp_path: Path, state: str) -> tuple[object, str]:
+    """``state`` (an expression) at the exit of a classic replay, and its stdout."""
+    found, recording = tmp_path / "state.json", tmp_path / "run.rrd"
+    done = subprocess.run(
+        [sys.executable, "-c", AT_EXIT.replace("STATE", state), str(found), "replay",
+         str(ROOT / "data" / "classic.txt"), "--save", str(recording)],
+        env=_env(tmp_path), capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert recording.stat().st_size > 0
+    return json.loads(found.read_text()), done.stdout
+
 
 # never needed by a replay of a classic log with ids: each costs start-up time
 NOT_IMPORTED = (
@@ -68,44 +82,20 @@ def _env(tmp_path: Path) -> dict[str, str]:
 
 
 def test_a_classic_replay_imports_nothing_it_does_not_use(tmp_path: Path) -> None:
-    modules, recording = tmp_path / "modules.json", tmp_path / "run.rrd"
-    done = subprocess.run(
-        [sys.executable, "-c", MODULES_AT_EXIT, str(modules), "replay",
-         str(ROOT / "data" / "classic.txt"), "--save", str(recording)],
-        env=_env(tmp_path), capture_output=True, text=True, timeout=300,
-    )  # fmt: skip
-    assert done.returncode == 0, done.stderr
-    assert recording.stat().st_size > 0
-    assert "Final pose" in done.stdout  # the whole output came through the fast exit
-    imported = set(json.loads(modules.read_text()))
+    modules, stdout = _classic_replay_at_exit(tmp_path, "sorted(sys.modules)")
+    assert "Final pose" in stdout  # the whole output came through the fast exit
+    imported = set(modules)  # type: ignore[call-overload]
     assert "rerun" in imported and "pyarrow" in imported  # it did record
     assert sorted(m for m in imported if m.split(".")[0] in NOT_IMPORTED or m in NOT_IMPORTED) == []
-
-
-GC_AT_EXIT = """
-import atexit, gc, json, sys
-out = sys.argv.pop(1)
-def dump():
-    with open(out, "w") as handle:
-        json.dump({"threshold": gc.get_threshold(), "frozen": gc.get_freeze_count()}, handle)
-atexit.register(dump)
-sys.argv = ["ekfviz", *sys.argv[1:]]
-from ekfviz.__main__ import main
-main()
-"""
 
 
 def test_the_command_line_collects_garbage_less_often_with_its_imports_set_apart(
     tmp_path: Path,
 ) -> None:
-    found, recording = tmp_path / "gc.json", tmp_path / "run.rrd"
-    done = subprocess.run(
-        [sys.executable, "-c", GC_AT_EXIT, str(found), "replay",
-         str(ROOT / "data" / "classic.txt"), "--save", str(recording)],
-        env=_env(tmp_path), capture_output=True, text=True, timeout=300,
-    )  # fmt: skip
-    assert done.returncode == 0, done.stderr
-    state = json.loads(found.read_text())
+    state, _ = _classic_replay_at_exit(
+        tmp_path, '{"threshold": gc.get_threshold(), "frozen": gc.get_freeze_count()}'
+    )
+    assert isinstance(state, dict)
     assert state["threshold"][0] == startup.GC_YOUNG > 700  # Python's default: 700
     assert state["frozen"] > 10_000  # the imported modules' objects
 

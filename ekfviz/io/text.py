@@ -110,16 +110,24 @@ def token_lines(
     """
     with open_input(path) as handle:
         for first, lines in line_blocks(path, handle):
-            for number, raw in enumerate(lines, start=first):
-                try:
-                    text = raw.decode("utf-8")
-                except UnicodeDecodeError:
-                    raise InputError(path, number, "found bytes that are not UTF-8 text") from None
-                tokens = text.split("#", 1)[0].split()
-                if tokens:
-                    yield number, tokens
+            yield from _tokens_of(path, first, lines)
             if progress is not None:
                 progress(handle.tell())
+
+
+def _tokens_of(path: Path, first: int, lines: list[bytes]) -> Iterator[tuple[int, list[str]]]:
+    """The non-blank lines of a block (``first``: the first one's number) as tokens.
+
+    :raises InputError: a line that is not UTF-8
+    """
+    for number, raw in enumerate(lines, start=first):
+        try:
+            text = raw.decode("utf-8")
+        except UnicodeDecodeError:
+            raise InputError(path, number, "found bytes that are not UTF-8 text") from None
+        tokens = text.split("#", 1)[0].split()
+        if tokens:
+            yield number, tokens
 
 
 def numeric_lines(
@@ -240,15 +248,9 @@ def _checked_block(path: Path, first: int, raw: list[bytes]) -> NumberBlock:
     rows: list[list[float]] = []
     fault = None
     try:
-        for number, text in enumerate(raw, start=first):
-            try:
-                decoded = text.decode("utf-8")
-            except UnicodeDecodeError:
-                raise InputError(path, number, "found bytes that are not UTF-8 text") from None
-            tokens = decoded.split("#", 1)[0].split()
-            if tokens:
-                rows.append([parse_number(path, number, token) for token in tokens])
-                lines.append(number)
+        for number, tokens in _tokens_of(path, first, raw):
+            rows.append([parse_number(path, number, token) for token in tokens])
+            lines.append(number)
     except InputError as error:
         fault = error
     counts = np.array([len(row) for row in rows], dtype=np.int64)
