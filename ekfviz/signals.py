@@ -159,20 +159,34 @@ def raise_pending() -> None:
 
 @contextmanager
 def held() -> Iterator[None]:
-    """Inside the block SIGINT and SIGTERM are remembered, not acted on; one that came is
-    handled as before the block once the block is done (a recording being finished: cut
-    short there it would be lost whole, finished it is kept)."""
+    """Inside the block a first SIGINT or SIGTERM is remembered, not acted on, and handled
+    as before the block once the block is done (a recording being finished: cut short
+    there it would be lost whole, finished it is kept); a second one is acted on at once
+    (a flush to a viewer that does not answer may wait long)."""
     before = (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM))
-    defer()
+
+    def act(signum: int, frame: FrameType | None) -> None:
+        handler = before[0 if signum == signal.SIGINT else 1]
+        if callable(handler):
+            handler(signum, frame)
+
+    def hold(signum: int, frame: FrameType | None) -> None:
+        if _pending:  # the second: now
+            _pending.clear()
+            act(signum, frame)
+        else:
+            _pending.append(signum)
+
+    _pending.clear()
+    _handle(hold, hold)
     try:
         yield
     finally:
         signal.signal(signal.SIGINT, before[0])
         signal.signal(signal.SIGTERM, before[1])
     signum = _take_pending()
-    handler = None if signum is None else before[0 if signum == signal.SIGINT else 1]
-    if signum is not None and callable(handler):
-        handler(signum, None)
+    if signum is not None:
+        act(signum, None)
 
 
 @contextmanager

@@ -320,4 +320,9 @@ def test_a_signal_while_a_recording_is_finished_is_acted_on_once_it_is() -> None
             done.append("again")  # no signal: the block ends as usual
         with pytest.raises(KeyboardInterrupt):  # the replay's handlers are back
             signal.raise_signal(signal.SIGINT)
-    assert done == ["finished", "again"]
+        with pytest.raises(KeyboardInterrupt), signals.held():  # asked twice: at once
+            signal.raise_signal(signal.SIGINT)
+            done.append("held one")
+            signal.raise_signal(signal.SIGINT)
+            done.append("not reached")
+    assert done == ["finished", "again", "held one"]
