@@ -544,7 +544,7 @@ class EkfSlam:
         stays exactly symmetric. Large states defer the P -= A^T A (see the module).
         """
         n = self._n
-        x, P = self._x[:n], self._P[:n, :n]
+        x = self._x[:n]
         # take() gathers from the contiguous buffer: on a view it would copy all of P first
         P_buffer = self._P
         spare = P_buffer.shape[0] > n
@@ -584,11 +584,8 @@ class EkfSlam:
             z_bearing, z_range = z[k]
             nu0 = math.remainder(z_bearing - bearing, _TWO_PI)  # no jump of 2 pi near +-pi
             nu1 = z_range - rng
-            # Cholesky of the 2x2 S in floats; "not >" also catches NaN
-            l00 = math.sqrt(s00) if s00 > 0.0 else 0.0
-            l10 = s01 / l00 if l00 > 0.0 else 0.0
-            d11 = s11 - l10 * l10
-            if not (l00 > 0.0 and d11 > 0.0):  # also NaN; an infinite S ends as NaN in x
+            whitened = _whitened(HP, s00, s01, s11, nu0, nu1)
+            if whitened is None:  # also NaN; an infinite S ends as NaN in x
                 if not math.isfinite(s00 + s01 + s11):
                     raise FilterError(
                         f"the covariance became non-finite (S of landmark {landmark_id})"
@@ -596,25 +593,11 @@ class EkfSlam:
                 table[k] = (bearing, rng, nu0, nu1, s00, s01, s01, s11, math.nan)
                 self._skip(k, landmark_id, skipped, _not_definite(s00, s01, s11))
                 continue
-            l11 = math.sqrt(d11)
-            w0 = nu0 / l00
-            w1 = (nu1 - l10 * w0) / l11
+            B, w0, w1 = whitened
             if not math.isfinite(w0 + w1):
                 raise FilterError("the state became non-finite in update")
-            i00, i11 = 1.0 / l00, 1.0 / l11
-            i10 = -l10 * i00 * i11
-            # rows: A = L^-1 H P, then (S^-1 nu)^T H P = w^T A, the change of x
-            B = np.array(((i00, 0.0), (i10, i11), (w0 * i00 + w1 * i10, w1 * i11))).dot(HP)
             np.add(x, B[2], out=x)
-            if defer:
-                U[rank : rank + 2] = B[:2]
-                rank += 2
-                if rank == U.shape[0]:
-                    self._subtract_gram(U)
-                    rank = 0
-            else:
-                A = B[:2]  # C-contiguous: np.dot takes A^T A as a symmetric rank-k update
-                P -= A.T.dot(A)
+            rank = self._fold(B[:2], U, rank, defer)
             table[k] = (bearing, rng, nu0, nu1, s00, s01, s01, s11, w0 * w0 + w1 * w1)
         if rank:
             self._subtract_gram(U[:rank])
@@ -703,6 +686,22 @@ class EkfSlam:
     def _skip(self, k: int, landmark_id: int, skipped: list[bool], why: str) -> None:
         skipped[k] = True
         self._warnings.append(_skip_warning(landmark_id, why))
+
+    def _fold(self, A: FloatArray, U: FloatArray, rank: int, defer: bool) -> int:
+        """P -= A^T A for an observation's A = L^-1 H P (2 x n): with ``defer``, kept as
+        the rows ``rank``, ``rank + 1`` of ``U`` and applied in one pass over P once U is
+        full (see :meth:`_subtract_gram`), else applied now (A C-contiguous: np.dot takes
+        A^T A as a symmetric rank-k update). Returns the rows of U in use after it."""
+        if not defer:
+            n = A.shape[1]
+            self._P[:n, :n] -= A.T.dot(A)
+            return rank
+        U[rank : rank + 2] = A
+        rank += 2
+        if rank == U.shape[0]:
+            self._subtract_gram(U)
+            rank = 0
+        return rank
 
     def _subtract_gram(self, U: FloatArray) -> None:
         """P -= U^T U for U (r x n), in place, in one pass over P, exactly symmetric.
@@ -833,6 +832,30 @@ def _record_views(x: FloatArray, P: FloatArray, n: int) -> _RecordViews:
         writeable=False,
     )  # fmt: skip
     return P, n, P[:3, :3], marginals, x[:n]
+
+
+def _whitened(
+    HP: FloatArray, s00: float, s01: float, s11: float, nu0: float, nu1: float
+) -> tuple[FloatArray, float, float] | None:
+    """An observation's update through the Cholesky factor L of its 2x2 S, in floats:
+    B = [A; w^T A] (3 x n) with A = L^-1 H P and w = L^-1 nu (so the change of x is
+    B[2] and that of P is -A^T A), and w; None where S is not positive definite ("not >"
+    also catches NaN).
+
+    :param HP: (2, n) H P, the rows c of P through H
+    """
+    l00 = math.sqrt(s00) if s00 > 0.0 else 0.0
+    l10 = s01 / l00 if l00 > 0.0 else 0.0
+    d11 = s11 - l10 * l10
+    if not (l00 > 0.0 and d11 > 0.0):
+        return None
+    l11 = math.sqrt(d11)
+    w0 = nu0 / l00
+    w1 = (nu1 - l10 * w0) / l11
+    i00, i11 = 1.0 / l00, 1.0 / l11
+    i10 = -l10 * i00 * i11
+    B: FloatArray = np.array(((i00, 0.0), (i10, i11), (w0 * i00 + w1 * i10, w1 * i11))).dot(HP)
+    return B, w0, w1
 
 
 _NAN_TABLES: dict[int, FloatArray] = {}

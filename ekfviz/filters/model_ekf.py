@@ -32,6 +32,7 @@ from ekfviz.filters.ekf import (
     FilterError,
     FilterParams,
     _not_definite,
+    _whitened,
     _zero_range,
 )
 from ekfviz.models.ackermann import Ackermann
@@ -220,32 +221,15 @@ class ModelEkfSlam(EkfSlam):
             z_bearing, z_range = z[k]
             nu0 = wrap_angle(z_bearing - bearing)
             nu1 = z_range - rng
-            # Cholesky of the 2x2 S in floats; "not >" also catches NaN
-            l00 = math.sqrt(s00) if s00 > 0.0 else 0.0
-            l10 = s01 / l00 if l00 > 0.0 else 0.0
-            d11 = s11 - l10 * l10
-            if not (l00 > 0.0 and d11 > 0.0):
+            whitened = _whitened(HP, s00, s01, s11, nu0, nu1)
+            if whitened is None:
                 table[k] = (bearing, rng, nu0, nu1, s00, s01, s01, s11, math.nan)
                 self._skip(k, landmark_id, skipped, _not_definite(s00, s01, s11))
                 continue
-            l11 = math.sqrt(d11)
-            w0 = nu0 / l00
-            w1 = (nu1 - l10 * w0) / l11
-            i00, i11 = 1.0 / l00, 1.0 / l11
-            i10 = -l10 * i00 * i11
-            # rows: A = L^-1 H P, then w^T A, the change of x
-            B = np.array(((i00, 0.0), (i10, i11), (w0 * i00 + w1 * i10, w1 * i11))).dot(HP)
+            B, w0, w1 = whitened
             np.add(x, B[2], out=x)
             x[2] = wrap_angle(float(x[2]))
-            if defer:
-                U[rank : rank + 2] = B[:2]
-                rank += 2
-                if rank == U.shape[0]:
-                    self._subtract_gram(U)
-                    rank = 0
-            else:
-                A = B[:2]  # C-contiguous: np.dot takes A^T A as a symmetric rank-k update
-                self._P[:n, :n] -= A.T.dot(A)
+            rank = self._fold(B[:2], U, rank, defer)
             table[k] = (bearing, rng, nu0, nu1, s00, s01, s01, s11, w0 * w0 + w1 * w1)
         if rank:
             self._subtract_gram(U[:rank])
