@@ -104,7 +104,12 @@ class Clock:
         return times
 
 
-def as_points(lines: rr.SeriesLines) -> rr.SeriesPoints:
+def as_points(styling: tuple[rr.AsComponents, ...]) -> tuple[rr.AsComponents, ...]:
+    """``styling`` with its series' lines as points (see :meth:`Entities.style`)."""
+    return tuple(_points(s) if isinstance(s, rr.SeriesLines) else s for s in styling)
+
+
+def _points(lines: rr.SeriesLines) -> rr.SeriesPoints:
     """The points of a series styled as ``lines``: its colours, names and visible series."""
 
     def values(batch: Any) -> Any:
@@ -148,9 +153,7 @@ class Entities:
         optimum at the end), a series' lines are drawn as points of the same colours and
         names: a line between two records would look like a value at every step.
         """
-        if self.points:
-            styling = tuple(as_points(s) if isinstance(s, rr.SeriesLines) else s for s in styling)
-        self._styles[self.path(entity)] = styling
+        self._styles[self.path(entity)] = as_points(styling) if self.points else styling
 
     def series_as_points(self) -> None:
         """From now on, and for every styling not sent yet, series as points (see
@@ -161,9 +164,7 @@ class Entities:
             return
         self.points = True
         for path, styling in self._styles.items():
-            self._styles[path] = tuple(
-                as_points(s) if isinstance(s, rr.SeriesLines) else s for s in styling
-            )
+            self._styles[path] = as_points(styling)
 
     def send_styles(self) -> None:
         """Send as static data the styling of every entity that has had no data yet."""
