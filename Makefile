@@ -12,8 +12,9 @@ $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 
-# setup.py builds the compiled kernel of small maps (ekfviz/filters/_kernel.c) in place
-BUILD_INPUTS := pyproject.toml setup.py ekfviz/filters/_kernel.c
+# setup.py builds the compiled kernel of small maps (ekfviz/filters/_kernel.c) and the
+# readers' number parser (ekfviz/io/_numbers.c) in place
+BUILD_INPUTS := pyproject.toml setup.py ekfviz/filters/_kernel.c ekfviz/io/_numbers.c
 
 $(VENV)/.installed: $(BUILD_INPUTS) | $(BIN)/python
 	$(BIN)/python -m pip install --quiet -e .
@@ -57,7 +58,7 @@ sample: $(VENV)/.installed $(VENV)/.compiled
 
 clean:
 	rm -rf $(VENV) .venv-numpy1 .mypy_cache .ruff_cache .pytest_cache .hypothesis build
-	rm -f ekfviz/filters/_kernel*.so
+	rm -f ekfviz/filters/_kernel*.so ekfviz/io/_numbers*.so
 
 # Benchmarks (not part of make test): core against dense, the bandwidth bound, end-to-end
 # replays, each command's start-up and wrap-up, and the scaling curves (drawn as PNGs beside

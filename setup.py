@@ -1,7 +1,9 @@
-"""The compiled kernel of small maps: everything else is in pyproject.toml.
+"""The compiled parts: the kernel of small maps and the number parser of the log
+readers; everything else is in pyproject.toml.
 
-The extension is optional: without a C compiler the install goes on and the filter
-uses its numpy code throughout (``ekfviz.filters.ekf.HAVE_KERNEL`` is then False).
+Both extensions are optional: without a C compiler the install goes on, the filter uses
+its numpy code throughout (``ekfviz.filters.ekf.HAVE_KERNEL`` is then False) and the
+readers convert numbers with ``float()`` (``ekfviz.io.text.HAVE_PARSER`` False).
 """
 
 from setuptools import Extension, setup
@@ -13,6 +15,12 @@ setup(
             ["ekfviz/filters/_kernel.c"],
             extra_compile_args=["-O2", "-std=c99", "-Wall", "-Wextra", "-Wno-unused-parameter"],
             optional=True,
-        )
+        ),
+        Extension(
+            "ekfviz.io._numbers",
+            ["ekfviz/io/_numbers.c"],
+            extra_compile_args=["-O2", "-std=c99", "-Wall", "-Wextra", "-Wno-unused-parameter"],
+            optional=True,
+        ),
     ]
 )

@@ -202,14 +202,23 @@ def test_truth_lookup_by_id_with_gaps_and_unknown_ids() -> None:
     assert np.isnan(found[[1, 4]]).all()
 
 
+@pytest.mark.parametrize("parser", ["compiled", "float"])
 @pytest.mark.parametrize(
     "bad",
-    [b"nan", b"1_0", b"1e400", b"x", b"\xff\xfe", b"1.5e19", b"--1", b"# \xff"],
+    [b"nan", b"1_0", b"1e400", b"x", b"\xff\xfe", b"1.5e19", b"--1", b"# \xff", b"1.2.3", b"3e"],
 )
-def test_block_reader_reads_as_line_by_line(tmp_path: Path, bad: bytes) -> None:
+def test_block_reader_reads_as_line_by_line(
+    tmp_path: Path, bad: bytes, parser: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """number_blocks converts a block at once but gives the lines, numbers and first
-    error numeric_lines gives, even in a later block, after a comment or a blank line."""
+    error numeric_lines gives, even in a later block, after a comment or a blank line;
+    with the compiled parser and with float() alike."""
     from ekfviz.io import text as text_io
+
+    if parser == "float":
+        monkeypatch.setattr(text_io, "_numbers", None)
+    elif not text_io.HAVE_PARSER:
+        pytest.skip("the compiled parser was not built")
 
     lines = [b"1.5 -2 3e-2 # c", b"", b"\t4 5  ", b"# only a comment", b"-0.5 .5 +1."] * 20000
     lines[77777] = b"7 " + bad + b" 8"
@@ -228,3 +237,61 @@ def test_block_reader_reads_as_line_by_line(tmp_path: Path, bad: bytes) -> None:
     assert got == expected
     assert fault is not None and str(fault) == str(line_by_line.value)
     assert fault.line == 77778
+
+
+def test_the_parser_is_built_wherever_a_c_compiler_is() -> None:
+    """`pip install` builds it when it can; elsewhere float() stands in."""
+    import shutil
+
+    from ekfviz.io import text as text_io
+
+    if shutil.which("cc") is None and shutil.which("gcc") is None:
+        pytest.skip("no C compiler here: float() stands in for the parser")
+    assert text_io.HAVE_PARSER
+
+
+_TOKEN = st.one_of(
+    st.floats(allow_nan=False, allow_infinity=False).map(repr),
+    st.floats(-1e6, 1e6).flatmap(
+        lambda v: st.sampled_from(["%.0f", "%.3f", "%.17g", "%.25e", "%.1E", "%g"]).map(
+            lambda form: form % v
+        )
+    ),
+    st.from_regex(r"\A[-+]?([0-9]{1,40}\.?[0-9]{0,40}|\.[0-9]{1,40})([eE][-+]?[0-9]{1,3})?\Z"),
+)
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    st.lists(st.lists(_TOKEN, max_size=6), min_size=1, max_size=8),
+    st.sampled_from([" ", "\t", "  "]),
+)
+def test_compiled_parser_gives_the_bits_float_gives(lines: list[list[str]], gap: str) -> None:
+    """The same float64 bits as float() of each token (correct rounding either way:
+    halfway cases, subnormals, overflow to inf, 40 digits), and the same counts per line."""
+    from ekfviz.io import text as text_io
+
+    if not text_io.HAVE_PARSER:
+        pytest.skip("the compiled parser was not built")
+    joined = "\n".join(gap.join(tokens) for tokens in lines).encode()
+    converted = text_io._converted(joined, len(lines))
+    assert converted is not None
+    values, counts = converted
+    expected = np.array([float(t) for tokens in lines for t in tokens], dtype=np.float64)
+    np.testing.assert_array_equal(values.view(np.int64), expected.view(np.int64))
+    assert counts.tolist() == [len(tokens) for tokens in lines]
+
+
+@pytest.mark.parametrize("bad", [b"1.2.3", b"e5", b"-", b"1e", b".", b"+-1", b"1e+", b"2 3\n4 e"])
+def test_compiled_parser_refuses_what_is_not_a_number_as_a_whole(bad: bytes) -> None:
+    """A token strtod would read in part is refused, and the block goes line by line."""
+    from ekfviz.io import text as text_io
+
+    if not text_io.HAVE_PARSER:
+        pytest.skip("the compiled parser was not built")
+    lines = bad.count(b"\n") + 1
+    values, counts = np.empty(len(bad) // 2 + 1), np.empty(lines, dtype=np.int64)
+    from ekfviz.io import _numbers
+
+    assert _numbers.parse(bad, lines, values, counts) == -1
+    assert text_io._converted(bad, lines) is None

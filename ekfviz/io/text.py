@@ -15,6 +15,13 @@ from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.io.errors import InputError
 from ekfviz.models.angles import wrap_angles
 
+try:  # optional, built with the filter's kernel: without it the blocks convert in numpy
+    from ekfviz.io import _numbers
+except ImportError:  # pragma: no cover - no C compiler at install time
+    _numbers = None  # type: ignore[assignment]
+
+HAVE_PARSER = _numbers is not None
+
 _NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
 _NUMBERS = re.compile(rf"{_NUMBER.pattern}(?: {_NUMBER.pattern})*")  # tokens joined by spaces
 _NON_FINITE = re.compile(r"[-+]?(?:nan|inf|infinity)", re.IGNORECASE)
@@ -215,18 +222,36 @@ def _plain_block(first: int, raw: list[bytes]) -> NumberBlock | None:
         joined = b"\n".join(raw)
     if joined.translate(None, _PLAIN_BYTES + b"\n"):
         return None  # a byte of something else: comments are cut, so not of a comment
-    counts_all = _token_counts(joined, len(raw))
-    kept = np.flatnonzero(counts_all)
-    try:
-        values = np.array(list(map(float, joined.split())), dtype=np.float64)
-    except ValueError:
+    converted = _converted(joined, len(raw))
+    if converted is None:
         return None
+    values, counts_all = converted
+    kept = np.flatnonzero(counts_all)
     if not (np.abs(values) <= MAX_MAGNITUDE).all():
         return None
     counts = counts_all[kept]
     starts = np.zeros(len(counts), dtype=np.int64)
     np.cumsum(counts[:-1], out=starts[1:])
     return NumberBlock((kept + first).tolist(), counts, starts, values)
+
+
+def _converted(joined: bytes, lines: int) -> tuple[FloatArray, IntArray] | None:
+    """The numbers of ``joined`` (``lines`` lines of plain bytes joined by LF) and how
+    many each line holds; None where a token is not a number. In one pass of the compiled
+    parser (``_numbers.c``, the same values: strtod rounds correctly, as float() does)
+    where it was built, else ``float()`` of each token and the counts in numpy."""
+    if _numbers is not None:
+        values = np.empty(len(joined) // 2 + 1)
+        counts = np.empty(lines, dtype=np.int64)
+        written = _numbers.parse(joined, lines, values, counts)
+        if written >= 0:
+            return values[:written], counts
+        # a token it does not take whole, or another locale's decimal point: float() says
+    try:
+        values = np.array(list(map(float, joined.split())), dtype=np.float64)
+    except ValueError:
+        return None
+    return values, _token_counts(joined, lines)
 
 
 def _token_counts(joined: bytes, lines: int) -> IntArray:
