@@ -228,6 +228,7 @@ class EkfSlam:
         self._landmarks_xy: FloatArray | None = None  # ... and x's: both set together
         # the views a record copies (see _record_views), for the buffer P and dimension
         self._record_views: _RecordViews | None = None
+        self._status = np.zeros(0, dtype=np.int8)  # the kernel's per-observation status
 
     @classmethod
     def from_state(
@@ -410,25 +411,29 @@ class EkfSlam:
         """
         self._landmark_covs = None
         self._warnings = []
-        z = np.array(z, dtype=np.float64).reshape(-1, 2)  # copies: the record keeps it
+        z = np.array(z, dtype=np.float64)  # copies: the record keeps it
+        if z.ndim != 2 or z.shape[1] != 2:
+            z = z.reshape(-1, 2)
         # A log observes the same landmarks line after line (a classic log all of them,
         # in one shared ids array): the line's ids, their copy and their slots are kept
-        # from the last line while the map has not changed, and compared as a list.
+        # from the last line while the map has not changed, and compared as a list. It is
+        # kept only where the kernel updates it (compiled, sequential, below
+        # KERNEL_MAX_DIM), and dropped when the map grows.
         line = self._known_line
         ids_list: list[int] = (
             ids.tolist() if type(ids) is np.ndarray and ids.dtype == np.int64 else []
         )
-        compiled = (
-            self._compiled
-            and self._n < KERNEL_MAX_DIM
-            and self.params.update is UpdateMode.SEQUENTIAL
-        )
         skipped: list[bool] | BoolArray
-        if line is not None and compiled and ids_list == line[0] and z.shape[0] == len(ids_list):
+        if line is not None and ids_list == line[0] and z.shape[0] == len(ids_list):
             ids_arr, m = line[1], len(ids_list)
             values, skipped = self._update_compiled(ids_list, z, line[2])
             new, any_new = [], False
         else:
+            compiled = (
+                self._compiled
+                and self._n < KERNEL_MAX_DIM
+                and self.params.update is UpdateMode.SEQUENTIAL
+            )
             ids_arr = np.array(ids, dtype=np.int64)  # copies: the record keeps them
             ids_list = ids_arr.tolist()
             m = len(ids_list)
@@ -443,7 +448,9 @@ class EkfSlam:
             for k in range(m):
                 if new[k]:
                     self._add_landmark(ids_list[k], z[k].tolist())
-        values = frozen(values.reshape(m, 9))  # its views below are read-only too
+        if values.ndim != 2:  # the numpy code's table comes flat
+            values = values.reshape(m, 9)
+        frozen(values)  # its views below are read-only too
         flags_none = _NO_FLAGS.get(m)  # where nothing was skipped, shared
         return kept_observations(  # Observations(...) without its per-field checks
             ids_arr,
@@ -507,8 +514,11 @@ class EkfSlam:
 
         :param slots: (m,) each landmark's row in the state, -1 for a new one
         """
-        table = _nan_table(len(ids))
-        status = np.zeros(len(ids), dtype=np.int8)
+        m = len(ids)
+        table = _nan_table(m)
+        status = self._status  # the kernel writes each of the line's first m
+        if status.shape[0] < m:
+            status = self._status = np.zeros(m, dtype=np.int8)
         r00, r11 = self._r
         code, k, n_skipped = _kernel.update_sequential(
             self._x, self._P, self._n, slots, z, table, status, r00, r11, MIN_PREDICTED_RANGE
@@ -518,6 +528,7 @@ class EkfSlam:
         if code == _STATE_NOT_FINITE:
             raise FilterError("the state became non-finite in update")
         if n_skipped:  # the warnings, in file order
+            status = status[:m]
             for k, why in enumerate(status.tolist()):
                 if why == _ZERO_RANGE:
                     self._warnings.append(_skip_warning(ids[k], _zero_range(table[k, 1])))
@@ -525,7 +536,7 @@ class EkfSlam:
                 elif why == _NOT_DEFINITE:
                     s00, s01, _, s11 = table[k, 4:8].tolist()
                     self._warnings.append(_skip_warning(ids[k], _not_definite(s00, s01, s11)))
-        return table, status >= _ZERO_RANGE if n_skipped else _no_flags(len(ids))
+        return table, status >= _ZERO_RANGE if n_skipped else _no_flags(m)
 
     def _update_sequential(
         self,

@@ -20,6 +20,7 @@ from ekfviz.core.records import (
     Observations,
     PredictRows,
     Scan,
+    ScanAssociation,
     Sighting,
     frozen,
 )
@@ -145,8 +146,11 @@ def replay(
         if (record.kind is not EventKind.PREDICT or last) and cadence.due(
             record.step, record.n_landmarks, last, record.time
         ):
-            return replace(record, correlation=correlation_of(ekf.P, record.landmark_ids))
+            return with_correlation(record)
         return record
+
+    def with_correlation(record: EventRecord) -> EventRecord:
+        return replace(record, correlation=correlation_of(ekf.P, record.landmark_ids))
 
     def checked(line: int, warnings: tuple[str, ...]) -> dict[str, Any]:
         """Check the whole covariance; its problems join the event's warnings."""
@@ -178,7 +182,7 @@ def replay(
         extra = checked(first.line, ekf.warnings)
         yield correlated(ekf.record(
             event=0, step=0, kind=EventKind.INIT, line=first.line, time=first.time,
-            observations=observations, full_cov=full_cov, **association, **extra,
+            observations=observations, full_cov=full_cov, association=association, **extra,
         ), last)  # fmt: skip
         pending: list[tuple[AnyEvent, bool]] = []
     else:
@@ -241,7 +245,10 @@ def replay(
                     from ekfviz.association.gating import gated  # --gate only
 
                     log_event, rejected = gated(ekf.x, ekf.P, ekf.landmark_ids, log_event, R, gate)
-                observations, association = _observe(ekf, log_event, associator, last)
+                if type(log_event) is Sighting:  # by its ids (the common case: no call)
+                    observations, association = ekf.observe(log_event.ids, log_event.z), None
+                else:
+                    observations, association = _observe(ekf, log_event, associator, last)
                 if offline:
                     continue
                 warnings = rejected + ekf.warnings
@@ -249,11 +256,14 @@ def replay(
                     covariance, warnings = checked_pair(log_event.line, warnings)
                 else:
                     covariance = None
-                yield correlated(ekf.record(
+                record = ekf.record(
                     event=event, step=step, kind=EventKind.UPDATE, line=log_event.line,
                     time=log_event.time, observations=observations, full_cov=full_cov,
-                    warnings=warnings, covariance=covariance, **association,
-                ), last)  # fmt: skip
+                    warnings=warnings, covariance=covariance, association=association,
+                )  # fmt: skip
+                if cadence.due(step, record.n_landmarks, last, record.time):
+                    record = with_correlation(record)
+                yield record
         except FilterLineError:
             raise
         except PluginError as error:
@@ -279,12 +289,12 @@ def replay(
 
 def _observe(
     ekf: EkfSlam | Plugged, event: Sighting | Scan, associator: Associator | None, last: bool
-) -> tuple[Observations, dict[str, Any]]:
+) -> tuple[Observations, ScanAssociation | None]:
     """Fold an observation in: by its ids, or a scan through the association (any
-    filter: a protocol one with ``remove_landmarks`` for tentative landmarks); the
-    association goes into the record's arguments."""
+    filter: a protocol one with ``remove_landmarks`` for tentative landmarks), with what
+    the association decided (None for an observation by ids)."""
     if isinstance(event, Sighting):
-        return ekf.observe(event.ids, event.z), {}
+        return ekf.observe(event.ids, event.z), None
     if associator is None:
         raise FilterError("a scan has no landmark ids: it needs --association nn or jcbb")
     from ekfviz.association.associator import Associator
@@ -301,7 +311,7 @@ def _observe(
         if removed:
             both = np.union1d(association.removed, removed)
             association = replace(association, removed=frozen(both), tentative=frozen(both[:0]))
-    return observations, {"association": association}
+    return observations, association
 
 
 def _control(event: Control | Drive) -> tuple[float, float] | None:
