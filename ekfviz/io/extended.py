@@ -32,7 +32,15 @@ from pathlib import Path
 
 import numpy as np
 
-from ekfviz.core.records import AnyEvent, Control, Drive, Scan, Sighting
+from ekfviz.core.records import (
+    AnyEvent,
+    Control,
+    Drive,
+    Scan,
+    Sighting,
+    read_control,
+    read_sighting,
+)
 from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.io.classic import read_classic
 from ekfviz.io.errors import InputError
@@ -118,7 +126,7 @@ def read_extended(
             d, alpha = (parse_number(path, line, token) for token in values)
             # a timed control spans the time since the previous timestamp, when there is one
             dt = None if time is None or previous is None else time - previous
-            yield Control(line=line, d=d, alpha=alpha, time=time, dt=dt)
+            yield read_control(line, d, alpha, time, dt)
         elif keyword == "observe":
             yield _observation(path, line, values, time, wrap)
         elif keyword == "scan":
@@ -142,7 +150,7 @@ def _observation(
     if plain is not None:
         ids_array, z = plain
         z[:, 0] = wrap(line, z[:, 0])
-        return Sighting(line=line, ids=ids_array, z=z, time=time)
+        return read_sighting(line, ids_array, z, time)
     # token by token, to name what is wrong
     if len(values) % 3:
         raise InputError(
