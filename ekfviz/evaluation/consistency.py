@@ -36,14 +36,16 @@ _BOUNDS: dict[tuple[float, float, int], tuple[float, float]] = {}
 def chi2_bounds(dof: float, runs: int = 1, confidence: float = CONFIDENCE) -> tuple[float, float]:
     """Two-sided ``confidence`` bounds of the mean of ``runs`` chi-square(dof) values."""
     key = (dof, confidence, runs)
-    if key not in _BOUNDS:
-        tail = 0.5 * (1.0 - confidence)
-        total = dof * runs
-        _BOUNDS[key] = (
-            chi2_quantile(tail, total) / runs,
-            chi2_quantile(1.0 - tail, total) / runs,
-        )
-    return _BOUNDS[key]
+    bounds = _BOUNDS.get(key)
+    if bounds is not None:
+        return bounds
+    tail = 0.5 * (1.0 - confidence)
+    total = dof * runs
+    bounds = _BOUNDS[key] = (
+        chi2_quantile(tail, total) / runs,
+        chi2_quantile(1.0 - tail, total) / runs,
+    )
+    return bounds
 
 
 def pose_nees(record: EventRecord, truth: GroundTruth) -> float | None:
@@ -66,7 +68,11 @@ def update_nis(record: EventRecord) -> tuple[float, int] | None:
     observations = record.observations
     if observations is None:
         return None
-    used = [value for value in observations.nis.tolist() if math.isfinite(value)]
+    values = observations.nis.tolist()
+    total = sum(values)
+    if values and math.isfinite(total):  # every value used: the sum as it would be
+        return total, 2 * len(values)
+    used = [value for value in values if math.isfinite(value)]
     if not used:
         return None
     return sum(used), 2 * len(used)
