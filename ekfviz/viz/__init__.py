@@ -29,9 +29,10 @@ See ``examples/byof_minimal.py`` for a complete, runnable loop.
 
 from __future__ import annotations
 
+from ekfviz.viz.apart import NotARecordingError
 from ekfviz.viz.ellipses import ellipse_outlines
 from ekfviz.viz.export import RecordedRun, Trajectory, read_recorded_run
-from ekfviz.viz.info import NotARecordingError, RecordingInfo, read_recording_info
+from ekfviz.viz.info import RecordingInfo, read_recording_info
 from ekfviz.viz.recorder import Recorder
 from ekfviz.viz.run import (
     LOOPBACK,

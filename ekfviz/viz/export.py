@@ -22,7 +22,8 @@ from rerun.chunk import RrdReader
 from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.models.angles import wrap_angles
 from ekfviz.viz import style
-from ekfviz.viz.info import NotARecordingError, unreadable
+from ekfviz.viz.apart import NotARecordingError, read_apart
+from ekfviz.viz.info import unreadable
 
 TIME = "time"  # the timeline of a log's own time stamps, in seconds
 
@@ -110,11 +111,18 @@ def _seconds(column: pa.Array) -> FloatArray:
 
 
 def read_recorded_run(path: Path) -> RecordedRun:
-    """The trajectories, pose standard deviations and map of one replay's recording.
+    """The trajectories, pose standard deviations and map of one replay's recording,
+    read in a child process (:func:`~ekfviz.viz.apart.read_apart`: a damaged file cannot
+    abort this one).
 
     :raises NotARecordingError: when ``path`` is not a recording of a replay with
         estimated poses
     """
+    return read_apart(_read_recorded_run, path)
+
+
+def _read_recorded_run(path: Path) -> RecordedRun:
+    """:func:`read_recorded_run` in this process."""
     if path.is_dir():
         raise NotARecordingError(f"{path}: is a folder, expected a recording (.rrd)")
     if not path.is_file():

@@ -21,12 +21,9 @@ import pyarrow as pa  # type: ignore[import-untyped]
 from rerun.chunk import RrdReader
 
 from ekfviz.viz import style
+from ekfviz.viz.apart import NotARecordingError, read_apart
 
 MAX_PROPERTY_CHARS = 1 << 20  # the parameters of a run are a few hundred bytes
-
-
-class NotARecordingError(Exception):
-    """A file that is not an ekfviz recording, with a one-line reason."""
 
 
 KINDS = {
@@ -190,13 +187,20 @@ RECORDER_ENTITIES = [f"/{style.ROBOT}", f"/{style.LOG}"]
 
 
 def read_recording_info(path: Path) -> RecordingInfo:
-    """Read the kind, properties, embedded input, evaluation and status of a recording.
+    """Read the kind, properties, embedded input, evaluation and status of a recording,
+    in a child process (:func:`~ekfviz.viz.apart.read_apart`: a damaged file cannot
+    abort this one).
 
     Only the chunks of the properties and the run documents are decoded.
 
     :raises NotARecordingError: with a one-line reason, when ``path`` is missing, a
-        folder, not a Rerun file, cut short, or a recording ekfviz did not write
+        folder, not a Rerun file, cut short, damaged, or a recording ekfviz did not write
     """
+    return read_apart(_read_recording_info, path)
+
+
+def _read_recording_info(path: Path) -> RecordingInfo:
+    """:func:`read_recording_info` in this process."""
     if path.is_dir():
         raise NotARecordingError(f"{path}: is a folder, expected a recording (.rrd)")
     if not path.is_file():
