@@ -317,3 +317,38 @@ def test_events_made_by_the_readers_are_the_dataclasses_events() -> None:
     for event in (made, sighting):
         with pytest.raises(dataclasses.FrozenInstanceError):
             event.line = 1  # type: ignore[misc]
+
+
+@pytest.mark.parametrize("bad", [None, b"0x10", b"1e400", b"nan", b"1.2.3", b"1_000", b"4 5"])
+def test_table_blocks_read_the_same_with_either_parser(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, bad: bytes | None
+) -> None:
+    """numeric_blocks (MRCLAM's and Victoria Park's tables) gives the same rows and the
+    same first error with the compiled parser and with float(): hexadecimal, which
+    strtod would read, is refused by both."""
+    from ekfviz.io import text as text_io
+
+    rng = np.random.default_rng(3)
+    rows = [f"{t:.3f} {float(v)!r} {w:.17g}" for t, v, w in zip(
+        np.arange(30000) * 0.01, rng.normal(size=30000), rng.normal(size=30000), strict=True
+    )]  # fmt: skip
+    if bad is not None:
+        rows[23456] = f"234.56 {bad.decode()} 1"
+    path = tmp_path / "table.dat"
+    path.write_text("# time v w\n" + "\n".join(rows) + "\n")
+
+    def read() -> tuple[list[tuple[list[int], list[list[float]]]], str | None]:
+        got: list[tuple[list[int], list[list[float]]]] = []
+        try:
+            for lines, table in text_io.numeric_blocks(path, 3, "time v w"):
+                got.append((lines, table.tolist()))
+        except InputError as error:
+            return got, str(error)
+        return got, None
+
+    compiled = read()
+    monkeypatch.setattr(text_io, "_numbers", None)
+    assert read() == compiled
+    assert sum(len(lines) for lines, _ in compiled[0]) == (
+        30000 if bad in (None, b"1_000") else 23456
+    )

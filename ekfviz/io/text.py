@@ -254,6 +254,18 @@ def _converted(joined: bytes, lines: int) -> tuple[FloatArray, IntArray] | None:
     return values, _token_counts(joined, lines)
 
 
+def _table(joined: bytes, count: int) -> FloatArray | None:
+    """The numbers of ``joined`` (one line), None unless there are ``count``; the
+    compiled parser where every byte is plain (see :func:`_converted`), else float()
+    (which raises ValueError on a token that is no number)."""
+    if _numbers is not None and not joined.translate(None, _PLAIN_BYTES):
+        converted = _converted(joined, 1)
+        if converted is not None:
+            return converted[0] if len(converted[0]) == count else None
+    values = list(map(float, joined.split()))
+    return np.array(values, dtype=np.float64) if len(values) == count else None
+
+
 def _token_counts(joined: bytes, lines: int) -> IntArray:
     """Tokens on each of the ``lines`` lines of ``joined`` (lines joined by LF, tokens
     separated by spaces and tabs), counted at once: a token starts at a byte that is no
@@ -310,9 +322,8 @@ def numeric_blocks(
             try:
                 if not all(map(bytes.isascii, raw)):  # comments too: one policy for text
                     b"\n".join(raw).decode("utf-8")  # a UnicodeDecodeError is a ValueError
-                values = list(map(float, b" ".join(data).split()))
-                table = np.array(values, dtype=np.float64)
-                good = len(values) == columns * len(data) and bool(
+                table = _table(b" ".join(data), columns * len(data))
+                good = table is not None and bool(
                     (np.abs(table) <= MAX_MAGNITUDE).all()  # False for nan too
                 )
             except ValueError:
@@ -327,6 +338,7 @@ def numeric_blocks(
             if progress is not None:
                 progress(handle.tell())
             if lines:
+                assert table is not None  # converted (good), else read line by line
                 yield lines, table.reshape(len(lines), columns)
 
 
