@@ -8,6 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import entity_rows
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from test_victoria import make_park
 from typer.testing import CliRunner
 
@@ -131,3 +133,27 @@ def test_a_batchs_geometry_is_each_scans_through_the_inverse_model() -> None:
         assert np.allclose(geometry.links[k], np.array([start, link_to[0]]), rtol=0, atol=1e-12)
         ray += len(z)
         gate += len(z)
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.lists(st.integers(-5, 3000), unique=True, max_size=60),
+    st.lists(st.lists(st.integers(-10, 3100), max_size=12), min_size=1, max_size=4),
+    st.booleans(),
+)
+def test_the_row_lookup_finds_what_a_search_finds(
+    ids: list[int], asks: list[list[int]], same_array: bool
+) -> None:
+    """Kept per ids array (dense, sparse, negative ids alike) and rebuilt for another."""
+    from ekfviz.viz.association import _RowLookup, _rows_of
+
+    lookup = _RowLookup()
+    shared = np.array(ids, dtype=np.int64)
+    for wanted in asks:
+        array = shared if same_array else np.array(ids, dtype=np.int64)
+        got = lookup.rows(array, np.array(wanted, dtype=np.int64))
+        expected = _rows_of(array, np.array(wanted, dtype=np.int64))
+        np.testing.assert_array_equal(got, expected)
+        assert got.dtype == np.int64
+        for k, landmark in enumerate(wanted):  # and what a row means
+            assert got[k] == (ids.index(landmark) if landmark in ids else -1)

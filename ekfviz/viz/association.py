@@ -82,6 +82,7 @@ class AssociationView:
         self._size_known = np.zeros(0, dtype=bool)
         self._series: dict[str, list[tuple[int, int, float, float]]] = {}
         self._rows = _ScanRows()
+        self._lookup = _RowLookup()
         rec.log(path(RAYS), rr.LineStrips2D([], radii=rr.Radius.ui_points(0.75)), static=True)
         rec.log(path(TENTATIVE), rr.Points2D([], colors=[TENTATIVE_COLOR]), static=True)
 
@@ -106,14 +107,14 @@ class AssociationView:
         rows.fates.append(fate)
         landmark_ids = record.landmark_ids
         matched = np.flatnonzero(fate == _MATCHED)
-        rows_of = _rows_of(landmark_ids, association.landmark[matched])
+        rows_of = self._lookup.rows(landmark_ids, association.landmark[matched])
         found = rows_of >= 0
         rows.link_from.append(matched[found])
         rows.link_to.append(record.landmarks_xy[rows_of[found]])
         rows.gate_z.append(association.gate_z)
         rows.gate_covs.append(association.gate_S)
         rows.gate_threshold.append(association.gate_threshold)
-        tentative_rows = _rows_of(landmark_ids, association.tentative)
+        tentative_rows = self._lookup.rows(landmark_ids, association.tentative)
         tentative_rows = tentative_rows[tentative_rows >= 0]
         rows.tentative.append(record.landmarks_xy[tentative_rows])
         rows.tentative_labels.extend(
@@ -477,6 +478,31 @@ def _inverse_at(
     l_D_z[:, 1, 0] = rng * c
     l_D_z[:, 1, 1] = s
     return points, l_D_z
+
+
+class _RowLookup:
+    """:func:`_rows_of` for the records of a run: a table from id to row, kept while the
+    records hand the same ids array (the filter shares one until its map changes, and
+    a scan's records ask twice); ids that are negative or sparse go by :func:`_rows_of`."""
+
+    def __init__(self) -> None:
+        self._ids: IntArray | None = None
+        self._table: IntArray | None = None
+
+    def rows(self, ids: IntArray, wanted: IntArray) -> IntArray:
+        if ids is not self._ids:
+            self._ids, self._table = ids, None  # held: the array cannot be another's
+            if len(ids) and int(ids.min()) >= 0 and int(ids.max()) < 4 * len(ids) + 1024:
+                self._table = np.full(int(ids.max()) + 1, -1, dtype=np.int64)
+                self._table[ids] = np.arange(len(ids))
+        table = self._table
+        if table is None:
+            return _rows_of(ids, wanted)
+        wanted = np.asarray(wanted, dtype=np.int64)
+        rows: IntArray = np.full(len(wanted), -1, dtype=np.int64)
+        inside = (wanted >= 0) & (wanted < len(table))
+        rows[inside] = table[wanted[inside]]
+        return rows
 
 
 def _rows_of(ids: IntArray, wanted: IntArray) -> IntArray:
