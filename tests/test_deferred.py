@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from ekfviz.association.associator import _joint_covariance, state_rows
-from ekfviz.association.gating import predict_landmarks
+from ekfviz.association.gating import predict_landmarks, predict_landmarks_of
 from ekfviz.core.records import EventKind
 from ekfviz.core.types import FloatArray
 from ekfviz.filters.ekf import (
@@ -183,8 +183,8 @@ def test_a_map_shrunk_below_the_deferred_size_folds_what_is_pending() -> None:
 
 
 def test_the_gating_and_joint_covariance_read_the_current_p() -> None:
-    """predict_landmarks and the joint covariance of JCBB from the stored P and the
-    pending factor: those of the current P."""
+    """The gating's reads (the pose's rows, the marginals) and the joint covariance of
+    JCBB from the stored P and the pending factor: those of the current P."""
     rng = np.random.default_rng(2)
     slam = ModelEkfSlam(sensor=SENSOR)
     n = DEFER_MIN_DIM
@@ -199,7 +199,14 @@ def test_the_gating_and_joint_covariance_read_the_current_p() -> None:
     P = P_s - U.T @ U
     R = FilterParams().R
     x = np.array(slam.x)
-    got = predict_landmarks(x, P_s, SENSOR, R, U)
+    covs = slam.landmark_marginals()
+    pose_rows = slam.pose_rows()
+    _close(covs, np.array([P[j : j + 2, j : j + 2] for j in range(3, slam.dim, 2)]), 1e-12)
+    _close(pose_rows, P[:3], 1e-12)
+    assert np.array_equal(pose_rows[:, :3], pose_rows[:, :3].T)
+    got = predict_landmarks_of(
+        x, pose_rows, covs[:, (0, 1), (0, 1)].ravel(), covs[:, 0, 1], SENSOR, R
+    )
     expected = predict_landmarks(x, P, SENSOR, R)
     _close(got.S, expected.S, 1e-12)
     assert not np.allclose(predict_landmarks(x, P_s, SENSOR, R).S, expected.S)  # U matters

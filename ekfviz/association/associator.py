@@ -38,6 +38,7 @@ from ekfviz.association.gating import (
     innovation_parts,
     mahalanobis2_of,
     predict_landmarks,
+    predict_landmarks_of,
 )
 from ekfviz.association.jcbb import jcbb
 from ekfviz.association.nn import nearest_neighbour
@@ -135,15 +136,20 @@ class Associator:
         S = np.zeros((0, 2, 2))
         if m and n_landmarks:
             x = np.asarray(slam.x)
-            # the built-in filter's covariance with its pending low-rank changes, which
-            # the gating corrects where it reads (O(r n)) instead of folding them into P
-            # (a pass over all of it) once per scan
-            P, U = (
-                slam.deferred_covariance()
-                if isinstance(slam, EkfSlam)
-                else (np.asarray(slam.P), None)
-            )
-            predictions = predict_landmarks(x, P, self._sensor, self._R, U)
+            U: FloatArray | None
+            if isinstance(slam, EkfSlam):
+                # the built-in filter's covariance with its pending low-rank changes: the
+                # gating reads the pose's rows and the marginals (the records' own) without
+                # folding them into P (a pass over all of it) once per scan
+                P, U = slam.deferred_covariance()
+                covs = slam.landmark_marginals()
+                predictions = predict_landmarks_of(
+                    x, slam.pose_rows(), covs[:, (0, 1), (0, 1)].ravel(), covs[:, 0, 1],
+                    self._sensor, self._R,
+                )  # fmt: skip
+            else:
+                P, U = np.asarray(slam.P), None
+                predictions = predict_landmarks(x, P, self._sensor, self._R)
             u, v = innovation_parts(z, predictions.z_pred)
             d2 = mahalanobis2_of(u, v, predictions.S)
             ic = compatible(d2, self._gate)

@@ -236,8 +236,10 @@ class EkfSlam:
         # map changes
         self._known_line: tuple[list[int], IntArray, IntArray] | None = None
         self._rows: dict[int, IntArray] = {}  # slot j -> [0, 1, 2, j, j+1]
-        self._landmark_covs: FloatArray | None = None  # for records, until P's map changes
-        self._landmarks_xy: FloatArray | None = None  # ... and x's: both set together
+        # for records (and the gating), until P's map changes: the landmarks' marginals and
+        # means (a predict changes neither)
+        self._landmark_covs: FloatArray | None = None
+        self._landmarks_xy: FloatArray | None = None
         # the views a record copies (see _record_views), for the buffer P and dimension
         self._record_views: _RecordViews | None = None
         self._status = np.zeros(0, dtype=np.int8)  # the kernel's per-observation status
@@ -384,47 +386,71 @@ class EkfSlam:
         if full_cov and self._rank:
             self._flush()
         x, P = self._x, self._P
-        rank = self._rank
-        if self._landmark_covs is None:  # unchanged by a predict: kept since the update
+        if self._landmarks_xy is None:  # unchanged by a predict: kept since the update
             # copies of views kept while the buffers and the dimension are the same: the
-            # pose block, the landmarks' 2x2 marginals (a strided view of P's diagonal
-            # blocks) and x, each a single copy
-            views = self._record_views
-            if views is None or views[0] is not P or views[1] != n:
-                views = self._record_views = _record_views(x, P, n)
+            # pose block and x, each a single copy
+            views = self._views()
             pose_cov = views[2].copy()
-            covs = views[3].copy()
-            if rank:  # the pending changes of those blocks, O(rank n)
-                assert self._U is not None
-                pose_cov -= self._pending_pose_gram()
-                # each landmark's 2x2 block of U^T U: the squares of its columns summed,
-                # and the products of its two columns, one array for both off-diagonal
-                # entries (they stay the same float)
-                U_l = self._U[:rank, 3:n]
-                squares = np.einsum("ri,ri->i", U_l, U_l)
-                products = np.einsum("ri,ri->i", U_l[:, 0::2], U_l[:, 1::2])
-                covs[:, 0, 0] -= squares[0::2]
-                covs[:, 1, 1] -= squares[1::2]
-                covs[:, 0, 1] -= products
-                covs[:, 1, 0] -= products
-            pose_cov = frozen(pose_cov)
-            self._landmark_covs = frozen(covs)
             mean = frozen(views[4].copy())
             pose = mean[:3]
             self._landmarks_xy = mean[3:].reshape(n_landmarks, 2)
         else:
             pose_cov = P[:3, :3].copy()
-            if rank:
-                pose_cov -= self._pending_pose_gram()
-            pose, pose_cov = frozen(x[:3].copy()), frozen(pose_cov)
-        assert self._landmarks_xy is not None  # set with the marginals
+            pose = frozen(x[:3].copy())
+        if self._rank:
+            pose_cov -= self._pending_pose_gram()
+        pose_cov = frozen(pose_cov)
         return kept_record(
             event, step, kind, line, pose, pose_cov,
-            self._ids_array, self._landmarks_xy, self._landmark_covs,  # read-only, kept
+            self._ids_array, self._landmarks_xy, self.landmark_marginals(),  # read-only, kept
             None if control is None else frozen(np.array(control, dtype=np.float64)),
             observations, frozen(P[:n, :n].copy()) if full_cov else None,
             time, warnings, covariance, association,
         )  # fmt: skip
+
+    def _views(self) -> _RecordViews:
+        """The views a record copies, made again where the buffers or dimension changed."""
+        views = self._record_views
+        if views is None or views[0] is not self._P or views[1] != self._n:
+            views = self._record_views = _record_views(self._x, self._P, self._n)
+        return views
+
+    def landmark_marginals(self) -> FloatArray:
+        """The landmarks' 2x2 marginal covariances (N, 2, 2) of the current P, read-only:
+        one copy of P's diagonal blocks (a strided view), the pending changes taken off
+        (O(rank n)), kept until the map changes (a predict leaves them as they are) for
+        the records and the association's gating alike."""
+        kept = self._landmark_covs
+        if kept is not None:
+            return kept
+        covs: FloatArray = self._views()[3].copy()
+        rank = self._rank
+        if rank:
+            assert self._U is not None
+            # each landmark's 2x2 block of U^T U: the squares of its columns summed, and
+            # the products of its two columns, one array for both off-diagonal entries
+            # (they stay the same float: P stays exactly symmetric)
+            U_l = self._U[:rank, 3 : self._n]
+            squares = np.einsum("ri,ri->i", U_l, U_l)
+            products = np.einsum("ri,ri->i", U_l[:, 0::2], U_l[:, 1::2])
+            covs[:, 0, 0] -= squares[0::2]
+            covs[:, 1, 1] -= squares[1::2]
+            covs[:, 0, 1] -= products
+            covs[:, 1, 0] -= products
+        self._landmark_covs = frozen(covs)
+        return covs
+
+    def pose_rows(self) -> FloatArray:
+        """The pose's rows of the current P (3, 3+2N): a new array, the pending changes
+        taken off (O(rank n)), without folding them into P."""
+        n = self._n
+        rows: FloatArray = self._P[:3, :n].copy()
+        if self._rank:
+            assert self._U is not None
+            U = self._U[: self._rank, :n]
+            rows -= U[:, :3].T.dot(U)
+            rows[:, :3] = self._P[:3, :3] - self._pending_pose_gram()  # exactly symmetric
+        return rows
 
     # -- predict -----------------------------------------------------------------------
 
@@ -502,7 +528,7 @@ class EkfSlam:
             skipped is in :attr:`warnings`
         :raises FilterError: a landmark named twice, or the state turned non-finite
         """
-        self._landmark_covs = None
+        self._landmark_covs = self._landmarks_xy = None
         self._warnings = []
         z = np.array(z, dtype=np.float64)  # copies: the record keeps it
         if z.ndim != 2 or z.shape[1] != 2:
@@ -889,7 +915,7 @@ class EkfSlam:
         self._ids_array = None
         self._known_line = None
         self._rows = {}
-        self._landmark_covs = None
+        self._landmark_covs = self._landmarks_xy = None
 
     # -- landmark initialisation -------------------------------------------------------
 
