@@ -224,3 +224,28 @@ def test_the_gating_and_joint_covariance_read_the_current_p() -> None:
     assert slam.deferred_covariance()[1] is None
     _close(slam.buffers[1][: slam.dim, : slam.dim], P, 1e-12)
     assert math.isfinite(float(np.linalg.eigvalsh(slam.P)[0]))
+
+
+@pytest.mark.parametrize(
+    "doomed", [[1], [12], [1, 2], [3, 7, 8, 12], list(range(2, 12)), list(range(1, 13))]
+)
+def test_removal_keeps_the_principal_submatrix(doomed: list[int]) -> None:
+    """Removal moves the kept rows and columns in runs: the principal submatrix of the
+    kept ones (first, last, adjacent and all landmarks removed), zeros past the state."""
+    rng = np.random.default_rng(len(doomed))
+    n_landmarks = 12
+    n = 3 + 2 * n_landmarks
+    A = rng.normal(size=(n, n))
+    P = A @ A.T
+    x = rng.normal(size=n)
+    ids = list(range(1, n_landmarks + 1))
+    slam = EkfSlam.from_state(FilterParams(), x, P, ids)
+    slam._reserve(4)  # spare rows and columns past the state, to be left zero
+    slam.remove_landmarks(doomed)
+    keep = [0, 1, 2] + [3 + 2 * (i - 1) + k for i in ids if i not in doomed for k in (0, 1)]
+    assert np.array_equal(slam.P, P[np.ix_(keep, keep)])
+    assert np.array_equal(slam.x, x[keep])
+    assert slam.landmark_ids == [i for i in ids if i not in doomed]
+    x_buffer, P_buffer = slam.buffers
+    assert not P_buffer[slam.dim :].any() and not P_buffer[:, slam.dim :].any()
+    assert not x_buffer[slam.dim :].any()
