@@ -289,7 +289,8 @@ class EkfSlam:
     @property
     def P(self) -> FloatArray:
         """Current state covariance (3+2N, 3+2N), a read-only view (the pending changes
-        folded in first: see the module)."""
+        folded in first: see the module), valid until the filter next changes: a later
+        update may leave its changes pending, so read P again rather than keep the view."""
         if self._rank:
             self._flush()
         view = self._P[: self._n, : self._n]
