@@ -38,6 +38,7 @@ from ekfviz.association.gating import (
     innovation_parts,
     mahalanobis2_of,
     predict_landmarks,
+    predict_landmarks_of,
 )
 from ekfviz.association.jcbb import jcbb
 from ekfviz.association.nn import nearest_neighbour
@@ -45,6 +46,7 @@ from ekfviz.association.params import AssociationError, AssociationParams, Metho
 from ekfviz.association.tentative import TentativeBook
 from ekfviz.core.records import Fate, Observations, Scan, ScanAssociation, frozen
 from ekfviz.core.types import FloatArray, IntArray
+from ekfviz.filters.ekf import EkfSlam
 from ekfviz.models.range_bearing import RangeBearing
 
 
@@ -133,8 +135,21 @@ class Associator:
         z_pred = np.zeros((0, 2))
         S = np.zeros((0, 2, 2))
         if m and n_landmarks:
-            x, P = np.asarray(slam.x), np.asarray(slam.P)
-            predictions = predict_landmarks(x, P, self._sensor, self._R)
+            x = np.asarray(slam.x)
+            U: FloatArray | None
+            if isinstance(slam, EkfSlam):
+                # the built-in filter's covariance with its pending low-rank changes: the
+                # gating reads the pose's rows and the marginals (the records' own) without
+                # folding them into P (a pass over all of it) once per scan
+                P, U = slam.deferred_covariance()
+                covs = slam.landmark_marginals()
+                predictions = predict_landmarks_of(
+                    x, slam.pose_rows(), covs[:, (0, 1), (0, 1)].ravel(), covs[:, 0, 1],
+                    self._sensor, self._R,
+                )  # fmt: skip
+            else:
+                P, U = np.asarray(slam.P), None
+                predictions = predict_landmarks(x, P, self._sensor, self._R)
             u, v = innovation_parts(z, predictions.z_pred)
             d2 = mahalanobis2_of(u, v, predictions.S)
             ic = compatible(d2, self._gate)
@@ -149,7 +164,7 @@ class Associator:
                         nu,
                         d2[:, gate_rows],
                         ic[:, gate_rows],
-                        _joint_covariance(P, predictions.H(gate_rows), state_rows(gate_rows)),
+                        _joint_covariance(P, predictions.H(gate_rows), state_rows(gate_rows), U),
                         self._R,
                         self.params.gate_probability,
                         self.params.budget,
@@ -255,11 +270,14 @@ def state_rows(rows: IntArray) -> IntArray:
     ).astype(np.int64)
 
 
-def _joint_covariance(P: FloatArray, H: FloatArray, rows: IntArray) -> FloatArray:
+def _joint_covariance(
+    P: FloatArray, H: FloatArray, rows: IntArray, U: FloatArray | None = None
+) -> FloatArray:
     """H P H^T of the candidates stacked (2K x 2K), without R.
 
     :param H: (K, 2, 5) each candidate's Jacobian over the pose and its own rows
     :param rows: the state rows of the pose then of each candidate (3 + 2K)
+    :param U: (r, 3+2N) pending changes of the covariance: it is P - U^T U
     """
     k = H.shape[0]
     H_stacked = np.zeros((2 * k, 3 + 2 * k))
@@ -268,5 +286,9 @@ def _joint_covariance(P: FloatArray, H: FloatArray, rows: IntArray) -> FloatArra
     blocks = H_stacked[:, 3:].reshape(k, 2, k, 2)  # a view: (row pair, row, column pair, column)
     at = np.arange(k)
     blocks[at, :, at, :] = H[:, :, 3:]
-    C = H_stacked @ P[np.ix_(rows, rows)] @ H_stacked.T
+    P_rows = P[np.ix_(rows, rows)]
+    if U is not None:
+        U_rows = U[:, rows]
+        P_rows -= U_rows.T @ U_rows
+    C = H_stacked @ P_rows @ H_stacked.T
     return np.asarray(0.5 * (C + C.T), dtype=np.float64)

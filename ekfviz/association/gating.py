@@ -68,6 +68,22 @@ def predict_landmarks(
 ) -> Predictions:
     """Predicted measurement and innovation covariance of every landmark; O(N).
 
+    :param x: (3+2N,) state mean
+    :param P: (3+2N, 3+2N) state covariance
+    """
+    return predict_landmarks_of(x, P[:3], np.diagonal(P)[3:], np.diagonal(P, 1)[3::2], sensor, R)
+
+
+def predict_landmarks_of(
+    x: FloatArray,
+    pose_rows: FloatArray,
+    variances: FloatArray,
+    covariances: FloatArray,
+    sensor: RangeBearing,
+    R: FloatArray,
+) -> Predictions:
+    """Predicted measurement and innovation covariance of every landmark; O(N).
+
     H_i P_cc H_i^T is taken through the three quantities the measurement depends on,
     v = (l_x - x, l_y - y, theta): H_i = [-M_xy | m_theta | M_xy] with M = [M_xy | m_theta]
     (2x3), so S_i = M cov(v) M^T + R, where cov(v) (3x3) is P_ll - P_lp - P_pl + P_pp over
@@ -75,8 +91,13 @@ def predict_landmarks(
     landmarks at once: a few dozen vector operations, not N small matrix products. M is
     :meth:`RangeBearing.predict_all`'s z_D_landmark and z_D_pose[:, :, 2].
 
+    All it reads of P: the pose's rows and each landmark's 2x2 marginal, which a filter
+    may give without the whole P (see :meth:`~ekfviz.filters.ekf.EkfSlam.pose_rows`).
+
     :param x: (3+2N,) state mean
-    :param P: (3+2N, 3+2N) state covariance
+    :param pose_rows: (3, 3+2N) P's rows of the pose
+    :param variances: (2N,) the landmarks' variances, P's diagonal past the pose
+    :param covariances: (N,) P[l_x, l_y] of each landmark
     """
     n_landmarks = (x.shape[0] - 3) // 2
     sx, sy, sx_D_theta, sy_D_theta = sensor.sensor(x[:3])
@@ -95,13 +116,12 @@ def predict_landmarks(
     np.divide(dx, r, out=b0)
     np.divide(dy, r, out=b1)
     np.divide(-dx * sx_D_theta - dy * sy_D_theta, r, out=b2)
-    (p00, p01, p02), (_, p11, p12), (_, _, p22) = P[:3, :3].tolist()
-    P_pl = P[:3, 3:]  # rows x, y, theta against the landmarks' columns
+    (p00, p01, p02), (_, p11, p12), (_, _, p22) = pose_rows[:, :3].tolist()
+    P_pl = pose_rows[:, 3:]  # rows x, y, theta against the landmarks' columns
+    diagonal, off = variances, covariances
     lx_x, ly_x = P_pl[0, 0::2], P_pl[0, 1::2]
     lx_y, ly_y = P_pl[1, 0::2], P_pl[1, 1::2]
     lx_t, ly_t = P_pl[2, 0::2], P_pl[2, 1::2]
-    diagonal = np.diagonal(P)[3:]
-    off = np.diagonal(P, 1)[3::2]  # P[l_x, l_y]
     # cov(v), v = (l_x - x, l_y - y, theta)
     c00 = diagonal[0::2] - 2.0 * lx_x + p00
     c11 = diagonal[1::2] - 2.0 * ly_y + p11

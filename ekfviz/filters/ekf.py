@@ -13,6 +13,15 @@ is done in Python floats and each landmark costs a dozen numpy calls. With thous
 over P are the cost: the rank-2 changes of the landmarks of one observation line are
 kept as a low-rank factor U (P_current = P - U^T U) and applied to P in one blocked
 pass, which never builds an n x n temporary and keeps P exactly symmetric.
+
+U outlives the observation line: it is kept across predicts, new landmarks and removals
+(each a linear change of P, which carries over to U exactly: see :meth:`EkfSlam._fold`)
+and folded into P only once it is full, or when a reader asks for the whole P (:attr:`P`,
+:attr:`buffers`, a record with the full covariance, the joint or compiled update). The
+readers of a few entries correct what they read in O(rank n): the update's rows of P,
+the records' pose block and marginals, and the association's gating
+(:meth:`EkfSlam.deferred_covariance`). A scan of Victoria Park sees a handful of
+landmarks: one pass over P every few scans, not one per scan.
 """
 
 from __future__ import annotations
@@ -54,6 +63,9 @@ KERNEL_MAX_DIM = 128  # chosen with make bench-like timings on a 2-core machine
 # cheaper than the bookkeeping). Both chosen with `make bench` on a 2-core machine.
 DEFER_MIN_DIM = 64
 DEFER_LANDMARKS = 32
+# rows of the pending factor U: P -= U^T U is folded once DEFER_LANDMARKS observations
+# (2 rows each) are pending, however many lines (scans) they span
+DEFER_ROWS = 2 * DEFER_LANDMARKS
 GRAM_STRIP_ROWS = 48  # rows of P per block of the blocked P -= U^T U (see _subtract_gram)
 # A landmark predicted closer than this (metres) to the robot has no usable measurement
 # Jacobian (it divides by the range): its observation is skipped with a warning.
@@ -224,11 +236,18 @@ class EkfSlam:
         # map changes
         self._known_line: tuple[list[int], IntArray, IntArray] | None = None
         self._rows: dict[int, IntArray] = {}  # slot j -> [0, 1, 2, j, j+1]
-        self._landmark_covs: FloatArray | None = None  # for records, until P's map changes
-        self._landmarks_xy: FloatArray | None = None  # ... and x's: both set together
+        # for records (and the gating), until P's map changes: the landmarks' marginals and
+        # means (a predict changes neither)
+        self._landmark_covs: FloatArray | None = None
+        self._landmarks_xy: FloatArray | None = None
         # the views a record copies (see _record_views), for the buffer P and dimension
         self._record_views: _RecordViews | None = None
         self._status = np.zeros(0, dtype=np.int8)  # the kernel's per-observation status
+        # the pending rank-2 changes of P: the current covariance is
+        # P[:n, :n] - U[:rank, :n]^T U[:rank, :n] (see the module); U (DEFER_ROWS x the
+        # buffers' capacity) is made by the first deferred update
+        self._U: FloatArray | None = None
+        self._rank = 0
 
     @classmethod
     def from_state(
@@ -269,7 +288,11 @@ class EkfSlam:
 
     @property
     def P(self) -> FloatArray:
-        """Current state covariance (3+2N, 3+2N), a read-only view."""
+        """Current state covariance (3+2N, 3+2N), a read-only view (the pending changes
+        folded in first: see the module), valid until the filter next changes: a later
+        update may leave its changes pending, so read P again rather than keep the view."""
+        if self._rank:
+            self._flush()
         view = self._P[: self._n, : self._n]
         view.flags.writeable = False
         return view
@@ -278,8 +301,45 @@ class EkfSlam:
     def buffers(self) -> tuple[FloatArray, FloatArray]:
         """The state's own buffers x and P, the state in their leading 3+2N rows (and
         columns): for a reader that copies from them at once, without a view made per
-        read (a replay's predict rows); not to be written."""
+        read (a replay's predict rows); not to be written. The pending changes of P are
+        folded in first."""
+        if self._rank:
+            self._flush()
         return self._x, self._P
+
+    def deferred_covariance(self) -> tuple[FloatArray, FloatArray | None]:
+        """The covariance as stored and its pending factor: (P_s, U) with the current
+        covariance P_s - U^T U, read-only views (3+2N, 3+2N) and (r, 3+2N), U None where
+        nothing is pending. For a reader of a few entries of P (the association's gating
+        and joint covariance), which corrects them in O(r n) instead of folding U into P
+        (a pass over all of P). Valid until the filter next changes."""
+        n = self._n
+        P = self._P[:n, :n]
+        P.flags.writeable = False
+        if not self._rank:
+            return P, None
+        assert self._U is not None  # made with the first pending change
+        U = self._U[: self._rank, :n]
+        U.flags.writeable = False
+        return P, U
+
+    def _flush(self) -> None:
+        """Fold the pending changes into P: P -= U^T U (one pass over P)."""
+        rank = self._rank
+        if rank:
+            assert self._U is not None
+            self._rank = 0
+            self._subtract_gram(self._U[:rank, : self._n])
+
+    def _pending_pose_gram(self) -> FloatArray:
+        """U[:, :3]^T U[:, :3] of the pending factor (its rows in use), exactly
+        symmetric: what the pose block of P lacks."""
+        assert self._U is not None
+        U_p = self._U[: self._rank, :3]
+        gram: FloatArray = U_p.T.dot(U_p)
+        # the lower triangle, the upper's floats (by hand: triu_indices costs 10 times more)
+        gram[1, 0], gram[2, 0], gram[2, 1] = gram[0, 1], gram[0, 2], gram[1, 2]
+        return gram
 
     @property
     def dim(self) -> int:
@@ -324,29 +384,74 @@ class EkfSlam:
         if self._ids_array is None:
             self._ids_array = frozen(np.array(self._ids, dtype=np.int64))
         n_landmarks = (n - 3) // 2
+        if full_cov and self._rank:
+            self._flush()
         x, P = self._x, self._P
-        if self._landmark_covs is None:  # unchanged by a predict: kept since the update
+        if self._landmarks_xy is None:  # unchanged by a predict: kept since the update
             # copies of views kept while the buffers and the dimension are the same: the
-            # pose block, the landmarks' 2x2 marginals (a strided view of P's diagonal
-            # blocks) and x, each a single copy
-            views = self._record_views
-            if views is None or views[0] is not P or views[1] != n:
-                views = self._record_views = _record_views(x, P, n)
-            pose_cov = frozen(views[2].copy())
-            self._landmark_covs = frozen(views[3].copy())
+            # pose block and x, each a single copy
+            views = self._views()
+            pose_cov = views[2].copy()
             mean = frozen(views[4].copy())
             pose = mean[:3]
             self._landmarks_xy = mean[3:].reshape(n_landmarks, 2)
         else:
-            pose, pose_cov = frozen(x[:3].copy()), frozen(P[:3, :3].copy())
-        assert self._landmarks_xy is not None  # set with the marginals
+            pose_cov = P[:3, :3].copy()
+            pose = frozen(x[:3].copy())
+        if self._rank:
+            pose_cov -= self._pending_pose_gram()
+        pose_cov = frozen(pose_cov)
         return kept_record(
             event, step, kind, line, pose, pose_cov,
-            self._ids_array, self._landmarks_xy, self._landmark_covs,  # read-only, kept
+            self._ids_array, self._landmarks_xy, self.landmark_marginals(),  # read-only, kept
             None if control is None else frozen(np.array(control, dtype=np.float64)),
             observations, frozen(P[:n, :n].copy()) if full_cov else None,
             time, warnings, covariance, association,
         )  # fmt: skip
+
+    def _views(self) -> _RecordViews:
+        """The views a record copies, made again where the buffers or dimension changed."""
+        views = self._record_views
+        if views is None or views[0] is not self._P or views[1] != self._n:
+            views = self._record_views = _record_views(self._x, self._P, self._n)
+        return views
+
+    def landmark_marginals(self) -> FloatArray:
+        """The landmarks' 2x2 marginal covariances (N, 2, 2) of the current P, read-only:
+        one copy of P's diagonal blocks (a strided view), the pending changes taken off
+        (O(rank n)), kept until the map changes (a predict leaves them as they are) for
+        the records and the association's gating alike."""
+        kept = self._landmark_covs
+        if kept is not None:
+            return kept
+        covs: FloatArray = self._views()[3].copy()
+        rank = self._rank
+        if rank:
+            assert self._U is not None
+            # each landmark's 2x2 block of U^T U: the squares of its columns summed, and
+            # the products of its two columns, one array for both off-diagonal entries
+            # (they stay the same float: P stays exactly symmetric)
+            U_l = self._U[:rank, 3 : self._n]
+            squares = np.einsum("ri,ri->i", U_l, U_l)
+            products = np.einsum("ri,ri->i", U_l[:, 0::2], U_l[:, 1::2])
+            covs[:, 0, 0] -= squares[0::2]
+            covs[:, 1, 1] -= squares[1::2]
+            covs[:, 0, 1] -= products
+            covs[:, 1, 0] -= products
+        self._landmark_covs = frozen(covs)
+        return covs
+
+    def pose_rows(self) -> FloatArray:
+        """The pose's rows of the current P (3, 3+2N): a new array, the pending changes
+        taken off (O(rank n)), without folding them into P."""
+        n = self._n
+        rows: FloatArray = self._P[:3, :n].copy()
+        if self._rank:
+            assert self._U is not None
+            U = self._U[: self._rank, :n]
+            rows -= U[:, :3].T.dot(U)
+            rows[:, :3] = self._P[:3, :3] - self._pending_pose_gram()  # exactly symmetric
+        return rows
 
     # -- predict -----------------------------------------------------------------------
 
@@ -370,6 +475,9 @@ class EkfSlam:
             scale = _noise_scale(self.params.motion_noise, dt, moving=d != 0.0 or alpha != 0.0)
             q = (q[0] * scale, q[1] * scale, q[2] * scale)
         if self._compiled:  # the same algebra in C (O(n) either way)
+            if self._rank:
+                theta = float(x[2])
+                self._predict_pending(-d * math.sin(theta), d * math.cos(theta))
             if not _kernel.predict(x, P, n, d, alpha, *q):
                 raise FilterError("the state became non-finite in predict")
             return
@@ -377,6 +485,8 @@ class EkfSlam:
         c, s = math.cos(theta), math.sin(theta)
         x[:3] = (px + d * c, py + d * s, wrap_angle(theta + alpha))
         a, b = -d * s, d * c  # G[0, 2], G[1, 2]
+        if self._rank:
+            self._predict_pending(a, b)
         (p00, p01, p02), (_, p11, p12), (_, _, p22) = P[:3, :3].tolist()
         if n > 3:
             # rows 0, 1 of G P (its 3x3 block is overwritten below), and their mirror
@@ -394,6 +504,16 @@ class EkfSlam:
         if not math.isfinite(m00 + m11 + m22 + px + py + d + alpha):
             raise FilterError("the state became non-finite in predict")
 
+    def _predict_pending(self, a: float, b: float) -> None:
+        """Carry the pending changes over a predict P' = F P F^T + Q, F = diag(G, I) with G
+        the identity but for G[0, 2] = a and G[1, 2] = b: the stored P goes through the
+        predict as the current one does, and F (P - U^T U) F^T + Q = (F P F^T + Q) -
+        (U F^T)^T (U F^T), so U's pose columns become U[:, :3] G^T, O(rank)."""
+        assert self._U is not None
+        U = self._U[: self._rank]
+        U[:, 0] += a * U[:, 2]
+        U[:, 1] += b * U[:, 2]
+
     # -- update ------------------------------------------------------------------------
 
     def observe(self, ids: Sequence[int] | IntArray, z: FloatArray) -> Observations:
@@ -409,7 +529,7 @@ class EkfSlam:
             skipped is in :attr:`warnings`
         :raises FilterError: a landmark named twice, or the state turned non-finite
         """
-        self._landmark_covs = None
+        self._landmark_covs = self._landmarks_xy = None
         self._warnings = []
         z = np.array(z, dtype=np.float64)  # copies: the record keeps it
         if z.ndim != 2 or z.shape[1] != 2:
@@ -514,6 +634,8 @@ class EkfSlam:
 
         :param slots: (m,) each landmark's row in the state, -1 for a new one
         """
+        if self._rank:  # the kernel reads and writes P itself (a map shrunk below
+            self._flush()  # KERNEL_MAX_DIM by removals: else nothing is pending here)
         m = len(ids)
         table = _nan_table(m)
         status = self._status  # the kernel writes each of the line's first m
@@ -560,9 +682,7 @@ class EkfSlam:
         P_buffer = self._P
         spare = P_buffer.shape[0] > n
         r00, r11 = self._r
-        defer = n >= DEFER_MIN_DIM
-        U = np.empty((2 * min(len(known), DEFER_LANDMARKS), n)) if defer else x[None]
-        rank = 0  # rows of U in use: P_current = P - U[:rank]^T U[:rank]
+        U, rank = self._pending()  # P_current = P - U[:rank, :n]^T U[:rank, :n]
         for k in known:
             landmark_id = ids[k]
             j = self._slot[landmark_id]
@@ -585,7 +705,8 @@ class EkfSlam:
             P_c = P_buffer.take(rows, 0)  # the rows c of P (5 x capacity)
             HP = H.dot(P_c[:, :n] if spare else P_c)
             if rank:
-                HP -= H.dot(U[:rank].take(rows, 1).T).dot(U[:rank])
+                U_r = U[:rank]  # contiguous rows of the buffer: take() copies no more
+                HP -= H.dot(U_r.take(rows, 1).T).dot(U_r[:, :n])
             # S = H P_cc H^T + R from the 5 columns of H P, in floats: H is (e, -f, -1, -e, f)
             # over (-g, -h, 0, g, h)
             (a0, a1, a2, a3, a4), (b0, b1, _, b3, b4) = HP.take(rows, 1).tolist()
@@ -608,10 +729,9 @@ class EkfSlam:
             if not math.isfinite(w0 + w1):
                 raise FilterError("the state became non-finite in update")
             np.add(x, B[2], out=x)
-            rank = self._fold(B[:2], U, rank, defer)
+            rank = self._fold(B[:2], U, rank)
             table[k] = (bearing, rng, nu0, nu1, s00, s01, s01, s11, w0 * w0 + w1 * w1)
-        if rank:
-            self._subtract_gram(U[:rank])
+        self._rank = rank  # left pending: see the module
         x[2] = wrap_angle(float(x[2]))  # once per line: the bearings above are wrapped
 
     def _update_joint(
@@ -643,6 +763,8 @@ class EkfSlam:
         m = len(known)
         if not m:
             return
+        if self._rank:  # H P below reads P's rows, and the gram below is P's
+            self._flush()
         slots = np.array([self._slot[ids[k]] for k in known], dtype=np.int64)
         rows = np.concatenate(([0, 1, 2], np.column_stack([slots, slots + 1]).ravel()))
         dx, dy = x[slots] - px, x[slots + 1] - py
@@ -698,20 +820,39 @@ class EkfSlam:
         skipped[k] = True
         self._warnings.append(_skip_warning(landmark_id, why))
 
-    def _fold(self, A: FloatArray, U: FloatArray, rank: int, defer: bool) -> int:
-        """P -= A^T A for an observation's A = L^-1 H P (2 x n): with ``defer``, kept as
-        the rows ``rank``, ``rank + 1`` of ``U`` and applied in one pass over P once U is
-        full (see :meth:`_subtract_gram`), else applied now (A C-contiguous: np.dot takes
-        A^T A as a symmetric rank-k update). Returns the rows of U in use after it."""
-        if not defer:
-            n = A.shape[1]
+    def _pending(self) -> tuple[FloatArray, int]:
+        """The pending factor U (the buffer: DEFER_ROWS x capacity) and its rows in use,
+        for a sequential update; no rows at all (and 0) where the state is too small to
+        defer (below DEFER_MIN_DIM), with what was pending folded in."""
+        if self._n < DEFER_MIN_DIM:
+            if self._rank:  # a map shrunk by removals
+                self._flush()
+            return _NO_ROWS, 0
+        if self._U is None:
+            self._U = np.zeros((DEFER_ROWS, self._P.shape[0]))
+        return self._U, self._rank
+
+    def _fold(self, A: FloatArray, U: FloatArray, rank: int) -> int:
+        """P -= A^T A for an observation's A = L^-1 H P (2 x n): with a factor ``U`` (see
+        :meth:`_pending`), kept as its rows ``rank``, ``rank + 1`` and applied in one pass
+        over P once U is full (see :meth:`_subtract_gram`); without rows, applied now (A
+        C-contiguous: np.dot takes A^T A as a symmetric rank-k update). Returns the rows
+        of U in use after it.
+
+        Pending rows stay valid across the other changes of P, each linear: a predict
+        (:meth:`_predict_pending`), a new landmark (its columns of U, J_pose U[:, :3]^T:
+        see :meth:`_add_landmark`) and a removal (the same columns of U dropped).
+        """
+        n = A.shape[1]
+        if not U.shape[0]:
             self._P[:n, :n] -= A.T.dot(A)
             return rank
-        U[rank : rank + 2] = A
+        U[rank : rank + 2, :n] = A
         rank += 2
         if rank == U.shape[0]:
-            self._subtract_gram(U)
+            self._subtract_gram(U[:, :n])
             rank = 0
+        self._rank = rank  # at once: an error later in the line leaves P as it is
         return rank
 
     def _subtract_gram(self, U: FloatArray) -> None:
@@ -744,7 +885,8 @@ class EkfSlam:
 
         Marginalising a Gaussian is dropping its rows and columns: the rest of x and P is
         unchanged, and P stays exactly symmetric and positive semi-definite (a principal
-        submatrix of one). The kept rows are moved up in place, O(n^2) at worst.
+        submatrix of one). The kept rows are moved up in place, O(n^2) at worst (the
+        pending changes' columns likewise: see :meth:`_fold`).
 
         :raises FilterError: an id not in the state
         """
@@ -760,18 +902,36 @@ class EkfSlam:
             ([0, 1, 2], *[(self._slot[i], self._slot[i] + 1) for i in kept_ids])
         ).astype(np.int64)
         m = keep.shape[0]
+        if self._rank:  # marginalising drops the same columns of U
+            assert self._U is not None
+            U = self._U[: self._rank]
+            U[:, :m] = U[:, keep]
         self._x[:m] = self._x[keep]
         self._x[m:n] = 0.0
-        self._P[:m, :m] = self._P[np.ix_(keep, keep)]
-        self._P[m:n, :n] = 0.0
-        self._P[:n, m:n] = 0.0
+        # the kept rows come in runs of consecutive ones (between the removed landmarks),
+        # each moved up as one block of rows, then of columns: block copies instead of a
+        # gather entry by entry (np.ix_, three times as long at n = 800). In order: a run
+        # moves up over rows whose own run has already moved
+        breaks = (np.flatnonzero(np.diff(keep) != 1) + 1).tolist()
+        runs = [  # (from, to, length) of each run that moves
+            (int(keep[start]), start, end - start)
+            for start, end in zip([0, *breaks], [*breaks, m], strict=True)
+            if keep[start] != start
+        ]
+        P = self._P
+        for source, start, length in runs:
+            P[start : start + length, :n] = P[source : source + length, :n]
+        for source, start, length in runs:
+            P[:m, start : start + length] = P[:m, source : source + length]
+        P[m:n, :n] = 0.0
+        P[:n, m:n] = 0.0
         self._n = m
         self._ids = kept_ids
         self._slot = {i: 3 + 2 * k for k, i in enumerate(kept_ids)}
         self._ids_array = None
         self._known_line = None
         self._rows = {}
-        self._landmark_covs = None
+        self._landmark_covs = self._landmarks_xy = None
 
     # -- landmark initialisation -------------------------------------------------------
 
@@ -786,6 +946,10 @@ class EkfSlam:
         x[: self._n] = self._x[: self._n]
         P[: self._n, : self._n] = self._P[: self._n, : self._n]
         self._x, self._P = x, P
+        if self._U is not None:
+            U = np.zeros((DEFER_ROWS, size))
+            U[: self._rank, : self._n] = self._U[: self._rank, : self._n]
+            self._U = U
 
     def _initial_landmark(
         self, pose_xytheta: FloatArray, z: FloatArray
@@ -810,8 +974,24 @@ class EkfSlam:
         x, P = self._x, self._P
         z_arr = np.asarray(z, dtype=np.float64)
         x[n : n + 2], l_D_pose, l_D_z = self._initial_landmark(x[:3], z_arr)
-        P_ll = l_D_pose @ P[:3, :3] @ l_D_pose.T + l_D_z @ self._R @ l_D_z.T
-        if self.params.landmark_init is LandmarkInit.CORRELATED:
+        correlated = self.params.landmark_init is LandmarkInit.CORRELATED
+        P_pp = P[:3, :3]
+        rank = self._rank
+        if rank:
+            # P_current = P - U^T U. Correlated, the new rows of P are J_p P[:3] as of the
+            # current P, so the stored P gets J_p P_s[:3] and U the columns U[:, :3] J_p^T
+            # (then P_s - U^T U is J_p P_current[:3] there): an exact carry-over. Independent,
+            # the new rows are zero in both and U's columns too; P_ll reads the current
+            # pose block.
+            assert self._U is not None
+            U = self._U[:rank]
+            if correlated:
+                U[:, n : n + 2] = U[:, :3] @ l_D_pose.T
+            else:
+                U[:, n : n + 2] = 0.0
+                P_pp = P_pp - self._pending_pose_gram()
+        P_ll = l_D_pose @ P_pp @ l_D_pose.T + l_D_z @ self._R @ l_D_z.T
+        if correlated:
             P_lx = l_D_pose @ P[:3, :n]
             P[n : n + 2, :n] = P_lx
             P[:n, n : n + 2] = P_lx.T
@@ -868,6 +1048,10 @@ def _whitened(
     B: FloatArray = np.array(((i00, 0.0), (i10, i11), (w0 * i00 + w1 * i10, w1 * i11))).dot(HP)
     return B, w0, w1
 
+
+# the pending factor of a state too small to defer (see EkfSlam._pending): no rows
+_NO_ROWS: FloatArray = np.zeros((0, 0))
+_NO_ROWS.flags.writeable = False
 
 _NAN_TABLES: dict[int, FloatArray] = {}
 

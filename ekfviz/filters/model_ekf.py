@@ -25,8 +25,6 @@ import numpy as np
 from ekfviz.core.records import EventRecord, kept_record
 from ekfviz.core.types import FloatArray
 from ekfviz.filters.ekf import (
-    DEFER_LANDMARKS,
-    DEFER_MIN_DIM,
     MIN_PREDICTED_RANGE,
     EkfSlam,
     FilterError,
@@ -150,6 +148,8 @@ class ModelEkfSlam(EkfSlam):
         if not math.isfinite(px + py + pt + p00 + p01 + p02 + p11 + p12 + p22):
             raise FilterError("the state became non-finite in predict")
         x[:3] = (px, py, pt)
+        if self._rank:  # the pending changes of P through G_all (see EkfSlam._fold)
+            self._predict_pending(a_all, b_all)
         if n > 3:
             # rows x and y of G_all P_rm (row theta unchanged), and their mirror
             P[0, 3:n] += a_all * P[2, 3:n]
@@ -170,20 +170,18 @@ class ModelEkfSlam(EkfSlam):
         the sensor model (H has the 5 non-zero columns 0, 1, 2, j, j+1).
 
         As in :meth:`EkfSlam._update_sequential`: with S = L L^T, A = L^-1 H P (2 x n) and
-        w = L^-1 nu, x += A^T w at once and P -= A^T A deferred. The rank-2 changes of a
-        scan are kept as the rows of U, so that the current P is P - U^T U: its rows c
-        (all that H P needs) cost O(rank n), and P itself is changed once per
-        ``DEFER_LANDMARKS`` landmarks (one pass) instead of once per landmark (Victoria
-        Park's state has 600 to 900 rows and a scan sees 5 landmarks).
+        w = L^-1 nu, x += A^T w at once and P -= A^T A deferred. The rank-2 changes are
+        kept as the rows of U, so that the current P is P - U^T U: its rows c (all that
+        H P needs) cost O(rank n), and P itself is changed once per ``DEFER_LANDMARKS``
+        landmarks (one pass), across scans, instead of once per landmark or per scan
+        (Victoria Park's state has 600 to 900 rows and a scan sees 5 landmarks).
         """
         n = self._n
         x = self._x[:n]
         P_buffer = self._P
         spare = P_buffer.shape[0] > n
         r00, r01, r11 = (float(v) for v in (self._R[0, 0], self._R[0, 1], self._R[1, 1]))
-        defer = n >= DEFER_MIN_DIM
-        U = np.empty((2 * min(len(known), DEFER_LANDMARKS), n)) if defer else x[None]
-        rank = 0  # rows of U in use: the current P is P - U[:rank]^T U[:rank]
+        U, rank = self._pending()  # the current P is P - U[:rank, :n]^T U[:rank, :n]
         a, b = self.sensor.a, self.sensor.b
         for k in known:
             landmark_id = ids[k]
@@ -212,7 +210,8 @@ class ModelEkfSlam(EkfSlam):
             P_c = P_buffer.take(rows, 0)  # the rows c of P (5 x capacity)
             HP = H.dot(P_c[:, :n] if spare else P_c)
             if rank:
-                HP -= H.dot(U[:rank].take(rows, 1).T).dot(U[:rank])
+                U_r = U[:rank]  # contiguous rows of the buffer: take() copies no more
+                HP -= H.dot(U_r.take(rows, 1).T).dot(U_r[:, :n])
             (S00, S01), (S10, S11) = HP.take(rows, 1).dot(H.T).tolist()
             s00, s11 = S00 + r00, S11 + r11
             s01 = 0.5 * (S01 + S10) + r01
@@ -229,10 +228,9 @@ class ModelEkfSlam(EkfSlam):
             B, w0, w1 = whitened
             np.add(x, B[2], out=x)
             x[2] = wrap_angle(float(x[2]))
-            rank = self._fold(B[:2], U, rank, defer)
+            rank = self._fold(B[:2], U, rank)
             table[k] = (bearing, rng, nu0, nu1, s00, s01, s01, s11, w0 * w0 + w1 * w1)
-        if rank:
-            self._subtract_gram(U[:rank])
+        self._rank = rank  # left pending (see ekfviz.filters.ekf)
 
     def _update_joint(
         self,
