@@ -253,3 +253,13 @@ def test_the_shapes_of_a_batch_are_each_maps_shapes() -> None:
     assert joined.tobytes() == alone.tobytes()
     by_map = np.linalg.norm(joined[:, 2:].reshape(-1, 1, 4), axis=2).reshape(-1)
     assert np.linalg.norm(joined[:, 2:], axis=1).tobytes() == by_map.tobytes()
+
+
+def test_the_norms_of_the_maps_window_search_are_numpys() -> None:
+    from ekfviz.viz.layers.landmarks import _norms
+
+    rng = np.random.default_rng(5)
+    for shape in ((1, 1, 6), (16, 6, 6), (300, 40, 6), (7, 1000, 6)):
+        ahead = rng.normal(size=shape) * 10.0 ** rng.integers(-12, 3, size=shape)
+        for part in (ahead[:, :, :2], ahead[:, :, 2:]):
+            assert _norms(part).tobytes() == np.linalg.norm(part, axis=2).tobytes()
