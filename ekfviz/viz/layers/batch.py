@@ -51,9 +51,9 @@ class Observed:
     skipped: IntArray
 
     @staticmethod
-    def of(records: list[EventRecord | None], corrected: IntArray) -> Observed:
-        count = len(records)
-        found = [records[k].observations for k in corrected.tolist()]
+    def of(count: int, corrected: IntArray, updates: list[EventRecord]) -> Observed:
+        """What the ``updates`` at the rows ``corrected`` of a batch of ``count`` did."""
+        found = [update.observations for update in updates]
         has = [observations is not None for observations in found]
         rows = corrected if all(has) else corrected[np.array(has, dtype=bool)]
         observed = [observations for observations in found if observations is not None]
@@ -217,6 +217,7 @@ class Batch:
             controls = _merged(controls, row_controls, mine, theirs)
             has_control = _merged(has_control, np.ones(held, dtype=bool), mine, theirs)
         corrected = np.flatnonzero(~is_predict)
+        updates: list[EventRecord] = [records[k] for k in corrected.tolist()]  # records there
         return Batch(
             records=records,
             whole=whole,
@@ -226,17 +227,12 @@ class Batch:
             is_predict=is_predict,
             updating=updating,
             corrected=corrected,
-            observed=Observed.of(records, corrected),
-            maps=Maps.of([records[k] for k in corrected.tolist()]),
+            observed=Observed.of(count, corrected, updates),
+            maps=Maps.of(updates),
             lines=lines,
             controls=controls,
             has_control=has_control,
         )
-
-    def updates(self) -> list[tuple[int, EventRecord, bool]]:
-        """(row, record, logs the whole map) of every update and initialisation."""
-        whole = self.whole[self.corrected].tolist()
-        return list(zip(self.corrected.tolist(), self.maps.records, whole, strict=True))
 
 
 def _times(times: list[float | None]) -> FloatArray:
