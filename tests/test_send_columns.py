@@ -263,3 +263,70 @@ def test_the_norms_of_the_maps_window_search_are_numpys() -> None:
         ahead = rng.normal(size=shape) * 10.0 ** rng.integers(-12, 3, size=shape)
         for part in (ahead[:, :, :2], ahead[:, :, 2:]):
             assert _norms(part).tobytes() == np.linalg.norm(part, axis=2).tobytes()
+
+
+def reference_changes(
+    records: list[EventRecord], forced: list[bool], shown: tuple[Any, FloatArray] | None
+) -> list[int]:
+    """The updates whose map is logged, by the definition, one update at a time: forced,
+    a map of other landmarks than the last shown, or some landmark moved by more than
+    MAP_TOLERANCE of its ellipse's semi-major axis since."""
+    from ekfviz.viz.layers.landmarks import MAP_TOLERANCE
+
+    out = []
+    for i, record in enumerate(records):
+        every = ellipse_shapes(record.landmarks_xy, record.landmark_covs)
+        due = forced[i] or shown is None or not np.array_equal(shown[0], record.landmark_ids)
+        if not due:
+            assert shown is not None
+            tolerance = MAP_TOLERANCE * np.linalg.norm(every[:, 2:], axis=1) / math.sqrt(2.0)
+            moved = np.linalg.norm(every[:, :2] - shown[1][:, :2], axis=1) + np.linalg.norm(
+                every[:, 2:] - shown[1][:, 2:], axis=1
+            )
+            due = not np.all(moved <= tolerance)
+        if due:
+            out.append(i)
+            shown = (record.landmark_ids, every)
+    return out
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_the_updates_whose_map_is_logged_are_the_definitions(seed: int) -> None:
+    """The map's window search finds the very updates the plain definition does, across
+    batches, with maps that grow, drift, jump and hold still."""
+    from types import SimpleNamespace
+
+    from ekfviz.viz.layers.landmarks import MapLayer
+
+    rng = np.random.default_rng(seed)
+    layer = MapLayer(SimpleNamespace(detail=False), None, thinned=False)  # type: ignore[arg-type]
+    ids = np.arange(1, 4, dtype=np.int64)
+    xy, covs = rng.normal(size=(3, 2)) * 10, np.tile(np.eye(2) * 0.04, (3, 1, 1))
+    shown: tuple[Any, FloatArray] | None = None
+    event = 0
+    for _ in range(4):  # batches
+        pending, forced = [], []
+        for _ in range(int(rng.integers(1, 400))):
+            event += 1
+            if rng.random() < 0.01:  # the map grows
+                ids = np.arange(1, len(ids) + 2, dtype=np.int64)
+                xy = np.vstack([xy, rng.normal(size=(1, 2)) * 10])
+                covs = np.concatenate([covs, np.eye(2)[None] * 0.04])
+            pace = 10.0 ** rng.choice([-6.0, -4.0, -3.0, -1.0])  # still to jumping
+            xy = xy + rng.normal(size=xy.shape) * pace
+            covs = covs * (1.0 - rng.uniform(0, pace, size=(len(covs), 1, 1)))
+            record = EventRecord(
+                event=event, step=event, kind=EventKind.UPDATE, line=0, pose=np.zeros(3),
+                pose_cov=np.eye(3), landmark_ids=ids, landmarks_xy=xy.copy(),
+                landmark_covs=covs.copy(),
+            )  # fmt: skip
+            whole = bool(rng.random() < 0.02)
+            pending.append((record, whole))
+            forced.append(whole and len(ids) > 32)  # none here: a small map
+        batch = Batch.of(pending, Clock())
+        expected = reference_changes([r for r, _ in pending], forced, shown)
+        sparse = np.zeros(len(pending), dtype=bool)
+        assert layer._map_changes(batch, sparse).tolist() == expected
+        last = pending[expected[-1]][0]
+        shown = (last.landmark_ids, ellipse_shapes(last.landmarks_xy, last.landmark_covs))
+    assert event > 0
