@@ -237,7 +237,10 @@ class Batch:
 
 def _times(times: list[float | None]) -> FloatArray:
     """Times as floats, NaN where a record has none."""
-    if None not in times:
+    missing = times.count(None)
+    if missing == len(times):  # an untimed log
+        return np.full(len(times), math.nan)
+    if not missing:
         return np.array(times, dtype=np.float64).reshape(len(times))
     return np.array([math.nan if time is None else time for time in times], dtype=np.float64)
 
