@@ -120,7 +120,7 @@ class TextLayer:
         """The line at each row ``at``, made in one ``%`` each (see the module)."""
         count = len(held)
         steps, observed, lines = batch.rows.steps, batch.observed, batch.lines
-        has_line = lines > 0
+        has_line = lines != 0  # (as a line number is tested: any but 0)
         predict = 2 * has_line + batch.has_control
         with_observations = np.zeros(count, dtype=bool)
         with_observations[observed.rows] = True
