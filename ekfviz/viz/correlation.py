@@ -151,14 +151,17 @@ class CorrelationLayer:
         if not at:
             return
         correlations = [record.correlation for k in at if (record := records[k]) is not None]
-        images = [color_indices(c.matrix) for c in correlations]  # type: ignore[union-attr]
-        sizes = np.array([image.size for image in images], dtype=np.int64)
-        offsets = np.zeros(len(images) + 1, dtype=np.int32)
+        matrices = [c.matrix for c in correlations]  # type: ignore[union-attr]
+        # the colours of all matrices in one call (each pixel's its own): a call each cost
+        # more than the rest of their logging
+        sizes = np.array([matrix.size for matrix in matrices], dtype=np.int64)
+        offsets = np.zeros(len(matrices) + 1, dtype=np.int32)
         np.cumsum(sizes, out=offsets[1:])
-        pixels = pa.array(np.concatenate([image.reshape(-1) for image in images]), pa.uint8())
-        heights = np.array([image.shape[0] for image in images], dtype=np.uint32)
-        widths = np.array([image.shape[1] for image in images], dtype=np.uint32)
-        n = len(images)
+        flat = np.concatenate([matrix.reshape(-1) for matrix in matrices])
+        pixels = pa.array(color_indices(flat), pa.uint8())
+        heights = np.array([matrix.shape[0] for matrix in matrices], dtype=np.uint32)
+        widths = np.array([matrix.shape[1] for matrix in matrices], dtype=np.uint32)
+        n = len(matrices)
         formats = pa.StructArray.from_arrays(
             [pa.array(widths), pa.array(heights), pa.nulls(n, pa.uint8()),
              pa.nulls(n, pa.uint8()), pa.array(np.full(n, _U8, dtype=np.uint8))],
@@ -183,7 +186,10 @@ class CorrelationLayer:
                 previous is not None
                 and previous.dim == correlation.dim
                 and previous.factor == correlation.factor
-                and np.array_equal(previous.landmark_ids, correlation.landmark_ids)
+                and (
+                    (ids := correlation.landmark_ids) is previous.landmark_ids
+                    or np.array_equal(previous.landmark_ids, ids)
+                )
             ):
                 continue
             record = records[k]

@@ -126,3 +126,15 @@ def ellipse_extent(
     half = n_sigma * np.sqrt(np.clip(np.stack([covs[:, 0, 0], covs[:, 1, 1]], axis=1), 0.0, None))
     corners: FloatArray = np.concatenate([means_xy - half, means_xy + half])
     return corners
+
+
+def ellipse_shapes(means_xy: FloatArray, covs: FloatArray) -> FloatArray:
+    """(K, 6) rows [mx, my, 3 sqrt(C) flattened]: a 3-sigma ellipse by its mean and the
+    symmetric square root of its covariance (unique, unlike the eigenvectors' signs),
+    sqrt(C) = (C + sqrt(det C) I) / sqrt(tr C + 2 sqrt(det C)) for 2x2."""
+    root_det = np.sqrt(np.clip(np.linalg.det(covs), 0.0, None))
+    scale = np.sqrt(np.clip(np.trace(covs, axis1=1, axis2=2) + 2.0 * root_det, 0.0, None))
+    roots = (covs + root_det[:, None, None] * np.eye(2)) / np.where(scale > 0, scale, 1.0)[
+        :, None, None
+    ]
+    return np.column_stack([means_xy, 3.0 * roots.reshape(-1, 4)])

@@ -1,7 +1,7 @@
 """The recorder's parts of the picture, one module each, over one shared columnar buffer.
 
 :class:`~ekfviz.viz.recorder.Recorder` buffers the records of a run and hands each batch
-(:class:`~ekfviz.viz.layers.canvas.Batch`, the records' shared columns) to every part,
+(:class:`~ekfviz.viz.layers.batch.Batch`, the records' shared columns) to every part,
 which logs its own entities with its own styling:
 
 | module | entities |
@@ -18,6 +18,6 @@ which logs its own entities with its own styling:
 The association (:mod:`ekfviz.viz.association`) and the correlation
 (:mod:`ekfviz.viz.correlation`) are parts too, with modules of their own beside.
 :mod:`.arrow` builds Arrow columns without the SDK's per-row conversions and
-:mod:`.canvas` holds what the parts share: the stream, the clock, the series buffer, the
-map's bounds and the batch of records.
+:mod:`.canvas` holds what the parts share: the stream, the clock, the series buffer and the
+map's bounds; :mod:`.batch` the batch of records.
 """

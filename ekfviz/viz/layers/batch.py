@@ -1,19 +1,26 @@
 """The batch of records of one send as columns: the one buffer every part of the
-picture draws from, built once per send (see :mod:`ekfviz.viz.layers`)."""
+picture draws from, built once per send (see :mod:`ekfviz.viz.layers`).
+
+Built in a few passes over the records, one attribute each (a list comprehension reads an
+attribute of a slotted record in some 15 ns, a getter of several costs ten times that),
+and numpy on the columns: a numpy call per record would cost more than the rest of its
+logging.
+"""
 
 from __future__ import annotations
 
+import itertools
 import math
-from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Any, TypeVar
+from typing import TypeVar
 
 import numpy as np
-import numpy.typing as npt
 
 from ekfviz.core.records import EventKind, EventRecord, PredictRows
-from ekfviz.core.types import FloatArray, IntArray
+from ekfviz.core.types import BoolArray, FloatArray, IntArray
 from ekfviz.viz.layers.canvas import Clock, Rows
+
+_PREDICT, _UPDATE = EventKind.PREDICT, EventKind.UPDATE
 
 
 def landmark_rows(record: EventRecord, which: str | None) -> IntArray:
@@ -44,59 +51,116 @@ class Observed:
     skipped: IntArray
 
     @staticmethod
-    def of(records: list[EventRecord | None], corrected: IntArray) -> Observed:
-        count = len(records)
-        observed = [
-            (k, observations)
-            for k in corrected.tolist()
-            if (observations := records[k].observations) is not None
-        ]
-        rows = np.array([k for k, _ in observed], dtype=np.int64)
+    def of(count: int, corrected: IntArray, updates: list[EventRecord]) -> Observed:
+        """What the ``updates`` at the rows ``corrected`` of a batch of ``count`` did."""
+        found = [update.observations for update in updates]
+        has = [observations is not None for observations in found]
+        rows = corrected if all(has) else corrected[np.array(has, dtype=bool)]
+        observed = [observations for observations in found if observations is not None]
+        nis_each = [observations.nis for observations in observed]
+        per_row = np.fromiter(map(len, nis_each), np.int64, len(nis_each))
         seen = np.zeros(count, dtype=np.int64)
-        seen[rows] = [len(observations) for _, observations in observed]
-        owner = np.repeat(np.arange(count), seen)
-
-        def joined(field: str, empty: npt.NDArray[Any]) -> npt.NDArray[Any]:
-            return np.concatenate([empty, *(getattr(o, field) for _, o in observed)])
-
-        nis = joined("nis", np.zeros(0))
+        seen[rows] = per_row
+        owner = np.repeat(rows, per_row)
+        # joined after an empty array of the type they had always been summed in
+        nis = np.concatenate([np.zeros(0), *nis_each])
         used = np.isfinite(nis)
+        z = np.concatenate([np.zeros((0, 2)), *(observations.z for observations in observed)])
+        new = np.concatenate(
+            [np.zeros(0, bool), *(observations.initialised for observations in observed)]
+        )
+        skipped = np.concatenate(
+            [np.zeros(0, bool), *(observations.skipped for observations in observed)]
+        )
         return Observed(
             rows=rows,
             seen=seen,
-            z=joined("z", np.zeros((0, 2))),
-            new=np.bincount(owner[joined("initialised", np.zeros(0, bool))], minlength=count),
+            z=z,
+            new=np.bincount(owner[new], minlength=count),
             nis_sum=np.bincount(owner[used], weights=nis[used], minlength=count).astype(np.float64),
             nis_used=np.bincount(owner[used], minlength=count),
-            skipped=np.bincount(owner[joined("skipped", np.zeros(0, bool))], minlength=count),
+            skipped=np.bincount(owner[skipped], minlength=count),
         )
+
+
+@dataclass(frozen=True, slots=True)
+class Maps:
+    """The maps of a batch's updates (its ``corrected`` rows), joined once for every part
+    that reads them all (the map's changes, the health series).
+
+    :param records: the updates, in order
+    :param counts: (u,) landmarks of each
+    :param starts: (u + 1,) where each one's landmarks start in ``xy`` and ``covs``
+    :param xy: (sum(counts), 2) landmark means, update after update
+    :param covs: (sum(counts), 2, 2) their marginal covariances
+    """
+
+    records: list[EventRecord]
+    counts: IntArray
+    starts: IntArray
+    xy: FloatArray
+    covs: FloatArray
+
+    @staticmethod
+    def of(records: list[EventRecord]) -> Maps:
+        counts = np.fromiter(
+            map(len, [record.landmark_ids for record in records]), np.int64, len(records)
+        )
+        starts = np.zeros(len(records) + 1, dtype=np.int64)
+        np.cumsum(counts, out=starts[1:])
+        if not records:
+            return Maps(records, counts, starts, np.zeros((0, 2)), np.zeros((0, 2, 2)))
+        return Maps(
+            records=records,
+            counts=counts,
+            starts=starts,
+            xy=np.concatenate([record.landmarks_xy for record in records]),
+            covs=np.concatenate([record.landmark_covs for record in records]),
+        )
+
+    def runs(self) -> list[int]:
+        """Where each run of updates of one map (the same landmark ids) starts: the core's
+        records share one ids array until the map grows."""
+        ids = [record.landmark_ids for record in self.records]
+        return [0] + [
+            k
+            for k, (before, now) in enumerate(itertools.pairwise(ids), start=1)
+            if now is not before and not np.array_equal(now, before)
+        ]
 
 
 @dataclass(frozen=True, slots=True)
 class Batch:
     """The records of one send as columns, built once and read by every part.
 
-    :param records: the records, in order; None at a predict of a segment (see
-        :class:`PredictSegment`), whose line and control are in ``lines`` and ``controls``
+    :param records: the records, in order; None at a predict given as a row (see
+        :class:`~ekfviz.core.records.PredictRows`), whose line and control are in
+        ``lines`` and ``controls``
     :param whole: (count,) whether each update logs the whole map's ellipses
     :param rows: their timelines
     :param poses: (count, 3) and ``pose_covs`` (count, 3, 3)
     :param is_predict: (count,) which records are predicts; ``corrected`` the others' rows
+    :param updating: (count,) which are updates (not an initialisation)
     :param observed: what their updates did with their observations
-    :param lines: the log line of each predict of a segment (0 elsewhere)
-    :param controls: the (d, alpha) of each predict of a segment (None elsewhere)
+    :param maps: the maps of the ``corrected`` rows
+    :param lines: (count,) the log line of each event (0 where none)
+    :param controls: (count, 2) the (d, alpha) of each predict that has one (see
+        ``has_control``; NaN elsewhere)
     """
 
     records: list[EventRecord | None]
-    whole: list[bool]
+    whole: BoolArray
     rows: Rows
     poses: FloatArray
     pose_covs: FloatArray
-    is_predict: npt.NDArray[np.bool_]
+    is_predict: BoolArray
+    updating: BoolArray
     corrected: IntArray
     observed: Observed
-    lines: list[int]
-    controls: list[tuple[float, float] | None]
+    maps: Maps
+    lines: IntArray
+    controls: FloatArray
+    has_control: BoolArray
 
     @staticmethod
     def of(
@@ -107,23 +171,28 @@ class Batch:
     ) -> Batch:
         """The batch of the records ``pending`` (each with whether it logs the whole map)
         and of the first ``held`` predict ``rows``, merged in event order."""
-        records: list[EventRecord | None] = [record for record, _ in pending]
-        whole = [is_whole for _, is_whole in pending]
-        count = len(records)
-        steps = np.fromiter((record.step for record in pending_records(pending)), np.int64, count)
-        events = np.fromiter((record.event for record in pending_records(pending)), np.int64, count)
-        times = np.fromiter(
-            (math.nan if r.time is None else r.time for r in pending_records(pending)),
-            np.float64,
-            count,
-        )
+        own = [record for record, _ in pending]
+        count = len(own)
+        whole = np.array([is_whole for _, is_whole in pending], dtype=bool)
+        steps = np.array([record.step for record in own], dtype=np.int64)
+        events = np.array([record.event for record in own], dtype=np.int64)
+        times = _times([record.time for record in own])
+        kinds = [record.kind for record in own]
+        is_predict = np.array([kind is _PREDICT for kind in kinds], dtype=bool)
+        updating = np.array([kind is _UPDATE for kind in kinds], dtype=bool)
+        lines = np.array([record.line for record in own], dtype=np.int64)
+        controls = np.full((count, 2), math.nan)
+        has_control = np.zeros(count, dtype=bool)
+        for k in np.flatnonzero(is_predict).tolist():
+            control = own[k].control
+            if control is not None:
+                controls[k], has_control[k] = control, True
         # concatenated and reshaped: np.stack costs three times as much per record
         poses, covs = np.zeros((0, 3)), np.zeros((0, 3, 3))
         if count:
-            poses = np.concatenate([record.pose for record, _ in pending]).reshape(count, 3)
-            covs = np.concatenate([r.pose_cov for r, _ in pending]).reshape(count, 3, 3)
-        lines: list[int] = [0] * count
-        controls: list[tuple[float, float] | None] = [None] * count
+            poses = np.concatenate([record.pose for record in own]).reshape(count, 3)
+            covs = np.concatenate([record.pose_cov for record in own]).reshape(count, 3, 3)
+        records: list[EventRecord | None] = list(own)
         if rows is not None and held:
             # the rows' events interleave the records': each column in event order
             row_events = np.array(rows.events[:held], dtype=np.int64)
@@ -131,34 +200,24 @@ class Batch:
             at = np.empty(count + held, dtype=np.int64)
             at[order] = np.arange(count + held)  # where each record, then each row, goes
             mine, theirs = at[:count], at[count:]
+            records = [None] * (count + held)
+            for k, record in zip(mine.tolist(), own, strict=True):
+                records[k] = record
             count += held
-            merged: list[EventRecord | None] = [None] * count
-            for k, record in zip(mine.tolist(), records, strict=True):
-                merged[k] = record
-            records = merged
-            whole_all = [False] * count
-            for k, is_whole in zip(mine.tolist(), whole, strict=True):
-                whole_all[k] = is_whole
-            whole = whole_all
-            lines, controls = [0] * count, [None] * count
-            for k, line, control in zip(
-                theirs.tolist(), rows.lines[:held], rows.controls[:held], strict=True
-            ):
-                lines[k], controls[k] = line, control
+            row_controls = np.array(rows.controls[:held], dtype=np.float64).reshape(held, 2)
+            whole = _merged(whole, np.zeros(held, dtype=bool), mine, theirs)
             steps = _merged(steps, np.array(rows.steps[:held], dtype=np.int64), mine, theirs)
             events = _merged(events, row_events, mine, theirs)
-            row_times = np.array(
-                [math.nan if time is None else time for time in rows.times[:held]], np.float64
-            )
-            times = _merged(times, row_times, mine, theirs)
+            times = _merged(times, _times(rows.times[:held]), mine, theirs)
             poses = _merged(poses, rows.poses[:held], mine, theirs)
             covs = _merged(covs, rows.pose_covs[:held], mine, theirs)
-        is_predict = np.fromiter(
-            (record is None or record.kind is EventKind.PREDICT for record in records),
-            bool,
-            count,
-        )
+            is_predict = _merged(is_predict, np.ones(held, dtype=bool), mine, theirs)
+            updating = _merged(updating, np.zeros(held, dtype=bool), mine, theirs)
+            lines = _merged(lines, np.array(rows.lines[:held], dtype=np.int64), mine, theirs)
+            controls = _merged(controls, row_controls, mine, theirs)
+            has_control = _merged(has_control, np.ones(held, dtype=bool), mine, theirs)
         corrected = np.flatnonzero(~is_predict)
+        updates: list[EventRecord] = [records[k] for k in corrected.tolist()]  # records there
         return Batch(
             records=records,
             whole=whole,
@@ -166,19 +225,24 @@ class Batch:
             poses=poses,
             pose_covs=covs,
             is_predict=is_predict,
+            updating=updating,
             corrected=corrected,
-            observed=Observed.of(records, corrected),
+            observed=Observed.of(count, corrected, updates),
+            maps=Maps.of(updates),
             lines=lines,
             controls=controls,
+            has_control=has_control,
         )
 
-    def updates(self) -> list[tuple[int, EventRecord, bool]]:
-        """(row, record, logs the whole map) of every update and initialisation."""
-        return [(k, self.records[k], self.whole[k]) for k in self.corrected.tolist()]
 
-
-def pending_records(pending: list[tuple[EventRecord, bool]]) -> Iterator[EventRecord]:
-    return (record for record, _ in pending)
+def _times(times: list[float | None]) -> FloatArray:
+    """Times as floats, NaN where a record has none."""
+    missing = times.count(None)
+    if missing == len(times):  # an untimed log
+        return np.full(len(times), math.nan)
+    if not missing:
+        return np.array(times, dtype=np.float64).reshape(len(times))
+    return np.array([math.nan if time is None else time for time in times], dtype=np.float64)
 
 
 ArrayT = TypeVar("ArrayT", bound=np.ndarray)

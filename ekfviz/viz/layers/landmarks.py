@@ -16,15 +16,16 @@ every ellipse and error at every update.
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
 import rerun as rr
 
 from ekfviz.core.records import EventKind, EventRecord
-from ekfviz.core.types import FloatArray, IntArray
+from ekfviz.core.types import BoolArray, FloatArray, IntArray
 from ekfviz.viz import style
-from ekfviz.viz.ellipses import ellipse_extent, ellipse_outlines, outline_points
+from ekfviz.viz.ellipses import ellipse_extent, ellipse_outlines, ellipse_shapes, outline_points
 from ekfviz.viz.layers.arrow import column, radius, xy
 from ekfviz.viz.layers.batch import Batch, landmark_rows
 from ekfviz.viz.layers.canvas import NO_ROWS, Canvas, Rows
@@ -40,20 +41,6 @@ MAP_POINTS = 16  # points of a landmark outline: within 2 % of its radius, as MA
 # showed corners there, 32 do not (within 0.5 % of its radius)
 INITIAL_POINTS = 32
 MAP_EVERY_S = 5.0  # ... and in a thinned timestamped log, every this many seconds of log time
-
-Update = tuple[int, EventRecord, bool]  # a batch's row, the update, whether whole map
-
-
-def shapes(means_xy: FloatArray, covs: FloatArray) -> FloatArray:
-    """(K, 6) rows [mx, my, 3 sqrt(C) flattened]: a 3-sigma ellipse by its mean and the
-    symmetric square root of its covariance (unique, unlike the eigenvectors' signs),
-    sqrt(C) = (C + sqrt(det C) I) / sqrt(tr C + 2 sqrt(det C)) for 2x2."""
-    root_det = np.sqrt(np.clip(np.linalg.det(covs), 0.0, None))
-    scale = np.sqrt(np.clip(np.trace(covs, axis1=1, axis2=2) + 2.0 * root_det, 0.0, None))
-    roots = (covs + root_det[:, None, None] * np.eye(2)) / np.where(scale > 0, scale, 1.0)[
-        :, None, None
-    ]
-    return np.column_stack([means_xy, 3.0 * roots.reshape(-1, 4)])
 
 
 class MapLayer:
@@ -146,15 +133,21 @@ class MapLayer:
         """The points and ellipses of the batch's updates (see :meth:`_map_changes`)."""
         if not batch.corrected.size:
             return
-        rows = batch.rows
-        updates = batch.updates()
-        shown = self._map_changes(updates)
+        rows, corrected, maps = batch.rows, batch.corrected, batch.maps
+        records = maps.records
+        whole = batch.whole[corrected]
+        sparse = self._sparse_maps(batch)
+        shown = self._map_changes(batch, sparse).tolist()
         if shown:
-            self._send_points(rows.pick([k for k, _, _ in shown]), [r for _, r, _ in shown])
+            self._send_points(rows.pick(corrected[shown]), [records[i] for i in shown])
         self._send_ellipses(
             style.LANDMARK_ELLIPSES,
             rows,
-            [(k, record, landmark_rows(record, None)) for k, record, whole in shown if whole],
+            [
+                (int(corrected[i]), records[i], landmark_rows(records[i], None))
+                for i in shown
+                if whole[i]
+            ],
         )
         # Beyond a small map: the observed landmarks' own ellipses at the updates between
         # two of the whole map's (and an empty row, clearing them, at those).
@@ -162,23 +155,34 @@ class MapLayer:
             style.LANDMARK_ELLIPSES_OBSERVED,
             rows,
             [
-                (k, record, NO_ROWS if whole else landmark_rows(record, "observed"))
-                for k, record, whole in updates
-                if self.sparse(record)
+                (k, records[i], NO_ROWS if whole[i] else landmark_rows(records[i], "observed"))
+                for i, k in zip(
+                    np.flatnonzero(sparse).tolist(), corrected[sparse].tolist(), strict=True
+                )
             ],
         )
-        new = batch.observed.new
+        with_new = np.flatnonzero(batch.observed.new[corrected]).tolist()
         self._send_ellipses(
             style.LANDMARK_INITIAL,
             rows,
             [
-                (k, record, landmark_rows(record, "initialised"))
-                for k, record, _ in updates
-                if new[k] and record.association is None
+                (int(corrected[i]), record, landmark_rows(record, "initialised"))
+                for i in with_new
+                if (record := records[i]).association is None
             ],
             INITIAL_POINTS,
         )
-        self._send_confirmed_first_sightings(rows, updates)
+        self._send_confirmed_first_sightings(rows, corrected, records)
+
+    def _sparse_maps(self, batch: Batch) -> BoolArray:
+        """:meth:`sparse` of each of the batch's updates, in a few numpy calls."""
+        maps = batch.maps
+        if self._detail:
+            return np.zeros(len(maps.records), dtype=bool)
+        large = maps.counts > SMALL_MAP
+        if self._thinned:
+            large |= np.array([record.time is not None for record in maps.records], dtype=bool)
+        return large
 
     def mark_final(self) -> None:
         """The run ends: its last update's map is to be shown exactly."""
@@ -207,8 +211,9 @@ class MapLayer:
             self._canvas.grow_bounds(ellipse_extent(record.landmarks_xy, record.landmark_covs))
         return errors_due
 
-    def _map_changes(self, updates: list[Update]) -> list[Update]:
-        """The updates whose landmarks (points and whole-map ellipses) are logged.
+    def _map_changes(self, batch: Batch, sparse: BoolArray) -> IntArray:
+        """The batch's updates (indices into its ``corrected`` rows) whose landmarks
+        (points and whole-map ellipses) are logged.
 
         Only where the map grew or where some landmark's point or 3-sigma outline moved
         by more than ``MAP_TOLERANCE`` of its ellipse's semi-major axis since it was last
@@ -217,68 +222,75 @@ class MapLayer:
         updates that log them log the points too); everything at every update with
         ``--detail``.
         """
-        shown: list[Update] = []
+        maps, corrected = batch.maps, batch.corrected
         if self._canvas.detail:
-            for k, record, whole in updates:
-                shown.append((k, record, whole))
-                self._map_shown = None
-                self._map_shown_event = record.event
-            return shown
-        start = 0
-        while start < len(updates):  # runs of updates of one map (the same landmark ids)
-            ids = updates[start][1].landmark_ids
-            end = start + 1
-            while end < len(updates) and (
-                (other := updates[end][1].landmark_ids) is ids or np.array_equal(other, ids)
-            ):
-                end += 1
-            shown += self._changes_of_one_map(updates[start:end])
-            start = end
-        return shown
-
-    def _changes_of_one_map(self, updates: list[Update]) -> list[Update]:
-        """:meth:`_map_changes` of updates of the same landmarks, in a few numpy calls: the
-        shapes of all at once, then from each update logged, the first that has moved
-        from it, looked for in windows that grow while none has."""
-        records = [record for _, record, _ in updates]
-        n = records[0].n_landmarks
-        every = shapes(
-            np.concatenate([record.landmarks_xy for record in records]),
-            np.concatenate([record.landmark_covs for record in records]),
-        ).reshape(len(records), n, 6)
+            self._map_shown = None
+            self._map_shown_event = maps.records[-1].event
+            return np.arange(len(corrected))
+        # the shapes and tolerances of every landmark of every update at once
+        every = ellipse_shapes(maps.xy, maps.covs)
         # the point at angle t of an outline, m + 3 sqrt(C) [cos t, sin t], moves by at most
         # |dm| + 3 ||d sqrt(C)||_F; the semi-major axis is at least 3 ||sqrt(C)||_F / sqrt(2)
-        tolerance = MAP_TOLERANCE * np.linalg.norm(every[:, :, 2:], axis=2) / math.sqrt(2.0)
-        forced = np.array(
-            [
-                record.event == self._final_event or (whole and self.sparse(record))
-                for _, record, whole in updates
-            ]
-        )
+        tolerance = MAP_TOLERANCE * np.linalg.norm(every[:, 2:], axis=1) / math.sqrt(2.0)
+        events = batch.rows.events[corrected]
+        forced = batch.whole[corrected] & sparse
+        if self._final_event is not None:
+            forced |= events == self._final_event
+        shown: list[IntArray] = []
+        for start, end in itertools.pairwise([*maps.runs(), len(corrected)]):
+            first, last = int(maps.starts[start]), int(maps.starts[end])
+            n = int(maps.counts[start])
+            shown.append(
+                start
+                + self._changes_of_one_map(
+                    maps.records[start:end],
+                    events[start:end],
+                    forced[start:end].copy(),
+                    every[first:last].reshape(end - start, n, 6),
+                    tolerance[first:last].reshape(end - start, n),
+                )
+            )
+        return np.concatenate(shown)
+
+    def _changes_of_one_map(
+        self,
+        records: list[EventRecord],
+        events: IntArray,
+        forced: BoolArray,
+        every: FloatArray,
+        tolerance: FloatArray,
+    ) -> IntArray:
+        """:meth:`_map_changes` of updates of the same landmarks, their shapes ``every``
+        (u, n, 6) and tolerances (u, n), in a few numpy calls: from each update logged,
+        the first that has moved from it, looked for in windows that grow while none has
+        (``forced``: the updates logged whatever they moved)."""
         if self._map_shown is None or not np.array_equal(
             self._map_shown[0], records[0].landmark_ids
         ):
             forced[0] = True
-        shown: list[Update] = []
-        k, window = 0, 16
+        shown: list[int] = []
+        # the first window as long as twice the last gap between two updates logged: the
+        # same updates found in fewer numpy calls where the map moves at a steady pace
+        k, gap = 0, 8
+        window = 2 * gap
         while k < len(records):
             if not forced[k]:
                 before = self._map_shown[1]  # type: ignore[index]
-                ahead = every[k : k + window]
-                moved = np.linalg.norm(ahead[:, :, :2] - before[:, :2], axis=2) + np.linalg.norm(
-                    ahead[:, :, 2:] - before[:, 2:], axis=2
-                )
+                ahead = every[k : k + window] - before
+                moved = _norms(ahead[:, :, :2]) + _norms(ahead[:, :, 2:])
                 due = forced[k : k + window] | ~np.all(moved <= tolerance[k : k + window], axis=1)
                 hits = np.flatnonzero(due)
                 if not hits.size:
                     k, window = k + len(ahead), 2 * window
                     continue
                 k += int(hits[0])
-            self._map_shown = (records[k].landmark_ids, every[k])
-            self._map_shown_event = records[k].event
-            shown.append(updates[k])
-            k, window = k + 1, 16
-        return shown
+            if shown:
+                gap = k - shown[-1]
+            self._map_shown = (records[k].landmark_ids, every[k].copy())
+            self._map_shown_event = int(events[k])
+            shown.append(k)
+            k, window = k + 1, max(16, 2 * gap)
+        return np.array(shown, dtype=np.int64)
 
     def _send_points(self, times: list[rr.TimeColumnLike], updates: list[EventRecord]) -> None:
         """All landmark estimates of some updates, one row each, class id = landmark id;
@@ -330,12 +342,14 @@ class MapLayer:
         at = np.array([k for k, _, _ in batches], dtype=np.int64)
         self._canvas.send_strips(entity, rows, at, outlines, counts, np.concatenate(ids))
 
-    def _send_confirmed_first_sightings(self, rows: Rows, updates: list[Update]) -> None:
+    def _send_confirmed_first_sightings(
+        self, rows: Rows, corrected: IntArray, records: list[EventRecord]
+    ) -> None:
         """With id-less scans, the first-sighting outline of a landmark appears when the
         association confirms it: most new landmarks of a cluttered scan are removed
         again, and their outlines would bury the map (Victoria Park: 600 of 900)."""
         at, means, covs, ids = [], [], [], []
-        for k, record, _ in updates:
+        for k, record in zip(corrected.tolist(), records, strict=True):
             association = record.association
             if association is None:
                 continue
@@ -367,3 +381,11 @@ class MapLayer:
             style.LANDMARK_INITIAL, rows, np.array(at, dtype=np.int64), outlines, counts,
             np.array([i for group in ids for i in group], dtype=np.int64),
         )  # fmt: skip
+
+
+def _norms(vectors: FloatArray) -> FloatArray:
+    """``np.linalg.norm(vectors, axis=2)`` to the bit, as it computes it (the squares of
+    the real entries, summed over the last axis), without its checks: it is called a few
+    times for every update logged."""
+    norms: FloatArray = np.sqrt(np.add.reduce(vectors * vectors, axis=2))
+    return norms

@@ -107,14 +107,13 @@ class MetricsLayer:
                 rows.pick(corrected),
                 scalars(pose_min_eigenvalues(batch.pose_covs[corrected])),
             )
-        with_map = [k for k in corrected.tolist() if records[k].n_landmarks]
-        if with_map:
-            counts = np.array([records[k].n_landmarks for k in with_map])
-            eigenvalues = landmark_min_eigenvalues(
-                np.concatenate([records[k].landmark_covs for k in with_map])
+        maps = batch.maps  # the updates' maps, joined: an empty one adds no landmark
+        with_map = maps.counts > 0
+        if with_map.any():
+            smallest = np.minimum.reduceat(
+                landmark_min_eigenvalues(maps.covs), maps.starts[:-1][with_map]
             )
-            smallest = np.minimum.reduceat(eigenvalues, np.cumsum(counts) - counts)
-            send(style.HEALTH_LANDMARK_MIN_EIG, rows.pick(with_map), scalars(smallest))
+            send(style.HEALTH_LANDMARK_MIN_EIG, rows.pick(corrected[with_map]), scalars(smallest))
         observed = batch.observed
         if observed.rows.size:
             skipped = observed.skipped[observed.rows]

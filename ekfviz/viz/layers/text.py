@@ -1,49 +1,85 @@
 """The text log (``log``): a line per step saying what it did, one per warning, and
-the notes of a run (why it stopped)."""
+the notes of a run (why it stopped).
+
+A step's line, e.g. ``step 12 predict line 23: d 0.100, alpha 0.0100; update line 24:
+2 landmarks (1 new), NIS 3.14``: its predict's (line, control), then its update's (line,
+landmarks observed, first sightings, NIS summed over the landmarks used), or ``N
+landmarks in the map`` for an update without observations. A batch's lines are made a
+``%`` format each, the formats chosen by what the lines have and their values read from
+the batch's columns: a long log has a line per step, and building each piece by piece
+cost more than the rest of its logging.
+"""
 
 from __future__ import annotations
 
+import numpy as np
 import pyarrow as pa  # type: ignore[import-untyped]
 import rerun as rr
 
-from ekfviz.core.records import EventKind, EventRecord
+from ekfviz.core.types import BoolArray, IntArray
 from ekfviz.viz import style
 from ekfviz.viz.layers.arrow import INFO, WARN, column
 from ekfviz.viz.layers.batch import Batch
 from ekfviz.viz.layers.canvas import Canvas
 
-_KIND = {kind: kind.value for kind in EventKind}  # (an enum's value is a slow lookup)
+# What a line has: a predict's variant is 2 * (has a line) + (has a control), an update's
+# 5 * (has a line) + 4 without observations, else 2 * (new landmarks) + (some NIS).
+_PREDICT_VARIANTS = 4
+_UPDATE_VARIANTS = 10
+Part = tuple[str, tuple[str, ...]]  # a format and the columns of its arguments
 
 
-def describe(record: EventRecord, seen: int, new: int, nis: float, nis_used: int) -> str:
-    """The log line of a record; for an update, ``seen`` observations of which ``new``
-    first sightings, and the NIS summed over the ``nis_used`` landmarks it used."""
-    kind = record.kind
-    where = f"step {record.step} {_KIND[kind]}"
-    if record.line:
-        where += f" line {record.line}"
-    if kind is EventKind.PREDICT:
-        control = record.control
-        if control is None:
-            return where
-        return f"{where}: d {control[0]:.3f}, alpha {control[1]:.4f}"
-    if record.observations is None:
-        return f"{where}: {record.n_landmarks} landmarks in the map"
-    text = f"{where}: {seen} landmarks"
-    if new:
-        text += f" ({new} new)"
-    if nis_used:
-        text += f", NIS {nis:.2f}"
-    return text
+def _predict_part(variant: int) -> Part:
+    """A predict's part of a line."""
+    line, control = divmod(variant, 2)
+    text = "step %d predict"
+    names: tuple[str, ...] = ("step",)
+    if line:
+        text, names = text + " line %d", (*names, "line")
+    if control:
+        text, names = text + ": d %.3f, alpha %.4f", (*names, "d", "alpha")
+    return text, names
 
 
-def describe_predict(step: int, line: int, control: tuple[float, float] | None) -> str:
-    """:func:`describe` of a predict given as columns (see
-    :class:`~ekfviz.viz.layers.batch.Batch`)."""
-    where = f"step {step} predict line {line}" if line else f"step {step} predict"
-    if control is None:
-        return where
-    return f"{where}: d {control[0]:.3f}, alpha {control[1]:.4f}"
+def _update_part(variant: int) -> Part:
+    """An update's part of a line, after its step."""
+    line, what = divmod(variant, 5)
+    text = "%s"
+    names: tuple[str, ...] = ("kind",)
+    if line:
+        text, names = text + " line %d", (*names, "line")
+    if what == 4:
+        return text + ": %d landmarks in the map", (*names, "landmarks")
+    text, names = text + ": %d landmarks", (*names, "landmarks")
+    if what & 2:
+        text, names = text + " (%d new)", (*names, "new")
+    if what & 1:
+        text, names = text + ", NIS %.2f", (*names, "nis")
+    return text, names
+
+
+def _line(predict: int, update: int) -> tuple[str, tuple[tuple[bool, str], ...]]:
+    """The format of a line of a predict's variant and an update's (-1: none), and its
+    arguments: (of the predict, column) each."""
+    if update < 0:
+        text, names = _predict_part(predict)
+        return text, tuple((True, name) for name in names)
+    body, update_names = _update_part(update)
+    if predict < 0:
+        return "step %d " + body, ((False, "step"), *((False, name) for name in update_names))
+    head, predict_names = _predict_part(predict)
+    return head + "; " + body, (
+        *((True, name) for name in predict_names),
+        *((False, name) for name in update_names),
+    )
+
+
+_LINES = {
+    (predict + 1) * (_UPDATE_VARIANTS + 1) + update + 1: _line(predict, update)
+    for predict in range(-1, _PREDICT_VARIANTS)
+    for update in range(-1, _UPDATE_VARIANTS)
+    if predict >= 0 or update >= 0
+}
 
 
 class TextLayer:
@@ -55,52 +91,21 @@ class TextLayer:
     def send(self, batch: Batch) -> None:
         """A line per step: a predict's goes into the line of the update that follows it in
         the same step, both at the update; then one per warning at the same event."""
-        records, observed = batch.records, batch.observed
-        steps = batch.rows.steps.tolist()
-        text: list[str] = []
-        level: list[str] = []
-        line_of: list[int] = []
-        held: tuple[str, tuple[str, ...]] | None = None  # a predict's line and warnings
-        count = len(records)
-        no_warnings: tuple[str, ...] = ()
-        for k, (record, is_predict, seen, new, nis_sum, nis_used) in enumerate(
-            zip(
-                records,
-                batch.is_predict.tolist(),
-                observed.seen.tolist(),
-                observed.new.tolist(),
-                observed.nis_sum.tolist(),
-                observed.nis_used.tolist(),
-                strict=True,
-            )
-        ):
-            if record is None:  # a predict of a segment: its line and control in columns
-                line = describe_predict(steps[k], batch.lines[k], batch.controls[k])
-                warnings = no_warnings
-            else:
-                line = describe(record, seen, new, nis_sum, nis_used)
-                warnings = record.warnings
-            if (
-                is_predict
-                and k + 1 < count
-                and (following := records[k + 1]) is not None
-                and following.kind is EventKind.UPDATE
-                and steps[k + 1] == steps[k]
-            ):
-                held = (line, warnings)
-                continue
-            if held is not None:
-                line = f"{held[0]}; {line.split(' ', 2)[2]}"  # "step N predict ...; update ..."
-                warnings = held[1] + warnings
-                held = None
-            text.append(line)
-            level.append(INFO)
-            line_of.append(k)
-            for warning in warnings:
-                assert record is not None  # a predict of a segment has no warnings
-                text.append(f"step {record.step} line {record.line}: {warning}")
-                level.append(WARN)
-                line_of.append(k)
+        steps = batch.rows.steps
+        count = len(steps)
+        held = np.zeros(count, dtype=bool)  # a predict whose line joins the update's after it
+        held[:-1] = batch.is_predict[:-1] & batch.updating[1:] & (steps[:-1] == steps[1:])
+        at = np.flatnonzero(~held)  # the rows of the lines
+        text = self._lines(batch, held, at)
+        level = [INFO] * len(text)
+        line_of: IntArray | list[int] = at
+        warned = [
+            (k, record.warnings)
+            for k, record in enumerate(batch.records)
+            if record is not None and record.warnings
+        ]
+        if warned:
+            text, level, line_of = self._with_warnings(batch, held, at, text, warned)
         self._canvas.send(
             style.LOG,
             batch.rows.pick(line_of),
@@ -109,6 +114,73 @@ class TextLayer:
                 column(rr.TextLog.descriptor_level(), pa.array(level, pa.utf8())),
             ],
         )
+
+    @staticmethod
+    def _lines(batch: Batch, held: BoolArray, at: IntArray) -> list[str]:
+        """The line at each row ``at``, made in one ``%`` each (see the module)."""
+        count = len(held)
+        steps, observed, lines = batch.rows.steps, batch.observed, batch.lines
+        has_line = lines != 0  # (as a line number is tested: any but 0)
+        predict = 2 * has_line + batch.has_control
+        with_observations = np.zeros(count, dtype=bool)
+        with_observations[observed.rows] = True
+        what = np.where(with_observations, 2 * (observed.new > 0) + (observed.nis_used > 0), 4)
+        update = 5 * has_line + what
+        landmarks = observed.seen.copy()
+        without = batch.corrected[~with_observations[batch.corrected]]
+        landmarks[without] = batch.maps.counts[~with_observations[batch.corrected]]
+        kinds = np.where(batch.updating, "update", "init")
+        # each line's predict (its own row, or the row before an update it joins) and update
+        is_predict = batch.is_predict[at]
+        joined = ~is_predict & (at > 0) & held[np.maximum(at - 1, 0)]
+        predict_at = np.where(is_predict, at, np.where(joined, at - 1, -1))
+        update_at = np.where(is_predict, -1, at)
+        code = (np.where(predict_at >= 0, predict[predict_at], -1) + 1) * (_UPDATE_VARIANTS + 1)
+        code += np.where(update_at >= 0, update[update_at], -1) + 1
+        columns = {
+            "step": steps, "line": lines, "d": batch.controls[:, 0],
+            "alpha": batch.controls[:, 1], "kind": kinds, "landmarks": landmarks,
+            "new": observed.new, "nis": observed.nis_sum,
+        }  # fmt: skip
+        out = np.empty(len(at), dtype=object)
+        for key in np.unique(code).tolist():
+            picked = np.flatnonzero(code == key)
+            p, u = predict_at[picked], update_at[picked]
+            text, names = _LINES[key]
+            values = [columns[name][p if of_predict else u].tolist() for of_predict, name in names]
+            out[picked] = list(map(text.__mod__, zip(*values, strict=True)))
+        result: list[str] = out.tolist()
+        return result
+
+    @staticmethod
+    def _with_warnings(
+        batch: Batch,
+        held: BoolArray,
+        at: IntArray,
+        text: list[str],
+        warned: list[tuple[int, tuple[str, ...]]],
+    ) -> tuple[list[str], list[str], list[int]]:
+        """The lines with a line per warning after each, at its row: a joined predict's
+        warnings with its update's (as the update's own, by its step and line)."""
+        records = batch.records
+        extra: dict[int, list[str]] = {}
+        for k, warnings in warned:
+            row = k + 1 if held[k] else k
+            record = records[row]
+            assert record is not None  # a predict given as a row has no warnings
+            extra.setdefault(row, []).extend(
+                f"step {record.step} line {record.line}: {warning}" for warning in warnings
+            )
+        lines, levels, line_of = [], [], []
+        for row, line in zip(at.tolist(), text, strict=True):
+            lines.append(line)
+            levels.append(INFO)
+            line_of.append(row)
+            for warning in extra.get(row, ()):
+                lines.append(warning)
+                levels.append(WARN)
+                line_of.append(row)
+        return lines, levels, line_of
 
     def note(self, step: int, event: int, text: str, level: str | rr.TextLogLevel) -> None:
         """A line at ``step`` and ``event``, at the latest time logged."""
