@@ -12,9 +12,11 @@ $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 
-# setup.py builds the compiled kernel of small maps (ekfviz/filters/_kernel.c) and the
-# readers' number parser (ekfviz/io/_numbers.c) in place
-BUILD_INPUTS := pyproject.toml setup.py ekfviz/filters/_kernel.c ekfviz/io/_numbers.c
+# setup.py builds the compiled kernel of small maps (ekfviz/filters/_kernel.c), the
+# readers' number parser (ekfviz/io/_numbers.c) and JCBB's search
+# (ekfviz/association/_search.c) in place
+BUILD_INPUTS := pyproject.toml setup.py ekfviz/filters/_kernel.c ekfviz/io/_numbers.c \
+	ekfviz/association/_search.c
 
 $(VENV)/.installed: $(BUILD_INPUTS) | $(BIN)/python
 	$(BIN)/python -m pip install --quiet -e .
@@ -58,7 +60,7 @@ sample: $(VENV)/.installed $(VENV)/.compiled
 
 clean:
 	rm -rf $(VENV) .venv-numpy1 .mypy_cache .ruff_cache .pytest_cache .hypothesis build
-	rm -f ekfviz/filters/_kernel*.so ekfviz/io/_numbers*.so
+	rm -f ekfviz/filters/_kernel*.so ekfviz/io/_numbers*.so ekfviz/association/_search*.so
 
 # Benchmarks (not part of make test): core against dense, the bandwidth bound, end-to-end
 # replays, each command's start-up and wrap-up, and the scaling curves (drawn as PNGs beside

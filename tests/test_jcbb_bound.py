@@ -18,6 +18,7 @@ from ekfviz.association import AssociationParams, Associator, Method
 from ekfviz.association.jcbb import (
     FALLBACK_BEST,
     FALLBACK_NN,
+    HAVE_SEARCH,
     MAX_JOINT,
     jcbb,
     joint_threshold,
@@ -188,3 +189,39 @@ def test_a_replay_of_two_bearing_scans_reports_and_logs_its_fallbacks(tmp_path: 
     assert sum(row["Scalars:scalars"][0] for row in rows) == exhausted  # type: ignore[index]
     lines = [str(row) for row in entity_rows(rrd, "/log")]
     assert sum("fell back to" in line for line in lines) == exhausted
+
+
+@pytest.mark.skipif(not HAVE_SEARCH, reason="the compiled search was not built")
+@pytest.mark.parametrize("seed", range(40))
+def test_the_compiled_search_explores_the_nodes_the_python_one_does(seed: int) -> None:
+    """_search.c against jcbb.py's search on random scans, some cut short by the budgets:
+    the same pairing, hypotheses, work and fallback; the joint distance to round-off."""
+    rng = np.random.default_rng(100 + seed)
+    m, k = int(rng.integers(1, 9)), int(rng.integers(1, 9))
+    nu, d2, ok, C, R = _problem(rng, m=m, k=k, spread=float(rng.choice([0.3, 0.6, 1.2])))
+    budgets = [
+        (DEFAULT_BUDGET, DEFAULT_WORK_BUDGET),
+        (int(rng.integers(1, 40)), DEFAULT_WORK_BUDGET),
+        (DEFAULT_BUDGET, int(rng.integers(4, 400))),
+    ]
+    for budget, work_budget in budgets:
+        fast = jcbb(nu, d2, ok, C, R, 0.99, budget, work_budget)
+        slow = jcbb(nu, d2, ok, C, R, 0.99, budget, work_budget, compiled=False)
+        np.testing.assert_array_equal(fast.pairing, slow.pairing)
+        assert (fast.hypotheses, fast.work, fast.exhausted, fast.fallback) == (
+            slow.hypotheses, slow.work, slow.exhausted, slow.fallback
+        )  # fmt: skip
+        assert fast.joint_d2 == pytest.approx(slow.joint_d2, rel=1e-12, abs=1e-12)
+
+
+@pytest.mark.skipif(not HAVE_SEARCH, reason="the compiled search was not built")
+def test_the_compiled_search_keeps_to_the_budgets_on_the_adversarial_scan() -> None:
+    nu, d2, ok, C = _two_bearing_scan(60, 60)
+    R = np.diag([0.01**2, 0.08**2])
+    for work_budget in (1000, 200_000):
+        fast = jcbb(nu, d2, ok, C, R, 0.99, work_budget=work_budget)
+        slow = jcbb(nu, d2, ok, C, R, 0.99, work_budget=work_budget, compiled=False)
+        np.testing.assert_array_equal(fast.pairing, slow.pairing)
+        assert (fast.hypotheses, fast.work, fast.fallback) == (
+            slow.hypotheses, slow.work, slow.fallback
+        )  # fmt: skip

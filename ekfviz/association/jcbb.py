@@ -29,6 +29,7 @@ spent improving on them.
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -38,6 +39,13 @@ from ekfviz.association.nn import nearest_neighbour
 from ekfviz.association.params import DEFAULT_BUDGET, DEFAULT_WORK_BUDGET
 from ekfviz.core.stats import chi2_quantile
 from ekfviz.core.types import BoolArray, FloatArray, IntArray
+
+try:  # optional, built with the filter's kernel: without it the search runs in Python
+    from ekfviz.association import _search
+except ImportError:  # pragma: no cover - no C compiler at install time
+    _search = None  # type: ignore[assignment]
+
+HAVE_SEARCH = _search is not None
 
 # Measurements in some gate beyond which a scan is paired by nearest neighbour without a
 # search: the search recurses once per measurement, and its greedy first descent alone
@@ -87,6 +95,8 @@ def jcbb(
     probability: float,
     budget: int = DEFAULT_BUDGET,
     work_budget: int = DEFAULT_WORK_BUDGET,
+    *,
+    compiled: bool = True,
 ) -> JcbbResult:
     """The largest jointly compatible pairing of one scan, or a fallback (see the module).
 
@@ -99,6 +109,8 @@ def jcbb(
     :param probability: of the joint gate
     :param budget: hypotheses per scan
     :param work_budget: units of work per scan
+    :param compiled: search in ``_search.c`` where it was built (the same nodes, see
+        there), else in Python
     """
     m = nu.shape[0]
     order: list[int] = np.flatnonzero(compatible.any(axis=1)).tolist()
@@ -124,6 +136,9 @@ def jcbb(
             strict=True,
         )
     )
+    if _search is not None and compiled:
+        return _compiled_search(nu, d2, compatible, C, own, order, candidates, probability,
+                                budget, work_budget)  # fmt: skip
     nu_of = nu[order].tolist()  # nu_of[depth][k] = [bearing, range]
     thresholds: dict[int, float] = {}
     best_pairs = 0
@@ -226,6 +241,55 @@ def jcbb(
         hypotheses=nodes,
         joint_d2=best_d2,
         exhausted=exhausted,
+        fallback=FALLBACK_BEST if exhausted else "",
+        work=work,
+    )
+
+
+def _compiled_search(
+    nu: FloatArray,
+    d2: FloatArray,
+    compatible: BoolArray,
+    C: FloatArray,
+    own: list[tuple[float, float, float]],
+    order: list[int],
+    candidates: list[list[int]],
+    probability: float,
+    budget: int,
+    work_budget: int,
+) -> JcbbResult:
+    """:func:`jcbb`'s search in ``_search.c``, from the same candidates and blocks."""
+    assert _search is not None
+    depth_total = len(order)
+    starts = np.zeros(depth_total + 1, dtype=np.int64)
+    np.cumsum([len(c) for c in candidates], out=starts[1:])
+    flat = np.fromiter(itertools.chain.from_iterable(candidates), np.int64, int(starts[-1]))
+    thresholds = np.array(
+        [joint_threshold(probability, 2 * (pairs + 1)) for pairs in range(depth_total + 1)]
+    )
+    best, best_pairs, best_d2, nodes, work, exhausted, complete = _search.search(
+        np.ascontiguousarray(C, dtype=np.float64),
+        np.array(own, dtype=np.float64).reshape(-1, 3),
+        np.ascontiguousarray(nu[order], dtype=np.float64),
+        flat,
+        starts,
+        thresholds,
+        budget,
+        work_budget,
+    )
+    if exhausted and not complete:
+        return JcbbResult(
+            nearest_neighbour(d2, compatible), nodes, 0.0, True, fallback=FALLBACK_NN, work=work
+        )
+    pairing = np.full(nu.shape[0], -1, dtype=np.int64)
+    for depth, k in enumerate(best):
+        if k >= 0:
+            pairing[order[depth]] = k
+    return JcbbResult(
+        pairing=pairing,
+        hypotheses=nodes,
+        joint_d2=best_d2 if best_pairs else 0.0,
+        exhausted=bool(exhausted),
         fallback=FALLBACK_BEST if exhausted else "",
         work=work,
     )

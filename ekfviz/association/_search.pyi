@@ -1,0 +1,13 @@
+# JCBB's branch and bound (_search.c); see its docstring.
+from ekfviz.core.types import FloatArray, IntArray
+
+def search(
+    C: FloatArray,
+    own: FloatArray,
+    nu: FloatArray,
+    candidates: IntArray,
+    starts: IntArray,
+    thresholds: FloatArray,
+    budget: int,
+    work_budget: int,
+) -> tuple[list[int], int, float, int, int, int, int]: ...
