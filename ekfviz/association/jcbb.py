@@ -41,7 +41,7 @@ from ekfviz.core.stats import chi2_quantile
 from ekfviz.core.types import BoolArray, FloatArray, IntArray
 
 try:  # optional, built with the filter's kernel: without it the search runs in Python
-    from ekfviz.association import _search
+    import ekfviz.association._search as _search
 except ImportError:  # pragma: no cover - no C compiler at install time
     _search = None  # type: ignore[assignment]
 
