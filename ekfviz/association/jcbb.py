@@ -112,7 +112,6 @@ def jcbb(
     :param compiled: search in ``_search.c`` where it was built (the same nodes, see
         there), else in Python
     """
-    m = nu.shape[0]
     order: list[int] = np.flatnonzero(compatible.any(axis=1)).tolist()
     if len(order) > MAX_JOINT:
         return JcbbResult(
@@ -229,11 +228,27 @@ def jcbb(
         search(depth + 1, L_inv, w, dist2)  # this measurement paired with nothing
 
     search(0, np.zeros((0, 0)), np.zeros(0), 0.0)
+    return _result(d2, compatible, best, best_d2, nodes, work, exhausted, complete)
+
+
+def _result(
+    d2: FloatArray,
+    compatible: BoolArray,
+    best: list[tuple[int, int]],
+    best_d2: float,
+    nodes: int,
+    work: int,
+    exhausted: bool,
+    complete: bool,
+) -> JcbbResult:
+    """What a search found, either search's: its best pairing of (measurement,
+    candidate), or nearest neighbour where its budget ran out before any hypothesis was
+    complete."""
     if exhausted and not complete:
         return JcbbResult(
             nearest_neighbour(d2, compatible), nodes, 0.0, True, fallback=FALLBACK_NN, work=work
         )
-    pairing = np.full(m, -1, dtype=np.int64)
+    pairing = np.full(d2.shape[0], -1, dtype=np.int64)
     for i, k in best:
         pairing[i] = k
     return JcbbResult(
@@ -267,7 +282,7 @@ def _compiled_search(
     thresholds = np.array(
         [joint_threshold(probability, 2 * (pairs + 1)) for pairs in range(depth_total + 1)]
     )
-    best, best_pairs, best_d2, nodes, work, exhausted, complete = _search.search(
+    best, _, best_d2, nodes, work, exhausted, complete = _search.search(
         np.ascontiguousarray(C, dtype=np.float64),
         np.array(own, dtype=np.float64).reshape(-1, 3),
         np.ascontiguousarray(nu[order], dtype=np.float64),
@@ -277,19 +292,5 @@ def _compiled_search(
         budget,
         work_budget,
     )
-    if exhausted and not complete:
-        return JcbbResult(
-            nearest_neighbour(d2, compatible), nodes, 0.0, True, fallback=FALLBACK_NN, work=work
-        )
-    pairing = np.full(nu.shape[0], -1, dtype=np.int64)
-    for depth, k in enumerate(best):
-        if k >= 0:
-            pairing[order[depth]] = k
-    return JcbbResult(
-        pairing=pairing,
-        hypotheses=nodes,
-        joint_d2=best_d2 if best_pairs else 0.0,
-        exhausted=bool(exhausted),
-        fallback=FALLBACK_BEST if exhausted else "",
-        work=work,
-    )
+    pairs = [(order[depth], k) for depth, k in enumerate(best) if k >= 0]
+    return _result(d2, compatible, pairs, best_d2, nodes, work, bool(exhausted), bool(complete))
