@@ -16,7 +16,9 @@ from ekfviz.core.correlation import (
     MAX_SIDE,
     SMALL_MAP,
     CorrelationCadence,
+    _block_columns_summed,
     block_average,
+    correlation_matrix,
     correlation_of,
 )
 from ekfviz.core.records import EventKind
@@ -135,6 +137,34 @@ def test_block_average_is_the_mean_of_each_block_ragged_edges_included(with_nan:
                 assert averaged[i, j] == pytest.approx(values.mean(), rel=1e-12)
             else:
                 assert math.isnan(averaged[i, j])
+
+
+@pytest.mark.parametrize("factor", range(2, 14))
+def test_the_blocks_of_columns_are_summed_to_the_floats_of_numpys_reduction(factor: int) -> None:
+    """The strided sums that replace ``sum(axis=2)`` (ten times slower) give its very
+    floats: numpy adds fewer than eight terms in order (the recording stays the same);
+    from eight on it sums them in pairs, which rounds otherwise, and the reduction
+    itself is used."""
+    rng = np.random.default_rng(factor)
+    side = 7
+    padded = rng.normal(size=(side * factor, side * factor)) * 10.0 ** rng.integers(
+        -8, 8, size=(side * factor, side * factor)
+    )
+    reduced = padded.reshape(side * factor, side, factor).sum(axis=2)
+    summed = _block_columns_summed(padded, side, factor)
+    assert summed.shape == reduced.shape
+    assert np.array_equal(summed, reduced)
+
+
+@pytest.mark.parametrize("n", [7, 120, 601])
+def test_correlation_matrix_is_each_entry_scaled_by_both_standard_deviations(n: int) -> None:
+    """C = D^-1/2 P D^-1/2 entry by entry, in the order (P_ij s_i) s_j, clipped."""
+    rng = np.random.default_rng(n)
+    A = rng.normal(size=(n, n))
+    P = A @ A.T + np.eye(n)
+    scale = 1.0 / np.sqrt(np.diagonal(P))
+    expected = np.clip((P * scale[:, None]) * scale[None, :], -1.0, 1.0)
+    assert np.array_equal(correlation_matrix(P), expected)
 
 
 def test_cadence_every_update_for_small_maps_then_every_25_steps_and_the_last() -> None:
