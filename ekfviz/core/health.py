@@ -36,6 +36,8 @@ ASYMMETRY_TOLERANCE = 1e-9
 CHECK_EVERY_STEPS = 50
 CHECK_SCALE_DIM = 400  # beyond this dimension the interval grows in proportion
 
+NOT_FINITE = "the covariance P holds NaN or infinity"  # what a check says of such a P
+
 
 def check_interval(dim: int) -> int:
     """Steps between two checks of the whole covariance of dimension ``dim``."""
@@ -159,7 +161,7 @@ class CovarianceCheck:
             filter's; say it once a run, not at every event)
         """
         if not self.finite:
-            return ["the covariance P holds NaN or infinity"]
+            return [NOT_FINITE]
         found = []
         if self.relative_asymmetry > ASYMMETRY_TOLERANCE:
             found.append(

@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ekfviz.core.correlation import CorrelationCadence, correlation_of
-from ekfviz.core.health import CovarianceCheck, check_covariance, check_interval
+from ekfviz.core.health import NOT_FINITE, CovarianceCheck, check_covariance, check_interval
 from ekfviz.core.records import (
     AnyEvent,
     Control,
@@ -26,6 +26,7 @@ from ekfviz.core.records import (
 )
 from ekfviz.filters.ekf import EkfSlam, FilterError, FilterParams
 from ekfviz.filters.plugged import FilterFactory, Plugged, PluginError
+from ekfviz.runner.beside import Beside
 
 if TYPE_CHECKING:  # the association is loaded by a log with scans (or --gate) only
     from ekfviz.association.associator import Associator
@@ -140,6 +141,9 @@ def replay(
     rows = predict_rows if isinstance(ekf, EkfSlam) and not full_cov else None
     next_check = 0  # the step from which the whole covariance is due for a check
     cadence = CorrelationCadence()
+    # the work on a large P (the check, the correlation) is done beside the filter, the
+    # records that wait for it held back in order (see ekfviz.runner.beside)
+    beside = Beside()
 
     def correlated(record: EventRecord, last: bool) -> EventRecord:
         """The record, with the correlation matrix of P where it is due."""
@@ -150,141 +154,181 @@ def replay(
         return record
 
     def with_correlation(record: EventRecord) -> EventRecord:
-        return replace(record, correlation=correlation_of(ekf.P, record.landmark_ids))
+        """The record with the correlation of P; or as it is, the correlation asked of
+        ``beside`` (a large P)."""
+        P = ekf.P
+        if Beside.takes(P):
+            beside.ask(P, ids=record.landmark_ids)
+            return record
+        return replace(record, correlation=correlation_of(P, record.landmark_ids))
 
     def checked(line: int, warnings: tuple[str, ...]) -> dict[str, Any]:
-        """Check the whole covariance; its problems join the event's warnings."""
-        check, warnings = checked_pair(line, warnings)
+        """Check the whole covariance now; its problems join the event's warnings."""
+        check, warnings = checked_pair(line, warnings, now=True)
         return {"covariance": check, "warnings": warnings}
 
     def checked_pair(
-        line: int, warnings: tuple[str, ...]
-    ) -> tuple[CovarianceCheck, tuple[str, ...]]:
-        """:func:`checked` as the check and the warnings (no dictionary per event)."""
+        line: int, warnings: tuple[str, ...], now: bool = False
+    ) -> tuple[CovarianceCheck | None, tuple[str, ...]]:
+        """The check of the whole covariance and the event's warnings with its problems
+        (no dictionary per event); (None, warnings) where the check is asked of
+        ``beside`` (a large P, unless ``now``), which adds both to the record.
+
+        :raises FilterLineError: P is not finite
+        """
         nonlocal next_check
-        check = check_covariance(ekf.P)
+        P = ekf.P
         next_check = step + check_interval(ekf.dim)
+        if not now and Beside.takes(P):
+            if not Beside.finite(P):
+                raise FilterLineError(line, NOT_FINITE)
+            beside.ask(P, check=True)
+            return None, warnings
+        check = check_covariance(P)
         if not check.finite:
             raise FilterLineError(line, check.problems()[0])
         return check, warnings + tuple(check.problems())
 
-    step = 0
-    stream = _with_last(events)
-    first, last = next(stream, (None, True))
-    extra: dict[str, Any]
-    if isinstance(first, Sighting | Scan):
-        try:
-            observations, association = _observe(ekf, first, associator, last)
-        except PluginError as error:
-            raise FilterLineError(first.line, f"event 0 (init): {error}") from error
-        except FilterError as error:
-            raise FilterLineError(first.line, str(error)) from error
-        extra = checked(first.line, ekf.warnings)
-        yield correlated(ekf.record(
-            event=0, step=0, kind=EventKind.INIT, line=first.line, time=first.time,
-            observations=observations, full_cov=full_cov, association=association, **extra,
-        ), last)  # fmt: skip
-        pending: list[tuple[AnyEvent, bool]] = []
-    else:
-        extra = checked(0, ())
-        # the prior holds when the log's first event begins, when it has a time
-        start = None if first is None else first.time
-        if isinstance(first, Control) and start is not None and first.dt is not None:
-            start -= first.dt
-        yield correlated(
-            ekf.record(
-                event=0, step=0, kind=EventKind.INIT, time=start, full_cov=full_cov, **extra
-            ),
-            first is None,
-        )
-        pending = [] if first is None else [(first, last)]
+    try:
+        step = 0
+        stream = _with_last(events)
+        first, last = next(stream, (None, True))
+        extra: dict[str, Any]
+        if isinstance(first, Sighting | Scan):
+            try:
+                observations, association = _observe(ekf, first, associator, last)
+            except PluginError as error:
+                raise FilterLineError(first.line, f"event 0 (init): {error}") from error
+            except FilterError as error:
+                raise FilterLineError(first.line, str(error)) from error
+            extra = checked(first.line, ekf.warnings)
+            record = correlated(ekf.record(
+                event=0, step=0, kind=EventKind.INIT, line=first.line, time=first.time,
+                observations=observations, full_cov=full_cov, association=association, **extra,
+            ), last)  # fmt: skip
+            yield from beside.hold(record) if beside.busy else (record,)
+            pending: list[tuple[AnyEvent, bool]] = []
+        else:
+            extra = checked(0, ())
+            # the prior holds when the log's first event begins, when it has a time
+            start = None if first is None else first.time
+            if isinstance(first, Control) and start is not None and first.dt is not None:
+                start -= first.dt
+            record = correlated(
+                ekf.record(
+                    event=0, step=0, kind=EventKind.INIT, time=start, full_cov=full_cov, **extra
+                ),
+                first is None,
+            )
+            yield from beside.hold(record) if beside.busy else (record,)
+            pending = [] if first is None else [(first, last)]
 
-    step_has_update = True  # the initialisation counts as step 0's update
-    event = 0
-    # per event, below: the record's arguments by name (no dictionary unpacked), the
-    # correlation's cadence asked only where it can be due (updates, the last event)
-    covariance: CovarianceCheck | None
-    offline = isinstance(ekf, Plugged) and ekf.offline  # records only after finish()
-    for event, (log_event, last) in enumerate(chain(pending, stream), start=1):
-        # the filter's own errors name the line; "try" costs nothing until one is raised
-        try:
-            if isinstance(log_event, Control | Drive):
-                step += 1
-                step_has_update = False
-                if isinstance(log_event, Drive):
-                    _drive(ekf, log_event)
-                else:
-                    ekf.predict(log_event.d, log_event.alpha, log_event.dt)
-                if last and associator is not None and isinstance(ekf, EkfSlam):
-                    associator.finish(ekf)
-                if offline:
-                    continue
-                if step >= next_check or last:
-                    covariance, warnings = checked_pair(log_event.line, ())
-                elif rows is not None and type(log_event) is Control:
-                    x, P = ekf.buffers  # type: ignore[union-attr]  # rows: the built-in filter's
-                    rows.add(event, step, log_event.line, log_event.time,
-                             (log_event.d, log_event.alpha), x, P)  # fmt: skip
-                    continue
-                else:
-                    covariance, warnings = None, ()
-                record = ekf.record(
-                    event=event, step=step, kind=EventKind.PREDICT, line=log_event.line,
-                    time=log_event.time,
-                    control=(log_event.d, log_event.alpha) if type(log_event) is Control
-                    else _control(log_event),
-                    full_cov=full_cov, warnings=warnings, covariance=covariance,
-                )  # fmt: skip
-                yield correlated(record, last) if last else record
-            else:
-                if step_has_update:
+        step_has_update = True  # the initialisation counts as step 0's update
+        event = 0
+        # per event, below: the record's arguments by name (no dictionary unpacked), the
+        # correlation's cadence asked only where it can be due (updates, the last event)
+        covariance: CovarianceCheck | None
+        offline = isinstance(ekf, Plugged) and ekf.offline  # records only after finish()
+        for event, (log_event, last) in enumerate(chain(pending, stream), start=1):
+            # the filter's own errors name the line; "try" costs nothing until one is raised
+            try:
+                if isinstance(log_event, Control | Drive):
                     step += 1
-                step_has_update = True
-                rejected: tuple[str, ...] = ()
-                if gate is not None and isinstance(log_event, Sighting):
-                    from ekfviz.association.gating import gated  # --gate only
+                    step_has_update = False
+                    if isinstance(log_event, Drive):
+                        _drive(ekf, log_event)
+                    else:
+                        ekf.predict(log_event.d, log_event.alpha, log_event.dt)
+                    if last and associator is not None and isinstance(ekf, EkfSlam):
+                        associator.finish(ekf)
+                    if offline:
+                        continue
+                    if step >= next_check or last:
+                        covariance, warnings = checked_pair(log_event.line, ())
+                    elif rows is not None and type(log_event) is Control and not beside.busy:
+                        x, P = ekf.buffers  # type: ignore[union-attr]  # rows: the built-in filter's
+                        rows.add(event, step, log_event.line, log_event.time,
+                                 (log_event.d, log_event.alpha), x, P)  # fmt: skip
+                        continue
+                    else:
+                        covariance, warnings = None, ()
+                    record = ekf.record(
+                        event=event, step=step, kind=EventKind.PREDICT, line=log_event.line,
+                        time=log_event.time,
+                        control=(log_event.d, log_event.alpha) if type(log_event) is Control
+                        else _control(log_event),
+                        full_cov=full_cov, warnings=warnings, covariance=covariance,
+                    )  # fmt: skip
+                    if last:
+                        record = correlated(record, last)
+                    if beside.busy:  # records held: this one behind them
+                        yield from beside.hold(record)
+                    else:
+                        yield record
+                else:
+                    if step_has_update:
+                        step += 1
+                    step_has_update = True
+                    rejected: tuple[str, ...] = ()
+                    if gate is not None and isinstance(log_event, Sighting):
+                        from ekfviz.association.gating import gated  # --gate only
 
-                    log_event, rejected = gated(ekf.x, ekf.P, ekf.landmark_ids, log_event, R, gate)
-                if type(log_event) is Sighting:  # by its ids (the common case: no call)
-                    observations, association = ekf.observe(log_event.ids, log_event.z), None
-                else:
-                    observations, association = _observe(ekf, log_event, associator, last)
-                if offline:
-                    continue
-                warnings = rejected + ekf.warnings
-                if step >= next_check or last or warnings:
-                    covariance, warnings = checked_pair(log_event.line, warnings)
-                else:
-                    covariance = None
-                record = ekf.record(
-                    event=event, step=step, kind=EventKind.UPDATE, line=log_event.line,
-                    time=log_event.time, observations=observations, full_cov=full_cov,
-                    warnings=warnings, covariance=covariance, association=association,
-                )  # fmt: skip
-                if cadence.due(step, record.n_landmarks, last, record.time):
-                    record = with_correlation(record)
-                yield record
-        except FilterLineError:
-            raise
-        except PluginError as error:
-            kind = "predict" if isinstance(log_event, Control) else "update"
-            raise FilterLineError(log_event.line, f"event {event} ({kind}): {error}") from error
-        except FilterError as error:
-            raise FilterLineError(log_event.line, str(error)) from error
-    if offline:
-        assert isinstance(ekf, Plugged)
-        try:
-            ekf.finish()
-        except PluginError as error:
-            raise FilterLineError(0, f"after the last event: {error}") from error
-        # the estimate of the whole run, at its last step (where the truth's last pose is),
-        # with the path of every step where the filter gives it (a smoother's)
-        try:
-            path = ekf.path()
-        except PluginError as error:
-            raise FilterLineError(0, f"after the last event: {error}") from error
-        final = ekf.record(event=event + 1, step=step, kind=EventKind.UPDATE, **checked(0, ()))
-        yield correlated(replace(final, path_xytheta=path), True)
+                        log_event, rejected = gated(
+                            ekf.x, ekf.P, ekf.landmark_ids, log_event, R, gate
+                        )
+                    if type(log_event) is Sighting:  # by its ids (the common case: no call)
+                        observations, association = ekf.observe(log_event.ids, log_event.z), None
+                    else:
+                        observations, association = _observe(ekf, log_event, associator, last)
+                    if offline:
+                        continue
+                    warnings = rejected + ekf.warnings
+                    if step >= next_check or last or warnings:
+                        covariance, warnings = checked_pair(log_event.line, warnings)
+                    else:
+                        covariance = None
+                    record = ekf.record(
+                        event=event, step=step, kind=EventKind.UPDATE, line=log_event.line,
+                        time=log_event.time, observations=observations, full_cov=full_cov,
+                        warnings=warnings, covariance=covariance, association=association,
+                    )  # fmt: skip
+                    if cadence.due(step, record.n_landmarks, last, record.time):
+                        record = with_correlation(record)
+                    if beside.busy:
+                        yield from beside.hold(record)
+                    else:
+                        yield record
+            except FilterLineError:
+                raise
+            except PluginError as error:
+                kind = "predict" if isinstance(log_event, Control) else "update"
+                raise FilterLineError(log_event.line, f"event {event} ({kind}): {error}") from error
+            except FilterError as error:
+                raise FilterLineError(log_event.line, str(error)) from error
+        if offline:
+            assert isinstance(ekf, Plugged)
+            try:
+                ekf.finish()
+            except PluginError as error:
+                raise FilterLineError(0, f"after the last event: {error}") from error
+            # the estimate of the whole run, at its last step (where the truth's last pose is),
+            # with the path of every step where the filter gives it (a smoother's)
+            try:
+                path = ekf.path()
+            except PluginError as error:
+                raise FilterLineError(0, f"after the last event: {error}") from error
+            final = ekf.record(event=event + 1, step=step, kind=EventKind.UPDATE, **checked(0, ()))
+            record = correlated(replace(final, path_xytheta=path), True)
+            yield from beside.hold(record) if beside.busy else (record,)
+
+        yield from beside.rest()
+    except GeneratorExit:  # the consumer stopped: nothing more goes to it
+        raise
+    except BaseException:  # the records held before the error, then the error
+        yield from beside.rest()
+        raise
+    finally:
+        beside.close()
 
 
 def _observe(

@@ -1,0 +1,168 @@
+"""The work on a large P done beside the filter (ekfviz.runner.beside): the records are
+those made at once, in the same order, and a fault or an error of the input still comes
+after every record before it."""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Iterator
+from typing import Any
+
+import numpy as np
+import pytest
+
+import ekfviz.runner.beside as beside
+from ekfviz.core.records import AnyEvent, Control, EventKind, EventRecord
+from ekfviz.filters.ekf import EkfSlam
+from ekfviz.runner.replay import FilterLineError, replay
+from ekfviz.sim.scenarios import loop
+
+
+@pytest.fixture(scope="module")
+def large() -> list[AnyEvent]:
+    """A loop among 150 landmarks: P passes BESIDE_MIN_DIM early on."""
+    return list(loop(steps=300, landmarks=150, max_range=30.0).run(seed=5).events)
+
+
+def at_once(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every P done at once, as before the thread."""
+    monkeypatch.setattr(beside, "BESIDE_MIN_DIM", 10**9)
+
+
+def counted(monkeypatch: pytest.MonkeyPatch) -> list[int]:
+    """The dimensions of the P given to the thread."""
+    dims: list[int] = []
+    work = beside._work
+
+    def spied(P: np.ndarray, check: bool, ids: Any) -> Any:
+        dims.append(P.shape[0])
+        return work(P, check, ids)
+
+    monkeypatch.setattr(beside, "_work", spied)
+    return dims
+
+
+def assert_same(ours: list[EventRecord], theirs: list[EventRecord]) -> None:
+    assert [(r.event, r.kind, r.line) for r in ours] == [(r.event, r.kind, r.line) for r in theirs]
+    for a, b in zip(ours, theirs, strict=True):
+        assert a.covariance == b.covariance
+        assert a.warnings == b.warnings
+        assert np.array_equal(a.pose, b.pose) and np.array_equal(a.pose_cov, b.pose_cov)
+        assert (a.correlation is None) == (b.correlation is None)
+        if a.correlation is not None and b.correlation is not None:
+            assert np.array_equal(a.correlation.matrix, b.correlation.matrix, equal_nan=True)
+            assert a.correlation.factor == b.correlation.factor
+            assert np.array_equal(a.correlation.landmark_ids, b.correlation.landmark_ids)
+
+
+def no_thread_left() -> bool:
+    return not any(t.name.startswith("ekfviz-whole-P") for t in threading.enumerate())
+
+
+def test_the_records_are_those_made_at_once_in_the_same_order(
+    large: list[AnyEvent], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    dims = counted(monkeypatch)
+    ours = list(replay(large))
+    assert dims and min(dims) >= beside.BESIDE_MIN_DIM  # the thread did the large ones
+    assert no_thread_left()
+    checked = [r for r in ours if r.covariance is not None and r.covariance.dim >= 128]
+    correlated = [r for r in ours if r.correlation is not None and r.correlation.dim >= 128]
+    assert len(checked) >= 4 and len(correlated) >= 4
+    at_once(monkeypatch)
+    assert_same(ours, list(replay(large)))
+
+
+class Faulty(EkfSlam):
+    """The built-in filter, one entry of P set to ``value`` after its ``at``-th predict
+    (a landmark's variance, which a predict leaves alone)."""
+
+    def __init__(self, at: int, value: float) -> None:
+        super().__init__()
+        self.at, self.value, self.predicts = at, value, 0
+
+    def predict(self, d: float, alpha: float, dt: float | None = None) -> None:
+        super().predict(d, alpha, dt)
+        self.predicts += 1
+        if self.predicts == self.at:
+            self._P[5, 5] = self.value
+
+
+def checked_predict(events: list[AnyEvent]) -> tuple[int, int]:
+    """The line of the second predict whose P is checked beside the filter, and how many
+    predicts come up to it."""
+    records = list(replay(events))
+    record = [
+        r
+        for r in records
+        if r.kind is EventKind.PREDICT and r.covariance is not None and r.covariance.dim >= 128
+    ][1]
+    predicts = sum(isinstance(e, Control) and e.line <= record.line for e in events)
+    return record.line, predicts
+
+
+def test_a_p_not_finite_stops_the_run_at_its_line_after_every_record_before_it(
+    large: list[AnyEvent],
+) -> None:
+    line, predicts = checked_predict(large)
+    records: list[EventRecord] = []
+    with pytest.raises(FilterLineError, match="NaN or infinity") as caught:
+        records.extend(replay(large, slam=Faulty(predicts, np.nan)))
+    assert caught.value.line == line
+    assert [r.line for r in records] == [e.line for e in large if e.line < line]
+    assert any(r.covariance is not None and r.covariance.dim >= 128 for r in records)
+    assert no_thread_left()
+
+
+def test_an_indefinite_p_is_named_in_the_warnings_of_its_record(
+    large: list[AnyEvent], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    line, predicts = checked_predict(large)
+
+    def run() -> list[EventRecord]:
+        records: list[EventRecord] = []
+        try:
+            records.extend(replay(large, slam=Faulty(predicts, -50.0)))
+        except FilterLineError:  # the same wherever the P is done: compared below
+            pass
+        return records
+
+    dims = counted(monkeypatch)
+    ours = run()
+    assert dims
+    faulty = next(r for r in ours if r.line == line)
+    assert faulty.covariance is not None and faulty.covariance.min_eigenvalue < 0.0
+    assert any("not positive semi-definite" in w for w in faulty.warnings)
+    at_once(monkeypatch)
+    assert_same(ours, run())
+
+
+class Broken(Exception):
+    pass
+
+
+def cut(events: list[AnyEvent], after: int) -> Iterator[AnyEvent]:
+    """The events up to ``after`` of them, then an error of the input."""
+    yield from events[:after]
+    raise Broken("line after: not a number")
+
+
+def test_an_error_of_the_input_comes_after_the_held_records(large: list[AnyEvent]) -> None:
+    """The event before the error is the last one: its P is checked (beside the filter)
+    and its record handed on, checked, before the error."""
+    after = len(large) // 2
+    records: list[EventRecord] = []
+    with pytest.raises(Broken):
+        records.extend(replay(cut(large, after)))
+    assert [r.line for r in records] == [e.line for e in large[:after]]
+    assert records[-1].covariance is not None and records[-1].covariance.dim >= 128
+    assert records[-1].correlation is not None
+    assert no_thread_left()
+
+
+def test_a_consumer_that_stops_early_leaves_no_thread(large: list[AnyEvent]) -> None:
+    stream = replay(large)
+    taken = [next(stream) for _ in range(len(large) // 2)]
+    assert any(r.covariance is not None and r.covariance.dim >= 128 for r in taken)
+    stream.close()
+    assert no_thread_left()
