@@ -20,8 +20,8 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Iterator
-from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -29,6 +29,9 @@ from ekfviz.core.correlation import Correlation, correlation_of
 from ekfviz.core.health import CovarianceCheck, check_covariance
 from ekfviz.core.records import EventRecord
 from ekfviz.core.types import FloatArray, IntArray
+
+if TYPE_CHECKING:  # the thread is made at the first large P: a classic run imports none
+    from concurrent.futures import Future, ThreadPoolExecutor
 
 # From this dimension on, the work on P goes to the thread: the eigenvalues of 128 x 128
 # take ~0.5 ms here, a hand-over some 0.05 ms (below it: the classic sizes).
@@ -92,6 +95,8 @@ class Beside:
         future = None
         if self._P is not None:
             if self._executor is None:
+                from concurrent.futures import ThreadPoolExecutor
+
                 self._executor = ThreadPoolExecutor(1, thread_name_prefix="ekfviz-whole-P")
             future = self._executor.submit(_work, self._P, self._check, self._ids)
             self._P, self._check, self._ids = None, False, None
