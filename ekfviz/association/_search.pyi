@@ -1,5 +1,5 @@
 # JCBB's branch and bound (_search.c); see its docstring.
-from ekfviz.core.types import FloatArray, IntArray
+from ekfviz.core.types import BoolArray, FloatArray, IntArray
 
 def search(
     C: FloatArray,
@@ -11,3 +11,14 @@ def search(
     budget: int,
     work_budget: int,
 ) -> tuple[list[int], int, float, int, int, int, int]: ...
+def gate(
+    x: FloatArray,
+    bearing: FloatArray,
+    pose_rows: FloatArray,
+    covs: FloatArray,
+    z: FloatArray,
+    values: FloatArray,
+    out: FloatArray,
+    rows: IntArray,
+    flags: BoolArray,
+) -> int: ...

@@ -31,15 +31,7 @@ from typing import Protocol
 
 import numpy as np
 
-from ekfviz.association.gating import (
-    Predictions,
-    compatible,
-    gate_threshold,
-    innovation_parts,
-    mahalanobis2_of,
-    predict_landmarks,
-    predict_landmarks_of,
-)
+from ekfviz.association.gating import ScanGate, gate_scan, gate_threshold, marginals_of
 from ekfviz.association.jcbb import jcbb
 from ekfviz.association.nn import nearest_neighbour
 from ekfviz.association.params import AssociationError, AssociationParams, Method
@@ -68,6 +60,10 @@ class ScanFilter(Protocol):
 
 
 _EMPTY_IDS = frozen(np.zeros(0, dtype=np.int64))
+_NO_Z = frozen(np.zeros((0, 2)))
+_NO_S = frozen(np.zeros((0, 2, 2)))
+# the fates as plain ints: an IntEnum's member costs a class attribute lookup each time
+_MATCHED, _NEW, _REJECTED = int(Fate.MATCHED), int(Fate.NEW), int(Fate.REJECTED)
 
 
 class Associator:
@@ -97,6 +93,7 @@ class Associator:
         self._next_id = 1
         self._scan_truth = scan_truth
         self._scans = 0
+        self._method, self._method_name = params.method, params.method.value
 
     @staticmethod
     def check_filter(slam: object, params: AssociationParams) -> None:
@@ -129,11 +126,11 @@ class Associator:
         state_ids = np.asarray(slam.landmark_ids, dtype=np.int64)
         n_landmarks = state_ids.shape[0]
         pairing = np.full(m, -1, dtype=np.int64)
-        fate = np.full(m, Fate.NEW, dtype=np.int8)
+        fate = np.full(m, _NEW, dtype=np.int8)
         hypotheses, joint_d2, exhausted, fallback = 0, 0.0, False, ""
-        gate_rows = np.zeros(0, dtype=np.int64)
-        z_pred = np.zeros((0, 2))
-        S = np.zeros((0, 2, 2))
+        gate_rows = _EMPTY_IDS
+        z_pred: FloatArray = _NO_Z
+        S: FloatArray = _NO_S
         if m and n_landmarks:
             x = np.asarray(slam.x)
             U: FloatArray | None
@@ -142,29 +139,22 @@ class Associator:
                 # gating reads the pose's rows and the marginals (the records' own) without
                 # folding them into P (a pass over all of it) once per scan
                 P, U = slam.deferred_covariance()
-                covs = slam.landmark_marginals()
-                predictions = predict_landmarks_of(
-                    x, slam.pose_rows(), covs[:, (0, 1), (0, 1)].ravel(), covs[:, 0, 1],
-                    self._sensor, self._R,
-                )  # fmt: skip
+                pose_rows, covs = slam.pose_rows(), slam.landmark_marginals()
             else:
                 P, U = np.asarray(slam.P), None
-                predictions = predict_landmarks(x, P, self._sensor, self._R)
-            u, v = innovation_parts(z, predictions.z_pred)
-            d2 = mahalanobis2_of(u, v, predictions.S)
-            ic = compatible(d2, self._gate)
-            gate_rows = np.flatnonzero(ic.any(axis=0))
-            nu = np.stack((u[:, gate_rows], v[:, gate_rows]), axis=-1)  # the candidates'
-            z_pred, S = predictions.z_pred[gate_rows], predictions.S[gate_rows]
+                pose_rows, covs = P[:3], marginals_of(P)
+            gate = gate_scan(x, pose_rows, covs, self._sensor, self._R, z, self._gate,
+                             self._new_gate)  # fmt: skip
+            gate_rows, z_pred, S = gate.rows, gate.z_pred, gate.S
             if gate_rows.size:
-                if self.params.method is Method.NN:
-                    column = nearest_neighbour(d2[:, gate_rows], ic[:, gate_rows])
+                if self._method is Method.NN:
+                    column = nearest_neighbour(gate.d2, gate.compatible)
                 else:
                     result = jcbb(
-                        nu,
-                        d2[:, gate_rows],
-                        ic[:, gate_rows],
-                        _joint_covariance(P, predictions.H(gate_rows), state_rows(gate_rows), U),
+                        gate.nu,
+                        gate.d2,
+                        gate.compatible,
+                        _joint_covariance(P, gate.H, state_rows(gate_rows), U),
                         self._R,
                         self.params.gate_probability,
                         self.params.budget,
@@ -174,21 +164,20 @@ class Associator:
                     hypotheses, joint_d2, exhausted, fallback = (
                         result.hypotheses, result.joint_d2, result.exhausted, result.fallback
                     )  # fmt: skip
-                    column = self._without_a_lone_wide_pair(column, gate_rows, predictions)
+                    column = self._without_a_lone_wide_pair(column, gate)
                 paired = column >= 0
                 pairing[paired] = state_ids[gate_rows[column[paired]]]
-                fate[paired] = Fate.MATCHED
-            near = (d2 < self._new_gate).any(axis=1)
-            fate[(pairing < 0) & near] = Fate.REJECTED
+                fate[paired] = _MATCHED
+            fate[(pairing < 0) & gate.near] = _REJECTED
         landmark = pairing.copy()
         new_ids: list[int] = []
-        for i in np.flatnonzero(fate == Fate.NEW).tolist():
+        for i in np.flatnonzero(fate == _NEW).tolist():
             landmark[i] = self._next_id
             new_ids.append(self._next_id)
             self._next_id += 1
-        used = fate != Fate.REJECTED
+        used = fate != _REJECTED
         observations = slam.observe(landmark[used], z[used])
-        matched_ids = pairing[fate == Fate.MATCHED].tolist()
+        matched_ids = pairing[fate == _MATCHED].tolist()
         confirmed, removed = self._book.settle(matched_ids, new_ids)
         if removed:
             slam.remove_landmarks(removed)
@@ -201,7 +190,7 @@ class Associator:
                 )
             )
         association = ScanAssociation(
-            method=self.params.method.value,
+            method=self._method_name,
             z=frozen(z.copy()),
             fate=frozen(fate),
             landmark=frozen(landmark),
@@ -221,14 +210,15 @@ class Associator:
         )
         return observations, association
 
-    def _without_a_lone_wide_pair(
-        self, column: IntArray, gate_rows: IntArray, predictions: Predictions
-    ) -> IntArray:
+    def _without_a_lone_wide_pair(self, column: IntArray, gate: ScanGate) -> IntArray:
         """The pairing without its pairs with a wide gate, when it has fewer than
-        ``wide_pairs`` of them."""
+        ``wide_pairs`` of them.
+
+        :param column: (m,) each measurement's candidate (of ``gate``), -1 where none
+        """
         paired = np.flatnonzero(column >= 0)
-        rows = gate_rows[column[paired]]
-        areas = gate_areas(predictions.S[rows], predictions.z_pred[rows, 1], self._gate)
+        candidates = column[paired]
+        areas = gate_areas(gate.S[candidates], gate.z_pred[candidates, 1], self._gate)
         wide = paired[areas > self.params.single_gate_area]
         if wide.size == 0 or wide.size >= self.params.wide_pairs:
             return column
