@@ -283,6 +283,151 @@ release_own:
     return result;
 }
 
+PyDoc_STRVAR(jcbb_doc,
+"jcbb(nu, d2, compatible, C, R, thresholds, m, K, budget, work_budget, max_joint)\n"
+"-> None or (pairing, best_d2, nodes, work, exhausted, complete)\n\n"
+"jcbb.py's jcbb from its arguments, the preparation of search() included: the\n"
+"measurements compatible with some candidate in order, each one's compatible candidates\n"
+"nearest first (ties in column order, as a stable sort), each candidate's own block of C\n"
+"plus R. nu (m x K x 2), d2 (m x K), C (2K x 2K), R (R00, R01, R11), thresholds (at least\n"
+"min(m, max_joint) + 1: the joint gate of p + 1 pairs) float64; compatible (m x K) bool. None where over\n"
+"max_joint measurements are in some gate (the caller falls back); pairing (list, m): the\n"
+"best pairing's candidate of each measurement, -1.");
+
+static PyObject *jcbb_entry(PyObject *self, PyObject *args)
+{
+    PyObject *nu_o, *d2_o, *ic_o, *C_o, *R_o, *thr_o;
+    Py_ssize_t m, K, max_joint;
+    long long budget, work_budget;
+    if (!PyArg_ParseTuple(args, "OOOOOOnnLLn", &nu_o, &d2_o, &ic_o, &C_o, &R_o, &thr_o, &m, &K,
+                          &budget, &work_budget, &max_joint))
+        return NULL;
+    if (m < 0 || K < 0) {
+        PyErr_SetString(PyExc_ValueError, "m and K: expected sizes");
+        return NULL;
+    }
+    Py_buffer nub, d2b, icb, Cb, Rb, thrb;
+    PyObject *result = NULL;
+    if (get(nu_o, &nub, 2 * m * K, "d", "nu") < 0)
+        return NULL;
+    if (get(d2_o, &d2b, m * K, "d", "d2") < 0)
+        goto release_nu;
+    if (PyObject_GetBuffer(ic_o, &icb, PyBUF_C_CONTIGUOUS) < 0)
+        goto release_d2;
+    if (icb.len < m * K) {
+        PyErr_SetString(PyExc_ValueError, "compatible: expected m x K bools");
+        goto release_ic;
+    }
+    if (get(C_o, &Cb, 4 * K * K, "d", "C") < 0)
+        goto release_ic;
+    if (get(R_o, &Rb, 3, "d", "R") < 0)
+        goto release_C;
+    if (get(thr_o, &thrb, (m < max_joint ? m : max_joint) + 1, "d", "thresholds") < 0)
+        goto release_R;
+    const double *nu = nub.buf, *d2 = d2b.buf, *C = Cb.buf, *R = Rb.buf;
+    const unsigned char *ic = icb.buf;
+    Py_ssize_t depth_total = 0, total = 0;
+    for (Py_ssize_t i = 0; i < m; ++i) {
+        Py_ssize_t count = 0;
+        for (Py_ssize_t k = 0; k < K; ++k)
+            count += ic[i * K + k] != 0;
+        depth_total += count > 0;
+        total += count;
+    }
+    if (depth_total > max_joint) {
+        result = Py_None;
+        Py_INCREF(result);
+        goto release_thr;
+    }
+    /* one block for: order, cand_at, cand (int64), own, nu in order (double), and the
+     * search's best, chosen, chosen_k (int64) and used (bytes) */
+    const size_t slots = (size_t)(depth_total > 0 ? depth_total : 1);
+    const size_t words = slots + (slots + 1) + (size_t)(total > 0 ? total : 1) +
+                         3 * (size_t)K + 2 * (size_t)K * slots + 3 * slots;
+    int64_t *block = malloc(words * 8 + (size_t)(K > 0 ? K : 1));
+    if (block == NULL) {
+        PyErr_NoMemory();
+        goto release_thr;
+    }
+    int64_t *order = block, *cand_at = order + slots, *cand = cand_at + slots + 1;
+    double *own = (double *)(cand + (total > 0 ? total : 1)), *nu_in_order = own + 3 * K;
+    int64_t *best = (int64_t *)(nu_in_order + 2 * K * slots);
+    int64_t *chosen = best + slots, *chosen_k = chosen + slots;
+    unsigned char *used = (unsigned char *)(chosen_k + slots);
+    Py_ssize_t depth = 0, at = 0;
+    for (Py_ssize_t i = 0; i < m; ++i) {
+        const Py_ssize_t start = at;
+        for (Py_ssize_t k = 0; k < K; ++k) {
+            if (!ic[i * K + k])
+                continue;
+            /* insertion, nearest first; a tie goes after: the stable order */
+            const double value = d2[i * K + k];
+            Py_ssize_t c = at++;
+            while (c > start && d2[i * K + cand[c - 1]] > value) {
+                cand[c] = cand[c - 1];
+                --c;
+            }
+            cand[c] = k;
+        }
+        if (at == start)
+            continue;
+        order[depth] = i;
+        cand_at[depth] = start;
+        memcpy(nu_in_order + 2 * K * depth, nu + 2 * K * i, (size_t)(2 * K) * sizeof(double));
+        ++depth;
+    }
+    cand_at[depth_total] = at;
+    for (Py_ssize_t k = 0; k < K; ++k) {
+        own[3 * k] = C[(2 * k) * 2 * K + 2 * k] + R[0];
+        own[3 * k + 1] = C[(2 * k) * 2 * K + 2 * k + 1] + R[1];
+        own[3 * k + 2] = C[(2 * k + 1) * 2 * K + 2 * k + 1] + R[2];
+    }
+    Search s = {
+        .C = C, .K = K, .own = own, .nu = nu_in_order, .cand = cand, .cand_at = cand_at,
+        .threshold = thrb.buf, .depth_total = depth_total, .budget = budget,
+        .work_budget = work_budget, .best = best, .chosen = chosen, .chosen_k = chosen_k,
+        .used = used,
+    };
+    for (Py_ssize_t d = 0; d < depth_total; ++d)
+        best[d] = chosen[d] = -1;
+    memset(used, 0, (size_t)(K > 0 ? K : 1));
+    Py_BEGIN_ALLOW_THREADS
+    search(&s, 0, 0, NULL, NULL, 0.0);
+    Py_END_ALLOW_THREADS
+    if (s.failed) {
+        PyErr_NoMemory();
+    } else {
+        PyObject *pairing = PyList_New(m);
+        if (pairing != NULL) {
+            for (Py_ssize_t i = 0; i < m; ++i)
+                PyList_SET_ITEM(pairing, i, PyLong_FromLong(-1));
+            for (Py_ssize_t d = 0; d < depth_total; ++d) {
+                if (best[d] >= 0) {
+                    PyObject *old = PyList_GET_ITEM(pairing, order[d]);
+                    PyList_SET_ITEM(pairing, order[d], PyLong_FromLongLong(best[d]));
+                    Py_DECREF(old);
+                }
+            }
+            result = Py_BuildValue("(NdLLii)", pairing, s.best_d2, (long long)s.nodes,
+                                   (long long)s.work, s.exhausted, s.complete);
+        }
+    }
+    free(block);
+release_thr:
+    PyBuffer_Release(&thrb);
+release_R:
+    PyBuffer_Release(&Rb);
+release_C:
+    PyBuffer_Release(&Cb);
+release_ic:
+    PyBuffer_Release(&icb);
+release_d2:
+    PyBuffer_Release(&d2b);
+release_nu:
+    PyBuffer_Release(&nub);
+    return result;
+}
+
 /* ---- the gate of a scan (see gating.py's gate_scan) ------------------------------ */
 
 #define PI 3.141592653589793 /* np.pi, the double nearest pi */
@@ -471,6 +616,7 @@ release_x:
 static PyMethodDef methods[] = {
     {"search", search_entry, METH_VARARGS, search_doc},
     {"gate", gate_entry, METH_VARARGS, gate_doc},
+    {"jcbb", jcbb_entry, METH_VARARGS, jcbb_doc},
     {NULL, NULL, 0, NULL},
 };
 

@@ -22,3 +22,16 @@ def gate(
     rows: IntArray,
     flags: BoolArray,
 ) -> int: ...
+def jcbb(
+    nu: FloatArray,
+    d2: FloatArray,
+    compatible: BoolArray,
+    C: FloatArray,
+    R: FloatArray,
+    thresholds: FloatArray,
+    m: int,
+    K: int,
+    budget: int,
+    work_budget: int,
+    max_joint: int,
+) -> tuple[list[int], float, int, int, int, int] | None: ...
