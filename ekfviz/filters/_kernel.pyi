@@ -16,3 +16,21 @@ def update_sequential(
     r11: float,
     min_range: float,
 ) -> tuple[int, int, int]: ...
+def model_update(
+    x: FloatArray,
+    P: FloatArray,
+    U: FloatArray,
+    n: int,
+    rank: int,
+    slots: IntArray,
+    z: FloatArray,
+    table: FloatArray,
+    status: Int8Array,
+    start: int,
+    a: float,
+    b: float,
+    r00: float,
+    r01: float,
+    r11: float,
+    min_range: float,
+) -> tuple[int, int, int]: ...
