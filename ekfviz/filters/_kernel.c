@@ -571,10 +571,77 @@ release_state:
     return result;
 }
 
+/* ---- the Ackermann vehicle's drive (ModelEkfSlam.drive with models/ackermann.py) ---- */
+
+PyDoc_STRVAR(ackermann_drive_doc,
+"ackermann_drive(segments, x, y, theta, p00, p01, p02, p11, p12, p22, L, H, qv, qs)\n"
+"-> (x, y, theta, p00, p01, p02, p11, p12, p22, a, b)\n\n"
+"ModelEkfSlam.drive's loop over the (speed, steering, dt) spans of `segments` (float64,\n"
+"k x 3) with Ackermann.step, in doubles, operation for operation the Python floats'\n"
+"(the same results, bit for bit): the pose and its covariance's upper triangle after\n"
+"the spans, and G_all's entries (0, 2) and (1, 2), the sums of the spans' G[0, 2] and\n"
+"G[1, 2]. L: wheelbase, H: encoder offset, qv and qs: the controls' variances.");
+
+static PyObject *ackermann_drive(PyObject *self, PyObject *args)
+{
+    PyObject *segments_object;
+    double px, py, pt, p00, p01, p02, p11, p12, p22, L, H, qv, qs;
+    if (!PyArg_ParseTuple(args, "Oddddddddddddd", &segments_object, &px, &py, &pt, &p00, &p01,
+                          &p02, &p11, &p12, &p22, &L, &H, &qv, &qs))
+        return NULL;
+    Py_buffer sb;
+    if (PyObject_GetBuffer(segments_object, &sb, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0)
+        return NULL;
+    if (sb.itemsize != 8 || sb.format == NULL || strcmp(sb.format, "d") != 0 ||
+        sb.len % 24 != 0) {
+        PyErr_SetString(PyExc_ValueError, "segments: expected k x 3 contiguous float64");
+        PyBuffer_Release(&sb);
+        return NULL;
+    }
+    const double *segment = sb.buf;
+    const Py_ssize_t count = sb.len / 24;
+    double a_all = 0.0, b_all = 0.0;
+    for (Py_ssize_t i = 0; i < count; ++i, segment += 3) {
+        const double speed = segment[0], steering = segment[1], dt = segment[2];
+        if (dt <= 0.0)
+            continue;
+        /* Ackermann.step */
+        const double c = cos(pt), s = sin(pt), t = tan(steering);
+        const double sec2 = 1.0 + t * t, k = 1.0 - t * H / L;
+        const double v_c = speed / k, vc_D_speed = 1.0 / k;
+        const double vc_D_steering = speed * (H / L) * sec2 / (k * k);
+        const double nx = px + dt * v_c * c, ny = py + dt * v_c * s;
+        const double nt = wrap_angle(pt + dt * v_c * t / L);
+        const double g02 = -dt * v_c * s, g12 = dt * v_c * c;
+        const double w00 = dt * c * vc_D_speed, w01 = dt * c * vc_D_steering;
+        const double w10 = dt * s * vc_D_speed, w11 = dt * s * vc_D_steering;
+        const double w20 = dt * t / L * vc_D_speed;
+        const double w21 = dt / L * (vc_D_steering * t + v_c * sec2);
+        /* G P G^T, G the identity but for G[0, 2] and G[1, 2], then + W Q W^T */
+        const double r02 = p02 + g02 * p22, r12 = p12 + g12 * p22;
+        const double m00 = (p00 + g02 * p02) + g02 * r02;
+        const double m01 = (p01 + g02 * p12) + g12 * r02;
+        const double m11 = (p11 + g12 * p12) + g12 * r12;
+        p00 = m00 + (qv * w00 * w00 + qs * w01 * w01);
+        p01 = m01 + (qv * w00 * w10 + qs * w01 * w11);
+        p02 = r02 + (qv * w00 * w20 + qs * w01 * w21);
+        p11 = m11 + (qv * w10 * w10 + qs * w11 * w11);
+        p12 = r12 + (qv * w10 * w20 + qs * w11 * w21);
+        p22 = p22 + (qv * w20 * w20 + qs * w21 * w21);
+        a_all += g02;
+        b_all += g12;
+        px = nx, py = ny, pt = nt;
+    }
+    PyBuffer_Release(&sb);
+    return Py_BuildValue("(ddddddddddd)", px, py, pt, p00, p01, p02, p11, p12, p22, a_all,
+                         b_all);
+}
+
 static PyMethodDef methods[] = {
     {"predict", predict, METH_VARARGS, predict_doc},
     {"update_sequential", update_sequential, METH_VARARGS, update_sequential_doc},
     {"model_update", model_update, METH_VARARGS, model_update_doc},
+    {"ackermann_drive", ackermann_drive, METH_VARARGS, ackermann_drive_doc},
     {NULL, NULL, 0, NULL},
 };
 

@@ -34,3 +34,19 @@ def model_update(
     r11: float,
     min_range: float,
 ) -> tuple[int, int, int]: ...
+def ackermann_drive(
+    segments: FloatArray,
+    x: float,
+    y: float,
+    theta: float,
+    p00: float,
+    p01: float,
+    p02: float,
+    p11: float,
+    p12: float,
+    p22: float,
+    L: float,
+    H: float,
+    qv: float,
+    qs: float,
+) -> tuple[float, float, float, float, float, float, float, float, float, float, float]: ...

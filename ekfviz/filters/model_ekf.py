@@ -45,6 +45,9 @@ try:
 except ImportError:  # installed without a C compiler: numpy throughout
     _kernel = None  # type: ignore[assignment]
 
+_NO_SPANS = np.zeros((0, 3))  # where the kernel drove them
+_NO_SPANS.flags.writeable = False
+
 # what _kernel.model_update says of a line: S not finite, or U full (fold it, go on)
 _S_NOT_FINITE, _U_FULL = 1, 3
 
@@ -124,7 +127,9 @@ class ModelEkfSlam(EkfSlam):
 
         Each span is linearised at the pose it starts from, as one predict per span
         would; the pose block is propagated span by span and the cross-covariances
-        with the map once, with the product of the spans' G.
+        with the map once, with the product of the spans' G. The spans of the built-in
+        :class:`Ackermann` run in the kernel (``ackermann_drive``) where it was built:
+        the same float operations, the same results.
         """
         if self.vehicle is None:
             raise FilterError("this filter has no vehicle model for speed and steering controls")
@@ -138,7 +143,14 @@ class ModelEkfSlam(EkfSlam):
         (p00, p01, p02), (_, p11, p12), (_, _, p22) = P[:3, :3].tolist()
         # the product of the spans' G is the identity but for column theta: (a, b, 1)
         a_all = b_all = 0.0
-        for speed, steering, dt in np.asarray(segments, dtype=np.float64).tolist():
+        spans = np.asarray(segments, dtype=np.float64)
+        if self._model_kernel and type(vehicle) is Ackermann:  # the same floats, in C
+            (px, py, pt, p00, p01, p02, p11, p12, p22, a_all, b_all) = _kernel.ackermann_drive(
+                np.ascontiguousarray(spans), px, py, pt, p00, p01, p02, p11, p12, p22,
+                vehicle.wheelbase, vehicle.encoder_offset, qv, qs,
+            )  # fmt: skip
+            spans = _NO_SPANS
+        for speed, steering, dt in spans.tolist():
             if dt <= 0.0:
                 continue
             (nx, ny, nt, g02, g12, w00, w01, w10, w11, w20, w21) = vehicle.step(
