@@ -125,12 +125,15 @@ class Associator:
         m = z.shape[0]
         state_ids = np.asarray(slam.landmark_ids, dtype=np.int64)
         n_landmarks = state_ids.shape[0]
-        pairing = np.full(m, -1, dtype=np.int64)
-        fate = np.full(m, _NEW, dtype=np.int8)
         hypotheses, joint_d2, exhausted, fallback = 0, 0.0, False, ""
-        gate_rows = _EMPTY_IDS
+        gate_ids = _EMPTY_IDS
         z_pred: FloatArray = _NO_Z
         S: FloatArray = _NO_S
+        # per measurement: its candidate (of the gate) in the pairing, and whether it lies
+        # in some landmark's gate at new_probability; Python lists, a scan being a few
+        # measurements: a loop over them costs less than the numpy calls it replaces
+        columns: list[int] = [-1] * m
+        near: list[bool] = [False] * m
         if m and n_landmarks:
             x = np.asarray(slam.x)
             U: FloatArray | None
@@ -146,9 +149,10 @@ class Associator:
             gate = gate_scan(x, pose_rows, covs, self._sensor, self._R, z, self._gate,
                              self._new_gate)  # fmt: skip
             gate_rows, z_pred, S = gate.rows, gate.z_pred, gate.S
+            gate_ids = state_ids[gate_rows]
             if gate_rows.size:
                 if self._method is Method.NN:
-                    column = nearest_neighbour(gate.d2, gate.compatible)
+                    columns = nearest_neighbour(gate.d2, gate.compatible).tolist()
                 else:
                     result = jcbb(
                         gate.nu,
@@ -160,24 +164,39 @@ class Associator:
                         self.params.budget,
                         self.params.work_budget,
                     )
-                    column = result.pairing
                     hypotheses, joint_d2, exhausted, fallback = (
                         result.hypotheses, result.joint_d2, result.exhausted, result.fallback
                     )  # fmt: skip
-                    column = self._without_a_lone_wide_pair(column, gate)
-                paired = column >= 0
-                pairing[paired] = state_ids[gate_rows[column[paired]]]
-                fate[paired] = _MATCHED
-            fate[(pairing < 0) & gate.near] = _REJECTED
-        landmark = pairing.copy()
+                    columns = self._without_a_lone_wide_pair(result.pairing.tolist(), gate)
+            near = gate.near.tolist()
+        candidate_ids: list[int] = gate_ids.tolist()
+        fates: list[int] = []
+        landmarks: list[int] = []  # the id paired or started, -1 where rejected
         new_ids: list[int] = []
-        for i in np.flatnonzero(fate == _NEW).tolist():
-            landmark[i] = self._next_id
-            new_ids.append(self._next_id)
-            self._next_id += 1
-        used = fate != _REJECTED
-        observations = slam.observe(landmark[used], z[used])
-        matched_ids = pairing[fate == _MATCHED].tolist()
+        matched_ids: list[int] = []
+        rejected = False
+        for column, is_near in zip(columns, near, strict=True):
+            if column >= 0:
+                landmark_id = candidate_ids[column]
+                fates.append(_MATCHED)
+                matched_ids.append(landmark_id)
+            elif is_near:  # in a gate, but left out of the best pairing: clutter
+                landmark_id = -1
+                fates.append(_REJECTED)
+                rejected = True
+            else:
+                landmark_id = self._next_id
+                self._next_id += 1
+                fates.append(_NEW)
+                new_ids.append(landmark_id)
+            landmarks.append(landmark_id)
+        fate = np.array(fates, dtype=np.int8)
+        landmark = np.array(landmarks, dtype=np.int64)
+        if rejected:
+            used = fate != _REJECTED
+            observations = slam.observe(landmark[used], z[used])
+        else:
+            observations = slam.observe(landmark.copy(), z.copy())
         confirmed, removed = self._book.settle(matched_ids, new_ids)
         if removed:
             slam.remove_landmarks(removed)
@@ -194,7 +213,7 @@ class Associator:
             z=frozen(z.copy()),
             fate=frozen(fate),
             landmark=frozen(landmark),
-            gate_ids=frozen(state_ids[gate_rows]),
+            gate_ids=frozen(gate_ids),
             gate_z=frozen(np.array(z_pred)),
             gate_S=frozen(np.array(S)),
             gate_threshold=self._gate,
@@ -210,20 +229,32 @@ class Associator:
         )
         return observations, association
 
-    def _without_a_lone_wide_pair(self, column: IntArray, gate: ScanGate) -> IntArray:
+    def _without_a_lone_wide_pair(self, columns: list[int], gate: ScanGate) -> list[int]:
         """The pairing without its pairs with a wide gate, when it has fewer than
         ``wide_pairs`` of them.
 
-        :param column: (m,) each measurement's candidate (of ``gate``), -1 where none
+        :param columns: each measurement's candidate (of ``gate``), -1 where none
         """
-        paired = np.flatnonzero(column >= 0)
-        candidates = column[paired]
-        areas = gate_areas(gate.S[candidates], gate.z_pred[candidates, 1], self._gate)
-        wide = paired[areas > self.params.single_gate_area]
-        if wide.size == 0 or wide.size >= self.params.wide_pairs:
-            return column
-        kept: IntArray = column.copy()
-        kept[wide] = -1
+        if not any(column >= 0 for column in columns):
+            return columns
+        # gate_areas() of the pairs, in floats: the same operations
+        S = gate.S.reshape(-1, 4).tolist()
+        ranges = gate.z_pred[:, 1].tolist()
+        scale = math.pi * self._gate
+        limit = self.params.single_gate_area
+        wide = []
+        for i, column in enumerate(columns):
+            if column < 0:
+                continue
+            s00, s01, s10, s11 = S[column]
+            area = scale * math.sqrt(max(s00 * s11 - s01 * s10, 0.0)) * max(ranges[column], 0.0)
+            if area > limit:
+                wide.append(i)
+        if not wide or len(wide) >= self.params.wide_pairs:
+            return columns
+        kept = list(columns)
+        for i in wide:
+            kept[i] = -1
         return kept
 
     def finish(self, slam: ScanFilter) -> list[int]:
@@ -255,9 +286,12 @@ def gate_areas(S: FloatArray, range_m: FloatArray, threshold: float) -> FloatArr
 
 def state_rows(rows: IntArray) -> IntArray:
     """The state indices of the pose and of the landmarks at ``rows`` (of the map)."""
-    return np.concatenate(
-        ([0, 1, 2], np.column_stack([3 + 2 * rows, 4 + 2 * rows]).ravel())
-    ).astype(np.int64)
+    rows = np.asarray(rows, dtype=np.int64)
+    indices = np.empty(3 + 2 * len(rows), dtype=np.int64)
+    indices[:3] = (0, 1, 2)
+    indices[3::2] = 3 + 2 * rows
+    indices[4::2] = 4 + 2 * rows
+    return indices
 
 
 def _joint_covariance(
@@ -276,9 +310,9 @@ def _joint_covariance(
     blocks = H_stacked[:, 3:].reshape(k, 2, k, 2)  # a view: (row pair, row, column pair, column)
     at = np.arange(k)
     blocks[at, :, at, :] = H[:, :, 3:]
-    P_rows = P[np.ix_(rows, rows)]
+    P_rows = P.take(rows, 0).take(rows, 1)  # P[np.ix_(rows, rows)], one gather less
     if U is not None:
-        U_rows = U[:, rows]
+        U_rows = U.take(rows, 1)
         P_rows -= U_rows.T @ U_rows
     C = H_stacked @ P_rows @ H_stacked.T
     return np.asarray(0.5 * (C + C.T), dtype=np.float64)
