@@ -261,7 +261,8 @@ def test_removal_keeps_the_principal_submatrix(doomed: list[int]) -> None:
 
 
 @pytest.mark.skipif(not HAVE_KERNEL, reason="the compiled kernel was not built")
-def test_the_compiled_model_update_skips_and_folds_as_the_numpy_one() -> None:
+@pytest.mark.parametrize("wide", [True, False])
+def test_the_compiled_model_update_skips_and_folds_as_the_numpy_one(wide: bool) -> None:
     """_kernel.model_update against ModelEkfSlam's numpy loop on lines of a large map:
     a line longer than U's room (U fills up and is folded mid-line), a landmark predicted
     at the sensor (skipped at zero range) and one whose S is not positive definite
@@ -287,6 +288,7 @@ def test_the_compiled_model_update_skips_and_folds_as_the_numpy_one() -> None:
         assert isinstance(slam, ModelEkfSlam)
         slam.sensor = SENSOR
         slam._model_kernel = compiled  # from_state's own flag is the classic kernel's
+        slam._kernel_wide = wide  # AVX2 and FMA where the CPU has them, or the plain loops
         filters.append(slam)
     for line in range(3):
         order = [int(i) for i in rng.permutation(ids)]

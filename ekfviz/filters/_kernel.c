@@ -385,10 +385,10 @@ static int wide_ok(void)
 #endif
 
 static void combine(double *out0, double *out1, const double *const *rows, const double *c0,
-                    const double *c1, Py_ssize_t count, Py_ssize_t n)
+                    const double *c1, Py_ssize_t count, Py_ssize_t n, int allow_wide)
 {
 #if HAVE_WIDE
-    if (wide_ok()) {
+    if (allow_wide && wide_ok()) {
         combine_wide(out0, out1, rows, c0, c1, count, n);
         return;
     }
@@ -397,10 +397,11 @@ static void combine(double *out0, double *out1, const double *const *rows, const
 }
 
 static void whiten(double *u0, double *u1, double *x, const double *h0, const double *h1,
-                   double i00, double i10, double i11, double g0, double g1, Py_ssize_t n)
+                   double i00, double i10, double i11, double g0, double g1, Py_ssize_t n,
+                   int allow_wide)
 {
 #if HAVE_WIDE
-    if (wide_ok()) {
+    if (allow_wide && wide_ok()) {
         whiten_wide(u0, u1, x, h0, h1, i00, i10, i11, g0, g1, n);
         return;
     }
@@ -410,7 +411,7 @@ static void whiten(double *u0, double *u1, double *x, const double *h0, const do
 
 PyDoc_STRVAR(model_update_doc,
 "model_update(x, P, U, n, rank, slots, z, table, status, start, a, b, r00, r01, r11,\n"
-"min_range) -> (code, k, rank)\n\n"
+"min_range, wide=True) -> (code, k, rank)\n\n"
 "ModelEkfSlam._update_sequential in place, from landmark `start` of the line on: the\n"
 "update with each landmark k whose slots[k] (int64) is not negative, in order, at z[k],\n"
 "with the sensor `a` ahead and `b` left of the pose, its rank-2 change of P appended to\n"
@@ -418,7 +419,7 @@ PyDoc_STRVAR(model_update_doc,
 "status[k] as update_sequential does. code 0: done (k = len(slots)); 1: S of landmark k\n"
 "is not finite; 3: U is full, after landmark k - 1 (fold it into P at once, then go on\n"
 "from k if k < len(slots)).\n"
-"rank: U's rows in use at that point.");
+"rank: U's rows in use at that point. wide=False: the plain loops, whatever the CPU.");
 
 static PyObject *model_update(PyObject *self, PyObject *args)
 {
@@ -426,9 +427,10 @@ static PyObject *model_update(PyObject *self, PyObject *args)
         *status_object;
     Py_ssize_t n, rank, start, capacity;
     double a, b, r00, r01, r11, min_range;
-    if (!PyArg_ParseTuple(args, "OOOnnOOOOndddddd", &x_object, &P_object, &U_object, &n, &rank,
-                          &slots_object, &z_object, &table_object, &status_object, &start, &a,
-                          &b, &r00, &r01, &r11, &min_range))
+    int allow_wide = 1;
+    if (!PyArg_ParseTuple(args, "OOOnnOOOOndddddd|p", &x_object, &P_object, &U_object, &n,
+                          &rank, &slots_object, &z_object, &table_object, &status_object,
+                          &start, &a, &b, &r00, &r01, &r11, &min_range, &allow_wide))
         return NULL;
     Py_buffer xb, Pb, Ub, slots_b, zb, table_b, status_b;
     PyObject *result = NULL;
@@ -515,7 +517,7 @@ static PyObject *model_update(PyObject *self, PyObject *args)
             c0[5 + t] = -s0;
             c1[5 + t] = -s1;
         }
-        combine(HP, HP1, from, c0, c1, 5 + rank, n);
+        combine(HP, HP1, from, c0, c1, 5 + rank, n, allow_wide);
         double S00 = 0.0, S01 = 0.0, S10 = 0.0, S11 = 0.0;
         for (int i = 0; i < 5; ++i) {
             S00 += HP[c[i]] * H0[i];
@@ -542,7 +544,7 @@ static PyObject *model_update(PyObject *self, PyObject *args)
         const double l11 = sqrt(d11), w0 = nu0 / l00, w1 = (nu1 - l10 * w0) / l11;
         const double i00 = 1.0 / l00, i11 = 1.0 / l11, i10 = -l10 * i00 * i11;
         whiten(U + rank * capacity, U + (rank + 1) * capacity, x, HP, HP1, i00, i10, i11,
-               w0 * i00 + w1 * i10, w1 * i11, n);
+               w0 * i00 + w1 * i10, w1 * i11, n, allow_wide);
         x[2] = wrap_angle(x[2]);
         rank += 2;
         row[8] = w0 * w0 + w1 * w1;

@@ -33,6 +33,7 @@ def model_update(
     r01: float,
     r11: float,
     min_range: float,
+    wide: bool = True,
 ) -> tuple[int, int, int]: ...
 def ackermann_drive(
     segments: FloatArray,

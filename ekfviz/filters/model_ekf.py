@@ -75,6 +75,7 @@ class ModelEkfSlam(EkfSlam):
     ) -> None:
         super().__init__(params, capacity=capacity, compiled=False)
         self._model_kernel = compiled and _kernel is not None
+        self._kernel_wide = True  # the kernel's AVX2 loops where the CPU has them (tests: off)
         self.vehicle = vehicle
         self.sensor = sensor if sensor is not None else RangeBearing()
         self.reported_point = reported_point
@@ -220,7 +221,7 @@ class ModelEkfSlam(EkfSlam):
         while True:
             code, k, rank = _kernel.model_update(
                 self._x, self._P, U, n, rank, slot_array, z_array, values, status, start,
-                a, b, r00, r01, r11, MIN_PREDICTED_RANGE,
+                a, b, r00, r01, r11, MIN_PREDICTED_RANGE, self._kernel_wide,
             )  # fmt: skip
             self._rank = rank  # at once: an error later in the line leaves P as it is
             if code != _U_FULL:
