@@ -123,7 +123,11 @@ class Associator:
         self._scans += 1
         z = np.asarray(scan.z, dtype=np.float64).reshape(-1, 2)
         m = z.shape[0]
-        state_ids = np.asarray(slam.landmark_ids, dtype=np.int64)
+        state_ids = (
+            slam.landmark_ids_array()  # kept by the filter while its map is the same
+            if isinstance(slam, EkfSlam)
+            else np.asarray(slam.landmark_ids, dtype=np.int64)
+        )
         n_landmarks = state_ids.shape[0]
         hypotheses, joint_d2, exhausted, fallback = 0, 0.0, False, ""
         gate_ids = _EMPTY_IDS

@@ -23,6 +23,7 @@ gated (there is nothing to check them against).
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -278,7 +279,7 @@ def gate_scan(
         values, out, rows, flags,
     )  # fmt: skip
     # out holds z_pred, S, H, d2 and nu of the g candidates one after another
-    ends = np.cumsum((2 * g, 4 * g, 10 * g, m * g, 2 * m * g)).tolist()
+    ends = list(itertools.accumulate((2 * g, 4 * g, 10 * g, m * g, 2 * m * g)))
     return ScanGate(
         rows=rows[:g],
         z_pred=out[: ends[0]].reshape(g, 2),
