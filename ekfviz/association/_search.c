@@ -1,4 +1,6 @@
-/* JCBB's branch and bound, compiled (see ekfviz/association/jcbb.py).
+/* The association's inner loops, compiled: JCBB's branch and bound (see
+ * ekfviz/association/jcbb.py), with its preparation (jcbb), and the gate of a scan
+ * (gating.py's gate_scan: gate). The branch and bound comes first.
  *
  * The same search as jcbb.py's `search`, node for node: the same order of candidates,
  * the same bound, the same budget and work counted, the same 2x2 Cholesky of each
@@ -621,7 +623,7 @@ static PyMethodDef methods[] = {
 };
 
 static struct PyModuleDef module = {
-    PyModuleDef_HEAD_INIT, "_search", "JCBB's branch and bound, compiled (see _search.c).",
+    PyModuleDef_HEAD_INIT, "_search", "JCBB and the scan's gate, compiled (see _search.c).",
     -1, methods, NULL, NULL, NULL, NULL,
 };
 

@@ -1,4 +1,4 @@
-# JCBB's branch and bound (_search.c); see its docstring.
+# JCBB's branch and bound and the scan's gate (_search.c); see its docstrings.
 from ekfviz.core.types import BoolArray, FloatArray, IntArray
 
 def search(

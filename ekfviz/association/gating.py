@@ -7,7 +7,10 @@ its own two rows of the state::
 
 and measurement j is individually compatible with landmark i when its Mahalanobis
 distance squared nu^T S_i^-1 nu is below the chi-square quantile of the gate (2 dof).
-All landmarks at once, O(N) per scan (and O(m N) for the distances).
+All landmarks at once, O(N) per scan (and O(m N) for the distances). The associator
+takes them through :func:`gate_scan`, which keeps only the candidates (the landmarks in
+some gate) and, where ``_search.c`` was built, makes them in one compiled pass over the
+map, the numpy functions' floats to the bit.
 
 The same module holds the gate of known landmarks (:func:`gated`), used where the log
 gives ids rather than the association choosing them: it rejects an observation whose NIS

@@ -10,6 +10,10 @@
  *
  * Buffers are the filter's: x (capacity,) and P (capacity, capacity), C-contiguous
  * float64, of which the leading n entries (n x n block) are the state.
+ *
+ * Two more serve the model filter of Victoria Park (ModelEkfSlam): its sequential update
+ * on a large map, whose changes of P stay pending (model_update), and its Ackermann
+ * vehicle's drive (ackermann_drive); see there.
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -649,7 +653,7 @@ static PyMethodDef methods[] = {
 
 static struct PyModuleDef module = {
     PyModuleDef_HEAD_INIT, "_kernel",
-    "The filter's inner loops for small maps, compiled (see _kernel.c).", -1, methods,
+    "The filter's inner loops, compiled (see _kernel.c).", -1, methods,
     NULL, NULL, NULL, NULL,
 };
 

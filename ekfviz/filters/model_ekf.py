@@ -4,8 +4,11 @@
 landmark removal) with the measurement model of :mod:`ekfviz.models.range_bearing` (a
 sensor mounted ``a`` ahead and ``b`` left of the pose's origin) and, for :class:`Drive`
 events, the vehicle of :mod:`ekfviz.models.ackermann`. Classic logs keep the classic
-filter and its compiled kernel; these models run on numpy, sequentially (the
-``--update joint`` option does not apply to them).
+filter and its compiled kernel; these models update sequentially (the ``--update joint``
+option does not apply to them), on numpy, or in the kernel where the map is large
+enough to keep P's changes pending (``model_update``: a landmark's H P and whitened rows
+in a few vectorised passes, where numpy takes a dozen calls); the Ackermann vehicle's
+spans are driven in the kernel too (``ackermann_drive``, the same floats).
 
 The state's pose is the vehicle's origin (the rear axle's centre for the Ackermann
 vehicle), where the models are simplest. Its records may report another point of the
