@@ -314,9 +314,11 @@ def _joint_covariance(
     blocks = H_stacked[:, 3:].reshape(k, 2, k, 2)  # a view: (row pair, row, column pair, column)
     at = np.arange(k)
     blocks[at, :, at, :] = H[:, :, 3:]
-    P_rows = P.take(rows, 0).take(rows, 1)  # P[np.ix_(rows, rows)], one gather less
+    # P[np.ix_(rows, rows)] in two gathers, the rows first: P may be a view of the
+    # filter's buffer, which take() would copy whole before gathering
+    P_rows = P[rows].take(rows, 1)
     if U is not None:
-        U_rows = U.take(rows, 1)
+        U_rows = U[:, rows]
         P_rows -= U_rows.T @ U_rows
     C = H_stacked @ P_rows @ H_stacked.T
     return np.asarray(0.5 * (C + C.T), dtype=np.float64)
