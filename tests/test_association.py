@@ -93,6 +93,37 @@ def test_model_drive_equals_a_dense_predict_per_span() -> None:
     assert np.array_equal(ekf.P, ekf.P.T)
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_compiled_drive_is_the_python_one_bit_for_bit(seed: int) -> None:
+    """The kernel's ackermann_drive against drive()'s loop of Ackermann.step in Python
+    floats: the same operations, so the same state and covariance to the last bit, over
+    spans of every kind (turning both ways, standing still, dt of zero)."""
+    from ekfviz.filters.ekf import HAVE_KERNEL
+    from ekfviz.filters.model_ekf import ModelEkfSlam
+
+    if not HAVE_KERNEL:
+        pytest.skip("the compiled kernel was not built")
+    rng = np.random.default_rng(seed)
+    car = Ackermann(sigma_speed=0.5, sigma_steering=0.03)
+    filters = [
+        ModelEkfSlam(vehicle=car, sensor=RangeBearing(3.78, 0.5), compiled=compiled)
+        for compiled in (True, False)
+    ]
+    z = np.column_stack([rng.uniform(-1.5, 1.5, 6), rng.uniform(3.0, 30.0, 6)])
+    for ekf in filters:
+        ekf.observe([1, 2, 3, 4, 5, 6], z)
+    for _ in range(50):
+        k = int(rng.integers(1, 12))
+        spans = np.column_stack(
+            [rng.uniform(-1.0, 6.0, k), rng.uniform(-0.5, 0.5, k), rng.uniform(-0.01, 0.1, k)]
+        )
+        spans[rng.random(k) < 0.2, 0] = 0.0
+        for ekf in filters:
+            ekf.drive(spans)
+        assert np.array_equal(filters[0].x, filters[1].x)
+        assert np.array_equal(filters[0].P, filters[1].P)
+
+
 def test_predicted_innovation_covariances_equal_dense_h_p_h_t() -> None:
     """predict_landmarks' S (written out entry by entry) against H P H^T + R with each
     landmark's dense H, on a random covariance."""

@@ -11,6 +11,7 @@ joint covariance) sees that current P while changes are pending.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -36,7 +37,11 @@ _NONE = np.zeros((0, 0))
 
 
 class EagerModel(ModelEkfSlam):
-    """The model filter with every P -= A^T A applied at once (nothing pending)."""
+    """The model filter with every P -= A^T A applied at once (nothing pending): the
+    numpy update (the compiled one keeps its changes in U itself)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs, compiled=False)
 
     def _fold(self, A: FloatArray, U: FloatArray, rank: int) -> int:
         return super()._fold(A, _NONE, 0)
@@ -134,11 +139,15 @@ def _run(deferred: EkfSlam, eager: EkfSlam, *, drive: bool, seed: int, steps: in
     return pending
 
 
+@pytest.mark.parametrize("compiled", [False, True] if HAVE_KERNEL else [False])
 @pytest.mark.parametrize("init", list(LandmarkInit))
-def test_the_deferred_model_filter_is_the_fold_at_once_one(init: LandmarkInit) -> None:
+def test_the_deferred_model_filter_is_the_fold_at_once_one(
+    init: LandmarkInit, compiled: bool
+) -> None:
+    """The model filter's deferred update, numpy's or the kernel's (model_update)."""
     params = FilterParams(landmark_init=init)
     vehicle = Ackermann()
-    deferred = ModelEkfSlam(params, vehicle=vehicle, sensor=SENSOR)
+    deferred = ModelEkfSlam(params, vehicle=vehicle, sensor=SENSOR, compiled=compiled)
     eager = EagerModel(params, vehicle=vehicle, sensor=SENSOR)
     pending = _run(deferred, eager, drive=True, seed=3)
     assert pending > 100  # most events are compared with changes pending
@@ -249,3 +258,58 @@ def test_removal_keeps_the_principal_submatrix(doomed: list[int]) -> None:
     x_buffer, P_buffer = slam.buffers
     assert not P_buffer[slam.dim :].any() and not P_buffer[:, slam.dim :].any()
     assert not x_buffer[slam.dim :].any()
+
+
+@pytest.mark.skipif(not HAVE_KERNEL, reason="the compiled kernel was not built")
+@pytest.mark.parametrize("wide", [True, False])
+def test_the_compiled_model_update_skips_and_folds_as_the_numpy_one(wide: bool) -> None:
+    """_kernel.model_update against ModelEkfSlam's numpy loop on lines of a large map:
+    a line longer than U's room (U fills up and is folded mid-line), a landmark predicted
+    at the sensor (skipped at zero range) and one whose S is not positive definite
+    (skipped): the same table, skipped flags and warnings in file order, and the same
+    state to round-off."""
+    rng = np.random.default_rng(21)
+    n_landmarks = DEFER_ROWS  # more landmarks than U has room for in one line
+    n = 3 + 2 * n_landmarks
+    x = np.zeros(n)
+    x[:3] = (1.0, -2.0, 0.4)
+    x[3:] = rng.uniform(-30.0, 30.0, n - 3)
+    A = rng.normal(size=(n, n)) * 0.05
+    P = A @ A.T + 0.05 * np.eye(n)
+    sensor_x, sensor_y, _, _ = SENSOR.sensor(x[:3])
+    x[3 + 2 * 5 : 5 + 2 * 5] = (sensor_x, sensor_y)  # landmark 6: at the sensor itself
+    P[3 + 2 * 9 : 5 + 2 * 9, :] = P[:, 3 + 2 * 9 : 5 + 2 * 9] = 0.0
+    P[3 + 2 * 9 : 5 + 2 * 9, 3 + 2 * 9 : 5 + 2 * 9] = -50.0 * np.eye(2)  # landmark 10: S < 0
+    ids = list(range(1, n_landmarks + 1))
+    params = FilterParams(sigma_bearing=0.01, sigma_range=0.1)
+    filters = []
+    for compiled in (True, False):
+        slam = ModelEkfSlam.from_state(params, x, P, ids)
+        assert isinstance(slam, ModelEkfSlam)
+        slam.sensor = SENSOR
+        slam._model_kernel = compiled  # from_state's own flag is the classic kernel's
+        slam._kernel_wide = wide  # AVX2 and FMA where the CPU has them, or the plain loops
+        filters.append(slam)
+    for line in range(3):
+        order = [int(i) for i in rng.permutation(ids)]
+        if line == 0:  # landmark 6 first, while the sensor is where it lies
+            order.remove(6)
+            order.insert(0, 6)
+        pose = filters[1].x[:3]
+        z = np.array([SENSOR.measure(pose, filters[1].x[1 + 2 * i : 3 + 2 * i]) for i in order])
+        z[:, 1] += rng.normal(0.0, 0.05, len(order))
+        got, expected = filters[0].observe(order, z), filters[1].observe(order, z)
+        assert filters[0].warnings == filters[1].warnings
+        assert np.array_equal(got.skipped, expected.skipped)
+        if line == 0:
+            assert [w.split(":")[0] for w in filters[0].warnings] == [
+                "landmark 6",
+                "landmark 10",
+            ]
+            assert "predicted 0 m from the robot" in filters[0].warnings[0]
+        for name in ("z_pred", "innovation", "S", "nis"):
+            a, b = getattr(got, name), getattr(expected, name)
+            assert np.array_equal(np.isnan(a), np.isnan(b)), name
+            _close(np.nan_to_num(a), np.nan_to_num(b), 1e-9)
+        _close(filters[0].x, filters[1].x)
+        _close(_current(filters[0])[0], _current(filters[1])[0])

@@ -225,3 +225,41 @@ def test_the_compiled_search_keeps_to_the_budgets_on_the_adversarial_scan() -> N
         assert (fast.hypotheses, fast.work, fast.fallback) == (
             slow.hypotheses, slow.work, slow.fallback
         )  # fmt: skip
+
+
+@pytest.mark.skipif(not HAVE_SEARCH, reason="the compiled search was not built")
+@pytest.mark.parametrize("seed", range(10))
+def test_the_compiled_preparation_orders_ties_as_the_stable_sort_does(seed: int) -> None:
+    """_search.c orders each measurement's candidates itself: equal distances (here every
+    candidate of a measurement at one of two values) keep their column order, as numpy's
+    stable argsort does, so the same nodes are explored in the same order."""
+    rng = np.random.default_rng(300 + seed)
+    m, k = int(rng.integers(2, 8)), int(rng.integers(2, 8))
+    nu, _, _, C, R = _problem(rng, m=m, k=k, spread=0.3)
+    d2 = rng.choice([0.5, 2.0], size=(m, k))
+    ok = rng.random((m, k)) < 0.7
+    ok[0] = False  # a measurement in no gate is left out of the search
+    for budget in (DEFAULT_BUDGET, int(rng.integers(1, 20))):
+        fast = jcbb(nu, d2, ok, C, R, 0.99, budget)
+        slow = jcbb(nu, d2, ok, C, R, 0.99, budget, compiled=False)
+        np.testing.assert_array_equal(fast.pairing, slow.pairing)
+        assert (fast.hypotheses, fast.work, fast.exhausted, fast.fallback) == (
+            slow.hypotheses, slow.work, slow.exhausted, slow.fallback
+        )  # fmt: skip
+        assert fast.joint_d2 == pytest.approx(slow.joint_d2, rel=1e-12, abs=1e-12)
+
+
+@pytest.mark.skipif(not HAVE_SEARCH, reason="the compiled search was not built")
+def test_the_compiled_jcbb_falls_back_past_max_joint_as_the_python_one() -> None:
+    m = MAX_JOINT + 1
+    nu = np.zeros((m, 1, 2))
+    d2 = np.linspace(0.1, 5.0, m)[:, None]
+    ok = np.ones((m, 1), dtype=bool)
+    C = np.eye(2) * 0.1
+    R = np.diag([0.01, 0.02])
+    fast = jcbb(nu, d2, ok, C, R, 0.99)
+    slow = jcbb(nu, d2, ok, C, R, 0.99, compiled=False)
+    np.testing.assert_array_equal(fast.pairing, slow.pairing)
+    assert fast.pairing.tolist() == [0] + [-1] * (m - 1)  # nearest neighbour: the closest
+    assert (fast.hypotheses, fast.exhausted, fast.fallback) == (0, True, FALLBACK_NN)
+    assert (slow.hypotheses, slow.exhausted, slow.fallback) == (0, True, FALLBACK_NN)

@@ -31,15 +31,7 @@ from typing import Protocol
 
 import numpy as np
 
-from ekfviz.association.gating import (
-    Predictions,
-    compatible,
-    gate_threshold,
-    innovation_parts,
-    mahalanobis2_of,
-    predict_landmarks,
-    predict_landmarks_of,
-)
+from ekfviz.association.gating import ScanGate, gate_scan, gate_threshold, marginals_of
 from ekfviz.association.jcbb import jcbb
 from ekfviz.association.nn import nearest_neighbour
 from ekfviz.association.params import AssociationError, AssociationParams, Method
@@ -68,6 +60,10 @@ class ScanFilter(Protocol):
 
 
 _EMPTY_IDS = frozen(np.zeros(0, dtype=np.int64))
+_NO_Z = frozen(np.zeros((0, 2)))
+_NO_S = frozen(np.zeros((0, 2, 2)))
+# the fates as plain ints: an IntEnum's member costs a class attribute lookup each time
+_MATCHED, _NEW, _REJECTED = int(Fate.MATCHED), int(Fate.NEW), int(Fate.REJECTED)
 
 
 class Associator:
@@ -97,6 +93,7 @@ class Associator:
         self._next_id = 1
         self._scan_truth = scan_truth
         self._scans = 0
+        self._method, self._method_name = params.method, params.method.value
 
     @staticmethod
     def check_filter(slam: object, params: AssociationParams) -> None:
@@ -126,14 +123,21 @@ class Associator:
         self._scans += 1
         z = np.asarray(scan.z, dtype=np.float64).reshape(-1, 2)
         m = z.shape[0]
-        state_ids = np.asarray(slam.landmark_ids, dtype=np.int64)
+        state_ids = (
+            slam.landmark_ids_array()  # kept by the filter while its map is the same
+            if isinstance(slam, EkfSlam)
+            else np.asarray(slam.landmark_ids, dtype=np.int64)
+        )
         n_landmarks = state_ids.shape[0]
-        pairing = np.full(m, -1, dtype=np.int64)
-        fate = np.full(m, Fate.NEW, dtype=np.int8)
         hypotheses, joint_d2, exhausted, fallback = 0, 0.0, False, ""
-        gate_rows = np.zeros(0, dtype=np.int64)
-        z_pred = np.zeros((0, 2))
-        S = np.zeros((0, 2, 2))
+        gate_ids = _EMPTY_IDS
+        z_pred: FloatArray = _NO_Z
+        S: FloatArray = _NO_S
+        # per measurement: its candidate (of the gate) in the pairing, and whether it lies
+        # in some landmark's gate at new_probability; Python lists, a scan being a few
+        # measurements: a loop over them costs less than the numpy calls it replaces
+        columns: list[int] = [-1] * m
+        near: list[bool] = [False] * m
         if m and n_landmarks:
             x = np.asarray(slam.x)
             U: FloatArray | None
@@ -142,53 +146,61 @@ class Associator:
                 # gating reads the pose's rows and the marginals (the records' own) without
                 # folding them into P (a pass over all of it) once per scan
                 P, U = slam.deferred_covariance()
-                covs = slam.landmark_marginals()
-                predictions = predict_landmarks_of(
-                    x, slam.pose_rows(), covs[:, (0, 1), (0, 1)].ravel(), covs[:, 0, 1],
-                    self._sensor, self._R,
-                )  # fmt: skip
+                pose_rows, covs = slam.pose_rows(), slam.landmark_marginals()
             else:
                 P, U = np.asarray(slam.P), None
-                predictions = predict_landmarks(x, P, self._sensor, self._R)
-            u, v = innovation_parts(z, predictions.z_pred)
-            d2 = mahalanobis2_of(u, v, predictions.S)
-            ic = compatible(d2, self._gate)
-            gate_rows = np.flatnonzero(ic.any(axis=0))
-            nu = np.stack((u[:, gate_rows], v[:, gate_rows]), axis=-1)  # the candidates'
-            z_pred, S = predictions.z_pred[gate_rows], predictions.S[gate_rows]
+                pose_rows, covs = P[:3], marginals_of(P)
+            gate = gate_scan(x, pose_rows, covs, self._sensor, self._R, z, self._gate,
+                             self._new_gate)  # fmt: skip
+            gate_rows, z_pred, S = gate.rows, gate.z_pred, gate.S
+            gate_ids = state_ids[gate_rows]
             if gate_rows.size:
-                if self.params.method is Method.NN:
-                    column = nearest_neighbour(d2[:, gate_rows], ic[:, gate_rows])
+                if self._method is Method.NN:
+                    columns = nearest_neighbour(gate.d2, gate.compatible).tolist()
                 else:
                     result = jcbb(
-                        nu,
-                        d2[:, gate_rows],
-                        ic[:, gate_rows],
-                        _joint_covariance(P, predictions.H(gate_rows), state_rows(gate_rows), U),
+                        gate.nu,
+                        gate.d2,
+                        gate.compatible,
+                        _joint_covariance(P, gate.H, state_rows(gate_rows), U),
                         self._R,
                         self.params.gate_probability,
                         self.params.budget,
                         self.params.work_budget,
                     )
-                    column = result.pairing
                     hypotheses, joint_d2, exhausted, fallback = (
                         result.hypotheses, result.joint_d2, result.exhausted, result.fallback
                     )  # fmt: skip
-                    column = self._without_a_lone_wide_pair(column, gate_rows, predictions)
-                paired = column >= 0
-                pairing[paired] = state_ids[gate_rows[column[paired]]]
-                fate[paired] = Fate.MATCHED
-            near = (d2 < self._new_gate).any(axis=1)
-            fate[(pairing < 0) & near] = Fate.REJECTED
-        landmark = pairing.copy()
+                    columns = self._without_a_lone_wide_pair(result.pairing.tolist(), gate)
+            near = gate.near.tolist()
+        candidate_ids: list[int] = gate_ids.tolist()
+        fates: list[int] = []
+        landmarks: list[int] = []  # the id paired or started, -1 where rejected
         new_ids: list[int] = []
-        for i in np.flatnonzero(fate == Fate.NEW).tolist():
-            landmark[i] = self._next_id
-            new_ids.append(self._next_id)
-            self._next_id += 1
-        used = fate != Fate.REJECTED
-        observations = slam.observe(landmark[used], z[used])
-        matched_ids = pairing[fate == Fate.MATCHED].tolist()
+        matched_ids: list[int] = []
+        rejected = False
+        for column, is_near in zip(columns, near, strict=True):
+            if column >= 0:
+                landmark_id = candidate_ids[column]
+                fates.append(_MATCHED)
+                matched_ids.append(landmark_id)
+            elif is_near:  # in a gate, but left out of the best pairing: clutter
+                landmark_id = -1
+                fates.append(_REJECTED)
+                rejected = True
+            else:
+                landmark_id = self._next_id
+                self._next_id += 1
+                fates.append(_NEW)
+                new_ids.append(landmark_id)
+            landmarks.append(landmark_id)
+        fate = np.array(fates, dtype=np.int8)
+        landmark = np.array(landmarks, dtype=np.int64)
+        if rejected:
+            used = fate != _REJECTED
+            observations = slam.observe(landmark[used], z[used])
+        else:
+            observations = slam.observe(landmark.copy(), z.copy())
         confirmed, removed = self._book.settle(matched_ids, new_ids)
         if removed:
             slam.remove_landmarks(removed)
@@ -201,11 +213,11 @@ class Associator:
                 )
             )
         association = ScanAssociation(
-            method=self.params.method.value,
+            method=self._method_name,
             z=frozen(z.copy()),
             fate=frozen(fate),
             landmark=frozen(landmark),
-            gate_ids=frozen(state_ids[gate_rows]),
+            gate_ids=frozen(gate_ids),
             gate_z=frozen(np.array(z_pred)),
             gate_S=frozen(np.array(S)),
             gate_threshold=self._gate,
@@ -221,19 +233,32 @@ class Associator:
         )
         return observations, association
 
-    def _without_a_lone_wide_pair(
-        self, column: IntArray, gate_rows: IntArray, predictions: Predictions
-    ) -> IntArray:
+    def _without_a_lone_wide_pair(self, columns: list[int], gate: ScanGate) -> list[int]:
         """The pairing without its pairs with a wide gate, when it has fewer than
-        ``wide_pairs`` of them."""
-        paired = np.flatnonzero(column >= 0)
-        rows = gate_rows[column[paired]]
-        areas = gate_areas(predictions.S[rows], predictions.z_pred[rows, 1], self._gate)
-        wide = paired[areas > self.params.single_gate_area]
-        if wide.size == 0 or wide.size >= self.params.wide_pairs:
-            return column
-        kept: IntArray = column.copy()
-        kept[wide] = -1
+        ``wide_pairs`` of them.
+
+        :param columns: each measurement's candidate (of ``gate``), -1 where none
+        """
+        if not any(column >= 0 for column in columns):
+            return columns
+        # gate_areas() of the pairs, in floats: the same operations
+        S = gate.S.reshape(-1, 4).tolist()
+        ranges = gate.z_pred[:, 1].tolist()
+        scale = math.pi * self._gate
+        limit = self.params.single_gate_area
+        wide = []
+        for i, column in enumerate(columns):
+            if column < 0:
+                continue
+            s00, s01, s10, s11 = S[column]
+            area = scale * math.sqrt(max(s00 * s11 - s01 * s10, 0.0)) * max(ranges[column], 0.0)
+            if area > limit:
+                wide.append(i)
+        if not wide or len(wide) >= self.params.wide_pairs:
+            return columns
+        kept = list(columns)
+        for i in wide:
+            kept[i] = -1
         return kept
 
     def finish(self, slam: ScanFilter) -> list[int]:
@@ -265,9 +290,12 @@ def gate_areas(S: FloatArray, range_m: FloatArray, threshold: float) -> FloatArr
 
 def state_rows(rows: IntArray) -> IntArray:
     """The state indices of the pose and of the landmarks at ``rows`` (of the map)."""
-    return np.concatenate(
-        ([0, 1, 2], np.column_stack([3 + 2 * rows, 4 + 2 * rows]).ravel())
-    ).astype(np.int64)
+    rows = np.asarray(rows, dtype=np.int64)
+    indices = np.empty(3 + 2 * len(rows), dtype=np.int64)
+    indices[:3] = (0, 1, 2)
+    indices[3::2] = 3 + 2 * rows
+    indices[4::2] = 4 + 2 * rows
+    return indices
 
 
 def _joint_covariance(
@@ -286,7 +314,9 @@ def _joint_covariance(
     blocks = H_stacked[:, 3:].reshape(k, 2, k, 2)  # a view: (row pair, row, column pair, column)
     at = np.arange(k)
     blocks[at, :, at, :] = H[:, :, 3:]
-    P_rows = P[np.ix_(rows, rows)]
+    # P[np.ix_(rows, rows)] in two gathers, the rows first: P may be a view of the
+    # filter's buffer, which take() would copy whole before gathering
+    P_rows = P[rows].take(rows, 1)
     if U is not None:
         U_rows = U[:, rows]
         P_rows -= U_rows.T @ U_rows

@@ -7,7 +7,10 @@ its own two rows of the state::
 
 and measurement j is individually compatible with landmark i when its Mahalanobis
 distance squared nu^T S_i^-1 nu is below the chi-square quantile of the gate (2 dof).
-All landmarks at once, O(N) per scan (and O(m N) for the distances).
+All landmarks at once, O(N) per scan (and O(m N) for the distances). The associator
+takes them through :func:`gate_scan`, which keeps only the candidates (the landmarks in
+some gate) and, where ``_search.c`` was built, makes them in one compiled pass over the
+map, the numpy functions' floats to the bit.
 
 The same module holds the gate of known landmarks (:func:`gated`), used where the log
 gives ids rather than the association choosing them: it rejects an observation whose NIS
@@ -23,6 +26,7 @@ gated (there is nothing to check them against).
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -32,6 +36,13 @@ from ekfviz.core.records import Sighting
 from ekfviz.core.types import BoolArray, FloatArray, IntArray
 from ekfviz.models.angles import wrap_angles
 from ekfviz.models.range_bearing import RangeBearing
+
+try:  # optional, built with the filter's kernel: without it the gate runs on numpy
+    import ekfviz.association._search as _search
+except ImportError:  # pragma: no cover - no C compiler at install time
+    _search = None  # type: ignore[assignment]
+
+HAVE_GATE = _search is not None  # is gate_scan's compiled pass here?
 
 
 def gate_threshold(probability: float) -> float:
@@ -186,6 +197,132 @@ def mahalanobis2_of(u: FloatArray, v: FloatArray, S: FloatArray) -> FloatArray:
 def compatible(d2: FloatArray, threshold: float) -> BoolArray:
     """Individual compatibility: the (m, N) distances below the gate."""
     return np.asarray(d2 < threshold)
+
+
+@dataclass(frozen=True, slots=True)
+class ScanGate:
+    """The gate of one scan: what the association reads of the map's predictions, for
+    the *candidates* alone (the g landmarks in some measurement's gate, in map order).
+
+    :param rows: (g,) the candidates' indices in the map
+    :param z_pred: (g, 2) their predicted (bearing, range)
+    :param S: (g, 2, 2) their innovation covariances
+    :param H: (g, 2, 5) their measurement Jacobians over the pose and their own rows
+        (:meth:`Predictions.H`)
+    :param d2: (m, g) Mahalanobis distances squared of each measurement to each
+    :param nu: (m, g, 2) the innovations (bearing wrapped, range)
+    :param compatible: (m, g) ``d2`` below the gate
+    :param near: (m,) each measurement's distance to some landmark of the whole map
+        below the new-landmark gate
+    """
+
+    rows: IntArray
+    z_pred: FloatArray
+    S: FloatArray
+    H: FloatArray
+    d2: FloatArray
+    nu: FloatArray
+    compatible: BoolArray
+    near: BoolArray
+
+
+def marginals_of(P: FloatArray) -> FloatArray:
+    """The landmarks' 2x2 marginal covariances (N, 2, 2) of a whole covariance ``P``."""
+    n_landmarks = (P.shape[0] - 3) // 2
+    diagonal, above = np.diagonal(P)[3:], np.diagonal(P, 1)[3::2]
+    covs = np.empty((n_landmarks, 2, 2))
+    covs[:, 0, 0], covs[:, 1, 1] = diagonal[0::2], diagonal[1::2]
+    covs[:, 0, 1] = covs[:, 1, 0] = above
+    return covs
+
+
+def gate_scan(
+    x: FloatArray,
+    pose_rows: FloatArray,
+    covs: FloatArray,
+    sensor: RangeBearing,
+    R: FloatArray,
+    z: FloatArray,
+    gate: float,
+    new_gate: float,
+    *,
+    compiled: bool = True,
+) -> ScanGate:
+    """:func:`predict_landmarks_of`, :func:`innovation_parts`, :func:`mahalanobis2_of`
+    and :func:`compatible` of a scan against the whole map, kept for its candidates.
+
+    Compiled (``_search.c``, where it was built), one pass over the map in doubles,
+    operation for operation the numpy functions' (the same floats: only the bearing's
+    arctan2 is numpy's own, whose vectorised implementation libm's need not match), with
+    nothing of size m x N made; else those functions, as defined.
+
+    :param x: (3+2N,) state mean; :param pose_rows: (3, 3+2N) P's rows of the pose
+    :param covs: (N, 2, 2) the landmarks' marginal covariances
+    :param z: (m, 2) the scan's (bearing, range)
+    :param gate: the individual gate (chi-square, 2 dof); :param new_gate: the gate of
+        :attr:`ScanGate.near`
+    """
+    if _search is None or not compiled:
+        return _gate_scan_numpy(x, pose_rows, covs, sensor, R, z, gate, new_gate)
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    n_landmarks = (x.shape[0] - 3) // 2
+    m = z.shape[0]
+    sx, sy, sx_D_theta, sy_D_theta = sensor.sensor(x)
+    bearing = np.arctan2(x[4::2] - sy, x[3::2] - sx)
+    values = np.array(
+        (sx, sy, sx_D_theta, sy_D_theta, float(x[2]), float(R[0, 0]),
+         0.5 * (float(R[0, 1]) + float(R[1, 0])), float(R[1, 1]), gate, new_gate)
+    )  # fmt: skip
+    out = np.empty(n_landmarks * (16 + 3 * m))
+    rows = np.empty(n_landmarks, dtype=np.int64)
+    flags = np.empty(m * (n_landmarks + 1), dtype=bool)
+    g = _search.gate(
+        x, bearing, np.ascontiguousarray(pose_rows, dtype=np.float64),
+        np.ascontiguousarray(covs, dtype=np.float64), np.ascontiguousarray(z, dtype=np.float64),
+        values, out, rows, flags,
+    )  # fmt: skip
+    # out holds z_pred, S, H, d2 and nu of the g candidates one after another
+    ends = list(itertools.accumulate((2 * g, 4 * g, 10 * g, m * g, 2 * m * g)))
+    return ScanGate(
+        rows=rows[:g],
+        z_pred=out[: ends[0]].reshape(g, 2),
+        S=out[ends[0] : ends[1]].reshape(g, 2, 2),
+        H=out[ends[1] : ends[2]].reshape(g, 2, 5),
+        d2=out[ends[2] : ends[3]].reshape(m, g),
+        nu=out[ends[3] : ends[4]].reshape(m, g, 2),
+        compatible=flags[: m * g].reshape(m, g),
+        near=flags[m * n_landmarks :],
+    )
+
+
+def _gate_scan_numpy(
+    x: FloatArray,
+    pose_rows: FloatArray,
+    covs: FloatArray,
+    sensor: RangeBearing,
+    R: FloatArray,
+    z: FloatArray,
+    gate: float,
+    new_gate: float,
+) -> ScanGate:
+    """:func:`gate_scan` by its definition, with the numpy functions."""
+    predictions = predict_landmarks_of(
+        x, pose_rows, covs[:, (0, 1), (0, 1)].ravel(), covs[:, 0, 1], sensor, R
+    )
+    u, v = innovation_parts(z, predictions.z_pred)
+    d2 = mahalanobis2_of(u, v, predictions.S)
+    ic = compatible(d2, gate)
+    rows = np.flatnonzero(ic.any(axis=0))
+    return ScanGate(
+        rows=rows,
+        z_pred=predictions.z_pred[rows],
+        S=predictions.S[rows],
+        H=predictions.H(rows),
+        d2=d2[:, rows],
+        nu=np.stack((u[:, rows], v[:, rows]), axis=-1),
+        compatible=ic[:, rows],
+        near=np.asarray((d2 < new_gate).any(axis=1)),
+    )
 
 
 # --- the gate of known landmarks -----------------------------------------------------

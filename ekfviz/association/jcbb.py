@@ -29,7 +29,6 @@ spent improving on them.
 
 from __future__ import annotations
 
-import itertools
 import math
 from dataclasses import dataclass
 
@@ -112,6 +111,8 @@ def jcbb(
     :param compiled: search in ``_search.c`` where it was built (the same nodes, see
         there), else in Python
     """
+    if _search is not None and compiled:
+        return _compiled_jcbb(nu, d2, compatible, C, R, probability, budget, work_budget)
     order: list[int] = np.flatnonzero(compatible.any(axis=1)).tolist()
     if len(order) > MAX_JOINT:
         return JcbbResult(
@@ -135,9 +136,6 @@ def jcbb(
             strict=True,
         )
     )
-    if _search is not None and compiled:
-        return _compiled_search(nu, d2, compatible, C, own, order, candidates, probability,
-                                budget, work_budget)  # fmt: skip
     nu_of = nu[order].tolist()  # nu_of[depth][k] = [bearing, range]
     thresholds: dict[int, float] = {}
     best_pairs = 0
@@ -261,36 +259,60 @@ def _result(
     )
 
 
-def _compiled_search(
+def _compiled_jcbb(
     nu: FloatArray,
     d2: FloatArray,
     compatible: BoolArray,
     C: FloatArray,
-    own: list[tuple[float, float, float]],
-    order: list[int],
-    candidates: list[list[int]],
+    R: FloatArray,
     probability: float,
     budget: int,
     work_budget: int,
 ) -> JcbbResult:
-    """:func:`jcbb`'s search in ``_search.c``, from the same candidates and blocks."""
+    """:func:`jcbb` in ``_search.c``, its preparation included (the measurements in some
+    gate, their candidates nearest first, the candidates' own blocks): the same search,
+    node for node, from the same arguments, without the few dozen numpy calls per scan of
+    preparing it here."""
     assert _search is not None
-    depth_total = len(order)
-    starts = np.zeros(depth_total + 1, dtype=np.int64)
-    np.cumsum([len(c) for c in candidates], out=starts[1:])
-    flat = np.fromiter(itertools.chain.from_iterable(candidates), np.int64, int(starts[-1]))
-    thresholds = np.array(
-        [joint_threshold(probability, 2 * (pairs + 1)) for pairs in range(depth_total + 1)]
-    )
-    best, _, best_d2, nodes, work, exhausted, complete = _search.search(
+    m, k = d2.shape
+    found = _search.jcbb(
+        np.ascontiguousarray(nu, dtype=np.float64),
+        np.ascontiguousarray(d2, dtype=np.float64),
+        np.ascontiguousarray(compatible, dtype=bool),
         np.ascontiguousarray(C, dtype=np.float64),
-        np.array(own, dtype=np.float64).reshape(-1, 3),
-        np.ascontiguousarray(nu[order], dtype=np.float64),
-        flat,
-        starts,
-        thresholds,
-        budget,
-        work_budget,
+        np.array((R[0, 0], R[0, 1], R[1, 1]), dtype=np.float64),
+        _thresholds(probability, min(m, MAX_JOINT)),
+        m, k, budget, work_budget, MAX_JOINT,
+    )  # fmt: skip
+    if found is None:  # over MAX_JOINT measurements in some gate
+        return JcbbResult(
+            nearest_neighbour(d2, compatible), 0, 0.0, exhausted=True, fallback=FALLBACK_NN
+        )
+    pairing, best_d2, nodes, work, exhausted, complete = found
+    if exhausted and not complete:
+        return JcbbResult(
+            nearest_neighbour(d2, compatible), nodes, 0.0, True, fallback=FALLBACK_NN, work=work
+        )
+    return JcbbResult(
+        pairing=np.array(pairing, dtype=np.int64),
+        hypotheses=nodes,
+        joint_d2=best_d2,
+        exhausted=bool(exhausted),
+        fallback=FALLBACK_BEST if exhausted else "",
+        work=work,
     )
-    pairs = [(order[depth], k) for depth, k in enumerate(best) if k >= 0]
-    return _result(d2, compatible, pairs, best_d2, nodes, work, bool(exhausted), bool(complete))
+
+
+_THRESHOLDS: dict[float, FloatArray] = {}
+
+
+def _thresholds(probability: float, depth: int) -> FloatArray:
+    """The joint gates of 1 to ``depth`` + 1 pairs (at least), kept per probability."""
+    kept = _THRESHOLDS.get(probability)
+    if kept is None or kept.shape[0] <= depth:
+        grown = max(16, 0 if kept is None else 2 * kept.shape[0])
+        size = max(depth + 1, min(grown, MAX_JOINT + 1))
+        kept = _THRESHOLDS[probability] = np.array(
+            [joint_threshold(probability, 2 * (pairs + 1)) for pairs in range(size)]
+        )
+    return kept

@@ -351,6 +351,14 @@ class EkfSlam:
         """Landmark ids in state order (order of first sighting)."""
         return list(self._ids)
 
+    def landmark_ids_array(self) -> IntArray:
+        """:attr:`landmark_ids` as a read-only int64 array, kept until the map changes
+        (the records' own): for a reader once per scan, without a list copied and
+        converted each time."""
+        if self._ids_array is None:
+            self._ids_array = frozen(np.array(self._ids, dtype=np.int64))
+        return self._ids_array
+
     def knows(self, landmark_id: int) -> bool:
         return landmark_id in self._slot
 
@@ -381,8 +389,7 @@ class EkfSlam:
         together by :func:`~ekfviz.core.records.kept_record` without further checks.
         """
         n = self._n
-        if self._ids_array is None:
-            self._ids_array = frozen(np.array(self._ids, dtype=np.int64))
+        ids = self.landmark_ids_array()
         n_landmarks = (n - 3) // 2
         if full_cov and self._rank:
             self._flush()
@@ -403,7 +410,7 @@ class EkfSlam:
         pose_cov = frozen(pose_cov)
         return kept_record(
             event, step, kind, line, pose, pose_cov,
-            self._ids_array, self._landmarks_xy, self.landmark_marginals(),  # read-only, kept
+            ids, self._landmarks_xy, self.landmark_marginals(),  # read-only, kept
             None if control is None else frozen(np.array(control, dtype=np.float64)),
             observations, frozen(P[:n, :n].copy()) if full_cov else None,
             time, warnings, covariance, association,

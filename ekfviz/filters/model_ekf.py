@@ -4,8 +4,11 @@
 landmark removal) with the measurement model of :mod:`ekfviz.models.range_bearing` (a
 sensor mounted ``a`` ahead and ``b`` left of the pose's origin) and, for :class:`Drive`
 events, the vehicle of :mod:`ekfviz.models.ackermann`. Classic logs keep the classic
-filter and its compiled kernel; these models run on numpy, sequentially (the
-``--update joint`` option does not apply to them).
+filter and its compiled kernel; these models update sequentially (the ``--update joint``
+option does not apply to them), on numpy, or in the kernel where the map is large
+enough to keep P's changes pending (``model_update``: a landmark's H P and whitened rows
+in a few vectorised passes, where numpy takes a dozen calls); the Ackermann vehicle's
+spans are driven in the kernel too (``ackermann_drive``, the same floats).
 
 The state's pose is the vehicle's origin (the rear axle's centre for the Ackermann
 vehicle), where the models are simplest. Its records may report another point of the
@@ -25,10 +28,13 @@ import numpy as np
 from ekfviz.core.records import EventRecord, kept_record
 from ekfviz.core.types import FloatArray
 from ekfviz.filters.ekf import (
+    _NOT_DEFINITE,
+    _ZERO_RANGE,
     MIN_PREDICTED_RANGE,
     EkfSlam,
     FilterError,
     FilterParams,
+    _nan_table,
     _not_definite,
     _whitened,
     _zero_range,
@@ -36,6 +42,17 @@ from ekfviz.filters.ekf import (
 from ekfviz.models.ackermann import Ackermann
 from ekfviz.models.angles import wrap_angle
 from ekfviz.models.range_bearing import RangeBearing
+
+try:
+    from ekfviz.filters import _kernel
+except ImportError:  # installed without a C compiler: numpy throughout
+    _kernel = None  # type: ignore[assignment]
+
+_NO_SPANS = np.zeros((0, 3))  # where the kernel drove them
+_NO_SPANS.flags.writeable = False
+
+# what _kernel.model_update says of a line: S not finite, or U full (fold it, go on)
+_S_NOT_FINITE, _U_FULL = 1, 3
 
 
 class ModelEkfSlam(EkfSlam):
@@ -45,6 +62,8 @@ class ModelEkfSlam(EkfSlam):
     :param sensor: the measurement model
     :param reported_point: (ahead, left) in metres: the point of the vehicle whose pose
         the records report (the state keeps the origin's); (0, 0) by default
+    :param compiled: run the sequential update of a large map (where its changes of P are
+        deferred) in the compiled kernel, where it was built (see :meth:`_update_sequential`)
     """
 
     def __init__(
@@ -55,8 +74,11 @@ class ModelEkfSlam(EkfSlam):
         sensor: RangeBearing | None = None,
         capacity: int = 0,
         reported_point: tuple[float, float] = (0.0, 0.0),
+        compiled: bool = True,
     ) -> None:
         super().__init__(params, capacity=capacity, compiled=False)
+        self._model_kernel = compiled and _kernel is not None
+        self._kernel_wide = True  # the kernel's AVX2 loops where the CPU has them (tests: off)
         self.vehicle = vehicle
         self.sensor = sensor if sensor is not None else RangeBearing()
         self.reported_point = reported_point
@@ -109,7 +131,9 @@ class ModelEkfSlam(EkfSlam):
 
         Each span is linearised at the pose it starts from, as one predict per span
         would; the pose block is propagated span by span and the cross-covariances
-        with the map once, with the product of the spans' G.
+        with the map once, with the product of the spans' G. The spans of the built-in
+        :class:`Ackermann` run in the kernel (``ackermann_drive``) where it was built:
+        the same float operations, the same results.
         """
         if self.vehicle is None:
             raise FilterError("this filter has no vehicle model for speed and steering controls")
@@ -123,7 +147,14 @@ class ModelEkfSlam(EkfSlam):
         (p00, p01, p02), (_, p11, p12), (_, _, p22) = P[:3, :3].tolist()
         # the product of the spans' G is the identity but for column theta: (a, b, 1)
         a_all = b_all = 0.0
-        for speed, steering, dt in np.asarray(segments, dtype=np.float64).tolist():
+        spans = np.asarray(segments, dtype=np.float64)
+        if self._model_kernel and type(vehicle) is Ackermann:  # the same floats, in C
+            (px, py, pt, p00, p01, p02, p11, p12, p22, a_all, b_all) = _kernel.ackermann_drive(
+                np.ascontiguousarray(spans), px, py, pt, p00, p01, p02, p11, p12, p22,
+                vehicle.wheelbase, vehicle.encoder_offset, qv, qs,
+            )  # fmt: skip
+            spans = _NO_SPANS
+        for speed, steering, dt in spans.tolist():
             if dt <= 0.0:
                 continue
             (nx, ny, nt, g02, g12, w00, w01, w10, w11, w20, w21) = vehicle.step(
@@ -167,7 +198,64 @@ class ModelEkfSlam(EkfSlam):
         skipped: list[bool],
     ) -> None:
         """EKF updates with the known landmarks one after another, in file order, with
-        the sensor model (H has the 5 non-zero columns 0, 1, 2, j, j+1).
+        the sensor model: :meth:`_update_numpy`, or, where P's changes are deferred (a
+        large map) and the kernel was built, the same loop in ``_kernel.c``
+        (``model_update``), which makes H P and the whitened rows in a few passes over
+        the rows involved, where numpy takes a dozen calls per landmark. Its sums are
+        numpy's to round-off (fused multiply-adds, another order), not to the bit.
+        """
+        U, rank = self._pending()
+        if not (self._model_kernel and U.shape[0]):
+            self._update_numpy(ids, z, known, table, skipped)
+            return
+        m = len(ids)
+        slot = self._slot
+        slots = [-1] * m
+        for k in known:
+            slots[k] = slot[ids[k]]
+        slot_array = np.array(slots, dtype=np.int64)
+        z_array = np.array(z, dtype=np.float64).reshape(m, 2)
+        values = _nan_table(m)
+        status = np.zeros(m, dtype=np.int8)
+        n = self._n
+        a, b = self.sensor.a, self.sensor.b
+        r00, r01, r11 = (float(v) for v in (self._R[0, 0], self._R[0, 1], self._R[1, 1]))
+        start = 0
+        while True:
+            code, k, rank = _kernel.model_update(
+                self._x, self._P, U, n, rank, slot_array, z_array, values, status, start,
+                a, b, r00, r01, r11, MIN_PREDICTED_RANGE, self._kernel_wide,
+            )  # fmt: skip
+            self._rank = rank  # at once: an error later in the line leaves P as it is
+            if code != _U_FULL:
+                break
+            self._subtract_gram(U[:, :n])  # as _fold does once U is full
+            self._rank = rank = 0
+            if k >= m:
+                break
+            start = k
+        if code == _S_NOT_FINITE:
+            raise FilterError(f"the covariance became non-finite (S of landmark {ids[k]})")
+        for k in known:  # in file order: the warnings as the numpy loop gives them
+            why = int(status[k])
+            if why == _ZERO_RANGE:
+                self._skip(k, ids[k], skipped, _zero_range(float(values[k, 1])))
+                continue  # its row stays NaN
+            if why == _NOT_DEFINITE:
+                s00, s01, _, s11 = values[k, 4:8].tolist()
+                self._skip(k, ids[k], skipped, _not_definite(s00, s01, s11))
+            table[k] = tuple(values[k].tolist())
+
+    def _update_numpy(
+        self,
+        ids: list[int],
+        z: list[list[float]],
+        known: Sequence[int],
+        table: list[tuple[float, ...]],
+        skipped: list[bool],
+    ) -> None:
+        """EKF updates with the known landmarks one after another, in file order, with
+        the sensor model (H has the 5 non-zero columns 0, 1, 2, j, j+1), on numpy.
 
         As in :meth:`EkfSlam._update_sequential`: with S = L L^T, A = L^-1 H P (2 x n) and
         w = L^-1 nu, x += A^T w at once and P -= A^T A deferred. The rank-2 changes are
