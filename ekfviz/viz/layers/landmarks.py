@@ -25,10 +25,15 @@ import rerun as rr
 from ekfviz.core.records import EventKind, EventRecord
 from ekfviz.core.types import BoolArray, FloatArray, IntArray
 from ekfviz.viz import style
-from ekfviz.viz.ellipses import ellipse_extent, ellipse_outlines, ellipse_shapes, outline_points
+from ekfviz.viz.ellipses import (
+    ellipse_extent,
+    ellipse_outlines,
+    ellipse_shape_columns,
+    outline_points,
+)
 from ekfviz.viz.layers.arrow import column, radius, xy
-from ekfviz.viz.layers.batch import Batch, landmark_rows
-from ekfviz.viz.layers.canvas import NO_ROWS, Canvas, Rows
+from ekfviz.viz.layers.batch import Batch, Maps, landmark_rows
+from ekfviz.viz.layers.canvas import Canvas, Rows
 from ekfviz.viz.layers.labels import LabelsLayer
 
 SMALL_MAP = 32  # up to this many landmarks, every ellipse at every update
@@ -41,6 +46,9 @@ MAP_POINTS = 16  # points of a landmark outline: within 2 % of its radius, as MA
 # showed corners there, 32 do not (within 0.5 % of its radius)
 INITIAL_POINTS = 32
 MAP_EVERY_S = 5.0  # ... and in a thinned timestamped log, every this many seconds of log time
+# the map's window search (MapLayer._changes_of_one_map): after an update logged, look this
+# many updates ahead at least (twice the last gap between two logged, if more)
+WINDOW_MIN = 16
 
 
 class MapLayer:
@@ -140,26 +148,35 @@ class MapLayer:
         shown = self._map_changes(batch, sparse).tolist()
         if shown:
             self._send_points(rows.pick(corrected[shown]), [records[i] for i in shown])
-        self._send_ellipses(
+        # the ellipses of every update below by their rows in the batch's joined maps
+        # (maps.xy, maps.covs), found for all updates at once (see _joined_rows)
+        joined_ids = np.concatenate([record.landmark_ids for record in records])
+        whole_maps = np.array([i for i in shown if whole[i]], dtype=np.int64)
+        self._send_joined_ellipses(
             style.LANDMARK_ELLIPSES,
             rows,
-            [
-                (int(corrected[i]), records[i], landmark_rows(records[i], None))
-                for i in shown
-                if whole[i]
-            ],
+            corrected[whole_maps],
+            maps,
+            _ranges(maps.starts[whole_maps], maps.starts[whole_maps + 1]),
+            maps.counts[whole_maps],
+            joined_ids,
         )
         # Beyond a small map: the observed landmarks' own ellipses at the updates between
         # two of the whole map's (and an empty row, clearing them, at those).
-        self._send_ellipses(
+        at_sparse = np.flatnonzero(sparse)
+        own = at_sparse[~whole[at_sparse]]
+        tables: dict[int, _IdRows | None] = {}  # id lookups of the batch's maps
+        joined_rows, own_counts = _joined_rows(maps, own, "observed", tables)
+        counts = np.zeros(len(at_sparse), dtype=np.int64)
+        counts[~whole[at_sparse]] = own_counts
+        self._send_joined_ellipses(
             style.LANDMARK_ELLIPSES_OBSERVED,
             rows,
-            [
-                (k, records[i], NO_ROWS if whole[i] else landmark_rows(records[i], "observed"))
-                for i, k in zip(
-                    np.flatnonzero(sparse).tolist(), corrected[sparse].tolist(), strict=True
-                )
-            ],
+            corrected[at_sparse],
+            maps,
+            joined_rows,
+            counts,
+            joined_ids,
         )
         with_new = np.flatnonzero(batch.observed.new[corrected]).tolist()
         self._send_ellipses(
@@ -172,7 +189,9 @@ class MapLayer:
             ],
             INITIAL_POINTS,
         )
-        self._send_confirmed_first_sightings(rows, corrected, records)
+        self._send_confirmed_first_sightings(
+            rows, corrected, maps, batch.observed.new[corrected], joined_ids, tables
+        )
 
     def _sparse_maps(self, batch: Batch) -> BoolArray:
         """:meth:`sparse` of each of the batch's updates, in a few numpy calls."""
@@ -227,11 +246,12 @@ class MapLayer:
             self._map_shown = None
             self._map_shown_event = maps.records[-1].event
             return np.arange(len(corrected))
-        # the shapes and tolerances of every landmark of every update at once
-        every = ellipse_shapes(maps.xy, maps.covs)
+        # the shapes and tolerances of every landmark of every update at once, a row per
+        # quantity (see ellipse_shape_columns)
+        every = ellipse_shape_columns(maps.xy, maps.covs)
         # the point at angle t of an outline, m + 3 sqrt(C) [cos t, sin t], moves by at most
         # |dm| + 3 ||d sqrt(C)||_F; the semi-major axis is at least 3 ||sqrt(C)||_F / sqrt(2)
-        tolerance = MAP_TOLERANCE * np.linalg.norm(every[:, 2:], axis=1) / math.sqrt(2.0)
+        tolerance = MAP_TOLERANCE * _root_norms(every[2:] * every[2:]) / math.sqrt(2.0)
         events = batch.rows.events[corrected]
         forced = batch.whole[corrected] & sparse
         if self._final_event is not None:
@@ -246,7 +266,7 @@ class MapLayer:
                     maps.records[start:end],
                     events[start:end],
                     forced[start:end].copy(),
-                    every[first:last].reshape(end - start, n, 6),
+                    every[:, first:last].reshape(6, end - start, n),
                     tolerance[first:last].reshape(end - start, n),
                 )
             )
@@ -261,9 +281,9 @@ class MapLayer:
         tolerance: FloatArray,
     ) -> IntArray:
         """:meth:`_map_changes` of updates of the same landmarks, their shapes ``every``
-        (u, n, 6) and tolerances (u, n), in a few numpy calls: from each update logged,
-        the first that has moved from it, looked for in windows that grow while none has
-        (``forced``: the updates logged whatever they moved)."""
+        (6, u, n: a row per quantity) and tolerances (u, n), in a few numpy calls: from
+        each update logged, the first that has moved from it, looked for in windows that
+        grow while none has (``forced``: the updates logged whatever they moved)."""
         if self._map_shown is None or not np.array_equal(
             self._map_shown[0], records[0].landmark_ids
         ):
@@ -276,20 +296,21 @@ class MapLayer:
         while k < len(records):
             if not forced[k]:
                 before = self._map_shown[1]  # type: ignore[index]
-                ahead = every[k : k + window] - before
-                moved = _norms(ahead[:, :, :2]) + _norms(ahead[:, :, 2:])
+                ahead = every[:, k : k + window] - before[:, None, :]
+                squares = np.multiply(ahead, ahead, out=ahead)
+                moved = _root_norms(squares[:2]) + _root_norms(squares[2:])
                 due = forced[k : k + window] | ~np.all(moved <= tolerance[k : k + window], axis=1)
                 hits = np.flatnonzero(due)
                 if not hits.size:
-                    k, window = k + len(ahead), 2 * window
+                    k, window = k + len(due), 2 * window
                     continue
                 k += int(hits[0])
             if shown:
                 gap = k - shown[-1]
-            self._map_shown = (records[k].landmark_ids, every[k].copy())
+            self._map_shown = (records[k].landmark_ids, every[:, k].copy())
             self._map_shown_event = int(events[k])
             shown.append(k)
-            k, window = k + 1, max(16, 2 * gap)
+            k, window = k + 1, max(WINDOW_MIN, 2 * gap)
         return np.array(shown, dtype=np.int64)
 
     def _send_points(self, times: list[rr.TimeColumnLike], updates: list[EventRecord]) -> None:
@@ -342,24 +363,69 @@ class MapLayer:
         at = np.array([k for k, _, _ in batches], dtype=np.int64)
         self._canvas.send_strips(entity, rows, at, outlines, counts, np.concatenate(ids))
 
+    def _send_joined_ellipses(
+        self,
+        entity: str,
+        rows: Rows,
+        at: IntArray,
+        maps: Maps,
+        joined_rows: IntArray,
+        counts: IntArray,
+        joined_ids: IntArray,
+    ) -> None:
+        """:meth:`_send_ellipses` of landmarks given by their rows in a batch's joined
+        maps: ``counts[i]`` of ``joined_rows`` at the row ``at[i]`` of ``rows``.
+
+        :param joined_ids: (sum(maps.counts),) the landmark id of each joined row
+        """
+        if not len(at):
+            return
+        n_points = min(MAP_POINTS, outline_points(int(counts.max())))
+        outlines = ellipse_outlines(maps.xy[joined_rows], maps.covs[joined_rows], n_points=n_points)
+        self._canvas.send_strips(entity, rows, at, outlines, counts, joined_ids[joined_rows])
+
     def _send_confirmed_first_sightings(
-        self, rows: Rows, corrected: IntArray, records: list[EventRecord]
+        self,
+        rows: Rows,
+        corrected: IntArray,
+        maps: Maps,
+        new_counts: IntArray,
+        joined_ids: IntArray,
+        tables: dict[int, _IdRows | None],
     ) -> None:
         """With id-less scans, the first-sighting outline of a landmark appears when the
         association confirms it: most new landmarks of a cluttered scan are removed
-        again, and their outlines would bury the map (Victoria Park: 600 of 900)."""
-        at, means, covs, ids = [], [], [], []
-        for k, record in zip(corrected.tolist(), records, strict=True):
+        again, and their outlines would bury the map (Victoria Park: 600 of 900).
+
+        :param new_counts: (u,) how many landmarks each update initialised
+        :param joined_ids: the landmark id of each row of the joined maps
+        :param tables: the id lookups of the batch's maps (see :func:`_joined_rows`)
+        """
+        records = maps.records
+        picks = np.array(
+            [i for i in np.flatnonzero(new_counts).tolist() if records[i].association is not None],
+            dtype=np.int64,
+        )
+        # the rows of each update's new landmarks in the joined maps, for all at once
+        new_rows, new_per_update = _joined_rows(maps, picks, "initialised", tables)
+        new_ends = np.cumsum(new_per_update).tolist()
+        new_of = {
+            i: new_rows[end - count : end].tolist()
+            for i, end, count in zip(picks.tolist(), new_ends, new_per_update.tolist(), strict=True)
+        }
+        at: list[int] = []
+        means: list[FloatArray] = []
+        covs: list[FloatArray] = []
+        ids: list[list[int]] = []
+        for u, (k, record) in enumerate(zip(corrected.tolist(), records, strict=True)):
             association = record.association
             if association is None:
                 continue
-            if record.observations is not None and record.observations.initialised.any():
-                rows_new = landmark_rows(record, "initialised")
-                for row in rows_new.tolist():
-                    self._first_sightings[int(record.landmark_ids[row])] = (
-                        record.landmarks_xy[row].copy(),
-                        record.landmark_covs[row].copy(),
-                    )
+            for row in new_of.get(u, ()):
+                self._first_sightings[int(joined_ids[row])] = (
+                    maps.xy[row].copy(),
+                    maps.covs[row].copy(),
+                )
             for landmark_id in association.removed.tolist():
                 self._first_sightings.pop(int(landmark_id), None)
             confirmed = [
@@ -383,9 +449,117 @@ class MapLayer:
         )  # fmt: skip
 
 
-def _norms(vectors: FloatArray) -> FloatArray:
-    """``np.linalg.norm(vectors, axis=2)`` to the bit, as it computes it (the squares of
-    the real entries, summed over the last axis), without its checks: it is called a few
-    times for every update logged."""
-    norms: FloatArray = np.sqrt(np.add.reduce(vectors * vectors, axis=2))
+def _ranges(starts: IntArray, ends: IntArray) -> IntArray:
+    """The integers of the ranges [starts[i], ends[i]), range after range."""
+    lengths = ends - starts
+    # the k-th integer overall is k plus its range's start less where that range begins
+    offsets = np.repeat(starts - (np.cumsum(lengths) - lengths), lengths)
+    ranges: IntArray = np.arange(len(offsets), dtype=np.int64) + offsets
+    return ranges
+
+
+def _joined_rows(
+    maps: Maps, picks: IntArray, which: str, tables: dict[int, _IdRows | None]
+) -> tuple[IntArray, IntArray]:
+    """:func:`~.batch.landmark_rows` of the updates ``picks`` for all at once: their rows
+    in the joined maps (``maps.xy``, ``maps.covs``), update after update, each update's in
+    ascending order, and how many each update has.
+
+    The rows of the ids observed (or initialised) at each update, looked up in a table
+    from id to row kept per run of updates of one map (:meth:`Maps.runs`): a few numpy
+    calls per map, where ``np.isin`` per update cost a numpy call each.
+
+    :param picks: (p,) ascending indices into ``maps.records``
+    :param which: ``"observed"`` or ``"initialised"``
+    :param tables: the lookups made so far, by the run's first update (filled here)
+    :return: the joined rows, and (p,) the count per update
+    """
+    records, starts = maps.records, maps.starts
+    runs = np.array(maps.runs(), dtype=np.int64)
+    run_of = np.searchsorted(runs, picks, side="right") - 1
+    found: list[IntArray] = []
+    for run in np.unique(run_of).tolist():
+        in_run = picks[run_of == run].tolist()
+        first_update = int(runs[run])
+        if first_update not in tables:
+            tables[first_update] = _IdRows.of(records[first_update].landmark_ids)
+        table = tables[first_update]
+        wanted: list[IntArray] = []
+        owners: list[int] = []
+        for i in in_run:
+            observations = records[i].observations
+            if observations is None:  # no observations: all of its landmarks
+                found.append(np.arange(starts[i], starts[i + 1]))
+                continue
+            if table is None:  # ids not distinct: the definition, update by update
+                found.append(starts[i] + landmark_rows(records[i], which))
+                continue
+            seen = observations.ids
+            if which != "observed":
+                seen = seen[observations.initialised]
+            wanted.append(seen)
+            owners.append(i)
+        if wanted and table is not None:
+            lengths = np.fromiter(map(len, wanted), np.int64, len(wanted))
+            rows = table.rows(np.concatenate(wanted))
+            first = np.repeat(starts[np.array(owners, dtype=np.int64)], lengths)
+            found.append((first + rows)[rows >= 0])
+    # distinct and in order: update after update (their rows are apart), ascending within
+    joined = np.unique(np.concatenate([np.zeros(0, dtype=np.int64), *found]))
+    counts = np.searchsorted(joined, starts[picks + 1]) - np.searchsorted(joined, starts[picks])
+    return joined, counts.astype(np.int64)
+
+
+class _IdRows:
+    """The row of each landmark id in one map's ids: a table where the ids are small
+    non-negative integers, a sorted search otherwise."""
+
+    def __init__(self, ids: IntArray, table: IntArray | None, order: IntArray | None) -> None:
+        self._ids = ids
+        self._table = table
+        self._order = order
+
+    @staticmethod
+    def of(ids: IntArray) -> _IdRows | None:
+        """The lookup of the map ``ids``; None if they are not distinct."""
+        ids = np.asarray(ids, dtype=np.int64)
+        if not len(ids):
+            return _IdRows(ids, np.full(0, -1, dtype=np.int64), None)
+        low, high = int(ids.min()), int(ids.max())
+        if low >= 0 and high < 4 * len(ids) + 1024:
+            table = np.full(high + 1, -1, dtype=np.int64)
+            table[ids] = np.arange(len(ids))
+            if int(np.count_nonzero(table >= 0)) != len(ids):
+                return None
+            return _IdRows(ids, table, None)
+        order = np.argsort(ids, kind="stable")
+        if bool((ids[order][1:] == ids[order][:-1]).any()):
+            return None
+        return _IdRows(ids, None, order)
+
+    def rows(self, wanted: IntArray) -> IntArray:
+        """The row of each of ``wanted``, -1 where it is not in the map."""
+        wanted = np.asarray(wanted, dtype=np.int64)
+        rows: IntArray = np.full(len(wanted), -1, dtype=np.int64)
+        if self._table is not None:
+            inside = (wanted >= 0) & (wanted < len(self._table))
+            rows[inside] = self._table[wanted[inside]]
+            return rows
+        assert self._order is not None
+        ordered = self._ids[self._order]
+        at = np.minimum(np.searchsorted(ordered, wanted), len(ordered) - 1)
+        hit = ordered[at] == wanted
+        rows[hit] = self._order[at[hit]]
+        return rows
+
+
+def _root_norms(squares: FloatArray) -> FloatArray:
+    """The Euclidean norms of vectors given by their squared entries, a row per entry
+    (the vectors along axis 0): ``np.linalg.norm`` of the vectors to the bit, as it
+    sums them (the squares in order, left to right; see tests/test_send_columns.py),
+    from contiguous rows instead of a strided last axis."""
+    total = squares[0].copy()
+    for row in squares[1:]:
+        total += row
+    norms: FloatArray = np.sqrt(total, out=total)
     return norms
