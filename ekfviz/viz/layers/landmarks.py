@@ -465,9 +465,11 @@ def _joined_rows(
     in the joined maps (``maps.xy``, ``maps.covs``), update after update, each update's in
     ascending order, and how many each update has.
 
-    The rows of the ids observed (or initialised) at each update, looked up in a table
-    from id to row kept per run of updates of one map (:meth:`Maps.runs`): a few numpy
-    calls per map, where ``np.isin`` per update cost a numpy call each.
+    The ids observed (or initialised) at every update looked up at once: in a table from
+    id to row per run of updates of one map (:meth:`Maps.runs`), the tables of small
+    non-negative ids joined into one array; a sorted search per map otherwise, and the
+    definition update by update where a map's ids repeat. ``np.isin`` per update cost a
+    numpy call each.
 
     :param picks: (p,) ascending indices into ``maps.records``
     :param which: ``"observed"`` or ``"initialised"``
@@ -476,36 +478,56 @@ def _joined_rows(
     """
     records, starts = maps.records, maps.starts
     runs = np.array(maps.runs(), dtype=np.int64)
-    run_of = np.searchsorted(runs, picks, side="right") - 1
-    found: list[IntArray] = []
-    for run in np.unique(run_of).tolist():
-        in_run = picks[run_of == run].tolist()
+    pick_list = picks.tolist()
+    found: list[IntArray] = [np.zeros(0, dtype=np.int64)]
+    observations = [records[i].observations for i in pick_list]
+    # an update without observations: all of its landmarks
+    found += [
+        np.arange(starts[i], starts[i + 1])
+        for i, seen in zip(pick_list, observations, strict=True)
+        if seen is None
+    ]
+    observed = [seen for seen in observations if seen is not None]
+    owners = picks[np.array([seen is not None for seen in observations], dtype=bool)]
+    if which == "observed":
+        wanted_each = [seen.ids for seen in observed]
+    else:
+        wanted_each = [seen.ids[seen.initialised] for seen in observed]
+    lengths = np.fromiter(map(len, wanted_each), np.int64, len(wanted_each))
+    wanted = np.concatenate([np.zeros(0, dtype=np.int64), *wanted_each]).astype(np.int64)
+    owner = np.repeat(owners, lengths)  # the update of each id wanted
+    owner_run = np.searchsorted(runs, owner, side="right") - 1
+    rows = np.full(len(wanted), -1, dtype=np.int64)
+    # the dense tables of the runs asked, one after another: a run's at its offset
+    dense: list[IntArray] = []
+    offset = np.zeros(len(runs), dtype=np.int64)
+    width = np.zeros(len(runs), dtype=np.int64)  # 0: no dense table
+    cursor = 0
+    for run in np.unique(owner_run).tolist():
         first_update = int(runs[run])
         if first_update not in tables:
             tables[first_update] = _IdRows.of(records[first_update].landmark_ids)
         table = tables[first_update]
-        wanted: list[IntArray] = []
-        owners: list[int] = []
-        for i in in_run:
-            observations = records[i].observations
-            if observations is None:  # no observations: all of its landmarks
-                found.append(np.arange(starts[i], starts[i + 1]))
-                continue
-            if table is None:  # ids not distinct: the definition, update by update
-                found.append(starts[i] + landmark_rows(records[i], which))
-                continue
-            seen = observations.ids
-            if which != "observed":
-                seen = seen[observations.initialised]
-            wanted.append(seen)
-            owners.append(i)
-        if wanted and table is not None:
-            lengths = np.fromiter(map(len, wanted), np.int64, len(wanted))
-            rows = table.rows(np.concatenate(wanted))
-            first = np.repeat(starts[np.array(owners, dtype=np.int64)], lengths)
-            found.append((first + rows)[rows >= 0])
+        if table is not None and table.table is not None:
+            dense.append(table.table)
+            offset[run], width[run] = cursor, len(table.table)
+            cursor += len(table.table)
+            continue
+        in_run = owner_run == run
+        if table is not None:  # ids far apart: a sorted search
+            rows[in_run] = table.rows(wanted[in_run])
+            continue
+        # ids not distinct: the definition, update by update
+        for i in np.unique(owner[in_run]).tolist():
+            found.append(starts[i] + landmark_rows(records[i], which))
+    if dense:
+        tables_joined = np.concatenate(dense)
+        inside = (wanted >= 0) & (wanted < width[owner_run])
+        rows[inside] = tables_joined[offset[owner_run[inside]] + wanted[inside]]
+    hit = rows >= 0
+    found.append(starts[owner[hit]] + rows[hit])
     # distinct and in order: update after update (their rows are apart), ascending within
-    joined = np.unique(np.concatenate([np.zeros(0, dtype=np.int64), *found]))
+    joined = np.unique(np.concatenate(found))
     counts = np.searchsorted(joined, starts[picks + 1]) - np.searchsorted(joined, starts[picks])
     return joined, counts.astype(np.int64)
 
@@ -516,7 +538,7 @@ class _IdRows:
 
     def __init__(self, ids: IntArray, table: IntArray | None, order: IntArray | None) -> None:
         self._ids = ids
-        self._table = table
+        self.table = table  # by id, its row (-1: none), where the ids are small
         self._order = order
 
     @staticmethod
@@ -541,9 +563,9 @@ class _IdRows:
         """The row of each of ``wanted``, -1 where it is not in the map."""
         wanted = np.asarray(wanted, dtype=np.int64)
         rows: IntArray = np.full(len(wanted), -1, dtype=np.int64)
-        if self._table is not None:
-            inside = (wanted >= 0) & (wanted < len(self._table))
-            rows[inside] = self._table[wanted[inside]]
+        if self.table is not None:
+            inside = (wanted >= 0) & (wanted < len(self.table))
+            rows[inside] = self.table[wanted[inside]]
             return rows
         assert self._order is not None
         ordered = self._ids[self._order]
