@@ -91,7 +91,6 @@ class AssociationView:
         self._times: list[float] = []  # and their times (nan: the log has none)
         self._scores: list[ScanScore | None] = []  # and the tally's scores
         self._series = _Series()
-        self._lookup = _RowLookup()
         rec.log(path(RAYS), rr.LineStrips2D([], radii=rr.Radius.ui_points(0.75)), static=True)
         rec.log(path(TENTATIVE), rr.Points2D([], colors=[TENTATIVE_COLOR]), static=True)
 
@@ -294,23 +293,40 @@ class AssociationView:
         ``wanted`` in the map of its scan ``owners`` (ascending), -1 where it has none.
 
         One lookup per run of scans that share a map (the filter's records share one
-        ids array until the map changes), as :class:`_RowLookup` found it per scan."""
+        ids array until the map changes): the tables of small non-negative ids
+        (:func:`_dense_table`) joined into one array and read at once, a sorted search
+        per map otherwise (:func:`_rows_of`)."""
         rows: IntArray = np.full(len(wanted), -1, dtype=np.int64)
         if not len(wanted):
             return rows
-        bounds = np.searchsorted(owners, np.arange(len(records) + 1))
-        k = 0
+        bounds = np.searchsorted(owners, np.arange(len(records) + 1)).tolist()
+        tables: list[IntArray] = []
+        offset = np.zeros(len(records), dtype=np.int64)  # each scan's table in the joined
+        width = np.zeros(len(records), dtype=np.int64)  # and its length (0: none)
+        cursor, k = 0, 0
         while k < len(records):
             ids = records[k].landmark_ids
             end = k + 1
             while end < len(records) and records[end].landmark_ids is ids:
                 end += 1
-            lo, hi = int(bounds[k]), int(bounds[end])
+            lo, hi = bounds[k], bounds[end]
             if hi > lo:
-                found = self._lookup.rows(ids, wanted[lo:hi])
-                hit = found >= 0
-                rows[lo:hi][hit] = scans.map_starts[owners[lo:hi][hit]] + found[hit]
+                table = _dense_table(ids)
+                if table is not None:
+                    tables.append(table)
+                    offset[k:end], width[k:end] = cursor, len(table)
+                    cursor += len(table)
+                else:
+                    found = _rows_of(ids, wanted[lo:hi])
+                    hit = found >= 0
+                    rows[lo:hi][hit] = scans.map_starts[owners[lo:hi][hit]] + found[hit]
             k = end
+        if tables:
+            joined = np.concatenate(tables)
+            asked = np.flatnonzero((wanted >= 0) & (wanted < width[owners]))
+            found = joined[offset[owners[asked]] + wanted[asked]]
+            hit = found >= 0
+            rows[asked[hit]] = scans.map_starts[owners[asked[hit]]] + found[hit]
         return rows
 
     def _tentative(self, records: list[EventRecord], scans: _Scans) -> tuple[IntArray, IntArray]:
@@ -391,8 +407,8 @@ class AssociationView:
                 known[i] = False
             change_value.append(size)  # a removal's is never read
         # every landmark of every sized scan's map, and its state after that scan
+        per_scan = scans.map_starts[sized + 1] - scans.map_starts[sized]
         rows = _ranges(scans.map_starts[sized], scans.map_starts[sized + 1])
-        scan_of = np.repeat(sized, scans.map_starts[sized + 1] - scans.map_starts[sized])
         ids = scans.landmark_ids[rows].astype(np.int64)
         has = np.zeros(len(ids), dtype=bool)
         radius = np.zeros(len(ids))
@@ -400,18 +416,28 @@ class AssociationView:
         has[before] = before_known[ids[before]]
         radius[before] = before_value[ids[before]]
         if len(change_id):
+            # the landmarks some change touched take the last at or before their scan
+            touched = np.zeros(len(known), dtype=bool)
+            touched[change_id] = True
+            asked = np.flatnonzero((ids >= 0) & (ids < len(known)))
+            asked = asked[touched[ids[asked]]]
             span = len(records) + 1
             keys = change_id * span + change_scan
             by_key = np.argsort(keys, kind="stable")  # the last of equal keys: the latest
             sorted_keys = keys[by_key]
-            at = np.searchsorted(sorted_keys, ids * span + scan_of, side="right") - 1
-            changed = (ids >= 0) & (at >= 0)
-            changed[changed] = sorted_keys[at[changed]] // span == ids[changed]
-            latest = by_key[at[changed]]
-            has[changed] = change_known[latest]
-            radius[changed] = np.array(change_value, dtype=np.float64)[latest]
+            scan_of = np.repeat(sized, per_scan)[asked]
+            at = np.searchsorted(sorted_keys, ids[asked] * span + scan_of, side="right") - 1
+            valid = at >= 0
+            valid[valid] = sorted_keys[at[valid]] // span == ids[asked][valid]
+            latest = by_key[at[valid]]
+            has[asked[valid]] = change_known[latest]
+            radius[asked[valid]] = np.array(change_value, dtype=np.float64)[latest]
         radii = np.maximum(radius[has], 0.05) / 2
-        counts = np.bincount(np.searchsorted(sized, scan_of[has]), minlength=len(sized))
+        # how many each scan has: its map's rows are consecutive
+        taken = np.zeros(len(has) + 1, dtype=np.int64)
+        np.cumsum(has, out=taken[1:])
+        ends = np.cumsum(per_scan)
+        counts = taken[ends] - taken[ends - per_scan]
         return rows[has], radii, counts
 
     def _send_series(self, *, everything: bool) -> None:
@@ -727,29 +753,14 @@ def _inverse_at(
     return points, l_D_z
 
 
-class _RowLookup:
-    """:func:`_rows_of` for the records of a run: a table from id to row, kept while the
-    records hand the same ids array (the filter shares one until its map changes, and
-    a scan's records ask twice); ids that are negative or sparse go by :func:`_rows_of`."""
-
-    def __init__(self) -> None:
-        self._ids: IntArray | None = None
-        self._table: IntArray | None = None
-
-    def rows(self, ids: IntArray, wanted: IntArray) -> IntArray:
-        if ids is not self._ids:
-            self._ids, self._table = ids, None  # held: the array cannot be another's
-            if len(ids) and int(ids.min()) >= 0 and int(ids.max()) < 4 * len(ids) + 1024:
-                self._table = np.full(int(ids.max()) + 1, -1, dtype=np.int64)
-                self._table[ids] = np.arange(len(ids))
-        table = self._table
-        if table is None:
-            return _rows_of(ids, wanted)
-        wanted = np.asarray(wanted, dtype=np.int64)
-        rows: IntArray = np.full(len(wanted), -1, dtype=np.int64)
-        inside = (wanted >= 0) & (wanted < len(table))
-        rows[inside] = table[wanted[inside]]
-        return rows
+def _dense_table(ids: IntArray) -> IntArray | None:
+    """A table of a map's ids: by id, its row (-1: none); None where the ids are negative
+    or too sparse for one (:func:`_rows_of` then)."""
+    if len(ids) and int(ids.min()) >= 0 and int(ids.max()) < 4 * len(ids) + 1024:
+        table: IntArray = np.full(int(ids.max()) + 1, -1, dtype=np.int64)
+        table[ids] = np.arange(len(ids))
+        return table
+    return None
 
 
 def _rows_of(ids: IntArray, wanted: IntArray) -> IntArray:
