@@ -426,8 +426,11 @@ class MapLayer:
                     maps.xy[row].copy(),
                     maps.covs[row].copy(),
                 )
-            for landmark_id in association.removed.tolist():
-                self._first_sightings.pop(int(landmark_id), None)
+            if len(association.removed):
+                for landmark_id in association.removed.tolist():
+                    self._first_sightings.pop(int(landmark_id), None)
+            if not len(association.confirmed):
+                continue
             confirmed = [
                 (int(i), held)
                 for i in association.confirmed.tolist()
@@ -489,13 +492,13 @@ def _joined_rows(
     ]
     observed = [seen for seen in observations if seen is not None]
     owners = picks[np.array([seen is not None for seen in observations], dtype=bool)]
-    if which == "observed":
-        wanted_each = [seen.ids for seen in observed]
-    else:
-        wanted_each = [seen.ids[seen.initialised] for seen in observed]
-    lengths = np.fromiter(map(len, wanted_each), np.int64, len(wanted_each))
-    wanted = np.concatenate([np.zeros(0, dtype=np.int64), *wanted_each]).astype(np.int64)
+    ids_each = [seen.ids for seen in observed]
+    lengths = np.fromiter(map(len, ids_each), np.int64, len(ids_each))
+    wanted = np.concatenate([np.zeros(0, dtype=np.int64), *ids_each]).astype(np.int64)
     owner = np.repeat(owners, lengths)  # the update of each id wanted
+    if which != "observed":  # the initialised ones, picked all at once
+        new = np.concatenate([np.zeros(0, dtype=bool), *(seen.initialised for seen in observed)])
+        wanted, owner = wanted[new], owner[new]
     owner_run = np.searchsorted(runs, owner, side="right") - 1
     rows = np.full(len(wanted), -1, dtype=np.int64)
     # the dense tables of the runs asked, one after another: a run's at its offset
