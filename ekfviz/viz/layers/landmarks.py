@@ -150,7 +150,7 @@ class MapLayer:
             self._send_points(rows.pick(corrected[shown]), [records[i] for i in shown])
         # the ellipses of every update below by their rows in the batch's joined maps
         # (maps.xy, maps.covs), found for all updates at once (see _joined_rows)
-        joined_ids = np.concatenate([record.landmark_ids for record in records])
+        joined_ids = _JoinedIds(records)
         whole_maps = np.array([i for i in shown if whole[i]], dtype=np.int64)
         self._send_joined_ellipses(
             style.LANDMARK_ELLIPSES,
@@ -371,18 +371,18 @@ class MapLayer:
         maps: Maps,
         joined_rows: IntArray,
         counts: IntArray,
-        joined_ids: IntArray,
+        joined_ids: _JoinedIds,
     ) -> None:
         """:meth:`_send_ellipses` of landmarks given by their rows in a batch's joined
         maps: ``counts[i]`` of ``joined_rows`` at the row ``at[i]`` of ``rows``.
 
-        :param joined_ids: (sum(maps.counts),) the landmark id of each joined row
+        :param joined_ids: the landmark id of each joined row
         """
         if not len(at):
             return
         n_points = min(MAP_POINTS, outline_points(int(counts.max())))
         outlines = ellipse_outlines(maps.xy[joined_rows], maps.covs[joined_rows], n_points=n_points)
-        self._canvas.send_strips(entity, rows, at, outlines, counts, joined_ids[joined_rows])
+        self._canvas.send_strips(entity, rows, at, outlines, counts, joined_ids.of(joined_rows))
 
     def _send_confirmed_first_sightings(
         self,
@@ -390,7 +390,7 @@ class MapLayer:
         corrected: IntArray,
         maps: Maps,
         new_counts: IntArray,
-        joined_ids: IntArray,
+        joined_ids: _JoinedIds,
         tables: dict[int, _IdRows | None],
     ) -> None:
         """With id-less scans, the first-sighting outline of a landmark appears when the
@@ -406,6 +406,7 @@ class MapLayer:
             [i for i in np.flatnonzero(new_counts).tolist() if records[i].association is not None],
             dtype=np.int64,
         )
+        landmark_ids = joined_ids.all() if len(picks) else np.zeros(0, dtype=np.int64)
         # the rows of each update's new landmarks in the joined maps, for all at once
         new_rows, new_per_update = _joined_rows(maps, picks, "initialised", tables)
         new_ends = np.cumsum(new_per_update).tolist()
@@ -422,7 +423,7 @@ class MapLayer:
             if association is None:
                 continue
             for row in new_of.get(u, ()):
-                self._first_sightings[int(joined_ids[row])] = (
+                self._first_sightings[int(landmark_ids[row])] = (
                     maps.xy[row].copy(),
                     maps.covs[row].copy(),
                 )
@@ -450,6 +451,23 @@ class MapLayer:
             style.LANDMARK_INITIAL, rows, np.array(at, dtype=np.int64), outlines, counts,
             np.array([i for group in ids for i in group], dtype=np.int64),
         )  # fmt: skip
+
+
+class _JoinedIds:
+    """The landmark id of each row of a batch's joined maps, joined at the first ask."""
+
+    def __init__(self, records: list[EventRecord]) -> None:
+        self._records = records
+        self._ids: IntArray | None = None
+
+    def all(self) -> IntArray:
+        if self._ids is None:
+            self._ids = np.concatenate([record.landmark_ids for record in self._records])
+        return self._ids
+
+    def of(self, joined_rows: IntArray) -> IntArray:
+        ids: IntArray = self.all()[joined_rows]
+        return ids
 
 
 def _ranges(starts: IntArray, ends: IntArray) -> IntArray:
@@ -480,6 +498,8 @@ def _joined_rows(
     :return: the joined rows, and (p,) the count per update
     """
     records, starts = maps.records, maps.starts
+    if not len(picks):
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
     runs = np.array(maps.runs(), dtype=np.int64)
     pick_list = picks.tolist()
     found: list[IntArray] = [np.zeros(0, dtype=np.int64)]
