@@ -23,14 +23,8 @@ from ekfviz.viz import style
 from ekfviz.viz.ellipses import ellipse_outlines, ellipse_shape_columns, ellipse_shapes
 from ekfviz.viz.layers.batch import Batch, Maps, landmark_rows
 from ekfviz.viz.layers.canvas import Clock
-from ekfviz.viz.layers.landmarks import (
-    INITIAL_POINTS,
-    MAP_POINTS,
-    MapLayer,
-    _IdRows,
-    _joined_rows,
-    _ranges,
-)
+from ekfviz.viz.layers.landmarks import INITIAL_POINTS, MAP_POINTS, MapLayer
+from ekfviz.viz.layers.map_rows import IdRows, joined_rows, ranges
 
 
 def random_covs(rng: np.random.Generator, n: int) -> FloatArray:
@@ -62,18 +56,18 @@ def test_ranges_are_the_ranges_joined(seed: int) -> None:
     starts = np.sort(rng.integers(0, 1000, size=int(rng.integers(0, 30))))
     ends = starts + rng.integers(0, 5, size=len(starts))
     expected = [k for a, b in zip(starts.tolist(), ends.tolist(), strict=True) for k in range(a, b)]
-    assert _ranges(starts, ends).tolist() == expected
+    assert ranges(starts, ends).tolist() == expected
 
 
 def test_an_id_lookup_is_the_rows_of_its_ids() -> None:
     for ids in ([3, 1, 2], [5, -7, 10**9, 0], [], [4]):
-        table = _IdRows.of(np.array(ids, dtype=np.int64))
+        table = IdRows.of(np.array(ids, dtype=np.int64))
         assert table is not None
         wanted = np.array([*ids, -1, 6, 10**9 + 1, *ids[:1]], dtype=np.int64)
         expected = [ids.index(i) if i in ids else -1 for i in wanted.tolist()]
         assert table.rows(wanted).tolist() == expected
-    assert _IdRows.of(np.array([2, 1, 2])) is None  # not a map's ids: no lookup
-    assert _IdRows.of(np.array([10**9, -1, 10**9])) is None
+    assert IdRows.of(np.array([2, 1, 2])) is None  # not a map's ids: no lookup
+    assert IdRows.of(np.array([10**9, -1, 10**9])) is None
 
 
 def random_updates(rng: np.random.Generator, count: int) -> list[EventRecord]:
@@ -117,19 +111,19 @@ def random_updates(rng: np.random.Generator, count: int) -> list[EventRecord]:
 
 @pytest.mark.parametrize("seed", range(8))
 @pytest.mark.parametrize("which", ["observed", "initialised"])
-def test_the_joined_rows_are_each_updates_landmark_rows(seed: int, which: str) -> None:
+def test_thejoined_rows_are_each_updates_landmark_rows(seed: int, which: str) -> None:
     rng = np.random.default_rng(seed)
     records = random_updates(rng, 300)
     maps = Maps.of(records)
     picks = np.flatnonzero(rng.random(len(records)) < 0.7)
     tables: dict[int, Any] = {}
-    joined, counts = _joined_rows(maps, picks, which, tables)
+    joined, counts = joined_rows(maps, picks, which, tables)
     expected = [maps.starts[i] + landmark_rows(records[i], which) for i in picks.tolist()]
     assert counts.tolist() == [len(rows) for rows in expected]
     assert joined.tolist() == np.concatenate([np.zeros(0, np.int64), *expected]).tolist()
-    again, _ = _joined_rows(maps, picks, which, tables)  # the lookups kept: the same rows
+    again, _ = joined_rows(maps, picks, which, tables)  # the lookups kept: the same rows
     assert again.tolist() == joined.tolist()
-    none, no_counts = _joined_rows(maps, picks[:0], which, {})
+    none, no_counts = joined_rows(maps, picks[:0], which, {})
     assert none.tolist() == [] and no_counts.tolist() == []
 
 

@@ -257,7 +257,7 @@ def test_the_shapes_of_a_batch_are_each_maps_shapes() -> None:
 
 def test_the_norms_of_the_maps_window_search_are_numpys() -> None:
     """The window search sums the squares a row per entry: numpy's norms to the bit."""
-    from ekfviz.viz.layers.landmarks import _root_norms
+    from ekfviz.viz.layers.map_rows import root_norms as _root_norms
 
     rng = np.random.default_rng(5)
     for shape in ((1, 1, 6), (16, 6, 6), (300, 40, 6), (7, 1000, 6)):

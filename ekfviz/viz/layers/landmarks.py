@@ -16,39 +16,33 @@ every ellipse and error at every update.
 
 from __future__ import annotations
 
-import itertools
-import math
-
 import numpy as np
 import rerun as rr
 
 from ekfviz.core.records import EventKind, EventRecord
 from ekfviz.core.types import BoolArray, FloatArray, IntArray
 from ekfviz.viz import style
-from ekfviz.viz.ellipses import (
-    ellipse_extent,
-    ellipse_outlines,
-    ellipse_shape_columns,
-    outline_points,
-)
+from ekfviz.viz.ellipses import ellipse_extent, ellipse_outlines, outline_points
 from ekfviz.viz.layers.arrow import column, radius, xy
 from ekfviz.viz.layers.batch import Batch, Maps, landmark_rows
 from ekfviz.viz.layers.canvas import Canvas, Rows
 from ekfviz.viz.layers.labels import LabelsLayer
+from ekfviz.viz.layers.map_rows import MAP_TOLERANCE as MAP_TOLERANCE  # the recorder's
+from ekfviz.viz.layers.map_rows import (
+    IdRows,
+    JoinedIds,
+    joined_rows,
+    map_changes,
+    ranges,
+)
 
 SMALL_MAP = 32  # up to this many landmarks, every ellipse at every update
 MAP_EVERY_STEPS = 25  # beyond: the whole map every this many steps
-# A small map is logged again only once some landmark's point or outline would move by
-# more than this fraction of its ellipse's semi-major axis (the viewer shows the latest).
-MAP_TOLERANCE = 0.02
 MAP_POINTS = 16  # points of a landmark outline: within 2 % of its radius, as MAP_TOLERANCE
 # a first-sighting outline is logged once, and on real data it is metres wide: 16 points
 # showed corners there, 32 do not (within 0.5 % of its radius)
 INITIAL_POINTS = 32
 MAP_EVERY_S = 5.0  # ... and in a thinned timestamped log, every this many seconds of log time
-# the map's window search (MapLayer._changes_of_one_map): after an update logged, look this
-# many updates ahead at least (twice the last gap between two logged, if more)
-WINDOW_MIN = 16
 
 
 class MapLayer:
@@ -149,15 +143,15 @@ class MapLayer:
         if shown:
             self._send_points(rows.pick(corrected[shown]), [records[i] for i in shown])
         # the ellipses of every update below by their rows in the batch's joined maps
-        # (maps.xy, maps.covs), found for all updates at once (see _joined_rows)
-        joined_ids = _JoinedIds(records)
+        # (maps.xy, maps.covs), found for all updates at once (see joined_rows)
+        joined_ids = JoinedIds(records)
         whole_maps = np.array([i for i in shown if whole[i]], dtype=np.int64)
         self._send_joined_ellipses(
             style.LANDMARK_ELLIPSES,
             rows,
             corrected[whole_maps],
             maps,
-            _ranges(maps.starts[whole_maps], maps.starts[whole_maps + 1]),
+            ranges(maps.starts[whole_maps], maps.starts[whole_maps + 1]),
             maps.counts[whole_maps],
             joined_ids,
         )
@@ -165,8 +159,8 @@ class MapLayer:
         # two of the whole map's (and an empty row, clearing them, at those).
         at_sparse = np.flatnonzero(sparse)
         own = at_sparse[~whole[at_sparse]]
-        tables: dict[int, _IdRows | None] = {}  # id lookups of the batch's maps
-        joined_rows, own_counts = _joined_rows(maps, own, "observed", tables)
+        tables: dict[int, IdRows | None] = {}  # id lookups of the batch's maps
+        observed_rows, own_counts = joined_rows(maps, own, "observed", tables)
         counts = np.zeros(len(at_sparse), dtype=np.int64)
         counts[~whole[at_sparse]] = own_counts
         self._send_joined_ellipses(
@@ -174,7 +168,7 @@ class MapLayer:
             rows,
             corrected[at_sparse],
             maps,
-            joined_rows,
+            observed_rows,
             counts,
             joined_ids,
         )
@@ -246,72 +240,14 @@ class MapLayer:
             self._map_shown = None
             self._map_shown_event = maps.records[-1].event
             return np.arange(len(corrected))
-        # the shapes and tolerances of every landmark of every update at once, a row per
-        # quantity (see ellipse_shape_columns)
-        every = ellipse_shape_columns(maps.xy, maps.covs)
-        # the point at angle t of an outline, m + 3 sqrt(C) [cos t, sin t], moves by at most
-        # |dm| + 3 ||d sqrt(C)||_F; the semi-major axis is at least 3 ||sqrt(C)||_F / sqrt(2)
-        tolerance = MAP_TOLERANCE * _root_norms(every[2:] * every[2:]) / math.sqrt(2.0)
         events = batch.rows.events[corrected]
         forced = batch.whole[corrected] & sparse
         if self._final_event is not None:
             forced |= events == self._final_event
-        shown: list[IntArray] = []
-        for start, end in itertools.pairwise([*maps.runs(), len(corrected)]):
-            first, last = int(maps.starts[start]), int(maps.starts[end])
-            n = int(maps.counts[start])
-            shown.append(
-                start
-                + self._changes_of_one_map(
-                    maps.records[start:end],
-                    events[start:end],
-                    forced[start:end].copy(),
-                    every[:, first:last].reshape(6, end - start, n),
-                    tolerance[first:last].reshape(end - start, n),
-                )
-            )
-        return np.concatenate(shown)
-
-    def _changes_of_one_map(
-        self,
-        records: list[EventRecord],
-        events: IntArray,
-        forced: BoolArray,
-        every: FloatArray,
-        tolerance: FloatArray,
-    ) -> IntArray:
-        """:meth:`_map_changes` of updates of the same landmarks, their shapes ``every``
-        (6, u, n: a row per quantity) and tolerances (u, n), in a few numpy calls: from
-        each update logged, the first that has moved from it, looked for in windows that
-        grow while none has (``forced``: the updates logged whatever they moved)."""
-        if self._map_shown is None or not np.array_equal(
-            self._map_shown[0], records[0].landmark_ids
-        ):
-            forced[0] = True
-        shown: list[int] = []
-        # the first window as long as twice the last gap between two updates logged: the
-        # same updates found in fewer numpy calls where the map moves at a steady pace
-        k, gap = 0, 8
-        window = 2 * gap
-        while k < len(records):
-            if not forced[k]:
-                before = self._map_shown[1]  # type: ignore[index]
-                ahead = every[:, k : k + window] - before[:, None, :]
-                squares = np.multiply(ahead, ahead, out=ahead)
-                moved = _root_norms(squares[:2]) + _root_norms(squares[2:])
-                due = forced[k : k + window] | ~np.all(moved <= tolerance[k : k + window], axis=1)
-                hits = np.flatnonzero(due)
-                if not hits.size:
-                    k, window = k + len(due), 2 * window
-                    continue
-                k += int(hits[0])
-            if shown:
-                gap = k - shown[-1]
-            self._map_shown = (records[k].landmark_ids, every[:, k].copy())
-            self._map_shown_event = int(events[k])
-            shown.append(k)
-            k, window = k + 1, max(WINDOW_MIN, 2 * gap)
-        return np.array(shown, dtype=np.int64)
+        shown, self._map_shown, event = map_changes(maps, events, forced, self._map_shown)
+        if event is not None:
+            self._map_shown_event = event
+        return shown
 
     def _send_points(self, times: list[rr.TimeColumnLike], updates: list[EventRecord]) -> None:
         """All landmark estimates of some updates, one row each, class id = landmark id;
@@ -371,7 +307,7 @@ class MapLayer:
         maps: Maps,
         joined_rows: IntArray,
         counts: IntArray,
-        joined_ids: _JoinedIds,
+        joined_ids: JoinedIds,
     ) -> None:
         """:meth:`_send_ellipses` of landmarks given by their rows in a batch's joined
         maps: ``counts[i]`` of ``joined_rows`` at the row ``at[i]`` of ``rows``.
@@ -390,8 +326,8 @@ class MapLayer:
         corrected: IntArray,
         maps: Maps,
         new_counts: IntArray,
-        joined_ids: _JoinedIds,
-        tables: dict[int, _IdRows | None],
+        joined_ids: JoinedIds,
+        tables: dict[int, IdRows | None],
     ) -> None:
         """With id-less scans, the first-sighting outline of a landmark appears when the
         association confirms it: most new landmarks of a cluttered scan are removed
@@ -399,7 +335,7 @@ class MapLayer:
 
         :param new_counts: (u,) how many landmarks each update initialised
         :param joined_ids: the landmark id of each row of the joined maps
-        :param tables: the id lookups of the batch's maps (see :func:`_joined_rows`)
+        :param tables: the id lookups of the batch's maps (see :func:`joined_rows`)
         """
         records = maps.records
         picks = np.array(
@@ -408,7 +344,7 @@ class MapLayer:
         )
         landmark_ids = joined_ids.all() if len(picks) else np.zeros(0, dtype=np.int64)
         # the rows of each update's new landmarks in the joined maps, for all at once
-        new_rows, new_per_update = _joined_rows(maps, picks, "initialised", tables)
+        new_rows, new_per_update = joined_rows(maps, picks, "initialised", tables)
         new_ends = np.cumsum(new_per_update).tolist()
         new_of = {
             i: new_rows[end - count : end].tolist()
@@ -451,160 +387,3 @@ class MapLayer:
             style.LANDMARK_INITIAL, rows, np.array(at, dtype=np.int64), outlines, counts,
             np.array([i for group in ids for i in group], dtype=np.int64),
         )  # fmt: skip
-
-
-class _JoinedIds:
-    """The landmark id of each row of a batch's joined maps, joined at the first ask."""
-
-    def __init__(self, records: list[EventRecord]) -> None:
-        self._records = records
-        self._ids: IntArray | None = None
-
-    def all(self) -> IntArray:
-        if self._ids is None:
-            self._ids = np.concatenate([record.landmark_ids for record in self._records])
-        return self._ids
-
-    def of(self, joined_rows: IntArray) -> IntArray:
-        ids: IntArray = self.all()[joined_rows]
-        return ids
-
-
-def _ranges(starts: IntArray, ends: IntArray) -> IntArray:
-    """The integers of the ranges [starts[i], ends[i]), range after range."""
-    lengths = ends - starts
-    # the k-th integer overall is k plus its range's start less where that range begins
-    offsets = np.repeat(starts - (np.cumsum(lengths) - lengths), lengths)
-    ranges: IntArray = np.arange(len(offsets), dtype=np.int64) + offsets
-    return ranges
-
-
-def _joined_rows(
-    maps: Maps, picks: IntArray, which: str, tables: dict[int, _IdRows | None]
-) -> tuple[IntArray, IntArray]:
-    """:func:`~.batch.landmark_rows` of the updates ``picks`` for all at once: their rows
-    in the joined maps (``maps.xy``, ``maps.covs``), update after update, each update's in
-    ascending order, and how many each update has.
-
-    The ids observed (or initialised) at every update looked up at once: in a table from
-    id to row per run of updates of one map (:meth:`Maps.runs`), the tables of small
-    non-negative ids joined into one array; a sorted search per map otherwise, and the
-    definition update by update where a map's ids repeat. ``np.isin`` per update cost a
-    numpy call each.
-
-    :param picks: (p,) ascending indices into ``maps.records``
-    :param which: ``"observed"`` or ``"initialised"``
-    :param tables: the lookups made so far, by the run's first update (filled here)
-    :return: the joined rows, and (p,) the count per update
-    """
-    records, starts = maps.records, maps.starts
-    if not len(picks):
-        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-    runs = np.array(maps.runs(), dtype=np.int64)
-    pick_list = picks.tolist()
-    found: list[IntArray] = [np.zeros(0, dtype=np.int64)]
-    observations = [records[i].observations for i in pick_list]
-    # an update without observations: all of its landmarks
-    found += [
-        np.arange(starts[i], starts[i + 1])
-        for i, seen in zip(pick_list, observations, strict=True)
-        if seen is None
-    ]
-    observed = [seen for seen in observations if seen is not None]
-    owners = picks[np.array([seen is not None for seen in observations], dtype=bool)]
-    ids_each = [seen.ids for seen in observed]
-    lengths = np.fromiter(map(len, ids_each), np.int64, len(ids_each))
-    wanted = np.concatenate([np.zeros(0, dtype=np.int64), *ids_each]).astype(np.int64)
-    owner = np.repeat(owners, lengths)  # the update of each id wanted
-    if which != "observed":  # the initialised ones, picked all at once
-        new = np.concatenate([np.zeros(0, dtype=bool), *(seen.initialised for seen in observed)])
-        wanted, owner = wanted[new], owner[new]
-    owner_run = np.searchsorted(runs, owner, side="right") - 1
-    rows = np.full(len(wanted), -1, dtype=np.int64)
-    # the dense tables of the runs asked, one after another: a run's at its offset
-    dense: list[IntArray] = []
-    offset = np.zeros(len(runs), dtype=np.int64)
-    width = np.zeros(len(runs), dtype=np.int64)  # 0: no dense table
-    cursor = 0
-    for run in np.unique(owner_run).tolist():
-        first_update = int(runs[run])
-        if first_update not in tables:
-            tables[first_update] = _IdRows.of(records[first_update].landmark_ids)
-        table = tables[first_update]
-        if table is not None and table.table is not None:
-            dense.append(table.table)
-            offset[run], width[run] = cursor, len(table.table)
-            cursor += len(table.table)
-            continue
-        in_run = owner_run == run
-        if table is not None:  # ids far apart: a sorted search
-            rows[in_run] = table.rows(wanted[in_run])
-            continue
-        # ids not distinct: the definition, update by update
-        for i in np.unique(owner[in_run]).tolist():
-            found.append(starts[i] + landmark_rows(records[i], which))
-    if dense:
-        tables_joined = np.concatenate(dense)
-        inside = (wanted >= 0) & (wanted < width[owner_run])
-        rows[inside] = tables_joined[offset[owner_run[inside]] + wanted[inside]]
-    hit = rows >= 0
-    found.append(starts[owner[hit]] + rows[hit])
-    # distinct and in order: update after update (their rows are apart), ascending within
-    joined = np.unique(np.concatenate(found))
-    counts = np.searchsorted(joined, starts[picks + 1]) - np.searchsorted(joined, starts[picks])
-    return joined, counts.astype(np.int64)
-
-
-class _IdRows:
-    """The row of each landmark id in one map's ids: a table where the ids are small
-    non-negative integers, a sorted search otherwise."""
-
-    def __init__(self, ids: IntArray, table: IntArray | None, order: IntArray | None) -> None:
-        self._ids = ids
-        self.table = table  # by id, its row (-1: none), where the ids are small
-        self._order = order
-
-    @staticmethod
-    def of(ids: IntArray) -> _IdRows | None:
-        """The lookup of the map ``ids``; None if they are not distinct."""
-        ids = np.asarray(ids, dtype=np.int64)
-        if not len(ids):
-            return _IdRows(ids, np.full(0, -1, dtype=np.int64), None)
-        low, high = int(ids.min()), int(ids.max())
-        if low >= 0 and high < 4 * len(ids) + 1024:
-            table = np.full(high + 1, -1, dtype=np.int64)
-            table[ids] = np.arange(len(ids))
-            if int(np.count_nonzero(table >= 0)) != len(ids):
-                return None
-            return _IdRows(ids, table, None)
-        order = np.argsort(ids, kind="stable")
-        if bool((ids[order][1:] == ids[order][:-1]).any()):
-            return None
-        return _IdRows(ids, None, order)
-
-    def rows(self, wanted: IntArray) -> IntArray:
-        """The row of each of ``wanted``, -1 where it is not in the map."""
-        wanted = np.asarray(wanted, dtype=np.int64)
-        rows: IntArray = np.full(len(wanted), -1, dtype=np.int64)
-        if self.table is not None:
-            inside = (wanted >= 0) & (wanted < len(self.table))
-            rows[inside] = self.table[wanted[inside]]
-            return rows
-        assert self._order is not None
-        ordered = self._ids[self._order]
-        at = np.minimum(np.searchsorted(ordered, wanted), len(ordered) - 1)
-        hit = ordered[at] == wanted
-        rows[hit] = self._order[at[hit]]
-        return rows
-
-
-def _root_norms(squares: FloatArray) -> FloatArray:
-    """The Euclidean norms of vectors given by their squared entries, a row per entry
-    (the vectors along axis 0): ``np.linalg.norm`` of the vectors to the bit, as it
-    sums them (the squares in order, left to right; see tests/test_send_columns.py),
-    from contiguous rows instead of a strided last axis."""
-    total = squares[0].copy()
-    for row in squares[1:]:
-        total += row
-    norms: FloatArray = np.sqrt(total, out=total)
-    return norms
