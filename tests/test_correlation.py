@@ -245,3 +245,21 @@ def test_the_image_is_coloured_by_classes_of_the_palette(
         assert entry["class_description"]["keypoint_annotations"] == []
         assert entry["class_description"]["keypoint_connections"] == []
     assert colormap(np.array([[np.nan]]))[0, 0].tolist() == PALETTE[-1].tolist()
+
+
+def test_the_colour_indices_are_the_scales_rounded() -> None:
+    """The palette entry of each correlation, computed in one buffer, is the plain
+    definition's, rint((clip(C, -1, 1) + 1) / 2 * 254), NaN and infinities grey, for
+    float64, float32 and integer matrices."""
+    from ekfviz.viz.correlation import LUT_SIZE, NAN_INDEX, color_indices
+
+    rng = np.random.default_rng(8)
+    values = rng.uniform(-1.3, 1.3, size=(300, 200))
+    values[rng.random(values.shape) < 0.01] = np.nan
+    values[0, :6] = [np.inf, -np.inf, -0.0, 1.0, -1.0, 2.0 / (LUT_SIZE - 1) * 0.5 - 1.0]
+    for matrix in (values, values.astype(np.float32), np.array([[-2, -1, 0, 1, 2]])):
+        finite = np.isfinite(matrix)
+        scale = (np.clip(np.where(finite, matrix, 0.0), -1.0, 1.0) + 1.0) * 0.5 * (LUT_SIZE - 1)
+        expected = np.where(finite, np.rint(scale), NAN_INDEX).astype(np.uint8)
+        assert color_indices(matrix).tobytes() == expected.tobytes()  # type: ignore[arg-type]
+    assert color_indices(np.array([-1.0, 0.0, 1.0, np.nan])).tolist() == [0, 127, 254, NAN_INDEX]

@@ -256,13 +256,20 @@ def test_the_shapes_of_a_batch_are_each_maps_shapes() -> None:
 
 
 def test_the_norms_of_the_maps_window_search_are_numpys() -> None:
-    from ekfviz.viz.layers.landmarks import _norms
+    """The window search sums the squares a row per entry: numpy's norms to the bit."""
+    from ekfviz.viz.layers.map_rows import root_norms as _root_norms
 
     rng = np.random.default_rng(5)
     for shape in ((1, 1, 6), (16, 6, 6), (300, 40, 6), (7, 1000, 6)):
         ahead = rng.normal(size=shape) * 10.0 ** rng.integers(-12, 3, size=shape)
-        for part in (ahead[:, :, :2], ahead[:, :, 2:]):
-            assert _norms(part).tobytes() == np.linalg.norm(part, axis=2).tobytes()
+        by_row = np.moveaxis(ahead * ahead, 2, 0)  # (6, w, n): a row per entry
+        for part, rows in ((ahead[:, :, :2], by_row[:2]), (ahead[:, :, 2:], by_row[2:])):
+            assert _root_norms(rows).tobytes() == np.linalg.norm(part, axis=2).tobytes()
+        flat = ahead.reshape(-1, 6)[:, 2:]  # the tolerances' norms: (K, 4) rows
+        assert (
+            _root_norms(np.ascontiguousarray((flat * flat).T)).tobytes()
+            == np.linalg.norm(flat, axis=1).tobytes()
+        )
 
 
 def reference_changes(

@@ -16,16 +16,17 @@ At every scan (logged on ``step``, ``event`` and, where the log has times, ``tim
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, replace
 
 import numpy as np
 import numpy.typing as npt
 import pyarrow as pa  # type: ignore[import-untyped]
 import rerun as rr
 
-from ekfviz.association.evaluation import AssociationTally
+from ekfviz.association.evaluation import AssociationTally, ScanScore
 from ekfviz.core.records import EventRecord, Fate
 from ekfviz.core.truth import GroundTruth
 from ekfviz.core.types import FloatArray, IntArray
@@ -63,6 +64,11 @@ SCANS_EVERY = 256
 class AssociationView:
     """Logs each scan's association; the recorder calls :meth:`log` per record.
 
+    A scan is only held at :meth:`log` (and scored: the tally reads every scan in
+    order); its rays, links, gates, tentative landmarks, sizes, series and text line are
+    made at the send, for the ``SCANS_EVERY`` scans held at once, in a few numpy calls
+    each (a numpy call per scan and entity cost Victoria Park more than half a second).
+
     :param path: maps an entity path to the recording's (under the recorder's prefix)
     """
 
@@ -77,142 +83,66 @@ class AssociationView:
         self._path = path
         self._sensor = sensor
         self.tally = AssociationTally(truth, sensor)
-        # each landmark's smoothed object size, by id (known: it has one)
-        self._size_value = np.zeros(0)
-        self._size_known = np.zeros(0, dtype=bool)
-        self._series: dict[str, list[tuple[int, int, float, float]]] = {}
-        self._rows = _ScanRows()
-        self._lookup = _RowLookup()
+        # each landmark's smoothed object size, by id (known: it has one); Python lists,
+        # read and written an id at a time
+        self._size_value: list[float] = []
+        self._size_known: list[bool] = []
+        self._held: list[EventRecord] = []  # the scans not sent yet
+        self._times: list[float] = []  # and their times (nan: the log has none)
+        self._scores: list[ScanScore | None] = []  # and the tally's scores
+        self._series = _Series()
         rec.log(path(RAYS), rr.LineStrips2D([], radii=rr.Radius.ui_points(0.75)), static=True)
         rec.log(path(TENTATIVE), rr.Points2D([], colors=[TENTATIVE_COLOR]), static=True)
 
     def log(self, record: EventRecord) -> None:
-        """Buffer one scan's association; sent every ``SCANS_EVERY`` scans and at
+        """Hold one scan's association; sent every ``SCANS_EVERY`` scans and at
         :meth:`flush`."""
-        association = record.association
-        if association is None:
+        if record.association is None:
             return
-        if self._rows.steps and math.isnan(self._rows.times[-1]) != (record.time is None):
-            self._send_scans()  # a batch's rows all have a time or none has
-        rows = self._rows
-        rows.steps.append(record.step)
-        rows.events.append(record.event)
-        rows.times.append(math.nan if record.time is None else record.time)
-        # the geometry (rays, links, gates) is computed at the send, for every scan of the
-        # batch at once: here only what it needs is kept
-        x, y, theta = record.pose.tolist()
-        fate = association.fate.astype(np.int64)
-        rows.poses.append((x, y, theta))
-        rows.z.append(association.z)
-        rows.fates.append(fate)
-        landmark_ids = record.landmark_ids
-        matched = np.flatnonzero(fate == _MATCHED)
-        rows_of = self._lookup.rows(landmark_ids, association.landmark[matched])
-        found = rows_of >= 0
-        rows.link_from.append(matched[found])
-        rows.link_to.append(record.landmarks_xy[rows_of[found]])
-        rows.gate_z.append(association.gate_z)
-        rows.gate_covs.append(association.gate_S)
-        rows.gate_threshold.append(association.gate_threshold)
-        tentative_rows = self._lookup.rows(landmark_ids, association.tentative)
-        tentative_rows = tentative_rows[tentative_rows >= 0]
-        rows.tentative.append(record.landmarks_xy[tentative_rows])
-        rows.tentative_labels.extend(
-            f"L{i} (tentative)" for i in landmark_ids[tentative_rows].tolist()
-        )
-        if association.diameters is not None:
-            kept = fate != _REJECTED
-            updates = zip(
-                association.landmark[kept].tolist(),
-                association.diameters[kept].tolist(),
-                strict=True,
-            )
-            self._grow_sizes(int(association.landmark[kept].max(initial=-1)))
-            known, smoothed = self._size_known, self._size_value
-            for i, size in updates:
-                smoothed[i] = 0.8 * smoothed[i] + 0.2 * size if known[i] else size
-                known[i] = True
-            removed = association.removed
-            known[removed[(removed >= 0) & (removed < len(known))]] = False
-            # the landmarks with a size, in the record's order (ids of the associator: >= 0)
-            ids = landmark_ids
-            has = np.zeros(len(ids), dtype=bool)
-            inside = (ids >= 0) & (ids < len(known))
-            has[inside] = known[ids[inside]]
-            picked_rows = np.flatnonzero(has)
-            radii = np.maximum(smoothed[ids[picked_rows]], 0.05) / 2
-            rows.sized.append(len(rows.steps) - 1)
-            rows.sizes.append(record.landmarks_xy[picked_rows])
-            rows.size_radii.append(radii)
-        score = self.tally.add(record)
-        matched_n, new_n, rejected_n = np.bincount(fate, minlength=3)[:3].tolist()
-        values = {
-            "matched": matched_n,
-            "new": new_n,
-            "rejected": rejected_n,
-            "confirmed": len(association.confirmed),
-            "removed": len(association.removed),
-            "landmarks": record.n_landmarks - len(association.tentative),
-            "fell_back": int(association.exhausted),  # JCBB's budget ran out at this scan
-        }
-        if score is not None:
-            values.update(correct=score.correct, wrong=score.wrong, missed=score.missed)
         time = math.nan if record.time is None else record.time
-        for name, value in values.items():
-            self._series.setdefault(name, []).append((record.step, record.event, time, value))
-        text = (
-            f"step {record.step} scan line {record.line}: {association.method}"
-            f" matched {values['matched']} of {len(fate)}, {values['new']} new,"
-            f" {values['rejected']} rejected"
-        )
-        if association.method == "jcbb":
-            text += f"; {association.hypotheses} hypotheses"
-            if association.exhausted:
-                text += f" (budget exhausted: fell back to {association.fallback or 'best found'})"
-            text += f", joint NIS {association.joint_nis:.2f}"
-        if len(association.confirmed) or len(association.removed):
-            confirmed, removed = association.confirmed.tolist(), association.removed.tolist()
-            text += f"; confirmed {confirmed}, removed {removed}"
-        rows.texts.append(text)
-        rows.levels.append(rr.TextLogLevel.WARN if association.exhausted else rr.TextLogLevel.DEBUG)
-        if len(rows.steps) >= SCANS_EVERY:
+        if self._held and math.isnan(self._times[-1]) != (record.time is None):
+            self._send_scans()  # a batch's rows all have a time or none has
+        self._held.append(record)
+        self._times.append(time)
+        self._scores.append(self.tally.add(record))
+        if len(self._held) >= SCANS_EVERY:
             self._send_scans()
-        if len(self._series["matched"]) >= _SERIES_FLUSH:
-            self._send_series()
 
     def _grow_sizes(self, largest_id: int) -> None:
-        """Room in the size arrays for ids up to ``largest_id``."""
+        """Room in the size lists for ids up to ``largest_id``."""
         n = len(self._size_known)
         if largest_id < n:
             return
         grown = max(largest_id + 1, 2 * n, 64)
-        self._size_value = np.concatenate([self._size_value, np.zeros(grown - n)])
-        self._size_known = np.concatenate([self._size_known, np.zeros(grown - n, dtype=bool)])
+        self._size_value += [0.0] * (grown - n)
+        self._size_known += [False] * (grown - n)
 
     def flush(self) -> None:
-        """Send everything buffered: the scans' shapes and texts, and the series."""
+        """Send everything held: the scans' shapes and texts, and the series."""
         self._send_scans()
-        self._send_series()
+        self._send_series(everything=True)
 
     def _send_scans(self) -> None:
-        """The buffered scans, one column per component of each entity."""
-        rows, self._rows = self._rows, _ScanRows()
-        if not rows.steps:
+        """The scans held, one column per component of each entity."""
+        records, times_held, scores = self._held, self._times, self._scores
+        self._held, self._times, self._scores = [], [], []
+        if not records:
             return
         # the stream's clock at the last scan, as a log per scan left it, for whatever
         # is logged next without setting it
         rec = self._rec
-        rec.set_time(style.STEP, sequence=rows.steps[-1])
-        rec.set_time(style.EVENT, sequence=rows.events[-1])
-        last_time = rows.times[-1]
+        rec.set_time(style.STEP, sequence=records[-1].step)
+        rec.set_time(style.EVENT, sequence=records[-1].event)
+        last_time = times_held[-1]
         if not math.isnan(last_time):
             if time_is_epoch(last_time):
                 rec.set_time(style.TIME, timestamp=last_time)
             else:
                 rec.set_time(style.TIME, duration=last_time)
-        steps = np.array(rows.steps, dtype=np.int64)
-        events = np.array(rows.events, dtype=np.int64)
-        times = np.array(rows.times, dtype=np.float64)
+        scans = self._scans(records)
+        steps = np.array([record.step for record in records], dtype=np.int64)
+        events = np.array([record.event for record in records], dtype=np.int64)
+        times = np.array(times_held, dtype=np.float64)
         everything = np.arange(len(steps))
 
         def send(entity: str, at: IntArray, columns: list[rr.ComponentColumn]) -> None:
@@ -225,7 +155,7 @@ class AssociationView:
             self._rec.send_columns(self._path(entity), indexes=indexes, columns=columns)
 
         ones = np.ones(len(steps), dtype=np.int64)
-        geometry = _geometry(self._sensor, rows)
+        geometry = _geometry(self._sensor, scans)
         send(
             RAYS,
             everything,
@@ -237,7 +167,7 @@ class AssociationView:
                 ),
                 arrow.column(
                     rr.LineStrips2D.descriptor_colors(),
-                    _colors(FATE_COLORS[np.concatenate(rows.fates)]),
+                    _colors(FATE_COLORS[scans.fate]),
                     geometry.rays_per_scan,
                 ),
             ],
@@ -252,15 +182,15 @@ class AssociationView:
             everything,
             _one_colour_strips(geometry.gates, geometry.gates_per_scan, GATE_COLOR, ones),
         )
-        counts = np.array([len(r) for r in rows.tentative], dtype=np.int64)
+        tentative_rows, tentative_counts = self._tentative(records, scans)
         send(
             TENTATIVE,
             everything,
             [
                 arrow.column(
                     rr.Points2D.descriptor_positions(),
-                    arrow.xy(np.concatenate(rows.tentative).reshape(-1, 2)),
-                    counts,
+                    arrow.xy(scans.landmarks_xy[tentative_rows].reshape(-1, 2)),
+                    tentative_counts,
                 ),
                 arrow.column(
                     rr.Points2D.descriptor_radii(),
@@ -274,26 +204,30 @@ class AssociationView:
                 ),
                 arrow.column(
                     rr.Points2D.descriptor_labels(),
-                    pa.array(rows.tentative_labels, type=pa.utf8()),
-                    counts,
+                    pa.array(
+                        [f"L{i} (tentative)" for i in scans.landmark_ids[tentative_rows].tolist()],
+                        type=pa.utf8(),
+                    ),
+                    tentative_counts,
                 ),
             ],
         )
-        if rows.sized:
-            at = np.array(rows.sized, dtype=np.int64)
-            counts = np.array([len(r) for r in rows.sizes], dtype=np.int64)
+        sized = [k for k, record in enumerate(records) if record.association.diameters is not None]  # type: ignore[union-attr]
+        if sized:
+            at = np.array(sized, dtype=np.int64)
+            size_rows, radii, counts = self._sizes(records, scans, at)
             send(
                 SIZES,
                 at,
                 [
                     arrow.column(
                         rr.Points2D.descriptor_positions(),
-                        arrow.xy(np.concatenate(rows.sizes).reshape(-1, 2)),
+                        arrow.xy(scans.landmarks_xy[size_rows].reshape(-1, 2)),
                         counts,
                     ),
                     arrow.column(
                         rr.Points2D.descriptor_radii(),
-                        pa.array(np.concatenate(rows.size_radii).astype(np.float32)),
+                        pa.array(radii.astype(np.float32)),
                         counts,
                     ),
                     arrow.column(
@@ -303,55 +237,398 @@ class AssociationView:
                     ),
                 ],
             )
-        send(
-            style.LOG,
-            everything,
-            list(rr.TextLog.columns(text=rows.texts, level=rows.levels)),
+        values = _scan_values(records, scans, scores)
+        texts, levels = _texts(records, scans, values)
+        send(style.LOG, everything, list(rr.TextLog.columns(text=texts, level=levels)))
+        self._series.add(steps, events, times, values, scores)
+        self._send_series(everything=False)
+
+    def _scans(self, records: list[EventRecord]) -> _Scans:
+        """The held scans' measurements and maps joined, and their links."""
+        associations = [record.association for record in records]
+        assert all(association is not None for association in associations)
+        fates = [association.fate for association in associations]  # type: ignore[union-attr]
+        per_scan = np.fromiter(map(len, fates), np.int64, len(fates))
+        owner = np.repeat(np.arange(len(records)), per_scan)
+        fate = np.concatenate(fates).astype(np.int64)
+        landmark = np.concatenate(
+            [association.landmark for association in associations]  # type: ignore[union-attr]
+        ).astype(np.int64)
+        map_sizes = np.fromiter(
+            map(len, [record.landmark_ids for record in records]), np.int64, len(records)
+        )
+        map_starts = np.zeros(len(records) + 1, dtype=np.int64)
+        np.cumsum(map_sizes, out=map_starts[1:])
+        scans = _Scans(
+            poses=np.concatenate([record.pose for record in records]).reshape(-1, 3),
+            z=[association.z for association in associations],  # type: ignore[union-attr]
+            fate=fate,
+            owner=owner,
+            landmark=landmark,
+            map_starts=map_starts,
+            landmarks_xy=np.concatenate([record.landmarks_xy for record in records]).reshape(-1, 2),
+            landmark_ids=np.concatenate([record.landmark_ids for record in records]),
+            link_from=np.zeros(0, dtype=np.int64),
+            link_to=np.zeros(0, dtype=np.int64),
+            links_per_scan=np.zeros(len(records), dtype=np.int64),
+            gate_z=[association.gate_z for association in associations],  # type: ignore[union-attr]
+            gate_covs=[association.gate_S for association in associations],  # type: ignore[union-attr]
+            gate_threshold=[association.gate_threshold for association in associations],  # type: ignore[union-attr]
+        )
+        # each matched measurement to the landmark it was paired with, where the map has it
+        matched = np.flatnonzero(fate == _MATCHED)
+        rows = self._joined_rows(records, scans, owner[matched], landmark[matched])
+        found = rows >= 0
+        return replace(
+            scans,
+            link_from=matched[found],
+            link_to=rows[found],
+            links_per_scan=np.bincount(owner[matched[found]], minlength=len(records)),
         )
 
-    def _send_series(self) -> None:
-        """Send the buffered series, one column each."""
-        for name, rows in self._series.items():
-            if not rows:
-                continue
-            table = np.array(rows, dtype=np.float64)
-            indexes = [
-                rr.TimeColumn(style.STEP, sequence=table[:, 0].astype(np.int64)),
-                rr.TimeColumn(style.EVENT, sequence=table[:, 1].astype(np.int64)),
-            ]
-            if np.isfinite(table[:, 2]).all():
-                indexes.append(_time_column(table[:, 2]))
-            self._rec.send_columns(
-                self._path(f"{SERIES}/{name}"),
-                indexes=indexes,
-                columns=rr.Scalars.columns(scalars=table[:, 3]),
-            )
-        self._series = {name: [] for name in self._series}
+    def _joined_rows(
+        self, records: list[EventRecord], scans: _Scans, owners: IntArray, wanted: IntArray
+    ) -> IntArray:
+        """The row in the joined maps (``scans.landmarks_xy``) of each landmark id of
+        ``wanted`` in the map of its scan ``owners`` (ascending), -1 where it has none.
+
+        One lookup per run of scans that share a map (the filter's records share one
+        ids array until the map changes): the tables of small non-negative ids
+        (:func:`_dense_table`) joined into one array and read at once, a sorted search
+        per map otherwise (:func:`_rows_of`)."""
+        rows: IntArray = np.full(len(wanted), -1, dtype=np.int64)
+        if not len(wanted):
+            return rows
+        bounds = np.searchsorted(owners, np.arange(len(records) + 1)).tolist()
+        tables: list[IntArray] = []
+        offset = np.zeros(len(records), dtype=np.int64)  # each scan's table in the joined
+        width = np.zeros(len(records), dtype=np.int64)  # and its length (0: none)
+        cursor, k = 0, 0
+        while k < len(records):
+            ids = records[k].landmark_ids
+            end = k + 1
+            while end < len(records) and records[end].landmark_ids is ids:
+                end += 1
+            lo, hi = bounds[k], bounds[end]
+            if hi > lo:
+                table = _dense_table(ids)
+                if table is not None:
+                    tables.append(table)
+                    offset[k:end], width[k:end] = cursor, len(table)
+                    cursor += len(table)
+                else:
+                    found = _rows_of(ids, wanted[lo:hi])
+                    hit = found >= 0
+                    rows[lo:hi][hit] = scans.map_starts[owners[lo:hi][hit]] + found[hit]
+            k = end
+        if tables:
+            joined = np.concatenate(tables)
+            asked = np.flatnonzero((wanted >= 0) & (wanted < width[owners]))
+            found = joined[offset[owners[asked]] + wanted[asked]]
+            hit = found >= 0
+            rows[asked[hit]] = scans.map_starts[owners[asked[hit]]] + found[hit]
+        return rows
+
+    def _tentative(self, records: list[EventRecord], scans: _Scans) -> tuple[IntArray, IntArray]:
+        """The joined rows of each scan's tentative landmarks in its map, and their count
+        per scan."""
+        tentative = [record.association.tentative for record in records]  # type: ignore[union-attr]
+        per_scan = np.fromiter(map(len, tentative), np.int64, len(tentative))
+        owners = np.repeat(np.arange(len(records)), per_scan)
+        rows = self._joined_rows(records, scans, owners, np.concatenate(tentative).astype(np.int64))
+        found = rows >= 0
+        return rows[found], np.bincount(owners[found], minlength=len(records))
+
+    def _sizes(
+        self, records: list[EventRecord], scans: _Scans, sized: IntArray
+    ) -> tuple[IntArray, FloatArray, IntArray]:
+        """The landmarks drawn at their objects' size at the scans ``sized`` (those with
+        diameters): their joined rows, radii and count per scan.
+
+        Each landmark's size is smoothed over the scans that measured it (not rejected),
+        0.8 old + 0.2 new, and forgotten when the association removes it: one loop over
+        these changes in scan order (a scan's measurements, then its removals), each
+        kept; a scan's landmarks then take their last change at or before it, or the
+        state before the batch.
+        """
+        value, known = self._size_value, self._size_known
+        before_value = np.array(value, dtype=np.float64)
+        before_known = np.array(known, dtype=bool)
+        first = scans.first_measurement
+        measured = _ranges(first[sized], first[sized + 1])
+        diameters = np.concatenate(
+            [np.zeros(0), *(records[k].association.diameters for k in sized.tolist())]
+        )
+        kept = scans.fate[measured] != _REJECTED
+        kept_scans = scans.owner[measured][kept]
+        kept_ids = scans.landmark[measured][kept]
+        # the lists' length at each scan, grown as each scan's largest id asks: a negative
+        # id indexes from the end of the list as it was (numpy's and Python's indexing)
+        bounds = [*np.searchsorted(kept_scans, sized).tolist(), len(kept_scans)]
+        kept_list, length, lengths = kept_ids.tolist(), len(known), []
+        for lo, hi in itertools.pairwise(bounds):
+            if hi > lo:
+                largest = max(kept_list[lo:hi])
+                if largest >= length:
+                    length = max(largest + 1, 2 * length, 64)
+            lengths.append(length)
+        if length > len(known):
+            self._grow_sizes(length - 1)
+        at_length = np.repeat(np.array(lengths, dtype=np.int64), np.diff(bounds))
+        kept_ids = np.where(kept_ids < 0, kept_ids + at_length, kept_ids)
+        removed = [records[k].association.removed for k in sized.tolist()]
+        removed_ids = np.concatenate([np.zeros(0, dtype=np.int64), *removed]).astype(np.int64)
+        removed_scans = np.repeat(sized, np.fromiter(map(len, removed), np.int64, len(removed)))
+        valid = removed_ids >= 0
+        removed_ids, removed_scans = removed_ids[valid], removed_scans[valid]
+        # every change in order: by scan, a scan's measurements before its removals
+        change_scan = np.concatenate([kept_scans, removed_scans])
+        change_id = np.concatenate([kept_ids, removed_ids])
+        change_known = np.concatenate(
+            [np.ones(len(kept_ids), dtype=bool), np.zeros(len(removed_ids), dtype=bool)]
+        )
+        order = np.lexsort((~change_known, change_scan))  # stable within each
+        change_scan, change_id, change_known = (
+            change_scan[order],
+            change_id[order],
+            change_known[order],
+        )
+        sizes = np.zeros(len(order))
+        sizes[: len(kept_ids)] = diameters[kept]
+        change_value: list[float] = []
+        for i, size, is_update in zip(
+            change_id.tolist(), sizes[order].tolist(), change_known.tolist(), strict=True
+        ):
+            if is_update:
+                size = 0.8 * value[i] + 0.2 * size if known[i] else size
+                value[i] = size
+                known[i] = True
+            elif i < len(known):
+                known[i] = False
+            change_value.append(size)  # a removal's is never read
+        # every landmark of every sized scan's map, and its state after that scan
+        per_scan = scans.map_starts[sized + 1] - scans.map_starts[sized]
+        rows = _ranges(scans.map_starts[sized], scans.map_starts[sized + 1])
+        ids = scans.landmark_ids[rows].astype(np.int64)
+        has = np.zeros(len(ids), dtype=bool)
+        radius = np.zeros(len(ids))
+        before = (ids >= 0) & (ids < len(before_known))
+        has[before] = before_known[ids[before]]
+        radius[before] = before_value[ids[before]]
+        if len(change_id):
+            # the landmarks some change touched take the last at or before their scan
+            touched = np.zeros(len(known), dtype=bool)
+            touched[change_id] = True
+            asked = np.flatnonzero((ids >= 0) & (ids < len(known)))
+            asked = asked[touched[ids[asked]]]
+            span = len(records) + 1
+            keys = change_id * span + change_scan
+            by_key = np.argsort(keys, kind="stable")  # the last of equal keys: the latest
+            sorted_keys = keys[by_key]
+            scan_of = np.repeat(sized, per_scan)[asked]
+            at = np.searchsorted(sorted_keys, ids[asked] * span + scan_of, side="right") - 1
+            valid = at >= 0
+            valid[valid] = sorted_keys[at[valid]] // span == ids[asked][valid]
+            latest = by_key[at[valid]]
+            has[asked[valid]] = change_known[latest]
+            radius[asked[valid]] = np.array(change_value, dtype=np.float64)[latest]
+        radii = np.maximum(radius[has], 0.05) / 2
+        # how many each scan has: its map's rows are consecutive
+        taken = np.zeros(len(has) + 1, dtype=np.int64)
+        np.cumsum(has, out=taken[1:])
+        ends = np.cumsum(per_scan)
+        counts = taken[ends] - taken[ends - per_scan]
+        return rows[has], radii, counts
+
+    def _send_series(self, *, everything: bool) -> None:
+        """Send the series of every ``_SERIES_FLUSH`` scans held (all, with
+        ``everything``), one column each."""
+        while self._series.scans >= _SERIES_FLUSH or (everything and self._series.scans):
+            for name, (steps, events, times, values) in self._series.take(_SERIES_FLUSH):
+                indexes = [
+                    rr.TimeColumn(style.STEP, sequence=steps),
+                    rr.TimeColumn(style.EVENT, sequence=events),
+                ]
+                if np.isfinite(times).all():
+                    indexes.append(_time_column(times))
+                self._rec.send_columns(
+                    self._path(f"{SERIES}/{name}"),
+                    indexes=indexes,
+                    columns=rr.Scalars.columns(scalars=values),
+                )
 
 
 @dataclass(frozen=True, slots=True)
-class _ScanRows:
-    """The scans buffered since the last send: per scan its times and each entity's
-    values (lists of arrays, one per scan; labels flat)."""
+class _Scans:
+    """The scans of a send joined: their measurements, maps and links.
 
-    steps: list[int] = field(default_factory=list)
-    events: list[int] = field(default_factory=list)
-    times: list[float] = field(default_factory=list)  # nan: the log has no times
-    poses: list[tuple[float, float, float]] = field(default_factory=list)
-    z: list[FloatArray] = field(default_factory=list)  # (k, 2) each: the measurements
-    fates: list[IntArray] = field(default_factory=list)  # (k,) each
-    link_from: list[IntArray] = field(default_factory=list)  # (l,) each: measurements ...
-    link_to: list[FloatArray] = field(default_factory=list)  # (l, 2) each: ... to landmarks
-    gate_z: list[FloatArray] = field(default_factory=list)  # (g, 2) each
-    gate_covs: list[FloatArray] = field(default_factory=list)  # (g, 2, 2) each: S
-    gate_threshold: list[float] = field(default_factory=list)
-    tentative: list[FloatArray] = field(default_factory=list)  # (t, 2) each
-    tentative_labels: list[str] = field(default_factory=list)
-    sized: list[int] = field(default_factory=list)  # the scans with sizes (their index)
-    sizes: list[FloatArray] = field(default_factory=list)  # (s, 2) each
-    size_radii: list[FloatArray] = field(default_factory=list)  # (s,) each
-    texts: list[str] = field(default_factory=list)
-    levels: list[rr.TextLogLevel] = field(default_factory=list)
+    :param poses: (s, 3) the vehicle's pose at each scan
+    :param z: (k, 2) each scan's measurements; ``fate``, ``owner`` and ``landmark``:
+        (sum k,) every measurement's fate, scan and landmark id
+    :param map_starts: (s + 1,) where each scan's map starts in ``landmarks_xy`` (joined)
+        and ``landmark_ids``
+    :param link_from: (l,) the measurements (joined indices) linked to a landmark, and
+        ``link_to`` (l,) the joined rows of those landmarks
+    :param gate_z: (g, 2) each scan's gates' predicted measurements, ``gate_covs``
+        (g, 2, 2) their S
+    """
+
+    poses: FloatArray
+    z: list[FloatArray]
+    fate: IntArray
+    owner: IntArray
+    landmark: IntArray
+    map_starts: IntArray
+    landmarks_xy: FloatArray
+    landmark_ids: IntArray
+    link_from: IntArray
+    link_to: IntArray
+    links_per_scan: IntArray
+    gate_z: list[FloatArray]
+    gate_covs: list[FloatArray]
+    gate_threshold: list[float]
+
+    @property
+    def first_measurement(self) -> IntArray:
+        """(s + 1,) where each scan's measurements start among all."""
+        starts = np.zeros(len(self.z) + 1, dtype=np.int64)
+        np.cumsum(np.bincount(self.owner, minlength=len(self.z)), out=starts[1:])
+        return starts
+
+
+def _ranges(starts: IntArray, ends: IntArray) -> IntArray:
+    """The integers of the ranges [starts[i], ends[i]), range after range."""
+    lengths = ends - starts
+    offsets = np.repeat(starts - (np.cumsum(lengths) - lengths), lengths)
+    ranges: IntArray = np.arange(len(offsets), dtype=np.int64) + offsets
+    return ranges
+
+
+_NAMES = ("matched", "new", "rejected", "confirmed", "removed", "landmarks", "fell_back")
+_SCORES = ("correct", "wrong", "missed")
+
+
+def _scan_values(
+    records: list[EventRecord], scans: _Scans, scores: list[ScanScore | None]
+) -> dict[str, list[int]]:
+    """The per-scan series' values of the scans (the scores' only where there is one)."""
+    associations = [record.association for record in records]
+    valid = (scans.fate >= 0) & (scans.fate < 3)  # Fate's values
+    fates = np.bincount(
+        scans.owner[valid] * 3 + scans.fate[valid], minlength=3 * len(records)
+    ).reshape(-1, 3)
+    matched, new, rejected = fates.T.tolist()
+    values: dict[str, list[int]] = {
+        "matched": matched,
+        "new": new,
+        "rejected": rejected,
+        "confirmed": [len(a.confirmed) for a in associations],  # type: ignore[union-attr]
+        "removed": [len(a.removed) for a in associations],  # type: ignore[union-attr]
+        "landmarks": [
+            record.n_landmarks - len(a.tentative)  # type: ignore[union-attr]
+            for record, a in zip(records, associations, strict=True)
+        ],
+        # JCBB's budget ran out at this scan
+        "fell_back": [int(a.exhausted) for a in associations],  # type: ignore[union-attr]
+    }
+    return values
+
+
+def _texts(
+    records: list[EventRecord], scans: _Scans, values: dict[str, list[int]]
+) -> tuple[list[str], list[rr.TextLogLevel]]:
+    """Each scan's line in the log: what the association chose, and its level."""
+    texts, levels = [], []
+    measured = np.bincount(scans.owner, minlength=len(records)).tolist()
+    for k, record in enumerate(records):
+        association = record.association
+        assert association is not None
+        text = (
+            f"step {record.step} scan line {record.line}: {association.method}"
+            f" matched {values['matched'][k]} of {measured[k]}, {values['new'][k]} new,"
+            f" {values['rejected'][k]} rejected"
+        )
+        if association.method == "jcbb":
+            text += f"; {association.hypotheses} hypotheses"
+            if association.exhausted:
+                text += f" (budget exhausted: fell back to {association.fallback or 'best found'})"
+            text += f", joint NIS {association.joint_nis:.2f}"
+        if len(association.confirmed) or len(association.removed):
+            confirmed, removed = association.confirmed.tolist(), association.removed.tolist()
+            text += f"; confirmed {confirmed}, removed {removed}"
+        texts.append(text)
+        levels.append(rr.TextLogLevel.WARN if association.exhausted else rr.TextLogLevel.DEBUG)
+    return texts, levels
+
+
+class _Series:
+    """The per-scan series not sent yet: each series' rows, and how many scans they span
+    (a series has a row per scan, the scores' only where a scan has one)."""
+
+    def __init__(self) -> None:
+        self.scans = 0
+        # per series: (scan number, step, event, time, value) arrays, joined as they come
+        self._rows: dict[str, list[FloatArray]] = {}
+        self._first = 0  # the number of the first scan held
+
+    def add(
+        self,
+        steps: IntArray,
+        events: IntArray,
+        times: FloatArray,
+        values: dict[str, list[int]],
+        scores: list[ScanScore | None],
+    ) -> None:
+        numbers = np.arange(self._first + self.scans, self._first + self.scans + len(steps))
+        self.scans += len(steps)
+        columns = (numbers, steps, events, times)
+        for name in _NAMES:
+            self._rows.setdefault(name, []).append(
+                np.column_stack([*columns, np.array(values[name], dtype=np.float64)])
+            )
+        scored = [k for k, score in enumerate(scores) if score is not None]
+        if scored:
+            at = np.array(scored, dtype=np.int64)
+            by_name = {
+                "correct": [scores[k].correct for k in scored],  # type: ignore[union-attr]
+                "wrong": [scores[k].wrong for k in scored],  # type: ignore[union-attr]
+                "missed": [scores[k].missed for k in scored],  # type: ignore[union-attr]
+            }
+            for name in _SCORES:
+                self._rows.setdefault(name, []).append(
+                    np.column_stack(
+                        [*(column[at] for column in columns), np.array(by_name[name], np.float64)]
+                    )
+                )
+
+    def take(
+        self, most: int
+    ) -> list[tuple[str, tuple[IntArray, IntArray, FloatArray, FloatArray]]]:
+        """The rows of the first ``most`` scans held, per series (steps, events, times,
+        values); they are held no more."""
+        end = self._first + most
+        out = []
+        for name, parts in self._rows.items():
+            table = np.concatenate(parts) if parts else np.zeros((0, 5))
+            cut = int(np.searchsorted(table[:, 0], end))
+            if cut:
+                rows = table[:cut]
+                out.append(
+                    (
+                        name,
+                        (
+                            rows[:, 1].astype(np.int64),
+                            rows[:, 2].astype(np.int64),
+                            rows[:, 3],
+                            rows[:, 4],
+                        ),
+                    )
+                )
+            self._rows[name] = [table[cut:]] if cut < len(table) else []
+        taken = min(most, self.scans)
+        self._first += taken
+        self.scans -= taken
+        return out
 
 
 @dataclass(frozen=True, slots=True)
@@ -367,18 +644,18 @@ class _Geometry:
     gates_per_scan: IntArray
 
 
-def _geometry(sensor: RangeBearing, rows: _ScanRows) -> _Geometry:
-    """The rays, links and gates of the buffered scans, a few array operations for all.
+def _geometry(sensor: RangeBearing, scans: _Scans) -> _Geometry:
+    """The rays, links and gates of the held scans, a few array operations for all.
 
     Each measurement and each gate's centre through the sensor's inverse model at its
     scan's pose; each gate's covariance mapped to the plane through that model's Jacobian
     (``l_D_z S l_D_z^T``); a link from its measurement's point to its landmark.
     """
-    poses = np.array(rows.poses, dtype=np.float64).reshape(-1, 3)
+    poses = scans.poses
     origins = np.array([sensor.sensor(pose)[:2] for pose in poses], dtype=np.float64)
-    rays_per_scan = np.array([len(z) for z in rows.z], dtype=np.int64)
-    gates_per_scan = np.array([len(z) for z in rows.gate_z], dtype=np.int64)
-    z = np.concatenate([*rows.z, *rows.gate_z]).reshape(-1, 2)
+    rays_per_scan = np.array([len(z) for z in scans.z], dtype=np.int64)
+    gates_per_scan = np.array([len(z) for z in scans.gate_z], dtype=np.int64)
+    z = np.concatenate([*scans.z, *scans.gate_z]).reshape(-1, 2)
     scan = np.concatenate(
         [
             np.repeat(np.arange(len(poses)), rays_per_scan),
@@ -390,19 +667,15 @@ def _geometry(sensor: RangeBearing, rows: _ScanRows) -> _Geometry:
     rays = np.empty((m, 2, 2))
     rays[:, 0] = origins[scan[:m]]
     rays[:, 1] = ends[:m]
-    first = np.zeros(len(poses), dtype=np.int64)  # each scan's first measurement
-    np.cumsum(rays_per_scan[:-1], out=first[1:])
-    links_per_scan = np.array([len(k) for k in rows.link_from], dtype=np.int64)
-    links = np.empty((int(links_per_scan.sum()), 2, 2))
+    links = np.empty((len(scans.link_from), 2, 2))
     if len(links):
-        picked = np.concatenate(rows.link_from) + np.repeat(first, links_per_scan)
-        links[:, 0] = ends[picked]
-        links[:, 1] = np.concatenate(rows.link_to).reshape(-1, 2)
+        links[:, 0] = ends[scans.link_from]
+        links[:, 1] = scans.landmarks_xy[scans.link_to]
     gates = np.zeros((0, 2, 2))
     if len(z) > m:
         jacobians = l_D_z[m:]
-        covs = jacobians @ np.concatenate(rows.gate_covs) @ jacobians.transpose(0, 2, 1)
-        threshold = np.repeat(np.array(rows.gate_threshold, dtype=np.float64), gates_per_scan)
+        covs = jacobians @ np.concatenate(scans.gate_covs) @ jacobians.transpose(0, 2, 1)
+        threshold = np.repeat(np.array(scans.gate_threshold, dtype=np.float64), gates_per_scan)
         values = np.unique(threshold)
         if len(values) == 1:
             gates = ellipse_outlines(ends[m:], covs, n_sigma=math.sqrt(float(values[0])))
@@ -411,7 +684,7 @@ def _geometry(sensor: RangeBearing, rows: _ScanRows) -> _Geometry:
             for value in values.tolist():
                 at = np.flatnonzero(threshold == value)
                 gates[at] = ellipse_outlines(ends[m:][at], covs[at], n_sigma=math.sqrt(value))
-    return _Geometry(rays, rays_per_scan, links, links_per_scan, gates, gates_per_scan)
+    return _Geometry(rays, rays_per_scan, links, scans.links_per_scan, gates, gates_per_scan)
 
 
 def _one_colour_strips(
@@ -480,29 +753,14 @@ def _inverse_at(
     return points, l_D_z
 
 
-class _RowLookup:
-    """:func:`_rows_of` for the records of a run: a table from id to row, kept while the
-    records hand the same ids array (the filter shares one until its map changes, and
-    a scan's records ask twice); ids that are negative or sparse go by :func:`_rows_of`."""
-
-    def __init__(self) -> None:
-        self._ids: IntArray | None = None
-        self._table: IntArray | None = None
-
-    def rows(self, ids: IntArray, wanted: IntArray) -> IntArray:
-        if ids is not self._ids:
-            self._ids, self._table = ids, None  # held: the array cannot be another's
-            if len(ids) and int(ids.min()) >= 0 and int(ids.max()) < 4 * len(ids) + 1024:
-                self._table = np.full(int(ids.max()) + 1, -1, dtype=np.int64)
-                self._table[ids] = np.arange(len(ids))
-        table = self._table
-        if table is None:
-            return _rows_of(ids, wanted)
-        wanted = np.asarray(wanted, dtype=np.int64)
-        rows: IntArray = np.full(len(wanted), -1, dtype=np.int64)
-        inside = (wanted >= 0) & (wanted < len(table))
-        rows[inside] = table[wanted[inside]]
-        return rows
+def _dense_table(ids: IntArray) -> IntArray | None:
+    """A table of a map's ids: by id, its row (-1: none); None where the ids are negative
+    or too sparse for one (:func:`_rows_of` then)."""
+    if len(ids) and int(ids.min()) >= 0 and int(ids.max()) < 4 * len(ids) + 1024:
+        table: IntArray = np.full(int(ids.max()) + 1, -1, dtype=np.int64)
+        table[ids] = np.arange(len(ids))
+        return table
+    return None
 
 
 def _rows_of(ids: IntArray, wanted: IntArray) -> IntArray:

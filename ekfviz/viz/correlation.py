@@ -69,8 +69,20 @@ def color_indices(C: FloatArray) -> npt.NDArray[np.uint8]:
     :return: (m, k) uint8
     """
     finite = np.isfinite(C)
-    index = np.rint((np.clip(np.where(finite, C, 0.0), -1.0, 1.0) + 1.0) * 0.5 * (LUT_SIZE - 1))
-    return np.where(finite, index, NAN_INDEX).astype(np.uint8)
+    # rint((clip(C) + 1) * 0.5 * (LUT_SIZE - 1)), the same operations in the same order in
+    # one buffer: a replay's matrices make millions of pixels, and each temporary of them
+    # cost as much as the arithmetic
+    values = np.clip(C, -1.0, 1.0)
+    if not np.issubdtype(values.dtype, np.floating):  # (integers: as in float64)
+        values = values.astype(np.float64)
+    values[~finite] = 0.0
+    values += 1.0
+    values *= 0.5
+    values *= LUT_SIZE - 1
+    np.rint(values, out=values)
+    index = values.astype(np.uint8)
+    index[~finite] = NAN_INDEX
+    return index
 
 
 def colormap(C: FloatArray) -> npt.NDArray[np.uint8]:

@@ -16,26 +16,28 @@ every ellipse and error at every update.
 
 from __future__ import annotations
 
-import itertools
-import math
-
 import numpy as np
 import rerun as rr
 
 from ekfviz.core.records import EventKind, EventRecord
 from ekfviz.core.types import BoolArray, FloatArray, IntArray
 from ekfviz.viz import style
-from ekfviz.viz.ellipses import ellipse_extent, ellipse_outlines, ellipse_shapes, outline_points
+from ekfviz.viz.ellipses import ellipse_extent, ellipse_outlines, outline_points
 from ekfviz.viz.layers.arrow import column, radius, xy
-from ekfviz.viz.layers.batch import Batch, landmark_rows
-from ekfviz.viz.layers.canvas import NO_ROWS, Canvas, Rows
+from ekfviz.viz.layers.batch import Batch, Maps, landmark_rows
+from ekfviz.viz.layers.canvas import Canvas, Rows
 from ekfviz.viz.layers.labels import LabelsLayer
+from ekfviz.viz.layers.map_rows import MAP_TOLERANCE as MAP_TOLERANCE  # the recorder's
+from ekfviz.viz.layers.map_rows import (
+    IdRows,
+    JoinedIds,
+    joined_rows,
+    map_changes,
+    ranges,
+)
 
 SMALL_MAP = 32  # up to this many landmarks, every ellipse at every update
 MAP_EVERY_STEPS = 25  # beyond: the whole map every this many steps
-# A small map is logged again only once some landmark's point or outline would move by
-# more than this fraction of its ellipse's semi-major axis (the viewer shows the latest).
-MAP_TOLERANCE = 0.02
 MAP_POINTS = 16  # points of a landmark outline: within 2 % of its radius, as MAP_TOLERANCE
 # a first-sighting outline is logged once, and on real data it is metres wide: 16 points
 # showed corners there, 32 do not (within 0.5 % of its radius)
@@ -140,26 +142,35 @@ class MapLayer:
         shown = self._map_changes(batch, sparse).tolist()
         if shown:
             self._send_points(rows.pick(corrected[shown]), [records[i] for i in shown])
-        self._send_ellipses(
+        # the ellipses of every update below by their rows in the batch's joined maps
+        # (maps.xy, maps.covs), found for all updates at once (see joined_rows)
+        joined_ids = JoinedIds(records)
+        whole_maps = np.array([i for i in shown if whole[i]], dtype=np.int64)
+        self._send_joined_ellipses(
             style.LANDMARK_ELLIPSES,
             rows,
-            [
-                (int(corrected[i]), records[i], landmark_rows(records[i], None))
-                for i in shown
-                if whole[i]
-            ],
+            corrected[whole_maps],
+            maps,
+            ranges(maps.starts[whole_maps], maps.starts[whole_maps + 1]),
+            maps.counts[whole_maps],
+            joined_ids,
         )
         # Beyond a small map: the observed landmarks' own ellipses at the updates between
         # two of the whole map's (and an empty row, clearing them, at those).
-        self._send_ellipses(
+        at_sparse = np.flatnonzero(sparse)
+        own = at_sparse[~whole[at_sparse]]
+        tables: dict[int, IdRows | None] = {}  # id lookups of the batch's maps
+        observed_rows, own_counts = joined_rows(maps, own, "observed", tables)
+        counts = np.zeros(len(at_sparse), dtype=np.int64)
+        counts[~whole[at_sparse]] = own_counts
+        self._send_joined_ellipses(
             style.LANDMARK_ELLIPSES_OBSERVED,
             rows,
-            [
-                (k, records[i], NO_ROWS if whole[i] else landmark_rows(records[i], "observed"))
-                for i, k in zip(
-                    np.flatnonzero(sparse).tolist(), corrected[sparse].tolist(), strict=True
-                )
-            ],
+            corrected[at_sparse],
+            maps,
+            observed_rows,
+            counts,
+            joined_ids,
         )
         with_new = np.flatnonzero(batch.observed.new[corrected]).tolist()
         self._send_ellipses(
@@ -172,7 +183,9 @@ class MapLayer:
             ],
             INITIAL_POINTS,
         )
-        self._send_confirmed_first_sightings(rows, corrected, records)
+        self._send_confirmed_first_sightings(
+            rows, corrected, maps, batch.observed.new[corrected], joined_ids, tables
+        )
 
     def _sparse_maps(self, batch: Batch) -> BoolArray:
         """:meth:`sparse` of each of the batch's updates, in a few numpy calls."""
@@ -227,70 +240,14 @@ class MapLayer:
             self._map_shown = None
             self._map_shown_event = maps.records[-1].event
             return np.arange(len(corrected))
-        # the shapes and tolerances of every landmark of every update at once
-        every = ellipse_shapes(maps.xy, maps.covs)
-        # the point at angle t of an outline, m + 3 sqrt(C) [cos t, sin t], moves by at most
-        # |dm| + 3 ||d sqrt(C)||_F; the semi-major axis is at least 3 ||sqrt(C)||_F / sqrt(2)
-        tolerance = MAP_TOLERANCE * np.linalg.norm(every[:, 2:], axis=1) / math.sqrt(2.0)
         events = batch.rows.events[corrected]
         forced = batch.whole[corrected] & sparse
         if self._final_event is not None:
             forced |= events == self._final_event
-        shown: list[IntArray] = []
-        for start, end in itertools.pairwise([*maps.runs(), len(corrected)]):
-            first, last = int(maps.starts[start]), int(maps.starts[end])
-            n = int(maps.counts[start])
-            shown.append(
-                start
-                + self._changes_of_one_map(
-                    maps.records[start:end],
-                    events[start:end],
-                    forced[start:end].copy(),
-                    every[first:last].reshape(end - start, n, 6),
-                    tolerance[first:last].reshape(end - start, n),
-                )
-            )
-        return np.concatenate(shown)
-
-    def _changes_of_one_map(
-        self,
-        records: list[EventRecord],
-        events: IntArray,
-        forced: BoolArray,
-        every: FloatArray,
-        tolerance: FloatArray,
-    ) -> IntArray:
-        """:meth:`_map_changes` of updates of the same landmarks, their shapes ``every``
-        (u, n, 6) and tolerances (u, n), in a few numpy calls: from each update logged,
-        the first that has moved from it, looked for in windows that grow while none has
-        (``forced``: the updates logged whatever they moved)."""
-        if self._map_shown is None or not np.array_equal(
-            self._map_shown[0], records[0].landmark_ids
-        ):
-            forced[0] = True
-        shown: list[int] = []
-        # the first window as long as twice the last gap between two updates logged: the
-        # same updates found in fewer numpy calls where the map moves at a steady pace
-        k, gap = 0, 8
-        window = 2 * gap
-        while k < len(records):
-            if not forced[k]:
-                before = self._map_shown[1]  # type: ignore[index]
-                ahead = every[k : k + window] - before
-                moved = _norms(ahead[:, :, :2]) + _norms(ahead[:, :, 2:])
-                due = forced[k : k + window] | ~np.all(moved <= tolerance[k : k + window], axis=1)
-                hits = np.flatnonzero(due)
-                if not hits.size:
-                    k, window = k + len(ahead), 2 * window
-                    continue
-                k += int(hits[0])
-            if shown:
-                gap = k - shown[-1]
-            self._map_shown = (records[k].landmark_ids, every[k].copy())
-            self._map_shown_event = int(events[k])
-            shown.append(k)
-            k, window = k + 1, max(16, 2 * gap)
-        return np.array(shown, dtype=np.int64)
+        shown, self._map_shown, event = map_changes(maps, events, forced, self._map_shown)
+        if event is not None:
+            self._map_shown_event = event
+        return shown
 
     def _send_points(self, times: list[rr.TimeColumnLike], updates: list[EventRecord]) -> None:
         """All landmark estimates of some updates, one row each, class id = landmark id;
@@ -342,26 +299,75 @@ class MapLayer:
         at = np.array([k for k, _, _ in batches], dtype=np.int64)
         self._canvas.send_strips(entity, rows, at, outlines, counts, np.concatenate(ids))
 
+    def _send_joined_ellipses(
+        self,
+        entity: str,
+        rows: Rows,
+        at: IntArray,
+        maps: Maps,
+        joined_rows: IntArray,
+        counts: IntArray,
+        joined_ids: JoinedIds,
+    ) -> None:
+        """:meth:`_send_ellipses` of landmarks given by their rows in a batch's joined
+        maps: ``counts[i]`` of ``joined_rows`` at the row ``at[i]`` of ``rows``.
+
+        :param joined_ids: the landmark id of each joined row
+        """
+        if not len(at):
+            return
+        n_points = min(MAP_POINTS, outline_points(int(counts.max())))
+        outlines = ellipse_outlines(maps.xy[joined_rows], maps.covs[joined_rows], n_points=n_points)
+        self._canvas.send_strips(entity, rows, at, outlines, counts, joined_ids.of(joined_rows))
+
     def _send_confirmed_first_sightings(
-        self, rows: Rows, corrected: IntArray, records: list[EventRecord]
+        self,
+        rows: Rows,
+        corrected: IntArray,
+        maps: Maps,
+        new_counts: IntArray,
+        joined_ids: JoinedIds,
+        tables: dict[int, IdRows | None],
     ) -> None:
         """With id-less scans, the first-sighting outline of a landmark appears when the
         association confirms it: most new landmarks of a cluttered scan are removed
-        again, and their outlines would bury the map (Victoria Park: 600 of 900)."""
-        at, means, covs, ids = [], [], [], []
-        for k, record in zip(corrected.tolist(), records, strict=True):
+        again, and their outlines would bury the map (Victoria Park: 600 of 900).
+
+        :param new_counts: (u,) how many landmarks each update initialised
+        :param joined_ids: the landmark id of each row of the joined maps
+        :param tables: the id lookups of the batch's maps (see :func:`joined_rows`)
+        """
+        records = maps.records
+        picks = np.array(
+            [i for i in np.flatnonzero(new_counts).tolist() if records[i].association is not None],
+            dtype=np.int64,
+        )
+        landmark_ids = joined_ids.all() if len(picks) else np.zeros(0, dtype=np.int64)
+        # the rows of each update's new landmarks in the joined maps, for all at once
+        new_rows, new_per_update = joined_rows(maps, picks, "initialised", tables)
+        new_ends = np.cumsum(new_per_update).tolist()
+        new_of = {
+            i: new_rows[end - count : end].tolist()
+            for i, end, count in zip(picks.tolist(), new_ends, new_per_update.tolist(), strict=True)
+        }
+        at: list[int] = []
+        means: list[FloatArray] = []
+        covs: list[FloatArray] = []
+        ids: list[list[int]] = []
+        for u, (k, record) in enumerate(zip(corrected.tolist(), records, strict=True)):
             association = record.association
             if association is None:
                 continue
-            if record.observations is not None and record.observations.initialised.any():
-                rows_new = landmark_rows(record, "initialised")
-                for row in rows_new.tolist():
-                    self._first_sightings[int(record.landmark_ids[row])] = (
-                        record.landmarks_xy[row].copy(),
-                        record.landmark_covs[row].copy(),
-                    )
-            for landmark_id in association.removed.tolist():
-                self._first_sightings.pop(int(landmark_id), None)
+            for row in new_of.get(u, ()):
+                self._first_sightings[int(landmark_ids[row])] = (
+                    maps.xy[row].copy(),
+                    maps.covs[row].copy(),
+                )
+            if len(association.removed):
+                for landmark_id in association.removed.tolist():
+                    self._first_sightings.pop(int(landmark_id), None)
+            if not len(association.confirmed):
+                continue
             confirmed = [
                 (int(i), held)
                 for i in association.confirmed.tolist()
@@ -381,11 +387,3 @@ class MapLayer:
             style.LANDMARK_INITIAL, rows, np.array(at, dtype=np.int64), outlines, counts,
             np.array([i for group in ids for i in group], dtype=np.int64),
         )  # fmt: skip
-
-
-def _norms(vectors: FloatArray) -> FloatArray:
-    """``np.linalg.norm(vectors, axis=2)`` to the bit, as it computes it (the squares of
-    the real entries, summed over the last axis), without its checks: it is called a few
-    times for every update logged."""
-    norms: FloatArray = np.sqrt(np.add.reduce(vectors * vectors, axis=2))
-    return norms
