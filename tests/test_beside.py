@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import contextlib
 import threading
+import time
 from collections.abc import Generator, Iterator
 from typing import Any
 
@@ -13,7 +14,7 @@ import numpy as np
 import pytest
 
 import ekfviz.runner.beside as beside
-from ekfviz.core.records import AnyEvent, Control, EventKind, EventRecord
+from ekfviz.core.records import AnyEvent, Control, EventKind, EventRecord, PredictRows
 from ekfviz.filters.ekf import EkfSlam
 from ekfviz.runner.replay import FilterLineError, replay
 from ekfviz.sim.scenarios import loop
@@ -167,3 +168,40 @@ def test_a_consumer_that_stops_early_leaves_no_thread(large: list[AnyEvent]) -> 
     assert any(r.covariance is not None and r.covariance.dim >= 128 for r in taken)
     stream.close()
     assert no_thread_left()
+
+
+def states(events: list[AnyEvent]) -> tuple[dict[int, bytes], EventRecord]:
+    """Each event's pose and pose covariance (the records' and the predict rows') as
+    bytes, and the last record."""
+    rows = PredictRows()
+    records = list(replay(events, predict_rows=rows))
+    poses = {r.event: r.pose.tobytes() + r.pose_cov.tobytes() for r in records}
+    for k in range(len(rows)):
+        poses[rows.events[k]] = rows.poses[k].tobytes() + rows.pose_covs[k].tobytes()
+    kinds = sum(r.kind is EventKind.PREDICT for r in records)
+    poses[-1] = kinds.to_bytes(8, "little")  # how many predicts came as records
+    return poses, records[-1]
+
+
+def test_the_filters_floats_do_not_depend_on_when_the_thread_is_done(
+    large: list[AnyEvent], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """While records are held, a plain predict makes a record, not a row: P's pending
+    changes must be folded in all the same, or the floats would follow the thread's
+    timing."""
+    at_once(monkeypatch)
+    expected, last_expected = states(large)
+    monkeypatch.undo()
+    work = beside._work
+
+    def slow(P: np.ndarray, check: bool, ids: Any) -> Any:
+        time.sleep(0.05)  # records held over many events
+        return work(P, check, ids)
+
+    monkeypatch.setattr(beside, "_work", slow)
+    got, last = states(large)
+    held_predicts = int.from_bytes(got.pop(-1), "little")
+    assert held_predicts > int.from_bytes(expected.pop(-1), "little")  # the path was taken
+    assert got == expected
+    assert np.array_equal(last.landmarks_xy, last_expected.landmarks_xy)
+    assert np.array_equal(last.landmark_covs, last_expected.landmark_covs)

@@ -245,11 +245,17 @@ def replay(
                         continue
                     if step >= next_check or last:
                         covariance, warnings = checked_pair(log_event.line, ())
-                    elif rows is not None and type(log_event) is Control and not beside.busy:
+                    elif rows is not None and type(log_event) is Control:
+                        # the buffers fold P's pending changes in: read them whether the
+                        # row is written or, while records are held (they come first),
+                        # a record made, so that the filter's floats never depend on
+                        # when the thread beside it is done
                         x, P = ekf.buffers  # type: ignore[union-attr]  # rows: the built-in filter's
-                        rows.add(event, step, log_event.line, log_event.time,
-                                 (log_event.d, log_event.alpha), x, P)  # fmt: skip
-                        continue
+                        if not beside.busy:
+                            rows.add(event, step, log_event.line, log_event.time,
+                                     (log_event.d, log_event.alpha), x, P)  # fmt: skip
+                            continue
+                        covariance, warnings = None, ()
                     else:
                         covariance, warnings = None, ()
                     record = ekf.record(
