@@ -7,6 +7,7 @@ from __future__ import annotations
 import contextlib
 import threading
 import time
+import weakref
 from collections.abc import Generator, Iterator
 from typing import Any
 
@@ -205,3 +206,34 @@ def test_the_filters_floats_do_not_depend_on_when_the_thread_is_done(
     assert got == expected
     assert np.array_equal(last.landmarks_xy, last_expected.landmarks_xy)
     assert np.array_equal(last.landmark_covs, last_expected.landmark_covs)
+
+
+def test_one_copy_of_p_at_a_time_however_fast_the_work_is_asked_for(
+    large: list[AnyEvent], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A slow thread holds the replay back rather than copies of P piling up."""
+    alive: list[int] = [0, 0]  # now, most
+
+    class Counting:
+        def __getattr__(self, name: str) -> Any:
+            return getattr(np, name)
+
+        @staticmethod
+        def array(P: np.ndarray, dtype: Any = None) -> np.ndarray:
+            copy = np.array(P, dtype=dtype)
+            alive[0] += 1
+            alive[1] = max(alive)
+            weakref.finalize(copy, lambda: alive.__setitem__(0, alive[0] - 1))
+            return copy
+
+    work = beside._work
+
+    def slow(P: np.ndarray, check: bool, ids: Any) -> Any:
+        time.sleep(0.02)
+        return work(P, check, ids)
+
+    monkeypatch.setattr(beside, "np", Counting())
+    monkeypatch.setattr(beside, "_work", slow)
+    records = list(replay(large))
+    assert sum(r.correlation is not None and r.correlation.dim >= 128 for r in records) >= 4
+    assert alive[1] <= 2  # the one the thread reads, and the next one's

@@ -66,6 +66,7 @@ class Beside:
         self._check = False
         self._ids: IntArray | None = None
         self._executor: ThreadPoolExecutor | None = None
+        self._running: Future[_Results] | None = None  # the work given last
 
     @staticmethod
     def takes(P: FloatArray) -> bool:
@@ -83,11 +84,21 @@ class Beside:
         for the record handed to :meth:`hold` next: ``P`` is copied now (one copy for
         both), since the filter goes on changing it."""
         if self._P is None:
+            self._one_at_a_time()
             self._P = np.array(P, dtype=np.float64)
         self._check |= check
         if ids is not None:
             self._ids = ids
         self.busy = True
+
+    def _one_at_a_time(self) -> None:
+        """Wait for the work given to the thread, if it is not done: one copy of P at a
+        time beside the filter's own (N = 2000: 128 MB each), however fast the work is
+        asked for."""
+        running = self._running
+        if running is not None:
+            running.result()
+            self._running = None
 
     def hold(self, record: EventRecord) -> Iterator[EventRecord]:
         """Hold ``record`` (with the work asked for it, if any) behind those held; the
@@ -98,7 +109,7 @@ class Beside:
                 from concurrent.futures import ThreadPoolExecutor
 
                 self._executor = ThreadPoolExecutor(1, thread_name_prefix="ekfviz-whole-P")
-            future = self._executor.submit(_work, self._P, self._check, self._ids)
+            future = self._running = self._executor.submit(_work, self._P, self._check, self._ids)
             self._P, self._check, self._ids = None, False, None
         self._held.append((record, future))
         return self._ready(wait=False)
