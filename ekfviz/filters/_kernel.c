@@ -63,6 +63,53 @@ static int get_state(PyObject *x_object, PyObject *P_object, Py_ssize_t n, Py_bu
     return 0;
 }
 
+/* An observation line's buffers: slots (m,) int64, z (m, 2) and table (m, 9) float64,
+ * status (m,) bytes, m being the slots' length; checked, and released on failure. */
+typedef struct {
+    Py_buffer slots, z, table, status;
+    Py_ssize_t m;
+} Line;
+
+static int get_line(PyObject *slots_object, PyObject *z_object, PyObject *table_object,
+                    PyObject *status_object, Line *line)
+{
+    if (PyObject_GetBuffer(slots_object, &line->slots, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0)
+        return -1;
+    const Py_ssize_t m = line->m = line->slots.len / 8;
+    if (line->slots.itemsize != 8 ||
+        (strcmp(line->slots.format, "l") != 0 && strcmp(line->slots.format, "q") != 0)) {
+        PyErr_SetString(PyExc_ValueError, "slots: expected contiguous int64");
+        goto release_slots;
+    }
+    if (get_doubles(z_object, &line->z, 2 * m, "z") < 0)
+        goto release_slots;
+    if (get_doubles(table_object, &line->table, 9 * m, "table") < 0)
+        goto release_z;
+    if (PyObject_GetBuffer(status_object, &line->status, PyBUF_WRITABLE | PyBUF_C_CONTIGUOUS) < 0)
+        goto release_table;
+    if (line->status.len < m) {
+        PyErr_SetString(PyExc_ValueError, "status: expected one byte per observation");
+        PyBuffer_Release(&line->status);
+        goto release_table;
+    }
+    return 0;
+release_table:
+    PyBuffer_Release(&line->table);
+release_z:
+    PyBuffer_Release(&line->z);
+release_slots:
+    PyBuffer_Release(&line->slots);
+    return -1;
+}
+
+static void release_line(Line *line)
+{
+    PyBuffer_Release(&line->status);
+    PyBuffer_Release(&line->table);
+    PyBuffer_Release(&line->z);
+    PyBuffer_Release(&line->slots);
+}
+
 PyDoc_STRVAR(predict_doc,
 "predict(x, P, n, d, alpha, qx, qy, qa) -> bool\n\n"
 "EkfSlam.predict in place: drive d along the heading, then turn alpha. P_rm' = G P_rm\n"
@@ -135,36 +182,22 @@ static PyObject *update_sequential(PyObject *self, PyObject *args)
     if (!PyArg_ParseTuple(args, "OOnOOOOddd", &x_object, &P_object, &n, &slots_object,
                           &z_object, &table_object, &status_object, &r00, &r11, &min_range))
         return NULL;
-    Py_buffer xb, Pb, slots_b, zb, table_b, status_b;
+    Py_buffer xb, Pb;
+    Line line;
     if (get_state(x_object, P_object, n, &xb, &Pb, &capacity) < 0)
         return NULL;
-    if (PyObject_GetBuffer(slots_object, &slots_b, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0)
+    if (get_line(slots_object, z_object, table_object, status_object, &line) < 0)
         goto release_state;
-    Py_ssize_t m = slots_b.len / 8;
-    if (slots_b.itemsize != 8 ||
-        (strcmp(slots_b.format, "l") != 0 && strcmp(slots_b.format, "q") != 0)) {
-        PyErr_SetString(PyExc_ValueError, "slots: expected contiguous int64");
-        goto release_slots;
-    }
-    if (get_doubles(z_object, &zb, 2 * m, "z") < 0)
-        goto release_slots;
-    if (get_doubles(table_object, &table_b, 9 * m, "table") < 0)
-        goto release_z;
-    if (PyObject_GetBuffer(status_object, &status_b, PyBUF_WRITABLE | PyBUF_C_CONTIGUOUS) < 0)
-        goto release_table;
-    if (status_b.len < m) {
-        PyErr_SetString(PyExc_ValueError, "status: expected one byte per observation");
-        goto release_status;
-    }
+    const Py_ssize_t m = line.m;
     double *hp = malloc(2 * (size_t)n * sizeof(double));
     if (hp == NULL) {
         PyErr_NoMemory();
-        goto release_status;
+        goto release_line;
     }
 
-    double *x = xb.buf, *P = Pb.buf, *z = zb.buf, *table = table_b.buf;
-    const int64_t *slots = slots_b.buf;
-    int8_t *status = status_b.buf;
+    double *x = xb.buf, *P = Pb.buf, *z = line.z.buf, *table = line.table.buf;
+    const int64_t *slots = line.slots.buf;
+    int8_t *status = line.status.buf;
     double *h0 = hp, *h1 = hp + n; /* the two rows of H P, then of A = L^-1 H P */
     int code = OK;
     Py_ssize_t failed = -1, skipped = 0;
@@ -246,22 +279,13 @@ static PyObject *update_sequential(PyObject *self, PyObject *args)
             code = STATE_NOT_FINITE;
     }
     free(hp);
-    PyBuffer_Release(&status_b);
-    PyBuffer_Release(&table_b);
-    PyBuffer_Release(&zb);
-    PyBuffer_Release(&slots_b);
+    release_line(&line);
     PyBuffer_Release(&Pb);
     PyBuffer_Release(&xb);
     return Py_BuildValue("(inn)", code, failed, skipped);
 
-release_status:
-    PyBuffer_Release(&status_b);
-release_table:
-    PyBuffer_Release(&table_b);
-release_z:
-    PyBuffer_Release(&zb);
-release_slots:
-    PyBuffer_Release(&slots_b);
+release_line:
+    release_line(&line);
 release_state:
     PyBuffer_Release(&Pb);
     PyBuffer_Release(&xb);
@@ -436,45 +460,35 @@ static PyObject *model_update(PyObject *self, PyObject *args)
                           &rank, &slots_object, &z_object, &table_object, &status_object,
                           &start, &a, &b, &r00, &r01, &r11, &min_range, &allow_wide))
         return NULL;
-    Py_buffer xb, Pb, Ub, slots_b, zb, table_b, status_b;
+    Py_buffer xb, Pb, Ub;
+    Line line;
     PyObject *result = NULL;
     if (get_state(x_object, P_object, n, &xb, &Pb, &capacity) < 0)
         return NULL;
     if (get_doubles(U_object, &Ub, 2 * capacity, "U") < 0)
         goto release_state;
     const Py_ssize_t U_rows = Ub.len / 8 / capacity;
-    if (PyObject_GetBuffer(slots_object, &slots_b, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0)
+    if (rank < 0 || rank + 2 > U_rows || rank % 2 || start < 0) {
+        PyErr_SetString(PyExc_ValueError, "rank: expected even, below U's rows; start >= 0");
         goto release_U;
-    const Py_ssize_t m = slots_b.len / 8;
-    if (slots_b.itemsize != 8 || rank < 0 || rank + 2 > U_rows || rank % 2 || start < 0 ||
-        (strcmp(slots_b.format, "q") != 0 && strcmp(slots_b.format, "l") != 0)) {
-        PyErr_SetString(PyExc_ValueError, "slots: expected int64; rank: even, below U's rows");
-        goto release_slots;
     }
-    if (get_doubles(z_object, &zb, 2 * m, "z") < 0)
-        goto release_slots;
-    if (get_doubles(table_object, &table_b, 9 * m, "table") < 0)
-        goto release_z;
-    if (PyObject_GetBuffer(status_object, &status_b, PyBUF_WRITABLE | PyBUF_C_CONTIGUOUS) < 0)
-        goto release_table;
-    if (status_b.len < m) {
-        PyErr_SetString(PyExc_ValueError, "status: expected one byte per landmark");
-        goto release_status;
-    }
-    const int64_t *slots = slots_b.buf;
+    if (get_line(slots_object, z_object, table_object, status_object, &line) < 0)
+        goto release_U;
+    const Py_ssize_t m = line.m;
+    const int64_t *slots = line.slots.buf;
     for (Py_ssize_t k = 0; k < m; ++k) {
         if (slots[k] >= 0 && (slots[k] < 3 || slots[k] + 2 > n)) {
             PyErr_SetString(PyExc_ValueError, "slots: expected landmark rows of the state");
-            goto release_status;
+            goto release_line;
         }
     }
-    double *x = xb.buf, *P = Pb.buf, *U = Ub.buf, *table = table_b.buf;
-    const double *z = zb.buf;
-    int8_t *status = status_b.buf;
+    double *x = xb.buf, *P = Pb.buf, *U = Ub.buf, *table = line.table.buf;
+    const double *z = line.z.buf;
+    int8_t *status = line.status.buf;
     double *HP = malloc((size_t)(2 * n + 6 * (U_rows + 5)) * sizeof(double));
     if (HP == NULL) {
         PyErr_NoMemory();
-        goto release_status;
+        goto release_line;
     }
     double *HP1 = HP + n, *c0 = HP1 + n, *c1 = c0 + U_rows + 5;
     const double **from = (const double **)(c1 + U_rows + 5);
@@ -561,14 +575,8 @@ static PyObject *model_update(PyObject *self, PyObject *args)
     }
     free(HP);
     result = Py_BuildValue("(inn)", code, k, rank);
-release_status:
-    PyBuffer_Release(&status_b);
-release_table:
-    PyBuffer_Release(&table_b);
-release_z:
-    PyBuffer_Release(&zb);
-release_slots:
-    PyBuffer_Release(&slots_b);
+release_line:
+    release_line(&line);
 release_U:
     PyBuffer_Release(&Ub);
 release_state:
