@@ -197,94 +197,6 @@ static int get(PyObject *object, Py_buffer *view, Py_ssize_t count, const char *
     return 0;
 }
 
-PyDoc_STRVAR(search_doc,
-"search(C, own, nu, candidates, starts, thresholds, budget, work_budget)\n"
-"-> (best, best_pairs, best_d2, nodes, work, exhausted, complete)\n\n"
-"jcbb.py's search over depth_total = len(starts) - 1 measurements and K = len(own) // 3\n"
-"candidates: C (2K x 2K) float64, own (K x 3) float64 (each candidate's own block plus\n"
-"R: S00, S01, S11), nu (depth_total x K x 2) float64, candidates (int64) each depth's\n"
-"from starts[depth] to starts[depth + 1], thresholds (depth_total + 1) float64 the gate\n"
-"of p + 1 pairs. best (int64, depth_total): the best pairing's candidate per depth, -1.");
-
-static PyObject *search_entry(PyObject *self, PyObject *args)
-{
-    PyObject *C_o, *own_o, *nu_o, *cand_o, *at_o, *thr_o;
-    long long budget, work_budget;
-    if (!PyArg_ParseTuple(args, "OOOOOOLL", &C_o, &own_o, &nu_o, &cand_o, &at_o, &thr_o,
-                          &budget, &work_budget))
-        return NULL;
-    Py_buffer Cb, ownb, nub, candb, atb, thrb;
-    PyObject *result = NULL;
-    if (get(own_o, &ownb, 0, "d", "own") < 0)
-        return NULL;
-    const Py_ssize_t K = ownb.len / 8 / 3;
-    if (get(at_o, &atb, 1, "q", "starts") < 0)
-        goto release_own;
-    const Py_ssize_t depth_total = atb.len / 8 - 1;
-    if (get(C_o, &Cb, 4 * K * K, "d", "C") < 0)
-        goto release_at;
-    if (get(nu_o, &nub, 2 * K * depth_total, "d", "nu") < 0)
-        goto release_C;
-    const int64_t *at = atb.buf;
-    if (get(cand_o, &candb, at[depth_total], "q", "candidates") < 0)
-        goto release_nu;
-    if (get(thr_o, &thrb, depth_total + 1, "d", "thresholds") < 0)
-        goto release_cand;
-    for (Py_ssize_t c = 0; c < at[depth_total]; ++c) {
-        int64_t k = ((const int64_t *)candb.buf)[c];
-        if (k < 0 || k >= K) {
-            PyErr_SetString(PyExc_ValueError, "candidates: expected indices below K");
-            goto release_thr;
-        }
-    }
-    Search s = {
-        .C = Cb.buf, .K = K, .own = ownb.buf, .nu = nub.buf, .cand = candb.buf,
-        .cand_at = at, .threshold = thrb.buf, .depth_total = depth_total,
-        .budget = budget, .work_budget = work_budget,
-    };
-    size_t slots = (size_t)(depth_total > 0 ? depth_total : 1);
-    s.best = malloc(3 * slots * sizeof(int64_t) + (size_t)(K > 0 ? K : 1));
-    if (s.best == NULL) {
-        PyErr_NoMemory();
-        goto release_thr;
-    }
-    s.chosen = s.best + slots;
-    s.chosen_k = s.chosen + slots;
-    s.used = (unsigned char *)(s.chosen_k + slots);
-    for (Py_ssize_t d = 0; d < depth_total; ++d)
-        s.best[d] = s.chosen[d] = -1;
-    memset(s.used, 0, (size_t)(K > 0 ? K : 1));
-    Py_BEGIN_ALLOW_THREADS
-    search(&s, 0, 0, NULL, NULL, 0.0);
-    Py_END_ALLOW_THREADS
-    if (s.failed) {
-        PyErr_NoMemory();
-    } else {
-        PyObject *best = PyList_New(depth_total);
-        if (best != NULL) {
-            for (Py_ssize_t d = 0; d < depth_total; ++d)
-                PyList_SET_ITEM(best, d, PyLong_FromLongLong(s.best[d]));
-            result = Py_BuildValue("(NLdLLii)", best, (long long)s.best_pairs, s.best_d2,
-                                   (long long)s.nodes, (long long)s.work, s.exhausted,
-                                   s.complete);
-        }
-    }
-    free(s.best);
-release_thr:
-    PyBuffer_Release(&thrb);
-release_cand:
-    PyBuffer_Release(&candb);
-release_nu:
-    PyBuffer_Release(&nub);
-release_C:
-    PyBuffer_Release(&Cb);
-release_at:
-    PyBuffer_Release(&atb);
-release_own:
-    PyBuffer_Release(&ownb);
-    return result;
-}
-
 PyDoc_STRVAR(jcbb_doc,
 "jcbb(nu, d2, compatible, C, R, thresholds, m, K, budget, work_budget, max_joint)\n"
 "-> None or (pairing, best_d2, nodes, work, exhausted, complete)\n\n"
@@ -616,7 +528,6 @@ release_x:
 }
 
 static PyMethodDef methods[] = {
-    {"search", search_entry, METH_VARARGS, search_doc},
     {"gate", gate_entry, METH_VARARGS, gate_doc},
     {"jcbb", jcbb_entry, METH_VARARGS, jcbb_doc},
     {NULL, NULL, 0, NULL},

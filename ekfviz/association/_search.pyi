@@ -1,16 +1,6 @@
 # JCBB's branch and bound and the scan's gate (_search.c); see its docstrings.
 from ekfviz.core.types import BoolArray, FloatArray, IntArray
 
-def search(
-    C: FloatArray,
-    own: FloatArray,
-    nu: FloatArray,
-    candidates: IntArray,
-    starts: IntArray,
-    thresholds: FloatArray,
-    budget: int,
-    work_budget: int,
-) -> tuple[list[int], int, float, int, int, int, int]: ...
 def gate(
     x: FloatArray,
     bearing: FloatArray,
