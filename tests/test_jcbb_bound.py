@@ -191,6 +191,26 @@ def test_a_replay_of_two_bearing_scans_reports_and_logs_its_fallbacks(tmp_path: 
     assert sum("fell back to" in line for line in lines) == exhausted
 
 
+def assert_same_search(
+    nu: np.ndarray,
+    d2: np.ndarray,
+    ok: np.ndarray,
+    C: np.ndarray,
+    R: np.ndarray,
+    budget: int,
+    work_budget: int = DEFAULT_WORK_BUDGET,
+) -> None:
+    """The compiled search and the Python one: the same pairing, hypotheses, work and
+    fallback, the joint distance to round-off."""
+    fast = jcbb(nu, d2, ok, C, R, 0.99, budget, work_budget)
+    slow = jcbb(nu, d2, ok, C, R, 0.99, budget, work_budget, compiled=False)
+    np.testing.assert_array_equal(fast.pairing, slow.pairing)
+    assert (fast.hypotheses, fast.work, fast.exhausted, fast.fallback) == (
+        slow.hypotheses, slow.work, slow.exhausted, slow.fallback
+    )  # fmt: skip
+    assert fast.joint_d2 == pytest.approx(slow.joint_d2, rel=1e-12, abs=1e-12)
+
+
 @pytest.mark.skipif(not HAVE_SEARCH, reason="the compiled search was not built")
 @pytest.mark.parametrize("seed", range(40))
 def test_the_compiled_search_explores_the_nodes_the_python_one_does(seed: int) -> None:
@@ -205,13 +225,7 @@ def test_the_compiled_search_explores_the_nodes_the_python_one_does(seed: int) -
         (DEFAULT_BUDGET, int(rng.integers(4, 400))),
     ]
     for budget, work_budget in budgets:
-        fast = jcbb(nu, d2, ok, C, R, 0.99, budget, work_budget)
-        slow = jcbb(nu, d2, ok, C, R, 0.99, budget, work_budget, compiled=False)
-        np.testing.assert_array_equal(fast.pairing, slow.pairing)
-        assert (fast.hypotheses, fast.work, fast.exhausted, fast.fallback) == (
-            slow.hypotheses, slow.work, slow.exhausted, slow.fallback
-        )  # fmt: skip
-        assert fast.joint_d2 == pytest.approx(slow.joint_d2, rel=1e-12, abs=1e-12)
+        assert_same_search(nu, d2, ok, C, R, budget, work_budget)
 
 
 @pytest.mark.skipif(not HAVE_SEARCH, reason="the compiled search was not built")
@@ -240,13 +254,7 @@ def test_the_compiled_preparation_orders_ties_as_the_stable_sort_does(seed: int)
     ok = rng.random((m, k)) < 0.7
     ok[0] = False  # a measurement in no gate is left out of the search
     for budget in (DEFAULT_BUDGET, int(rng.integers(1, 20))):
-        fast = jcbb(nu, d2, ok, C, R, 0.99, budget)
-        slow = jcbb(nu, d2, ok, C, R, 0.99, budget, compiled=False)
-        np.testing.assert_array_equal(fast.pairing, slow.pairing)
-        assert (fast.hypotheses, fast.work, fast.exhausted, fast.fallback) == (
-            slow.hypotheses, slow.work, slow.exhausted, slow.fallback
-        )  # fmt: skip
-        assert fast.joint_d2 == pytest.approx(slow.joint_d2, rel=1e-12, abs=1e-12)
+        assert_same_search(nu, d2, ok, C, R, budget)
 
 
 @pytest.mark.skipif(not HAVE_SEARCH, reason="the compiled search was not built")
