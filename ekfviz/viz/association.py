@@ -36,6 +36,7 @@ from ekfviz.viz import style
 from ekfviz.viz.ellipses import N_POINTS, ellipse_outlines
 from ekfviz.viz.layers import arrow
 from ekfviz.viz.layers.arrow import time_is_epoch  # the recorder's choice of the time's type
+from ekfviz.viz.layers.map_rows import ranges
 
 RAYS = "world/association/rays"
 LINKS = "world/association/links"
@@ -355,7 +356,7 @@ class AssociationView:
         before_value = np.array(value, dtype=np.float64)
         before_known = np.array(known, dtype=bool)
         first = scans.first_measurement
-        measured = _ranges(first[sized], first[sized + 1])
+        measured = ranges(first[sized], first[sized + 1])
         diameters = np.concatenate(
             [np.zeros(0), *(records[k].association.diameters for k in sized.tolist())]
         )
@@ -408,7 +409,7 @@ class AssociationView:
             change_value.append(size)  # a removal's is never read
         # every landmark of every sized scan's map, and its state after that scan
         per_scan = scans.map_starts[sized + 1] - scans.map_starts[sized]
-        rows = _ranges(scans.map_starts[sized], scans.map_starts[sized + 1])
+        rows = ranges(scans.map_starts[sized], scans.map_starts[sized + 1])
         ids = scans.landmark_ids[rows].astype(np.int64)
         has = np.zeros(len(ids), dtype=bool)
         radius = np.zeros(len(ids))
@@ -494,14 +495,6 @@ class _Scans:
         starts = np.zeros(len(self.z) + 1, dtype=np.int64)
         np.cumsum(np.bincount(self.owner, minlength=len(self.z)), out=starts[1:])
         return starts
-
-
-def _ranges(starts: IntArray, ends: IntArray) -> IntArray:
-    """The integers of the ranges [starts[i], ends[i]), range after range."""
-    lengths = ends - starts
-    offsets = np.repeat(starts - (np.cumsum(lengths) - lengths), lengths)
-    ranges: IntArray = np.arange(len(offsets), dtype=np.int64) + offsets
-    return ranges
 
 
 _NAMES = ("matched", "new", "rejected", "confirmed", "removed", "landmarks", "fell_back")
