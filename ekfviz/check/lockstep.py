@@ -33,7 +33,7 @@ from ekfviz.check.mistakes import (
 )
 from ekfviz.core.records import Control, EventKind, EventRecord, LogEvent, Sighting
 from ekfviz.core.tables import Cell, Styled, TextTable
-from ekfviz.core.types import IntArray
+from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.filters.ekf import EkfSlam, FilterParams
 from ekfviz.filters.plugged import FilterFactory, Plugged, PluginError
 from ekfviz.models.angles import wrap_angle
@@ -42,6 +42,9 @@ from ekfviz.runner.replay import plugged
 DEFAULT_TOLERANCE = 1e-6
 # the mistakes are re-run (dense algebra) only up to this state dimension
 HYPOTHESIS_MAX_DIM = 400
+# without --all, how many divergent events after the first are re-run to find the next
+# one with a cause of its own (each costs the catalogue's re-runs)
+NEXT_SEARCH_LIMIT = 25
 
 
 class Quantity(str, enum.Enum):
@@ -152,6 +155,10 @@ class CheckResult:
     :param error: why the filter stopped early (it raised, crashed, timed out), if it did
     :param error_line: the input line of that event
     :param error_kind: as :class:`~ekfviz.filters.worker.WorkerFault`'s kind
+    :param next_divergence: without ``every``, when the first divergence's causes are
+        named: the first later divergence not explained by them alone (a course module's
+        first divergence is the handout's block-diagonal P; the student's own mistake
+        comes after it)
     """
 
     events_checked: int
@@ -168,6 +175,7 @@ class CheckResult:
     error_kind: str = ""
     # a course module's shapes as detected (argument -> "column" or "flat")
     convention: dict[str, str | None] | None = None
+    next_divergence: Divergence | None = None
 
     @property
     def match(self) -> bool:
@@ -178,7 +186,8 @@ class CheckResult:
         """The divergences grouped by kind, quantity and cause, in order of first event."""
         groups: dict[tuple[str, str, str], list[Divergence]] = {}
         for divergence in self.divergences:
-            if not self.every and divergence is not self.first_divergence:
+            shown = (self.first_divergence, self.next_divergence)
+            if not self.every and not any(divergence is d for d in shown):
                 continue
             key = (divergence.kind.value, divergence.worst.quantity.value, divergence.cause)
             groups.setdefault(key, []).append(divergence)
@@ -218,19 +227,16 @@ class CheckResult:
         first = self.first_divergence
         if first is None:
             return lines
-        worst = first.worst
-        landmark = "" if worst.landmark_id is None else f" of landmark {worst.landmark_id}"
-        lines.append((
-            Styled("divergence", "bold red"),
-            Styled(
-                f" at event {first.event} (step {first.step}, {first.kind.value},"
-                f" {name}:{first.line}): the {worst.quantity.value}{landmark} differs\n  worst"
-                f" entry {worst.entry}: expected {worst.expected:.9g}, got {worst.got:.9g}"
-                f" (difference {worst.difference:.3g}, tolerance {tolerance:g})\n  cause:"
-                f" {first.cause}\n  hint: {first.hint}"
-            ),
-        ))  # fmt: skip
-        more = len(self.divergences) - 1
+        lines.append(_divergence_lines("divergence", first, name, tolerance))
+        if self.convention and first.causes == ("independent_landmark_init",):
+            lines.append(Styled(f"  ({_HANDOUT_NOTE})"))
+        following = self.next_divergence
+        if following is not None and not every:
+            lines.append(
+                _divergence_lines("next divergence with another cause", following, name,
+                                  tolerance)
+            )  # fmt: skip
+        more = len(self.divergences) - 1 - (following is not None and not every)
         if more and not every:
             lines.append(
                 Styled(f"  {more} more event(s) diverge; --all finds the cause of every one")
@@ -270,6 +276,9 @@ class CheckResult:
             "first_divergence": (
                 None if self.first_divergence is None else self.first_divergence.to_json()
             ),
+            "next_divergence": (
+                None if self.next_divergence is None else self.next_divergence.to_json()
+            ),
             "divergences": [group.to_json() for group in self.groups],
             "causes": self.causes,
             "all": self.every,
@@ -278,6 +287,29 @@ class CheckResult:
             if self.error is None
             else {"message": self.error, "line": self.error_line, "kind": self.error_kind},
         }
+
+
+_HANDOUT_NOTE = (
+    "a course module's P starts as the handout's main() builds it, block_diag(pose_cov,"
+    " landmark_cov), so every one shows this; init_cross_covariance in the module (README)"
+    " fills in the cross-covariances"
+)
+
+
+def _divergence_lines(title: str, divergence: Divergence, name: str, tolerance: float) -> Cell:
+    """One divergent event as the console says it: where, the worst entry, cause, hint."""
+    worst = divergence.worst
+    landmark = "" if worst.landmark_id is None else f" of landmark {worst.landmark_id}"
+    return (
+        Styled(title, "bold red"),
+        Styled(
+            f" at event {divergence.event} (step {divergence.step}, {divergence.kind.value},"
+            f" {name}:{divergence.line}): the {worst.quantity.value}{landmark} differs\n  worst"
+            f" entry {worst.entry}: expected {worst.expected:.9g}, got {worst.got:.9g}"
+            f" (difference {worst.difference:.3g}, tolerance {tolerance:g})\n  cause:"
+            f" {divergence.cause}\n  hint: {divergence.hint}"
+        ),
+    )
 
 
 _SHAPES = {"X": "X (3+2k, 1)", "control": "control (2, 1)", "measure": "measure (2k, 1)"}
@@ -333,6 +365,10 @@ def lockstep(
     divergences: list[Divergence] = []
     found: set[str] = set()
     stopped: tuple[str, int, str] | None = None
+    # without every: the first divergence's causes, and the next one not explained by them
+    first_causes: frozenset[str] | None = None
+    next_at: int | None = None
+    searched = 0
 
     # the prior itself: the filter must start where the parameters say
     prior = EkfSlam(params)
@@ -368,12 +404,20 @@ def lockstep(
         differences.append(0.0 if worst is None else worst.difference)
         if worst is None or worst.difference <= tolerance:
             continue
-        if every or not divergences:
+        searching = first_causes is not None and next_at is None and searched < NEXT_SEARCH_LIMIT
+        if every or not divergences or searching:
             found_now = frozenset(found)
             explanation = explain(params, before, after, log_event, worst, tolerance, found_now)
             found.update(explanation.causes if explanation.known else ())
-            hint = _hint(explanation, kind, worst, before, log_event)
+            hint = _hint(explanation, kind, worst, before, log_event, _state(ekf), after,
+                         tolerance)  # fmt: skip
             causes, alternatives = explanation.causes, explanation.alternatives
+            if not every and not divergences and explanation.known:
+                first_causes = frozenset(causes)
+            elif searching:
+                searched += 1
+                if not (explanation.known and first_causes and set(causes) <= first_causes):
+                    next_at = len(divergences)
             divergences.append(
                 Divergence(event, step, log_event.line, kind, worst, hint, causes, alternatives)
             )
@@ -393,6 +437,7 @@ def lockstep(
         error_line=0 if stopped is None else stopped[1],
         error_kind="" if stopped is None else stopped[2],
         convention=getattr(slam.slam, "convention", None) or None,
+        next_divergence=None if next_at is None else divergences[next_at],
     )
 
 
@@ -433,19 +478,7 @@ def compare(expected: State, got: State) -> Difference | None:
         count = float(len(got.ids))
         return Difference(Quantity.LANDMARK_IDS, landmark, what, float(len(expected.ids)),
                           count, math.inf)  # fmt: skip
-    # the filter's state reordered to the reference's landmark order
-    where = {int(i): k for k, i in enumerate(got.ids.tolist())}
-    order = [0, 1, 2]
-    for landmark_id in expected.ids.tolist():
-        k = 3 + 2 * where[int(landmark_id)]
-        order += [k, k + 1]
-    x, P = got.x[order], got.P[np.ix_(order, order)]
-    dx = x - expected.x
-    dx[2] = wrap_angle(float(dx[2]))
-    scale_x = np.maximum(1.0, np.abs(expected.x))
-    scale_P = np.maximum(1.0, np.abs(expected.P))
-    scaled_x = np.abs(dx) / scale_x
-    scaled_P = np.abs(P - expected.P) / scale_P
+    x, P, scaled_x, scaled_P = _scaled(expected, got)
     worst: Difference | None = None
     names = _names(expected.ids)
     for index in np.argsort(-scaled_x)[:1]:
@@ -461,6 +494,73 @@ def compare(expected: State, got: State) -> Difference | None:
                                f"P[{names[i]}, {names[j]}]", float(expected.P[i, j]),
                                float(P[i, j]), float(scaled_P[i, j]))  # fmt: skip
     return worst
+
+
+def _scaled(expected: State, got: State) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """The filter's x and P in the reference's landmark order (the same ids), and their
+    scaled differences from the reference's (the heading's wrapped)."""
+    where = {int(i): k for k, i in enumerate(got.ids.tolist())}
+    order = [0, 1, 2]
+    for landmark_id in expected.ids.tolist():
+        k = 3 + 2 * where[int(landmark_id)]
+        order += [k, k + 1]
+    x, P = got.x[order], got.P[np.ix_(order, order)]
+    dx = x - expected.x
+    dx[2] = wrap_angle(float(dx[2]))
+    scaled_x = np.abs(dx) / np.maximum(1.0, np.abs(expected.x))
+    scaled_P = np.abs(P - expected.P) / np.maximum(1.0, np.abs(expected.P))
+    return x, P, scaled_x, scaled_P
+
+
+def differing_blocks(expected: State, got: State, tolerance: float) -> str:
+    """Every part of the state that differs beyond ``tolerance``: its largest difference
+    and the landmarks it is at (at most four named), e.g. ``pose mean (up to 0.31);
+    landmark mean of landmarks 1, 3 (up to 0.12)``; empty when the ids differ."""
+    if sorted(expected.ids.tolist()) != sorted(got.ids.tolist()):
+        return ""
+    _, _, scaled_x, scaled_P = _scaled(expected, got)
+    ids = expected.ids.tolist()
+    worst: dict[Quantity, tuple[float, set[int]]] = {}
+
+    def note(quantity: Quantity, difference: float, landmarks: Iterable[int | None]) -> None:
+        largest, where = worst.get(quantity, (0.0, set()))
+        where.update(i for i in landmarks if i is not None)
+        worst[quantity] = (max(largest, difference), where)
+
+    for i in np.flatnonzero(scaled_x > tolerance).tolist():
+        quantity = Quantity.POSE_MEAN if i < 3 else Quantity.LANDMARK_MEAN
+        note(quantity, float(scaled_x[i]), [_landmark(expected.ids, i)])
+    rows, columns = np.nonzero(np.triu(scaled_P > tolerance))
+    for i, j in zip(rows.tolist(), columns.tolist(), strict=True):
+        note(_block(i, j), float(scaled_P[i, j]),
+             [_landmark(expected.ids, i), _landmark(expected.ids, j)])  # fmt: skip
+    parts = []
+    for quantity in Quantity:
+        if quantity not in worst:
+            continue
+        largest, where = worst[quantity]
+        named = sorted(where, key=ids.index)
+        at = ""
+        if named:
+            listed = ", ".join(str(i) for i in named[:4]) + (", ..." if len(named) > 4 else "")
+            at = f" at landmark{'s' if len(named) > 1 else ''} {listed}"
+        parts.append(f"{quantity.value}{at} (up to {largest:.3g})")
+    return "; ".join(parts)
+
+
+def whole_numbers(expected: State, got: State, tolerance: float) -> list[str]:
+    """The entries of the filter's x that differ and are whole numbers where the
+    reference's are not, less than 1 away (truncated): what an integer array does."""
+    if sorted(expected.ids.tolist()) != sorted(got.ids.tolist()):
+        return []
+    x, _, scaled_x, _ = _scaled(expected, got)
+    names = _names(expected.ids)
+    found = []
+    for i in np.flatnonzero(scaled_x > tolerance).tolist():
+        value, reference = float(x[i]), float(expected.x[i])
+        if value == round(value) and reference != round(reference) and abs(value - reference) < 1:
+            found.append(f"x[{names[i]}] = {value:g} (expected {reference:.6g})")
+    return found
 
 
 def _block(i: int, j: int) -> Quantity:
@@ -541,8 +641,12 @@ def _hint(
     worst: Difference,
     before: State,
     event: LogEvent,
+    expected: State | None = None,
+    after: State | None = None,
+    tolerance: float = DEFAULT_TOLERANCE,
 ) -> str:
-    """What to tell the user: the causes found, else where the quantity comes from."""
+    """What to tell the user: the causes found, else where the quantity comes from (and,
+    given the reference's and the filter's results, which parts of the state differ)."""
     if explanation.alternatives:
         options = " OR ".join("+".join(option) for option in explanation.alternatives)
         return (
@@ -552,8 +656,20 @@ def _hint(
     if explanation.causes:
         text = describe(explanation.causes)
         return f"{text} ({explanation.detail})" if explanation.detail else text
-    return pattern_hint("predict" if isinstance(event, Control) else "update", worst, before,
+    hint = pattern_hint("predict" if isinstance(event, Control) else "update", worst, before,
                         event)  # fmt: skip
+    if expected is None or after is None:
+        return hint
+    truncated = whole_numbers(expected, after, tolerance)
+    if truncated:
+        listed = ", ".join(truncated[:3]) + (", ..." if len(truncated) > 3 else "")
+        hint = (
+            f"{listed}: whole numbers where the reference's are not, as an integer array"
+            " (np.zeros(..., dtype=int), np.array([[1, 0], ...]) of ints) truncates what is"
+            f" stored in it: make it float. Otherwise: {hint}"
+        )
+    blocks = differing_blocks(expected, after, tolerance)
+    return f"{hint}. Differs: {blocks}" if blocks else hint
 
 
 def pattern_hint(kind: str, worst: Difference, before: State, event: LogEvent) -> str:
@@ -566,11 +682,7 @@ def pattern_hint(kind: str, worst: Difference, before: State, event: LogEvent) -
     pattern = _PATTERN_HINTS.get((kind, worst.quantity))
     if pattern is not None:
         return pattern
-    if worst.quantity in (Quantity.POSE_MEAN, Quantity.LANDMARK_MEAN):
-        return (
-            "the corrected mean: the innovation z - h(x) (bearing first, wrapped), the"
-            " measurement Jacobian H and the gain K = P H^T S^-1"
-        )
+    # a new landmark's mean or covariance comes from its initialisation, not a correction
     newly = (
         isinstance(event, Sighting)
         and worst.landmark_id is not None
@@ -579,7 +691,13 @@ def pattern_hint(kind: str, worst: Difference, before: State, event: LogEvent) -
     if newly:
         return (
             "the initialisation of a new landmark: l = pose + r (cos(theta + beta),"
-            " sin(theta + beta)), P_ll = J_p P_pp J_p^T + J_z R J_z^T, P_lx = J_p P_px"
+            " sin(theta + beta)) with (beta, r) the measurement (bearing first),"
+            " P_ll = J_p P_pp J_p^T + J_z R J_z^T, P_lx = J_p P_px"
+        )
+    if worst.quantity in (Quantity.POSE_MEAN, Quantity.LANDMARK_MEAN):
+        return (
+            "the corrected mean: the innovation z - h(x) (bearing first, wrapped), the"
+            " measurement Jacobian H and the gain K = P H^T S^-1"
         )
     return (
         "the covariance update: P - K S K^T (or Joseph's form) with S = H P H^T + R and"
