@@ -132,13 +132,14 @@ def _defines_filter(path: Path) -> bool:
 
 
 def spec_text(module: Path) -> str:
-    """``--filter`` for a module: itself (a course module of functions) unless it has no
-    ``init_landmarks`` and one filter class, then ``PATH.py:Class``."""
+    """``--filter`` for a module: itself (a course module of functions, or of a class
+    whose methods are the handout's functions) unless it has no ``init_landmarks`` and
+    one filter class, then ``PATH.py:Class``."""
     try:
         text = module.read_text(errors="replace")
     except OSError:
         return str(module)
-    if re.search(r"^def init_landmarks\(", text, re.M):
+    if re.search(r"^\s*def init_landmarks\(", text, re.M):
         return str(module)
     classes = re.findall(r"^class (\w+)\b", text, re.M)
     with_predict = [c for c in classes if re.search(rf"class {c}\b[\s\S]*?def predict\(", text)]
