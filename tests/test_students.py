@@ -375,3 +375,136 @@ def test_the_command_line_default_timeout_is_the_workers() -> None:
     from ekfviz.filters.worker import DEFAULT_TIMEOUT_S
 
     assert DEFAULT_FILTER_TIMEOUT_S == DEFAULT_TIMEOUT_S
+
+
+# -- students of the wild (issue: real students' hand-ins get generic hints) ------------------
+
+
+def test_without_all_the_students_own_mistake_follows_the_handouts(tmp_path: Path) -> None:
+    module = students.write(tmp_path / "s", "return_in_loop")
+    report = tmp_path / "r.json"
+    result = ekfviz("check", str(DATA / "classic.txt"), "--filter", str(module), "--report",
+                    str(report))  # fmt: skip
+    assert result.returncode == 1, result.stdout + result.stderr
+    assert "the handout's main() builds it, block_diag(pose_cov, landmark_cov)" in result.stdout
+    following = result.stdout[result.stdout.index("next divergence with another cause") :]
+    assert following.startswith("next divergence with another cause at event 2 (step 1, update")
+    assert "cause: only_first_landmark" in following
+    assert re.search(r"\n  28 more event\(s\) diverge", result.stdout)
+    document = json.loads(report.read_text())
+    assert document["first_divergence"]["cause"] == "independent_landmark_init"
+    assert document["next_divergence"]["cause"] == "only_first_landmark"
+    assert document["next_divergence"]["event"] == 2
+    # a correct module has nothing after the handout's initialisation
+    correct = students.write(tmp_path / "c", "correct")
+    result = ekfviz("check", str(DATA / "classic.txt"), "--filter", str(correct))
+    assert "next divergence" not in result.stdout and "more event(s)" not in result.stdout
+
+
+def test_an_integer_array_is_named_by_its_whole_numbers(tmp_path: Path) -> None:
+    module = students.write(tmp_path / "s", "int_landmarks")
+    report = tmp_path / "r.json"
+    result = ekfviz("check", str(DATA / "classic.txt"), "--filter", str(module), "--report",
+                    str(report))  # fmt: skip
+    assert result.returncode == 1, result.stderr
+    first = json.loads(report.read_text())["first_divergence"]
+    assert first["cause"] == "unknown" and first["event"] == 0
+    # landmark 1 of the classic log is at (2.97985, 5.96792): truncated to (2, 5)
+    assert "x[L1.x] = 2 (expected 2.97985), x[L1.y] = 5 (expected 5.96792)" in first["hint"]
+    assert "integer array" in first["hint"] and "make it float" in first["hint"]
+    assert (
+        "Differs: " in first["hint"]
+        and "landmark mean at landmarks 1, 2, 3, 4, ..." in (first["hint"])
+    )
+
+
+def test_the_parts_that_differ_are_listed_with_their_landmarks() -> None:
+    from ekfviz.check.lockstep import differing_blocks, whole_numbers
+    from ekfviz.check.mistakes import State
+
+    x = np.array([1.0, 2.0, 0.5, 3.5, 4.25, -1.5, 2.75])
+    P = np.eye(7) * 0.1
+    expected = State(x, P, np.array([7, 9]))
+    # the filter holds its landmarks in the other order: compared by id
+    got_x = np.array([1.0, 2.0, 0.5, -1.5, 2.75, 3.0, 4.25])
+    got_P = P.copy()
+    got_P[0, 3] = got_P[3, 0] = 0.02  # x with landmark 9's x
+    got = State(got_x, got_P, np.array([9, 7]))
+    assert differing_blocks(expected, got, 1e-6) == (
+        "pose-landmark cross-covariance at landmark 9 (up to 0.02);"
+        " landmark mean at landmark 7 (up to 0.143)"
+    )
+    assert whole_numbers(expected, got, 1e-6) == ["x[L7.x] = 3 (expected 3.5)"]
+    assert differing_blocks(expected, expected, 1e-6) == ""
+    assert differing_blocks(expected, State(x[:5], P[:5, :5], np.array([7])), 1e-6) == ""
+
+
+def test_a_new_landmarks_mean_is_hinted_at_its_initialisation() -> None:
+    from ekfviz.check.lockstep import Difference, Quantity, pattern_hint
+    from ekfviz.check.mistakes import State
+    from ekfviz.core.records import Sighting
+
+    before = State(np.zeros(3), np.eye(3), np.zeros(0, dtype=np.int64))
+    sighting = Sighting(1, np.array([4]), np.array([[0.1, 5.0]]))
+    worst = Difference(Quantity.LANDMARK_MEAN, 4, "x[L4.x]", 4.9, 0.5, 0.8)
+    assert pattern_hint("update", worst, before, sighting).startswith(
+        "the initialisation of a new landmark"
+    )
+    known = State(np.zeros(5), np.eye(5), np.array([4]))
+    assert pattern_hint("update", worst, known, sighting).startswith("the corrected mean")
+
+
+def test_solutions_that_do_not_run_get_the_line_of_their_own_file(tmp_path: Path) -> None:
+    order = students.write(tmp_path / "order", "p_x_order")
+    result = ekfviz("check", str(DATA / "classic.txt"), "--filter", str(order))
+    assert result.returncode == 2
+    (line,) = result.stderr.strip().splitlines()
+    assert "predict returned (P, X), expected (X, P): its first value has shape (15, 15)" in line
+    size = students.write(tmp_path / "size", "q_wrong_size")
+    number = students.source("q_wrong_size").splitlines().index(
+        "    P_pre = G @ P @ G.T + control_cov") + 1  # fmt: skip
+    result = ekfviz("check", str(DATA / "classic.txt"), "--filter", str(size))
+    assert result.returncode == 2
+    (line,) = result.stderr.strip().splitlines()
+    assert line.endswith(
+        f"predict raised ValueError: operands could not be broadcast together with shapes"
+        f" (15,15) (3,3) (at ekf_slam.py:{number} in predict: P_pre = G @ P @ G.T + control_cov)"
+    ), line
+
+
+def test_the_handouts_main_at_import_is_skipped_and_said(tmp_path: Path) -> None:
+    module = tmp_path / "hw2.py"
+    module.write_text(students.source("return_in_loop") + students.MAIN_AT_IMPORT)
+    number = module.read_text().splitlines().index("main()") + 1
+    report = tmp_path / "r.json"
+    result = ekfviz("check", str(DATA / "classic.txt"), "--filter", str(module), "--report",
+                    str(report))  # fmt: skip
+    assert result.returncode == 1, result.stderr
+    assert f"its line {number} calls main() at import (no `if __name__" in result.stderr
+    assert "FileNotFoundError" in result.stderr and "ekfviz skipped that call" in result.stderr
+    assert json.loads(report.read_text())["next_divergence"]["cause"] == "only_first_landmark"
+    # when the module cannot be loaded without the call either: one line that says why
+    broken = tmp_path / "broken.py"
+    broken.write_text(module.read_text() + "print(undefined_name)\n")
+    result = ekfviz("check", str(DATA / "classic.txt"), "--filter", str(broken))
+    assert result.returncode == 2
+    (line,) = result.stderr.strip().splitlines()
+    assert f"its line {number} calls main() at import" in line
+    assert line.endswith("put that call under the guard"), line
+
+
+def test_grade_of_wild_students_names_each_ones_mistake(tmp_path: Path) -> None:
+    folder = tmp_path / "class"
+    students.write(folder / "ada", "stale_linearisation")
+    (folder / "bob.py").write_text(students.class_based())
+    students.write(folder / "cy", "control_swapped")
+    result = ekfviz("grade", str(folder), "--json")
+    assert result.returncode == 0, result.stderr
+    rows = {row["submission"]: row for row in json.loads(result.stdout)["submissions"]}
+    assert {name: row["status"] for name, row in rows.items()} == {
+        "ada": "diverged", "bob.py": "diverged", "cy": "diverged"
+    }  # fmt: skip
+    assert set(rows["ada"]["causes"]) == students.MISTAKES["stale_linearisation"]
+    # the class's methods are the handout's functions: the correct module's verdict
+    assert set(rows["bob.py"]["causes"]) == students.MISTAKES["correct"]
+    assert set(rows["cy"]["causes"]) == students.MISTAKES["control_swapped"]
