@@ -472,6 +472,46 @@ def test_solutions_that_do_not_run_get_the_line_of_their_own_file(tmp_path: Path
     ), line
 
 
+@pytest.mark.parametrize(
+    ("edit", "expected"),
+    [
+        (("    return X, P\n", "    pass\n"),
+         "update returned None (no return statement?), expected (X, P)"),
+        (("    X, P = X_pre.copy(), P_pre.copy()\n", "    raise NotImplementedError\n"),
+         "update raised NotImplementedError (at ekf_slam.py:{line} in update:"
+         " raise NotImplementedError)"),
+    ],
+)  # fmt: skip
+def test_an_unfinished_update_is_one_line(
+    tmp_path: Path, edit: tuple[str, str], expected: str
+) -> None:
+    text = students.source("correct").replace(*edit)
+    module = tmp_path / "ekf_slam.py"
+    module.write_text(text)
+    line = text.splitlines().index(edit[1].rstrip("\n")) + 1
+    result = ekfviz("check", str(DATA / "classic.txt"), "--filter", str(module))
+    assert result.returncode == 2
+    (said,) = result.stderr.strip().splitlines()
+    assert expected.format(line=line) in said, said
+
+
+def test_the_parts_of_an_update_that_differ_say_where_to_look() -> None:
+    from ekfviz.check.lockstep import Quantity, _update_hint
+    from ekfviz.check.mistakes import State
+    from ekfviz.core.records import Sighting
+
+    known = State(np.zeros(5), np.eye(5), np.array([4]))
+    sighting = Sighting(2, np.array([4]), np.array([[0.1, 5.0]]))
+    mean = _update_hint({Quantity.POSE_MEAN, Quantity.LANDMARK_MEAN}, known, sighting)
+    assert mean.startswith("only the mean differs: the covariance agrees, so H, S and K do")
+    covariance = _update_hint({Quantity.POSE_COVARIANCE}, known, sighting)
+    assert covariance.startswith("only the covariance differs: the mean agrees")
+    assert _update_hint({Quantity.POSE_MEAN, Quantity.POSE_COVARIANCE}, known, sighting) == ""
+    # a new landmark's parts come from its initialisation: nothing said here
+    new = State(np.zeros(3), np.eye(3), np.zeros(0, dtype=np.int64))
+    assert _update_hint({Quantity.LANDMARK_MEAN}, new, sighting) == ""
+
+
 def test_the_handouts_main_at_import_is_skipped_and_said(tmp_path: Path) -> None:
     module = tmp_path / "hw2.py"
     module.write_text(students.source("return_in_loop") + students.MAIN_AT_IMPORT)

@@ -516,10 +516,30 @@ def differing_blocks(expected: State, got: State, tolerance: float) -> str:
     """Every part of the state that differs beyond ``tolerance``: its largest difference
     and the landmarks it is at (at most four named), e.g. ``pose mean (up to 0.31);
     landmark mean of landmarks 1, 3 (up to 0.12)``; empty when the ids differ."""
-    if sorted(expected.ids.tolist()) != sorted(got.ids.tolist()):
-        return ""
-    _, _, scaled_x, scaled_P = _scaled(expected, got)
+    worst = _differing(expected, got, tolerance)
     ids = expected.ids.tolist()
+    parts = []
+    for quantity in Quantity:
+        if quantity not in worst:
+            continue
+        largest, where = worst[quantity]
+        named = sorted(where, key=ids.index)
+        at = ""
+        if named:
+            listed = ", ".join(str(i) for i in named[:4]) + (", ..." if len(named) > 4 else "")
+            at = f" at landmark{'s' if len(named) > 1 else ''} {listed}"
+        parts.append(f"{quantity.value}{at} (up to {largest:.3g})")
+    return "; ".join(parts)
+
+
+def _differing(
+    expected: State, got: State, tolerance: float
+) -> dict[Quantity, tuple[float, set[int]]]:
+    """The parts of the state that differ beyond ``tolerance``: the largest difference of
+    each and the landmarks it is at; empty when the ids differ."""
+    if sorted(expected.ids.tolist()) != sorted(got.ids.tolist()):
+        return {}
+    _, _, scaled_x, scaled_P = _scaled(expected, got)
     worst: dict[Quantity, tuple[float, set[int]]] = {}
 
     def note(quantity: Quantity, difference: float, landmarks: Iterable[int | None]) -> None:
@@ -534,18 +554,7 @@ def differing_blocks(expected: State, got: State, tolerance: float) -> str:
     for i, j in zip(rows.tolist(), columns.tolist(), strict=True):
         note(_block(i, j), float(scaled_P[i, j]),
              [_landmark(expected.ids, i), _landmark(expected.ids, j)])  # fmt: skip
-    parts = []
-    for quantity in Quantity:
-        if quantity not in worst:
-            continue
-        largest, where = worst[quantity]
-        named = sorted(where, key=ids.index)
-        at = ""
-        if named:
-            listed = ", ".join(str(i) for i in named[:4]) + (", ..." if len(named) > 4 else "")
-            at = f" at landmark{'s' if len(named) > 1 else ''} {listed}"
-        parts.append(f"{quantity.value}{at} (up to {largest:.3g})")
-    return "; ".join(parts)
+    return worst
 
 
 def whole_numbers(expected: State, got: State, tolerance: float) -> list[str]:
@@ -668,8 +677,35 @@ def _hint(
             " (np.zeros(..., dtype=int), np.array([[1, 0], ...]) of ints) truncates what is"
             f" stored in it: make it float. Otherwise: {hint}"
         )
+    elif isinstance(event, Sighting) and worst.quantity is not Quantity.LANDMARK_IDS:
+        hint = _update_hint(set(_differing(expected, after, tolerance)), before, event) or hint
     blocks = differing_blocks(expected, after, tolerance)
     return f"{hint}. Differs: {blocks}" if blocks else hint
+
+
+_MEANS = frozenset({Quantity.POSE_MEAN, Quantity.LANDMARK_MEAN})
+
+
+def _update_hint(differ: set[Quantity], before: State, event: Sighting) -> str:
+    """What an update's differing parts say of where its mistake is: only the mean (H, S
+    and K agree, as the covariance does: the innovation), only the covariance (the mean,
+    hence K (z - h(x)), agrees: the covariance's own formula); empty otherwise, or when
+    the update initialises a landmark (whose mean and covariance come from elsewhere)."""
+    if not differ or any(int(i) not in before.ids.tolist() for i in event.ids):
+        return ""
+    if differ <= _MEANS:
+        return (
+            "only the mean differs: the covariance agrees, so H, S and K do; look at the"
+            " innovation z - h(x): h = (wrap(atan2(dy, dx) - theta), sqrt(dx^2 + dy^2)),"
+            " bearing first, its bearing wrapped to [-pi, pi), and at x + K (z - h(x))"
+        )
+    if not differ & _MEANS:
+        return (
+            "only the covariance differs: the mean agrees, so K (z - h(x)) does; look at"
+            " the covariance's own update: P = (I - K H) P, or (I - K H) P (I - K H)^T +"
+            " K R K^T (Joseph's form), with the same K and H as the mean's"
+        )
+    return ""
 
 
 def pattern_hint(kind: str, worst: Difference, before: State, event: LogEvent) -> str:

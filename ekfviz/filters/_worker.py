@@ -277,9 +277,10 @@ class CourseModule:
     def _checked(self, function: str, result: Any, n: int, x_column: bool) -> Tuple[Any, Any]:
         """X and P as returned by ``function``, their shapes and values checked."""
         if not isinstance(result, (tuple, list)) or len(result) != 2:
+            what = "None (no return statement?)" if result is None else _shape(result)
             raise FilterFault(
                 "%s returned %s, expected (X, P): the state (%d, 1) and its covariance (%d, %d)"
-                % (function, _shape(result), n, n, n)
+                % (function, what, n, n, n)
             )
         X = _floats(result[0], function, "X")
         P = _floats(result[1], function, "P")
@@ -388,6 +389,12 @@ class UserError(Exception):
         self.function = function
         self.error = error
         self.trace = trace
+
+
+def _said(error: BaseException) -> str:
+    """``": message"`` of an exception, or nothing when it has none."""
+    text = str(error).rstrip()
+    return ": " + text if text else ""
 
 
 def _call_at_import(error: BaseException, path: str) -> Optional[Tuple[int, str]]:
@@ -576,8 +583,8 @@ class Worker:
             "ok": False,
             "kind": "memory" if isinstance(error, MemoryError) else "raised",
             "type": type(error).__name__,
-            "message": "%s raised %s: %s%s"
-            % (where, type(error).__name__, str(error).rstrip(), _user_line(error)),
+            "message": "%s raised %s%s%s"
+            % (where, type(error).__name__, _said(error), _user_line(error)),
             "traceback": trace,
         }
 
