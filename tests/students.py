@@ -186,6 +186,7 @@ MISTAKES: dict[str, set[str]] = {
     "control_swapped": HANDOUT | {"swapped_control"},
     "range_bearing_init": HANDOUT | {"init_range_bearing_swapped"},
     "cos_sin_init": HANDOUT | {"init_cos_sin_swapped"},
+    "h_rows_swapped": HANDOUT | {"measurement_jacobian_rows_swapped"},
     # no exact re-run reproduces these: every divergence of theirs must stay unknown
     "r_thrice": HANDOUT,
     "jacobian_h_sign": HANDOUT,
@@ -269,6 +270,12 @@ EDITS: dict[str, tuple[tuple[str, str], ...]] = {
     "cos_sin_init": (
         (_LANDMARK_XY, _LANDMARK_XY.replace("np.cos", "COS").replace("np.sin", "np.cos")
          .replace("COS", "np.sin")),
+    ),
+    "h_rows_swapped": (
+        ("H[:, :3] = [[dy / q, -dx / q, -1], [-dx / sq, -dy / sq, 0]]",
+         "H[:, :3] = [[-dx / sq, -dy / sq, 0], [dy / q, -dx / q, -1]]"),
+        ("H[:, 3 + 2 * i : 5 + 2 * i] = [[-dy / q, dx / q], [dx / sq, dy / sq]]",
+         "H[:, 3 + 2 * i : 5 + 2 * i] = [[dx / sq, dy / sq], [-dy / q, dx / q]]"),
     ),
     # mistakes no exact re-run reproduces: check must name no cause for them
     "r_thrice": (("S = H @ P @ H.T + measure_cov", "S = H @ P @ H.T + 3 * measure_cov"),),

@@ -111,6 +111,12 @@ CATALOGUE: tuple[Cause, ...] = (
           " [-pi, pi): a slightly negative innovation becomes almost 2 pi",
           "an update jumps wherever the bearing innovation is negative",
           "warp2pi(a) = (a + pi) % (2 pi) - pi"),
+    Cause("measurement_jacobian_rows_swapped", "update",
+          "H's rows are in the order (range, bearing) (as in Probabilistic Robotics) where"
+          " the measurement and the innovation are (bearing, range)",
+          "every update is wrong: the gain mixes the bearing and range innovations",
+          "H's first row is the bearing's: [dy/q, -dx/q, -1, -dy/q, dx/q], then the"
+          " range's: [-dx/r, -dy/r, 0, dx/r, dy/r]"),
     Cause("only_first_landmark", "update",
           "only the first landmark of a line is folded in (e.g. a return inside the loop"
           " over the landmarks)",
@@ -286,6 +292,7 @@ UPDATE_FLAGS = (
     "linearised_once",
     "measurement_noise_twice",
     "joseph_without_measurement_noise",
+    "measurement_jacobian_rows_swapped",
 )
 INIT_FLAGS = (
     "update_at_initialisation",
@@ -399,6 +406,8 @@ def update_with(
             r = math.sqrt(q)
             H[2 * k : 2 * k + 2, :3] = [[dy / q, -dx / q, -1.0], [-dx / r, -dy / r, 0.0]]
             H[2 * k : 2 * k + 2, j : j + 2] = [[-dy / q, dx / q], [dx / r, dy / r]]
+            if "measurement_jacobian_rows_swapped" in flags:
+                H[[2 * k, 2 * k + 1]] = H[[2 * k + 1, 2 * k]]
             direction = math.atan(dy / dx) if "arctan_bearing" in flags else math.atan2(dy, dx)
             if "bearing_not_relative_to_heading" in flags:
                 predicted = direction
@@ -668,7 +677,7 @@ _PRUNABLE = frozenset({
     "only_first_landmark", "linearised_once", "measurement_noise_twice",
     "init_range_bearing_swapped", "init_cos_sin_swapped",
 })  # fmt: skip
-_LATER = _PRUNABLE | {"joseph_without_measurement_noise"}
+_LATER = _PRUNABLE | {"joseph_without_measurement_noise", "measurement_jacobian_rows_swapped"}
 
 
 def _effective(flags: tuple[str, ...], run: Callable[[frozenset[str]], State]) -> tuple[str, ...]:
