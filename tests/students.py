@@ -187,6 +187,8 @@ MISTAKES: dict[str, set[str]] = {
     "range_bearing_init": HANDOUT | {"init_range_bearing_swapped"},
     "cos_sin_init": HANDOUT | {"init_cos_sin_swapped"},
     "h_rows_swapped": HANDOUT | {"measurement_jacobian_rows_swapped"},
+    "three_at_once": HANDOUT
+    | {"arctan_bearing", "linearised_once", "joseph_without_measurement_noise"},
     # no exact re-run reproduces these: every divergence of theirs must stay unknown
     "r_thrice": HANDOUT,
     "jacobian_h_sign": HANDOUT,
@@ -276,6 +278,16 @@ EDITS: dict[str, tuple[tuple[str, str], ...]] = {
          "H[:, :3] = [[-dx / sq, -dy / sq, 0], [dy / q, -dx / q, -1]]"),
         ("H[:, 3 + 2 * i : 5 + 2 * i] = [[-dy / q, dx / q], [dx / sq, dy / sq]]",
          "H[:, 3 + 2 * i : 5 + 2 * i] = [[dx / sq, dy / sq], [-dy / q, dx / q]]"),
+    ),
+    # three of the later mistakes at once, from the first update on (the deep search)
+    "three_at_once": (
+        ("lx, ly = X[3 + 2 * i, 0], X[4 + 2 * i, 0]\n        dx, dy = lx - X[0, 0], ly - X[1, 0]",
+         "lx, ly = X_pre[3 + 2 * i, 0], X_pre[4 + 2 * i, 0]\n"
+         "        dx, dy = lx - X_pre[0, 0], ly - X_pre[1, 0]"),
+        (_BEARING, _BEARING.replace("np.arctan2(dy, dx) - X[2, 0]",
+                                    "np.arctan(dy / dx) - X_pre[2, 0]")),
+        ("P = (np.eye(n) - K @ H) @ P",
+         "I_KH = np.eye(n) - K @ H\n        P = I_KH @ P @ I_KH.T"),
     ),
     # mistakes no exact re-run reproduces: check must name no cause for them
     "r_thrice": (("S = H @ P @ H.T + measure_cov", "S = H @ P @ H.T + 3 * measure_cov"),),

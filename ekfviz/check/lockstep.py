@@ -45,6 +45,10 @@ HYPOTHESIS_MAX_DIM = 400
 # without --all, how many divergent events after the first are re-run to find the next
 # one with a cause of its own (each costs the catalogue's re-runs)
 NEXT_SEARCH_LIMIT = 25
+# how many unexplained updates of a run get the deep search of the catalogue (three more
+# mistakes at once of all of it; after them, of the first catalogue only: see
+# mistakes.explain_update); a run's mistakes, once found, are tried at every event
+DEEP_SEARCHES = 3
 
 
 class Quantity(str, enum.Enum):
@@ -369,6 +373,8 @@ def lockstep(
     first_causes: frozenset[str] | None = None
     next_at: int | None = None
     searched = 0
+    # the first updates that nothing explains get the deep search (see explain_update)
+    deep_left = DEEP_SEARCHES
 
     # the prior itself: the filter must start where the parameters say
     prior = EkfSlam(params)
@@ -407,8 +413,11 @@ def lockstep(
         searching = first_causes is not None and next_at is None and searched < NEXT_SEARCH_LIMIT
         if every or not divergences or searching:
             found_now = frozenset(found)
-            explanation = explain(params, before, after, log_event, worst, tolerance, found_now)
+            explanation = explain(params, before, after, log_event, worst, tolerance, found_now,
+                                  deep=deep_left > 0)  # fmt: skip
             found.update(explanation.causes if explanation.known else ())
+            if isinstance(log_event, Sighting) and not explanation.causes:
+                deep_left -= 1
             hint = _hint(explanation, kind, worst, before, log_event, _state(ekf), after,
                          tolerance)  # fmt: skip
             causes, alternatives = explanation.causes, explanation.alternatives
@@ -625,9 +634,14 @@ def explain(
     worst: Difference,
     tolerance: float,
     found: frozenset[str] = frozenset(),
+    *,
+    deep: bool = False,
 ) -> Explanation:
     """The causes of a divergence at ``event`` (see :mod:`ekfviz.check.mistakes`), combined
-    with the causes already ``found``; none where the state is too large to re-run."""
+    with the causes already ``found``; none where the state is too large to re-run.
+
+    :param deep: an update's search tries three more mistakes at once of all the catalogue
+    """
     if worst.quantity is Quantity.LANDMARK_IDS or len(before.x) > HYPOTHESIS_MAX_DIM:
         return Explanation(())
     divergence = worst.difference if math.isfinite(worst.difference) else 0.0
@@ -639,7 +653,8 @@ def explain(
         assert isinstance(event, Sighting)
         ids = np.asarray(event.ids, dtype=np.int64)
         z = np.asarray(event.z, dtype=np.float64).reshape(-1, 2)
-        return explain_update(params.R, before, after, ids, z, found, tolerance, divergence)
+        return explain_update(params.R, before, after, ids, z, found, tolerance, divergence,
+                              deep=deep)  # fmt: skip
     except (ValueError, np.linalg.LinAlgError, ZeroDivisionError):
         return Explanation(())
 

@@ -605,8 +605,14 @@ def explain_update(
     found: frozenset[str],
     tolerance: float,
     divergence: float = 0.0,
+    *,
+    deep: bool = False,
 ) -> Explanation:
-    """The causes that reproduce a divergent update (see :func:`explain_predict`)."""
+    """The causes that reproduce a divergent update (see :func:`explain_predict`).
+
+    :param deep: try three more mistakes at once of all the catalogue; else three of the
+        first catalogue's, the later ones (:data:`_LATER`) at most two at a time
+    """
     close = max(tolerance * 10, 1e-8, 1e-9 * divergence)
     if sorted(after.ids.tolist()) != sorted(set(before.ids.tolist()) | set(ids.tolist())):
         return Explanation(())
@@ -654,12 +660,13 @@ def explain_update(
                                                                   fixed=fixed))  # fmt: skip
     # the fewest more mistakes first: once sets of one size reproduce the event, larger
     # ones are not tried (with the catalogue's update mistakes, up to three more are
-    # hundreds of re-runs; most events are explained by one). Three more at once only
-    # of the first catalogue's: the later ones come in at most two at a time (beside the
-    # mistakes already found, which every set has)
+    # hundreds of re-runs; most events are explained by one). Unless deep, three more at
+    # once only of the first catalogue's: the later ones come in at most two at a time
+    # (beside the mistakes already found, which every set has)
     results: list[frozenset[str]] = []
     for size in range(0, 4):
-        here = flags_here if size < 3 else tuple(f for f in flags_here if f not in _LATER)
+        shallow = size == 3 and not deep
+        here = tuple(f for f in flags_here if f not in _LATER) if shallow else flags_here
         for flags in _subsets(here, base, _EXCLUSIVE_UPDATE, size, least=size):
             if reproduces(flags):
                 smallest = _minimal(flags, reproduces)
