@@ -196,6 +196,7 @@ MISTAKES: dict[str, set[str]] = {
     "inplace": HANDOUT,
     "lists": HANDOUT,
     "chatty": HANDOUT,
+    "pauses": HANDOUT,
 }
 # the integer array's first event (the initialisation) is unknown, with its hint
 MISTAKES_UNKNOWN_FIRST = {"int_landmarks"}
@@ -309,6 +310,12 @@ EDITS: dict[str, tuple[tuple[str, str], ...]] = {
         (_PREDICT_START,
          _PREDICT_START + "    print('P =', P)\n    plt.figure()\n    plt.plot([1, 2])\n"
          "    plt.show()\n"),
+    ),
+    # the handout's plots wait for a key after every step; a pause of the student's own
+    "pauses": (
+        ("    return X, P\n",
+         "    plt.figure()\n    plt.draw()\n    plt.pause(30)\n    plt.waitforbuttonpress(0)\n"
+         "    input('press enter')\n    return X, P\n"),
     ),
     # do not run as they are: one line each
     "p_x_order": (("    return X_pre, P_pre\n", "    return P_pre, X_pre\n"),),

@@ -27,8 +27,10 @@ annotations, no ``zip(strict=...)``, no ``match``).
 
 from __future__ import annotations
 
+import builtins
 import importlib
 import importlib.abc
+import importlib.machinery
 import importlib.util
 import io
 import json
@@ -392,8 +394,11 @@ class UserError(Exception):
 
 
 def _said(error: BaseException) -> str:
-    """``": message"`` of an exception, or nothing when it has none."""
-    text = str(error).rstrip()
+    """``": message"`` of an exception on one line (numpy's run over several), at most
+    300 characters; nothing when it has none."""
+    text = " ".join(str(error).split())
+    if len(text) > 300:
+        text = text[:297] + "..."
     return ": " + text if text else ""
 
 
@@ -420,8 +425,10 @@ def _user_line(error: BaseException) -> str:
     except Exception:
         return ""
     for frame in reversed(frames):
+        if frame.filename.startswith("<"):
+            continue
         filename = os.path.abspath(frame.filename)
-        if filename.startswith(skip) or filename.startswith("<"):
+        if filename.startswith(skip):
             continue
         code = (frame.line or "").strip()
         if len(code) > 80:
@@ -475,10 +482,22 @@ class _StubModule(types.ModuleType):
         return _NOTHING
 
 
+def _no_waiting(module: Any) -> None:
+    """Nothing of matplotlib waits for a user who is not there: the event loop of every
+    canvas (``waitforbuttonpress``, ``ginput``: the handout's plots wait for a key
+    after every step) returns at once, and pyplot's ``pause`` and ``show`` do nothing."""
+    if module.__name__ == "matplotlib.backend_bases":
+        module.FigureCanvasBase.start_event_loop = lambda self, timeout=0: None
+    elif module.__name__ == "matplotlib.pyplot":
+        module.pause = lambda interval=0: None
+        module.show = lambda *args, **kwargs: None
+
+
 class _Matplotlib(importlib.abc.MetaPathFinder, importlib.abc.Loader):
     """matplotlib without windows: the Agg backend, whatever ``matplotlib.use`` asks for
-    (a filter's module runs here for its functions, never for its plots); where
-    matplotlib is not installed, modules that do nothing, so that its import works."""
+    (a filter's module runs here for its functions, never for its plots), and nothing
+    that waits (:func:`_no_waiting`); where matplotlib is not installed, modules that do
+    nothing, so that its import works."""
 
     def __init__(self) -> None:
         self.stubbed = False
@@ -499,6 +518,11 @@ class _Matplotlib(importlib.abc.MetaPathFinder, importlib.abc.Loader):
             self.stubbed = True
         if self.stubbed:
             return importlib.util.spec_from_loader(name, self, is_package=True)
+        if name in ("matplotlib.backend_bases", "matplotlib.pyplot"):
+            spec = importlib.machinery.PathFinder.find_spec(name, path)
+            if spec is not None and spec.loader is not None:
+                spec.loader = _PatchingLoader(spec.loader, _no_waiting)
+                return spec
         return None
 
     def create_module(self, spec: Any) -> Any:
@@ -511,14 +535,21 @@ class _Matplotlib(importlib.abc.MetaPathFinder, importlib.abc.Loader):
 
 
 class _PatchingLoader(importlib.abc.Loader):
-    def __init__(self, real: Any) -> None:
+    """A module's own loader, then ``patch`` on the module (by default matplotlib's:
+    ``use`` always Agg)."""
+
+    def __init__(self, real: Any, patch: Optional[Callable[[Any], None]] = None) -> None:
         self.real = real
+        self.patch = patch
 
     def create_module(self, spec: Any) -> Any:
         return self.real.create_module(spec)
 
     def exec_module(self, module: Any) -> None:
         self.real.exec_module(module)
+        if self.patch is not None:
+            self.patch(module)
+            return
         original = module.use
 
         def use(backend: Any, *args: Any, **kwargs: Any) -> None:
@@ -837,6 +868,14 @@ def _array_of(value: Any, name: str) -> Any:
     return array
 
 
+def _no_input(prompt: Any = "") -> str:
+    """``input()`` answered at once with an empty line, its prompt printed: nobody is
+    there to type (a student's pause between steps would otherwise end the run with
+    EOFError)."""
+    print(prompt)
+    return ""
+
+
 def _die_with_parent() -> None:
     """Ask Linux to end this process when ekfviz ends (a hung filter left no orphan)."""
     try:
@@ -868,6 +907,7 @@ def main() -> None:
     os.close(null)
     os.dup2(2, 1)  # what the filter prints goes where ekfviz captures it
     sys.stdin = open(os.devnull)  # noqa: SIM115 (for the whole life of the process)
+    builtins.input = _no_input
     sys.stdout = io.TextIOWrapper(os.fdopen(1, "wb", closefd=False), line_buffering=True)
     Worker(commands, answers).serve()
 
