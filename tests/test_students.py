@@ -525,16 +525,24 @@ def test_the_handouts_main_at_import_is_skipped_and_said(tmp_path: Path) -> None
                     str(report))  # fmt: skip
     assert result.returncode == 1, result.stderr
     assert f"its line {number} calls main() at import (no `if __name__" in result.stderr
-    assert "FileNotFoundError" in result.stderr and "ekfviz skipped that call" in result.stderr
+    assert "FileNotFoundError" in result.stderr and "ekfviz skipped it and" in result.stderr
     assert json.loads(report.read_text())["next_divergence"]["cause"] == "only_first_landmark"
-    # when the module cannot be loaded without the call either: one line that says why
+    # a script: the handout's loop at top level, and a constant after it
+    script = tmp_path / "script.py"
+    loop = 'data_file = open("../data/data.txt")\nfor line in data_file:\n    print(line)\n'
+    script.write_text(students.source("correct") + loop + "SIGMA = 0.1\n")
+    number = script.read_text().splitlines().index('data_file = open("../data/data.txt")') + 1
+    result = ekfviz("check", str(DATA / "classic.txt"), "--filter", str(script))
+    assert result.returncode == 1, result.stderr
+    assert f"its line {number} runs at import" in result.stderr
+    assert f"ekfviz skipped it (and line {number + 1}) and loaded the rest" in result.stderr
+    # an import that fails is the error, in one line
     broken = tmp_path / "broken.py"
-    broken.write_text(module.read_text() + "print(undefined_name)\n")
+    broken.write_text(module.read_text() + "import no_such_module_h14\n")
     result = ekfviz("check", str(DATA / "classic.txt"), "--filter", str(broken))
     assert result.returncode == 2
     (line,) = result.stderr.strip().splitlines()
-    assert f"its line {number} calls main() at import" in line
-    assert line.endswith("put that call under the guard"), line
+    assert "raised ModuleNotFoundError: No module named 'no_such_module_h14'" in line, line
 
 
 def test_grade_of_wild_students_names_each_ones_mistake(tmp_path: Path) -> None:

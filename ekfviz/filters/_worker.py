@@ -402,16 +402,20 @@ def _said(error: BaseException) -> str:
     return ": " + text if text else ""
 
 
-def _call_at_import(error: BaseException, path: str) -> Optional[Tuple[int, str]]:
-    """The line and the function name of a top-level call in the module at ``path``
-    from which ``error`` was raised (inside the called function), or None."""
+def _top_level_line(error: BaseException, path: str) -> Optional[Tuple[int, str]]:
+    """The line of the module at ``path``'s top-level code from which ``error`` was
+    raised, and the name of the module's function it called there (empty when it raised
+    there itself); None when the error did not come from its top-level code."""
     frames = traceback.extract_tb(error.__traceback__)
     target = os.path.abspath(path)
-    for index, frame in enumerate(frames[:-1]):
-        if frame.name == "<module>" and os.path.abspath(frame.filename) == target:
-            callee = frames[index + 1]
-            if os.path.abspath(callee.filename) == target and frame.lineno:
-                return frame.lineno, callee.name
+    for index, frame in enumerate(frames):
+        if frame.name != "<module>" or os.path.abspath(frame.filename) != target:
+            continue
+        if not frame.lineno:
+            return None
+        callee = frames[index + 1] if index + 1 < len(frames) else None
+        inside = callee is not None and os.path.abspath(callee.filename) == target
+        return frame.lineno, callee.name if inside and callee is not None else ""
     return None
 
 
@@ -695,10 +699,10 @@ class Worker:
             ) from None
         except BaseException as error:
             trace = traceback.format_exc()
-            call = _call_at_import(error, path) if path is not None else None
-            if call is None:
+            line = _top_level_line(error, path) if path is not None else None
+            if line is None:
                 raise UserError("importing %s" % (path or module_name), error, trace) from None
-            module = self.without_call(str(path), name, call, error)
+            module = self.tolerant(str(path), name, line, error)
         self.module = module
         where = path or module_name
         if self.target:
@@ -735,33 +739,50 @@ class Worker:
             },
         }
 
-    def without_call(
-        self, path: str, name: str, call: Tuple[int, str], error: BaseException
-    ) -> Any:
-        """The module at ``path`` loaded again without the top-level call at line
-        ``call[0]`` (the handout's ``main()`` left without its ``if __name__ ==
-        "__main__":`` guard), which raised ``error`` at import; said on the filter's
-        output. When that fails too, the first error, with why it ran at all."""
+    def tolerant(self, path: str, name: str, line: Tuple[int, str], error: BaseException) -> Any:
+        """The module at ``path`` loaded again one top-level statement at a time, without
+        those that raise: its top-level code ran at import (the handout's ``main()`` left
+        without its ``if __name__ == "__main__":`` guard, a script's loop over the data
+        file) and raised ``error`` at ``line`` (the line, and the module's function it
+        called there, if any). Said on the filter's output; an import that fails is the
+        error then."""
+        import __future__
+
         import ast
 
-        line, function = call
-        said = "importing %s raised %s: %s%s; its line %d calls %s() at import (no `if" \
-            " __name__ == \"__main__\":` guard)" % (path, type(error).__name__,
-            str(error).rstrip(), _user_line(error), line, function)  # fmt: skip
-        try:
-            with open(path, "rb") as handle:
-                tree = ast.parse(handle.read(), path)
-            tree.body = [s for s in tree.body if not (isinstance(s, ast.Expr) and s.lineno == line)]
-            module = types.ModuleType(name)
-            module.__file__ = path
-            sys.modules[name] = module
-            exec(compile(tree, path, "exec"), module.__dict__)
-        except (SystemExit, KeyboardInterrupt):
-            raise
-        except BaseException:
-            raise FilterFault(said + ": put that call under the guard") from None
+        with open(path, "rb") as handle:
+            tree = ast.parse(handle.read(), path)
+        module = types.ModuleType(name)
+        module.__file__ = path
+        sys.modules[name] = module
+        flags = 0
+        skipped: List[int] = []
+        for statement in tree.body:
+            if isinstance(statement, ast.ImportFrom) and statement.module == "__future__":
+                for alias in statement.names:
+                    flags |= getattr(__future__, alias.name).compiler_flag
+            body = ast.Module(body=[statement], type_ignores=[])
+            code = compile(body, path, "exec", flags=flags, dont_inherit=True)
+            try:
+                exec(code, module.__dict__)
+            except (SystemExit, KeyboardInterrupt):
+                raise
+            except BaseException as again:
+                if isinstance(statement, (ast.Import, ast.ImportFrom)):
+                    trace = traceback.format_exc()
+                    raise UserError("importing %s" % path, again, trace) from None
+                skipped.append(statement.lineno)
+        number, function = line
+        what = "calls %s() at import" % function if function else "runs at import"
+        others = [n for n in skipped if n != number]
+        also = ""
+        if others:
+            also = " (and line%s %s)" % ("s" * (len(others) > 1), ", ".join(map(str, others)))
         print(
-            "ekfviz: %s; ekfviz skipped that call (put it under the guard)" % said,
+            "ekfviz: importing %s raised %s%s%s; its line %d %s (no `if __name__ =="
+            ' "__main__":` guard): ekfviz skipped it%s and loaded the rest (put it under'
+            " the guard)"
+            % (path, type(error).__name__, _said(error), _user_line(error), number, what, also),
             file=sys.stderr,
         )
         return module
