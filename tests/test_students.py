@@ -543,13 +543,17 @@ def test_the_handouts_main_at_import_is_skipped_and_said(tmp_path: Path) -> None
     assert result.returncode == 1, result.stderr
     assert f"its line {number} runs at import" in result.stderr
     assert f"ekfviz skipped it (and line {number + 1}) and loaded the rest" in result.stderr
-    # an import that fails is the error, in one line
-    broken = tmp_path / "broken.py"
-    broken.write_text(module.read_text() + "import no_such_module_h14\n")
-    result = ekfviz("check", str(DATA / "classic.txt"), "--filter", str(broken))
-    assert result.returncode == 2
-    (line,) = result.stderr.strip().splitlines()
-    assert "raised ModuleNotFoundError: No module named 'no_such_module_h14'" in line, line
+    # an import that fails, or a raise, is the error, in one line
+    for code, said in (("import no_such_module_h14", "raised ModuleNotFoundError: No module"
+                        " named 'no_such_module_h14'"),
+                       ("raise RuntimeError('not finished')", "raised RuntimeError: not"
+                        " finished")):  # fmt: skip
+        broken = tmp_path / "broken.py"
+        broken.write_text(module.read_text() + code + "\n")
+        result = ekfviz("check", str(DATA / "classic.txt"), "--filter", str(broken))
+        assert result.returncode == 2
+        (line,) = result.stderr.strip().splitlines()
+        assert said in line, line
 
 
 def test_grade_of_wild_students_names_each_ones_mistake(tmp_path: Path) -> None:

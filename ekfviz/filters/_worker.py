@@ -27,6 +27,7 @@ annotations, no ``zip(strict=...)``, no ``match``).
 
 from __future__ import annotations
 
+import ast
 import builtins
 import importlib
 import importlib.abc
@@ -402,6 +403,15 @@ def _said(error: BaseException) -> str:
     return ": " + text if text else ""
 
 
+# the top-level statements of a course module that may be skipped when they raise at
+# import: a script's work (calls, loops, assignments); never an import, a definition or a
+# raise, which are the module's own and its error then
+_SKIPPABLE = (
+    ast.Expr, ast.Assign, ast.AugAssign, ast.AnnAssign, ast.For, ast.While, ast.With, ast.If,
+    ast.Try,
+)  # fmt: skip
+
+
 def _top_level_line(error: BaseException, path: str) -> Optional[Tuple[int, str]]:
     """The line of the module at ``path``'s top-level code from which ``error`` was
     raised, and the name of the module's function it called there (empty when it raised
@@ -699,7 +709,9 @@ class Worker:
             ) from None
         except BaseException as error:
             trace = traceback.format_exc()
-            line = _top_level_line(error, path) if path is not None else None
+            # a course module's (not a class's): a student's script, not a developer's module
+            course = path is not None and not self.target
+            line = _top_level_line(error, str(path)) if course else None
             if line is None:
                 raise UserError("importing %s" % (path or module_name), error, trace) from None
             module = self.tolerant(str(path), name, line, error)
@@ -748,8 +760,6 @@ class Worker:
         error then."""
         import __future__
 
-        import ast
-
         with open(path, "rb") as handle:
             tree = ast.parse(handle.read(), path)
         module = types.ModuleType(name)
@@ -768,7 +778,7 @@ class Worker:
             except (SystemExit, KeyboardInterrupt):
                 raise
             except BaseException as again:
-                if isinstance(statement, (ast.Import, ast.ImportFrom)):
+                if not isinstance(statement, _SKIPPABLE):  # an import, a def, a raise
                     trace = traceback.format_exc()
                     raise UserError("importing %s" % path, again, trace) from None
                 skipped.append(statement.lineno)
