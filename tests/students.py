@@ -3,8 +3,11 @@
 Each is a module of the handout's functions (``init_landmarks``, ``predict``, ``update``
 with column vectors), written out by :func:`write` with one or more real mistakes, so
 that ``check`` is tried on code of the shape it meets in the wild: loops over landmarks,
-``np.linalg.inv``, ``(I - K H) P``, the handout's imports. :data:`MISTAKES` says which
-causes ``check --all`` must name for each.
+``np.linalg.inv``, ``(I - K H) P``, the handout's imports. :data:`EDITS` are the
+students of the wild: the correct module with the edit of one mistake real hand-ins make
+(an arctan, a return inside the loop, a pause for a key...). :data:`MISTAKES` says which
+causes ``check --all`` must name for each (for those no re-run reproduces: none but the
+handout's).
 """
 
 from __future__ import annotations
