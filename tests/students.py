@@ -190,6 +190,7 @@ MISTAKES: dict[str, set[str]] = {
     "range_bearing_init": HANDOUT | {"init_range_bearing_swapped"},
     "cos_sin_init": HANDOUT | {"init_cos_sin_swapped"},
     "h_rows_swapped": HANDOUT | {"measurement_jacobian_rows_swapped"},
+    "h_bearing_sign": HANDOUT | {"measurement_jacobian_bearing_sign"},
     "three_at_once": HANDOUT
     | {"arctan_bearing", "linearised_once", "joseph_without_measurement_noise"},
     # no exact re-run reproduces these: every divergence of theirs must stay unknown
@@ -282,6 +283,12 @@ EDITS: dict[str, tuple[tuple[str, str], ...]] = {
          "H[:, :3] = [[-dx / sq, -dy / sq, 0], [dy / q, -dx / q, -1]]"),
         ("H[:, 3 + 2 * i : 5 + 2 * i] = [[-dy / q, dx / q], [dx / sq, dy / sq]]",
          "H[:, 3 + 2 * i : 5 + 2 * i] = [[dx / sq, dy / sq], [-dy / q, dx / q]]"),
+    ),
+    "h_bearing_sign": (
+        ("H[:, :3] = [[dy / q, -dx / q, -1], [-dx / sq, -dy / sq, 0]]",
+         "H[:, :3] = [[-dy / q, dx / q, -1], [-dx / sq, -dy / sq, 0]]"),
+        ("H[:, 3 + 2 * i : 5 + 2 * i] = [[-dy / q, dx / q], [dx / sq, dy / sq]]",
+         "H[:, 3 + 2 * i : 5 + 2 * i] = [[dy / q, -dx / q], [dx / sq, dy / sq]]"),
     ),
     # three of the later mistakes at once, from the first update on (the deep search)
     "three_at_once": (

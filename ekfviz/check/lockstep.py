@@ -24,6 +24,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ekfviz.check.mistakes import (
+    RERUN_ERRORS,
     UNKNOWN,
     Explanation,
     State,
@@ -655,7 +656,7 @@ def explain(
         z = np.asarray(event.z, dtype=np.float64).reshape(-1, 2)
         return explain_update(params.R, before, after, ids, z, found, tolerance, divergence,
                               deep=deep)  # fmt: skip
-    except (ValueError, np.linalg.LinAlgError, ZeroDivisionError):
+    except RERUN_ERRORS:
         return Explanation(())
 
 
