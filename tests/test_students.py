@@ -571,3 +571,20 @@ def test_grade_of_wild_students_names_each_ones_mistake(tmp_path: Path) -> None:
     # the class's methods are the handout's functions: the correct module's verdict
     assert set(rows["bob.py"]["causes"]) == students.MISTAKES["correct"]
     assert set(rows["cy"]["causes"]) == students.MISTAKES["control_swapped"]
+
+
+def test_every_pair_of_update_mistakes_re_runs_on_a_line_of_known_and_new() -> None:
+    import itertools
+
+    from ekfviz.check.mistakes import _VARIANTS, INIT_FLAGS, UPDATE_FLAGS, State, update_with
+
+    x = np.array([1.0, 2.0, 0.3, 6.0, 5.0, -2.0, 4.0])
+    before = State(x, np.diag(np.linspace(0.1, 0.7, 7)), np.array([3, 8]))
+    ids = np.array([8, 5, 3])  # known, new, known
+    z = np.array([[2.4, 4.9], [0.2, 7.0], [0.5, 6.0]])
+    R = np.diag([0.01, 0.04])
+    for pair in itertools.combinations(UPDATE_FLAGS + INIT_FLAGS, 2):
+        for variant in _VARIANTS:
+            after = update_with(R, before, ids, z, frozenset(pair), fixed=np.eye(2), **variant)
+            assert sorted(after.ids.tolist()) == [3, 5, 8], pair
+            assert after.P.shape == (9, 9) and np.isfinite(after.P).all(), pair
