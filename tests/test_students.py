@@ -387,8 +387,12 @@ def test_without_all_the_students_own_mistake_follows_the_handouts(tmp_path: Pat
                     str(report))  # fmt: skip
     assert result.returncode == 1, result.stdout + result.stderr
     assert "the handout's main() builds it, block_diag(pose_cov, landmark_cov)" in result.stdout
-    following = result.stdout[result.stdout.index("next divergence with another cause") :]
-    assert following.startswith("next divergence with another cause at event 2 (step 1, update")
+    following = result.stdout[
+        result.stdout.index("next divergence (not explained by the first one's causes)") :
+    ]
+    assert following.startswith(
+        "next divergence (not explained by the first one's causes) at event 2 (step 1, update"
+    )
     assert "cause: only_first_landmark" in following
     assert re.search(r"\n  28 more event\(s\) diverge", result.stdout)
     document = json.loads(report.read_text())

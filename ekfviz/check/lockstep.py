@@ -237,10 +237,8 @@ class CheckResult:
             lines.append(Styled(f"  ({_HANDOUT_NOTE})"))
         following = self.next_divergence
         if following is not None and not every:
-            lines.append(
-                _divergence_lines("next divergence with another cause", following, name,
-                                  tolerance)
-            )  # fmt: skip
+            title = "next divergence (not explained by the first one's causes)"
+            lines.append(_divergence_lines(title, following, name, tolerance))
         more = len(self.divergences) - 1 - (following is not None and not every)
         if more and not every:
             lines.append(
