@@ -565,12 +565,21 @@ def test_grade_of_wild_students_names_each_ones_mistake(tmp_path: Path) -> None:
     students.write(folder / "ada", "stale_linearisation")
     (folder / "bob.py").write_text(students.class_based())
     students.write(folder / "cy", "control_swapped")
+    students.write(folder / "dee", "r_thrice")
     result = ekfviz("grade", str(folder), "--json")
     assert result.returncode == 0, result.stderr
     rows = {row["submission"]: row for row in json.loads(result.stdout)["submissions"]}
     assert {name: row["status"] for name, row in rows.items()} == {
-        "ada": "diverged", "bob.py": "diverged", "cy": "diverged"
+        "ada": "diverged", "bob.py": "diverged", "cy": "diverged", "dee": "diverged"
     }  # fmt: skip
+    # the same causes as a correct module, but divergences of no known cause: said
+    assert set(rows["dee"]["causes"]) == students.MISTAKES["correct"]
+    assert re.fullmatch(
+        r"\d+ divergent event\(s\) of no known cause, the first classic:3"
+        r" event 2 \(update\): .+",
+        rows["dee"]["detail"],
+    ), rows["dee"]
+    assert rows["bob.py"]["detail"] == "" and rows["ada"]["detail"] == ""
     assert set(rows["ada"]["causes"]) == students.MISTAKES["stale_linearisation"]
     # the class's methods are the handout's functions: the correct module's verdict
     assert set(rows["bob.py"]["causes"]) == students.MISTAKES["correct"]
