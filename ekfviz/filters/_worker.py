@@ -431,9 +431,17 @@ def _top_level_line(error: BaseException, path: str) -> Optional[Tuple[int, str]
 
 def _user_line(error: BaseException) -> str:
     """Where in the user's code ``error`` was raised: the innermost frame that is neither
-    this file's nor numpy's (a student needs the line of their own file, not numpy's),
-    as `` (at ekf_slam.py:47 in update: K = ...)``; empty when there is none."""
-    skip = (os.path.dirname(np.__file__), os.path.abspath(__file__))
+    this file's nor of an installed package or the standard library (a student needs the
+    line of their own file, not numpy's or matplotlib's), as `` (at ekf_slam.py:47 in
+    update: K = ...)``; empty when there is none."""
+    import sysconfig
+
+    installed = sysconfig.get_paths()
+    skip = tuple(
+        os.path.abspath(installed[key]) + os.sep
+        for key in ("stdlib", "platstdlib", "purelib", "platlib")
+        if key in installed
+    ) + (os.path.dirname(np.__file__), os.path.abspath(__file__))
     try:
         frames = traceback.extract_tb(error.__traceback__)
     except Exception:
