@@ -46,8 +46,8 @@ HYPOTHESIS_MAX_DIM = 400
 # without --all, how many divergent events after the first are re-run to find the next
 # one with a cause of its own (each costs the catalogue's re-runs)
 NEXT_SEARCH_LIMIT = 25
-# how many unexplained updates of a run get the deep search of the catalogue (three more
-# mistakes at once of all of it; after them, of the first catalogue only: see
+# how many unexplained updates of a run get the deep search of the catalogue (any three
+# more mistakes at once; after them, the later mistakes one at a time: see
 # mistakes.explain_update); a run's mistakes, once found, are tried at every event
 DEEP_SEARCHES = 3
 
