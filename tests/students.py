@@ -3,8 +3,11 @@
 Each is a module of the handout's functions (``init_landmarks``, ``predict``, ``update``
 with column vectors), written out by :func:`write` with one or more real mistakes, so
 that ``check`` is tried on code of the shape it meets in the wild: loops over landmarks,
-``np.linalg.inv``, ``(I - K H) P``, the handout's imports. :data:`MISTAKES` says which
-causes ``check --all`` must name for each.
+``np.linalg.inv``, ``(I - K H) P``, the handout's imports. :data:`EDITS` are the
+students of the wild: the correct module with the edit of one mistake real hand-ins make
+(an arctan, a return inside the loop, a pause for a key...). :data:`MISTAKES` says which
+causes ``check --all`` must name for each (for those no re-run reproduces: none but the
+handout's).
 """
 
 from __future__ import annotations
@@ -176,11 +179,37 @@ MISTAKES: dict[str, set[str]] = {
     | {"transposed_motion_jacobian", "landmark_cov_missing_pose_term"},
     "ragged": HANDOUT,
     "tkagg": HANDOUT,
+    "arctan": HANDOUT | {"arctan_bearing"},
+    "bearing_world": HANDOUT | {"bearing_not_relative_to_heading"},
+    "mod_2pi": HANDOUT | {"innovation_wrapped_to_0_2pi"},
+    "return_in_loop": HANDOUT | {"only_first_landmark"},
+    "stale_linearisation": HANDOUT | {"linearised_once"},
+    "r_twice": HANDOUT | {"measurement_noise_twice"},
+    "joseph_no_krk": HANDOUT | {"joseph_without_measurement_noise"},
+    "control_swapped": HANDOUT | {"swapped_control"},
+    "range_bearing_init": HANDOUT | {"init_range_bearing_swapped"},
+    "cos_sin_init": HANDOUT | {"init_cos_sin_swapped"},
+    "h_rows_swapped": HANDOUT | {"measurement_jacobian_rows_swapped"},
+    "h_bearing_sign": HANDOUT | {"measurement_jacobian_bearing_sign"},
+    "three_at_once": HANDOUT
+    | {"arctan_bearing", "linearised_once", "joseph_without_measurement_noise"},
+    # no exact re-run reproduces these: every divergence of theirs must stay unknown
+    "r_thrice": HANDOUT,
+    "jacobian_h_sign": HANDOUT,
+    "degrees": HANDOUT,
+    "inplace": HANDOUT,
+    "lists": HANDOUT,
+    "chatty": HANDOUT,
+    "pauses": HANDOUT,
 }
+# the integer array's first event (the initialisation) is unknown, with its hint
+MISTAKES_UNKNOWN_FIRST = {"int_landmarks"}
 
 
 def source(name: str) -> str:
-    """The module text of one student."""
+    """The module text of one student (of :data:`STUDENTS` or :data:`EDITS`)."""
+    if name in EDITS:
+        return edited(name)
     options = STUDENTS[name]
     joint = options.get("update") == "joint"
     update = UPDATE_JOINT if joint else UPDATE_SEQUENTIAL
@@ -203,3 +232,133 @@ def write(folder: Path, name: str, file_name: str = "ekf_slam.py") -> Path:
     path = folder / file_name
     path.write_text(source(name))
     return path
+
+
+# -- students of the wild: the correct module with one edit each ------------------------------
+#
+# mistakes seen in real hand-ins of this homework, each written as the students write it;
+# (old, new) replacements in the text of source("correct")
+_BEARING = "z_hat = np.array([[warp2pi(np.arctan2(dy, dx) - X[2, 0])], [sq]])"
+_LANDMARK_XY = (
+    "landmark[2 * i, 0] = x + r * np.cos(phi)\n        landmark[2 * i + 1, 0] = y + r * np.sin(phi)"
+)
+_PREDICT_START = "def predict(X, P, control, control_cov, k):\n"
+EDITS: dict[str, tuple[tuple[str, str], ...]] = {
+    "arctan": ((_BEARING, _BEARING.replace("np.arctan2(dy, dx)", "np.arctan(dy / dx)")),),
+    "bearing_world": ((_BEARING, _BEARING.replace(" - X[2, 0]", "")),),
+    "mod_2pi": (
+        ("return (angle_rad + np.pi) % (2 * np.pi) - np.pi", "return angle_rad % (2 * np.pi)"),
+    ),
+    "return_in_loop": (
+        ("        P = (np.eye(n) - K @ H) @ P\n    return X, P",
+         "        P = (np.eye(n) - K @ H) @ P\n        return X, P"),
+    ),
+    "stale_linearisation": (
+        ("lx, ly = X[3 + 2 * i, 0], X[4 + 2 * i, 0]\n        dx, dy = lx - X[0, 0], ly - X[1, 0]",
+         "lx, ly = X_pre[3 + 2 * i, 0], X_pre[4 + 2 * i, 0]\n"
+         "        dx, dy = lx - X_pre[0, 0], ly - X_pre[1, 0]"),
+        (_BEARING, _BEARING.replace("X[2, 0]", "X_pre[2, 0]")),
+    ),
+    "r_twice": (
+        ("S = H @ P @ H.T + measure_cov",
+         "S = H @ P @ H.T + measure_cov\n        S += measure_cov"),
+    ),
+    "joseph_no_krk": (
+        ("P = (np.eye(n) - K @ H) @ P",
+         "I_KH = np.eye(n) - K @ H\n        P = I_KH @ P @ I_KH.T"),
+    ),
+    "control_swapped": (
+        ("d, alpha = control[0, 0], control[1, 0]", "alpha, d = control[0, 0], control[1, 0]"),
+    ),
+    "range_bearing_init": (
+        ("beta, r = init_measure[2 * i, 0], init_measure[2 * i + 1, 0]",
+         "r, beta = init_measure[2 * i, 0], init_measure[2 * i + 1, 0]"),
+    ),
+    "cos_sin_init": (
+        (_LANDMARK_XY, _LANDMARK_XY.replace("np.cos", "COS").replace("np.sin", "np.cos")
+         .replace("COS", "np.sin")),
+    ),
+    "h_rows_swapped": (
+        ("H[:, :3] = [[dy / q, -dx / q, -1], [-dx / sq, -dy / sq, 0]]",
+         "H[:, :3] = [[-dx / sq, -dy / sq, 0], [dy / q, -dx / q, -1]]"),
+        ("H[:, 3 + 2 * i : 5 + 2 * i] = [[-dy / q, dx / q], [dx / sq, dy / sq]]",
+         "H[:, 3 + 2 * i : 5 + 2 * i] = [[dx / sq, dy / sq], [-dy / q, dx / q]]"),
+    ),
+    "h_bearing_sign": (
+        ("H[:, :3] = [[dy / q, -dx / q, -1], [-dx / sq, -dy / sq, 0]]",
+         "H[:, :3] = [[-dy / q, dx / q, -1], [-dx / sq, -dy / sq, 0]]"),
+        ("H[:, 3 + 2 * i : 5 + 2 * i] = [[-dy / q, dx / q], [dx / sq, dy / sq]]",
+         "H[:, 3 + 2 * i : 5 + 2 * i] = [[dy / q, -dx / q], [dx / sq, dy / sq]]"),
+    ),
+    # three of the later mistakes at once, from the first update on (the deep search)
+    "three_at_once": (
+        ("lx, ly = X[3 + 2 * i, 0], X[4 + 2 * i, 0]\n        dx, dy = lx - X[0, 0], ly - X[1, 0]",
+         "lx, ly = X_pre[3 + 2 * i, 0], X_pre[4 + 2 * i, 0]\n"
+         "        dx, dy = lx - X_pre[0, 0], ly - X_pre[1, 0]"),
+        (_BEARING, _BEARING.replace("np.arctan2(dy, dx) - X[2, 0]",
+                                    "np.arctan(dy / dx) - X_pre[2, 0]")),
+        ("P = (np.eye(n) - K @ H) @ P",
+         "I_KH = np.eye(n) - K @ H\n        P = I_KH @ P @ I_KH.T"),
+    ),
+    # mistakes no exact re-run reproduces: check must name no cause for them
+    "r_thrice": (("S = H @ P @ H.T + measure_cov", "S = H @ P @ H.T + 3 * measure_cov"),),
+    "jacobian_h_sign": (
+        ("H[:, :3] = [[dy / q, -dx / q, -1], [-dx / sq, -dy / sq, 0]]",
+         "H[:, :3] = [[-dy / q, dx / q, -1], [-dx / sq, -dy / sq, 0]]"),
+    ),
+    "degrees": (
+        ("X_pre[2, 0] = warp2pi(theta + alpha)",
+         "X_pre[2, 0] = warp2pi(theta + np.deg2rad(alpha))"),
+    ),
+    "int_landmarks": (
+        ("landmark = np.zeros((2 * k, 1))", "landmark = np.zeros((2 * k, 1), dtype=int)"),
+    ),
+    # harmless: the same results as the correct module
+    "inplace": (("X_pre = X.copy()", "X_pre = X"),),
+    "lists": (("    return X_pre, P_pre\n", "    return X_pre.tolist(), P_pre.tolist()\n"),),
+    "chatty": (
+        (_PREDICT_START,
+         _PREDICT_START + "    print('P =', P)\n    plt.figure()\n    plt.plot([1, 2])\n"
+         "    plt.show()\n"),
+    ),
+    # the handout's plots wait for a key after every step; a pause of the student's own
+    "pauses": (
+        ("    return X, P\n",
+         "    plt.figure()\n    plt.draw()\n    plt.pause(30)\n    plt.waitforbuttonpress(0)\n"
+         "    input('press enter')\n    return X, P\n"),
+    ),
+    # do not run as they are: one line each
+    "p_x_order": (("    return X_pre, P_pre\n", "    return P_pre, X_pre\n"),),
+    "q_wrong_size": (("P_pre = G @ P @ G.T + Q", "P_pre = G @ P @ G.T + control_cov"),),
+}  # fmt: skip
+
+# the handout's main(), called at import without the `if __name__ == "__main__":` guard
+MAIN_AT_IMPORT = """
+
+def main():
+    data_file = open("../data/data.txt")
+    print(re.split("[\\\\t ]", data_file.readline()))
+
+
+main()
+"""
+
+
+def edited(name: str) -> str:
+    """The module text of a student of :data:`EDITS`."""
+    text = source("correct")
+    for old, new in EDITS[name]:
+        assert old in text, (name, old)
+        text = text.replace(old, new)
+    return text
+
+
+def class_based() -> str:
+    """The correct module written as a class whose methods are the handout's functions."""
+    body = source("correct").split("np.set_printoptions(suppress=True)\n", 1)[1]
+    for function in ("warp2pi", "init_landmarks", "predict", "update"):
+        body = body.replace(f"{function}(", f"self.{function}(")
+        body = body.replace(f"def self.{function}(", f"def {function}(self, ")
+    methods = "\n".join("    " + line if line.strip() else line for line in body.splitlines())
+    start = "import numpy as np\n\n\nclass EKFSLAM:\n    def __init__(self):\n        self.k = 0\n"
+    return f"{start}{methods}\n"

@@ -375,3 +375,229 @@ def test_the_command_line_default_timeout_is_the_workers() -> None:
     from ekfviz.filters.worker import DEFAULT_TIMEOUT_S
 
     assert DEFAULT_FILTER_TIMEOUT_S == DEFAULT_TIMEOUT_S
+
+
+# -- students of the wild (issue: real students' hand-ins get generic hints) ------------------
+
+
+def test_without_all_the_students_own_mistake_follows_the_handouts(tmp_path: Path) -> None:
+    module = students.write(tmp_path / "s", "return_in_loop")
+    report = tmp_path / "r.json"
+    result = ekfviz("check", str(DATA / "classic.txt"), "--filter", str(module), "--report",
+                    str(report))  # fmt: skip
+    assert result.returncode == 1, result.stdout + result.stderr
+    assert "the handout's main() builds it, block_diag(pose_cov, landmark_cov)" in result.stdout
+    following = result.stdout[
+        result.stdout.index("next divergence (not explained by the first one's causes)") :
+    ]
+    assert following.startswith(
+        "next divergence (not explained by the first one's causes) at event 2 (step 1, update"
+    )
+    assert "cause: only_first_landmark" in following
+    assert re.search(r"\n  28 more event\(s\) diverge", result.stdout)
+    document = json.loads(report.read_text())
+    assert document["first_divergence"]["cause"] == "independent_landmark_init"
+    assert document["next_divergence"]["cause"] == "only_first_landmark"
+    assert document["next_divergence"]["event"] == 2
+    # a correct module has nothing after the handout's initialisation
+    correct = students.write(tmp_path / "c", "correct")
+    result = ekfviz("check", str(DATA / "classic.txt"), "--filter", str(correct))
+    assert "next divergence" not in result.stdout and "more event(s)" not in result.stdout
+
+
+def test_an_integer_array_is_named_by_its_whole_numbers(tmp_path: Path) -> None:
+    module = students.write(tmp_path / "s", "int_landmarks")
+    report = tmp_path / "r.json"
+    result = ekfviz("check", str(DATA / "classic.txt"), "--filter", str(module), "--report",
+                    str(report))  # fmt: skip
+    assert result.returncode == 1, result.stderr
+    first = json.loads(report.read_text())["first_divergence"]
+    assert first["cause"] == "unknown" and first["event"] == 0
+    # landmark 1 of the classic log is at (2.97985, 5.96792): truncated to (2, 5)
+    assert "x[L1.x] = 2 (expected 2.97985), x[L1.y] = 5 (expected 5.96792)" in first["hint"]
+    assert "integer array" in first["hint"] and "make it float" in first["hint"]
+    assert (
+        "Differs: " in first["hint"]
+        and "landmark mean at landmarks 1, 2, 3, 4, ..." in (first["hint"])
+    )
+
+
+def test_the_parts_that_differ_are_listed_with_their_landmarks() -> None:
+    from ekfviz.check.lockstep import differing_blocks, whole_numbers
+    from ekfviz.check.mistakes import State
+
+    x = np.array([1.0, 2.0, 0.5, 3.5, 4.25, -1.5, 2.75])
+    P = np.eye(7) * 0.1
+    expected = State(x, P, np.array([7, 9]))
+    # the filter holds its landmarks in the other order: compared by id
+    got_x = np.array([1.0, 2.0, 0.5, -1.5, 2.75, 3.0, 4.25])
+    got_P = P.copy()
+    got_P[0, 3] = got_P[3, 0] = 0.02  # x with landmark 9's x
+    got = State(got_x, got_P, np.array([9, 7]))
+    assert differing_blocks(expected, got, 1e-6) == (
+        "pose-landmark cross-covariance at landmark 9 (up to 0.02);"
+        " landmark mean at landmark 7 (up to 0.143)"
+    )
+    assert whole_numbers(expected, got, 1e-6) == ["x[L7.x] = 3 (expected 3.5)"]
+    assert differing_blocks(expected, expected, 1e-6) == ""
+    assert differing_blocks(expected, State(x[:5], P[:5, :5], np.array([7])), 1e-6) == ""
+
+
+def test_a_new_landmarks_mean_is_hinted_at_its_initialisation() -> None:
+    from ekfviz.check.lockstep import Difference, Quantity, pattern_hint
+    from ekfviz.check.mistakes import State
+    from ekfviz.core.records import Sighting
+
+    before = State(np.zeros(3), np.eye(3), np.zeros(0, dtype=np.int64))
+    sighting = Sighting(1, np.array([4]), np.array([[0.1, 5.0]]))
+    worst = Difference(Quantity.LANDMARK_MEAN, 4, "x[L4.x]", 4.9, 0.5, 0.8)
+    assert pattern_hint("update", worst, before, sighting).startswith(
+        "the initialisation of a new landmark"
+    )
+    known = State(np.zeros(5), np.eye(5), np.array([4]))
+    assert pattern_hint("update", worst, known, sighting).startswith("the corrected mean")
+
+
+def test_solutions_that_do_not_run_get_the_line_of_their_own_file(tmp_path: Path) -> None:
+    order = students.write(tmp_path / "order", "p_x_order")
+    result = ekfviz("check", str(DATA / "classic.txt"), "--filter", str(order))
+    assert result.returncode == 2
+    (line,) = result.stderr.strip().splitlines()
+    assert "predict returned (P, X), expected (X, P): its first value has shape (15, 15)" in line
+    size = students.write(tmp_path / "size", "q_wrong_size")
+    number = students.source("q_wrong_size").splitlines().index(
+        "    P_pre = G @ P @ G.T + control_cov") + 1  # fmt: skip
+    result = ekfviz("check", str(DATA / "classic.txt"), "--filter", str(size))
+    assert result.returncode == 2
+    (line,) = result.stderr.strip().splitlines()
+    assert line.endswith(
+        f"predict raised ValueError: operands could not be broadcast together with shapes"
+        f" (15,15) (3,3) (at ekf_slam.py:{number} in predict: P_pre = G @ P @ G.T + control_cov)"
+    ), line
+
+
+@pytest.mark.parametrize(
+    ("edit", "expected"),
+    [
+        (("    return X, P\n", "    pass\n"),
+         "update returned None (no return statement?), expected (X, P)"),
+        (("    X, P = X_pre.copy(), P_pre.copy()\n", "    raise NotImplementedError\n"),
+         "update raised NotImplementedError (at ekf_slam.py:{line} in update:"
+         " raise NotImplementedError)"),
+        # numpy >= 1.24's message runs over several lines: one line of it
+        (("np.zeros((2 * k, 1))", "np.zeros((2 * k, 1), dtype=np.float)"),
+         "init_landmarks raised AttributeError: module 'numpy' has no attribute 'float'."
+         " `np.float` was a deprecated alias for the builtin `float`."),
+        # the gain of every landmark from the predicted P, the correction of the current one
+        (("S = H @ P @ H.T + measure_cov\n        K = P @ H.T",
+          "S = H @ P_pre @ H.T + measure_cov\n        K = P_pre @ H.T"),
+         "after update, P is not symmetric (|P - P^T| up to 0.345, 0.319 of its largest"
+         " entry; at most 1e-09): P = (I - K H) P is symmetric only with K = P H^T S^-1 of"
+         " that same P and H: is K made from another P (P_pre inside a loop over the"
+         " landmarks)?"),
+    ],
+)  # fmt: skip
+def test_an_unfinished_update_is_one_line(
+    tmp_path: Path, edit: tuple[str, str], expected: str
+) -> None:
+    text = students.source("correct").replace(*edit)
+    module = tmp_path / "ekf_slam.py"
+    module.write_text(text)
+    line = next((n for n, code in enumerate(text.splitlines(), 1) if edit[1].strip() in code), 0)
+    result = ekfviz("check", str(DATA / "classic.txt"), "--filter", str(module))
+    assert result.returncode == 2
+    (said,) = result.stderr.strip().splitlines()
+    assert expected.format(line=line) in said, said
+
+
+def test_the_parts_of_an_update_that_differ_say_where_to_look() -> None:
+    from ekfviz.check.lockstep import Quantity, _update_hint
+    from ekfviz.check.mistakes import State
+    from ekfviz.core.records import Sighting
+
+    known = State(np.zeros(5), np.eye(5), np.array([4]))
+    sighting = Sighting(2, np.array([4]), np.array([[0.1, 5.0]]))
+    mean = _update_hint({Quantity.POSE_MEAN, Quantity.LANDMARK_MEAN}, known, sighting)
+    assert mean.startswith("only the mean differs: the covariance agrees, so H, S and K do")
+    covariance = _update_hint({Quantity.POSE_COVARIANCE}, known, sighting)
+    assert covariance.startswith("only the covariance differs: the mean agrees")
+    assert _update_hint({Quantity.POSE_MEAN, Quantity.POSE_COVARIANCE}, known, sighting) == ""
+    # a new landmark's parts come from its initialisation: nothing said here
+    new = State(np.zeros(3), np.eye(3), np.zeros(0, dtype=np.int64))
+    assert _update_hint({Quantity.LANDMARK_MEAN}, new, sighting) == ""
+
+
+def test_the_handouts_main_at_import_is_skipped_and_said(tmp_path: Path) -> None:
+    module = tmp_path / "hw2.py"
+    module.write_text(students.source("return_in_loop") + students.MAIN_AT_IMPORT)
+    number = module.read_text().splitlines().index("main()") + 1
+    report = tmp_path / "r.json"
+    result = ekfviz("check", str(DATA / "classic.txt"), "--filter", str(module), "--report",
+                    str(report))  # fmt: skip
+    assert result.returncode == 1, result.stderr
+    assert f"its line {number} calls main() at import (no `if __name__" in result.stderr
+    assert "FileNotFoundError" in result.stderr and "ekfviz skipped it and" in result.stderr
+    assert json.loads(report.read_text())["next_divergence"]["cause"] == "only_first_landmark"
+    # a script: the handout's loop at top level, and a constant after it
+    script = tmp_path / "script.py"
+    loop = 'data_file = open("../data/data.txt")\nfor line in data_file:\n    print(line)\n'
+    script.write_text(students.source("correct") + loop + "SIGMA = 0.1\n")
+    number = script.read_text().splitlines().index('data_file = open("../data/data.txt")') + 1
+    result = ekfviz("check", str(DATA / "classic.txt"), "--filter", str(script))
+    assert result.returncode == 1, result.stderr
+    assert f"its line {number} runs at import" in result.stderr
+    assert f"ekfviz skipped it (and line {number + 1}) and loaded the rest" in result.stderr
+    # an import that fails, or a raise, is the error, in one line
+    for code, said in (("import no_such_module_h14", "raised ModuleNotFoundError: No module"
+                        " named 'no_such_module_h14'"),
+                       ("raise RuntimeError('not finished')", "raised RuntimeError: not"
+                        " finished")):  # fmt: skip
+        broken = tmp_path / "broken.py"
+        broken.write_text(module.read_text() + code + "\n")
+        result = ekfviz("check", str(DATA / "classic.txt"), "--filter", str(broken))
+        assert result.returncode == 2
+        (line,) = result.stderr.strip().splitlines()
+        assert said in line, line
+
+
+def test_grade_of_wild_students_names_each_ones_mistake(tmp_path: Path) -> None:
+    folder = tmp_path / "class"
+    students.write(folder / "ada", "stale_linearisation")
+    (folder / "bob.py").write_text(students.class_based())
+    students.write(folder / "cy", "control_swapped")
+    students.write(folder / "dee", "r_thrice")
+    result = ekfviz("grade", str(folder), "--json")
+    assert result.returncode == 0, result.stderr
+    rows = {row["submission"]: row for row in json.loads(result.stdout)["submissions"]}
+    assert {name: row["status"] for name, row in rows.items()} == {
+        "ada": "diverged", "bob.py": "diverged", "cy": "diverged", "dee": "diverged"
+    }  # fmt: skip
+    # the same causes as a correct module, but divergences of no known cause: said
+    assert set(rows["dee"]["causes"]) == students.MISTAKES["correct"]
+    assert re.fullmatch(
+        r"\d+ divergent event\(s\) of no known cause, the first classic:3"
+        r" event 2 \(update\): .+",
+        rows["dee"]["detail"],
+    ), rows["dee"]
+    assert rows["bob.py"]["detail"] == "" and rows["ada"]["detail"] == ""
+    assert set(rows["ada"]["causes"]) == students.MISTAKES["stale_linearisation"]
+    # the class's methods are the handout's functions: the correct module's verdict
+    assert set(rows["bob.py"]["causes"]) == students.MISTAKES["correct"]
+    assert set(rows["cy"]["causes"]) == students.MISTAKES["control_swapped"]
+
+
+def test_every_pair_of_update_mistakes_re_runs_on_a_line_of_known_and_new() -> None:
+    import itertools
+
+    from ekfviz.check.mistakes import _VARIANTS, INIT_FLAGS, UPDATE_FLAGS, State, update_with
+
+    x = np.array([1.0, 2.0, 0.3, 6.0, 5.0, -2.0, 4.0])
+    before = State(x, np.diag(np.linspace(0.1, 0.7, 7)), np.array([3, 8]))
+    ids = np.array([8, 5, 3])  # known, new, known
+    z = np.array([[2.4, 4.9], [0.2, 7.0], [0.5, 6.0]])
+    R = np.diag([0.01, 0.04])
+    for pair in itertools.combinations(UPDATE_FLAGS + INIT_FLAGS, 2):
+        for variant in _VARIANTS:
+            after = update_with(R, before, ids, z, frozenset(pair), fixed=np.eye(2), **variant)
+            assert sorted(after.ids.tolist()) == [3, 5, 8], pair
+            assert after.P.shape == (9, 9) and np.isfinite(after.P).all(), pair

@@ -24,6 +24,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ekfviz.check.mistakes import (
+    RERUN_ERRORS,
     UNKNOWN,
     Explanation,
     State,
@@ -33,7 +34,7 @@ from ekfviz.check.mistakes import (
 )
 from ekfviz.core.records import Control, EventKind, EventRecord, LogEvent, Sighting
 from ekfviz.core.tables import Cell, Styled, TextTable
-from ekfviz.core.types import IntArray
+from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.filters.ekf import EkfSlam, FilterParams
 from ekfviz.filters.plugged import FilterFactory, Plugged, PluginError
 from ekfviz.models.angles import wrap_angle
@@ -42,6 +43,13 @@ from ekfviz.runner.replay import plugged
 DEFAULT_TOLERANCE = 1e-6
 # the mistakes are re-run (dense algebra) only up to this state dimension
 HYPOTHESIS_MAX_DIM = 400
+# without --all, how many divergent events after the first are re-run to find the next
+# one with a cause of its own (each costs the catalogue's re-runs)
+NEXT_SEARCH_LIMIT = 25
+# how many unexplained updates of a run get the deep search of the catalogue (any three
+# more mistakes at once; after them, the later mistakes one at a time: see
+# mistakes.explain_update); a run's mistakes, once found, are tried at every event
+DEEP_SEARCHES = 3
 
 
 class Quantity(str, enum.Enum):
@@ -152,6 +160,10 @@ class CheckResult:
     :param error: why the filter stopped early (it raised, crashed, timed out), if it did
     :param error_line: the input line of that event
     :param error_kind: as :class:`~ekfviz.filters.worker.WorkerFault`'s kind
+    :param next_divergence: without ``every``, when the first divergence's causes are
+        named: the first later divergence not explained by them alone (a course module's
+        first divergence is the handout's block-diagonal P; the student's own mistake
+        comes after it)
     """
 
     events_checked: int
@@ -168,6 +180,7 @@ class CheckResult:
     error_kind: str = ""
     # a course module's shapes as detected (argument -> "column" or "flat")
     convention: dict[str, str | None] | None = None
+    next_divergence: Divergence | None = None
 
     @property
     def match(self) -> bool:
@@ -178,7 +191,8 @@ class CheckResult:
         """The divergences grouped by kind, quantity and cause, in order of first event."""
         groups: dict[tuple[str, str, str], list[Divergence]] = {}
         for divergence in self.divergences:
-            if not self.every and divergence is not self.first_divergence:
+            shown = (self.first_divergence, self.next_divergence)
+            if not self.every and not any(divergence is d for d in shown):
                 continue
             key = (divergence.kind.value, divergence.worst.quantity.value, divergence.cause)
             groups.setdefault(key, []).append(divergence)
@@ -218,19 +232,14 @@ class CheckResult:
         first = self.first_divergence
         if first is None:
             return lines
-        worst = first.worst
-        landmark = "" if worst.landmark_id is None else f" of landmark {worst.landmark_id}"
-        lines.append((
-            Styled("divergence", "bold red"),
-            Styled(
-                f" at event {first.event} (step {first.step}, {first.kind.value},"
-                f" {name}:{first.line}): the {worst.quantity.value}{landmark} differs\n  worst"
-                f" entry {worst.entry}: expected {worst.expected:.9g}, got {worst.got:.9g}"
-                f" (difference {worst.difference:.3g}, tolerance {tolerance:g})\n  cause:"
-                f" {first.cause}\n  hint: {first.hint}"
-            ),
-        ))  # fmt: skip
-        more = len(self.divergences) - 1
+        lines.append(_divergence_lines("divergence", first, name, tolerance))
+        if self.convention and first.causes == ("independent_landmark_init",):
+            lines.append(Styled(f"  ({_HANDOUT_NOTE})"))
+        following = self.next_divergence
+        if following is not None and not every:
+            title = "next divergence (not explained by the first one's causes)"
+            lines.append(_divergence_lines(title, following, name, tolerance))
+        more = len(self.divergences) - 1 - (following is not None and not every)
         if more and not every:
             lines.append(
                 Styled(f"  {more} more event(s) diverge; --all finds the cause of every one")
@@ -270,6 +279,9 @@ class CheckResult:
             "first_divergence": (
                 None if self.first_divergence is None else self.first_divergence.to_json()
             ),
+            "next_divergence": (
+                None if self.next_divergence is None else self.next_divergence.to_json()
+            ),
             "divergences": [group.to_json() for group in self.groups],
             "causes": self.causes,
             "all": self.every,
@@ -278,6 +290,29 @@ class CheckResult:
             if self.error is None
             else {"message": self.error, "line": self.error_line, "kind": self.error_kind},
         }
+
+
+_HANDOUT_NOTE = (
+    "a course module's P starts as the handout's main() builds it, block_diag(pose_cov,"
+    " landmark_cov), so every one shows this; init_cross_covariance in the module (README)"
+    " fills in the cross-covariances"
+)
+
+
+def _divergence_lines(title: str, divergence: Divergence, name: str, tolerance: float) -> Cell:
+    """One divergent event as the console says it: where, the worst entry, cause, hint."""
+    worst = divergence.worst
+    landmark = "" if worst.landmark_id is None else f" of landmark {worst.landmark_id}"
+    return (
+        Styled(title, "bold red"),
+        Styled(
+            f" at event {divergence.event} (step {divergence.step}, {divergence.kind.value},"
+            f" {name}:{divergence.line}): the {worst.quantity.value}{landmark} differs\n  worst"
+            f" entry {worst.entry}: expected {worst.expected:.9g}, got {worst.got:.9g}"
+            f" (difference {worst.difference:.3g}, tolerance {tolerance:g})\n  cause:"
+            f" {divergence.cause}\n  hint: {divergence.hint}"
+        ),
+    )
 
 
 _SHAPES = {"X": "X (3+2k, 1)", "control": "control (2, 1)", "measure": "measure (2k, 1)"}
@@ -333,6 +368,12 @@ def lockstep(
     divergences: list[Divergence] = []
     found: set[str] = set()
     stopped: tuple[str, int, str] | None = None
+    # without every: the first divergence's causes, and the next one not explained by them
+    first_causes: frozenset[str] | None = None
+    next_at: int | None = None
+    searched = 0
+    # the first updates that nothing explains get the deep search (see explain_update)
+    deep_left = DEEP_SEARCHES
 
     # the prior itself: the filter must start where the parameters say
     prior = EkfSlam(params)
@@ -368,12 +409,23 @@ def lockstep(
         differences.append(0.0 if worst is None else worst.difference)
         if worst is None or worst.difference <= tolerance:
             continue
-        if every or not divergences:
+        searching = first_causes is not None and next_at is None and searched < NEXT_SEARCH_LIMIT
+        if every or not divergences or searching:
             found_now = frozenset(found)
-            explanation = explain(params, before, after, log_event, worst, tolerance, found_now)
+            explanation = explain(params, before, after, log_event, worst, tolerance, found_now,
+                                  deep=deep_left > 0)  # fmt: skip
             found.update(explanation.causes if explanation.known else ())
-            hint = _hint(explanation, kind, worst, before, log_event)
+            if isinstance(log_event, Sighting) and not explanation.causes:
+                deep_left -= 1
+            hint = _hint(explanation, kind, worst, before, log_event, _state(ekf), after,
+                         tolerance)  # fmt: skip
             causes, alternatives = explanation.causes, explanation.alternatives
+            if not every and not divergences and explanation.known:
+                first_causes = frozenset(causes)
+            elif searching:
+                searched += 1
+                if not (explanation.known and first_causes and set(causes) <= first_causes):
+                    next_at = len(divergences)
             divergences.append(
                 Divergence(event, step, log_event.line, kind, worst, hint, causes, alternatives)
             )
@@ -393,6 +445,7 @@ def lockstep(
         error_line=0 if stopped is None else stopped[1],
         error_kind="" if stopped is None else stopped[2],
         convention=getattr(slam.slam, "convention", None) or None,
+        next_divergence=None if next_at is None else divergences[next_at],
     )
 
 
@@ -433,19 +486,7 @@ def compare(expected: State, got: State) -> Difference | None:
         count = float(len(got.ids))
         return Difference(Quantity.LANDMARK_IDS, landmark, what, float(len(expected.ids)),
                           count, math.inf)  # fmt: skip
-    # the filter's state reordered to the reference's landmark order
-    where = {int(i): k for k, i in enumerate(got.ids.tolist())}
-    order = [0, 1, 2]
-    for landmark_id in expected.ids.tolist():
-        k = 3 + 2 * where[int(landmark_id)]
-        order += [k, k + 1]
-    x, P = got.x[order], got.P[np.ix_(order, order)]
-    dx = x - expected.x
-    dx[2] = wrap_angle(float(dx[2]))
-    scale_x = np.maximum(1.0, np.abs(expected.x))
-    scale_P = np.maximum(1.0, np.abs(expected.P))
-    scaled_x = np.abs(dx) / scale_x
-    scaled_P = np.abs(P - expected.P) / scale_P
+    x, P, scaled_x, scaled_P = _scaled(expected, got)
     worst: Difference | None = None
     names = _names(expected.ids)
     for index in np.argsort(-scaled_x)[:1]:
@@ -461,6 +502,82 @@ def compare(expected: State, got: State) -> Difference | None:
                                f"P[{names[i]}, {names[j]}]", float(expected.P[i, j]),
                                float(P[i, j]), float(scaled_P[i, j]))  # fmt: skip
     return worst
+
+
+def _scaled(expected: State, got: State) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """The filter's x and P in the reference's landmark order (the same ids), and their
+    scaled differences from the reference's (the heading's wrapped)."""
+    where = {int(i): k for k, i in enumerate(got.ids.tolist())}
+    order = [0, 1, 2]
+    for landmark_id in expected.ids.tolist():
+        k = 3 + 2 * where[int(landmark_id)]
+        order += [k, k + 1]
+    x, P = got.x[order], got.P[np.ix_(order, order)]
+    dx = x - expected.x
+    dx[2] = wrap_angle(float(dx[2]))
+    scaled_x = np.abs(dx) / np.maximum(1.0, np.abs(expected.x))
+    scaled_P = np.abs(P - expected.P) / np.maximum(1.0, np.abs(expected.P))
+    return x, P, scaled_x, scaled_P
+
+
+def differing_blocks(expected: State, got: State, tolerance: float) -> str:
+    """Every part of the state that differs beyond ``tolerance``: its largest difference
+    and the landmarks it is at (at most four named), e.g. ``pose mean (up to 0.31);
+    landmark mean of landmarks 1, 3 (up to 0.12)``; empty when the ids differ."""
+    worst = _differing(expected, got, tolerance)
+    ids = expected.ids.tolist()
+    parts = []
+    for quantity in Quantity:
+        if quantity not in worst:
+            continue
+        largest, where = worst[quantity]
+        named = sorted(where, key=ids.index)
+        at = ""
+        if named:
+            listed = ", ".join(str(i) for i in named[:4]) + (", ..." if len(named) > 4 else "")
+            at = f" at landmark{'s' if len(named) > 1 else ''} {listed}"
+        parts.append(f"{quantity.value}{at} (up to {largest:.3g})")
+    return "; ".join(parts)
+
+
+def _differing(
+    expected: State, got: State, tolerance: float
+) -> dict[Quantity, tuple[float, set[int]]]:
+    """The parts of the state that differ beyond ``tolerance``: the largest difference of
+    each and the landmarks it is at; empty when the ids differ."""
+    if sorted(expected.ids.tolist()) != sorted(got.ids.tolist()):
+        return {}
+    _, _, scaled_x, scaled_P = _scaled(expected, got)
+    worst: dict[Quantity, tuple[float, set[int]]] = {}
+
+    def note(quantity: Quantity, difference: float, landmarks: Iterable[int | None]) -> None:
+        largest, where = worst.get(quantity, (0.0, set()))
+        where.update(i for i in landmarks if i is not None)
+        worst[quantity] = (max(largest, difference), where)
+
+    for i in np.flatnonzero(scaled_x > tolerance).tolist():
+        quantity = Quantity.POSE_MEAN if i < 3 else Quantity.LANDMARK_MEAN
+        note(quantity, float(scaled_x[i]), [_landmark(expected.ids, i)])
+    rows, columns = np.nonzero(np.triu(scaled_P > tolerance))
+    for i, j in zip(rows.tolist(), columns.tolist(), strict=True):
+        note(_block(i, j), float(scaled_P[i, j]),
+             [_landmark(expected.ids, i), _landmark(expected.ids, j)])  # fmt: skip
+    return worst
+
+
+def whole_numbers(expected: State, got: State, tolerance: float) -> list[str]:
+    """The entries of the filter's x that differ and are whole numbers where the
+    reference's are not, less than 1 away (truncated): what an integer array does."""
+    if sorted(expected.ids.tolist()) != sorted(got.ids.tolist()):
+        return []
+    x, _, scaled_x, _ = _scaled(expected, got)
+    names = _names(expected.ids)
+    found = []
+    for i in np.flatnonzero(scaled_x > tolerance).tolist():
+        value, reference = float(x[i]), float(expected.x[i])
+        if value == round(value) and reference != round(reference) and abs(value - reference) < 1:
+            found.append(f"x[{names[i]}] = {value:g} (expected {reference:.6g})")
+    return found
 
 
 def _block(i: int, j: int) -> Quantity:
@@ -516,9 +633,14 @@ def explain(
     worst: Difference,
     tolerance: float,
     found: frozenset[str] = frozenset(),
+    *,
+    deep: bool = False,
 ) -> Explanation:
     """The causes of a divergence at ``event`` (see :mod:`ekfviz.check.mistakes`), combined
-    with the causes already ``found``; none where the state is too large to re-run."""
+    with the causes already ``found``; none where the state is too large to re-run.
+
+    :param deep: an update's search tries three more mistakes at once of all the catalogue
+    """
     if worst.quantity is Quantity.LANDMARK_IDS or len(before.x) > HYPOTHESIS_MAX_DIM:
         return Explanation(())
     divergence = worst.difference if math.isfinite(worst.difference) else 0.0
@@ -530,8 +652,9 @@ def explain(
         assert isinstance(event, Sighting)
         ids = np.asarray(event.ids, dtype=np.int64)
         z = np.asarray(event.z, dtype=np.float64).reshape(-1, 2)
-        return explain_update(params.R, before, after, ids, z, found, tolerance, divergence)
-    except (ValueError, np.linalg.LinAlgError, ZeroDivisionError):
+        return explain_update(params.R, before, after, ids, z, found, tolerance, divergence,
+                              deep=deep)  # fmt: skip
+    except RERUN_ERRORS:
         return Explanation(())
 
 
@@ -541,8 +664,12 @@ def _hint(
     worst: Difference,
     before: State,
     event: LogEvent,
+    expected: State | None = None,
+    after: State | None = None,
+    tolerance: float = DEFAULT_TOLERANCE,
 ) -> str:
-    """What to tell the user: the causes found, else where the quantity comes from."""
+    """What to tell the user: the causes found, else where the quantity comes from (and,
+    given the reference's and the filter's results, which parts of the state differ)."""
     if explanation.alternatives:
         options = " OR ".join("+".join(option) for option in explanation.alternatives)
         return (
@@ -552,8 +679,47 @@ def _hint(
     if explanation.causes:
         text = describe(explanation.causes)
         return f"{text} ({explanation.detail})" if explanation.detail else text
-    return pattern_hint("predict" if isinstance(event, Control) else "update", worst, before,
+    hint = pattern_hint("predict" if isinstance(event, Control) else "update", worst, before,
                         event)  # fmt: skip
+    if expected is None or after is None:
+        return hint
+    truncated = whole_numbers(expected, after, tolerance)
+    if truncated:
+        listed = ", ".join(truncated[:3]) + (", ..." if len(truncated) > 3 else "")
+        hint = (
+            f"{listed}: whole numbers where the reference's are not, as an integer array"
+            " (np.zeros(..., dtype=int), np.array([[1, 0], ...]) of ints) truncates what is"
+            f" stored in it: make it float. Otherwise: {hint}"
+        )
+    elif isinstance(event, Sighting) and worst.quantity is not Quantity.LANDMARK_IDS:
+        hint = _update_hint(set(_differing(expected, after, tolerance)), before, event) or hint
+    blocks = differing_blocks(expected, after, tolerance)
+    return f"{hint}. Differs: {blocks}" if blocks else hint
+
+
+_MEANS = frozenset({Quantity.POSE_MEAN, Quantity.LANDMARK_MEAN})
+
+
+def _update_hint(differ: set[Quantity], before: State, event: Sighting) -> str:
+    """What an update's differing parts say of where its mistake is: only the mean (H, S
+    and K agree, as the covariance does: the innovation), only the covariance (the mean,
+    hence K (z - h(x)), agrees: the covariance's own formula); empty otherwise, or when
+    the update initialises a landmark (whose mean and covariance come from elsewhere)."""
+    if not differ or any(int(i) not in before.ids.tolist() for i in event.ids):
+        return ""
+    if differ <= _MEANS:
+        return (
+            "only the mean differs: the covariance agrees, so H, S and K do; look at the"
+            " innovation z - h(x): h = (wrap(atan2(dy, dx) - theta), sqrt(dx^2 + dy^2)),"
+            " bearing first, its bearing wrapped to [-pi, pi), and at x + K (z - h(x))"
+        )
+    if not differ & _MEANS:
+        return (
+            "only the covariance differs: the mean agrees, so K (z - h(x)) does; look at"
+            " the covariance's own update: P = (I - K H) P, or (I - K H) P (I - K H)^T +"
+            " K R K^T (Joseph's form), with the same K and H as the mean's"
+        )
+    return ""
 
 
 def pattern_hint(kind: str, worst: Difference, before: State, event: LogEvent) -> str:
@@ -566,11 +732,7 @@ def pattern_hint(kind: str, worst: Difference, before: State, event: LogEvent) -
     pattern = _PATTERN_HINTS.get((kind, worst.quantity))
     if pattern is not None:
         return pattern
-    if worst.quantity in (Quantity.POSE_MEAN, Quantity.LANDMARK_MEAN):
-        return (
-            "the corrected mean: the innovation z - h(x) (bearing first, wrapped), the"
-            " measurement Jacobian H and the gain K = P H^T S^-1"
-        )
+    # a new landmark's mean or covariance comes from its initialisation, not a correction
     newly = (
         isinstance(event, Sighting)
         and worst.landmark_id is not None
@@ -579,7 +741,13 @@ def pattern_hint(kind: str, worst: Difference, before: State, event: LogEvent) -
     if newly:
         return (
             "the initialisation of a new landmark: l = pose + r (cos(theta + beta),"
-            " sin(theta + beta)), P_ll = J_p P_pp J_p^T + J_z R J_z^T, P_lx = J_p P_px"
+            " sin(theta + beta)) with (beta, r) the measurement (bearing first),"
+            " P_ll = J_p P_pp J_p^T + J_z R J_z^T, P_lx = J_p P_px"
+        )
+    if worst.quantity in (Quantity.POSE_MEAN, Quantity.LANDMARK_MEAN):
+        return (
+            "the corrected mean: the innovation z - h(x) (bearing first, wrapped), the"
+            " measurement Jacobian H and the gain K = P H^T S^-1"
         )
     return (
         "the covariance update: P - K S K^T (or Joseph's form) with S = H P H^T + R and"

@@ -27,8 +27,11 @@ annotations, no ``zip(strict=...)``, no ``match``).
 
 from __future__ import annotations
 
+import ast
+import builtins
 import importlib
 import importlib.abc
+import importlib.machinery
 import importlib.util
 import io
 import json
@@ -277,12 +280,18 @@ class CourseModule:
     def _checked(self, function: str, result: Any, n: int, x_column: bool) -> Tuple[Any, Any]:
         """X and P as returned by ``function``, their shapes and values checked."""
         if not isinstance(result, (tuple, list)) or len(result) != 2:
+            what = "None (no return statement?)" if result is None else _shape(result)
             raise FilterFault(
                 "%s returned %s, expected (X, P): the state (%d, 1) and its covariance (%d, %d)"
-                % (function, _shape(result), n, n, n)
+                % (function, what, n, n, n)
             )
         X = _floats(result[0], function, "X")
         P = _floats(result[1], function, "P")
+        if X.shape == (n, n) and P.shape in ((n, 1), (n,)):
+            raise FilterFault(
+                "%s returned (P, X), expected (X, P): its first value has shape %s, its"
+                " second %s" % (function, X.shape, P.shape)
+            )
         if X.shape not in ((n, 1), (n,)):
             raise FilterFault(
                 "%s returned X of shape %s, expected (%d, 1) or (%d,) (3 + 2k with k = %d)"
@@ -385,6 +394,76 @@ class UserError(Exception):
         self.trace = trace
 
 
+def _said(error: BaseException) -> str:
+    """``": message"`` of an exception on one line (numpy's run over several), at most
+    300 characters; nothing when it has none."""
+    text = " ".join(str(error).split())
+    if len(text) > 300:
+        text = text[:297] + "..."
+    return ": " + text if text else ""
+
+
+# the top-level statements of a course module that may be skipped when they raise at
+# import: a script's work (calls, loops, assignments); never an import, a definition or a
+# raise, which are the module's own and its error then
+_SKIPPABLE = (
+    ast.Expr, ast.Assign, ast.AugAssign, ast.AnnAssign, ast.For, ast.While, ast.With, ast.If,
+    ast.Try,
+)  # fmt: skip
+
+
+def _top_level_line(error: BaseException, path: str) -> Optional[Tuple[int, str]]:
+    """The line of the module at ``path``'s top-level code from which ``error`` was
+    raised, and the name of the module's function it called there (empty when it raised
+    there itself); None when the error did not come from its top-level code."""
+    frames = traceback.extract_tb(error.__traceback__)
+    target = os.path.abspath(path)
+    for index, frame in enumerate(frames):
+        if frame.name != "<module>" or os.path.abspath(frame.filename) != target:
+            continue
+        if not frame.lineno:
+            return None
+        callee = frames[index + 1] if index + 1 < len(frames) else None
+        inside = callee is not None and os.path.abspath(callee.filename) == target
+        return frame.lineno, callee.name if inside and callee is not None else ""
+    return None
+
+
+def _user_line(error: BaseException) -> str:
+    """Where in the user's code ``error`` was raised: the innermost frame that is neither
+    this file's nor of an installed package or the standard library (a student needs the
+    line of their own file, not numpy's or matplotlib's), as `` (at ekf_slam.py:47 in
+    update: K = ...)``; empty when there is none."""
+    import sysconfig
+
+    installed = sysconfig.get_paths()
+    skip = tuple(
+        os.path.abspath(installed[key]) + os.sep
+        for key in ("stdlib", "platstdlib", "purelib", "platlib")
+        if key in installed
+    ) + (os.path.dirname(np.__file__), os.path.abspath(__file__))
+    try:
+        frames = traceback.extract_tb(error.__traceback__)
+    except Exception:
+        return ""
+    for frame in reversed(frames):
+        if frame.filename.startswith("<"):
+            continue
+        filename = os.path.abspath(frame.filename)
+        if filename.startswith(skip):
+            continue
+        code = (frame.line or "").strip()
+        if len(code) > 80:
+            code = code[:77] + "..."
+        return " (at %s:%d in %s%s)" % (
+            os.path.basename(filename),
+            frame.lineno or 0,
+            frame.name,
+            ": " + code if code else "",
+        )
+    return ""
+
+
 # -- matplotlib: no windows --------------------------------------------------------------------
 
 
@@ -425,10 +504,22 @@ class _StubModule(types.ModuleType):
         return _NOTHING
 
 
+def _no_waiting(module: Any) -> None:
+    """Nothing of matplotlib waits for a user who is not there: the event loop of every
+    canvas (``waitforbuttonpress``, ``ginput``: the handout's plots wait for a key
+    after every step) returns at once, and pyplot's ``pause`` and ``show`` do nothing."""
+    if module.__name__ == "matplotlib.backend_bases":
+        module.FigureCanvasBase.start_event_loop = lambda self, timeout=0: None
+    elif module.__name__ == "matplotlib.pyplot":
+        module.pause = lambda interval=0: None
+        module.show = lambda *args, **kwargs: None
+
+
 class _Matplotlib(importlib.abc.MetaPathFinder, importlib.abc.Loader):
     """matplotlib without windows: the Agg backend, whatever ``matplotlib.use`` asks for
-    (a filter's module runs here for its functions, never for its plots); where
-    matplotlib is not installed, modules that do nothing, so that its import works."""
+    (a filter's module runs here for its functions, never for its plots), and nothing
+    that waits (:func:`_no_waiting`); where matplotlib is not installed, modules that do
+    nothing, so that its import works."""
 
     def __init__(self) -> None:
         self.stubbed = False
@@ -449,6 +540,11 @@ class _Matplotlib(importlib.abc.MetaPathFinder, importlib.abc.Loader):
             self.stubbed = True
         if self.stubbed:
             return importlib.util.spec_from_loader(name, self, is_package=True)
+        if name in ("matplotlib.backend_bases", "matplotlib.pyplot"):
+            spec = importlib.machinery.PathFinder.find_spec(name, path)
+            if spec is not None and spec.loader is not None:
+                spec.loader = _PatchingLoader(spec.loader, _no_waiting)
+                return spec
         return None
 
     def create_module(self, spec: Any) -> Any:
@@ -461,14 +557,21 @@ class _Matplotlib(importlib.abc.MetaPathFinder, importlib.abc.Loader):
 
 
 class _PatchingLoader(importlib.abc.Loader):
-    def __init__(self, real: Any) -> None:
+    """A module's own loader, then ``patch`` on the module (by default matplotlib's:
+    ``use`` always Agg)."""
+
+    def __init__(self, real: Any, patch: Optional[Callable[[Any], None]] = None) -> None:
         self.real = real
+        self.patch = patch
 
     def create_module(self, spec: Any) -> Any:
         return self.real.create_module(spec)
 
     def exec_module(self, module: Any) -> None:
         self.real.exec_module(module)
+        if self.patch is not None:
+            self.patch(module)
+            return
         original = module.use
 
         def use(backend: Any, *args: Any, **kwargs: Any) -> None:
@@ -533,7 +636,8 @@ class Worker:
             "ok": False,
             "kind": "memory" if isinstance(error, MemoryError) else "raised",
             "type": type(error).__name__,
-            "message": "%s raised %s: %s" % (where, type(error).__name__, error),
+            "message": "%s raised %s%s%s"
+            % (where, type(error).__name__, _said(error), _user_line(error)),
             "traceback": trace,
         }
 
@@ -613,7 +717,12 @@ class Worker:
             ) from None
         except BaseException as error:
             trace = traceback.format_exc()
-            raise UserError("importing %s" % (path or module_name), error, trace) from None
+            # a course module's (not a class's): a student's script, not a developer's module
+            course = path is not None and not self.target
+            line = _top_level_line(error, str(path)) if course else None
+            if line is None:
+                raise UserError("importing %s" % (path or module_name), error, trace) from None
+            module = self.tolerant(str(path), name, line, error)
         self.module = module
         where = path or module_name
         if self.target:
@@ -622,6 +731,11 @@ class Worker:
                 raise FilterFault("%s has no class %s" % (where, self.target))
             return {"style": "class", "capabilities": self.capabilities(found)}
         missing = [f for f in COURSE_FUNCTIONS if not callable(getattr(module, f, None))]
+        if missing:
+            instance = self.course_class(module, str(where))
+            if instance is not None:
+                self.module = instance
+                missing = []
         if missing:
             classes = sorted(
                 n
@@ -644,6 +758,75 @@ class Worker:
                 "poses": False,
             },
         }
+
+    def tolerant(self, path: str, name: str, line: Tuple[int, str], error: BaseException) -> Any:
+        """The module at ``path`` loaded again one top-level statement at a time, without
+        those that raise: its top-level code ran at import (the handout's ``main()`` left
+        without its ``if __name__ == "__main__":`` guard, a script's loop over the data
+        file) and raised ``error`` at ``line`` (the line, and the module's function it
+        called there, if any). Said on the filter's output; an import that fails is the
+        error then."""
+        import __future__
+
+        with open(path, "rb") as handle:
+            tree = ast.parse(handle.read(), path)
+        module = types.ModuleType(name)
+        module.__file__ = path
+        sys.modules[name] = module
+        flags = 0
+        skipped: List[int] = []
+        for statement in tree.body:
+            if isinstance(statement, ast.ImportFrom) and statement.module == "__future__":
+                for alias in statement.names:
+                    flags |= getattr(__future__, alias.name).compiler_flag
+            body = ast.Module(body=[statement], type_ignores=[])
+            code = compile(body, path, "exec", flags=flags, dont_inherit=True)
+            try:
+                exec(code, module.__dict__)
+            except (SystemExit, KeyboardInterrupt):
+                raise
+            except BaseException as again:
+                if not isinstance(statement, _SKIPPABLE):  # an import, a def, a raise
+                    trace = traceback.format_exc()
+                    raise UserError("importing %s" % path, again, trace) from None
+                skipped.append(statement.lineno)
+        number, function = line
+        what = "calls %s() at import" % function if function else "runs at import"
+        others = [n for n in skipped if n != number]
+        also = ""
+        if others:
+            also = " (and line%s %s)" % ("s" * (len(others) > 1), ", ".join(map(str, others)))
+        print(
+            "ekfviz: importing %s raised %s%s%s; its line %d %s (no `if __name__ =="
+            ' "__main__":` guard): ekfviz skipped it%s and loaded the rest (put it under'
+            " the guard)"
+            % (path, type(error).__name__, _said(error), _user_line(error), number, what, also),
+            file=sys.stderr,
+        )
+        return module
+
+    def course_class(self, module: Any, where: str) -> Any:
+        """An instance of the module's class of the handout's functions as methods
+        (``init_landmarks``, ``predict``, ``update``), made without arguments; None when
+        the module has no such class. Raises when it has one that cannot be made."""
+        classes = [
+            value
+            for value in vars(module).values()
+            if isinstance(value, type)
+            and getattr(value, "__module__", None) == module.__name__
+            and all(callable(getattr(value, f, None)) for f in COURSE_FUNCTIONS)
+        ]
+        if len(classes) != 1:
+            return None
+        cls = classes[0]
+        try:
+            return cls()
+        except Exception as error:
+            raise FilterFault(
+                "%s has the handout's functions as methods of class %s, which cannot be"
+                " made without arguments (%s: %s): give it defaults, or write the functions"
+                " at module level" % (where, cls.__name__, type(error).__name__, error)
+            ) from None
 
     def capabilities(self, cls: Any) -> Dict[str, Any]:
         import inspect
@@ -724,6 +907,14 @@ def _array_of(value: Any, name: str) -> Any:
     return array
 
 
+def _no_input(prompt: Any = "") -> str:
+    """``input()`` answered at once with an empty line, its prompt printed: nobody is
+    there to type (a student's pause between steps would otherwise end the run with
+    EOFError)."""
+    print(prompt)
+    return ""
+
+
 def _die_with_parent() -> None:
     """Ask Linux to end this process when ekfviz ends (a hung filter left no orphan)."""
     try:
@@ -755,6 +946,7 @@ def main() -> None:
     os.close(null)
     os.dup2(2, 1)  # what the filter prints goes where ekfviz captures it
     sys.stdin = open(os.devnull)  # noqa: SIM115 (for the whole life of the process)
+    builtins.input = _no_input
     sys.stdout = io.TextIOWrapper(os.fdopen(1, "wb", closefd=False), line_buffering=True)
     Worker(commands, answers).serve()
 

@@ -231,8 +231,17 @@ class Plugged:
             raise PluginError(
                 f"{where} reading x, P and landmark_ids failed ({type(error).__name__}: {error})"
             ) from error
-        x, P = check_state(x, P, ids, where)
+        x, P = check_state(x, P, ids, where, _ASYMMETRY_HINTS.get(after, ""))
         return x, P, ids
+
+
+# where an asymmetric P of a predict or an update comes from, in students' code
+_ASYMMETRY_HINTS = {
+    "update": "P = (I - K H) P is symmetric only with K = P H^T S^-1 of that same P and H:"
+    " is K made from another P (P_pre inside a loop over the landmarks)?",
+    "predict": "G P G^T + Q is symmetric when Q is: is the noise added not symmetric, or P"
+    " multiplied by G on one side only?",
+}
 
 
 def _prefixed(error: PluginError, name: str) -> tuple[object, ...]:
@@ -269,11 +278,12 @@ def _with_own_noise(slam: object, name: str, params: FilterParams) -> tuple[Filt
 
 
 def check_state(
-    x: FloatArray, P: FloatArray, ids: IntArray, where: str
+    x: FloatArray, P: FloatArray, ids: IntArray, where: str, asymmetry_hint: str = ""
 ) -> tuple[FloatArray, FloatArray]:
     """Refuse a state that is not one: wrong shapes, non-finite, P not symmetric, ids off.
 
     :param where: how the message starts (which filter, after what)
+    :param asymmetry_hint: said after the message of an asymmetric P
     :return: x and P, P made exactly symmetric (its rounding is not the filter's fault)
     :raises PluginError: naming the first problem found
     """
@@ -298,6 +308,7 @@ def check_state(
         raise PluginError(
             f"{where} P is not symmetric (|P - P^T| up to {asymmetry:.3g},"
             f" {asymmetry / scale:.3g} of its largest entry; at most {SYMMETRY_TOLERANCE:g})"
+            + (f": {asymmetry_hint}" if asymmetry_hint else "")
         )
     return x, 0.5 * (P + P.T) if asymmetry else P
 

@@ -54,7 +54,9 @@ class GradeRow:
     """One submission's result.
 
     :param first: the first divergence, ``LOG:LINE event E (kind): quantity``
-    :param detail: why it failed, for ``error``, ``timeout``, ``memory``, ``crashed``
+    :param detail: why it failed, for ``error``, ``timeout``, ``memory``, ``crashed``; for
+        ``diverged``, how many divergent events no known mistake reproduces and the first
+        (a correct module and one of an unknown mistake have the same causes)
     """
 
     submission: str
@@ -67,7 +69,10 @@ class GradeRow:
 
     def cells(self) -> tuple[Styled, ...]:
         """The row in the table of grades (no markup read in a submission's name)."""
-        texts = (self.submission, self.status, ", ".join(self.causes), self.first or self.detail,
+        # a failure's reason before its first divergence, which says less
+        failed = self.status not in ("match", "diverged") and self.detail
+        said = self.detail if failed else "; ".join(t for t in (self.first, self.detail) if t)
+        texts = (self.submission, self.status, ", ".join(self.causes), said,
                  f"{self.seconds:.1f}")  # fmt: skip
         return tuple(Styled(text) for text in texts)
 
@@ -132,13 +137,14 @@ def _defines_filter(path: Path) -> bool:
 
 
 def spec_text(module: Path) -> str:
-    """``--filter`` for a module: itself (a course module of functions) unless it has no
-    ``init_landmarks`` and one filter class, then ``PATH.py:Class``."""
+    """``--filter`` for a module: itself (a course module of functions, or of a class
+    whose methods are the handout's functions) unless it has no ``init_landmarks`` and
+    one filter class, then ``PATH.py:Class``."""
     try:
         text = module.read_text(errors="replace")
     except OSError:
         return str(module)
-    if re.search(r"^def init_landmarks\(", text, re.M):
+    if re.search(r"^\s*def init_landmarks\(", text, re.M):
         return str(module)
     classes = re.findall(r"^class (\w+)\b", text, re.M)
     with_predict = [c for c in classes if re.search(rf"class {c}\b[\s\S]*?def predict\(", text)]
@@ -188,6 +194,12 @@ def grade_one(task: GradeTask) -> GradeRow:
                 break
             for cause in result.causes:
                 causes.setdefault(cause, None)
+            unknown = [group for group in result.groups if group.cause == "unknown"]
+            if unknown and not detail:
+                u = min(unknown, key=lambda group: group.first.event).first
+                detail = (f"{sum(g.count for g in unknown)} divergent event(s) of no known"
+                          f" cause, the first {log.stem}:{u.line} event {u.event}"
+                          f" ({u.kind.value}): {u.worst.quantity.value}")  # fmt: skip
             if result.first_divergence is not None and not first:
                 d = result.first_divergence
                 first = (f"{log.stem}:{d.line} event {d.event} ({d.kind.value}):"
