@@ -37,7 +37,7 @@ from ekfviz.core.truth import GroundTruth
 from ekfviz.evaluation.errors import Evaluation
 from ekfviz.filters.ekf import HAVE_KERNEL
 from ekfviz.io.errors import InputError
-from ekfviz.io.paths import OutputPathError, check_output_path, unused_path
+from ekfviz.io.paths import OutputPathError, check_output_path, temporary_prefix, unused_path
 from ekfviz.models.range_bearing import RangeBearing
 from ekfviz.viz import style
 from ekfviz.viz.flush import flush_interruptibly
@@ -763,7 +763,7 @@ def temporary_beside(target: Path) -> Path:
     file of a run that died (see :func:`remove_stale_parts`) from one being written.
     """
     remove_stale_parts(target)
-    return target.with_name(f".{target.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.part")
+    return target.with_name(f"{temporary_prefix(target)}{os.getpid()}.{uuid.uuid4().hex[:8]}.part")
 
 
 def remove_stale_parts(target: Path) -> list[Path]:
@@ -773,7 +773,7 @@ def remove_stale_parts(target: Path) -> list[Path]:
     :return: the files removed
     """
     removed: list[Path] = []
-    prefix = f".{target.name}."
+    prefix = temporary_prefix(target)
     try:
         names = [entry.name for entry in os.scandir(target.parent or Path("."))]
     except OSError:
@@ -829,7 +829,7 @@ def _commit_or_remove(temporary: Path, target: Path, recording: Recording | None
 
 def _describe(rec: rr.RecordingStream, info: RunInfo) -> None:
     """Recording name and properties, the run information and the input, all static."""
-    rec.send_recording_name(info.name)
+    rec.send_recording_name(_utf8(info.name))
     values: dict[str, str | int | bool | None] = {
         "version": info.version,
         "kind": info.kind,
@@ -844,6 +844,7 @@ def _describe(rec: rr.RecordingStream, info: RunInfo) -> None:
         "files_sha256": _json(info.file_digests) if info.file_digests else None,
         "compiled_kernel": HAVE_KERNEL,  # numbers differ from numpy's by round-off only
     }
+    values = {k: _utf8(v) if isinstance(v, str) else v for k, v in values.items()}
     rec.send_property("ekfviz", _any_values(values))
     if info.parameters:
         rec.send_property(
@@ -851,7 +852,7 @@ def _describe(rec: rr.RecordingStream, info: RunInfo) -> None:
         )
     rec.log(
         style.RUN_INFO,
-        rr.TextDocument(info.markdown(), media_type=rr.MediaType.MARKDOWN),
+        rr.TextDocument(_utf8(info.markdown()), media_type=rr.MediaType.MARKDOWN),
         static=True,
     )
     if info.input_text is not None:
@@ -865,6 +866,12 @@ def _describe(rec: rr.RecordingStream, info: RunInfo) -> None:
             ),
             static=True,
         )
+
+
+def _utf8(text: str) -> str:
+    """``text`` as UTF-8 can hold it: the bytes of a file name that are not UTF-8 (which
+    Python keeps as lone surrogates, and Rerun would refuse with a warning) as U+FFFD."""
+    return text.encode("utf-8", "surrogatepass").decode("utf-8", "replace")
 
 
 def _any_values(values: Mapping[str, ComponentValueLike | None]) -> rr.AnyValues:
