@@ -406,3 +406,43 @@ def test_a_loop_at_import_or_construction_is_bounded_by_the_filter_timeout(
             factory.close()
     assert raised.value.kind == "timeout"
     assert np.isclose(worker.load_timeout(WorkerOptions(timeout_s=30.0)), 30.0)
+
+
+def test_filter_timeout_nan_is_refused_and_inf_is_no_bound(tmp_path: Path) -> None:
+    spec = f"{TEXTBOOK}:Textbook"
+    result = _replay_with(tmp_path, spec, "--filter-timeout", "nan")
+    assert result.returncode == 2
+    one_error_line(result.stderr, "--filter-timeout nan: expected a number of seconds")
+    result = _replay_with(tmp_path, spec, "--filter-timeout", "inf", "--filter-memory", "10" * 9)
+    assert result.returncode == 0, result.stderr  # (select() overflowed; setrlimit too)
+    assert result.stderr == ""
+
+
+@pytest.mark.parametrize("program", ["cat", "yes"])
+def test_an_interpreter_that_is_no_python_is_one_line_at_once(tmp_path: Path, program: str) -> None:
+    """``yes`` answered four bytes read as a length of 2 GB, which ekfviz allocated
+    and then failed on as JSON (a traceback)."""
+    import shutil
+
+    found = shutil.which(program)
+    if found is None:
+        pytest.skip(f"no {program} here")
+    result = _replay_with(tmp_path, f"{TEXTBOOK}:Textbook", "--python", found)
+    assert result.returncode == 2
+    # (cat may first say that it has no file '{}', yes answers at once)
+    one_error_line(result.stderr, "the filter's worker did not start")
+
+
+def test_grade_does_not_write_its_report_over_a_submission(tmp_path: Path) -> None:
+    folder = tmp_path / "class"
+    folder.mkdir()
+    submission = folder / "alice.py"
+    submission.write_text("x = 1\n")
+    (folder / "loop.py").symlink_to("loop.py")  # a loop of links: a row, not a traceback
+    result = runner.invoke(app, ["grade", str(folder), "--report", str(submission)])
+    assert result.exit_code == 2
+    one_error_line(result.output, f"--report {submission}: is the input")
+    assert submission.read_text() == "x = 1\n"
+    result = runner.invoke(app, ["grade", str(folder), "--timeout", "nan"])
+    assert result.exit_code == 2
+    one_error_line(result.output, "--timeout nan: expected a number of seconds")

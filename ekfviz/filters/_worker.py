@@ -822,7 +822,14 @@ def main() -> None:
     if memory:
         import resource
 
-        resource.setrlimit(resource.RLIMIT_AS, (int(memory), int(memory)))
+        # (soft, hard) both, so that the filter cannot raise it; a limit over what the
+        # system takes (more than a C long, or above the hard limit) is the most it takes
+        hard = resource.getrlimit(resource.RLIMIT_AS)[1]
+        limit = int(memory) if hard == resource.RLIM_INFINITY else min(int(memory), hard)
+        try:
+            resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+        except (ValueError, OverflowError):
+            pass  # larger than any address space: no limit to set
     commands = os.fdopen(os.dup(0), "rb")
     answers = os.fdopen(os.dup(1), "wb")
     null = os.open(os.devnull, os.O_RDONLY)

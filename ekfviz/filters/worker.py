@@ -16,6 +16,7 @@ from __future__ import annotations
 import atexit
 import contextlib
 import json
+import math
 import os
 import select
 import signal
@@ -50,6 +51,9 @@ MIN_LOAD_TIMEOUT_S = 10.0
 # what the filter may print before ekfviz stops echoing it (it is still drained)
 ECHO_LIMIT_BYTES = 1 << 20
 MIN_NUMPY = (1, 17)
+# the longest JSON header of an answer (a state's are a few hundred bytes): four bytes of
+# anything else read as a length must not make ekfviz wait for, or allocate, gigabytes
+MAX_HEADER_BYTES = 1 << 24
 
 
 class WorkerFault(PluginError):
@@ -165,6 +169,8 @@ class WorkerProcess:
             _widen_pipe(stream.fileno())
         self._commands = self.process.stdin
         self._answers = self.process.stdout.fileno()
+        self._echo_lock = threading.Lock()
+        self._held: list[tuple[str, int]] | None = []  # (line, bytes) until it started
         self._reader = threading.Thread(
             target=self._drain, args=(self.process.stderr,), daemon=True
         )
@@ -189,19 +195,40 @@ class WorkerProcess:
                 f"--python {python}: numpy {self.numpy_version} is too old, expected >= 1.17",
                 "start",
             )
+        self._started()
 
     # -- output -------------------------------------------------------------------------
 
     def _drain(self, stream: Any) -> None:
         for raw in iter(stream.readline, b""):
-            self.output.total_bytes += len(raw)
             line = raw.decode("utf-8", "replace").rstrip("\n")
-            self.output.lines.append(line)
-            if self.options.echo:
-                if self.output.total_bytes <= ECHO_LIMIT_BYTES:
-                    sys.stderr.write(f"{self.label} | {line}\n")
-                elif self.output.total_bytes - len(raw) <= ECHO_LIMIT_BYTES:
-                    sys.stderr.write(f"{self.label} | ... (its further output is not shown)\n")
+            with self._echo_lock:
+                self.output.total_bytes += len(raw)
+                self.output.lines.append(line)
+                if self._held is not None:
+                    self._held.append((line, len(raw)))
+                else:
+                    self._echo(line, len(raw), self.output.total_bytes)
+
+    def _echo(self, line: str, size: int, total: int) -> None:
+        """Echo one line the worker printed (``total``: bytes printed up to its end)."""
+        if not self.options.echo:
+            return
+        if total <= ECHO_LIMIT_BYTES:
+            sys.stderr.write(f"{self.label} | {line}\n")
+        elif total - size <= ECHO_LIMIT_BYTES:
+            sys.stderr.write(f"{self.label} | ... (its further output is not shown)\n")
+
+    def _started(self) -> None:
+        """The worker runs: echo what it printed while starting, and from now on as it
+        comes. (Until then it is only kept: a worker that does not start is said in one
+        line, its last output in it, not with that output echoed before.)"""
+        with self._echo_lock:
+            held, self._held = self._held or [], None
+            total = 0
+            for line, size in held:
+                total += size
+                self._echo(line, size, total)
 
     # -- requests -------------------------------------------------------------------------
 
@@ -225,6 +252,8 @@ class WorkerProcess:
         if self.options.deadline is not None:
             left = max(0.0, self.options.deadline - time.time())
             timeout = left if timeout is None else min(timeout, left)
+        if timeout is not None and not math.isfinite(timeout):  # inf: no bound
+            timeout = None
         if self.process.poll() is not None:
             raise self._died(what)
         contiguous = [np.ascontiguousarray(a) for a in arrays]
@@ -241,12 +270,19 @@ class WorkerProcess:
         deadline = None if timeout is None else time.monotonic() + timeout
         bound = (what, timeout, limit_name)
         (size,) = struct.unpack("<I", self._read(4, deadline, bound))
-        answer = json.loads(self._read(size, deadline, bound))
+        if size > MAX_HEADER_BYTES:
+            raise self._garbled(what)
+        try:
+            answer = json.loads(self._read(size, deadline, bound))
+            metas = answer.get("arrays", [])
+            layouts = [(np.dtype(m["dtype"]), tuple(int(v) for v in m["shape"])) for m in metas]
+        except (ValueError, TypeError, KeyError, AttributeError):  # JSON, UTF-8, dtype, shape
+            raise self._garbled(what) from None
         received = []
-        for meta in answer.get("arrays", []):
-            dtype = np.dtype(meta["dtype"])
-            shape = tuple(int(v) for v in meta["shape"])
+        for dtype, shape in layouts:
             count = int(np.prod(shape)) if shape else 1
+            if count < 0 or dtype.hasobject:
+                raise self._garbled(what)
             buffer = self._read(count * dtype.itemsize, deadline, bound)
             received.append(np.frombuffer(buffer, dtype=dtype).reshape(shape))
         if not answer.get("ok"):
@@ -295,6 +331,16 @@ class WorkerProcess:
                 raise self._died(what)
             got += chunk
         return buffer
+
+    def _garbled(self, what: str) -> WorkerFault:
+        """The worker's answer is not ekfviz's protocol: it is stopped."""
+        self.kill()
+        return WorkerFault(
+            f"the filter's worker answered {what} with bytes that are not ekfviz's protocol"
+            " (--python is no Python interpreter, or the filter wrote to the worker's own"
+            " channel); the filter was stopped",
+            "crashed",
+        )
 
     def _died(self, what: str) -> WorkerFault:
         try:
