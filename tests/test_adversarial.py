@@ -173,6 +173,13 @@ def test_a_loop_of_links_as_an_output_or_a_source_is_no_traceback(tmp_path: Path
     result = runner.invoke(app, ["convert", str(loop), str(tmp_path / "x.txt")])
     assert result.exit_code == 2
     one_error_line(result.output, f"{loop}: cannot be read")
+    log = tmp_path / "log.txt"
+    log.write_text(CLASSIC)
+    report = tmp_path / "report.json"
+    report.symlink_to(report.name)  # the link is replaced by the report
+    args = ["replay", str(log), "--save", str(tmp_path / "r.rrd"), "--report", str(report)]
+    assert runner.invoke(app, args).exit_code == 0
+    assert '"final_pose"' in report.read_text()
 
 
 def test_a_name_that_is_not_utf8_is_saved_without_a_warning(tmp_path: Path) -> None:
@@ -446,3 +453,64 @@ def test_grade_does_not_write_its_report_over_a_submission(tmp_path: Path) -> No
     result = runner.invoke(app, ["grade", str(folder), "--timeout", "nan"])
     assert result.exit_code == 2
     one_error_line(result.output, "--timeout nan: expected a number of seconds")
+
+
+# -- a disk that fills up while a recording is written -----------------------------------------
+
+
+def _limited(size: int) -> None:  # (in the child, before exec)
+    import resource
+    import signal
+
+    signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # writes past the limit fail (EFBIG)
+    resource.setrlimit(resource.RLIMIT_FSIZE, (size, size))
+
+
+def test_a_recording_that_cannot_be_written_whole_replaces_nothing(tmp_path: Path) -> None:
+    """Rerun's file writer stops; its flush raised, which was taken for a viewer that did
+    not answer: the truncated file then replaced the finished one at --save."""
+    target = tmp_path / "run.rrd"
+    target.write_bytes(b"an earlier finished recording")
+    command = [sys.executable, "-m", "ekfviz", "replay", str(DATA / "classic.txt")]
+    result = subprocess.run(
+        [*command, "--save", str(target)], capture_output=True, text=True, timeout=60,
+        preexec_fn=lambda: _limited(100_000),
+    )  # fmt: skip
+    assert result.returncode == 2
+    one_error_line(result.stderr, f"--save {target}: the recording could not be written whole")
+    assert target.read_bytes() == b"an earlier finished recording"
+    assert [p.name for p in tmp_path.iterdir()] == ["run.rrd"]  # no temporary file left
+
+
+def test_a_full_disk_stops_a_flush_at_once(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A flush whose file's disk is full stops waiting (Rerun's would wait out its timeout
+    for a writer that has stopped)."""
+    import threading
+
+    from ekfviz.viz import flush
+
+    class Stuck:
+        def flush(self, timeout_sec: float) -> None:
+            threading.Event().wait(timeout_sec)
+
+    stuck = Stuck()
+    monkeypatch.setattr(flush, "_FILES", {stuck: tmp_path / "x.rrd"})
+    monkeypatch.setattr(flush, "disk_full", lambda path: True)
+    with pytest.raises(flush.DiskFull, match="no space left"):
+        flush.flush_interruptibly(stuck, 30.0)  # type: ignore[arg-type]
+
+
+def test_a_file_written_whole_or_not_at_all_on_a_full_disk(tmp_path: Path) -> None:
+    """convert, --report, export: their files are written beside and renamed; a write
+    that fails (here past a file-size limit) was a traceback."""
+    target = tmp_path / "ext.txt"
+    target.write_text("an earlier file\n")
+    result = subprocess.run(
+        [sys.executable, "-m", "ekfviz", "convert", str(DATA / "classic.txt"), str(target),
+         "--force"],
+        capture_output=True, text=True, timeout=60, preexec_fn=lambda: _limited(1_000),
+    )  # fmt: skip
+    assert result.returncode == 2
+    one_error_line(result.stderr, f"{target}: cannot write (File too large); nothing was replaced")
+    assert target.read_text() == "an earlier file\n"
+    assert [p.name for p in tmp_path.iterdir()] == ["ext.txt"]

@@ -30,6 +30,7 @@ from ekfviz.io.paths import (
     check_output_path,
     distinct_paths,
     output_over_input,
+    real_path,
     temporary_prefix,
     unused_path,
 )
@@ -375,7 +376,7 @@ def write_json(path: Path, document: dict[str, object]) -> None:
 
 def write_bytes_atomic(path: Path, content: bytes) -> None:
     """Write beside ``path`` and rename, so an existing file is never left half-written."""
-    path = path.resolve()
+    path = real_path(path)  # (resolve() raises on a loop of links)
     try:
         fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=temporary_prefix(path), suffix=".tmp")
     except OSError as error:
@@ -385,6 +386,9 @@ def write_bytes_atomic(path: Path, content: bytes) -> None:
             handle.write(content)
         os.chmod(tmp, _file_mode(path))
         os.replace(tmp, path)
+    except OSError as error:  # a full disk, a file-size limit: the old file stays whole
+        Path(tmp).unlink(missing_ok=True)
+        fail(f"{path}: cannot write ({error.strerror or error}); nothing was replaced")
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
