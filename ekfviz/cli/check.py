@@ -20,6 +20,7 @@ from ekfviz.cli.common import (
     command_hint,
     err,
     fail,
+    filter_module,
     one_line,
     out,
     plain,
@@ -148,7 +149,7 @@ def run_check(request: CheckRequest) -> None:
     if not request.filter_text:
         fail("give the filter to check: --filter PATH.py (or PATH.py:ClassName)")
     data, save, every = request.data, request.save, request.every
-    module = Path(request.filter_text.split(":", 1)[0])  # PATH.py (else no file: no clash)
+    module = filter_module(request.filter_text)
     check_outputs(
         ("--report", request.report), ("--save", save), inputs=[data, request.truth, module]
     )

@@ -213,6 +213,13 @@ def check_outputs(*outputs: tuple[str, Path | None], inputs: Sequence[Path | Non
         fail(clash)
 
 
+def filter_module(spec: str) -> Path | None:
+    """The file a ``--filter`` names (``PATH.py`` or ``PATH.py:Class``), an input not to
+    write over; None for a built-in filter or an importable module."""
+    head = spec.split(":", 1)[0]
+    return Path(head) if head.endswith(".py") else None
+
+
 def refuse_output_over_input(
     *outputs: tuple[str, Path | None], inputs: Sequence[Path | None]
 ) -> None:

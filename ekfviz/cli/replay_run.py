@@ -24,6 +24,7 @@ from ekfviz.cli.common import (
     check_outputs,
     err,
     fail,
+    filter_module,
     human_output_to_stderr,
     out,
     print_json,
@@ -220,7 +221,7 @@ def check_outputs_of(request: ReplayRequest) -> None:
     """Refuse bad output paths and options before any work; --json keeps stdout."""
     check_outputs(
         ("--save", request.output.save), ("--report", request.report),
-        inputs=[request.data, request.truth, Path(request.filter_spec.split(":", 1)[0])],
+        inputs=[request.data, request.truth, filter_module(request.filter_spec)],
     )  # fmt: skip
     request.output.check()
     if request.as_json:
