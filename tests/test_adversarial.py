@@ -514,3 +514,13 @@ def test_a_file_written_whole_or_not_at_all_on_a_full_disk(tmp_path: Path) -> No
     one_error_line(result.stderr, f"{target}: cannot write (File too large); nothing was replaced")
     assert target.read_text() == "an earlier file\n"
     assert [p.name for p in tmp_path.iterdir()] == ["ext.txt"]
+
+
+def test_a_landmark_surveyed_twice_is_refused(tmp_path: Path) -> None:
+    """Two true positions for one MRCLAM subject: the second silently won."""
+    from ekfviz.io.mrclam import read_landmark_truth
+
+    truth = tmp_path / "Landmark_Groundtruth.dat"
+    truth.write_text("# Subject x y sx sy\n6 1.0 2.0 0 0\n7 3.0 -1.0 0 0\n6 5.0 5.0 0 0\n")
+    with pytest.raises(InputError, match=r":4: found subject 6 twice, expected each landmark once"):
+        read_landmark_truth(truth)

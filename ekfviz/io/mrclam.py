@@ -156,6 +156,10 @@ def read_landmark_truth(path: Path) -> tuple[np.ndarray, FloatArray]:
             raise InputError(
                 path, line, f"found {_shown(values)}, expected 5 numbers: subject x y std-x std-y"
             )
+        if int(values[0]) in ids:  # two positions for one landmark: which is true?
+            raise InputError(
+                path, line, f"found subject {int(values[0])} twice, expected each landmark once"
+            )
         ids.append(int(values[0]))
         rows.append(values[1:3])
     if not ids:
