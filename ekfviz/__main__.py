@@ -5,12 +5,14 @@ from ekfviz import signals, startup
 
 def main() -> None:
     """Defer SIGINT and SIGTERM before the slow imports (see ``ekfviz.signals``), keep
-    pyarrow from importing pandas and numpy to one BLAS thread, collect garbage less
-    often (see ``ekfviz.startup``), then run."""
+    pyarrow from importing pandas and numpy to one BLAS thread, Rerun's own log lines
+    off, collect garbage less often (see ``ekfviz.startup``), then run."""
+    import sys
+
     signals.defer()
     startup.one_blas_thread()
+    startup.quiet_rerun_logs(sys.argv[1:])
     startup.pyarrow_without_pandas()
-    import sys
 
     import typer
 

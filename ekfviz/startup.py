@@ -41,6 +41,18 @@ def one_blas_thread() -> None:
             os.environ[name] = "1"
 
 
+def quiet_rerun_logs(argv: Sequence[str]) -> None:
+    """Rerun's own log lines off (``RUST_LOG=off``) unless the user set ``RUST_LOG`` or
+    asked for ``--debug``; before rerun is imported.
+
+    What goes wrong in a sink (a full disk under a file being saved, a viewer that does
+    not answer) ekfviz says itself, in its one line; Rerun's log would put its own lines,
+    coloured and timestamped, before it.
+    """
+    if "--debug" not in argv and "RUST_LOG" not in os.environ:
+        os.environ["RUST_LOG"] = "off"
+
+
 def collect_less() -> None:
     """Set the objects made so far (the imported modules, their functions and classes)
     apart from the cyclic garbage collector, and run its youngest generation every

@@ -349,6 +349,5 @@ def test_table_blocks_read_the_same_with_either_parser(
     compiled = read()
     monkeypatch.setattr(text_io, "_numbers", None)
     assert read() == compiled
-    assert sum(len(lines) for lines, _ in compiled[0]) == (
-        30000 if bad in (None, b"1_000") else 23456
-    )
+    # "1_000" is float()'s, no log's: refused as the line-by-line reader refuses it
+    assert sum(len(lines) for lines, _ in compiled[0]) == (30000 if bad is None else 23456)

@@ -91,7 +91,7 @@ def calibrate_command(
 
     The truth is --truth (with true poses: a JSON file with "poses") or a dataset's own.
     """
-    check_outputs(("--report", report))
+    check_outputs(("--report", report), inputs=[data, truth])
     result, command = run_calibrate(data, truth, source_args, window, fit_share)
     if report is not None:
         try:

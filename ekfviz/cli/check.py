@@ -20,6 +20,8 @@ from ekfviz.cli.common import (
     command_hint,
     err,
     fail,
+    filter_module,
+    one_line,
     out,
     plain,
     rendered,
@@ -147,7 +149,10 @@ def run_check(request: CheckRequest) -> None:
     if not request.filter_text:
         fail("give the filter to check: --filter PATH.py (or PATH.py:ClassName)")
     data, save, every = request.data, request.save, request.every
-    check_outputs(("--report", request.report), ("--save", save))
+    module = filter_module(request.filter_text)
+    check_outputs(
+        ("--report", request.report), ("--save", save), inputs=[data, request.truth, module]
+    )
     spec = FilterSpec.parse(request.filter_text, worker=request.user.worker())
     with tempfile.TemporaryDirectory(prefix="ekfviz-battery-") as folder:
         battery = write_battery(Path(folder)) if data is None else []
@@ -217,7 +222,8 @@ def _print(
         say(result.group_lines())
     if result.error is not None:
         err.print(rendered((Styled("error: ", "bold red"),
-                            Styled(f"{name}:{result.error_line}: {result.error}"))))  # fmt: skip
+                            Styled(one_line(f"{name}:{result.error_line}: {result.error}")))),
+                  soft_wrap=True)  # fmt: skip
     missing = [item for item in exercised if not item.exercised]
     if missing:
         say([Styled(f"  not exercised by {name}:")])

@@ -25,7 +25,15 @@ from ekfviz.core.records import AnyEvent
 from ekfviz.core.tables import Cell, Styled, TextTable
 from ekfviz.core.truth import GroundTruth
 from ekfviz.filters.ekf import HAVE_KERNEL, FilterParams
-from ekfviz.io.paths import OutputPathError, check_output_path, distinct_paths, unused_path
+from ekfviz.io.paths import (
+    OutputPathError,
+    check_output_path,
+    distinct_paths,
+    output_over_input,
+    real_path,
+    temporary_prefix,
+    unused_path,
+)
 from ekfviz.io.text import ProgressCallback
 
 
@@ -145,12 +153,22 @@ def plain(text: object) -> Text:
     return Text(str(text))
 
 
+def one_line(text: str) -> str:
+    """``text`` as one line: a line break or another character that is not printable in
+    it (from a file name, a user's exception, bytes that are not UTF-8) written as
+    ``repr`` writes it (``\\n``, ``\\x00``), so that an error or a warning is always
+    one line on the terminal and for the scripts reading it."""
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+
+
 def fail(message: str, code: int = 2) -> NoReturn:
     """Print one line on stderr and exit: no traceback for a user's mistake (unless
     ``--debug``, and then only when called while handling an exception)."""
     if DEBUG["traceback"] and sys.exc_info()[1] is not None:
         raise
-    err.print(f"[bold red]error:[/] {escape(message)}", soft_wrap=True)
+    err.print(f"[bold red]error:[/] {escape(one_line(message))}", soft_wrap=True)
     raise typer.Exit(code)
 
 
@@ -162,7 +180,9 @@ def interrupted(stop: signals.Interrupted, kept: str) -> NoReturn:
     """
     if DEBUG["traceback"]:
         raise stop
-    err.print(f"[bold red]error:[/] interrupted ({stop.name}): {escape(kept)}", soft_wrap=True)
+    err.print(
+        f"[bold red]error:[/] interrupted ({stop.name}): {escape(one_line(kept))}", soft_wrap=True
+    )
     raise SystemExit(stop.exit_code)
 
 
@@ -174,11 +194,13 @@ def stopped_study(done: int, total: int, what: str, outputs: Sequence[Path | Non
     return f"{done} of {total} {what} done, the rest cancelled; nothing was saved{kept}"
 
 
-def check_outputs(*outputs: tuple[str, Path | None]) -> None:
+def check_outputs(*outputs: tuple[str, Path | None], inputs: Sequence[Path | None] = ()) -> None:
     """Check every output path of a command before any work starts (see
-    :func:`ekfviz.io.paths.check_output_path`); two outputs must be two files.
+    :func:`ekfviz.io.paths.check_output_path`); two outputs must be two files, and none
+    may be an input (writing it would replace the file being read).
 
     :param outputs: (how the path was given, e.g. ``--save``; the path or None)
+    :param inputs: the files the command reads (None: not given)
     """
     for option, path in outputs:
         if path is not None:
@@ -186,7 +208,24 @@ def check_outputs(*outputs: tuple[str, Path | None]) -> None:
                 check_output_path(path, option)
             except OutputPathError as error:
                 fail(str(error))
-    clash = distinct_paths(dict(outputs))
+    clash = distinct_paths(dict(outputs)) or output_over_input(dict(outputs), inputs)
+    if clash is not None:
+        fail(clash)
+
+
+def filter_module(spec: str) -> Path | None:
+    """The file a ``--filter`` names (``PATH.py`` or ``PATH.py:Class``), an input not to
+    write over; None for a built-in filter or an importable module."""
+    head = spec.split(":", 1)[0]
+    return Path(head) if head.endswith(".py") else None
+
+
+def refuse_output_over_input(
+    *outputs: tuple[str, Path | None], inputs: Sequence[Path | None]
+) -> None:
+    """Refuse (one line, exit 2) an output that is one of ``inputs``: for the files
+    known only once the input is open (a dataset directory's)."""
+    clash = output_over_input(dict(outputs), inputs)
     if clash is not None:
         fail(clash)
 
@@ -307,7 +346,9 @@ def main(
 
 def warn(message: str) -> None:
     """One line on stderr that does not stop the run."""
-    err.print(f"[yellow]warning:[/] {message}", soft_wrap=True, markup=True, highlight=False)
+    err.print(
+        f"[yellow]warning:[/] {one_line(message)}", soft_wrap=True, markup=True, highlight=False
+    )
 
 
 # -- options shared by several commands ------------------------------------------------
@@ -342,9 +383,9 @@ def write_json(path: Path, document: dict[str, object]) -> None:
 
 def write_bytes_atomic(path: Path, content: bytes) -> None:
     """Write beside ``path`` and rename, so an existing file is never left half-written."""
-    path = path.resolve()
+    path = real_path(path)  # (resolve() raises on a loop of links)
     try:
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=temporary_prefix(path), suffix=".tmp")
     except OSError as error:
         fail(f"{path}: cannot write ({error.strerror})")
     try:
@@ -352,6 +393,9 @@ def write_bytes_atomic(path: Path, content: bytes) -> None:
             handle.write(content)
         os.chmod(tmp, _file_mode(path))
         os.replace(tmp, path)
+    except OSError as error:  # a full disk, a file-size limit: the old file stays whole
+        Path(tmp).unlink(missing_ok=True)
+        fail(f"{path}: cannot write ({error.strerror or error}); nothing was replaced")
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise

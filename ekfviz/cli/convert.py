@@ -17,6 +17,7 @@ from ekfviz.cli.common import (
     write_bytes_atomic,
 )
 from ekfviz.io.errors import InputError
+from ekfviz.io.paths import real_path, same_file
 
 
 @app.command()
@@ -33,7 +34,7 @@ def convert(
     from ekfviz.io.convert import classic_to_extended
 
     check_outputs(("TARGET", target))
-    if target.resolve() == source.resolve():
+    if same_file(target, source) or real_path(target) == real_path(source):
         fail(f"TARGET {target}: is the source itself: give another file")
     refuse_overwrite(force, ("TARGET", target))
     try:

@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from ekfviz.cli.common import app, fail, out, write_bytes_atomic
+from ekfviz.cli.common import app, check_outputs, fail, out, write_bytes_atomic
 from ekfviz.io.trajectory import format_landmarks_csv, format_poses_csv, format_tum
 
 
@@ -45,12 +45,13 @@ def export(
     """
     if tum is None and truth_tum is None and landmarks is None and csv is None:
         fail("nothing to export: give --tum, --truth-tum, --landmarks or --csv")
+    # every output checked before the recording is read: a folder, a device (/dev/full),
+    # two options naming one file or the recording itself are refused in one line
+    check_outputs(
+        ("--tum", tum), ("--truth-tum", truth_tum), ("--landmarks", landmarks), ("--csv", csv),
+        inputs=[recording],
+    )  # fmt: skip
     files = _files(recording, tum, truth_tum, landmarks, csv)
-    for path, _ in files:
-        if path.is_dir():
-            fail(f"{path}: is a directory, expected a file name")
-        if not path.parent.is_dir():
-            fail(f"{path.parent}: no such directory")
     for path, text in files:
         write_bytes_atomic(path, text.encode("utf-8"))
         out.print(f"Wrote {path}")

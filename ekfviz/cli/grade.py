@@ -20,6 +20,7 @@ from ekfviz.cli.common import (
     out,
     plain,
     print_json,
+    refuse_output_over_input,
     show,
     write_bytes_atomic,
 )
@@ -32,6 +33,7 @@ from ekfviz.cli.options import (
     expands_options,
     worker_options,
 )
+from ekfviz.io.paths import real_path
 from ekfviz.pipeline.grade import Battery, GradeRow, GradeTask
 from ekfviz.studies.executors import ExecutorError
 
@@ -127,7 +129,11 @@ def run_grade(request: GradeRequest) -> None:
     entries = submissions(request.folder)
     if not entries:
         fail(f"{request.folder}: no submissions in it (expected .py files or directories)")
-    python_text = worker_options(request.python, request.timeout, request.memory).python
+    # a submission's file or a log is never written over by the report
+    refuse_output_over_input(("--report", request.report), inputs=_read_files(request, entries))
+    python_text = worker_options(
+        request.python, request.timeout, request.memory, timeout_option="--timeout"
+    ).python
     params = request.form.params(request.noise, request.init_pose_sigma)
     try:
         chosen = request.execution.make()
@@ -138,10 +144,10 @@ def run_grade(request: GradeRequest) -> None:
     with tempfile.TemporaryDirectory(prefix="ekfviz-battery-") as battery_folder:
         battery = _battery(request, battery_folder)
         tasks = [
-            GradeTask(name=entry.name, path=entry.resolve(), logs=battery,
+            GradeTask(name=entry.name, path=real_path(entry), logs=battery,
                       params=params, timeout_s=request.timeout, memory_mb=request.memory,
                       python=python_text,
-                      save_dir=None if request.save_dir is None else request.save_dir.resolve())
+                      save_dir=None if request.save_dir is None else real_path(request.save_dir))
             for entry in entries
         ]  # fmt: skip
         try:
@@ -173,10 +179,22 @@ def _check_inputs(request: GradeRequest) -> None:
 def _battery(request: GradeRequest, folder: str) -> Battery:
     """The logs to check on: --log, else the battery written into ``folder``."""
     if request.logs:
-        return tuple((log.resolve(), None, None) for log in request.logs)
+        return tuple((real_path(log), None, None) for log in request.logs)
     from ekfviz.samples import write_battery
 
     return tuple(write_battery(Path(folder)))
+
+
+def _read_files(request: GradeRequest, entries: list[Path]) -> list[Path | None]:
+    """The files grading reads: the submissions' (a file, or a folder's .py files) and
+    the logs given."""
+    files: list[Path | None] = [*(request.logs or [])]
+    for entry in entries:
+        if entry.is_dir():
+            files += sorted(entry.rglob("*.py"))
+        else:
+            files.append(entry)
+    return files
 
 
 def _counts(rows: list[GradeRow]) -> dict[str, int]:

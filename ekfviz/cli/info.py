@@ -38,7 +38,7 @@ def info(
     stopped early (where and why), and its result."""
     from ekfviz import viz
 
-    check_outputs(("--extract-input", extract_input))
+    check_outputs(("--extract-input", extract_input), inputs=[recording])
     if as_json:
         human_output_to_stderr()
     try:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import inspect
+import math
 import shutil
 import typing
 from collections.abc import Callable
@@ -272,12 +273,22 @@ Seed = Annotated[int, _option("Seed of the first run; run k uses seed + k.")]
 
 
 def worker_options(
-    python: Path | None, timeout_s: float, memory_mb: int | None, echo: bool = True
+    python: Path | None,
+    timeout_s: float,
+    memory_mb: int | None,
+    echo: bool = True,
+    *,
+    timeout_option: str = "--filter-timeout",
 ) -> Any:
     """How a user's filter runs (:class:`~ekfviz.filters.worker.WorkerOptions`), the
-    interpreter checked first."""
+    interpreter checked first.
+
+    :param timeout_option: how the time limit was given, for the message of a bad one
+    """
     from ekfviz.filters.worker import WorkerOptions
 
+    if math.isnan(timeout_s):
+        fail(f"{timeout_option} {timeout_s}: expected a number of seconds (inf: no bound)")
     if python is not None:
         found = shutil.which(str(python))
         if found is None or not Path(found).is_file():
@@ -285,7 +296,7 @@ def worker_options(
         python = Path(found)
     return WorkerOptions(
         python=None if python is None else str(python),
-        timeout_s=timeout_s,
+        timeout_s=None if math.isinf(timeout_s) else timeout_s,
         memory_mb=memory_mb,
         echo=echo,
     )

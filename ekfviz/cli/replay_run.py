@@ -24,9 +24,11 @@ from ekfviz.cli.common import (
     check_outputs,
     err,
     fail,
+    filter_module,
     human_output_to_stderr,
     out,
     print_json,
+    refuse_output_over_input,
     say,
     show,
     warn,
@@ -47,7 +49,7 @@ from ekfviz.core.records import AnyEvent, EventRecord
 from ekfviz.core.truth import GroundTruth
 from ekfviz.evaluation.errors import Evaluation
 from ekfviz.filters.ekf import EkfSlam, FilterError, FilterParams
-from ekfviz.filters.spec import FilterSpecError, load_filter
+from ekfviz.filters.spec import FilterSpecError, load_filter, release
 from ekfviz.io.errors import InputError
 from ekfviz.io.text import ProgressCallback
 from ekfviz.sources import SourceArgs
@@ -185,15 +187,19 @@ def run_replay(request: ReplayRequest) -> None:
     logger: list[RunLogger] = []  # the logger once open, for what a stop kept
     sinks = None
     try:
-        opened = open_input(request, params, make_filter is None or make_filter is EkfSlam)
-        sinks, note = viz.resolve_default_sinks(
-            viz.Sinks(
-                save=request.output.save, spawn=request.output.spawn, serve=request.output.serve,
-                connect=request.output.connect, bind=request.output.bind or viz.LOOPBACK,
-            ),
-            request.data, RECORDINGS_DIR, name=opened.log.source.name,
-        )  # fmt: skip
-        _record(request, opened, make_filter, sinks, note, logger)
+        try:
+            opened = open_input(request, params, make_filter is None or make_filter is EkfSlam)
+            sinks, note = viz.resolve_default_sinks(
+                viz.Sinks(
+                    save=request.output.save, spawn=request.output.spawn,
+                    serve=request.output.serve, connect=request.output.connect,
+                    bind=request.output.bind or viz.LOOPBACK,
+                ),
+                request.data, RECORDINGS_DIR, name=opened.log.source.name,
+            )  # fmt: skip
+            _record(request, opened, make_filter, sinks, note, logger)
+        finally:  # a user's filter ended (its output said) before the line saying why
+            release(make_filter)
     except pipeline.RunStopped as stopped:
         fail(_stopped(stopped, logger, sinks), code=stopped.exit_code)
     except (InputError, FilterError, AssociationError, viz.SinkError) as error:
@@ -213,7 +219,10 @@ def run_replay(request: ReplayRequest) -> None:
 
 def check_outputs_of(request: ReplayRequest) -> None:
     """Refuse bad output paths and options before any work; --json keeps stdout."""
-    check_outputs(("--save", request.output.save), ("--report", request.report))
+    check_outputs(
+        ("--save", request.output.save), ("--report", request.report),
+        inputs=[request.data, request.truth, filter_module(request.filter_spec)],
+    )  # fmt: skip
     request.output.check()
     if request.as_json:
         human_output_to_stderr()
@@ -239,6 +248,11 @@ def _filter(request: ReplayRequest) -> FilterFactory | None:
 def open_input(request: ReplayRequest, params: FilterParams, builtin: bool) -> Opened:
     """The input opened, its defaults applied, the filter and associator set up for it."""
     opened = open_log(request.data, request.source_args, request.truth, request.no_truth)
+    # a dataset directory's files are known now: none of them may be written over
+    refuse_output_over_input(
+        ("--save", request.output.save), ("--report", request.report),
+        inputs=[*opened.source.files, *opened.truth_files],
+    )  # fmt: skip
     start, events = first_time(opened.events())
     params, notes = resolve(
         params, opened, start, request.init_pose, request.motion_noise, request.gate

@@ -65,6 +65,28 @@ def _read_exact(stream: Any, count: int) -> bytes:
     return b"".join(chunks)
 
 
+# the longest message of a user's exception that ekfviz's one line shows (--debug shows
+# the whole traceback): an exception may carry megabytes of text, or a __str__ that raises
+MAX_MESSAGE = 1000
+
+
+def _shown(convert: Any, value: Any) -> str:
+    """``convert(value)`` (``str`` or ``repr``) cut to :data:`MAX_MESSAGE` characters,
+    or a note where it raises."""
+    try:
+        text = convert(value)
+    except BaseException as error:  # a __str__ or __repr__ that fails, or loops to the bound
+        return "(its text cannot be shown: %s raised %s)" % (
+            convert.__name__,
+            type(error).__name__,
+        )
+    if not isinstance(text, str):
+        return "(its text cannot be shown)"
+    if len(text) > MAX_MESSAGE:
+        return "%s... (%d characters in all)" % (text[:MAX_MESSAGE], len(text))
+    return text
+
+
 def read_message(stream: Any) -> Tuple[Dict[str, Any], List[Any]]:
     """One message: its JSON header and its arrays."""
     (size,) = struct.unpack("<I", _read_exact(stream, 4))
@@ -395,11 +417,9 @@ class UserError(Exception):
 
 
 def _said(error: BaseException) -> str:
-    """``": message"`` of an exception on one line (numpy's run over several), at most
-    300 characters; nothing when it has none."""
-    text = " ".join(str(error).split())
-    if len(text) > 300:
-        text = text[:297] + "..."
+    """``": message"`` of an exception on one line (numpy's run over several: its lines
+    joined by spaces), cut as :func:`_shown` cuts it; nothing when it has none."""
+    text = " ".join(_shown(str, error).split())  # (a __str__ that raises is said)
     return ": " + text if text else ""
 
 
@@ -619,7 +639,7 @@ class Worker:
                     {
                         "ok": False,
                         "kind": "exit",
-                        "message": "%s called sys.exit(%r)" % (op, code),
+                        "message": "%s called sys.exit(%s)" % (op, _shown(repr, code)),
                         "traceback": traceback.format_exc(),
                     }
                 )
@@ -926,6 +946,59 @@ def _die_with_parent() -> None:
         pass
 
 
+# what the guard of a worker (see _guarded) ignores: a filter that signals its parent
+# (os.kill(os.getppid(), SIGTERM)) reaches the guard, never ekfviz, and ends nothing
+GUARD_IGNORES = ("SIGTERM", "SIGINT", "SIGHUP", "SIGQUIT", "SIGUSR1", "SIGUSR2", "SIGALRM")
+
+
+def _guarded(channels: List[Any]) -> None:
+    """Serve in a child process, this one (the guard) waiting for it, then ending as it
+    ended (its exit code, or the signal that killed it), for ekfviz to say.
+
+    The user's code then runs in a process whose parent is the guard: what it does to its
+    parent (a signal to ``os.getppid()``) touches the guard, which ignores the signals
+    that end a process politely, and not ekfviz. ekfviz ends both by killing their process
+    group. Where there is no ``fork``, this process serves itself.
+
+    :param channels: the files of the requests and the answers, closed in the guard (the
+        child's ends must be the only ones, for ekfviz to see the child's end)
+    """
+    if not hasattr(os, "fork"):
+        return
+    try:
+        child = os.fork()
+    except OSError:
+        return
+    if child == 0:
+        _die_with_parent()  # with the guard (which dies with ekfviz)
+        return
+    for name in GUARD_IGNORES:
+        if hasattr(signal, name):
+            signal.signal(getattr(signal, name), signal.SIG_IGN)
+    for channel in channels:
+        channel.close()
+    while True:
+        try:
+            _, status = os.waitpid(child, 0)
+            break
+        except InterruptedError:
+            continue
+        except ChildProcessError:
+            os._exit(1)
+    if os.WIFSIGNALED(status):
+        number = os.WTERMSIG(status)
+        try:  # (SIGKILL and SIGSTOP take no handler: they need none)
+            signal.signal(number, signal.SIG_DFL)
+        except (OSError, ValueError):
+            pass
+        try:
+            os.kill(os.getpid(), number)
+        except OSError:
+            pass
+        os._exit(128 + number)
+    os._exit(os.WEXITSTATUS(status) if os.WIFEXITED(status) else 1)
+
+
 def main() -> None:
     # the script's own folder (ekfviz/filters) must not shadow the user's imports
     here = os.path.dirname(os.path.abspath(__file__))
@@ -938,7 +1011,14 @@ def main() -> None:
     if memory:
         import resource
 
-        resource.setrlimit(resource.RLIMIT_AS, (int(memory), int(memory)))
+        # (soft, hard) both, so that the filter cannot raise it; a limit over what the
+        # system takes (more than a C long, or above the hard limit) is the most it takes
+        hard = resource.getrlimit(resource.RLIMIT_AS)[1]
+        limit = int(memory) if hard == resource.RLIM_INFINITY else min(int(memory), hard)
+        try:
+            resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+        except (ValueError, OverflowError):
+            pass  # larger than any address space: no limit to set
     commands = os.fdopen(os.dup(0), "rb")
     answers = os.fdopen(os.dup(1), "wb")
     null = os.open(os.devnull, os.O_RDONLY)
@@ -948,6 +1028,7 @@ def main() -> None:
     sys.stdin = open(os.devnull)  # noqa: SIM115 (for the whole life of the process)
     builtins.input = _no_input
     sys.stdout = io.TextIOWrapper(os.fdopen(1, "wb", closefd=False), line_buffering=True)
+    _guarded([commands, answers])
     Worker(commands, answers).serve()
 
 

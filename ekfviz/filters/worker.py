@@ -16,6 +16,7 @@ from __future__ import annotations
 import atexit
 import contextlib
 import json
+import math
 import os
 import select
 import signal
@@ -41,11 +42,18 @@ from ekfviz.filters.protocol import Capabilities
 
 WORKER_SCRIPT = Path(__file__).with_name("_worker.py")
 DEFAULT_TIMEOUT_S = 60.0
-# the start (an interpreter, numpy, the user's imports) gets longer than one call
+# the worker's own start (an interpreter and numpy) gets longer than one call
 START_TIMEOUT_S = 120.0
+# the user's code outside the calls (its module's import, its construction) is bounded as
+# one call is (--filter-timeout), but never below this: an import of matplotlib or scipy
+# takes seconds on a loaded machine
+MIN_LOAD_TIMEOUT_S = 10.0
 # what the filter may print before ekfviz stops echoing it (it is still drained)
 ECHO_LIMIT_BYTES = 1 << 20
 MIN_NUMPY = (1, 17)
+# the longest JSON header of an answer (a state's are a few hundred bytes): four bytes of
+# anything else read as a length must not make ekfviz wait for, or allocate, gigabytes
+MAX_HEADER_BYTES = 1 << 24
 
 
 class WorkerFault(PluginError):
@@ -105,6 +113,24 @@ def _signal_name(number: int) -> str:
         return f"signal {number}"
 
 
+def load_timeout(options: WorkerOptions) -> float:
+    """Seconds the user's module may take to import, and its filter to be constructed: the
+    bound of one call (at least :data:`MIN_LOAD_TIMEOUT_S`), :data:`START_TIMEOUT_S`
+    where calls are not bounded. (A loop at import must not hold a command for minutes.)"""
+    if options.timeout_s is None:
+        return START_TIMEOUT_S
+    return max(float(options.timeout_s), MIN_LOAD_TIMEOUT_S)
+
+
+def load_limit_name(options: WorkerOptions) -> str:
+    """Where :func:`load_timeout` comes from, for the message of a timeout."""
+    if options.timeout_s is None:
+        return "the bound of a worker's start"
+    if options.timeout_s < MIN_LOAD_TIMEOUT_S:
+        return f"--filter-timeout, at least {MIN_LOAD_TIMEOUT_S:g} s to load a filter"
+    return "--filter-timeout"
+
+
 class WorkerProcess:
     """One worker process and its channels.
 
@@ -143,6 +169,8 @@ class WorkerProcess:
             _widen_pipe(stream.fileno())
         self._commands = self.process.stdin
         self._answers = self.process.stdout.fileno()
+        self._echo_lock = threading.Lock()
+        self._held: list[tuple[str, int]] | None = []  # (line, bytes) until it started
         self._reader = threading.Thread(
             target=self._drain, args=(self.process.stderr,), daemon=True
         )
@@ -150,7 +178,8 @@ class WorkerProcess:
         self._finalizer = weakref.finalize(self, _end, self.process)
         _LIVE.add(self.process)
         try:
-            hello, _ = self.request({"op": "hello"}, [], "starting", timeout_s=START_TIMEOUT_S)
+            hello, _ = self.request({"op": "hello"}, [], "starting", timeout_s=START_TIMEOUT_S,
+                                    limit_name="the bound of a worker's start")  # fmt: skip
         except WorkerFault as error:
             self.close()
             raise WorkerFault(
@@ -166,19 +195,40 @@ class WorkerProcess:
                 f"--python {python}: numpy {self.numpy_version} is too old, expected >= 1.17",
                 "start",
             )
+        self._started()
 
     # -- output -------------------------------------------------------------------------
 
     def _drain(self, stream: Any) -> None:
         for raw in iter(stream.readline, b""):
-            self.output.total_bytes += len(raw)
             line = raw.decode("utf-8", "replace").rstrip("\n")
-            self.output.lines.append(line)
-            if self.options.echo:
-                if self.output.total_bytes <= ECHO_LIMIT_BYTES:
-                    sys.stderr.write(f"{self.label} | {line}\n")
-                elif self.output.total_bytes - len(raw) <= ECHO_LIMIT_BYTES:
-                    sys.stderr.write(f"{self.label} | ... (its further output is not shown)\n")
+            with self._echo_lock:
+                self.output.total_bytes += len(raw)
+                self.output.lines.append(line)
+                if self._held is not None:
+                    self._held.append((line, len(raw)))
+                else:
+                    self._echo(line, len(raw), self.output.total_bytes)
+
+    def _echo(self, line: str, size: int, total: int) -> None:
+        """Echo one line the worker printed (``total``: bytes printed up to its end)."""
+        if not self.options.echo:
+            return
+        if total <= ECHO_LIMIT_BYTES:
+            sys.stderr.write(f"{self.label} | {line}\n")
+        elif total - size <= ECHO_LIMIT_BYTES:
+            sys.stderr.write(f"{self.label} | ... (its further output is not shown)\n")
+
+    def _started(self) -> None:
+        """The worker runs: echo what it printed while starting, and from now on as it
+        comes. (Until then it is only kept: a worker that does not start is said in one
+        line, its last output in it, not with that output echoed before.)"""
+        with self._echo_lock:
+            held, self._held = self._held or [], None
+            total = 0
+            for line, size in held:
+                total += size
+                self._echo(line, size, total)
 
     # -- requests -------------------------------------------------------------------------
 
@@ -189,16 +239,21 @@ class WorkerProcess:
         what: str,
         *,
         timeout_s: float | None = None,
+        limit_name: str = "--filter-timeout",
     ) -> tuple[dict[str, Any], list[np.ndarray[Any, Any]]]:
         """Send one request, wait for its answer.
 
         :param what: the call, for messages (``predict``)
+        :param timeout_s: its time limit (None: the options' bound of one call)
+        :param limit_name: where that limit comes from, for the message of a timeout
         :raises WorkerFault: the filter failed, timed out or its process died
         """
         timeout = self.options.timeout_s if timeout_s is None else timeout_s
         if self.options.deadline is not None:
             left = max(0.0, self.options.deadline - time.time())
             timeout = left if timeout is None else min(timeout, left)
+        if timeout is not None and not math.isfinite(timeout):  # inf: no bound
+            timeout = None
         if self.process.poll() is not None:
             raise self._died(what)
         contiguous = [np.ascontiguousarray(a) for a in arrays]
@@ -213,14 +268,22 @@ class WorkerProcess:
         except (BrokenPipeError, OSError):
             raise self._died(what) from None
         deadline = None if timeout is None else time.monotonic() + timeout
-        (size,) = struct.unpack("<I", self._read(4, deadline, what))
-        answer = json.loads(self._read(size, deadline, what))
+        bound = (what, timeout, limit_name)
+        (size,) = struct.unpack("<I", self._read(4, deadline, bound))
+        if size > MAX_HEADER_BYTES:
+            raise self._garbled(what)
+        try:
+            answer = json.loads(self._read(size, deadline, bound))
+            metas = answer.get("arrays", [])
+            layouts = [(np.dtype(m["dtype"]), tuple(int(v) for v in m["shape"])) for m in metas]
+        except (ValueError, TypeError, KeyError, AttributeError):  # JSON, UTF-8, dtype, shape
+            raise self._garbled(what) from None
         received = []
-        for meta in answer.get("arrays", []):
-            dtype = np.dtype(meta["dtype"])
-            shape = tuple(int(v) for v in meta["shape"])
+        for dtype, shape in layouts:
             count = int(np.prod(shape)) if shape else 1
-            buffer = self._read(count * dtype.itemsize, deadline, what)
+            if count < 0 or dtype.hasobject:
+                raise self._garbled(what)
+            buffer = self._read(count * dtype.itemsize, deadline, bound)
             received.append(np.frombuffer(buffer, dtype=dtype).reshape(shape))
         if not answer.get("ok"):
             kind = str(answer.get("kind", "raised"))
@@ -234,7 +297,15 @@ class WorkerProcess:
             raise WorkerFault(message, kind, str(answer.get("traceback", "")))
         return answer, received
 
-    def _read(self, count: int, deadline: float | None, what: str) -> bytearray:
+    def _read(
+        self, count: int, deadline: float | None, bound: tuple[str, float | None, str]
+    ) -> bytearray:
+        """``count`` bytes of the answer, by ``deadline``.
+
+        :param bound: (the call, its time limit in seconds, where that comes from), for
+            the message of a timeout
+        """
+        what, limit, limit_name = bound
         buffer = bytearray(count)
         view = memoryview(buffer)
         got = 0
@@ -244,13 +315,14 @@ class WorkerProcess:
                 ready = left > 0 and select.select([self._answers], [], [], left)[0]
                 if not ready:
                     self.kill()
-                    raise WorkerFault(
-                        f"{what} did not return within {self.options.timeout_s:g} s"
-                        " (--filter-timeout); the filter was stopped"
-                        if self.options.deadline is None
-                        else f"{what} was still running when its time ran out (--timeout)",
-                        "timeout",
-                    )
+                    if self.options.deadline is not None:
+                        said = f"{what} was still running when its time ran out (--timeout)"
+                    else:
+                        said = (
+                            f"{what} did not return within {limit or 0:g} s ({limit_name});"
+                            " the filter was stopped"
+                        )
+                    raise WorkerFault(said, "timeout")
             try:
                 chunk = os.readv(self._answers, [view[got:]])
             except OSError:
@@ -259,6 +331,16 @@ class WorkerProcess:
                 raise self._died(what)
             got += chunk
         return buffer
+
+    def _garbled(self, what: str) -> WorkerFault:
+        """The worker's answer is not ekfviz's protocol: it is stopped."""
+        self.kill()
+        return WorkerFault(
+            f"the filter's worker answered {what} with bytes that are not ekfviz's protocol"
+            " (--python is no Python interpreter, or the filter wrote to the worker's own"
+            " channel); the filter was stopped",
+            "crashed",
+        )
 
     def _died(self, what: str) -> WorkerFault:
         try:
@@ -297,10 +379,15 @@ _LIVE: weakref.WeakSet[subprocess.Popen[bytes]] = weakref.WeakSet()
 
 
 def _end(process: subprocess.Popen[bytes]) -> None:
-    """Kill a worker and everything it started (its own session)."""
+    """Kill a worker and everything it started (its own session).
+
+    The group is killed even when the worker itself has ended: a process the filter
+    forked may still hold the worker's pipes, and closing them would wait for it. (The
+    kernel keeps the group's id from being reused while any process is in it.)
+    """
+    with contextlib.suppress(ProcessLookupError, PermissionError):
+        os.killpg(process.pid, signal.SIGKILL)
     if process.poll() is None:
-        with contextlib.suppress(ProcessLookupError, PermissionError):
-            os.killpg(process.pid, signal.SIGKILL)
         with contextlib.suppress(subprocess.TimeoutExpired):
             process.wait(timeout=5)
     for stream in (process.stdin, process.stdout, process.stderr):
@@ -385,7 +472,8 @@ class LoadedWorker:
         header = {"op": "load", "path": target.path, "module": target.module,
                   "name": target.name, "sys_path": sys_path}  # fmt: skip
         try:
-            answer, _ = self.process.request(header, [], "import", timeout_s=START_TIMEOUT_S)
+            answer, _ = self.process.request(header, [], "import", timeout_s=load_timeout(options),
+                                             limit_name=load_limit_name(options))  # fmt: skip
         except WorkerFault:
             self.process.close()
             raise
@@ -416,8 +504,10 @@ class RemoteFilter:
         self.poses_xytheta: FloatArray | None = None
         values = params.as_dict()
         answer, arrays = self._worker.request(
-            {"op": "construct", "params": values}, [], "construction", timeout_s=START_TIMEOUT_S
-        )
+            {"op": "construct", "params": values}, [], "construction",
+            timeout_s=load_timeout(self._worker.options),
+            limit_name=load_limit_name(self._worker.options),
+        )  # fmt: skip
         self._take(answer, arrays)
         self.seconds = 0.0
 
@@ -476,14 +566,22 @@ class WorkerFactory:
         self.label = label
         self._spare: LoadedWorker | None = LoadedWorker(target, options, label)
         self.style = self._spare.style
+        self._made: list[LoadedWorker] = []  # the workers of the filters made, to end them
 
     def __call__(self, params: FilterParams) -> RemoteFilter:
         loaded, self._spare = self._spare, None
         if loaded is None or loaded.process.process.poll() is not None:
             loaded = LoadedWorker(self.target, self.options, self.label)
+        self._made.append(loaded)
         return RemoteFilter(loaded, params)
 
     def close(self) -> None:
+        """End every worker started: the spare and those of the filters made. Each ends
+        with its output echoed to the last line, so that nothing the filter printed comes
+        after the line the command then says (its verdict or its error)."""
         if self._spare is not None:
             self._spare.process.close()
             self._spare = None
+        for loaded in self._made:
+            loaded.process.close()
+        self._made.clear()

@@ -48,6 +48,7 @@ from ekfviz.io.text import (
     BearingWrapper,
     ProgressCallback,
     WarningCallback,
+    check_time,
     format_number,
     line_blocks,
     open_input,
@@ -60,7 +61,7 @@ KEYWORDS = ("control", "observe", "scan")
 NOISE_HEADER = "# noise:"
 NOISE_NAMES = ("sigma_x", "sigma_y", "sigma_alpha", "sigma_bearing", "sigma_range")
 LogNoise = dict[str, float | tuple[float, float, float]]
-_ID = re.compile(r"\+?\d+")
+_ID = re.compile(r"\+?\d+", re.ASCII)  # as int() reads it, less other scripts' digits
 MAX_ID = 2**63 - 1  # ids are int64
 
 
@@ -105,7 +106,7 @@ def read_extended(
     for line, tokens in token_lines(path, progress):
         time: float | None = None
         if not tokens[0].isalpha():
-            time = parse_number(path, line, tokens[0])
+            time = check_time(path, line, parse_number(path, line, tokens[0]))
             if time < last_time:
                 raise InputError(
                     path,

@@ -39,14 +39,16 @@ from ekfviz.io.text import (
     BearingWrapper,
     ProgressCallback,
     WarningCallback,
+    check_time,
     numeric_blocks,
     numeric_lines,
+    time_fault,
 )
 
 BARCODES = "Barcodes.dat"
 LANDMARKS = "Landmark_Groundtruth.dat"
 ROBOT_SUBJECTS = frozenset(range(1, 6))  # MRCLAM's subjects 1-5 are the robots
-_ROBOT_FILE = re.compile(r"Robot(\d+)_Odometry\.dat")
+_ROBOT_FILE = re.compile(r"Robot(\d+)_Odometry\.dat", re.ASCII)
 
 
 def is_mrclam(path: Path) -> bool:
@@ -112,6 +114,8 @@ def open_dataset(directory: Path, robot: int) -> MrclamDataset:
     for path in dataset.log_files:
         if path.is_dir():
             raise InputError(path, 0, "is a directory, expected a text file")
+        if path.exists() and not path.is_file():  # a FIFO, a device: would block or never end
+            raise InputError(path, 0, "is not a regular file, expected a text file")
         if not path.is_file():
             robots = robots_in(directory)
             have = ", ".join(map(str, robots)) if robots else "none"
@@ -151,6 +155,10 @@ def read_landmark_truth(path: Path) -> tuple[np.ndarray, FloatArray]:
         if len(values) != 5 or not (values[0].is_integer() and values[0] >= 0):
             raise InputError(
                 path, line, f"found {_shown(values)}, expected 5 numbers: subject x y std-x std-y"
+            )
+        if int(values[0]) in ids:  # two positions for one landmark: which is true?
+            raise InputError(
+                path, line, f"found subject {int(values[0])} twice, expected each landmark once"
             )
         ids.append(int(values[0]))
         rows.append(values[1:3])
@@ -294,6 +302,7 @@ def _sightings(
         if time < last:
             raise InputError(path, line, _decreasing(time, last))
         if time > last:
+            check_time(path, line, time)
             if ids:
                 yield sighting()
             ids, z, group_line, last = [], [], line, time
@@ -321,12 +330,16 @@ def _rows(path: Path, columns: int, what: str) -> Iterator[tuple[int, list[float
 
 
 def _check_times(path: Path, lines: list[int], times: FloatArray, last: float) -> None:
-    """Refuse the first time of a block that is earlier than the one before it."""
+    """Refuse the first time of a block that is earlier than the one before it, or that a
+    recording cannot hold (see :data:`~ekfviz.io.text.MAX_TIME_S`)."""
     previous = np.concatenate(([last], times[:-1]))
     back = np.flatnonzero(times < previous)
-    if back.size:
+    fault = time_fault(path, lines, times)
+    if back.size and (fault is None or lines[int(back[0])] < fault.line):
         k = int(back[0])
         raise InputError(path, lines[k], _decreasing(float(times[k]), float(previous[k])))
+    if fault is not None:
+        raise fault
 
 
 def _decreasing(time: float, last: float) -> str:

@@ -8,8 +8,10 @@ creates nothing: no folder, no file left behind.
 from __future__ import annotations
 
 import errno
+import hashlib
 import os
 import tempfile
+from collections.abc import Iterable
 from pathlib import Path
 
 
@@ -33,6 +35,16 @@ def check_output_path(path: Path | str, option_name: str) -> Path:
     where = f"{option_name} {text}".strip()
     if text == "" or text.endswith(os.sep) or path.name in ("", ".", ".."):
         raise OutputPathError(f"{where}: names a folder, expected a file name")
+    try:
+        return _checked_output_path(path, where)
+    except OSError as error:  # a name too long, a loop of links, an unreadable folder...
+        reason = error.strerror or type(error).__name__
+        raise OutputPathError(f"{where}: cannot be written ({reason})") from None
+
+
+def _checked_output_path(path: Path, where: str) -> Path:
+    """:func:`check_output_path` past its first checks; ``where`` names the path."""
+    _check_name_length(path, where)
     if path.is_dir():
         raise OutputPathError(f"{where}: is a folder, expected a file name")
     parent = path.parent
@@ -46,7 +58,7 @@ def check_output_path(path: Path | str, option_name: str) -> Path:
     if path.exists() and not path.is_file():
         raise OutputPathError(f"{where}: exists and is not a regular file")
     try:  # the only sure test of a folder taking a new file: make one, remove it at once
-        fd, probe = tempfile.mkstemp(dir=parent, prefix=f".{path.name}.", suffix=".probe")
+        fd, probe = tempfile.mkstemp(dir=parent, prefix=".ekfviz.", suffix=".probe")
     except OSError as error:
         reason = error.strerror or type(error).__name__
         if error.errno in (errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOENT):
@@ -58,6 +70,71 @@ def check_output_path(path: Path | str, option_name: str) -> Path:
     os.close(fd)
     os.unlink(probe)
     return path
+
+
+def _check_name_length(path: Path, where: str) -> None:
+    """Refuse a file name longer than its folder's file system takes (255 bytes on most):
+    the run would otherwise fail at its very end, when the file is made."""
+    try:
+        name_max = os.pathconf(path.parent, "PC_NAME_MAX")
+    except (OSError, ValueError):
+        name_max = 255
+    size = len(os.fsencode(path.name))
+    if name_max > 0 and size > name_max:
+        raise OutputPathError(
+            f"{where}: the file name is {size} bytes long, expected at most {name_max}"
+            " (the longest its folder's file system takes)"
+        )
+
+
+# The longest name whose temporary files beside it (``.NAME.`` with a process id, a tag
+# and a suffix, see temporary_prefix) still fit in the 255 bytes of a file name
+TEMPORARY_NAME_MAX = 200
+
+
+def temporary_prefix(path: Path) -> str:
+    """The start of the names of the temporary files written beside ``path`` before they
+    replace it: ``.NAME.``, or for a name too long to take the rest (near the file
+    system's 255 bytes) ``.`` and a digest of it, so that such a file is written too."""
+    name = path.name
+    if len(os.fsencode(name)) > TEMPORARY_NAME_MAX:
+        name = hashlib.sha256(os.fsencode(name)).hexdigest()[:16]
+    return f".{name}."
+
+
+def real_path(path: Path | str) -> Path:
+    """``path`` made absolute, its symbolic links followed as far as they go. Never
+    raises: a loop of links (which ``Path.resolve`` refuses) is left where it starts."""
+    return Path(os.path.realpath(path))
+
+
+def same_file(a: Path | str, b: Path | str) -> bool:
+    """Whether two existing paths name one file (a hard link, a symbolic link, a path
+    spelt another way); False where either does not exist or cannot be looked at."""
+    try:
+        return os.path.samefile(a, b)
+    except (OSError, ValueError):
+        return False
+
+
+def output_over_input(outputs: dict[str, Path | None], inputs: Iterable[Path | None]) -> str | None:
+    """A one-line complaint when an output of a command is one of its inputs (writing it
+    would replace the file being read: a log, a truth file, a recording), else None.
+
+    :param outputs: option name -> path given (None: not given)
+    :param inputs: the files the command reads (None: not given)
+    """
+    sources = [path for path in inputs if path is not None]
+    for option, path in outputs.items():
+        if path is None:
+            continue
+        for source in sources:
+            if same_file(path, source):
+                return (
+                    f"{option} {path}: is the input {source}, which writing it would replace:"
+                    " give another file"
+                )
+    return None
 
 
 def _file_ancestor(folder: Path) -> Path | None:
@@ -77,7 +154,7 @@ def distinct_paths(paths: dict[str, Path | None]) -> str | None:
     for option, path in paths.items():
         if path is None:
             continue
-        key = path.resolve()
+        key = real_path(path)
         if key in seen:
             return f"{seen[key]} and {option} are the same file ({path}): give two paths"
         seen[key] = option

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import math
+import os
 import re
+import stat
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,8 +24,10 @@ except ImportError:  # pragma: no cover - no C compiler at install time
 
 HAVE_PARSER = _numbers is not None
 
-_NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
-_NUMBERS = re.compile(rf"{_NUMBER.pattern}(?: {_NUMBER.pattern})*")  # tokens joined by spaces
+# ASCII digits only: float() also takes the digits of other scripts (Arabic-Indic,
+# full-width) and underscores ("1_000"), which no log means as numbers
+_NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?", re.ASCII)
+_NUMBERS = re.compile(rf"{_NUMBER.pattern}(?: {_NUMBER.pattern})*", re.ASCII)  # joined by spaces
 _NON_FINITE = re.compile(r"[-+]?(?:nan|inf|infinity)", re.IGNORECASE)
 
 ProgressCallback = Callable[[int], None]
@@ -35,6 +39,12 @@ MAX_LINE_BYTES = 1 << 20  # an observation of some 50,000 landmarks: far past an
 # since 1970 (1.8e15) are still inside. Physical values of a 2-D run are far smaller.
 MAX_MAGNITUDE = 1e18
 RANGE_TEXT = "+-1e18"  # MAX_MAGNITUDE in messages
+# A recording's ``time`` timeline counts nanoseconds in 64 bits (a timestamp since 1970
+# or a duration): +-9.22e9 s. A log's time stamps beyond (Unix time past the year 2261,
+# milliseconds taken for seconds) are refused where they are read, naming their line,
+# rather than overflowing when the run is recorded.
+MAX_TIME_S = 9.2e9
+TIME_RANGE_TEXT = "+-9.2e9 s"  # MAX_TIME_S in messages
 BLOCK_BYTES = 1 << 18  # bytes read at once
 BOM = b"\xef\xbb\xbf"
 
@@ -48,13 +58,36 @@ def open_input(path: Path, what: str = "a text file") -> BinaryIO:
     try:
         if path.is_dir():
             raise InputError(path, 0, f"is a directory, expected {what}")
-        return path.open("rb")
+        # opened without waiting: a FIFO with no writer would block open() for ever
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+        kind = _special_kind(os.fstat(fd).st_mode)
+        if kind is not None:
+            os.close(fd)
+            raise InputError(path, 0, f"is {kind}, not a regular file; expected {what}")
+        if hasattr(os, "set_blocking"):
+            os.set_blocking(fd, True)
+        return os.fdopen(fd, "rb")
     except FileNotFoundError:
         raise InputError(path, 0, f"no such file, expected {what}") from None
     except IsADirectoryError:
         raise InputError(path, 0, f"is a directory, expected {what}") from None
     except OSError as error:
         raise InputError(path, 0, f"cannot be read ({error.strerror})") from None
+
+
+def _special_kind(mode: int) -> str | None:
+    """What a file that is not a regular one is (None for a regular file). A log is read
+    twice (its format told from its first line, then its events) and must end: a pipe
+    cannot be read again, a terminal or a FIFO may wait for ever."""
+    if stat.S_ISREG(mode):
+        return None
+    if stat.S_ISFIFO(mode):
+        return "a FIFO (named pipe)"
+    if stat.S_ISSOCK(mode):
+        return "a socket"
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        return "a device"
+    return "a special file"
 
 
 def line_blocks(path: Path, handle: BinaryIO) -> Iterator[tuple[int, list[bytes]]]:
@@ -258,7 +291,9 @@ def _table(joined: bytes, count: int) -> FloatArray | None:
     """The numbers of ``joined`` (one line), None unless there are ``count``; the
     compiled parser where every byte is plain (see :func:`_converted`), else float()
     (which raises ValueError on a token that is no number)."""
-    if _numbers is not None and not joined.translate(None, _PLAIN_BYTES):
+    if joined.translate(None, _PLAIN_BYTES + b"\x0b\x0c"):
+        return None  # "nan", "1_000", another script's digits: line by line, to name it
+    if _numbers is not None:
         converted = _converted(joined, 1)
         if converted is not None:
             return converted[0] if len(converted[0]) == count else None
@@ -380,6 +415,37 @@ def parse_number(path: Path, line: int, token: str) -> float:
         raise InputError(path, line, f"found {token!r}, expected a finite number")
     shown = token if len(token) <= 20 else token[:20] + "..."
     raise InputError(path, line, f"found {shown!r}, expected a decimal number")
+
+
+def check_time(path: Path, line: int, time: float) -> float:
+    """``time`` (seconds) if a recording's timeline holds it (see :data:`MAX_TIME_S`).
+
+    :raises InputError: naming the line and the time
+    """
+    if not -MAX_TIME_S <= time <= MAX_TIME_S:
+        raise InputError(path, line, _time_out_of_range(time))
+    return time
+
+
+def first_time_out_of_range(times: FloatArray) -> int | None:
+    """The index of the first time (seconds) a recording's timeline cannot hold (see
+    :data:`MAX_TIME_S`), or None when it holds them all."""
+    outside = np.flatnonzero(np.abs(times) > MAX_TIME_S)
+    return int(outside[0]) if outside.size else None
+
+
+def _time_out_of_range(time: float) -> str:
+    return (
+        f"found time {time:g}, expected seconds within {TIME_RANGE_TEXT} (a recording's"
+        " timeline counts nanoseconds in 64 bits; milliseconds or microseconds taken for"
+        " seconds?)"
+    )
+
+
+def time_fault(path: Path, lines: list[int], times: FloatArray) -> InputError | None:
+    """The error of the first time of a block that a recording cannot hold, or None."""
+    k = first_time_out_of_range(times)
+    return None if k is None else InputError(path, lines[k], _time_out_of_range(float(times[k])))
 
 
 def format_number(value: float, precision: int | None) -> str:

@@ -19,9 +19,9 @@ from ekfviz.core.records import AnyEvent, Scan, Sighting
 from ekfviz.core.truth import GroundTruth
 from ekfviz.io.errors import InputError
 from ekfviz.io.jsontext import load_json
-from ekfviz.io.text import MAX_MAGNITUDE, numeric_lines
+from ekfviz.io.text import MAX_MAGNITUDE, numeric_lines, open_input
 
-_ID = re.compile(r"\d+")
+_ID = re.compile(r"\d+", re.ASCII)
 MAX_ID = 2**63 - 1  # ids are int64
 
 
@@ -36,10 +36,10 @@ def read_truth(path: Path) -> GroundTruth:
 
 
 def _starts_with_brace(path: Path) -> bool:
-    try:
-        with path.open("rb") as handle:
+    try:  # opened as the readers open it: a FIFO is refused, not waited on
+        with open_input(path) as handle:
             return handle.read(64).removeprefix(b"\xef\xbb\xbf").lstrip().startswith(b"{")
-    except OSError:
+    except (InputError, OSError):
         return False  # the text reader reports it
 
 

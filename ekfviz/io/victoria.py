@@ -25,7 +25,12 @@ import numpy as np
 from ekfviz.core.records import AnyEvent, Drive, Scan
 from ekfviz.core.types import FloatArray
 from ekfviz.io.errors import InputError
-from ekfviz.io.text import ProgressCallback, numeric_blocks
+from ekfviz.io.text import (
+    ProgressCallback,
+    check_time,
+    first_time_out_of_range,
+    numeric_blocks,
+)
 
 INPUTS = "inputs.dat"
 MEASUREMENTS = "measurements.dat"
@@ -103,7 +108,8 @@ def _blocks(
         before[0] = last
         before[1:] = times[:-1]
         backwards = np.flatnonzero(times < before)
-        if backwards.size:
+        outside = first_time_out_of_range(times)
+        if backwards.size and (outside is None or int(backwards[0]) < outside):
             k = int(backwards[0])
             if k:
                 yield lines[:k], table[:k]
@@ -112,6 +118,10 @@ def _blocks(
                 lines[k],
                 f"found time {times[k]:g} after {before[k]:g}, expected times in order",
             )
+        if outside is not None:  # a time a recording cannot hold (see MAX_TIME_S)
+            if outside:
+                yield lines[:outside], table[:outside]
+            check_time(path, lines[outside], float(times[outside]))
         rows += len(lines)
         last = float(times[-1])
         yield lines, table

@@ -37,10 +37,16 @@ from ekfviz.core.truth import GroundTruth
 from ekfviz.evaluation.errors import Evaluation
 from ekfviz.filters.ekf import HAVE_KERNEL
 from ekfviz.io.errors import InputError
-from ekfviz.io.paths import OutputPathError, check_output_path, unused_path
+from ekfviz.io.paths import OutputPathError, check_output_path, temporary_prefix, unused_path
 from ekfviz.models.range_bearing import RangeBearing
 from ekfviz.viz import style
-from ekfviz.viz.flush import flush_interruptibly
+from ekfviz.viz.flush import (
+    DiskFull,
+    disk_full,
+    flush_interruptibly,
+    watch_file,
+    written_file,
+)
 from ekfviz.viz.recorder import Recorder
 
 APPLICATION_ID = "ekfviz"
@@ -509,6 +515,8 @@ class Recording:
         self.rec = rec
         self.url = url
         self.complete = False
+        self.save_failed: str | None = None  # why the --save file is not whole, if it is not
+        self.save_path: Path | None = None  # the --save path, for messages
         self.partial = False  # a run cut short: never written over an existing file
         self.saved_to: Path | None = None  # where a --save file went, once written
         self.unreachable = unreachable  # a --connect URL without a viewer, when saving too
@@ -602,6 +610,21 @@ class RunLogger:
         self.recording.wait_while_serving()
 
 
+def _save_failure(rec: rr.RecordingStream, error: RuntimeError) -> str | None:
+    """Why the file a recording is saved to was not written whole, if the flush that
+    raised ``error`` says so (Rerun's file writer stopped, or its disk is full); None
+    for another sink's failure (a viewer that did not answer)."""
+    path = written_file(rec)
+    if path is None:
+        return None
+    if isinstance(error, DiskFull):
+        return str(error)
+    text = str(error).lower()
+    if "file-writer" in text or "file writer" in text or disk_full(path):
+        return "no space left on its disk" if disk_full(path) else str(error).splitlines()[0]
+    return None
+
+
 def finish_recorders(
     recording: Recording,
     recorders: Sequence[tuple[Recorder, Evaluation | None]],
@@ -614,7 +637,15 @@ def finish_recorders(
     try:
         for recorder, evaluation in recorders:
             recorder.finish(evaluation)
-    except RuntimeError as error:  # a viewer that never answered; a file is complete
+    except RuntimeError as error:
+        failed = _save_failure(recording.rec, error)
+        if failed is not None:  # the file is not whole: it replaces nothing (not complete)
+            recording.save_failed = failed
+            raise SinkError(
+                f"--save {recording.save_path}: the recording could not be written whole"
+                f" ({failed}); nothing was replaced, no file left"
+            ) from None
+        # a viewer that never answered; a file is complete
         recording.complete = True
         reason = str(error).splitlines()[0] if str(error) else type(error).__name__
         raise SinkError(f"the Rerun viewer did not take the recording: {reason}") from None
@@ -652,11 +683,17 @@ def open_recording(info: RunInfo, sinks: Sinks) -> Iterator[Recording]:
         rec.set_sinks(*log_sinks)
         _describe(rec, info)
         recording = Recording(rec, url, unreachable)
+        recording.save_path = sinks.save
         yield recording
     finally:
-        with contextlib.suppress(Exception):
-            flush_interruptibly(rec, FLUSH_TIMEOUT_S)
-        rec.disconnect()  # finalises the file (footer) and stops a server
+        complete = recording is not None and recording.complete
+        failed = recording is not None and recording.save_failed is not None
+        if temporary is not None and (failed or (not complete and disk_full(temporary))):
+            _abandon(rec)  # its file sink has stopped: a flush or disconnect would wait
+        else:
+            with contextlib.suppress(Exception):
+                flush_interruptibly(rec, FLUSH_TIMEOUT_S)
+            rec.disconnect()  # finalises the file (footer) and stops a server
         for close in closers:
             close()
         if temporary is not None and sinks.save is not None:
@@ -752,7 +789,21 @@ def _attach(
         # FileSink itself so that it gets the usual permissions.
         temporary = temporary_beside(target)
         log_sinks.append(rr.FileSink(temporary))
+        watch_file(rec, temporary)  # a full disk stops a flush at once (see viz.flush)
     return log_sinks, temporary, url
+
+
+def _abandon(rec: rr.RecordingStream) -> None:
+    """Let go of a stream whose file sink stopped on a full disk: its disconnect (which
+    flushes) is left to a helper thread, and Rerun's flush at exit is not waited for
+    (both would wait for ever); its temporary file is then removed, replacing nothing."""
+    helper = threading.Thread(target=rec.disconnect, name="ekfviz-abandon", daemon=True)
+    helper.start()
+    helper.join(ABANDON_WAIT_S)
+    rr.unregister_shutdown()
+
+
+ABANDON_WAIT_S = 1.0
 
 
 def temporary_beside(target: Path) -> Path:
@@ -763,7 +814,7 @@ def temporary_beside(target: Path) -> Path:
     file of a run that died (see :func:`remove_stale_parts`) from one being written.
     """
     remove_stale_parts(target)
-    return target.with_name(f".{target.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.part")
+    return target.with_name(f"{temporary_prefix(target)}{os.getpid()}.{uuid.uuid4().hex[:8]}.part")
 
 
 def remove_stale_parts(target: Path) -> list[Path]:
@@ -773,7 +824,7 @@ def remove_stale_parts(target: Path) -> list[Path]:
     :return: the files removed
     """
     removed: list[Path] = []
-    prefix = f".{target.name}."
+    prefix = temporary_prefix(target)
     try:
         names = [entry.name for entry in os.scandir(target.parent or Path("."))]
     except OSError:
@@ -829,7 +880,7 @@ def _commit_or_remove(temporary: Path, target: Path, recording: Recording | None
 
 def _describe(rec: rr.RecordingStream, info: RunInfo) -> None:
     """Recording name and properties, the run information and the input, all static."""
-    rec.send_recording_name(info.name)
+    rec.send_recording_name(_utf8(info.name))
     values: dict[str, str | int | bool | None] = {
         "version": info.version,
         "kind": info.kind,
@@ -844,6 +895,7 @@ def _describe(rec: rr.RecordingStream, info: RunInfo) -> None:
         "files_sha256": _json(info.file_digests) if info.file_digests else None,
         "compiled_kernel": HAVE_KERNEL,  # numbers differ from numpy's by round-off only
     }
+    values = {k: _utf8(v) if isinstance(v, str) else v for k, v in values.items()}
     rec.send_property("ekfviz", _any_values(values))
     if info.parameters:
         rec.send_property(
@@ -851,7 +903,7 @@ def _describe(rec: rr.RecordingStream, info: RunInfo) -> None:
         )
     rec.log(
         style.RUN_INFO,
-        rr.TextDocument(info.markdown(), media_type=rr.MediaType.MARKDOWN),
+        rr.TextDocument(_utf8(info.markdown()), media_type=rr.MediaType.MARKDOWN),
         static=True,
     )
     if info.input_text is not None:
@@ -865,6 +917,12 @@ def _describe(rec: rr.RecordingStream, info: RunInfo) -> None:
             ),
             static=True,
         )
+
+
+def _utf8(text: str) -> str:
+    """``text`` as UTF-8 can hold it: the bytes of a file name that are not UTF-8 (which
+    Python keeps as lone surrogates, and Rerun would refuse with a warning) as U+FFFD."""
+    return text.encode("utf-8", "surrogatepass").decode("utf-8", "replace")
 
 
 def _any_values(values: Mapping[str, ComponentValueLike | None]) -> rr.AnyValues:
