@@ -499,6 +499,35 @@ def test_a_full_disk_stops_a_flush_at_once(tmp_path: Path, monkeypatch: pytest.M
         flush.flush_interruptibly(stuck, 30.0)  # type: ignore[arg-type]
 
 
+def test_a_writer_is_taken_for_stopped_only_where_it_was_seen_running(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A flush stops at once when the stream's file writer, seen running, is gone; where
+    it was never seen (another version of Rerun naming its thread otherwise) its absence
+    says nothing, and the flush waits as Rerun's does."""
+    import threading
+    import weakref
+
+    from ekfviz.viz import flush
+
+    class Stuck:
+        def flush(self, timeout_sec: float) -> None:
+            threading.Event().wait(timeout_sec)
+
+    stuck = Stuck()
+    monkeypatch.setattr(flush, "_FILES", {stuck: tmp_path / "x.rrd"})
+    monkeypatch.setattr(flush, "_WRITERS", weakref.WeakSet())
+    monkeypatch.setattr(flush, "disk_full", lambda path: False)
+    monkeypatch.setattr(flush, "writer_running", lambda: False)
+    flush.note_writer(stuck)  # type: ignore[arg-type]  # not running: not seen
+    flush.flush_interruptibly(stuck, 0.8)  # type: ignore[arg-type]  # waited out, no error
+    monkeypatch.setattr(flush, "writer_running", lambda: True)
+    flush.note_writer(stuck)  # type: ignore[arg-type]
+    monkeypatch.setattr(flush, "writer_running", lambda: False)
+    with pytest.raises(flush.DiskFull, match="file writer stopped"):
+        flush.flush_interruptibly(stuck, 30.0)  # type: ignore[arg-type]
+
+
 def test_a_file_written_whole_or_not_at_all_on_a_full_disk(tmp_path: Path) -> None:
     """convert, --report, export: their files are written beside and renamed; a write
     that fails (here past a file-size limit) was a traceback."""

@@ -26,9 +26,14 @@ class DiskFull(RuntimeError):
 WRITER_THREAD = "file_writer"  # the name of Rerun's file sink thread (Linux shows it)
 
 
-def writer_stopped() -> bool:
-    """Whether Rerun's file writer thread is gone from this process; False where that
-    cannot be told (no /proc)."""
+# the streams whose file writer was seen running (see note_writer): only for them does
+# its absence mean that it stopped (another version of Rerun may name its thread otherwise)
+_WRITERS: weakref.WeakSet[rr.RecordingStream] = weakref.WeakSet()
+
+
+def writer_running() -> bool | None:
+    """Whether Rerun's file writer thread runs in this process; None where that cannot
+    be told (no /proc)."""
     try:
         tasks = os.listdir("/proc/self/task")
         names = []
@@ -36,8 +41,22 @@ def writer_stopped() -> bool:
             with contextlib.suppress(OSError), open(f"/proc/self/task/{task}/comm") as comm:
                 names.append(comm.read().strip())  # (OSError: a thread that ended meanwhile)
     except OSError:
-        return False
-    return WRITER_THREAD not in names
+        return None
+    return WRITER_THREAD in names
+
+
+def writer_stopped() -> bool:
+    """Whether Rerun's file writer thread is gone from this process; False where that
+    cannot be told (no /proc)."""
+    return writer_running() is False
+
+
+def note_writer(rec: rr.RecordingStream) -> None:
+    """Look once whether ``rec``'s file writer runs, once its sinks are set (see
+    :func:`watch_file`): a flush takes its end for a stopped writer only where it was
+    seen running."""
+    if rec in _FILES and writer_running():
+        _WRITERS.add(rec)
 
 
 def watch_file(rec: rr.RecordingStream, path: Path) -> None:
@@ -93,7 +112,7 @@ def flush_interruptibly(rec: rr.RecordingStream, timeout: float) -> None:
         ):
             if disk_full(path):
                 raise DiskFull(f"no space left on the device of {path.parent}")
-            if writer_stopped():
+            if rec in _WRITERS and writer_stopped():
                 raise DiskFull("Rerun's file writer stopped: a file-size limit or a write error")
     if failure:
         raise failure[0]

@@ -44,6 +44,7 @@ from ekfviz.viz.flush import (
     DiskFull,
     disk_full,
     flush_interruptibly,
+    note_writer,
     watch_file,
     written_file,
 )
@@ -682,6 +683,7 @@ def open_recording(info: RunInfo, sinks: Sinks) -> Iterator[Recording]:
         log_sinks, temporary, url = _attach(rec, sinks, closers)
         rec.set_sinks(*log_sinks)
         _describe(rec, info)
+        note_writer(rec)  # (its thread is running by now: the description took a while)
         recording = Recording(rec, url, unreachable)
         recording.save_path = sinks.save
         yield recording
