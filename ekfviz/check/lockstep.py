@@ -507,12 +507,7 @@ def compare(expected: State, got: State) -> Difference | None:
 def _scaled(expected: State, got: State) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
     """The filter's x and P in the reference's landmark order (the same ids), and their
     scaled differences from the reference's (the heading's wrapped)."""
-    where = {int(i): k for k, i in enumerate(got.ids.tolist())}
-    order = [0, 1, 2]
-    for landmark_id in expected.ids.tolist():
-        k = 3 + 2 * where[int(landmark_id)]
-        order += [k, k + 1]
-    x, P = got.x[order], got.P[np.ix_(order, order)]
+    x, P = got.in_order_of(expected.ids)
     dx = x - expected.x
     dx[2] = wrap_angle(float(dx[2]))
     scaled_x = np.abs(dx) / np.maximum(1.0, np.abs(expected.x))

@@ -216,6 +216,19 @@ class State:
     P: FloatArray
     ids: IntArray
 
+    def in_order_of(self, ids: IntArray) -> tuple[FloatArray, FloatArray]:
+        """x and P with the landmarks in the order of ``ids`` (the same landmarks, e.g.
+        another state's), to compare entry by entry.
+
+        :raises KeyError: an id of ``ids`` that this state has not
+        """
+        where = {int(i): k for k, i in enumerate(self.ids.tolist())}
+        index = [0, 1, 2]
+        for landmark_id in ids.tolist():
+            k = 3 + 2 * where[int(landmark_id)]
+            index += [k, k + 1]
+        return self.x[index], self.P[np.ix_(index, index)]
+
 
 # -- predicts --------------------------------------------------------------------------------
 
@@ -644,16 +657,11 @@ def explain_update(
     if fixed is None:
         flags_here = tuple(f for f in flags_here if f != "fixed_landmark_init_covariance")
     base = found & frozenset(flags_here)
-    order = {int(i): k for k, i in enumerate(after.ids.tolist())}
 
     def aligned(candidate: State) -> bool:
         if sorted(candidate.ids.tolist()) != sorted(after.ids.tolist()):
             return False
-        index = [0, 1, 2]
-        for i in candidate.ids.tolist():
-            k = 3 + 2 * order[int(i)]
-            index += [k, k + 1]
-        x, P = after.x[index], after.P[np.ix_(index, index)]
+        x, P = after.in_order_of(candidate.ids)
         dx = x - candidate.x
         dx[2] = wrap_angle(float(dx[2]))
         if not np.all(np.abs(dx) <= close * np.maximum(1.0, np.abs(candidate.x))):
