@@ -82,6 +82,24 @@ def test_hand_made_dataset_events_barcodes_and_skips(tmp_path: Path) -> None:
     assert "1 repeating a landmark" in warnings[0]
 
 
+@pytest.mark.parametrize("bad", ["11.5 0.0 0.0", "1e12 0.0 0.0"])
+def test_the_samples_before_a_bad_odometry_time_are_read_first(tmp_path: Path, bad: str) -> None:
+    """A time going back (or past a recording's timeline) on line 5 of the odometry: the
+    events of the samples before it come first, as a run stopped there keeps them; the
+    block they share with it was refused whole."""
+    files = dict(HAND, **{"Robot1_Odometry.dat": f"# Time [s] v w\n10.0 0.5 0.0\n11.0 1.0"
+                          f" 0.2\n12.0 0.0 0.0\n{bad}\n"})  # fmt: skip
+    events: list[object] = []
+    with pytest.raises(InputError) as raised:
+        for event in read_mrclam(open_dataset(write_dataset(tmp_path, files), 1)):
+            events.append(event)
+    assert raised.value.line == 5 and raised.value.path.name == "Robot1_Odometry.dat"
+    # every event of the samples before it, as without the bad line (see the test above)
+    kinds = [type(e).__name__ for e in events]
+    assert kinds == ["Control", "Control", "Sighting", "Control", "Sighting"]
+    assert isinstance(events[3], Control) and events[3].time == pytest.approx(12.0)
+
+
 def test_truth_interpolates_on_the_circle_and_not_outside_the_track(tmp_path: Path) -> None:
     truth = read_truth(open_dataset(write_dataset(tmp_path, HAND), 1))
     assert truth.ids.tolist() == [6, 7]

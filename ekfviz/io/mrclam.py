@@ -40,6 +40,7 @@ from ekfviz.io.text import (
     ProgressCallback,
     WarningCallback,
     check_time,
+    first_time_out_of_range,
     numeric_blocks,
     numeric_lines,
     time_fault,
@@ -264,10 +265,14 @@ def _odometry(
     last = -math.inf
     what = "time forward-velocity angular-velocity"
     for lines, table in numeric_blocks(path, 3, what, progress):
-        _check_times(path, lines, table[:, 0], last)
-        last = float(table[-1, 0])
-        for line, (time, v, omega) in zip(lines, table.tolist(), strict=True):
+        # the samples before a bad time first: a run stopped by it keeps all up to it
+        bad = _time_fault(path, lines, table[:, 0], last)
+        end = len(lines) if bad is None else bad[0]
+        for line, (time, v, omega) in zip(lines[:end], table[:end].tolist(), strict=True):
             yield line, time, v, omega
+        if bad is not None:
+            raise bad[1]
+        last = float(table[-1, 0])
     if last == -math.inf:
         raise InputError(path, 0, f"found no data, expected '{what}' lines")
 
@@ -330,16 +335,29 @@ def _rows(path: Path, columns: int, what: str) -> Iterator[tuple[int, list[float
 
 
 def _check_times(path: Path, lines: list[int], times: FloatArray, last: float) -> None:
-    """Refuse the first time of a block that is earlier than the one before it, or that a
-    recording cannot hold (see :data:`~ekfviz.io.text.MAX_TIME_S`)."""
+    """Refuse the first bad time of a block (see :func:`_time_fault`)."""
+    bad = _time_fault(path, lines, times, last)
+    if bad is not None:
+        raise bad[1]
+
+
+def _time_fault(
+    path: Path, lines: list[int], times: FloatArray, last: float
+) -> tuple[int, InputError] | None:
+    """The first time of a block (its row and error) that is earlier than the one before
+    it, or that a recording cannot hold (see :data:`~ekfviz.io.text.MAX_TIME_S`); None
+    when every time is good."""
     previous = np.concatenate(([last], times[:-1]))
     back = np.flatnonzero(times < previous)
-    fault = time_fault(path, lines, times)
-    if back.size and (fault is None or lines[int(back[0])] < fault.line):
+    outside = first_time_out_of_range(times)
+    if back.size and (outside is None or int(back[0]) < outside):
         k = int(back[0])
-        raise InputError(path, lines[k], _decreasing(float(times[k]), float(previous[k])))
-    if fault is not None:
-        raise fault
+        return k, InputError(path, lines[k], _decreasing(float(times[k]), float(previous[k])))
+    if outside is not None:
+        fault = time_fault(path, lines, times)
+        assert fault is not None  # the same first time out of range
+        return outside, fault
+    return None
 
 
 def _decreasing(time: float, last: float) -> str:
