@@ -552,3 +552,12 @@ def test_a_landmark_surveyed_twice_is_refused(tmp_path: Path) -> None:
     truth.write_text("# Subject x y sx sy\n6 1.0 2.0 0 0\n7 3.0 -1.0 0 0\n6 5.0 5.0 0 0\n")
     with pytest.raises(InputError, match=r":4: found subject 6 twice, expected each landmark once"):
         read_landmark_truth(truth)
+
+
+def test_a_submission_named_with_a_line_break_keeps_its_row_one_line() -> None:
+    """grade's table: a file named with a line break split its row over two lines."""
+    from ekfviz.pipeline.grade import GradeRow
+
+    row = GradeRow("alice\nbob.py", "error", (), "", 0.1, detail="it raised")
+    name = row.cells()[0].text
+    assert name == "alice\\nbob.py" and "\n" not in "".join(c.text for c in row.cells())

@@ -21,7 +21,6 @@ from ekfviz.cli.common import (
     err,
     fail,
     filter_module,
-    one_line,
     out,
     plain,
     rendered,
@@ -38,7 +37,7 @@ from ekfviz.cli.options import (
     expands_options,
 )
 from ekfviz.cli.sources import InitPoseOption
-from ekfviz.core.tables import Styled
+from ekfviz.core.tables import Styled, one_line
 from ekfviz.filters.ekf import FilterError
 from ekfviz.filters.spec import FilterSpec, FilterSpecError
 from ekfviz.io.errors import InputError

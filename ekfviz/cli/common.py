@@ -22,7 +22,7 @@ from rich.text import Text
 
 from ekfviz import __version__, signals
 from ekfviz.core.records import AnyEvent
-from ekfviz.core.tables import Cell, Styled, TextTable
+from ekfviz.core.tables import Cell, Styled, TextTable, one_line
 from ekfviz.core.truth import GroundTruth
 from ekfviz.filters.ekf import HAVE_KERNEL, FilterParams
 from ekfviz.io.paths import (
@@ -151,16 +151,6 @@ def say(lines: Sequence[Cell]) -> None:
 def plain(text: object) -> Text:
     """Text printed as it is: no rich markup read in it (``x[theta]``, ``[bold]``)."""
     return Text(str(text))
-
-
-def one_line(text: str) -> str:
-    """``text`` as one line: a line break or another character that is not printable in
-    it (from a file name, a user's exception, bytes that are not UTF-8) written as
-    ``repr`` writes it (``\\n``, ``\\x00``), so that an error or a warning is always
-    one line on the terminal and for the scripts reading it."""
-    if text.isprintable():
-        return text
-    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
 
 
 def fail(message: str, code: int = 2) -> NoReturn:

@@ -31,3 +31,13 @@ class TextTable:
     rows: tuple[tuple[Cell, ...], ...]
     left: frozenset[str] = frozenset()
     lines: bool = True
+
+
+def one_line(text: str) -> str:
+    """``text`` as one line: a line break or another character that is not printable in
+    it (from a file name, a user's exception, bytes that are not UTF-8) written as
+    ``repr`` writes it (``\\n``, ``\\x00``), so that an error, a warning or a table's
+    cell is always one line on the terminal and for the scripts reading it."""
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)

@@ -17,7 +17,7 @@ import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from ekfviz.core.tables import Styled, TextTable
+from ekfviz.core.tables import Styled, TextTable, one_line
 from ekfviz.filters.ekf import FilterParams
 
 STATUSES = ("match", "diverged", "error", "timeout", "memory", "crashed")
@@ -72,7 +72,8 @@ class GradeRow:
         # a failure's reason before its first divergence, which says less
         failed = self.status not in ("match", "diverged") and self.detail
         said = self.detail if failed else "; ".join(t for t in (self.first, self.detail) if t)
-        texts = (self.submission, self.status, ", ".join(self.causes), said,
+        # a submission's name as one line (a file may be named with a line break)
+        texts = (one_line(self.submission), self.status, ", ".join(self.causes), said,
                  f"{self.seconds:.1f}")  # fmt: skip
         return tuple(Styled(text) for text in texts)
 
