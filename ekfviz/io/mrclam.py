@@ -43,7 +43,7 @@ from ekfviz.io.text import (
     first_time_out_of_range,
     numeric_blocks,
     numeric_lines,
-    time_fault,
+    time_error,
 )
 
 BARCODES = "Barcodes.dat"
@@ -354,9 +354,7 @@ def _time_fault(
         k = int(back[0])
         return k, InputError(path, lines[k], _decreasing(float(times[k]), float(previous[k])))
     if outside is not None:
-        fault = time_fault(path, lines, times)
-        assert fault is not None  # the same first time out of range
-        return outside, fault
+        return outside, time_error(path, lines[outside], float(times[outside]))
     return None
 
 

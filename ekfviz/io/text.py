@@ -423,7 +423,7 @@ def check_time(path: Path, line: int, time: float) -> float:
     :raises InputError: naming the line and the time
     """
     if not -MAX_TIME_S <= time <= MAX_TIME_S:
-        raise InputError(path, line, _time_out_of_range(time))
+        raise time_error(path, line, time)
     return time
 
 
@@ -434,18 +434,15 @@ def first_time_out_of_range(times: FloatArray) -> int | None:
     return int(outside[0]) if outside.size else None
 
 
-def _time_out_of_range(time: float) -> str:
-    return (
+def time_error(path: Path, line: int, time: float) -> InputError:
+    """The error of a time (seconds) a recording's timeline cannot hold, on its line."""
+    return InputError(
+        path,
+        line,
         f"found time {time:g}, expected seconds within {TIME_RANGE_TEXT} (a recording's"
         " timeline counts nanoseconds in 64 bits; milliseconds or microseconds taken for"
-        " seconds?)"
+        " seconds?)",
     )
-
-
-def time_fault(path: Path, lines: list[int], times: FloatArray) -> InputError | None:
-    """The error of the first time of a block that a recording cannot hold, or None."""
-    k = first_time_out_of_range(times)
-    return None if k is None else InputError(path, lines[k], _time_out_of_range(float(times[k])))
 
 
 def format_number(value: float, precision: int | None) -> str:
