@@ -40,7 +40,7 @@ from ekfviz.io.text import (
     ProgressCallback,
     WarningCallback,
     check_time,
-    first_time_out_of_range,
+    first_bad_time,
     numeric_blocks,
     numeric_lines,
     time_error,
@@ -347,15 +347,13 @@ def _time_fault(
     """The first time of a block (its row and error) that is earlier than the one before
     it, or that a recording cannot hold (see :data:`~ekfviz.io.text.MAX_TIME_S`); None
     when every time is good."""
-    previous = np.concatenate(([last], times[:-1]))
-    back = np.flatnonzero(times < previous)
-    outside = first_time_out_of_range(times)
-    if back.size and (outside is None or int(back[0]) < outside):
-        k = int(back[0])
-        return k, InputError(path, lines[k], _decreasing(float(times[k]), float(previous[k])))
-    if outside is not None:
-        return outside, time_error(path, lines[outside], float(times[outside]))
-    return None
+    bad = first_bad_time(times, last)
+    if bad is None:
+        return None
+    k, previous = bad
+    if previous is None:
+        return k, time_error(path, lines[k], float(times[k]))
+    return k, InputError(path, lines[k], _decreasing(float(times[k]), previous))
 
 
 def _decreasing(time: float, last: float) -> str:

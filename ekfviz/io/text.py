@@ -434,6 +434,22 @@ def first_time_out_of_range(times: FloatArray) -> int | None:
     return int(outside[0]) if outside.size else None
 
 
+def first_bad_time(times: FloatArray, last: float) -> tuple[int, float | None] | None:
+    """The first time of a block (seconds) that a reader refuses, and the time before it
+    where it goes back (None: a time a recording cannot hold, see :data:`MAX_TIME_S`);
+    None when every time is good.
+
+    :param last: the time of the line before the block (-inf at the first)
+    """
+    before = np.concatenate(([last], times[:-1]))
+    back = np.flatnonzero(times < before)
+    outside = first_time_out_of_range(times)
+    if back.size and (outside is None or int(back[0]) < outside):
+        k = int(back[0])
+        return k, float(before[k])
+    return None if outside is None else (outside, None)
+
+
 def time_error(path: Path, line: int, time: float) -> InputError:
     """The error of a time (seconds) a recording's timeline cannot hold, on its line."""
     return InputError(

@@ -25,12 +25,7 @@ import numpy as np
 from ekfviz.core.records import AnyEvent, Drive, Scan
 from ekfviz.core.types import FloatArray
 from ekfviz.io.errors import InputError
-from ekfviz.io.text import (
-    ProgressCallback,
-    check_time,
-    first_time_out_of_range,
-    numeric_blocks,
-)
+from ekfviz.io.text import ProgressCallback, first_bad_time, numeric_blocks, time_error
 
 INPUTS = "inputs.dat"
 MEASUREMENTS = "measurements.dat"
@@ -104,24 +99,18 @@ def _blocks(
     rows = 0
     for lines, table in numeric_blocks(path, count, what, progress):
         times = table[:, 0]
-        before = np.empty_like(times)
-        before[0] = last
-        before[1:] = times[:-1]
-        backwards = np.flatnonzero(times < before)
-        outside = first_time_out_of_range(times)
-        if backwards.size and (outside is None or int(backwards[0]) < outside):
-            k = int(backwards[0])
+        bad = first_bad_time(times, last)
+        if bad is not None:
+            k, previous = bad
             if k:
                 yield lines[:k], table[:k]
+            if previous is None:  # a time a recording cannot hold (see MAX_TIME_S)
+                raise time_error(path, lines[k], float(times[k]))
             raise InputError(
                 path,
                 lines[k],
-                f"found time {times[k]:g} after {before[k]:g}, expected times in order",
+                f"found time {times[k]:g} after {previous:g}, expected times in order",
             )
-        if outside is not None:  # a time a recording cannot hold (see MAX_TIME_S)
-            if outside:
-                yield lines[:outside], table[:outside]
-            check_time(path, lines[outside], float(times[outside]))
         rows += len(lines)
         last = float(times[-1])
         yield lines, table
