@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 import ekfviz.runner.beside as beside
-from ekfviz.core.records import AnyEvent, Control, EventKind, EventRecord, PredictRows
+from ekfviz.core.records import AnyEvent, Control, EventKind, EventRecord, EventRows
 from ekfviz.filters.ekf import EkfSlam
 from ekfviz.runner.replay import FilterLineError, replay
 from ekfviz.sim.scenarios import loop
@@ -174,7 +174,7 @@ def test_a_consumer_that_stops_early_leaves_no_thread(large: list[AnyEvent]) -> 
 def states(events: list[AnyEvent]) -> tuple[dict[int, bytes], EventRecord]:
     """Each event's pose and pose covariance (the records' and the predict rows') as
     bytes, and the last record."""
-    rows = PredictRows()
+    rows = EventRows()
     records = list(replay(events, predict_rows=rows))
     poses = {r.event: r.pose.tobytes() + r.pose_cov.tobytes() for r in records}
     for k in range(len(rows)):

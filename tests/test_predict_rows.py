@@ -1,4 +1,4 @@
-"""A replay's predicts written as columns (PredictRows) record the same as their records,
+"""A replay's predicts written as columns (EventRows) record the same as their records,
 across sends, with the text log's joined lines, with times and when a run stops."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import pytest
 import rerun as rr
 from conftest import entity_rows
 
-from ekfviz.core.records import Control, EventKind, LogEvent, PredictRows, Sighting
+from ekfviz.core.records import Control, EventKind, LogEvent, EventRows, Sighting
 from ekfviz.filters.ekf import EkfSlam, FilterParams
 from ekfviz.runner.replay import replay
 from ekfviz.runner.run import run
@@ -92,7 +92,7 @@ def test_the_replay_yields_no_record_for_a_predict_written_as_a_row() -> None:
     initialisation stay records, and a row holds the pose the record would have."""
     log = events(60)
     records = list(replay(log, FilterParams()))
-    rows = PredictRows(4)  # grows past its first capacity
+    rows = EventRows(4)  # grows past its first capacity
     kept = list(replay(log, FilterParams(), predict_rows=rows))
     predicts = {r.event: r for r in records if r.kind is EventKind.PREDICT}
     assert set(rows.events) | {r.event for r in kept} == {r.event for r in records}
@@ -117,7 +117,7 @@ def test_a_run_that_stops_after_a_row_ends_at_that_predict() -> None:
     log = events(20)
     bad_at = next(k for k, e in enumerate(log) if isinstance(e, Control) and k > 10) + 1
     broken = [*log[:bad_at], Sighting(999, np.array([1, 1]), np.array([[0.1, 5.0]] * 2))]
-    rows = PredictRows()
+    rows = EventRows()
     kept = []
     with pytest.raises(Exception, match="same landmark twice"):
         for r in replay(broken, FilterParams(), predict_rows=rows):
@@ -137,7 +137,7 @@ def test_a_plugged_filter_and_full_covariances_keep_a_record_per_event() -> None
     class Mine(EkfSlam):  # a protocol filter: make_filter is not EkfSlam itself
         pass
 
-    rows = PredictRows()
+    rows = EventRows()
     kept = list(replay(events(20), FilterParams(), make_filter=Mine, predict_rows=rows))
     assert len(rows) == 0 and sum(r.kind is EventKind.PREDICT for r in kept) == 20
 
@@ -146,7 +146,7 @@ def test_a_row_left_half_written_is_never_read() -> None:
     """A signal raised inside add() (Ctrl-C becomes an exception anywhere) leaves a row
     with some columns written: it does not count, and dropping the rows clears it."""
     x, P = np.arange(5.0), np.eye(5)
-    rows = PredictRows(2)
+    rows = EventRows(2)
     for event in (1, 3, 5):
         rows.add(event, event, 10 + event, None, (1.0, 0.0), x + event, P)
     rows.events.append(7)  # the half-written row: its event only

@@ -18,7 +18,7 @@ import pytest
 import rerun as rr
 from conftest import entity_rows
 
-from ekfviz.core.records import EventKind, EventRecord, Observations, PredictRows
+from ekfviz.core.records import EventKind, EventRecord, Observations, EventRows
 from ekfviz.core.types import FloatArray
 from ekfviz.viz import Recorder, style
 from ekfviz.viz.ellipses import ellipse_shapes
@@ -147,7 +147,7 @@ def random_batch(seed: int) -> Batch:
     with and without both."""
     rng = np.random.default_rng(seed)
     pending: list[tuple[EventRecord, bool]] = []
-    rows = PredictRows(8)
+    rows = EventRows(8)
     ids = np.arange(1, 5, dtype=np.int64)
     step = 0
     pending.append((_record(rng, EventKind.INIT, 0, 0, ids), True))

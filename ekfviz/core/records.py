@@ -9,9 +9,9 @@ and a run has many events.
 from __future__ import annotations
 
 import enum
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
-from typing import TypeVar
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -468,18 +468,25 @@ def _kept(array: object, dtype: type[np.generic]) -> bool:
     return isinstance(array, np.ndarray) and array.dtype == dtype and not array.flags.writeable
 
 
-class PredictRows:
-    """The predicts of a replay as columns, written by the replay instead of a record each.
+class EventRows:
+    """The plain predicts and updates of a replay as columns, written by the replay
+    instead of a record each.
 
-    A long log's predicts are half its events and each record of one cost more than the
-    predict itself (two small copies, a control array, the object), while the recorder
-    only reads their pose, covariance, control and timelines, in columns. A replay given
-    a ``PredictRows`` (:func:`~ekfviz.runner.replay.replay`) writes every plain predict
-    of the built-in filter here (not the last event, nor one whose covariance is checked:
-    those stay records) and yields no record for it. The rows are in event order; the
-    consumer reads them beside the records it gets (a row comes before the record after
-    it) and :meth:`drop` s them once used. A row can be made a record (:meth:`record`)
-    with the map of the record before it: a predict does not change the map.
+    A long log's events each cost more as a record, and on their way through the
+    consumers, than in the filter, while the recorder reads them in columns. A replay
+    given an ``EventRows`` (:func:`~ekfviz.runner.replay.replay`) writes here every plain
+    predict of the built-in filter and, where :attr:`takes_updates` is set, every plain
+    update (one by ids that changed no map and raised no warning, whose covariance is not
+    checked and whose correlation is not due), and yields no record for them. The last
+    event is always a record. The rows are in event order; the consumer reads them beside
+    the records it gets (a row comes before the record after it) and :meth:`drop` s them
+    once used. A row can be made the record the replay would have made
+    (:meth:`records`, :meth:`latest`): a predict keeps the map of the event before it.
+
+    :ivar takes_updates: whether the replay may write updates here (the consumers of
+        its records read none of theirs but what the rows hold)
+    :ivar watch: called with the observations of the update rows that are forgotten
+        (dropped or made records), each row once (the run's NIS count)
     """
 
     def __init__(self, capacity: int = 4096) -> None:
@@ -489,8 +496,12 @@ class PredictRows:
         self.steps: list[int] = []
         self.lines: list[int] = []
         self.times: list[float | None] = []
-        self.controls: list[tuple[float, float]] = []
+        self.controls: list[tuple[float, float] | None] = []  # None at an update
+        # at an update: what it did and its map (ids, means, marginals), the filter's own
+        self.updates: list[_Update | None] = []
         self.timed = False  # some row has a time
+        self.takes_updates = False
+        self.watch: Callable[[list[Observations]], object] | None = None
         # rows complete: counted once all their columns are written (a signal raised in
         # add() leaves a row that no one reads)
         self._count = 0
@@ -498,9 +509,20 @@ class PredictRows:
         self._newest: _Row | None = None
         self._newest_pose: FloatArray = np.zeros(3)
         self._newest_cov: FloatArray = np.zeros((3, 3))
+        # the newest update row ever written, kept when dropped: the map of a predict
+        # row after it (or None where a record came after it)
+        self._map: tuple[int, _Update] | None = None
+        self._seen = 0  # the first rows, handed to watch already (settle)
 
     def __len__(self) -> int:
         return self._count
+
+    def _next_row(self) -> int:
+        row = self._count
+        if row == self.poses.shape[0]:
+            self.poses = np.concatenate([self.poses, np.empty_like(self.poses)])
+            self.pose_covs = np.concatenate([self.pose_covs, np.empty_like(self.pose_covs)])
+        return row
 
     def add(
         self,
@@ -514,10 +536,7 @@ class PredictRows:
     ) -> None:
         """A predict's row: its timelines and control, and the pose and pose covariance
         copied from the state ``x`` (3+2N,...) and ``P`` (classic layout, any capacity)."""
-        row = self._count
-        if row == self.poses.shape[0]:
-            self.poses = np.concatenate([self.poses, np.empty_like(self.poses)])
-            self.pose_covs = np.concatenate([self.pose_covs, np.empty_like(self.pose_covs)])
+        row = self._next_row()
         self.poses[row] = x[:3]
         self.pose_covs[row] = P[:3, :3]
         self.events.append(event)
@@ -525,8 +544,38 @@ class PredictRows:
         self.lines.append(line)
         self.times.append(time)
         self.controls.append(control)
+        self.updates.append(None)
         if time is not None:
             self.timed = True
+        self._count = row + 1
+
+    def add_update(
+        self,
+        event: int,
+        step: int,
+        line: int,
+        time: float | None,
+        observations: Observations,
+        x: FloatArray,
+        P: FloatArray,
+        landmarks: tuple[IntArray, FloatArray, FloatArray],
+    ) -> None:
+        """An update's row: its timelines, what it did, the pose and pose covariance
+        copied from ``x`` and ``P`` as :meth:`add` does, and its map (landmark ids, means
+        and marginals: read-only arrays the row keeps, as a record would)."""
+        row = self._next_row()
+        self.poses[row] = x[:3]
+        self.pose_covs[row] = P[:3, :3]
+        self.events.append(event)
+        self.steps.append(step)
+        self.lines.append(line)
+        self.times.append(time)
+        self.controls.append(None)
+        update = (observations, *landmarks)
+        self.updates.append(update)
+        if time is not None:
+            self.timed = True
+        self._map = (event, update)
         self._count = row + 1
 
     def drop(self, count: int) -> None:
@@ -538,29 +587,51 @@ class PredictRows:
             self._newest = self._row(total - 1)
             self._newest_pose = self.poses[total - 1].copy()
             self._newest_cov = self.pose_covs[total - 1].copy()
+        self._watched(self._seen, min(count, total))
+        self._seen = max(self._seen - count, 0)
         rest = total - count
         self.poses[:rest] = self.poses[count:total]
         self.pose_covs[:rest] = self.pose_covs[count:total]
-        for column in (self.events, self.steps, self.lines, self.times, self.controls):
+        for column in self._columns():
             del column[:count]
             del column[rest:]  # a row left half written
         self._count = rest
         self.timed = any(time is not None for time in self.times)
 
+    def _columns(self) -> tuple[list[Any], ...]:
+        return (self.events, self.steps, self.lines, self.times, self.controls, self.updates)
+
+    def settle(self) -> None:
+        """Hand every row written so far to :attr:`watch` (the rows are kept; a row is
+        watched once): before the run is judged."""
+        self._watched(self._seen, self._count)
+        self._seen = self._count
+
+    def _watched(self, start: int, stop: int) -> None:
+        """Hand the observations of the update rows ``start:stop`` to :attr:`watch`."""
+        if self.watch is not None and start < stop:
+            found = [update[0] for update in self.updates[start:stop] if update is not None]
+            if found:
+                self.watch(found)
+
     def _row(self, row: int) -> _Row:
         return (
             self.events[row], self.steps[row], self.lines[row], self.times[row],
-            self.controls[row],
+            self.controls[row], self.updates[row],
         )  # fmt: skip
 
     def records(self, start: int, before: EventRecord) -> list[EventRecord]:
-        """The rows from ``start`` on as the records the replay would have made, the map
-        of ``before`` (the record before them) shared; the rows are forgotten here."""
-        made = [
-            self._record(self._row(row), self.poses[row], self.pose_covs[row], before)
-            for row in range(start, self._count)
-        ]
-        for column in (self.events, self.steps, self.lines, self.times, self.controls):
+        """The rows from ``start`` on as the records the replay would have made (a
+        predict with the map of the event before it, ``before`` the record before them);
+        the rows are forgotten here."""
+        made = []
+        for row in range(start, self._count):
+            record = self._record(self._row(row), self.poses[row], self.pose_covs[row], before)
+            made.append(record)
+            before = record
+        self._watched(max(start, self._seen), self._count)
+        self._seen = min(self._seen, start)
+        for column in self._columns():
             del column[start:]
         self._count = start
         self.timed = any(time is not None for time in self.times)
@@ -577,18 +648,47 @@ class PredictRows:
             newest, pose, cov = self._newest, self._newest_pose, self._newest_cov
         if newest is None or record is None or newest[0] <= record.event:
             return record
-        return self._record(newest, pose, cov, record)
+        before = record
+        if newest[5] is None and self._map is not None and self._map[0] > record.event:
+            # a predict after an update row: that update's map
+            before = self.map_record(self._map[1], record)
+        return self._record(newest, pose, cov, before)
+
+    def update_record(self, row: int) -> EventRecord:
+        """The record of the update at ``row`` (the rows are kept)."""
+        update = self.updates[row]
+        assert update is not None
+        return self._record(self._row(row), self.poses[row], self.pose_covs[row], None)
+
+    @staticmethod
+    def map_record(update: _Update, like: EventRecord) -> EventRecord:
+        """``like`` with the map of the update row ``update`` (what a predict after it keeps)."""
+        _, ids, xy, covs = update
+        return kept_record(
+            like.event, like.step, like.kind, like.line, like.pose, like.pose_cov, ids, xy, covs
+        )
 
     @staticmethod
     def _record(
-        row: _Row, pose: FloatArray, pose_cov: FloatArray, before: EventRecord
+        row: _Row, pose: FloatArray, pose_cov: FloatArray, before: EventRecord | None
     ) -> EventRecord:
-        event, step, line, time, control = row
+        event, step, line, time, control, update = row
+        if update is None:
+            assert before is not None  # a predict keeps the map of the event before it
+            ids, xy, covs = before.landmark_ids, before.landmarks_xy, before.landmark_covs
+            kind, observations = EventKind.PREDICT, None
+            made_control = frozen(np.array(control, dtype=np.float64))
+        else:
+            observations, ids, xy, covs = update
+            kind, made_control = EventKind.UPDATE, None
         return kept_record(
-            event, step, EventKind.PREDICT, line, frozen(pose.copy()), frozen(pose_cov.copy()),
-            before.landmark_ids, before.landmarks_xy, before.landmark_covs,
-            frozen(np.array(control, dtype=np.float64)), time=time,
+            event, step, kind, line, frozen(pose.copy()), frozen(pose_cov.copy()),
+            ids, xy, covs, made_control, observations, time=time,
         )  # fmt: skip
 
 
-_Row = tuple[int, int, int, float | None, tuple[float, float]]  # event step line time control
+# an update row's observations and map: landmark ids, means (N, 2), marginals (N, 2, 2)
+UpdateParts = tuple["Observations", IntArray, FloatArray, FloatArray]
+_Update = UpdateParts
+# event step line time control update
+_Row = tuple[int, int, int, float | None, tuple[float, float] | None, _Update | None]

@@ -15,9 +15,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ekfviz.core.records import EventKind, EventRecord
+from ekfviz.core.records import EventKind, EventRecord, Observations
 from ekfviz.core.stats import chi2_quantile
 from ekfviz.core.truth import GroundTruth
+from ekfviz.core.types import FloatArray
 from ekfviz.models.angles import wrap_angle
 
 CONFIDENCE = 0.95
@@ -166,6 +167,33 @@ class Consistency:
                     self.without_true_pose += 1
             else:
                 self.singular_pose += 1
+
+    def add_observations(self, found: list[Observations]) -> None:
+        """Count the NIS of updates given without their records (rows of a replay, see
+        :class:`~ekfviz.core.records.EventRows`): as :meth:`add` counts theirs, the
+        lines of one length at once."""
+        by_length: dict[int, list[FloatArray]] = {}
+        for observations in found:
+            by_length.setdefault(len(observations), []).append(observations.nis)
+        for m, each in by_length.items():
+            if not m:
+                continue
+            nis = np.concatenate(each).reshape(len(each), m)
+            # summed in order, as update_nis sums a line (the last of the running sums)
+            totals = np.cumsum(nis, axis=1)[:, -1]
+            whole = np.isfinite(totals)
+            self._count_nis(totals[whole], 2 * m)
+            for values in nis[~whole]:  # some observation not used: one at a time
+                used = [value for value in values.tolist() if math.isfinite(value)]
+                if used:
+                    self._count_nis(np.array([sum(used)]), 2 * len(used))
+
+    def _count_nis(self, totals: FloatArray, dof: int) -> None:
+        low, high = chi2_bounds(dof)
+        below, above = int(np.count_nonzero(totals < low)), int(np.count_nonzero(totals > high))
+        self.nis.below += below
+        self.nis.above += above
+        self.nis.inside += len(totals) - below - above
 
     def combined(self) -> tuple[Verdict, str] | None:
         """One verdict from NEES and NIS together, and why; None with neither.

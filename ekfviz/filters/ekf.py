@@ -416,6 +416,18 @@ class EkfSlam:
             time, warnings, covariance, association,
         )  # fmt: skip
 
+    def landmarks(self) -> tuple[IntArray, FloatArray, FloatArray] | None:
+        """The map as a record holds it (ids, means (N, 2), marginals (N, 2, 2), read-only
+        and kept while the map does not change, the same arrays :meth:`record` takes), or
+        None where changes of P are pending (a large map's update): a row of an update
+        (:class:`~ekfviz.core.records.EventRows`) reads the pose in the buffers then."""
+        if self._rank:
+            return None
+        if self._landmarks_xy is None:  # as record() makes it: x[:n] copied once
+            mean = frozen(self._views()[4].copy())
+            self._landmarks_xy = mean[3:].reshape((self._n - 3) // 2, 2)
+        return self.landmark_ids_array(), self._landmarks_xy, self.landmark_marginals()
+
     def _views(self) -> _RecordViews:
         """The views a record copies, made again where the buffers or dimension changed."""
         views = self._record_views

@@ -125,7 +125,10 @@ def replay_log(
 ) -> Evaluation:
     """One replay: the events through the filter into the logger, judged at the end.
 
-    Every record goes to the logger (Rerun), the consistency count and ``on_record``.
+    Every record goes to the logger (Rerun), the consistency count and ``on_record``;
+    the plain predicts (and, without truth or an association, the plain updates: no
+    warning, no check) go to the logger as columns, their NIS to the consistency count
+    (see :class:`~ekfviz.core.records.EventRows`).
     Bad input, a filter that cannot go on, Ctrl-C or SIGTERM stop the replay with the
     recording of everything before it kept and its last log line saying why.
 
@@ -146,12 +149,18 @@ def replay_log(
     # the plain predicts go to the recorder as columns (no other consumer reads a
     # predict's record) unless the hooks read them (a source's reference)
     rows = logger.predict_rows() if scans is None or not scans.reads_predicts else None
+    if rows is not None:
+        # its plain updates too where only the recorder and the NIS count read them:
+        # without truth (whose errors are counted per update) and without an association
+        rows.takes_updates = truth is None and (scans is None or scans.associator is None)
+        rows.watch = consistency.add_observations
     try:
         run(events, params, consumers, make_filter=make_filter, name=name, slam=slam,
             associator=associator, predict_rows=rows)  # fmt: skip
     except (InputError, FilterLineError, KeyboardInterrupt, signals.Terminated) as cause:
-        if rows is not None:  # where it stopped: maybe a predict written as a row
+        if rows is not None:  # where it stopped: maybe an event written as a row
             last.record = rows.latest(last.record)
+            rows.settle()
         if scans is not None and last.record is not None:
             truth = scans.truth_of(last.record)
         final = None if last.record is None else evaluate(last.record, truth, consistency)
@@ -164,6 +173,8 @@ def replay_log(
         if scans is not None:
             truth = scans.truth_of(last.record)
             scans.finish(logger)  # before the layout: the map frames what it draws
+        if rows is not None:  # the NIS of the rows not sent yet
+            rows.settle()
         evaluation = evaluate(last.record, truth, consistency)
         logger.finish(evaluation)
     return evaluation

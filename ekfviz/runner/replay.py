@@ -17,8 +17,8 @@ from ekfviz.core.records import (
     Drive,
     EventKind,
     EventRecord,
+    EventRows,
     Observations,
-    PredictRows,
     Scan,
     ScanAssociation,
     Sighting,
@@ -86,7 +86,7 @@ def replay(
     full_cov: bool = False,
     slam: EkfSlam | None = None,
     associator: Associator | None = None,
-    predict_rows: PredictRows | None = None,
+    predict_rows: EventRows | None = None,
 ) -> Iterator[EventRecord]:
     """Run EKF-SLAM over ``events`` lazily, one record per event.
 
@@ -120,10 +120,12 @@ def replay(
     :param full_cov: also keep the full (3+2N)^2 covariance in every record
     :param slam: the built-in filter to run, made by the caller (with its models)
     :param associator: for logs with scans
-    :param predict_rows: where the built-in filter's plain predicts go as columns instead
-        of records (see :class:`~ekfviz.core.records.PredictRows`): every predict of a
-        control but the last event's and those whose covariance is checked; None: a
-        record for every event
+    :param predict_rows: where the built-in filter's plain events go as columns instead
+        of records (see :class:`~ekfviz.core.records.EventRows`): every predict of a
+        control but the last event's and those whose covariance is checked, and, where
+        the rows take updates, every update by ids that keeps the map of the record before
+        it, raised no warning and whose covariance is not checked nor its correlation
+        due; None: a record for every event
     :raises FilterLineError: the filter cannot go on at a line (a non-finite state, a
         protocol filter that raised or showed a broken state, ...)
     """
@@ -139,6 +141,7 @@ def replay(
         ekf = plugged(make_filter, params, name)
     gate, R = params.gate, params.R
     rows = predict_rows if isinstance(ekf, EkfSlam) and not full_cov else None
+    update_rows = rows if rows is not None and rows.takes_updates else None
     next_check = 0  # the step from which the whole covariance is due for a check
     cadence = CorrelationCadence()
     # the work on a large P (the check, the correlation) is done beside the filter, the
@@ -223,6 +226,7 @@ def replay(
             yield from beside.hold(record) if beside.busy else (record,)
             pending = [] if first is None else [(first, last)]
 
+        map_ids = record.landmark_ids  # the map of the last record (an update row's own)
         step_has_update = True  # the initialisation counts as step 0's update
         event = 0
         # per event, below: the record's arguments by name (no dictionary unpacked), the
@@ -293,12 +297,34 @@ def replay(
                         covariance, warnings = checked_pair(log_event.line, warnings)
                     else:
                         covariance = None
+                    # a plain update by ids, in the map of the last record: a row (see
+                    # EventRows), unless its correlation is due
+                    due: bool | None = None  # asked of the cadence once, here or below
+                    if (
+                        update_rows is not None
+                        and covariance is None
+                        and association is None
+                        and not beside.busy
+                        and (landmarks := ekf.landmarks()) is not None  # type: ignore[union-attr]  # update_rows: the built-in filter's
+                        and landmarks[0] is map_ids
+                    ):
+                        due = cadence.due(step, len(map_ids), last, log_event.time)
+                        if not due:
+                            x, P = ekf.buffers  # type: ignore[union-attr]
+                            update_rows.add_update(
+                                event, step, log_event.line, log_event.time, observations, x, P,
+                                landmarks,
+                            )  # fmt: skip
+                            continue
                     record = ekf.record(
                         event=event, step=step, kind=EventKind.UPDATE, line=log_event.line,
                         time=log_event.time, observations=observations, full_cov=full_cov,
                         warnings=warnings, covariance=covariance, association=association,
                     )  # fmt: skip
-                    if cadence.due(step, record.n_landmarks, last, record.time):
+                    map_ids = record.landmark_ids
+                    if due is None:
+                        due = cadence.due(step, record.n_landmarks, last, record.time)
+                    if due:
                         record = with_correlation(record)
                     if beside.busy:
                         yield from beside.hold(record)

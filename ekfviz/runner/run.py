@@ -28,7 +28,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable, Sequence
 from typing import TYPE_CHECKING
 
-from ekfviz.core.records import AnyEvent, EventRecord, PredictRows
+from ekfviz.core.records import AnyEvent, EventRecord, EventRows
 from ekfviz.runner.replay import replay
 
 if TYPE_CHECKING:
@@ -50,7 +50,7 @@ def run(
     name: str = "ekf",
     slam: EkfSlam | None = None,
     associator: Associator | None = None,
-    predict_rows: PredictRows | None = None,
+    predict_rows: EventRows | None = None,
 ) -> EventRecord | None:
     """Replay ``events`` and call each consumer with every record, in turn.
 

@@ -336,12 +336,16 @@ class Recorder:
             self._log_record(admitted)
 
     def _log_rows(self) -> None:
-        """Hold the predict rows written since the last record (see PendingEvents)."""
+        """Hold the rows written since the last record (see PendingEvents)."""
         last = self.pending.hold_rows(
-            self._last_record, self._thinning.held, self.log_record, self._send_pending
+            self._last_record,
+            self._thinning.held,
+            self.log_record,
+            self._map.admit_rows,
+            self._send_pending,
         )
         if last is not None:
-            self._event, self._step, self._step_has_update = *last, False
+            self._event, self._step, self._step_has_update = last
 
     def _log_record(self, record: EventRecord) -> None:
         if record.kind is EventKind.UPDATE and record.observations is None:

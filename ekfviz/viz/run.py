@@ -32,7 +32,7 @@ import rerun as rr
 from rerun.any_batch_value import ComponentValueLike
 
 from ekfviz import __version__, signals
-from ekfviz.core.records import EventRecord, PredictRows
+from ekfviz.core.records import EventRecord, EventRows
 from ekfviz.core.truth import GroundTruth
 from ekfviz.evaluation.errors import Evaluation
 from ekfviz.filters.ekf import HAVE_KERNEL
@@ -546,7 +546,7 @@ class RunLogger:
         self.url = recording.url
         self.logged = 0  # records logged so far
         self.last: EventRecord | None = None  # the last record logged
-        self._rows: PredictRows | None = None  # the predicts logged as rows, if any
+        self._rows: EventRows | None = None  # the predicts logged as rows, if any
 
     @property
     def finished(self) -> bool:
@@ -558,7 +558,7 @@ class RunLogger:
         self.logged += 1
         self.last = record
 
-    def predict_rows(self) -> PredictRows:
+    def predict_rows(self) -> EventRows:
         """Where a replay writes its plain predicts as columns, for the recorder to log
         before the next record (see :class:`~ekfviz.viz.layers.pending.PendingEvents`)."""
         self._rows = self.recorder.pending.predict_rows()

@@ -16,7 +16,14 @@ from typing import TypeVar
 
 import numpy as np
 
-from ekfviz.core.records import EventKind, EventRecord, PredictRows
+from ekfviz.core.records import (
+    EventKind,
+    EventRecord,
+    EventRows,
+    Observations,
+    ScanAssociation,
+    UpdateParts,
+)
 from ekfviz.core.types import BoolArray, FloatArray, IntArray
 from ekfviz.viz.layers.canvas import Clock, Rows
 
@@ -25,11 +32,18 @@ _PREDICT, _UPDATE = EventKind.PREDICT, EventKind.UPDATE
 
 def landmark_rows(record: EventRecord, which: str | None) -> IntArray:
     """Rows of ``record``'s landmarks: all (None), the observed or the initialised ones."""
-    if which is None or record.observations is None:
-        return np.arange(record.n_landmarks)
-    observations = record.observations
+    return map_rows_of(record.landmark_ids, record.observations, which)
+
+
+def map_rows_of(
+    landmark_ids: IntArray, observations: Observations | None, which: str | None
+) -> IntArray:
+    """Rows of the map ``landmark_ids`` of an update that did ``observations``: all
+    (None), the observed or the initialised ones."""
+    if which is None or observations is None:
+        return np.arange(len(landmark_ids))
     ids = observations.ids if which == "observed" else observations.ids[observations.initialised]
-    return np.flatnonzero(np.isin(record.landmark_ids, ids))
+    return np.flatnonzero(np.isin(landmark_ids, ids))
 
 
 @dataclass(frozen=True, slots=True)
@@ -51,9 +65,9 @@ class Observed:
     skipped: IntArray
 
     @staticmethod
-    def of(count: int, corrected: IntArray, updates: list[EventRecord]) -> Observed:
-        """What the ``updates`` at the rows ``corrected`` of a batch of ``count`` did."""
-        found = [update.observations for update in updates]
+    def of(count: int, corrected: IntArray, found: list[Observations | None]) -> Observed:
+        """What the updates at the rows ``corrected`` of a batch of ``count`` did
+        (``found``, None where an update has no observations)."""
         has = [observations is not None for observations in found]
         rows = corrected if all(has) else corrected[np.array(has, dtype=bool)]
         observed = [observations for observations in found if observations is not None]
@@ -88,40 +102,58 @@ class Maps:
     """The maps of a batch's updates (its ``corrected`` rows), joined once for every part
     that reads them all (the map's changes, the health series).
 
-    :param records: the updates, in order
+    :param records: the updates' records, in order; None at an update given as a row
+        (see :class:`~ekfviz.core.records.EventRows`: no association, no time)
+    :param ids: (u,) each one's landmark ids (the same array while its map is the same)
+    :param observations: what each did, None where it has no observations
     :param counts: (u,) landmarks of each
     :param starts: (u + 1,) where each one's landmarks start in ``xy`` and ``covs``
     :param xy: (sum(counts), 2) landmark means, update after update
     :param covs: (sum(counts), 2, 2) their marginal covariances
     """
 
-    records: list[EventRecord]
+    records: list[EventRecord | None]
+    ids: list[IntArray]
+    observations: list[Observations | None]
     counts: IntArray
     starts: IntArray
     xy: FloatArray
     covs: FloatArray
 
     @staticmethod
-    def of(records: list[EventRecord]) -> Maps:
-        counts = np.fromiter(
-            map(len, [record.landmark_ids for record in records]), np.int64, len(records)
-        )
-        starts = np.zeros(len(records) + 1, dtype=np.int64)
+    def of(
+        records: list[EventRecord | None],
+        ids: list[IntArray],
+        xy: list[FloatArray],
+        covs: list[FloatArray],
+        observations: list[Observations | None],
+    ) -> Maps:
+        """The maps of updates given by their parts, in order."""
+        counts = np.fromiter(map(len, ids), np.int64, len(ids))
+        starts = np.zeros(len(ids) + 1, dtype=np.int64)
         np.cumsum(counts, out=starts[1:])
-        if not records:
-            return Maps(records, counts, starts, np.zeros((0, 2)), np.zeros((0, 2, 2)))
+        if not ids:
+            return Maps(records, ids, observations, counts, starts, np.zeros((0, 2)),
+                        np.zeros((0, 2, 2)))  # fmt: skip
         return Maps(
             records=records,
+            ids=ids,
+            observations=observations,
             counts=counts,
             starts=starts,
-            xy=np.concatenate([record.landmarks_xy for record in records]),
-            covs=np.concatenate([record.landmark_covs for record in records]),
+            xy=np.concatenate(xy),
+            covs=np.concatenate(covs),
         )
+
+    def association(self, i: int) -> ScanAssociation | None:
+        """What the association decided at the ``i``-th update, if it decided anything."""
+        record = self.records[i]
+        return None if record is None else record.association
 
     def runs(self) -> list[int]:
         """Where each run of updates of one map (the same landmark ids) starts: the core's
         records share one ids array until the map grows."""
-        ids = [record.landmark_ids for record in self.records]
+        ids = self.ids
         return [0] + [
             k
             for k, (before, now) in enumerate(itertools.pairwise(ids), start=1)
@@ -134,7 +166,7 @@ class Batch:
     """The records of one send as columns, built once and read by every part.
 
     :param records: the records, in order; None at a predict given as a row (see
-        :class:`~ekfviz.core.records.PredictRows`), whose line and control are in
+        :class:`~ekfviz.core.records.EventRows`), whose line and control are in
         ``lines`` and ``controls``
     :param whole: (count,) whether each update logs the whole map's ellipses
     :param rows: their timelines
@@ -166,11 +198,14 @@ class Batch:
     def of(
         pending: list[tuple[EventRecord, bool]],
         clock: Clock,
-        rows: PredictRows | None = None,
+        rows: EventRows | None = None,
         held: int = 0,
+        rows_whole: list[bool] | None = None,
     ) -> Batch:
         """The batch of the records ``pending`` (each with whether it logs the whole map)
-        and of the first ``held`` predict ``rows``, merged in event order."""
+        and of the first ``held`` ``rows`` (``rows_whole``: whether each logs the whole
+        map), merged in event order: an update row made the record it stands for (the
+        map's parts read the updates' records), a predict row None."""
         own = [record for record, _ in pending]
         count = len(own)
         whole = np.array([is_whole for _, is_whole in pending], dtype=bool)
@@ -193,6 +228,7 @@ class Batch:
             poses = np.concatenate([record.pose for record in own]).reshape(count, 3)
             covs = np.concatenate([record.pose_cov for record in own]).reshape(count, 3, 3)
         records: list[EventRecord | None] = list(own)
+        update_of: dict[int, UpdateParts] = {}  # the update rows' parts, by their row
         if rows is not None and held:
             # the rows' events interleave the records': each column in event order
             row_events = np.array(rows.events[:held], dtype=np.int64)
@@ -204,20 +240,50 @@ class Batch:
             for k, record in zip(mine.tolist(), own, strict=True):
                 records[k] = record
             count += held
-            row_controls = np.array(rows.controls[:held], dtype=np.float64).reshape(held, 2)
-            whole = _merged(whole, np.zeros(held, dtype=bool), mine, theirs)
+            row_updates = [k for k, update in enumerate(rows.updates[:held]) if update is not None]
+            row_is_update = np.zeros(held, dtype=bool)
+            row_is_update[row_updates] = True
+            if row_updates:
+                at_theirs = theirs.tolist()
+                for k in row_updates:
+                    update_of[at_theirs[k]] = rows.updates[k]  # type: ignore[assignment]
+                row_controls = np.array(
+                    [(math.nan, math.nan) if c is None else c for c in rows.controls[:held]],
+                    dtype=np.float64,
+                ).reshape(held, 2)
+            else:
+                row_controls = np.array(rows.controls[:held], dtype=np.float64).reshape(held, 2)
+            row_whole = np.zeros(held, dtype=bool) if rows_whole is None else rows_whole[:held]
+            whole = _merged(whole, np.array(row_whole, dtype=bool), mine, theirs)
             steps = _merged(steps, np.array(rows.steps[:held], dtype=np.int64), mine, theirs)
             events = _merged(events, row_events, mine, theirs)
             times = _merged(times, _times(rows.times[:held]), mine, theirs)
             poses = _merged(poses, rows.poses[:held], mine, theirs)
             covs = _merged(covs, rows.pose_covs[:held], mine, theirs)
-            is_predict = _merged(is_predict, np.ones(held, dtype=bool), mine, theirs)
-            updating = _merged(updating, np.zeros(held, dtype=bool), mine, theirs)
+            is_predict = _merged(is_predict, ~row_is_update, mine, theirs)
+            updating = _merged(updating, row_is_update, mine, theirs)
             lines = _merged(lines, np.array(rows.lines[:held], dtype=np.int64), mine, theirs)
             controls = _merged(controls, row_controls, mine, theirs)
-            has_control = _merged(has_control, np.ones(held, dtype=bool), mine, theirs)
+            has_control = _merged(has_control, ~row_is_update, mine, theirs)
         corrected = np.flatnonzero(~is_predict)
-        updates: list[EventRecord] = [records[k] for k in corrected.tolist()]  # records there
+        updated = [records[k] for k in corrected.tolist()]  # None at an update row
+        if update_of:
+            parts = [
+                (r.observations, r.landmark_ids, r.landmarks_xy, r.landmark_covs)
+                if (r := records[k]) is not None
+                else update_of[k]
+                for k in corrected.tolist()
+            ]
+            observations = [part[0] for part in parts]
+            ids = [part[1] for part in parts]
+            xy_each = [part[2] for part in parts]
+            covs_each = [part[3] for part in parts]
+        else:  # records alone (a record at every row of an update)
+            own_updates = [r for r in updated if r is not None]
+            observations = [r.observations for r in own_updates]
+            ids = [r.landmark_ids for r in own_updates]
+            xy_each = [r.landmarks_xy for r in own_updates]
+            covs_each = [r.landmark_covs for r in own_updates]
         return Batch(
             records=records,
             whole=whole,
@@ -227,8 +293,8 @@ class Batch:
             is_predict=is_predict,
             updating=updating,
             corrected=corrected,
-            observed=Observed.of(count, corrected, updates),
-            maps=Maps.of(updates),
+            observed=Observed.of(count, corrected, observations),
+            maps=Maps.of(updated, ids, xy_each, covs_each, observations),
             lines=lines,
             controls=controls,
             has_control=has_control,

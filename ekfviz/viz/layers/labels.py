@@ -6,7 +6,6 @@ from __future__ import annotations
 import numpy as np
 import rerun as rr
 
-from ekfviz.core.records import EventRecord
 from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.viz import style
 from ekfviz.viz.annotations import annotation_context
@@ -83,25 +82,26 @@ class LabelsLayer:
     def send(
         self,
         times: list[rr.TimeColumnLike],
-        updates: list[EventRecord],
         ids: IntArray,
         positions: FloatArray,
         counts: IntArray,
+        variances_y: FloatArray,
     ) -> None:
-        """The labels of the maps of ``updates`` (their ``ids`` and ``positions`` joined,
-        ``counts`` a map), or empty rows from the first map too large for them."""
+        """The labels of some maps (their ``ids`` and ``positions`` joined, ``counts`` a
+        map), each below its landmark by 3 sigma in y (``variances_y``), or empty rows
+        from the first map too large for them."""
         send = self._canvas.send
-        if self._labels_off or max(record.n_landmarks for record in updates) > self._small_map:
+        if self._labels_off or int(counts.max()) > self._small_map:
             if not self._labels_off:  # empty rows from here on: the labels are gone
                 self._labels_off = True
-                empty = np.zeros(len(updates), dtype=np.int64)
+                empty = np.zeros(len(counts), dtype=np.int64)
                 send(
                     style.LANDMARK_LABELS,
                     times,
                     [column(rr.Points2D.descriptor_positions(), xy(np.zeros((0, 2))), empty)],
                 )
             return
-        sigma_y = np.sqrt(np.concatenate([record.landmark_covs[:, 1, 1] for record in updates]))
+        sigma_y = np.sqrt(variances_y)
         below = positions - np.column_stack([np.zeros(len(positions)), 3.0 * sigma_y])
         bounds_xy = self._canvas.bounds_xy
         if bounds_xy is not None and counts[-1] > 1:

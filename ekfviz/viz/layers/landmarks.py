@@ -131,6 +131,26 @@ class MapLayer:
         self.last_update = (record, whole_map)
         return whole_map
 
+    def admit_rows(self, steps: list[int], n_landmarks: int, newest: EventRecord) -> list[bool]:
+        """:meth:`admit` of updates given as rows (:class:`~ekfviz.core.records.EventRows`)
+        at ``steps``, untimed, in the map of the last record admitted (``n_landmarks``),
+        ``newest`` the last of them as a record; whether each logs the whole map."""
+        if self._detail or n_landmarks <= SMALL_MAP:  # not sparse: every one of them
+            whole = [True] * len(steps)
+            self._map_step, self._map_time = steps[-1], None
+        else:
+            whole = []
+            map_step = self._map_step
+            for step in steps:
+                is_whole = map_step is None or step - map_step >= MAP_EVERY_STEPS
+                if is_whole:
+                    map_step = step
+                whole.append(is_whole)
+            if map_step != self._map_step:
+                self._map_step, self._map_time = map_step, None
+        self.last_update = (newest, whole[-1])
+        return whole
+
     def send(self, batch: Batch) -> None:
         """The points and ellipses of the batch's updates (see :meth:`_map_changes`)."""
         if not batch.corrected.size:
@@ -141,10 +161,18 @@ class MapLayer:
         sparse = self._sparse_maps(batch)
         shown = self._map_changes(batch, sparse).tolist()
         if shown:
-            self._send_points(rows.pick(corrected[shown]), [records[i] for i in shown])
+            picked = np.array(shown, dtype=np.int64)
+            joined = ranges(maps.starts[picked], maps.starts[picked + 1])
+            self._send_points(
+                rows.pick(corrected[picked]),
+                np.concatenate([maps.ids[i] for i in shown]),
+                maps.xy[joined],
+                maps.counts[picked],
+                maps.covs[joined, 1, 1],
+            )
         # the ellipses of every update below by their rows in the batch's joined maps
         # (maps.xy, maps.covs), found for all updates at once (see joined_rows)
-        joined_ids = JoinedIds(records)
+        joined_ids = JoinedIds(maps.ids)
         whole_maps = np.array([i for i in shown if whole[i]], dtype=np.int64)
         self._send_joined_ellipses(
             style.LANDMARK_ELLIPSES,
@@ -179,7 +207,8 @@ class MapLayer:
             [
                 (int(corrected[i]), record, landmark_rows(record, "initialised"))
                 for i in with_new
-                if (record := records[i]).association is None
+                # a record: an update given as a row keeps its map (initialises none)
+                if (record := records[i]) is not None and record.association is None
             ],
             INITIAL_POINTS,
         )
@@ -191,10 +220,13 @@ class MapLayer:
         """:meth:`sparse` of each of the batch's updates, in a few numpy calls."""
         maps = batch.maps
         if self._detail:
-            return np.zeros(len(maps.records), dtype=bool)
+            return np.zeros(len(maps.ids), dtype=bool)
         large = maps.counts > SMALL_MAP
-        if self._thinned:
-            large |= np.array([record.time is not None for record in maps.records], dtype=bool)
+        if self._thinned:  # an update given as a row has no time
+            large |= np.array(
+                [record is not None and record.time is not None for record in maps.records],
+                dtype=bool,
+            )
         return large
 
     def mark_final(self) -> None:
@@ -212,7 +244,13 @@ class MapLayer:
         if not whole or self._map_shown_event != record.event:
             rows = self._canvas.clock.row(record)
             if self._map_shown_event != record.event:  # its points too, exactly
-                self._send_points(rows.all, [record])
+                self._send_points(
+                    rows.all,
+                    record.landmark_ids,
+                    record.landmarks_xy,
+                    np.array([record.n_landmarks]),
+                    record.landmark_covs[:, 1, 1],
+                )
                 self._map_shown_event = record.event
             if not whole:
                 self.last_update = (record, True)
@@ -238,7 +276,7 @@ class MapLayer:
         maps, corrected = batch.maps, batch.corrected
         if self._canvas.detail:
             self._map_shown = None
-            self._map_shown_event = maps.records[-1].event
+            self._map_shown_event = int(batch.rows.events[corrected[-1]])
             return np.arange(len(corrected))
         events = batch.rows.events[corrected]
         forced = batch.whole[corrected] & sparse
@@ -249,12 +287,17 @@ class MapLayer:
             self._map_shown_event = event
         return shown
 
-    def _send_points(self, times: list[rr.TimeColumnLike], updates: list[EventRecord]) -> None:
-        """All landmark estimates of some updates, one row each, class id = landmark id;
-        their labels beside (see :mod:`.labels`)."""
-        ids = np.concatenate([record.landmark_ids for record in updates])
-        positions = np.concatenate([record.landmarks_xy for record in updates])
-        counts = np.array([record.n_landmarks for record in updates])
+    def _send_points(
+        self,
+        times: list[rr.TimeColumnLike],
+        ids: IntArray,
+        positions: FloatArray,
+        counts: IntArray,
+        variances_y: FloatArray,
+    ) -> None:
+        """All landmark estimates of some updates, one row each (``counts[i]`` of the
+        joined ``ids`` and ``positions``), class id = landmark id; their labels beside
+        (see :mod:`.labels`), below each by 3 sigma in y (``variances_y``)."""
         if len(positions):
             self._canvas.grow_bounds(positions)
         self._canvas.send(
@@ -265,7 +308,7 @@ class MapLayer:
                 self._canvas.identify(rr.Points2D, ids, counts),
             ],
         )
-        self._labels.send(times, updates, ids, positions, counts)
+        self._labels.send(times, ids, positions, counts, variances_y)
 
     def _send_ellipses(
         self,
@@ -339,7 +382,7 @@ class MapLayer:
         """
         records = maps.records
         picks = np.array(
-            [i for i in np.flatnonzero(new_counts).tolist() if records[i].association is not None],
+            [i for i in np.flatnonzero(new_counts).tolist() if maps.association(i) is not None],
             dtype=np.int64,
         )
         landmark_ids = joined_ids.all() if len(picks) else np.zeros(0, dtype=np.int64)
@@ -355,6 +398,8 @@ class MapLayer:
         covs: list[FloatArray] = []
         ids: list[list[int]] = []
         for u, (k, record) in enumerate(zip(corrected.tolist(), records, strict=True)):
+            if record is None:  # an update given as a row: no association
+                continue
             association = record.association
             if association is None:
                 continue

@@ -13,10 +13,9 @@ import math
 
 import numpy as np
 
-from ekfviz.core.records import EventRecord
 from ekfviz.core.types import BoolArray, FloatArray, IntArray
 from ekfviz.viz.ellipses import ellipse_shape_columns
-from ekfviz.viz.layers.batch import Maps, landmark_rows
+from ekfviz.viz.layers.batch import Maps, map_rows_of
 
 # A small map is logged again only once some landmark's point or outline would move by
 # more than this fraction of its ellipse's semi-major axis (the viewer shows the latest).
@@ -48,11 +47,11 @@ def map_changes(
     tolerance = MAP_TOLERANCE * root_norms(every[2:] * every[2:]) / math.sqrt(2.0)
     logged: list[IntArray] = []
     shown_event: int | None = None
-    for start, end in itertools.pairwise([*maps.runs(), len(maps.records)]):
+    for start, end in itertools.pairwise([*maps.runs(), len(maps.ids)]):
         first, last = int(maps.starts[start]), int(maps.starts[end])
         n = int(maps.counts[start])
         of_map, shown, event = _changes_of_one_map(
-            maps.records[start:end],
+            maps.ids[start:end],
             events[start:end],
             forced[start:end].copy(),
             every[:, first:last].reshape(6, end - start, n),
@@ -65,7 +64,7 @@ def map_changes(
 
 
 def _changes_of_one_map(
-    records: list[EventRecord],
+    ids: list[IntArray],
     events: IntArray,
     forced: BoolArray,
     every: FloatArray,
@@ -76,7 +75,7 @@ def _changes_of_one_map(
     (6, u, n: a row per quantity) and tolerances (u, n), in a few numpy calls: from each
     update logged, the first that has moved from it, looked for in windows that grow
     while none has (``forced``: the updates logged whatever they moved)."""
-    if shown is None or not np.array_equal(shown[0], records[0].landmark_ids):
+    if shown is None or not np.array_equal(shown[0], ids[0]):
         forced[0] = True
     logged: list[int] = []
     event: int | None = None
@@ -84,7 +83,7 @@ def _changes_of_one_map(
     # same updates found in fewer numpy calls where the map moves at a steady pace
     k, gap = 0, 8
     window = 2 * gap
-    while k < len(records):
+    while k < len(ids):
         if not forced[k]:
             assert shown is not None  # the first update is forced without one
             ahead = every[:, k : k + window] - shown[1][:, None, :]
@@ -98,7 +97,7 @@ def _changes_of_one_map(
             k += int(hits[0])
         if logged:
             gap = k - logged[-1]
-        shown = (records[k].landmark_ids, every[:, k].copy())
+        shown = (ids[k], every[:, k].copy())
         event = int(events[k])
         logged.append(k)
         k, window = k + 1, max(WINDOW_MIN, 2 * gap)
@@ -108,13 +107,13 @@ def _changes_of_one_map(
 class JoinedIds:
     """The landmark id of each row of a batch's joined maps, joined at the first ask."""
 
-    def __init__(self, records: list[EventRecord]) -> None:
-        self._records = records
+    def __init__(self, each: list[IntArray]) -> None:
+        self._each = each  # the ids of each map
         self._ids: IntArray | None = None
 
     def all(self) -> IntArray:
         if self._ids is None:
-            self._ids = np.concatenate([record.landmark_ids for record in self._records])
+            self._ids = np.concatenate(self._each)
         return self._ids
 
     def of(self, joined_rows: IntArray) -> IntArray:
@@ -144,18 +143,18 @@ def joined_rows(
     definition update by update where a map's ids repeat. ``np.isin`` per update cost a
     numpy call each.
 
-    :param picks: (p,) ascending indices into ``maps.records``
+    :param picks: (p,) ascending indices into the maps (``maps.ids``)
     :param which: ``"observed"`` or ``"initialised"``
     :param tables: the lookups made so far, by the run's first update (filled here)
     :return: the joined rows, and (p,) the count per update
     """
-    records, starts = maps.records, maps.starts
+    starts = maps.starts
     if not len(picks):
         return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
     runs = np.array(maps.runs(), dtype=np.int64)
     pick_list = picks.tolist()
     found: list[IntArray] = [np.zeros(0, dtype=np.int64)]
-    observations = [records[i].observations for i in pick_list]
+    observations = [maps.observations[i] for i in pick_list]
     # an update without observations: all of its landmarks
     found += [
         np.arange(starts[i], starts[i + 1])
@@ -181,7 +180,7 @@ def joined_rows(
     for run in np.unique(owner_run).tolist():
         first_update = int(runs[run])
         if first_update not in tables:
-            tables[first_update] = IdRows.of(records[first_update].landmark_ids)
+            tables[first_update] = IdRows.of(maps.ids[first_update])
         table = tables[first_update]
         if table is not None and table.table is not None:
             dense.append(table.table)
@@ -194,7 +193,7 @@ def joined_rows(
             continue
         # ids not distinct: the definition, update by update
         for i in np.unique(owner[in_run]).tolist():
-            found.append(starts[i] + landmark_rows(records[i], which))
+            found.append(starts[i] + map_rows_of(maps.ids[i], maps.observations[i], which))
     if dense:
         tables_joined = np.concatenate(dense)
         inside = (wanted >= 0) & (wanted < width[owner_run])

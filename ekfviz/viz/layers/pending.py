@@ -2,7 +2,7 @@
 
 A send is due after ``FLUSH_EVERY`` events or once the events held carry
 ``FLUSH_LANDMARKS`` landmarks: the same events go into every send whether the predicts
-came as records or as columns (:class:`~ekfviz.core.records.PredictRows`), so that the
+came as records or as columns (:class:`~ekfviz.core.records.EventRows`), so that the
 recording does not depend on it (the text log joins a predict's line to the update
 after it within one send).
 """
@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from ekfviz.core.records import EventRecord, PredictRows
+from ekfviz.core.records import EventRecord, EventRows
 from ekfviz.viz.layers.batch import Batch
 from ekfviz.viz.layers.canvas import Clock
 
@@ -30,20 +30,21 @@ class PendingEvents:
         self.records: list[tuple[EventRecord, bool]] = []  # with: logs the whole map
         self.count = 0  # events held, records and rows
         self.landmarks = 0  # landmarks of the maps of the events held
-        self.rows: PredictRows | None = None  # where a replay writes its predicts, if asked
+        self.rows: EventRows | None = None  # where a replay writes its predicts, if asked
         self.rows_held = 0
+        self.rows_whole: list[bool] = []  # whether each row held logs the whole map
 
     def __bool__(self) -> bool:
         return self.count > 0
 
-    def predict_rows(self) -> PredictRows:
+    def predict_rows(self) -> EventRows:
         """The rows a replay writes its plain predicts to, made at the first call."""
         if self.rows is None:
-            self.rows = PredictRows(FLUSH_EVERY)
+            self.rows = EventRows(FLUSH_EVERY)
         return self.rows
 
     def latest(self, record: EventRecord | None) -> EventRecord | None:
-        """The newer of ``record`` and the newest predict row (:meth:`PredictRows.latest`)."""
+        """The newer of ``record`` and the newest predict row (:meth:`EventRows.latest`)."""
         return record if self.rows is None else self.rows.latest(record)
 
     @property
@@ -62,14 +63,19 @@ class PendingEvents:
         before: EventRecord | None,
         thinned: bool,
         log: Callable[[EventRecord], None],
+        admit: Callable[[list[int], int, EventRecord], list[bool]],
         send: Callable[..., None],
-    ) -> tuple[int, int] | None:
-        """Hold the predict rows written since the record ``before``, if any, calling
+    ) -> tuple[int, int, bool] | None:
+        """Hold the rows written since the record ``before``, if any, calling
         ``send(series=True)`` wherever a send falls due among them, as after their records;
         or, where the thinning may drop some (it holds a predict back, ``thinned``, or
         the rows have times), ``log`` them as records one by one.
 
-        :return: the (event, step) of the last row held, None if none was
+        :param admit: given the steps of the update rows held, their number of
+            landmarks and the newest of them as a record, whether each logs the whole
+            map (see ``MapLayer.admit_rows``)
+        :return: the (event, step) of the last row held and whether it is an update,
+            None if none was
         """
         rows = self.rows
         if rows is None:
@@ -83,7 +89,20 @@ class PendingEvents:
             for record in rows.records(self.rows_held, before):
                 log(record)
             return None
-        last = rows.events[total - 1], rows.steps[total - 1]
+        updates = rows.updates[self.rows_held : total]
+        whole = [False] * new
+        at = [k for k, update in enumerate(updates) if update is not None]
+        if at:
+            steps = rows.steps
+            admitted = admit(
+                [steps[self.rows_held + k] for k in at],
+                len(before.landmark_ids),
+                rows.update_record(self.rows_held + at[-1]),
+            )
+            for k, is_whole in zip(at, admitted, strict=True):
+                whole[k] = is_whole
+        self.rows_whole += whole
+        last = rows.events[total - 1], rows.steps[total - 1], updates[-1] is not None
         per_row = len(before.landmark_ids)  # a predict keeps the map of the record before
         count, landmarks = self.count + new, self.landmarks + per_row * new
         if count < FLUSH_EVERY and landmarks < FLUSH_LANDMARKS:  # no send due among them
@@ -104,8 +123,9 @@ class PendingEvents:
 
     def batch(self, clock: Clock) -> Batch:
         """Every event held, as one batch in event order; none is held after."""
+        whole = self.rows_whole
         records, held = self.take()
-        batch = Batch.of(records, clock, self.rows, held)
+        batch = Batch.of(records, clock, self.rows, held, whole)
         self.release(held)
         return batch
 
@@ -122,3 +142,4 @@ class PendingEvents:
         if self.rows is not None and rows_read:
             self.rows.drop(rows_read)
         self.rows_held -= rows_read
+        del self.rows_whole[:rows_read]

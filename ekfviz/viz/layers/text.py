@@ -162,14 +162,13 @@ class TextLayer:
     ) -> tuple[list[str], list[str], list[int]]:
         """The lines with a line per warning after each, at its row: a joined predict's
         warnings with its update's (as the update's own, by its step and line)."""
-        records = batch.records
+        steps, log_lines = batch.rows.steps, batch.lines
         extra: dict[int, list[str]] = {}
         for k, warnings in warned:
-            row = k + 1 if held[k] else k
-            record = records[row]
-            assert record is not None  # a predict given as a row has no warnings
+            row = k + 1 if held[k] else k  # (the update a predict joins may be a row)
+            step, number = int(steps[row]), int(log_lines[row])
             extra.setdefault(row, []).extend(
-                f"step {record.step} line {record.line}: {warning}" for warning in warnings
+                f"step {step} line {number}: {warning}" for warning in warnings
             )
         lines, levels, line_of = [], [], []
         for row, line in zip(at.tolist(), text, strict=True):
