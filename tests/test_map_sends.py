@@ -114,7 +114,7 @@ def random_updates(rng: np.random.Generator, count: int) -> list[EventRecord]:
 def test_thejoined_rows_are_each_updates_landmark_rows(seed: int, which: str) -> None:
     rng = np.random.default_rng(seed)
     records = random_updates(rng, 300)
-    maps = Maps.of(records)
+    maps = Maps.of_records(records)
     picks = np.flatnonzero(rng.random(len(records)) < 0.7)
     tables: dict[int, Any] = {}
     joined, counts = joined_rows(maps, picks, which, tables)

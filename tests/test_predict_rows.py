@@ -10,7 +10,7 @@ import pytest
 import rerun as rr
 from conftest import entity_rows
 
-from ekfviz.core.records import Control, EventKind, LogEvent, EventRows, Sighting
+from ekfviz.core.records import Control, EventKind, EventRows, LogEvent, Sighting
 from ekfviz.filters.ekf import EkfSlam, FilterParams
 from ekfviz.runner.replay import replay
 from ekfviz.runner.run import run

@@ -18,7 +18,7 @@ import pytest
 import rerun as rr
 from conftest import entity_rows
 
-from ekfviz.core.records import EventKind, EventRecord, Observations, EventRows
+from ekfviz.core.records import EventKind, EventRecord, EventRows, Observations
 from ekfviz.core.types import FloatArray
 from ekfviz.viz import Recorder, style
 from ekfviz.viz.ellipses import ellipse_shapes

@@ -337,13 +337,8 @@ class Recorder:
 
     def _log_rows(self) -> None:
         """Hold the rows written since the last record (see PendingEvents)."""
-        last = self.pending.hold_rows(
-            self._last_record,
-            self._thinning.held,
-            self.log_record,
-            self._map.admit_rows,
-            self._send_pending,
-        )
+        hold = self._last_record, self._thinning.held, self.log_record, self._map.admit_rows
+        last = self.pending.hold_rows(*hold, self._send_pending)
         if last is not None:
             self._event, self._step, self._step_has_update = last
 

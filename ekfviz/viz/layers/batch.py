@@ -145,6 +145,17 @@ class Maps:
             covs=np.concatenate(covs),
         )
 
+    @staticmethod
+    def of_records(records: list[EventRecord]) -> Maps:
+        """The maps of some updates' records, in order."""
+        return Maps.of(
+            list(records),
+            [record.landmark_ids for record in records],
+            [record.landmarks_xy for record in records],
+            [record.landmark_covs for record in records],
+            [record.observations for record in records],
+        )
+
     def association(self, i: int) -> ScanAssociation | None:
         """What the association decided at the ``i``-th update, if it decided anything."""
         record = self.records[i]
@@ -274,16 +285,15 @@ class Batch:
                 else update_of[k]
                 for k in corrected.tolist()
             ]
-            observations = [part[0] for part in parts]
-            ids = [part[1] for part in parts]
-            xy_each = [part[2] for part in parts]
-            covs_each = [part[3] for part in parts]
-        else:  # records alone (a record at every row of an update)
-            own_updates = [r for r in updated if r is not None]
-            observations = [r.observations for r in own_updates]
-            ids = [r.landmark_ids for r in own_updates]
-            xy_each = [r.landmarks_xy for r in own_updates]
-            covs_each = [r.landmark_covs for r in own_updates]
+            maps = Maps.of(
+                updated,
+                [part[1] for part in parts],
+                [part[2] for part in parts],
+                [part[3] for part in parts],
+                [part[0] for part in parts],
+            )
+        else:  # a record at every update
+            maps = Maps.of_records(updated)
         return Batch(
             records=records,
             whole=whole,
@@ -293,8 +303,8 @@ class Batch:
             is_predict=is_predict,
             updating=updating,
             corrected=corrected,
-            observed=Observed.of(count, corrected, observations),
-            maps=Maps.of(updated, ids, xy_each, covs_each, observations),
+            observed=Observed.of(count, corrected, maps.observations),
+            maps=maps,
             lines=lines,
             controls=controls,
             has_control=has_control,

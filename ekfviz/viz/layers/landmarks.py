@@ -26,6 +26,8 @@ from ekfviz.viz.ellipses import ellipse_extent, ellipse_outlines, outline_points
 from ekfviz.viz.layers.arrow import column, radius, xy
 from ekfviz.viz.layers.batch import Batch, Maps, landmark_rows
 from ekfviz.viz.layers.canvas import Canvas, Rows
+from ekfviz.viz.layers.first_sightings import INITIAL_POINTS as INITIAL_POINTS  # the tests'
+from ekfviz.viz.layers.first_sightings import FirstSightings
 from ekfviz.viz.layers.labels import LabelsLayer
 from ekfviz.viz.layers.map_rows import MAP_TOLERANCE as MAP_TOLERANCE  # the recorder's
 from ekfviz.viz.layers.map_rows import (
@@ -39,9 +41,6 @@ from ekfviz.viz.layers.map_rows import (
 SMALL_MAP = 32  # up to this many landmarks, every ellipse at every update
 MAP_EVERY_STEPS = 25  # beyond: the whole map every this many steps
 MAP_POINTS = 16  # points of a landmark outline: within 2 % of its radius, as MAP_TOLERANCE
-# a first-sighting outline is logged once, and on real data it is metres wide: 16 points
-# showed corners there, 32 do not (within 0.5 % of its radius)
-INITIAL_POINTS = 32
 MAP_EVERY_S = 5.0  # ... and in a thinned timestamped log, every this many seconds of log time
 
 
@@ -66,9 +65,7 @@ class MapLayer:
         self._map_shown: tuple[IntArray, FloatArray] | None = None
         self._map_shown_event: int | None = None
         self._final_event: int | None = None  # the last update's, at finish: shown exactly
-        # id-less scans: a new landmark's first-sighting outline (mean, covariance), held
-        # until the association confirms it (drawn then) or removes it (dropped)
-        self._first_sightings: dict[int, tuple[FloatArray, FloatArray]] = {}
+        self._first_sightings = FirstSightings(canvas)  # of id-less scans
 
     def log_styling(self) -> None:
         entities = self._canvas.entities
@@ -212,7 +209,7 @@ class MapLayer:
             ],
             INITIAL_POINTS,
         )
-        self._send_confirmed_first_sightings(
+        self._first_sightings.send(
             rows, corrected, maps, batch.observed.new[corrected], joined_ids, tables
         )
 
@@ -362,73 +359,3 @@ class MapLayer:
         n_points = min(MAP_POINTS, outline_points(int(counts.max())))
         outlines = ellipse_outlines(maps.xy[joined_rows], maps.covs[joined_rows], n_points=n_points)
         self._canvas.send_strips(entity, rows, at, outlines, counts, joined_ids.of(joined_rows))
-
-    def _send_confirmed_first_sightings(
-        self,
-        rows: Rows,
-        corrected: IntArray,
-        maps: Maps,
-        new_counts: IntArray,
-        joined_ids: JoinedIds,
-        tables: dict[int, IdRows | None],
-    ) -> None:
-        """With id-less scans, the first-sighting outline of a landmark appears when the
-        association confirms it: most new landmarks of a cluttered scan are removed
-        again, and their outlines would bury the map (Victoria Park: 600 of 900).
-
-        :param new_counts: (u,) how many landmarks each update initialised
-        :param joined_ids: the landmark id of each row of the joined maps
-        :param tables: the id lookups of the batch's maps (see :func:`joined_rows`)
-        """
-        records = maps.records
-        picks = np.array(
-            [i for i in np.flatnonzero(new_counts).tolist() if maps.association(i) is not None],
-            dtype=np.int64,
-        )
-        landmark_ids = joined_ids.all() if len(picks) else np.zeros(0, dtype=np.int64)
-        # the rows of each update's new landmarks in the joined maps, for all at once
-        new_rows, new_per_update = joined_rows(maps, picks, "initialised", tables)
-        new_ends = np.cumsum(new_per_update).tolist()
-        new_of = {
-            i: new_rows[end - count : end].tolist()
-            for i, end, count in zip(picks.tolist(), new_ends, new_per_update.tolist(), strict=True)
-        }
-        at: list[int] = []
-        means: list[FloatArray] = []
-        covs: list[FloatArray] = []
-        ids: list[list[int]] = []
-        for u, (k, record) in enumerate(zip(corrected.tolist(), records, strict=True)):
-            if record is None:  # an update given as a row: no association
-                continue
-            association = record.association
-            if association is None:
-                continue
-            for row in new_of.get(u, ()):
-                self._first_sightings[int(landmark_ids[row])] = (
-                    maps.xy[row].copy(),
-                    maps.covs[row].copy(),
-                )
-            if len(association.removed):
-                for landmark_id in association.removed.tolist():
-                    self._first_sightings.pop(int(landmark_id), None)
-            if not len(association.confirmed):
-                continue
-            confirmed = [
-                (int(i), held)
-                for i in association.confirmed.tolist()
-                if (held := self._first_sightings.pop(int(i), None)) is not None
-            ]
-            if confirmed:
-                at.append(k)
-                ids.append([i for i, _ in confirmed])
-                means += [mean for _, (mean, _) in confirmed]
-                covs += [cov for _, (_, cov) in confirmed]
-        if not at:
-            return
-        counts = np.array([len(group) for group in ids])
-        n_points = min(INITIAL_POINTS, outline_points(int(counts.max())))
-        outlines = ellipse_outlines(np.array(means), np.array(covs), n_points=n_points)
-        self._canvas.send_strips(
-            style.LANDMARK_INITIAL, rows, np.array(at, dtype=np.int64), outlines, counts,
-            np.array([i for group in ids for i in group], dtype=np.int64),
-        )  # fmt: skip

@@ -1,0 +1,239 @@
+"""A replay's plain updates written as columns (``EventRows.takes_updates``) record and
+judge the same as their records: every entity of the recording, across sends, in a map
+that grows, in a large map, around a warning, with --detail and with times; the NIS
+count of the run; where a run that stopped got to."""
+
+from __future__ import annotations
+
+import json
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rerun as rr
+from conftest import entity_rows
+from typer.testing import CliRunner
+
+from ekfviz.cli import app
+from ekfviz.core import correlation
+from ekfviz.core.records import Control, EventKind, EventRows, LogEvent, Sighting
+from ekfviz.evaluation.consistency import Consistency
+from ekfviz.filters.ekf import FilterParams
+from ekfviz.io.classic import format_classic, read_classic
+from ekfviz.runner.replay import replay
+from ekfviz.runner.run import run
+from ekfviz.sim.simulate import CLASSIC_LANDMARKS_XY, classic_controls, simulate
+from ekfviz.viz.layers import pending
+from ekfviz.viz.recorder import Recorder
+
+
+@pytest.fixture(autouse=True)
+def _correlation_at_most_every_25_steps(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A small map takes its correlation at every update of a run's first 1000 steps
+    (those updates are records): here from step 10 on every 25 steps."""
+    monkeypatch.setattr(correlation, "EVERY_UPDATE_STEPS", 10)
+
+
+def events(
+    steps: int,
+    landmarks_xy: np.ndarray = CLASSIC_LANDMARKS_XY,
+    *,
+    timed: bool = False,
+    first_seen: int = 0,
+    zero_range_at: int | None = None,
+) -> list[LogEvent]:
+    """A simulated run: with times (a tenth of a second a control), with the second
+    half of the landmarks left out of the observations before step ``first_seen`` (the
+    map grows there), or one observation of range 0 at step ``zero_range_at`` (skipped,
+    with a warning)."""
+    controls = np.tile(classic_controls(), (steps // 29 + 1, 1))[:steps]
+    sim = simulate(controls, landmarks_xy, seed=5)
+    half = len(landmarks_xy) // 2
+    out: list[LogEvent] = []
+    step = 0
+    for event in sim.events:
+        if isinstance(event, Control):
+            step += 1
+            if timed:
+                event = Control(event.line, event.d, event.alpha, 0.1 * step, 0.1)
+            out.append(event)
+            continue
+        assert isinstance(event, Sighting)
+        ids, z = event.ids, event.z.copy()
+        if step < first_seen:
+            ids, z = ids[:half], z[:half]
+        if step == zero_range_at:
+            z[1, 1] = 0.0
+        out.append(Sighting(event.line, ids, z, 0.1 * step + 0.05 if timed else None))
+    return out
+
+
+def record(path: Path, log: list[LogEvent], updates: bool, *, detail: bool = False) -> Path:
+    """Replay ``log`` into a recording, its updates as rows or as records (its predicts
+    as rows either way)."""
+    stream = rr.RecordingStream("test_update_rows")
+    stream.save(str(path))
+    recorder = Recorder(stream, blueprint=False, detail=detail)
+    rows = recorder.pending.predict_rows()
+    rows.takes_updates = updates
+    run(log, FilterParams(), [recorder.log_record], predict_rows=rows)
+    recorder.finish()
+    stream.flush()
+    return path
+
+
+def every_entity(path: Path) -> dict[str, list[dict[str, object]]]:
+    """Every entity's rows, temporal and static (not the recording's start time)."""
+    from rerun.chunk import RrdReader
+
+    entities = {chunk.entity_path for chunk in RrdReader(path).stream()} - {"/__properties"}
+    found: dict[str, list[dict[str, object]]] = defaultdict(list)
+    for entity in sorted(entities):
+        found[entity] = entity_rows(path, entity) + entity_rows(path, entity, static=True)
+    return found
+
+
+def written_as_rows(log: list[LogEvent]) -> int:
+    """How many updates of ``log`` a replay writes as rows."""
+    rows = EventRows()
+    rows.takes_updates = True
+    for _ in replay(log, FilterParams(), predict_rows=rows):
+        pass
+    return sum(update is not None for update in rows.updates)
+
+
+CASES = {
+    "one-send": (events(150), 4096, False),
+    "many-sends": (events(150), 37, False),
+    "growing-map": (events(120, first_seen=40), 50, False),
+    "large-map": (events(60, np.random.default_rng(2).uniform(-5.0, 20.0, (40, 2))), 64, False),
+    "a-warning": (events(90, zero_range_at=30), 41, False),
+    "detail": (events(80), 30, True),
+    "timed": (events(90, timed=True), 50, False),
+}
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_updates_as_rows_record_the_same_as_records(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, case: str
+) -> None:
+    """The recording does not depend on how the updates reach the recorder: every
+    entity has the same rows, temporal and static, and most updates were rows."""
+    log, flush_every, detail = CASES[case]
+    monkeypatch.setattr(pending, "FLUSH_EVERY", flush_every)
+    updates = sum(isinstance(event, Sighting) for event in log)
+    assert written_as_rows(log) > updates // 2
+    a = every_entity(record(tmp_path / "a.rrd", log, False, detail=detail))
+    b = every_entity(record(tmp_path / "b.rrd", log, True, detail=detail))
+    assert a.keys() == b.keys()
+    assert any("landmarks" in entity for entity in a)
+    for entity in a:
+        assert a[entity] == b[entity], entity
+
+
+def test_an_update_row_holds_what_its_record_would() -> None:
+    """The replay yields no record for an update written as a row, and the row made a
+    record is the record the replay would have yielded, map and observations alike."""
+    log = events(60, first_seen=20)
+    records = {r.event: r for r in replay(log, FilterParams())}
+    rows = EventRows(4)  # grows past its first capacity
+    rows.takes_updates = True
+    kept = list(replay(log, FilterParams(), predict_rows=rows))
+    at_rows = set(rows.events)
+    assert at_rows | {r.event for r in kept} == set(records)
+    assert not at_rows & {r.event for r in kept}
+    assert kept[-1].event == max(records)
+    update_rows = [k for k, update in enumerate(rows.updates) if update is not None]
+    assert len(update_rows) > 30
+    for k in update_rows:
+        made, reference = rows.update_record(k), records[rows.events[k]]
+        assert made.kind is EventKind.UPDATE and made.line == reference.line
+        for name in ("pose", "pose_cov", "landmark_ids", "landmarks_xy", "landmark_covs"):
+            np.testing.assert_array_equal(getattr(made, name), getattr(reference, name), name)
+        assert made.observations is not None and reference.observations is not None
+        for name in ("ids", "z", "z_pred", "innovation", "S", "nis", "initialised", "skipped"):
+            np.testing.assert_array_equal(
+                getattr(made.observations, name), getattr(reference.observations, name), name
+            )
+    # the map grew at step 20: the update that grew it is a record, not a row
+    grown = next(r for r in kept if r.n_landmarks == 6)
+    assert grown.kind is EventKind.UPDATE and grown.event not in at_rows
+
+
+def test_the_nis_count_is_the_same_with_updates_as_rows() -> None:
+    """The run's NIS count sees every update, the rows' through ``watch`` (each once,
+    whether dropped, made records or settled) and the records' one by one."""
+    log = events(200, zero_range_at=50)
+    alone = Consistency()
+    for r in replay(log, FilterParams()):
+        alone.add(r)
+    rows = EventRows(16)
+    rows.takes_updates = True
+    counted = Consistency()
+    rows.watch = counted.add_observations
+    for n, r in enumerate(replay(log, FilterParams(), predict_rows=rows)):
+        counted.add(r)
+        if n % 3 == 0:
+            rows.drop(len(rows) // 2)
+        if n % 7 == 0 and len(rows) > 2:
+            rows.records(len(rows) - 2, r)
+        if n % 5 == 0:
+            rows.settle()
+    rows.settle()
+    rows.drop(len(rows))
+    assert counted.nis.total == alone.nis.total == 200
+    assert (counted.nis.below, counted.nis.inside, counted.nis.above) == (
+        alone.nis.below,
+        alone.nis.inside,
+        alone.nis.above,
+    )
+
+
+def test_a_run_that_stops_after_an_update_row_keeps_that_map() -> None:
+    """Where a replay stops after a predict written as a row after an update written as
+    a row, the run's last event is that predict, with the map of that update."""
+    log = events(30)
+    bad_at = next(k for k, e in enumerate(log) if isinstance(e, Control) and k > 30) + 1
+    broken = [*log[:bad_at], Sighting(999, np.array([1, 1]), np.array([[0.1, 5.0]] * 2))]
+    rows = EventRows()
+    rows.takes_updates = True
+    kept = []
+    with pytest.raises(Exception, match="same landmark twice"):
+        for r in replay(broken, FilterParams(), predict_rows=rows):
+            kept.append(r)
+    assert rows.updates[-1] is None and rows.updates[-2] is not None  # update, predict
+    last = rows.latest(kept[-1])
+    reference = list(replay(log[:bad_at], FilterParams()))[-1]
+    assert last is not None and last.kind is EventKind.PREDICT and last.event == reference.event
+    for name in ("pose", "pose_cov", "landmarks_xy", "landmark_covs"):
+        np.testing.assert_array_equal(getattr(last, name), getattr(reference, name), name)
+    rows.drop(len(rows))  # forgotten: the newest row and its map are kept
+    last = rows.latest(kept[-1])
+    assert last is not None
+    np.testing.assert_array_equal(last.landmarks_xy, reference.landmarks_xy)
+
+
+def test_the_command_reports_the_nis_of_every_update(tmp_path: Path) -> None:
+    """``ekfviz replay`` of a log without truth (its updates written as rows) reports
+    the NIS of every update, as counted from the records of a plain replay."""
+    log = events(300)
+    path = tmp_path / "run.txt"
+    path.write_text(format_classic(log, precision=None))
+    read = list(read_classic(path))
+    alone = Consistency()
+    for r in replay(read, FilterParams()):
+        alone.add(r)
+    report = tmp_path / "report.json"
+    result = CliRunner().invoke(
+        app, ["replay", str(path), "--save", str(tmp_path / "run.rrd"), "--report", str(report)]
+    )
+    assert result.exit_code == 0, result.output
+    nis = json.loads(report.read_text())["consistency"]["nis"]
+    assert (nis["count"], nis["below"], nis["inside"], nis["above"]) == (
+        alone.nis.total,
+        alone.nis.below,
+        alone.nis.inside,
+        alone.nis.above,
+    )
+    assert alone.nis.total == 300
