@@ -6,6 +6,7 @@ count of the run; where a run that stopped got to."""
 from __future__ import annotations
 
 import json
+import sys
 from collections import defaultdict
 from pathlib import Path
 
@@ -237,3 +238,47 @@ def test_the_command_reports_the_nis_of_every_update(tmp_path: Path) -> None:
         alone.nis.above,
     )
     assert alone.nis.total == 300
+
+
+def test_a_signal_in_a_send_among_rows_leaves_the_stop_line_last(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Ctrl-C raises anywhere: where it raises in a send that falls due among the rows
+    held, the line saying why the run stopped still comes at the newest event held
+    (after every line of the events sent), not at the record before the rows."""
+    from ekfviz.viz import style
+
+    monkeypatch.setattr(pending, "FLUSH_EVERY", 2)  # a send due at the last row, at times
+    path = tmp_path / "stopped.rrd"
+    stream = rr.RecordingStream("test_update_rows")
+    stream.save(str(path))
+    recorder = Recorder(stream, blueprint=False)
+    rows = recorder.pending.predict_rows()
+    rows.takes_updates = True
+    send = Recorder._send_pending
+    raised: list[bool] = []
+
+    def interrupted(self: Recorder, series: bool = False) -> None:
+        rows_held = self.pending.rows
+        # a send among rows, at the last of them
+        last = (
+            rows_held is not None
+            and self.pending.rows_held == len(rows_held) > 0
+            and rows_held.events[-1] > 30
+        )
+        send(self, series)
+        if not raised and last and sys._getframe(1).f_code.co_name == "hold_rows":
+            raised.append(True)
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(Recorder, "_send_pending", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        run(events(200), FilterParams(), [recorder.log_record], predict_rows=rows)
+    monkeypatch.setattr(Recorder, "_send_pending", send)
+    recorder.note("stopped here", level=rr.TextLogLevel.ERROR)
+    recorder.finish()
+    stream.flush()
+    lines = entity_rows(path, f"/{style.LOG}")
+    assert raised and len(lines) > 10
+    assert "stopped here" in str(lines[-1]["TextLog:text"])
+    assert lines[-1]["event"] == max(int(str(line["event"])) for line in lines)

@@ -11,7 +11,7 @@ from __future__ import annotations
 import enum
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
-from typing import Any, TypeVar
+from typing import NamedTuple, TypeVar
 
 import numpy as np
 
@@ -483,46 +483,66 @@ class EventRows:
     once used. A row can be made the record the replay would have made
     (:meth:`records`, :meth:`latest`): a predict keeps the map of the event before it.
 
+    A signal can raise anywhere (Ctrl-C in a replay is an exception): a row counts once
+    all its columns are written, and the rows change as a whole where rows are forgotten
+    (the columns and their count are one value, replaced at once).
+
     :ivar takes_updates: whether the replay may write updates here (the consumers of
         its records read none of theirs but what the rows hold)
     :ivar watch: called with the observations of the update rows that are forgotten
-        (dropped or made records), each row once (the run's NIS count)
+        (dropped or made records) or :meth:`settle` d, each row once (the run's NIS count)
     """
 
     def __init__(self, capacity: int = 4096) -> None:
-        self.poses: FloatArray = np.empty((capacity, 3))
-        self.pose_covs: FloatArray = np.empty((capacity, 3, 3))
-        self.events: list[int] = []
-        self.steps: list[int] = []
-        self.lines: list[int] = []
-        self.times: list[float | None] = []
-        self.controls: list[tuple[float, float] | None] = []  # None at an update
-        # at an update: what it did and its map (ids, means, marginals), the filter's own
-        self.updates: list[_Update | None] = []
+        self._state = _Columns(
+            0, np.empty((capacity, 3)), np.empty((capacity, 3, 3)), [], [], [], [], [], []
+        )
         self.timed = False  # some row has a time
         self.takes_updates = False
         self.watch: Callable[[list[Observations]], object] | None = None
-        # rows complete: counted once all their columns are written (a signal raised in
-        # add() leaves a row that no one reads)
-        self._count = 0
         # the newest row ever written, kept when dropped: where a stopped run stopped
-        self._newest: _Row | None = None
-        self._newest_pose: FloatArray = np.zeros(3)
-        self._newest_cov: FloatArray = np.zeros((3, 3))
-        # the newest update row ever written, kept when dropped: the map of a predict
-        # row after it (or None where a record came after it)
-        self._map: tuple[int, _Update] | None = None
+        self._newest: tuple[_Row, FloatArray, FloatArray] | None = None
+        # the newest update row ever written: the map of a predict row after it
+        self._map: tuple[int, UpdateParts] | None = None
         self._seen = 0  # the first rows, handed to watch already (settle)
 
-    def __len__(self) -> int:
-        return self._count
+    # the columns, row after row (a row beyond len() is one left half written)
+    @property
+    def poses(self) -> FloatArray:
+        return self._state.poses
 
-    def _next_row(self) -> int:
-        row = self._count
-        if row == self.poses.shape[0]:
-            self.poses = np.concatenate([self.poses, np.empty_like(self.poses)])
-            self.pose_covs = np.concatenate([self.pose_covs, np.empty_like(self.pose_covs)])
-        return row
+    @property
+    def pose_covs(self) -> FloatArray:
+        return self._state.pose_covs
+
+    @property
+    def events(self) -> list[int]:
+        return self._state.events
+
+    @property
+    def steps(self) -> list[int]:
+        return self._state.steps
+
+    @property
+    def lines(self) -> list[int]:
+        return self._state.lines
+
+    @property
+    def times(self) -> list[float | None]:
+        return self._state.times
+
+    @property
+    def controls(self) -> list[tuple[float, float] | None]:
+        """Each predict's (d, alpha); None at an update."""
+        return self._state.controls
+
+    @property
+    def updates(self) -> list[UpdateParts | None]:
+        """What each update did and its map (the filter's own arrays); None at a predict."""
+        return self._state.updates
+
+    def __len__(self) -> int:
+        return self._state.complete
 
     def add(
         self,
@@ -536,18 +556,7 @@ class EventRows:
     ) -> None:
         """A predict's row: its timelines and control, and the pose and pose covariance
         copied from the state ``x`` (3+2N,...) and ``P`` (classic layout, any capacity)."""
-        row = self._next_row()
-        self.poses[row] = x[:3]
-        self.pose_covs[row] = P[:3, :3]
-        self.events.append(event)
-        self.steps.append(step)
-        self.lines.append(line)
-        self.times.append(time)
-        self.controls.append(control)
-        self.updates.append(None)
-        if time is not None:
-            self.timed = True
-        self._count = row + 1
+        self._add(event, step, line, time, control, None, x, P)
 
     def add_update(
         self,
@@ -563,49 +572,63 @@ class EventRows:
         """An update's row: its timelines, what it did, the pose and pose covariance
         copied from ``x`` and ``P`` as :meth:`add` does, and its map (landmark ids, means
         and marginals: read-only arrays the row keeps, as a record would)."""
-        row = self._next_row()
-        self.poses[row] = x[:3]
-        self.pose_covs[row] = P[:3, :3]
-        self.events.append(event)
-        self.steps.append(step)
-        self.lines.append(line)
-        self.times.append(time)
-        self.controls.append(None)
         update = (observations, *landmarks)
-        self.updates.append(update)
+        self._add(event, step, line, time, None, update, x, P)
+        self._map = (event, update)
+
+    def _add(
+        self,
+        event: int,
+        step: int,
+        line: int,
+        time: float | None,
+        control: tuple[float, float] | None,
+        update: UpdateParts | None,
+        x: FloatArray,
+        P: FloatArray,
+    ) -> None:
+        state = self._state
+        row = state.complete
+        if row == state.poses.shape[0]:  # twice the room, the rows so far copied
+            state = state._replace(
+                poses=np.concatenate([state.poses, np.empty_like(state.poses)]),
+                pose_covs=np.concatenate([state.pose_covs, np.empty_like(state.pose_covs)]),
+            )
+        state.poses[row] = x[:3]
+        state.pose_covs[row] = P[:3, :3]
+        if len(state.events) != row:  # a row left half written (events come first)
+            for column in state[3:]:
+                del column[row:]
+        state.events.append(event)
+        state.steps.append(step)
+        state.lines.append(line)
+        state.times.append(time)
+        state.controls.append(control)
+        state.updates.append(update)
         if time is not None:
             self.timed = True
-        self._map = (event, update)
-        self._count = row + 1
+        self._state = state._replace(complete=row + 1)  # the row counts: all of it written
 
     def drop(self, count: int) -> None:
         """Forget the first ``count`` rows (used); the newest is kept for :meth:`latest`."""
-        total = self._count
+        state = self._state
+        total = state.complete
         if count <= 0:
             return
-        if count >= total:
+        count = min(count, total)
+        if count == total:
             self._newest = self._row(total - 1)
-            self._newest_pose = self.poses[total - 1].copy()
-            self._newest_cov = self.pose_covs[total - 1].copy()
-        self._watched(self._seen, min(count, total))
+        self._watched(self._seen, count)
+        self._state = state.rest(count)
         self._seen = max(self._seen - count, 0)
-        rest = total - count
-        self.poses[:rest] = self.poses[count:total]
-        self.pose_covs[:rest] = self.pose_covs[count:total]
-        for column in self._columns():
-            del column[:count]
-            del column[rest:]  # a row left half written
-        self._count = rest
         self.timed = any(time is not None for time in self.times)
-
-    def _columns(self) -> tuple[list[Any], ...]:
-        return (self.events, self.steps, self.lines, self.times, self.controls, self.updates)
 
     def settle(self) -> None:
         """Hand every row written so far to :attr:`watch` (the rows are kept; a row is
         watched once): before the run is judged."""
-        self._watched(self._seen, self._count)
-        self._seen = self._count
+        count = len(self)
+        self._watched(self._seen, count)
+        self._seen = count
 
     def _watched(self, start: int, stop: int) -> None:
         """Hand the observations of the update rows ``start:stop`` to :attr:`watch`."""
@@ -614,10 +637,16 @@ class EventRows:
             if found:
                 self.watch(found)
 
-    def _row(self, row: int) -> _Row:
+    def _row(self, row: int) -> tuple[_Row, FloatArray, FloatArray]:
+        """A row's columns, its pose and pose covariance (copies)."""
+        state = self._state
         return (
-            self.events[row], self.steps[row], self.lines[row], self.times[row],
-            self.controls[row], self.updates[row],
+            (
+                state.events[row], state.steps[row], state.lines[row], state.times[row],
+                state.controls[row], state.updates[row],
+            ),
+            state.poses[row].copy(),
+            state.pose_covs[row].copy(),
         )  # fmt: skip
 
     def records(self, start: int, before: EventRecord) -> list[EventRecord]:
@@ -625,48 +654,36 @@ class EventRows:
         predict with the map of the event before it, ``before`` the record before them);
         the rows are forgotten here."""
         made = []
-        for row in range(start, self._count):
-            record = self._record(self._row(row), self.poses[row], self.pose_covs[row], before)
+        for row in range(start, len(self)):
+            record = self._record(*self._row(row), before)
             made.append(record)
             before = record
-        self._watched(max(start, self._seen), self._count)
+        self._watched(max(start, self._seen), len(self))
+        self._state = self._state.first(start)
         self._seen = min(self._seen, start)
-        for column in self._columns():
-            del column[start:]
-        self._count = start
         self.timed = any(time is not None for time in self.times)
         return made
+
+    def update_record(self, row: int) -> EventRecord:
+        """The record of the update at ``row`` (the rows are kept)."""
+        assert self.updates[row] is not None
+        return self._record(*self._row(row), None)
 
     def latest(self, record: EventRecord | None) -> EventRecord | None:
         """The newer of ``record`` and the newest row ever written (as a record): where
         a run that stopped got to."""
-        newest: _Row | None
-        if self._count:
-            last = self._count - 1
-            newest, pose, cov = self._row(last), self.poses[last], self.pose_covs[last]
-        else:
-            newest, pose, cov = self._newest, self._newest_pose, self._newest_cov
-        if newest is None or record is None or newest[0] <= record.event:
+        newest = self._row(len(self) - 1) if len(self) else self._newest
+        if newest is None or record is None or newest[0][0] <= record.event:
             return record
         before = record
-        if newest[5] is None and self._map is not None and self._map[0] > record.event:
+        if newest[0][5] is None and self._map is not None and self._map[0] > record.event:
             # a predict after an update row: that update's map
-            before = self.map_record(self._map[1], record)
-        return self._record(newest, pose, cov, before)
-
-    def update_record(self, row: int) -> EventRecord:
-        """The record of the update at ``row`` (the rows are kept)."""
-        update = self.updates[row]
-        assert update is not None
-        return self._record(self._row(row), self.poses[row], self.pose_covs[row], None)
-
-    @staticmethod
-    def map_record(update: _Update, like: EventRecord) -> EventRecord:
-        """``like`` with the map of the update row ``update`` (what a predict after it keeps)."""
-        _, ids, xy, covs = update
-        return kept_record(
-            like.event, like.step, like.kind, like.line, like.pose, like.pose_cov, ids, xy, covs
-        )
+            _, ids, xy, covs = self._map[1]
+            before = kept_record(
+                record.event, record.step, record.kind, record.line, record.pose,
+                record.pose_cov, ids, xy, covs,
+            )  # fmt: skip
+        return self._record(*newest, before)
 
     @staticmethod
     def _record(
@@ -682,13 +699,46 @@ class EventRows:
             observations, ids, xy, covs = update
             kind, made_control = EventKind.UPDATE, None
         return kept_record(
-            event, step, kind, line, frozen(pose.copy()), frozen(pose_cov.copy()),
-            ids, xy, covs, made_control, observations, time=time,
+            event, step, kind, line, frozen(pose), frozen(pose_cov), ids, xy, covs,
+            made_control, observations, time=time,
+        )  # fmt: skip
+
+
+class _Columns(NamedTuple):
+    """The rows of :class:`EventRows`: how many are complete, and their columns."""
+
+    complete: int
+    poses: FloatArray
+    pose_covs: FloatArray
+    events: list[int]
+    steps: list[int]
+    lines: list[int]
+    times: list[float | None]
+    controls: list[tuple[float, float] | None]
+    updates: list[UpdateParts | None]
+
+    def rest(self, count: int) -> _Columns:
+        """The rows after the first ``count``, in columns of their own."""
+        total = self.complete
+        poses, pose_covs = np.empty_like(self.poses), np.empty_like(self.pose_covs)
+        poses[: total - count] = self.poses[count:total]
+        pose_covs[: total - count] = self.pose_covs[count:total]
+        return _Columns(
+            total - count, poses, pose_covs, self.events[count:total], self.steps[count:total],
+            self.lines[count:total], self.times[count:total], self.controls[count:total],
+            self.updates[count:total],
+        )  # fmt: skip
+
+    def first(self, count: int) -> _Columns:
+        """The first ``count`` rows (the arrays shared: rows beyond are not read)."""
+        return _Columns(
+            count, self.poses, self.pose_covs, self.events[:count], self.steps[:count],
+            self.lines[:count], self.times[:count], self.controls[:count],
+            self.updates[:count],
         )  # fmt: skip
 
 
 # an update row's observations and map: landmark ids, means (N, 2), marginals (N, 2, 2)
-UpdateParts = tuple["Observations", IntArray, FloatArray, FloatArray]
-_Update = UpdateParts
+UpdateParts = tuple[Observations, IntArray, FloatArray, FloatArray]
 # event step line time control update
-_Row = tuple[int, int, int, float | None, tuple[float, float] | None, _Update | None]
+_Row = tuple[int, int, int, float | None, tuple[float, float] | None, UpdateParts | None]

@@ -254,11 +254,8 @@ class Recorder:
         if self.association is not None:
             self.association.flush()
         if evaluation is not None:
-            self._rec.log(
-                style.RUN_EVALUATION,
-                rr.TextDocument(evaluation.to_markdown(), media_type=rr.MediaType.MARKDOWN),
-                static=True,
-            )
+            document = rr.TextDocument(evaluation.to_markdown(), media_type=rr.MediaType.MARKDOWN)
+            self._rec.log(style.RUN_EVALUATION, document, static=True)
         self._rec.send_styles()
         if self._blueprint:
             self._rec.send_blueprint(self._layout(self._canvas.bounds_xy, final=True))
@@ -338,9 +335,12 @@ class Recorder:
     def _log_rows(self) -> None:
         """Hold the rows written since the last record (see PendingEvents)."""
         hold = self._last_record, self._thinning.held, self.log_record, self._map.admit_rows
-        last = self.pending.hold_rows(*hold, self._send_pending)
-        if last is not None:
-            self._event, self._step, self._step_has_update = last
+        try:
+            self.pending.hold_rows(*hold, self._send_pending)
+        finally:  # where the rows got to, though a signal raised in a send among them
+            if self.pending.newest_held is not None:
+                self._event, self._step, self._step_has_update = self.pending.newest_held
+                self.pending.newest_held = None
 
     def _log_record(self, record: EventRecord) -> None:
         if record.kind is EventKind.UPDATE and record.observations is None:

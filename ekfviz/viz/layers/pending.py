@@ -33,6 +33,8 @@ class PendingEvents:
         self.rows: EventRows | None = None  # where a replay writes its predicts, if asked
         self.rows_held = 0
         self.rows_whole: list[bool] = []  # whether each row held logs the whole map
+        # the (event, step, is an update) of the newest row held, till the recorder reads it
+        self.newest_held: tuple[int, int, bool] | None = None
 
     def __bool__(self) -> bool:
         return self.count > 0
@@ -65,7 +67,7 @@ class PendingEvents:
         log: Callable[[EventRecord], None],
         admit: Callable[[list[int], int, EventRecord], list[bool]],
         send: Callable[..., None],
-    ) -> tuple[int, int, bool] | None:
+    ) -> None:
         """Hold the rows written since the record ``before``, if any, calling
         ``send(series=True)`` wherever a send falls due among them, as after their records;
         or, where the thinning may drop some (it holds a predict back, ``thinned``, or
@@ -74,21 +76,21 @@ class PendingEvents:
         :param admit: given the steps of the update rows held, their number of
             landmarks and the newest of them as a record, whether each logs the whole
             map (see ``MapLayer.admit_rows``)
-        :return: the (event, step) of the last row held and whether it is an update,
-            None if none was
+        The (event, step) of the last row held, and whether it is an update, go into
+        :attr:`newest_held` before any send (a signal may raise in one).
         """
         rows = self.rows
         if rows is None:
-            return None
+            return
         total = len(rows)
         new = total - self.rows_held
         if not new:
-            return None
+            return
         assert before is not None  # a replay's first event is a record
         if thinned or rows.timed:
             for record in rows.records(self.rows_held, before):
                 log(record)
-            return None
+            return
         updates = rows.updates[self.rows_held : total]
         whole = [False] * new
         at = [k for k, update in enumerate(updates) if update is not None]
@@ -101,13 +103,14 @@ class PendingEvents:
             )
             for k, is_whole in zip(at, admitted, strict=True):
                 whole[k] = is_whole
+        del self.rows_whole[self.rows_held :]  # (a call cut short by a signal added some)
         self.rows_whole += whole
-        last = rows.events[total - 1], rows.steps[total - 1], updates[-1] is not None
+        self.newest_held = rows.events[total - 1], rows.steps[total - 1], updates[-1] is not None
         per_row = len(before.landmark_ids)  # a predict keeps the map of the record before
         count, landmarks = self.count + new, self.landmarks + per_row * new
         if count < FLUSH_EVERY and landmarks < FLUSH_LANDMARKS:  # no send due among them
             self.count, self.landmarks, self.rows_held = count, landmarks, total
-            return last
+            return
         while new:
             due = FLUSH_EVERY - self.count  # rows until a send is due
             if per_row:
@@ -119,7 +122,6 @@ class PendingEvents:
             new -= held
             if self.due:
                 send(series=True)
-        return last
 
     def batch(self, clock: Clock) -> Batch:
         """Every event held, as one batch in event order; none is held after."""
