@@ -11,7 +11,7 @@ from __future__ import annotations
 import enum
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
-from typing import NamedTuple, TypeVar
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -589,15 +589,12 @@ class EventRows:
     ) -> None:
         state = self._state
         row = state.complete
-        if row == state.poses.shape[0]:  # twice the room, the rows so far copied
-            state = state._replace(
-                poses=np.concatenate([state.poses, np.empty_like(state.poses)]),
-                pose_covs=np.concatenate([state.pose_covs, np.empty_like(state.pose_covs)]),
-            )
+        if row == state.poses.shape[0]:
+            state.grown()
         state.poses[row] = x[:3]
         state.pose_covs[row] = P[:3, :3]
         if len(state.events) != row:  # a row left half written (events come first)
-            for column in state[3:]:
+            for column in state.lists():
                 del column[row:]
         state.events.append(event)
         state.steps.append(step)
@@ -607,7 +604,7 @@ class EventRows:
         state.updates.append(update)
         if time is not None:
             self.timed = True
-        self._state = state._replace(complete=row + 1)  # the row counts: all of it written
+        state.complete = row + 1  # the row counts: all of it written
 
     def drop(self, count: int) -> None:
         """Forget the first ``count`` rows (used); the newest is kept for :meth:`latest`."""
@@ -704,18 +701,45 @@ class EventRows:
         )  # fmt: skip
 
 
-class _Columns(NamedTuple):
+class _Columns:
     """The rows of :class:`EventRows`: how many are complete, and their columns."""
 
-    complete: int
-    poses: FloatArray
-    pose_covs: FloatArray
-    events: list[int]
-    steps: list[int]
-    lines: list[int]
-    times: list[float | None]
-    controls: list[tuple[float, float] | None]
-    updates: list[UpdateParts | None]
+    __slots__ = (
+        "complete",
+        "controls",
+        "events",
+        "lines",
+        "pose_covs",
+        "poses",
+        "steps",
+        "times",
+        "updates",
+    )  # fmt: skip
+
+    def __init__(
+        self,
+        complete: int,
+        poses: FloatArray,
+        pose_covs: FloatArray,
+        events: list[int],
+        steps: list[int],
+        lines: list[int],
+        times: list[float | None],
+        controls: list[tuple[float, float] | None],
+        updates: list[UpdateParts | None],
+    ) -> None:
+        self.complete = complete
+        self.poses, self.pose_covs = poses, pose_covs
+        self.events, self.steps, self.lines, self.times = events, steps, lines, times
+        self.controls, self.updates = controls, updates
+
+    def lists(self) -> tuple[list[Any], ...]:
+        return self.events, self.steps, self.lines, self.times, self.controls, self.updates
+
+    def grown(self) -> None:
+        """Twice the room in the arrays, the rows so far copied."""
+        self.poses = np.concatenate([self.poses, np.empty_like(self.poses)])
+        self.pose_covs = np.concatenate([self.pose_covs, np.empty_like(self.pose_covs)])
 
     def rest(self, count: int) -> _Columns:
         """The rows after the first ``count``, in columns of their own."""
@@ -724,18 +748,15 @@ class _Columns(NamedTuple):
         poses[: total - count] = self.poses[count:total]
         pose_covs[: total - count] = self.pose_covs[count:total]
         return _Columns(
-            total - count, poses, pose_covs, self.events[count:total], self.steps[count:total],
-            self.lines[count:total], self.times[count:total], self.controls[count:total],
-            self.updates[count:total],
+            total - count, poses, pose_covs,
+            *(column[count:total] for column in self.lists()),
         )  # fmt: skip
 
     def first(self, count: int) -> _Columns:
         """The first ``count`` rows (the arrays shared: rows beyond are not read)."""
         return _Columns(
-            count, self.poses, self.pose_covs, self.events[:count], self.steps[:count],
-            self.lines[:count], self.times[:count], self.controls[:count],
-            self.updates[:count],
-        )  # fmt: skip
+            count, self.poses, self.pose_covs, *(column[:count] for column in self.lists())
+        )
 
 
 # an update row's observations and map: landmark ids, means (N, 2), marginals (N, 2, 2)
