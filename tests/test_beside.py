@@ -175,7 +175,7 @@ def states(events: list[AnyEvent]) -> tuple[dict[int, bytes], EventRecord]:
     """Each event's pose and pose covariance (the records' and the predict rows') as
     bytes, and the last record."""
     rows = EventRows()
-    records = list(replay(events, predict_rows=rows))
+    records = list(replay(events, event_rows=rows))
     poses = {r.event: r.pose.tobytes() + r.pose_cov.tobytes() for r in records}
     for k in range(len(rows)):
         poses[rows.events[k]] = rows.poses[k].tobytes() + rows.pose_covs[k].tobytes()

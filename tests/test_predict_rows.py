@@ -50,11 +50,11 @@ def events(
 
 def record(path: Path, log: list[LogEvent], rows: bool) -> Path:
     """Replay ``log`` into a recording, its predicts as rows or as records."""
-    stream = rr.RecordingStream("test_predict_rows")
+    stream = rr.RecordingStream("test_event_rows")
     stream.save(str(path))
     recorder = Recorder(stream, blueprint=False)
-    predict_rows = recorder.pending.predict_rows() if rows else None
-    run(log, FilterParams(), [recorder.log_record], predict_rows=predict_rows)
+    event_rows = recorder.pending.event_rows() if rows else None
+    run(log, FilterParams(), [recorder.log_record], event_rows=event_rows)
     recorder.finish()
     stream.flush()
     return path
@@ -93,7 +93,7 @@ def test_the_replay_yields_no_record_for_a_predict_written_as_a_row() -> None:
     log = events(60)
     records = list(replay(log, FilterParams()))
     rows = EventRows(4)  # grows past its first capacity
-    kept = list(replay(log, FilterParams(), predict_rows=rows))
+    kept = list(replay(log, FilterParams(), event_rows=rows))
     predicts = {r.event: r for r in records if r.kind is EventKind.PREDICT}
     assert set(rows.events) | {r.event for r in kept} == {r.event for r in records}
     assert not set(rows.events) & {r.event for r in kept}
@@ -120,7 +120,7 @@ def test_a_run_that_stops_after_a_row_ends_at_that_predict() -> None:
     rows = EventRows()
     kept = []
     with pytest.raises(Exception, match="same landmark twice"):
-        for r in replay(broken, FilterParams(), predict_rows=rows):
+        for r in replay(broken, FilterParams(), event_rows=rows):
             kept.append(r)
     last = rows.latest(kept[-1])
     assert last is not None and last.kind is EventKind.PREDICT
@@ -138,7 +138,7 @@ def test_a_plugged_filter_and_full_covariances_keep_a_record_per_event() -> None
         pass
 
     rows = EventRows()
-    kept = list(replay(events(20), FilterParams(), make_filter=Mine, predict_rows=rows))
+    kept = list(replay(events(20), FilterParams(), make_filter=Mine, event_rows=rows))
     assert len(rows) == 0 and sum(r.kind is EventKind.PREDICT for r in kept) == 20
 
 

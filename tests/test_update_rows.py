@@ -76,9 +76,9 @@ def record(path: Path, log: list[LogEvent], updates: bool, *, detail: bool = Fal
     stream = rr.RecordingStream("test_update_rows")
     stream.save(str(path))
     recorder = Recorder(stream, blueprint=False, detail=detail)
-    rows = recorder.pending.predict_rows()
+    rows = recorder.pending.event_rows()
     rows.takes_updates = updates
-    run(log, FilterParams(), [recorder.log_record], predict_rows=rows)
+    run(log, FilterParams(), [recorder.log_record], event_rows=rows)
     recorder.finish()
     stream.flush()
     return path
@@ -99,7 +99,7 @@ def written_as_rows(log: list[LogEvent]) -> int:
     """How many updates of ``log`` a replay writes as rows."""
     rows = EventRows()
     rows.takes_updates = True
-    for _ in replay(log, FilterParams(), predict_rows=rows):
+    for _ in replay(log, FilterParams(), event_rows=rows):
         pass
     return sum(update is not None for update in rows.updates)
 
@@ -140,7 +140,7 @@ def test_an_update_row_holds_what_its_record_would() -> None:
     records = {r.event: r for r in replay(log, FilterParams())}
     rows = EventRows(4)  # grows past its first capacity
     rows.takes_updates = True
-    kept = list(replay(log, FilterParams(), predict_rows=rows))
+    kept = list(replay(log, FilterParams(), event_rows=rows))
     at_rows = set(rows.events)
     assert at_rows | {r.event for r in kept} == set(records)
     assert not at_rows & {r.event for r in kept}
@@ -173,7 +173,7 @@ def test_the_nis_count_is_the_same_with_updates_as_rows() -> None:
     rows.takes_updates = True
     counted = Consistency()
     rows.watch = counted.add_observations
-    for n, r in enumerate(replay(log, FilterParams(), predict_rows=rows)):
+    for n, r in enumerate(replay(log, FilterParams(), event_rows=rows)):
         counted.add(r)
         if n % 3 == 0:
             rows.drop(len(rows) // 2)
@@ -201,7 +201,7 @@ def test_a_run_that_stops_after_an_update_row_keeps_that_map() -> None:
     rows.takes_updates = True
     kept = []
     with pytest.raises(Exception, match="same landmark twice"):
-        for r in replay(broken, FilterParams(), predict_rows=rows):
+        for r in replay(broken, FilterParams(), event_rows=rows):
             kept.append(r)
     assert rows.updates[-1] is None and rows.updates[-2] is not None  # update, predict
     last = rows.latest(kept[-1])
@@ -253,7 +253,7 @@ def test_a_signal_in_a_send_among_rows_leaves_the_stop_line_last(
     stream = rr.RecordingStream("test_update_rows")
     stream.save(str(path))
     recorder = Recorder(stream, blueprint=False)
-    rows = recorder.pending.predict_rows()
+    rows = recorder.pending.event_rows()
     rows.takes_updates = True
     send = Recorder._send_pending
     raised: list[bool] = []
@@ -273,7 +273,7 @@ def test_a_signal_in_a_send_among_rows_leaves_the_stop_line_last(
 
     monkeypatch.setattr(Recorder, "_send_pending", interrupted)
     with pytest.raises(KeyboardInterrupt):
-        run(events(200), FilterParams(), [recorder.log_record], predict_rows=rows)
+        run(events(200), FilterParams(), [recorder.log_record], event_rows=rows)
     monkeypatch.setattr(Recorder, "_send_pending", send)
     recorder.note("stopped here", level=rr.TextLogLevel.ERROR)
     recorder.finish()

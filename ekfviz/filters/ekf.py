@@ -301,7 +301,7 @@ class EkfSlam:
     def buffers(self) -> tuple[FloatArray, FloatArray]:
         """The state's own buffers x and P, the state in their leading 3+2N rows (and
         columns): for a reader that copies from them at once, without a view made per
-        read (a replay's predict rows); not to be written. The pending changes of P are
+        read (a replay's rows of its plain events); not to be written. The pending changes of P are
         folded in first."""
         if self._rank:
             self._flush()

@@ -148,7 +148,7 @@ def replay_log(
     associator = None if scans is None else scans.associator
     # the plain predicts go to the recorder as columns (no other consumer reads a
     # predict's record) unless the hooks read them (a source's reference)
-    rows = logger.predict_rows() if scans is None or not scans.reads_predicts else None
+    rows = logger.event_rows() if scans is None or not scans.reads_predicts else None
     if rows is not None:
         # its plain updates too where only the recorder and the NIS count read them:
         # without truth (whose errors are counted per update) and without an association
@@ -156,7 +156,7 @@ def replay_log(
         rows.watch = consistency.add_observations
     try:
         run(events, params, consumers, make_filter=make_filter, name=name, slam=slam,
-            associator=associator, predict_rows=rows)  # fmt: skip
+            associator=associator, event_rows=rows)  # fmt: skip
     except (InputError, FilterLineError, KeyboardInterrupt, signals.Terminated) as cause:
         if rows is not None:  # where it stopped: maybe an event written as a row
             last.record = rows.latest(last.record)

@@ -86,7 +86,7 @@ def replay(
     full_cov: bool = False,
     slam: EkfSlam | None = None,
     associator: Associator | None = None,
-    predict_rows: EventRows | None = None,
+    event_rows: EventRows | None = None,
 ) -> Iterator[EventRecord]:
     """Run EKF-SLAM over ``events`` lazily, one record per event.
 
@@ -120,7 +120,7 @@ def replay(
     :param full_cov: also keep the full (3+2N)^2 covariance in every record
     :param slam: the built-in filter to run, made by the caller (with its models)
     :param associator: for logs with scans
-    :param predict_rows: where the built-in filter's plain events go as columns instead
+    :param event_rows: where the built-in filter's plain events go as columns instead
         of records (see :class:`~ekfviz.core.records.EventRows`): every predict of a
         control but the last event's and those whose covariance is checked, and, where
         the rows take updates, every update by ids that keeps the map of the record before
@@ -140,7 +140,7 @@ def replay(
     else:
         ekf = plugged(make_filter, params, name)
     gate, R = params.gate, params.R
-    rows = predict_rows if isinstance(ekf, EkfSlam) and not full_cov else None
+    rows = event_rows if isinstance(ekf, EkfSlam) and not full_cov else None
     update_rows = rows if rows is not None and rows.takes_updates else None
     next_check = 0  # the step from which the whole covariance is due for a check
     cadence = CorrelationCadence()

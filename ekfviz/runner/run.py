@@ -50,15 +50,15 @@ def run(
     name: str = "ekf",
     slam: EkfSlam | None = None,
     associator: Associator | None = None,
-    predict_rows: EventRows | None = None,
+    event_rows: EventRows | None = None,
 ) -> EventRecord | None:
     """Replay ``events`` and call each consumer with every record, in turn.
 
     :param slam: the built-in filter made with other models (Victoria Park's vehicle and
         laser), instead of one made from ``params``
     :param associator: pairs id-less scans with landmarks; None: the log's ids
-    :param predict_rows: the plain predicts go there as columns, not to the consumers
-        (see :func:`~ekfviz.runner.replay.replay`)
+    :param event_rows: the plain predicts (and updates, where the rows take them) go
+        there as columns, not to the consumers (see :func:`~ekfviz.runner.replay.replay`)
     :returns: the last record (None only if the replay yielded nothing)
     :raises FilterLineError: the filter cannot go on at a line of the log; the consumers
         have every record before it
@@ -71,7 +71,7 @@ def run(
         name=name,
         slam=slam,
         associator=associator,
-        predict_rows=predict_rows,
+        event_rows=event_rows,
     ):
         for consumer in consumers:
             consumer(record)

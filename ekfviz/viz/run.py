@@ -558,10 +558,10 @@ class RunLogger:
         self.logged += 1
         self.last = record
 
-    def predict_rows(self) -> EventRows:
-        """Where a replay writes its plain predicts as columns, for the recorder to log
+    def event_rows(self) -> EventRows:
+        """Where a replay writes its plain events as columns, for the recorder to log
         before the next record (see :class:`~ekfviz.viz.layers.pending.PendingEvents`)."""
-        self._rows = self.recorder.pending.predict_rows()
+        self._rows = self.recorder.pending.event_rows()
         return self._rows
 
     def finish(self, evaluation: Evaluation | None) -> None:

@@ -23,14 +23,14 @@ FLUSH_LANDMARKS = 1 << 20  # ... or sooner, once the buffered records hold this 
 
 class PendingEvents:
     """The events not sent yet: the records, in order, and the first ``rows_held`` rows
-    of the replay's predict rows (:meth:`predict_rows`), if any, which the records'
-    events interleave (both in event order)."""
+    of the replay's rows (:meth:`event_rows`), if any, which the records' events
+    interleave (both in event order)."""
 
     def __init__(self) -> None:
         self.records: list[tuple[EventRecord, bool]] = []  # with: logs the whole map
         self.count = 0  # events held, records and rows
         self.landmarks = 0  # landmarks of the maps of the events held
-        self.rows: EventRows | None = None  # where a replay writes its predicts, if asked
+        self.rows: EventRows | None = None  # where a replay writes its plain events, if asked
         self.rows_held = 0
         self.rows_whole: list[bool] = []  # whether each row held logs the whole map
         # the (event, step, is an update) of the newest row held, till the recorder reads it
@@ -39,14 +39,14 @@ class PendingEvents:
     def __bool__(self) -> bool:
         return self.count > 0
 
-    def predict_rows(self) -> EventRows:
-        """The rows a replay writes its plain predicts to, made at the first call."""
+    def event_rows(self) -> EventRows:
+        """The rows a replay writes its plain events to, made at the first call."""
         if self.rows is None:
             self.rows = EventRows(FLUSH_EVERY)
         return self.rows
 
     def latest(self, record: EventRecord | None) -> EventRecord | None:
-        """The newer of ``record`` and the newest predict row (:meth:`EventRows.latest`)."""
+        """The newer of ``record`` and the newest row (:meth:`EventRows.latest`)."""
         return record if self.rows is None else self.rows.latest(record)
 
     @property
