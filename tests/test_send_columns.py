@@ -337,3 +337,55 @@ def test_the_updates_whose_map_is_logged_are_the_definitions(seed: int) -> None:
         last = pending[expected[-1]][0]
         shown = (last.landmark_ids, ellipse_shapes(last.landmarks_xy, last.landmark_covs))
     assert event > 0
+
+
+class _Series:
+    """A series buffer that keeps every value given, by path, in order."""
+
+    def __init__(self) -> None:
+        self.values: dict[str, list[tuple[int, int, float, float | None]]] = {}
+
+    def add(self, path: str, step: int, event: int, value: float, time: float | None) -> None:
+        self.extend(path, [step], [event], [value], [math.nan if time is None else time])
+
+    def extend(
+        self, path: str, steps: list[int], events: list[int], values: list[float],
+        times: list[float],
+    ) -> None:  # fmt: skip
+        # (a NaN time as None: NaN equals nothing, itself included)
+        kept = [None if math.isnan(time) else time for time in times]
+        self.values.setdefault(path, []).extend(zip(steps, events, values, kept, strict=True))
+
+
+@pytest.mark.parametrize("seed", range(30))
+def test_the_landmark_errors_of_a_batch_are_each_updates(seed: int) -> None:
+    """The errors against the true landmarks sent for a batch at once are, value for
+    value, what each update's own (``log_landmark_errors``) were: the whole map's, or
+    the observed landmarks', a mean and worst of the whole map's known ones (summed in
+    numpy's order, in pairs from 8 landmarks on), none of a landmark the truth lacks."""
+    from ekfviz.core.truth import GroundTruth
+    from ekfviz.viz.layers.truth import TruthLayer
+
+    batch = random_batch(seed)
+    rng = np.random.default_rng(seed + 1000)
+    known = np.array([i for i in range(1, 13) if rng.random() < 0.8], dtype=np.int64)
+    truth = GroundTruth(ids=known, landmarks_xy=rng.normal(size=(len(known), 2)))
+
+    class Canvas:
+        def __init__(self) -> None:
+            self.truth, self.series = truth, _Series()
+
+    at_once, one_by_one = Canvas(), Canvas()
+    TruthLayer(at_once, None).send_landmark_errors(batch)  # type: ignore[arg-type]
+    reference = TruthLayer(one_by_one, None)  # type: ignore[arg-type]
+    for k in batch.corrected.tolist():
+        record = batch.records[k]
+        assert record is not None
+        reference.log_landmark_errors(record, None if batch.whole[k] else "observed", False)
+    assert at_once.series.values == one_by_one.series.values
+    assert any("summary" in path for path in at_once.series.values)
+
+
+def test_the_random_batches_hold_maps_numpy_sums_in_pairs() -> None:
+    """Some maps of the batches above have 8 landmarks or more (numpy's sums go in pairs)."""
+    assert max(int(random_batch(seed).maps.counts.max()) for seed in range(30)) >= 8

@@ -355,7 +355,7 @@ class Recorder:
                 self.association = View(self._rec.rec, self._rec.path, self._sensor, self._truth)
             self.association.log(record)
         if self._truth is not None:
-            self._truth_layer.log_metrics(record, whole_map, self.association is not None)
+            self._truth_layer.log_metrics(record)
         if self.pending.add(record, whole_map):
             self._send_pending(series=True)
 

@@ -186,6 +186,8 @@ class Batch:
     :param updating: (count,) which are updates (not an initialisation)
     :param observed: what their updates did with their observations
     :param maps: the maps of the ``corrected`` rows
+    :param times: (count,) the log's time of each event, NaN where it has none (``rows``
+        holds them filled in)
     :param lines: (count,) the log line of each event (0 where none)
     :param controls: (count, 2) the (d, alpha) of each predict that has one (see
         ``has_control``; NaN elsewhere)
@@ -201,6 +203,7 @@ class Batch:
     corrected: IntArray
     observed: Observed
     maps: Maps
+    times: FloatArray
     lines: IntArray
     controls: FloatArray
     has_control: BoolArray
@@ -305,6 +308,7 @@ class Batch:
             corrected=corrected,
             observed=Observed.of(count, corrected, maps.observations),
             maps=maps,
+            times=times,
             lines=lines,
             controls=controls,
             has_control=has_control,

@@ -212,6 +212,15 @@ class SeriesBuffer:
         values.append(value)
         times.append(math.nan if time is None else time)
 
+    def extend(
+        self, path: str, steps: list[int], events: list[int], values: list[float],
+        times: list[float],
+    ) -> None:  # fmt: skip
+        """:meth:`add` of several values in order (``times`` NaN where there is none)."""
+        series = self._series.setdefault(path, ([], [], [], []))
+        for kept, more in zip(series, (steps, events, values, times), strict=True):
+            kept.extend(more)  # type: ignore[attr-defined]
+
     def flush(self) -> None:
         for path, (steps, events, values, times) in self._series.items():
             if values:

@@ -10,13 +10,14 @@ import rerun as rr
 
 from ekfviz.core.records import EventKind, EventRecord
 from ekfviz.core.truth import GroundTruth
-from ekfviz.core.types import FloatArray, IntArray
+from ekfviz.core.types import BoolArray, FloatArray, IntArray
 from ekfviz.evaluation.consistency import chi2_bounds, pose_nees
 from ekfviz.evaluation.errors import landmark_errors
 from ekfviz.viz import style
 from ekfviz.viz.layers.arrow import in_parent_frame, positions, radius, robot_frame
 from ekfviz.viz.layers.batch import Batch, landmark_rows
 from ekfviz.viz.layers.canvas import Canvas, has_class_ids
+from ekfviz.viz.layers.map_rows import JoinedIds, joined_rows, ranges
 from ekfviz.viz.layers.metrics import MetricsLayer
 
 
@@ -28,6 +29,7 @@ class TruthLayer:
         self._metrics = metrics
         self._last_true_xy: FloatArray | None = None  # (1, 2) the true path's last point
         self._last_true_step = 0  # the step of the last true pose logged
+        self._associated = False  # an update associated id-less scans: no errors from it on
 
     def log_styling(self) -> None:
         """The styling of the plots of errors (with truth) and of the true landmarks."""
@@ -79,10 +81,14 @@ class TruthLayer:
         )
 
     def send(self, batch: Batch) -> None:
-        """The true pose of each step at its update (by step, or by time on a track), as
+        """The landmarks' errors of the batch's updates (:meth:`send_landmark_errors`),
+        and the true pose of each step at its update (by step, or by time on a track), as
         a robot frame and a segment of the true path from the step before."""
         truth = self._canvas.truth
-        if truth is None or not truth.has_poses:
+        if truth is None:
+            return
+        self.send_landmark_errors(batch)
+        if not truth.has_poses:
             return
         records, rows = batch.records, batch.rows
         known = [
@@ -116,18 +122,112 @@ class TruthLayer:
         self._last_true_xy = poses[-1:, :2].copy()
         self._last_true_step = records[at[-1]].step
 
-    def log_metrics(self, record: EventRecord, whole_map: bool, associated: bool) -> None:
-        """The series of an update that need the truth, buffered.
-
-        :param associated: the run associates id-less scans, whose ids are not the truth's
-        """
+    def log_metrics(self, record: EventRecord) -> None:
+        """The pose's NEES at an update, buffered (its landmarks' errors are sent with its
+        batch, :meth:`send_landmark_errors`)."""
         truth = self._canvas.truth
         if truth is None or record.kind is EventKind.PREDICT:
             return
         nees = pose_nees(record, truth)
         if nees is not None:
             self._metrics.add_statistic(style.NEES, record, nees, chi2_bounds(3))
-        self.log_landmark_errors(record, None if whole_map else "observed", associated)
+
+    def send_landmark_errors(self, batch: Batch) -> None:
+        """:meth:`log_landmark_errors` of every update of a batch at once: of the whole
+        map where the update logs it, else of the landmarks it observed; none from the
+        first update of id-less scans on (their ids are not the truth's)."""
+        truth, maps = self._canvas.truth, batch.maps
+        if truth is None or not batch.corrected.size:
+            return
+        scans = [record is not None and record.association is not None for record in maps.records]
+        if self._associated or True in scans:
+            associated = np.logical_or.accumulate(np.array(scans)) | self._associated
+            self._associated = bool(associated[-1])
+            picks = np.flatnonzero(~associated)
+        else:
+            picks = np.arange(len(scans))
+        whole = batch.whole[batch.corrected][picks]
+        # the rows of each pick's landmarks in the joined maps, pick after pick
+        every, seen = picks[whole], picks[~whole]
+        rows_every = ranges(maps.starts[every], maps.starts[every + 1])
+        rows_seen, counts_seen = joined_rows(maps, seen, "observed", {})
+        owner = np.concatenate([np.repeat(every, maps.counts[every]), np.repeat(seen, counts_seen)])
+        order = np.argsort(owner, kind="stable")
+        rows, owner = np.concatenate([rows_every, rows_seen])[order], owner[order]
+        ids = JoinedIds(maps.ids).of(rows)
+        euclidean, mahalanobis = landmark_errors(maps.xy[rows], maps.covs[rows], truth.lookup(ids))
+        at = batch.corrected[owner]  # each row's event in the batch
+        steps, events = batch.rows.steps[at].tolist(), batch.rows.events[at].tolist()
+        times = batch.times[at].tolist()
+        known = np.isfinite(euclidean)
+        self._send_summaries(batch, every, owner, euclidean, mahalanobis, known)
+        series = self._canvas.series
+        by_id = np.argsort(ids, kind="stable")  # each landmark's values, in event order
+        starts = np.flatnonzero(np.r_[True, ids[by_id][1:] != ids[by_id][:-1]])
+        for first, end in zip(starts.tolist(), [*starts[1:].tolist(), len(ids)], strict=True):
+            picked = [k for k in by_id[first:end].tolist() if known[k]]
+            if not picked:
+                continue
+            landmark_id = int(ids[by_id[first]])
+            when = ([steps[k] for k in picked], [events[k] for k in picked])
+            at_times = [times[k] for k in picked]
+            for path, values in (
+                (f"{style.LANDMARK_ERROR}/{landmark_id}", euclidean),
+                (f"{style.MAHALANOBIS}/{landmark_id}", mahalanobis),
+            ):
+                series.extend(path, *when, values[picked].tolist(), at_times)
+
+    def _send_summaries(
+        self,
+        batch: Batch,
+        every: IntArray,
+        owner: IntArray,
+        euclidean: FloatArray,
+        mahalanobis: FloatArray,
+        known: BoolArray,
+    ) -> None:
+        """The mean and worst landmark of each whole map (``every``: its updates) with a
+        landmark the truth knows, as :meth:`log_landmark_errors` takes them."""
+        if not every.size:
+            return
+        first = np.searchsorted(owner, every)
+        counts = np.searchsorted(owner, every, side="right") - first
+        has = counts > 0
+        every, first, counts = every[has], first[has], counts[has]
+        if not len(first):
+            return
+        ends = first + counts
+        # numpy's mean of a row of a (maps, landmarks) array is a map's own mean to the
+        # bit (reduceat sums otherwise): the maps of one size whose landmarks the truth
+        # all knows at once, each other map on its own
+        groups: list[tuple[IntArray, IntArray]] = []  # the maps of a size, their rows
+        alone: list[int] = []
+        for size in np.unique(counts).tolist():
+            maps_of = np.flatnonzero(counts == size)
+            rows = first[maps_of][:, None] + np.arange(size)
+            whole = known[rows].all(axis=1)
+            groups.append((maps_of[whole], rows[whole]))
+            alone += maps_of[~whole].tolist()
+        at = batch.corrected[every]
+        series = self._canvas.series
+        for root, values in (
+            (style.LANDMARK_ERROR_SUMMARY, euclidean),
+            (style.MAHALANOBIS_SUMMARY, mahalanobis),
+        ):
+            means, worst = np.full(len(every), np.nan), np.full(len(every), np.nan)
+            for maps_of, rows in groups:
+                means[maps_of] = values[rows].mean(axis=1)
+                worst[maps_of] = values[rows].max(axis=1)
+            for i in alone:  # only its landmarks the truth knows, as log_landmark_errors
+                span = slice(int(first[i]), int(ends[i]))
+                mine = values[span][known[span]]
+                if mine.size:
+                    means[i], worst[i] = mine.mean(), mine.max()
+            logged = np.isfinite(means)
+            when = (batch.rows.steps[at][logged].tolist(), batch.rows.events[at][logged].tolist())
+            at_times = batch.times[at][logged].tolist()
+            series.extend(f"{root}/{style.MEAN}", *when, means[logged].tolist(), at_times)
+            series.extend(f"{root}/{style.WORST}", *when, worst[logged].tolist(), at_times)
 
     def log_landmark_errors(self, record: EventRecord, which: str | None, associated: bool) -> None:
         """Euclidean error and Mahalanobis distance of the landmarks (see landmark_rows)."""
