@@ -19,6 +19,7 @@ from typer.testing import CliRunner
 from ekfviz.cli import app
 from ekfviz.core import correlation
 from ekfviz.core.records import Control, EventKind, EventRows, LogEvent, Sighting
+from ekfviz.core.truth import GroundTruth
 from ekfviz.evaluation.consistency import Consistency
 from ekfviz.filters.ekf import FilterParams
 from ekfviz.io.classic import format_classic, read_classic
@@ -70,12 +71,19 @@ def events(
     return out
 
 
-def record(path: Path, log: list[LogEvent], updates: bool, *, detail: bool = False) -> Path:
+def record(
+    path: Path,
+    log: list[LogEvent],
+    updates: bool,
+    *,
+    detail: bool = False,
+    truth: GroundTruth | None = None,
+) -> Path:
     """Replay ``log`` into a recording, its updates as rows or as records (its predicts
-    as rows either way)."""
+    as rows either way), with the true landmarks if given."""
     stream = rr.RecordingStream("test_update_rows")
     stream.save(str(path))
-    recorder = Recorder(stream, blueprint=False, detail=detail)
+    recorder = Recorder(stream, blueprint=False, detail=detail, truth=truth)
     rows = recorder.pending.event_rows()
     rows.takes_updates = updates
     run(log, FilterParams(), [recorder.log_record], event_rows=rows)
@@ -104,14 +112,22 @@ def written_as_rows(log: list[LogEvent]) -> int:
     return sum(update is not None for update in rows.updates)
 
 
+LARGE_MAP = np.random.default_rng(2).uniform(-5.0, 20.0, (40, 2))
 CASES = {
     "one-send": (events(150), 4096, False),
     "many-sends": (events(150), 37, False),
     "growing-map": (events(120, first_seen=40), 50, False),
-    "large-map": (events(60, np.random.default_rng(2).uniform(-5.0, 20.0, (40, 2))), 64, False),
+    "large-map": (events(60, LARGE_MAP), 64, False),
     "a-warning": (events(90, zero_range_at=30), 41, False),
     "detail": (events(80), 30, True),
     "timed": (events(90, timed=True), 50, False),
+}
+# the true landmarks (no true poses): their errors are drawn at every update
+TRUE_LANDMARKS = {
+    "one-send": CLASSIC_LANDMARKS_XY,
+    "growing-map": CLASSIC_LANDMARKS_XY[:4],  # two landmarks the truth does not know
+    "large-map": LARGE_MAP,
+    "detail": CLASSIC_LANDMARKS_XY,
 }
 
 
@@ -125,12 +141,23 @@ def test_updates_as_rows_record_the_same_as_records(
     monkeypatch.setattr(pending, "FLUSH_EVERY", flush_every)
     updates = sum(isinstance(event, Sighting) for event in log)
     assert written_as_rows(log) > updates // 2
-    a = every_entity(record(tmp_path / "a.rrd", log, False, detail=detail))
-    b = every_entity(record(tmp_path / "b.rrd", log, True, detail=detail))
-    assert a.keys() == b.keys()
-    assert any("landmarks" in entity for entity in a)
-    for entity in a:
-        assert a[entity] == b[entity], entity
+    for truth in (None, true_landmarks(case)):
+        a = every_entity(record(tmp_path / "a.rrd", log, False, detail=detail, truth=truth))
+        b = every_entity(record(tmp_path / "b.rrd", log, True, detail=detail, truth=truth))
+        assert a.keys() == b.keys()
+        assert any("landmarks" in entity for entity in a)
+        if truth is not None:
+            assert any("landmark_error" in entity for entity in a)
+        for entity in a:
+            assert a[entity] == b[entity], entity
+
+
+def true_landmarks(case: str) -> GroundTruth | None:
+    """The true landmarks of a case that has them, none of the poses."""
+    xy = TRUE_LANDMARKS.get(case)
+    if xy is None:
+        return None
+    return GroundTruth(ids=np.arange(1, len(xy) + 1, dtype=np.int64), landmarks_xy=np.array(xy))
 
 
 def test_an_update_row_holds_what_its_record_would() -> None:

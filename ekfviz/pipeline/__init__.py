@@ -126,7 +126,7 @@ def replay_log(
     """One replay: the events through the filter into the logger, judged at the end.
 
     Every record goes to the logger (Rerun), the consistency count and ``on_record``;
-    the plain predicts (and, without truth or an association, the plain updates: no
+    the plain predicts (and, without true poses or an association, the plain updates: no
     warning, no check) go to the logger as columns, their NIS to the consistency count
     (see :class:`~ekfviz.core.records.EventRows`).
     Bad input, a filter that cannot go on, Ctrl-C or SIGTERM stop the replay with the
@@ -151,8 +151,10 @@ def replay_log(
     rows = logger.event_rows() if scans is None or not scans.reads_predicts else None
     if rows is not None:
         # its plain updates too where only the recorder and the NIS count read them:
-        # without truth (whose errors are counted per update) and without an association
-        rows.takes_updates = truth is None and (scans is None or scans.associator is None)
+        # without true poses (the NEES is taken per update) and without an association
+        rows.takes_updates = (truth is None or not truth.has_poses) and (
+            scans is None or scans.associator is None
+        )
         rows.watch = consistency.add_observations
     try:
         run(events, params, consumers, make_filter=make_filter, name=name, slam=slam,
