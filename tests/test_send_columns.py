@@ -376,8 +376,8 @@ def test_the_landmark_errors_of_a_batch_are_each_updates(seed: int) -> None:
             self.truth, self.series = truth, _Series()
 
     at_once, one_by_one = Canvas(), Canvas()
-    TruthLayer(at_once, None).send_landmark_errors(batch)  # type: ignore[arg-type]
-    reference = TruthLayer(one_by_one, None)  # type: ignore[arg-type]
+    TruthLayer(at_once).send_landmark_errors(batch)  # type: ignore[arg-type]
+    reference = TruthLayer(one_by_one)  # type: ignore[arg-type]
     for k in batch.corrected.tolist():
         record = batch.records[k]
         assert record is not None

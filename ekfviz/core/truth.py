@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ekfviz.core.types import FloatArray, IntArray
+from ekfviz.core.types import BoolArray, FloatArray, IntArray
 
 
 @dataclass(frozen=True, slots=True)
@@ -65,6 +65,19 @@ class GroundTruth:
             return None
         pose: FloatArray = self.poses_xytheta[step]
         return pose
+
+    def poses_of(self, steps: IntArray, times: FloatArray) -> tuple[FloatArray, BoolArray]:
+        """:meth:`pose_of` of many events (``times`` NaN where an event has none): their
+        true poses (k, 3), and which have one (the others' rows are NaN)."""
+        out = np.full((len(steps), 3), np.nan)
+        if self.track_times is not None:  # by time, one at a time
+            for k, time in enumerate(times.tolist()):
+                if not math.isnan(time) and (pose := self.pose_at(time)) is not None:
+                    out[k] = pose
+        elif self.poses_xytheta is not None:
+            inside = steps < len(self.poses_xytheta)
+            out[inside] = self.poses_xytheta[steps[inside]]
+        return out, ~np.isnan(out[:, 0])
 
     def lookup(self, ids: IntArray) -> FloatArray:
         """True positions (len(ids), 2) of the given ids, NaN where the truth has none."""

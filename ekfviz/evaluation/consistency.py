@@ -15,10 +15,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ekfviz.core.records import EventKind, EventRecord, Observations
+from ekfviz.core.records import EventKind, EventRecord, Observations, UpdatesWatched
 from ekfviz.core.stats import chi2_quantile
 from ekfviz.core.truth import GroundTruth
-from ekfviz.core.types import FloatArray
+from ekfviz.core.types import BoolArray, FloatArray
 from ekfviz.models.angles import wrap_angle
 
 CONFIDENCE = 0.95
@@ -62,6 +62,28 @@ def pose_nees(record: EventRecord, truth: GroundTruth) -> float | None:
         return float(e @ np.linalg.solve(record.pose_cov, e))
     except np.linalg.LinAlgError:
         return None
+
+
+def poses_nees(
+    poses: FloatArray, covs: FloatArray, true_poses: FloatArray
+) -> tuple[FloatArray, BoolArray]:
+    """:func:`pose_nees` of many poses (k, 3) with their covariances (k, 3, 3) against
+    true poses (k, 3), to the bit: the NEES (k,), and where it is defined (a singular
+    covariance's is not)."""
+    e = poses - true_poses
+    e[:, 2] = [wrap_angle(angle) for angle in e[:, 2].tolist()]
+    defined = np.ones(len(e), dtype=bool)
+    try:  # solve, per matrix as for one; the products as one pose's e @ x
+        whitened = np.linalg.solve(covs, e[:, :, None])
+    except np.linalg.LinAlgError:  # some covariance is singular: one at a time
+        whitened = np.zeros((len(e), 3, 1))
+        for k in range(len(e)):
+            try:
+                whitened[k, :, 0] = np.linalg.solve(covs[k], e[k])
+            except np.linalg.LinAlgError:
+                defined[k] = False
+    nees: FloatArray = (e[:, None, :] @ whitened)[:, 0, 0]
+    return nees, defined
 
 
 def update_nis(record: EventRecord) -> tuple[float, int] | None:
@@ -168,10 +190,29 @@ class Consistency:
             else:
                 self.singular_pose += 1
 
+    def add_rows(self, rows: UpdatesWatched) -> None:
+        """Count updates given without their records (rows of a replay, see
+        :class:`~ekfviz.core.records.EventRows`) as :meth:`add` counts theirs: their
+        NIS, and with true poses their NEES."""
+        self.add_observations(rows.observations)
+        truth = self.truth
+        if truth is None or not truth.has_poses:
+            return
+        true_poses, known = truth.poses_of(rows.steps, rows.times)
+        nees, defined = poses_nees(rows.poses[known], rows.pose_covs[known], true_poses[known])
+        low, high = chi2_bounds(3)
+        values = nees[defined]
+        below, above = int(np.count_nonzero(values < low)), int(np.count_nonzero(values > high))
+        self.nees.below += below
+        self.nees.above += above
+        self.nees.inside += len(values) - below - above
+        self.singular_pose += int(np.count_nonzero(~defined))
+        if truth.poses_xytheta is not None:
+            self.without_true_pose += int(np.count_nonzero(~known))
+
     def add_observations(self, found: list[Observations]) -> None:
-        """Count the NIS of updates given without their records (rows of a replay, see
-        :class:`~ekfviz.core.records.EventRows`): as :meth:`add` counts theirs, the
-        lines of one length at once."""
+        """Count the NIS of updates given without their records, as :meth:`add` counts
+        theirs, the lines of one length at once."""
         by_length: dict[int, list[FloatArray]] = {}
         for observations in found:
             by_length.setdefault(len(observations), []).append(observations.nis)

@@ -147,7 +147,7 @@ class Recorder:
         self._map = MapLayer(canvas, self._labels, thinned=self._thinning.interval_s is not None)
         self._observations = ObservationsLayer(canvas)
         self._metrics = MetricsLayer(canvas)
-        self._truth_layer = TruthLayer(canvas, self._metrics)
+        self._truth_layer = TruthLayer(canvas)
         self._text = TextLayer(canvas)
         self._correlation = CorrelationLayer(canvas)
         self.pending = PendingEvents()
@@ -354,8 +354,6 @@ class Recorder:
 
                 self.association = View(self._rec.rec, self._rec.path, self._sensor, self._truth)
             self.association.log(record)
-        if self._truth is not None:
-            self._truth_layer.log_metrics(record)
         if self.pending.add(record, whole_map):
             self._send_pending(series=True)
 

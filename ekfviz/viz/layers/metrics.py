@@ -10,7 +10,6 @@ import pyarrow as pa  # type: ignore[import-untyped]
 import rerun as rr
 
 from ekfviz.core.health import CovarianceCheck, landmark_min_eigenvalues, pose_min_eigenvalues
-from ekfviz.core.records import EventRecord
 from ekfviz.evaluation.consistency import chi2_bounds
 from ekfviz.viz import style
 from ekfviz.viz.layers.arrow import column, run_ends, scalars
@@ -52,17 +51,6 @@ class MetricsLayer:
             (style.HEALTH_SKIPPED, "skipped observations"),
         ):
             entities.style(path, rr.SeriesLines(names=name))
-
-    def add_statistic(
-        self, path: str, record: EventRecord, value: float, bounds: tuple[float, float]
-    ) -> None:
-        """A NIS or NEES value with its chi-square bounds, drawn in the same plot."""
-        at = (record.step, record.event)
-        series = self._canvas.series
-        self._canvas.extent(path, value, bounds[1])
-        series.add(path, *at, value, record.time)
-        series.add(f"{path}/{style.LOWER}", *at, bounds[0], record.time)
-        series.add(f"{path}/{style.UPPER}", *at, bounds[1], record.time)
 
     def send(self, batch: Batch) -> None:
         """The pose's sigmas and the NIS of every update."""

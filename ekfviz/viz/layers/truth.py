@@ -8,25 +8,23 @@ import math
 import numpy as np
 import rerun as rr
 
-from ekfviz.core.records import EventKind, EventRecord
+from ekfviz.core.records import EventRecord
 from ekfviz.core.truth import GroundTruth
 from ekfviz.core.types import BoolArray, FloatArray, IntArray
-from ekfviz.evaluation.consistency import chi2_bounds, pose_nees
+from ekfviz.evaluation.consistency import chi2_bounds, poses_nees
 from ekfviz.evaluation.errors import landmark_errors
 from ekfviz.viz import style
 from ekfviz.viz.layers.arrow import in_parent_frame, positions, radius, robot_frame
 from ekfviz.viz.layers.batch import Batch, landmark_rows
 from ekfviz.viz.layers.canvas import Canvas, has_class_ids
 from ekfviz.viz.layers.map_rows import JoinedIds, joined_rows, ranges
-from ekfviz.viz.layers.metrics import MetricsLayer
 
 
 class TruthLayer:
     """The truth and the series measured against it."""
 
-    def __init__(self, canvas: Canvas, metrics: MetricsLayer) -> None:
+    def __init__(self, canvas: Canvas) -> None:
         self._canvas = canvas
-        self._metrics = metrics
         self._last_true_xy: FloatArray | None = None  # (1, 2) the true path's last point
         self._last_true_step = 0  # the step of the last true pose logged
         self._associated = False  # an update associated id-less scans: no errors from it on
@@ -82,24 +80,21 @@ class TruthLayer:
 
     def send(self, batch: Batch) -> None:
         """The landmarks' errors of the batch's updates (:meth:`send_landmark_errors`),
-        and the true pose of each step at its update (by step, or by time on a track), as
-        a robot frame and a segment of the true path from the step before."""
+        and, at each update with a true pose (by step, or by time on a track), the pose's
+        NEES, and that pose as a robot frame with a segment of the true path from the step
+        before."""
         truth = self._canvas.truth
         if truth is None:
             return
         self.send_landmark_errors(batch)
         if not truth.has_poses:
             return
-        records, rows = batch.records, batch.rows
-        known = [
-            (k, pose)
-            for k in batch.corrected.tolist()
-            if (pose := truth.pose_of(records[k].step, records[k].time)) is not None
-        ]
-        if not known:
+        records, rows, corrected = batch.records, batch.rows, batch.corrected
+        true_poses, known = truth.poses_of(rows.steps[corrected], batch.times[corrected])
+        if not known.any():
             return
-        at = np.array([k for k, _ in known])
-        poses = np.array([pose for _, pose in known])
+        at, poses = corrected[known], true_poses[known]
+        self._send_nees(batch, at, poses)
         self._canvas.send(style.TRUTH_ROBOT, rows.pick(at), [positions(poses), *robot_frame(poses)])
         starts = np.vstack([poses[:1, :2] if self._last_true_xy is None else self._last_true_xy,
                             poses[:-1, :2]])  # fmt: skip
@@ -109,28 +104,38 @@ class TruthLayer:
         spans = {
             i: k
             for i, k in enumerate(at.tolist())
-            if records[k].path_xytheta is not None and truth.poses_xytheta is not None
+            if (record := records[k]) is not None
+            and record.path_xytheta is not None
+            and truth.poses_xytheta is not None
         }
         plain = np.array([i not in spans for i in range(len(at))], dtype=bool)
         self._canvas.send_strips(style.TRUTH_TRAJECTORY, rows, at[plain], segments[plain])
+        steps = rows.steps
         for i, k in spans.items():
-            first = records[known[i - 1][0]].step if i else self._last_true_step
-            between = truth.poses_xytheta[first : records[k].step + 1, :2]  # type: ignore[index]
+            first = int(steps[at[i - 1]]) if i else self._last_true_step
+            between = truth.poses_xytheta[first : int(steps[k]) + 1, :2]  # type: ignore[index]
             self._canvas.send_strips(
                 style.TRUTH_TRAJECTORY, rows, np.array([k], dtype=np.int64), between[None]
             )
         self._last_true_xy = poses[-1:, :2].copy()
-        self._last_true_step = records[at[-1]].step
+        self._last_true_step = int(steps[at[-1]])
 
-    def log_metrics(self, record: EventRecord) -> None:
-        """The pose's NEES at an update, buffered (its landmarks' errors are sent with its
-        batch, :meth:`send_landmark_errors`)."""
-        truth = self._canvas.truth
-        if truth is None or record.kind is EventKind.PREDICT:
+    def _send_nees(self, batch: Batch, at: IntArray, true_poses: FloatArray) -> None:
+        """The NEES of the poses at the rows ``at`` of a batch against ``true_poses``, with
+        its chi-square bounds (3 dof), buffered: drawn in the same plot."""
+        nees, defined = poses_nees(batch.poses[at], batch.pose_covs[at], true_poses)
+        if not defined.any():
             return
-        nees = pose_nees(record, truth)
-        if nees is not None:
-            self._metrics.add_statistic(style.NEES, record, nees, chi2_bounds(3))
+        at, nees = at[defined], nees[defined]
+        low, high = chi2_bounds(3)
+        finite = nees[np.isfinite(nees)]
+        self._canvas.extent(style.NEES, float(finite.max()) if finite.size else math.nan, high)
+        when = (batch.rows.steps[at].tolist(), batch.rows.events[at].tolist())
+        times = batch.times[at].tolist()
+        series = self._canvas.series
+        series.extend(style.NEES, *when, nees.tolist(), times)
+        series.extend(f"{style.NEES}/{style.LOWER}", *when, [low] * len(at), times)
+        series.extend(f"{style.NEES}/{style.UPPER}", *when, [high] * len(at), times)
 
     def send_landmark_errors(self, batch: Batch) -> None:
         """:meth:`log_landmark_errors` of every update of a batch at once: of the whole
