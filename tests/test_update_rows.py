@@ -122,7 +122,7 @@ CASES = {
     "detail": (events(80), 30, True),
     "timed": (events(90, timed=True), 50, False),
 }
-# the true landmarks (no true poses): their errors are drawn at every update
+# the true landmarks alone (their errors are drawn at every update); see true_landmarks
 TRUE_LANDMARKS = {
     "one-send": CLASSIC_LANDMARKS_XY,
     "growing-map": CLASSIC_LANDMARKS_XY[:4],  # two landmarks the truth does not know
@@ -148,12 +148,18 @@ def test_updates_as_rows_record_the_same_as_records(
         assert any("landmarks" in entity for entity in a)
         if truth is not None:
             assert any("landmark_error" in entity for entity in a)
+            nees = [row for row in a.get("/metrics/nees", []) if "event" in row]
+            assert truth.has_poses == bool(nees)  # the NEES, at the updates
         for entity in a:
             assert a[entity] == b[entity], entity
 
 
 def true_landmarks(case: str) -> GroundTruth | None:
-    """The true landmarks of a case that has them, none of the poses."""
+    """The truth of a case that has one: its landmarks, or its poses too."""
+    if case == "many-sends":
+        return simulated_truth(150)  # the NEES and the true path at every update
+    if case == "a-warning":
+        return simulated_truth(90, cut=60)  # the true poses end before the log
     xy = TRUE_LANDMARKS.get(case)
     if xy is None:
         return None
@@ -189,17 +195,29 @@ def test_an_update_row_holds_what_its_record_would() -> None:
     assert grown.kind is EventKind.UPDATE and grown.event not in at_rows
 
 
-def test_the_nis_count_is_the_same_with_updates_as_rows() -> None:
-    """The run's NIS count sees every update, the rows' through ``watch`` (each once,
-    whether dropped, made records or settled) and the records' one by one."""
+def simulated_truth(steps: int, cut: int | None = None) -> GroundTruth:
+    """The truth of :func:`events` (its landmarks and true poses), the poses after step
+    ``cut`` left out."""
+    controls = np.tile(classic_controls(), (steps // 29 + 1, 1))[:steps]
+    sim = simulate(controls, CLASSIC_LANDMARKS_XY, seed=5)
+    poses = sim.poses_xytheta if cut is None else sim.poses_xytheta[: cut + 1]
+    return GroundTruth(ids=sim.landmark_ids, landmarks_xy=sim.landmarks_xy, poses_xytheta=poses)
+
+
+@pytest.mark.parametrize("cut", [None, 150], ids=["every-pose", "poses-end-early"])
+def test_the_consistency_counts_are_the_same_with_updates_as_rows(cut: int | None) -> None:
+    """The run's NIS and NEES counts see every update, the rows' through ``watch`` (each
+    once, whether dropped, made records or settled) and the records' one by one; the
+    updates past the truth's last pose are counted as such."""
     log = events(200, zero_range_at=50)
-    alone = Consistency()
+    truth = simulated_truth(200, cut)
+    alone = Consistency(truth)
     for r in replay(log, FilterParams()):
         alone.add(r)
     rows = EventRows(16)
     rows.takes_updates = True
-    counted = Consistency()
-    rows.watch = counted.add_observations
+    counted = Consistency(truth)
+    rows.watch = counted.add_rows
     for n, r in enumerate(replay(log, FilterParams(), event_rows=rows)):
         counted.add(r)
         if n % 3 == 0:
@@ -211,11 +229,9 @@ def test_the_nis_count_is_the_same_with_updates_as_rows() -> None:
     rows.settle()
     rows.drop(len(rows))
     assert counted.nis.total == alone.nis.total == 200
-    assert (counted.nis.below, counted.nis.inside, counted.nis.above) == (
-        alone.nis.below,
-        alone.nis.inside,
-        alone.nis.above,
-    )
+    assert counted.to_json() == alone.to_json()
+    assert alone.nees.total == (201 if cut is None else 151)
+    assert alone.without_true_pose == (0 if cut is None else 50)
 
 
 def test_a_run_that_stops_after_an_update_row_keeps_that_map() -> None:

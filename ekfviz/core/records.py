@@ -9,9 +9,10 @@ and a run has many events.
 from __future__ import annotations
 
 import enum
+import math
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
-from typing import Any, TypeVar
+from typing import Any, NamedTuple, TypeVar
 
 import numpy as np
 
@@ -489,8 +490,9 @@ class EventRows:
 
     :ivar takes_updates: whether the replay may write updates here (the consumers of
         its records read none of theirs but what the rows hold)
-    :ivar watch: called with the observations of the update rows that are forgotten
-        (dropped or made records) or :meth:`settle` d, each row once (the run's NIS count)
+    :ivar watch: called with the update rows that are forgotten (dropped or made
+        records) or :meth:`settle` d, each row once, as :class:`UpdatesWatched` (the
+        run's NIS and NEES counts)
     """
 
     def __init__(self, capacity: int = 4096) -> None:
@@ -499,7 +501,7 @@ class EventRows:
         )
         self.timed = False  # some row has a time
         self.takes_updates = False
-        self.watch: Callable[[list[Observations]], object] | None = None
+        self.watch: Callable[[UpdatesWatched], object] | None = None
         # the newest row ever written, kept when dropped: where a stopped run stopped
         self._newest: tuple[_Row, FloatArray, FloatArray] | None = None
         # the newest update row ever written: the map of a predict row after it
@@ -628,11 +630,22 @@ class EventRows:
         self._seen = count
 
     def _watched(self, start: int, stop: int) -> None:
-        """Hand the observations of the update rows ``start:stop`` to :attr:`watch`."""
-        if self.watch is not None and start < stop:
-            found = [update[0] for update in self.updates[start:stop] if update is not None]
-            if found:
-                self.watch(found)
+        """Hand the update rows ``start:stop`` to :attr:`watch`."""
+        if self.watch is None or start >= stop:
+            return
+        state = self._state
+        at = [k for k in range(start, stop) if state.updates[k] is not None]
+        if at:
+            times = [state.times[k] for k in at]
+            self.watch(
+                UpdatesWatched(
+                    [state.updates[k][0] for k in at],  # type: ignore[index]
+                    np.array([state.steps[k] for k in at], dtype=np.int64),
+                    np.array([math.nan if t is None else t for t in times], dtype=np.float64),
+                    state.poses[at],
+                    state.pose_covs[at],
+                )
+            )
 
     def _row(self, row: int) -> tuple[_Row, FloatArray, FloatArray]:
         """A row's columns, its pose and pose covariance (copies)."""
@@ -699,6 +712,17 @@ class EventRows:
             event, step, kind, line, frozen(pose), frozen(pose_cov), ids, xy, covs,
             made_control, observations, time=time,
         )  # fmt: skip
+
+
+class UpdatesWatched(NamedTuple):
+    """Update rows handed to :attr:`EventRows.watch`: what each did, its step and time
+    (NaN where none), its pose (k, 3) and pose covariance (k, 3, 3)."""
+
+    observations: list[Observations]
+    steps: IntArray
+    times: FloatArray
+    poses: FloatArray
+    pose_covs: FloatArray
 
 
 class _Columns:

@@ -126,8 +126,8 @@ def replay_log(
     """One replay: the events through the filter into the logger, judged at the end.
 
     Every record goes to the logger (Rerun), the consistency count and ``on_record``;
-    the plain predicts (and, without true poses or an association, the plain updates: no
-    warning, no check) go to the logger as columns, their NIS to the consistency count
+    the plain predicts (and, without an association, the plain updates: no warning, no
+    check) go to the logger as columns, their NIS to the consistency count
     (see :class:`~ekfviz.core.records.EventRows`).
     Bad input, a filter that cannot go on, Ctrl-C or SIGTERM stop the replay with the
     recording of everything before it kept and its last log line saying why.
@@ -150,12 +150,10 @@ def replay_log(
     # predict's record) unless the hooks read them (a source's reference)
     rows = logger.event_rows() if scans is None or not scans.reads_predicts else None
     if rows is not None:
-        # its plain updates too where only the recorder and the NIS count read them:
-        # without true poses (the NEES is taken per update) and without an association
-        rows.takes_updates = (truth is None or not truth.has_poses) and (
-            scans is None or scans.associator is None
-        )
-        rows.watch = consistency.add_observations
+        # its plain updates too where only the recorder and the consistency count read
+        # them: without an association (whose decisions are read per update)
+        rows.takes_updates = scans is None or scans.associator is None
+        rows.watch = consistency.add_rows
     try:
         run(events, params, consumers, make_filter=make_filter, name=name, slam=slam,
             associator=associator, event_rows=rows)  # fmt: skip
