@@ -176,9 +176,9 @@ class Maps:
 class Batch:
     """The records of one send as columns, built once and read by every part.
 
-    :param records: the records, in order; None at a predict given as a row (see
-        :class:`~ekfviz.core.records.EventRows`), whose line and control are in
-        ``lines`` and ``controls``
+    :param records: the records, in order; None at an event given as a row (see
+        :class:`~ekfviz.core.records.EventRows`): a predict's line and control are in
+        ``lines`` and ``controls``, an update's map and observations in ``maps``
     :param whole: (count,) whether each update logs the whole map's ellipses
     :param rows: their timelines
     :param poses: (count, 3) and ``pose_covs`` (count, 3, 3)
@@ -218,8 +218,8 @@ class Batch:
     ) -> Batch:
         """The batch of the records ``pending`` (each with whether it logs the whole map)
         and of the first ``held`` ``rows`` (``rows_whole``: whether each logs the whole
-        map), merged in event order: an update row made the record it stands for (the
-        map's parts read the updates' records), a predict row None."""
+        map), merged in event order; a row has no record (an update row's map and
+        observations go into ``maps`` from its parts)."""
         own = [record for record, _ in pending]
         count = len(own)
         whole = np.array([is_whole for _, is_whole in pending], dtype=bool)

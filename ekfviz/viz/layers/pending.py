@@ -71,13 +71,13 @@ class PendingEvents:
         """Hold the rows written since the record ``before``, if any, calling
         ``send(series=True)`` wherever a send falls due among them, as after their records;
         or, where the thinning may drop some (it holds a predict back, ``thinned``, or
-        the rows have times), ``log`` them as records one by one.
+        the rows have times), ``log`` them as records one by one. The (event, step) of the
+        last row held, and whether it is an update, go into :attr:`newest_held` before
+        any send (a signal may raise in one).
 
         :param admit: given the steps of the update rows held, their number of
             landmarks and the newest of them as a record, whether each logs the whole
             map (see ``MapLayer.admit_rows``)
-        The (event, step) of the last row held, and whether it is an update, go into
-        :attr:`newest_held` before any send (a signal may raise in one).
         """
         rows = self.rows
         if rows is None:
