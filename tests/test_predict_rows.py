@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 import rerun as rr
 from conftest import entity_rows
+from simulated import classic_run
 
 from ekfviz.core.records import Control, EventKind, EventRows, LogEvent, Sighting
 from ekfviz.filters.ekf import EkfSlam, FilterParams
 from ekfviz.runner.replay import replay
 from ekfviz.runner.run import run
-from ekfviz.sim.simulate import CLASSIC_LANDMARKS_XY, classic_controls, simulate
 from ekfviz.viz import style
 from ekfviz.viz.layers import pending
 from ekfviz.viz.recorder import Recorder
@@ -28,24 +28,8 @@ ENTITIES = (
 def events(
     steps: int, timed: bool = False, only_controls_from: int | None = None
 ) -> list[LogEvent]:
-    """A simulated classic run; with times (a tenth of a second a control: the thinning
-    drops some predicts), or with its
-    observations left out from a step on (a long stretch of predicts alone)."""
-    controls = np.tile(classic_controls(), (steps // 29 + 1, 1))[:steps]
-    sim = simulate(controls, CLASSIC_LANDMARKS_XY, seed=3)
-    out: list[LogEvent] = []
-    step = 0
-    for event in sim.events:
-        if isinstance(event, Control):
-            step += 1
-            if timed:
-                event = Control(event.line, event.d, event.alpha, 0.1 * step, 0.1)
-        elif only_controls_from is not None and step >= only_controls_from:
-            continue
-        elif timed:
-            event = Sighting(event.line, event.ids, event.z, 0.1 * step + 0.05)
-        out.append(event)
-    return out
+    """A simulated classic run (see simulated.classic_run)."""
+    return classic_run(steps, seed=3, timed=timed, only_controls_from=only_controls_from)
 
 
 def record(path: Path, log: list[LogEvent], rows: bool) -> Path:

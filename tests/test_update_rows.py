@@ -14,12 +14,14 @@ import numpy as np
 import pytest
 import rerun as rr
 from conftest import entity_rows
+from simulated import classic_run
 from typer.testing import CliRunner
 
 from ekfviz.cli import app
 from ekfviz.core import correlation
 from ekfviz.core.records import Control, EventKind, EventRows, LogEvent, Sighting
 from ekfviz.core.truth import GroundTruth
+from ekfviz.core.types import FloatArray
 from ekfviz.evaluation.consistency import Consistency
 from ekfviz.filters.ekf import FilterParams
 from ekfviz.io.classic import format_classic, read_classic
@@ -39,36 +41,17 @@ def _correlation_at_most_every_25_steps(monkeypatch: pytest.MonkeyPatch) -> None
 
 def events(
     steps: int,
-    landmarks_xy: np.ndarray = CLASSIC_LANDMARKS_XY,
+    landmarks_xy: FloatArray = CLASSIC_LANDMARKS_XY,
     *,
     timed: bool = False,
     first_seen: int = 0,
     zero_range_at: int | None = None,
 ) -> list[LogEvent]:
-    """A simulated run: with times (a tenth of a second a control), with the second
-    half of the landmarks left out of the observations before step ``first_seen`` (the
-    map grows there), or one observation of range 0 at step ``zero_range_at`` (skipped,
-    with a warning)."""
-    controls = np.tile(classic_controls(), (steps // 29 + 1, 1))[:steps]
-    sim = simulate(controls, landmarks_xy, seed=5)
-    half = len(landmarks_xy) // 2
-    out: list[LogEvent] = []
-    step = 0
-    for event in sim.events:
-        if isinstance(event, Control):
-            step += 1
-            if timed:
-                event = Control(event.line, event.d, event.alpha, 0.1 * step, 0.1)
-            out.append(event)
-            continue
-        assert isinstance(event, Sighting)
-        ids, z = event.ids, event.z.copy()
-        if step < first_seen:
-            ids, z = ids[:half], z[:half]
-        if step == zero_range_at:
-            z[1, 1] = 0.0
-        out.append(Sighting(event.line, ids, z, 0.1 * step + 0.05 if timed else None))
-    return out
+    """A simulated run (see simulated.classic_run)."""
+    return classic_run(
+        steps, landmarks_xy, seed=5, timed=timed, first_seen=first_seen,
+        zero_range_at=zero_range_at,
+    )  # fmt: skip
 
 
 def record(
