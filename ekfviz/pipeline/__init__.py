@@ -127,8 +127,8 @@ def replay_log(
 
     Every record goes to the logger (Rerun), the consistency count and ``on_record``;
     the plain predicts (and, without an association, the plain updates: no warning, no
-    check) go to the logger as columns, their NIS to the consistency count
-    (see :class:`~ekfviz.core.records.EventRows`).
+    check) go to the logger as columns, their NIS and NEES to the consistency count, and
+    not to ``on_record`` (see :class:`~ekfviz.core.records.EventRows`).
     Bad input, a filter that cannot go on, Ctrl-C or SIGTERM stop the replay with the
     recording of everything before it kept and its last log line saying why.
 
@@ -173,7 +173,7 @@ def replay_log(
         if scans is not None:
             truth = scans.truth_of(last.record)
             scans.finish(logger)  # before the layout: the map frames what it draws
-        if rows is not None:  # the NIS of the rows not sent yet
+        if rows is not None:  # the NIS and NEES of the rows not sent yet
             rows.settle()
         evaluation = evaluate(last.record, truth, consistency)
         logger.finish(evaluation)
