@@ -240,8 +240,9 @@ class EkfSlam:
         # means (a predict changes neither)
         self._landmark_covs: FloatArray | None = None
         self._landmarks_xy: FloatArray | None = None
-        # the views a record copies (see _record_views), for the buffer P and dimension
-        self._record_views: _RecordViews | None = None
+        # the view of the landmarks' marginals in P (see _marginals_view), for the buffer
+        # P and dimension it was made for
+        self._marginals: tuple[FloatArray, int, FloatArray] | None = None
         self._status = np.zeros(0, dtype=np.int8)  # the kernel's per-observation status
         # the pending rank-2 changes of P: the current covariance is
         # P[:n, :n] - U[:rank, :n]^T U[:rank, :n] (see the module); U (DEFER_ROWS x the
@@ -389,28 +390,17 @@ class EkfSlam:
         together by :func:`~ekfviz.core.records.kept_record` without further checks.
         """
         n = self._n
-        ids = self.landmark_ids_array()
-        n_landmarks = (n - 3) // 2
         if full_cov and self._rank:
             self._flush()
         x, P = self._x, self._P
-        if self._landmarks_xy is None:  # unchanged by a predict: kept since the update
-            # copies of views kept while the buffers and the dimension are the same: the
-            # pose block and x, each a single copy
-            views = self._views()
-            pose_cov = views[2].copy()
-            mean = frozen(views[4].copy())
-            pose = mean[:3]
-            self._landmarks_xy = mean[3:].reshape(n_landmarks, 2)
-        else:
-            pose_cov = P[:3, :3].copy()
-            pose = frozen(x[:3].copy())
+        pose_cov = P[:3, :3].copy()
+        pose = frozen(x[:3].copy())
         if self._rank:
             pose_cov -= self._pending_pose_gram()
         pose_cov = frozen(pose_cov)
         return kept_record(
             event, step, kind, line, pose, pose_cov,
-            ids, self._landmarks_xy, self.landmark_marginals(),  # read-only, kept
+            self.landmark_ids_array(), self._landmark_means(), self.landmark_marginals(),
             None if control is None else frozen(np.array(control, dtype=np.float64)),
             observations, frozen(P[:n, :n].copy()) if full_cov else None,
             time, warnings, covariance, association,
@@ -423,17 +413,23 @@ class EkfSlam:
         (:class:`~ekfviz.core.records.EventRows`) reads the pose in the buffers then."""
         if self._rank:
             return None
-        if self._landmarks_xy is None:  # as record() makes it: x[:n] copied once
-            mean = frozen(self._views()[4].copy())
-            self._landmarks_xy = mean[3:].reshape((self._n - 3) // 2, 2)
-        return self.landmark_ids_array(), self._landmarks_xy, self.landmark_marginals()
+        return self.landmark_ids_array(), self._landmark_means(), self.landmark_marginals()
 
-    def _views(self) -> _RecordViews:
-        """The views a record copies, made again where the buffers or dimension changed."""
-        views = self._record_views
-        if views is None or views[0] is not self._P or views[1] != self._n:
-            views = self._record_views = _record_views(self._x, self._P, self._n)
-        return views
+    def _landmark_means(self) -> FloatArray:
+        """The landmarks' means (N, 2) as records hold them: read-only, one copy kept
+        until the map changes (a predict moves the pose alone)."""
+        if self._landmarks_xy is None:
+            n = self._n
+            self._landmarks_xy = frozen(self._x[3:n].copy()).reshape((n - 3) // 2, 2)
+        return self._landmarks_xy
+
+    def _marginals_view(self) -> FloatArray:
+        """The view a record copies its marginals from, made again where the buffer or
+        the dimension changed."""
+        kept = self._marginals
+        if kept is None or kept[0] is not self._P or kept[1] != self._n:
+            kept = self._marginals = (self._P, self._n, _marginals_view(self._P, self._n))
+        return kept[2]
 
     def landmark_marginals(self) -> FloatArray:
         """The landmarks' 2x2 marginal covariances (N, 2, 2) of the current P, read-only:
@@ -443,7 +439,7 @@ class EkfSlam:
         kept = self._landmark_covs
         if kept is not None:
             return kept
-        covs: FloatArray = self._views()[3].copy()
+        covs: FloatArray = self._marginals_view().copy()
         rank = self._rank
         if rank:
             assert self._U is not None
@@ -1027,21 +1023,16 @@ class EkfSlam:
         self._n = n + 2
 
 
-# P (the buffer), the dimension n, then views of P's pose block, of its landmarks' (N, 2,
-# 2) marginals and of x[:n]
-_RecordViews = tuple[FloatArray, int, FloatArray, FloatArray, FloatArray]
-
-
-def _record_views(x: FloatArray, P: FloatArray, n: int) -> _RecordViews:
-    """Views of the buffers ``x`` and ``P`` (C order) that a record copies: the 3x3 pose
-    block, the N diagonal 2x2 blocks of the landmarks (P's rows and columns 3 + 2i and
-    4 + 2i: one strided view, a step of 2 rows and 2 columns per landmark) and x[:n]."""
+def _marginals_view(P: FloatArray, n: int) -> FloatArray:
+    """The N diagonal 2x2 blocks of the landmarks in the buffer ``P`` (C order) of
+    dimension ``n``: P's rows and columns 3 + 2i and 4 + 2i, one strided view, a step of
+    2 rows and 2 columns per landmark."""
     row, item = P.strides
-    marginals = np.lib.stride_tricks.as_strided(
+    view: FloatArray = np.lib.stride_tricks.as_strided(
         P[3:, 3:], shape=((n - 3) // 2, 2, 2), strides=(2 * row + 2 * item, row, item),
         writeable=False,
     )  # fmt: skip
-    return P, n, P[:3, :3], marginals, x[:n]
+    return view
 
 
 def _whitened(
