@@ -46,6 +46,16 @@ def map_rows_of(
     return np.flatnonzero(np.isin(landmark_ids, ids))
 
 
+# an update's parts, as an update row holds them (UpdateParts): what it did (None where
+# it has no observations), its landmark ids, means (N, 2) and marginals (N, 2, 2)
+MapParts = tuple[Observations | None, IntArray, FloatArray, FloatArray]
+
+
+def update_parts(record: EventRecord) -> MapParts:
+    """An update record's parts as an update row holds them."""
+    return record.observations, record.landmark_ids, record.landmarks_xy, record.landmark_covs
+
+
 @dataclass(frozen=True, slots=True)
 class Observed:
     """What the updates of a batch did with their observations, summed per record in one
@@ -121,14 +131,11 @@ class Maps:
     covs: FloatArray
 
     @staticmethod
-    def of(
-        records: list[EventRecord | None],
-        ids: list[IntArray],
-        xy: list[FloatArray],
-        covs: list[FloatArray],
-        observations: list[Observations | None],
-    ) -> Maps:
-        """The maps of updates given by their parts, in order."""
+    def of(records: list[EventRecord | None], parts: list[MapParts]) -> Maps:
+        """The maps of updates, in order: their records (None for a row) and their parts
+        (observations, landmark ids, means, marginals; see :func:`update_parts`)."""
+        observations = [part[0] for part in parts]
+        ids = [part[1] for part in parts]
         counts = np.fromiter(map(len, ids), np.int64, len(ids))
         starts = np.zeros(len(ids) + 1, dtype=np.int64)
         np.cumsum(counts, out=starts[1:])
@@ -141,20 +148,14 @@ class Maps:
             observations=observations,
             counts=counts,
             starts=starts,
-            xy=np.concatenate(xy),
-            covs=np.concatenate(covs),
+            xy=np.concatenate([part[2] for part in parts]),
+            covs=np.concatenate([part[3] for part in parts]),
         )
 
     @staticmethod
     def of_records(records: list[EventRecord]) -> Maps:
         """The maps of some updates' records, in order."""
-        return Maps.of(
-            list(records),
-            [record.landmark_ids for record in records],
-            [record.landmarks_xy for record in records],
-            [record.landmark_covs for record in records],
-            [record.observations for record in records],
-        )
+        return Maps.of(list(records), [update_parts(record) for record in records])
 
     def association(self, i: int) -> ScanAssociation | None:
         """What the association decided at the ``i``-th update, if it decided anything."""
@@ -257,16 +258,13 @@ class Batch:
             row_updates = [k for k, update in enumerate(rows.updates[:held]) if update is not None]
             row_is_update = np.zeros(held, dtype=bool)
             row_is_update[row_updates] = True
-            if row_updates:
-                at_theirs = theirs.tolist()
-                for k in row_updates:
-                    update_of[at_theirs[k]] = rows.updates[k]  # type: ignore[assignment]
-                row_controls = np.array(
-                    [(math.nan, math.nan) if c is None else c for c in rows.controls[:held]],
-                    dtype=np.float64,
-                ).reshape(held, 2)
-            else:
-                row_controls = np.array(rows.controls[:held], dtype=np.float64).reshape(held, 2)
+            at_theirs = theirs.tolist()
+            for k in row_updates:
+                update_of[at_theirs[k]] = rows.updates[k]  # type: ignore[assignment]
+            row_controls = np.array(
+                [(math.nan, math.nan) if c is None else c for c in rows.controls[:held]],
+                dtype=np.float64,
+            ).reshape(held, 2)
             row_whole = np.zeros(held, dtype=bool) if rows_whole is None else rows_whole[:held]
             whole = _merged(whole, np.array(row_whole, dtype=bool), mine, theirs)
             steps = _merged(steps, np.array(rows.steps[:held], dtype=np.int64), mine, theirs)
@@ -281,22 +279,13 @@ class Batch:
             has_control = _merged(has_control, ~row_is_update, mine, theirs)
         corrected = np.flatnonzero(~is_predict)
         updated = [records[k] for k in corrected.tolist()]  # None at an update row
-        if update_of:
-            parts = [
-                (r.observations, r.landmark_ids, r.landmarks_xy, r.landmark_covs)
-                if (r := records[k]) is not None
-                else update_of[k]
-                for k in corrected.tolist()
-            ]
-            maps = Maps.of(
-                updated,
-                [part[1] for part in parts],
-                [part[2] for part in parts],
-                [part[3] for part in parts],
-                [part[0] for part in parts],
-            )
-        else:  # a record at every update
-            maps = Maps.of_records(updated)
+        maps = Maps.of(
+            updated,
+            [
+                update_parts(record) if record is not None else update_of[k]
+                for k, record in zip(corrected.tolist(), updated, strict=True)
+            ],
+        )
         return Batch(
             records=records,
             whole=whole,
