@@ -88,9 +88,11 @@ def poses_nees(
 
 def update_nis(record: EventRecord) -> tuple[float, int] | None:
     """The NIS of an update summed over the landmarks it used, and its degrees of freedom."""
-    observations = record.observations
-    if observations is None:
-        return None
+    return None if record.observations is None else observations_nis(record.observations)
+
+
+def observations_nis(observations: Observations) -> tuple[float, int] | None:
+    """:func:`update_nis` of what an update did."""
     values = observations.nis.tolist()
     total = sum(values)
     if values and math.isfinite(total):  # every value used: the sum as it would be
@@ -123,6 +125,14 @@ class BoundCount:
             self.above += 1
         else:
             self.inside += 1
+
+    def add_many(self, values: FloatArray, bounds: tuple[float, float]) -> None:
+        """:meth:`add` of every value."""
+        below = int(np.count_nonzero(values < bounds[0]))
+        above = int(np.count_nonzero(values > bounds[1]))
+        self.below += below
+        self.above += above
+        self.inside += len(values) - below - above
 
     @property
     def total(self) -> int:
@@ -200,12 +210,7 @@ class Consistency:
             return
         true_poses, known = truth.poses_of(rows.steps, rows.times)
         nees, defined = poses_nees(rows.poses[known], rows.pose_covs[known], true_poses[known])
-        low, high = chi2_bounds(3)
-        values = nees[defined]
-        below, above = int(np.count_nonzero(values < low)), int(np.count_nonzero(values > high))
-        self.nees.below += below
-        self.nees.above += above
-        self.nees.inside += len(values) - below - above
+        self.nees.add_many(nees[defined], chi2_bounds(3))
         self.singular_pose += int(np.count_nonzero(~defined))
         if truth.poses_xytheta is not None:
             self.without_true_pose += int(np.count_nonzero(~known))
@@ -213,28 +218,21 @@ class Consistency:
     def add_observations(self, found: list[Observations]) -> None:
         """Count the NIS of updates given without their records, as :meth:`add` counts
         theirs, the lines of one length at once."""
-        by_length: dict[int, list[FloatArray]] = {}
+        by_length: dict[int, list[Observations]] = {}
         for observations in found:
-            by_length.setdefault(len(observations), []).append(observations.nis)
+            by_length.setdefault(len(observations), []).append(observations)
         for m, each in by_length.items():
             if not m:
                 continue
-            nis = np.concatenate(each).reshape(len(each), m)
+            nis = np.concatenate([observations.nis for observations in each]).reshape(-1, m)
             # summed in order, as update_nis sums a line (the last of the running sums)
             totals = np.cumsum(nis, axis=1)[:, -1]
             whole = np.isfinite(totals)
-            self._count_nis(totals[whole], 2 * m)
-            for values in nis[~whole]:  # some observation not used: one at a time
-                used = [value for value in values.tolist() if math.isfinite(value)]
-                if used:
-                    self._count_nis(np.array([sum(used)]), 2 * len(used))
-
-    def _count_nis(self, totals: FloatArray, dof: int) -> None:
-        low, high = chi2_bounds(dof)
-        below, above = int(np.count_nonzero(totals < low)), int(np.count_nonzero(totals > high))
-        self.nis.below += below
-        self.nis.above += above
-        self.nis.inside += len(totals) - below - above
+            self.nis.add_many(totals[whole], chi2_bounds(2 * m))
+            for k in np.flatnonzero(~whole).tolist():  # some observation not used
+                found_nis = observations_nis(each[k])
+                if found_nis is not None:
+                    self.nis.add(found_nis[0], chi2_bounds(found_nis[1]))
 
     def combined(self) -> tuple[Verdict, str] | None:
         """One verdict from NEES and NIS together, and why; None with neither.
