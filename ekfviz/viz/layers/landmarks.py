@@ -113,18 +113,7 @@ class MapLayer:
             self._labels.annotate(ids)
             self._last_ids = ids
             self.seen_ids.update(ids.tolist())
-        whole_map = (
-            not self.sparse(record)
-            or self._map_step is None
-            or (
-                record.time - self._map_time >= MAP_EVERY_S
-                if record.time is not None and self._map_time is not None
-                else record.step - self._map_step >= MAP_EVERY_STEPS
-            )
-        )
-        if whole_map:
-            self._map_step = record.step
-            self._map_time = record.time
+        whole_map = self._logs_whole_map(self.sparse(record), record.step, record.time)
         self.last_update = (record, whole_map)
         return whole_map
 
@@ -132,20 +121,27 @@ class MapLayer:
         """:meth:`admit` of updates given as rows (:class:`~ekfviz.core.records.EventRows`)
         at ``steps``, untimed, in the map of the last record admitted (``n_landmarks``),
         ``newest`` the last of them as a record; whether each logs the whole map."""
-        if self._detail or n_landmarks <= SMALL_MAP:  # not sparse: every one of them
-            whole = [True] * len(steps)
-            self._map_step, self._map_time = steps[-1], None
-        else:
-            whole = []
-            map_step = self._map_step
-            for step in steps:
-                is_whole = map_step is None or step - map_step >= MAP_EVERY_STEPS
-                if is_whole:
-                    map_step = step
-                whole.append(is_whole)
-            if map_step != self._map_step:
-                self._map_step, self._map_time = map_step, None
+        sparse = not self._detail and n_landmarks > SMALL_MAP
+        whole = [self._logs_whole_map(sparse, step, None) for step in steps]
         self.last_update = (newest, whole[-1])
+        return whole
+
+    def _logs_whole_map(self, sparse: bool, step: int, time: float | None) -> bool:
+        """Whether an update at ``step`` (and ``time``) logs the whole map's ellipses,
+        noted as the last that did if so: every update of a map that is not ``sparse``,
+        else the first and then every ``MAP_EVERY_S`` of log time (``MAP_EVERY_STEPS``
+        steps without times)."""
+        whole = (
+            not sparse
+            or self._map_step is None
+            or (
+                time - self._map_time >= MAP_EVERY_S
+                if time is not None and self._map_time is not None
+                else step - self._map_step >= MAP_EVERY_STEPS
+            )
+        )
+        if whole:
+            self._map_step, self._map_time = step, time
         return whole
 
     def send(self, batch: Batch) -> None:
