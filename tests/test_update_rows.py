@@ -9,6 +9,7 @@ import json
 import sys
 from collections import defaultdict
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -24,7 +25,8 @@ from ekfviz.core.truth import GroundTruth
 from ekfviz.core.types import FloatArray
 from ekfviz.evaluation.consistency import Consistency
 from ekfviz.filters.ekf import FilterParams
-from ekfviz.io.classic import format_classic, read_classic
+from ekfviz.io.classic import format_classic
+from ekfviz.io.extended import format_extended, read_log
 from ekfviz.runner.replay import replay
 from ekfviz.runner.run import run
 from ekfviz.sim.simulate import CLASSIC_LANDMARKS_XY, classic_controls, simulate
@@ -241,21 +243,35 @@ def test_a_run_that_stops_after_an_update_row_keeps_that_map() -> None:
     np.testing.assert_array_equal(last.landmarks_xy, reference.landmarks_xy)
 
 
-def test_the_command_reports_the_nis_of_every_update(tmp_path: Path) -> None:
+@pytest.mark.parametrize("extended", [False, True], ids=["classic", "extended"])
+def test_the_command_reports_the_nis_of_every_update(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, extended: bool
+) -> None:
     """``ekfviz replay`` of a log without truth (its updates written as rows) reports
-    the NIS of every update, as counted from the records of a plain replay."""
+    the NIS of every update, as counted from the records of a plain replay. An extended
+    log could hold scans, so the replay sets up the association for it: its updates by
+    ids are as plain, and rows too."""
     log = events(300)
     path = tmp_path / "run.txt"
-    path.write_text(format_classic(log, precision=None))
-    read = list(read_classic(path))
+    path.write_text(format_extended(log, None) if extended else format_classic(log, None))
+    read = list(read_log(path))
     alone = Consistency()
     for r in replay(read, FilterParams()):
         alone.add(r)
+    written: list[int] = []
+    add_update = EventRows.add_update
+
+    def counted(self: EventRows, event: int, *rest: Any) -> None:
+        written.append(event)
+        add_update(self, event, *rest)
+
+    monkeypatch.setattr(EventRows, "add_update", counted)
     report = tmp_path / "report.json"
     result = CliRunner().invoke(
         app, ["replay", str(path), "--save", str(tmp_path / "run.rrd"), "--report", str(report)]
     )
     assert result.exit_code == 0, result.output
+    assert len(written) > 250  # all but the records (the correlation's, the checks')
     nis = json.loads(report.read_text())["consistency"]["nis"]
     assert (nis["count"], nis["below"], nis["inside"], nis["above"]) == (
         alone.nis.total,

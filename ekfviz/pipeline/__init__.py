@@ -126,8 +126,8 @@ def replay_log(
     """One replay: the events through the filter into the logger, judged at the end.
 
     Every record goes to the logger (Rerun), the consistency count and ``on_record``;
-    the plain predicts (and, without an association, the plain updates: no warning, no
-    check) go to the logger as columns, their NIS and NEES to the consistency count, and
+    the plain predicts and updates (by ids, no warning, no check) go to the logger as
+    columns, their NIS and NEES to the consistency count, and
     not to ``on_record`` (see :class:`~ekfviz.core.records.EventRows`).
     Bad input, a filter that cannot go on, Ctrl-C or SIGTERM stop the replay with the
     recording of everything before it kept and its last log line saying why.
@@ -150,9 +150,11 @@ def replay_log(
     # predict's record) unless the hooks read them (a source's reference)
     rows = logger.event_rows() if scans is None or not scans.reads_predicts else None
     if rows is not None:
-        # its plain updates too where only the recorder and the consistency count read
-        # them: without an association (whose decisions are read per update)
-        rows.takes_updates = scans is None or scans.associator is None
+        # its plain updates too: only the recorder and the consistency count read them.
+        # An update that the association decided (a scan) stays a record, for the
+        # association's tally and view; an update by ids beside an associator (an
+        # extended log that could have scans but has none here) is as plain as any
+        rows.takes_updates = True
         rows.watch = consistency.add_rows
     try:
         run(events, params, consumers, make_filter=make_filter, name=name, slam=slam,
