@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from unittest import mock
 
 import numpy as np
 import pytest
@@ -268,18 +269,27 @@ _TOKEN = st.one_of(
 )
 def test_compiled_parser_gives_the_bits_float_gives(lines: list[list[str]], gap: str) -> None:
     """The same float64 bits as float() of each token (correct rounding either way:
-    halfway cases, subnormals, overflow to inf, 40 digits), and the same counts per line."""
+    halfway cases, subnormals, overflow to inf, 40 digits), the same counts per line, and
+    which tokens are digits alone (an id as written) as bytes.isdigit says, as the float()
+    fallback says."""
     from ekfviz.io import text as text_io
 
     if not text_io.HAVE_PARSER:
         pytest.skip("the compiled parser was not built")
     joined = "\n".join(gap.join(tokens) for tokens in lines).encode()
-    converted = text_io._converted(joined, len(lines))
+    converted = text_io._converted(joined, len(lines), digits=True)
     assert converted is not None
-    values, counts = converted
+    values, counts, digits = converted
     expected = np.array([float(t) for tokens in lines for t in tokens], dtype=np.float64)
     np.testing.assert_array_equal(values.view(np.int64), expected.view(np.int64))
     assert counts.tolist() == [len(tokens) for tokens in lines]
+    assert digits is not None
+    assert digits.tolist() == [t.isascii() and t.isdigit() for tokens in lines for t in tokens]
+    with mock.patch.object(text_io, "_numbers", None):  # the float() fallback
+        fallback = text_io._converted(joined, len(lines), digits=True)
+    assert fallback is not None and fallback[2] is not None
+    np.testing.assert_array_equal(fallback[0].view(np.int64), values.view(np.int64))
+    assert fallback[1].tolist() == counts.tolist() and fallback[2].tolist() == digits.tolist()
 
 
 @pytest.mark.parametrize("bad", [b"1.2.3", b"e5", b"-", b"1e", b".", b"+-1", b"1e+", b"2 3\n4 e"])

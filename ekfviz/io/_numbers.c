@@ -18,21 +18,24 @@
 #include <string.h>
 
 PyDoc_STRVAR(parse_doc,
-"parse(data, lines, values, counts) -> int\n\n"
+"parse(data, lines, values, counts, digits=None) -> int\n\n"
 "The numbers of `data` (bytes: `lines` lines joined by LF, numbers separated by spaces\n"
 "and tabs) into `values` (writable float64, room for len(data) // 2 + 1), and how many\n"
-"each line holds into `counts` (writable int64, `lines` long). Returns how many numbers\n"
+"each line holds into `counts` (writable int64, `lines` long); where `digits` is given\n"
+"(writable uint8, as long as `values`), 1 for each number written as ASCII digits alone\n"
+"(an integer as written: not '+5', '5.0' or '5e0'), else 0. Returns how many numbers\n"
 "it wrote, or -1 where a token is not a number as a whole (or the locale's decimal\n"
-"point is not '.'); `values` and `counts` are then not to be read.");
+"point is not '.'); `values`, `counts` and `digits` are then not to be read.");
 
 static PyObject *parse(PyObject *self, PyObject *args)
 {
     const char *data;
     Py_ssize_t size, lines;
-    PyObject *values_object, *counts_object;
-    if (!PyArg_ParseTuple(args, "y#nOO", &data, &size, &lines, &values_object, &counts_object))
+    PyObject *values_object, *counts_object, *digits_object = Py_None;
+    if (!PyArg_ParseTuple(args, "y#nOO|O", &data, &size, &lines, &values_object, &counts_object,
+                          &digits_object))
         return NULL;
-    Py_buffer vb, cb;
+    Py_buffer vb, cb, db = {0};
     if (PyObject_GetBuffer(values_object, &vb, PyBUF_WRITABLE | PyBUF_C_CONTIGUOUS | PyBUF_FORMAT)
         < 0)
         return NULL;
@@ -41,12 +44,22 @@ static PyObject *parse(PyObject *self, PyObject *args)
         PyBuffer_Release(&vb);
         return NULL;
     }
+    if (digits_object != Py_None &&
+        PyObject_GetBuffer(digits_object, &db, PyBUF_WRITABLE | PyBUF_C_CONTIGUOUS | PyBUF_FORMAT)
+            < 0) {
+        PyBuffer_Release(&vb);
+        PyBuffer_Release(&cb);
+        return NULL;
+    }
     Py_ssize_t written = -1;
     if (vb.itemsize != 8 || vb.format == NULL || strcmp(vb.format, "d") != 0 ||
         vb.len / 8 < size / 2 + 1 || cb.itemsize != 8 || cb.format == NULL ||
-        (strcmp(cb.format, "l") != 0 && strcmp(cb.format, "q") != 0) || cb.len / 8 < lines) {
+        (strcmp(cb.format, "l") != 0 && strcmp(cb.format, "q") != 0) || cb.len / 8 < lines ||
+        (db.obj != NULL && (db.itemsize != 1 || db.format == NULL || strcmp(db.format, "B") != 0 ||
+                            db.len < size / 2 + 1))) {
         PyErr_SetString(PyExc_ValueError,
-                        "values: expected float64 of len(data) // 2 + 1, counts: int64 of lines");
+                        "values: expected float64 of len(data) // 2 + 1, counts: int64 of lines,"
+                        " digits: uint8 as long as values");
         goto release;
     }
     const struct lconv *conventions = localeconv();
@@ -54,6 +67,7 @@ static PyObject *parse(PyObject *self, PyObject *args)
         goto done; /* strtod would read another decimal point: the caller converts */
     double *values = vb.buf;
     int64_t *counts = cb.buf;
+    uint8_t *digits = db.obj != NULL ? db.buf : NULL;
     memset(counts, 0, (size_t)lines * sizeof(int64_t));
     Py_ssize_t line = 0, count = 0;
     const char *at = data, *end = data + size;
@@ -75,6 +89,12 @@ static PyObject *parse(PyObject *self, PyObject *args)
         double value = strtod(at, &stop);
         if (stop == at || (stop < end && *stop != ' ' && *stop != '\t' && *stop != '\n'))
             goto done; /* not a number as a whole */
+        if (digits != NULL) {
+            const char *c = at;
+            while (c < stop && *c >= '0' && *c <= '9')
+                ++c;
+            digits[count] = c == stop;
+        }
         values[count++] = value;
         counts[line] += 1;
         at = stop;
@@ -84,10 +104,14 @@ done:;
     PyObject *result = PyLong_FromSsize_t(written);
     PyBuffer_Release(&vb);
     PyBuffer_Release(&cb);
+    if (db.obj != NULL)
+        PyBuffer_Release(&db);
     return result;
 release:
     PyBuffer_Release(&vb);
     PyBuffer_Release(&cb);
+    if (db.obj != NULL)
+        PyBuffer_Release(&db);
     return NULL;
 }
 

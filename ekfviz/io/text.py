@@ -13,7 +13,7 @@ from typing import BinaryIO, NoReturn
 
 import numpy as np
 
-from ekfviz.core.types import FloatArray, IntArray
+from ekfviz.core.types import BoolArray, FloatArray, IntArray
 from ekfviz.io.errors import InputError
 from ekfviz.models.angles import wrap_angles
 
@@ -150,12 +150,12 @@ def token_lines(
     """
     with open_input(path) as handle:
         for first, lines in line_blocks(path, handle):
-            yield from _tokens_of(path, first, lines)
+            yield from block_tokens(path, first, lines)
             if progress is not None:
                 progress(handle.tell())
 
 
-def _tokens_of(path: Path, first: int, lines: list[bytes]) -> Iterator[tuple[int, list[str]]]:
+def block_tokens(path: Path, first: int, lines: list[bytes]) -> Iterator[tuple[int, list[str]]]:
     """The non-blank lines of a block (``first``: the first one's number) as tokens.
 
     :raises InputError: a line that is not UTF-8
@@ -253,38 +253,61 @@ def _plain_block(first: int, raw: list[bytes]) -> NumberBlock | None:
     if b"#" in joined:
         raw = [text.split(b"#", 1)[0] for text in raw]
         joined = b"\n".join(raw)
-    if joined.translate(None, _PLAIN_BYTES + b"\n"):
-        return None  # a byte of something else: comments are cut, so not of a comment
-    converted = _converted(joined, len(raw))
+    converted = plain_table(joined, len(raw))  # comments are cut: no byte of theirs
     if converted is None:
         return None
     values, counts_all = converted
     kept = np.flatnonzero(counts_all)
-    if not (np.abs(values) <= MAX_MAGNITUDE).all():
-        return None
     counts = counts_all[kept]
     starts = np.zeros(len(counts), dtype=np.int64)
     np.cumsum(counts[:-1], out=starts[1:])
     return NumberBlock((kept + first).tolist(), counts, starts, values)
 
 
-def _converted(joined: bytes, lines: int) -> tuple[FloatArray, IntArray] | None:
-    """The numbers of ``joined`` (``lines`` lines of plain bytes joined by LF) and how
-    many each line holds; None where a token is not a number. In one pass of the compiled
-    parser (``_numbers.c``, the same values: strtod rounds correctly, as float() does)
-    where it was built, else ``float()`` of each token and the counts in numpy."""
+def plain_table(joined: bytes, lines: int) -> tuple[FloatArray, IntArray] | None:
+    """The numbers of ``lines`` lines joined by LF and how many each line holds, where
+    every byte is of plain decimal numbers or a separator and every number is within
+    +-:data:`MAX_MAGNITUDE`; else None (the caller reads line by line, to name the fault)."""
+    table = plain_table_digits(joined, lines, digits=False)
+    return None if table is None else (table[0], table[1])
+
+
+def plain_table_digits(
+    joined: bytes, lines: int, digits: bool = True
+) -> tuple[FloatArray, IntArray, BoolArray | None] | None:
+    """:func:`plain_table`, and (``digits``) whether each number is written as ASCII
+    digits alone: an integer as written, not ``+5``, ``5.0`` or ``5e0``."""
+    if joined.translate(None, _PLAIN_BYTES + b"\n"):
+        return None  # a byte of something else ("nan", "1_000", another script's digits)
+    converted = _converted(joined, lines, digits)
+    if converted is None or not (np.abs(converted[0]) <= MAX_MAGNITUDE).all():
+        return None
+    return converted
+
+
+def _converted(
+    joined: bytes, lines: int, digits: bool = False
+) -> tuple[FloatArray, IntArray, BoolArray | None] | None:
+    """The numbers of ``joined`` (``lines`` lines of plain bytes joined by LF), how many
+    each line holds and (``digits``) whether each is written as digits alone; None where
+    a token is not a number. In one pass of the compiled parser (``_numbers.c``, the same
+    values: strtod rounds correctly, as float() does) where it was built, else
+    ``float()`` of each token and the counts in numpy."""
     if _numbers is not None:
         values = np.empty(len(joined) // 2 + 1)
         counts = np.empty(lines, dtype=np.int64)
-        written = _numbers.parse(joined, lines, values, counts)
+        flags = np.empty(len(values), dtype=np.uint8) if digits else None
+        written = _numbers.parse(joined, lines, values, counts, flags)
         if written >= 0:
-            return values[:written], counts
+            return values[:written], counts, None if flags is None else flags[:written] == 1
         # a token it does not take whole, or another locale's decimal point: float() says
+    tokens = joined.split()
     try:
-        values = np.array(list(map(float, joined.split())), dtype=np.float64)
+        values = np.array(list(map(float, tokens)), dtype=np.float64)
     except ValueError:
         return None
-    return values, _token_counts(joined, lines)
+    plain = np.array(list(map(bytes.isdigit, tokens)), dtype=bool) if digits else None
+    return values, _token_counts(joined, lines), plain
 
 
 def _table(joined: bytes, count: int) -> FloatArray | None:
@@ -320,7 +343,7 @@ def _checked_block(path: Path, first: int, raw: list[bytes]) -> NumberBlock:
     rows: list[list[float]] = []
     fault = None
     try:
-        for number, tokens in _tokens_of(path, first, raw):
+        for number, tokens in block_tokens(path, first, raw):
             rows.append([parse_number(path, number, token) for token in tokens])
             lines.append(number)
     except InputError as error:
