@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 
-from ekfviz.core.records import Control, EventKind, Sighting
+from ekfviz.core.records import Control, EventKind, Scan, Sighting
 from ekfviz.io.classic import format_classic
 from ekfviz.io.errors import InputError
 from ekfviz.io.extended import format_extended, is_extended, read_extended, read_log
@@ -165,3 +166,142 @@ def test_a_bad_noise_header_is_one_line_naming_it(tmp_path: Path, header: str) -
     lines = done.output.strip().splitlines()
     assert len(lines) == 1 and f"{log}:2:" in lines[0], done.output
     assert not (tmp_path / "r.rrd").exists()
+
+
+# -- the reader's blocks read at once against line by line ---------------------------------
+
+_TIME_BACK = "0.5 control 1 0"  # before the times of _odd_log
+# lines that read, some as no writer of ours would write them, and lines that do not
+_ODD_BUT_READ = [
+    "observe 007 0.1 5.0", "observe +5 0.1 5.0", "control 3e0 -.5", "control\t3.0\t0.0  ",
+    "   observe 3 0.2 4.0   # seen", "observe 123456789012345678 0.1 2.0", "# a comment: é",
+    "observe 2 4.0 1.0 3 -3.5 2.0", "scan 3.2 1.0 -0.5 2.0", "scan", "observe", "",
+    "observe 9007199254740993 0.1 2.0", "control 1E+2 0", "observe 4 1e-3 .5",
+]  # fmt: skip
+_NOT_READ = [
+    "observe 5.0 0.1 5.0", "observe 1e1 0.1 5.0", "observe -1 0.1 5.0", "observe 3 0.1 0",
+    "observe 3 0.1 -2", "observe 3 0.1 5.0 3 0.2 4.0", "control 3.0", "control nan 0",
+    "control 1_0 0", "Control 3 0", "controls 3 0", "observe 1 2", "12.5", "1e10 control 1 0",
+    "control 3.0 0.0 observe", "scan 1.0", "scan 1 -1", "observe 3 0.1 1e19", "\xff control 1 0",
+    _TIME_BACK,
+]  # fmt: skip
+
+
+def _odd_log(rng: np.random.Generator, lines: int, bad: str | None, timed: bool) -> bytes:
+    """A log of plain lines with odd ones among them, and ``bad`` somewhere after the
+    first few blocks; with timestamps (at some lines) where ``timed``."""
+    out: list[str] = []
+    time = 1.0
+    for _ in range(lines):
+        pick = rng.uniform()
+        if pick < 0.1:
+            line = str(rng.choice(_ODD_BUT_READ))
+        elif pick < 0.55:
+            line = f"control {rng.normal():.4f} {rng.normal(0, 0.1):.5f}"
+        else:
+            ids = rng.choice(40, size=int(rng.integers(0, 6)), replace=False)
+            line = " ".join(
+                ["observe"] + [f"{i} {rng.uniform(-3.3, 3.3):.4f} {rng.uniform(0.1, 9):.3f}"
+                               for i in ids]
+            )  # fmt: skip
+        if timed and rng.uniform() < 0.7 and line.strip() and not line.lstrip().startswith("#"):
+            time += float(rng.uniform(0.0, 0.3))
+            line = f"{time:.3f} {line.lstrip()}"
+        out.append(line)
+    if bad is not None:
+        out[int(rng.integers(lines // 2, lines))] = bad
+    text = "\n".join(out) + "\n"
+    return text.encode("utf-8", errors="surrogateescape").replace(b"\xc3\xbf", b"\xff")
+
+
+def _read(
+    path: Path, whole: bool, monkeypatch: pytest.MonkeyPatch
+) -> tuple[list[tuple[object, ...]], str | None, list[str]]:
+    """The events of ``path`` (blocks read at once where ``whole``, else line by line),
+    the error that ended them and the warnings, as comparable values."""
+    from ekfviz.io import extended
+
+    warnings: list[str] = []
+    events: list[tuple[object, ...]] = []
+    with monkeypatch.context() as patch:
+        if not whole:
+            patch.setattr(extended, "_plain_events", lambda *_: None)
+        try:
+            for event in read_extended(path, warn=warnings.append):
+                if isinstance(event, Control):
+                    events.append(("control", event.line, event.d, event.alpha, event.time,
+                                   event.dt))  # fmt: skip
+                elif isinstance(event, Sighting):
+                    assert event.ids.dtype == np.int64 and event.z.shape == (len(event.ids), 2)
+                    events.append(("observe", event.line, event.ids.tolist(), event.z.tolist(),
+                                   event.time))  # fmt: skip
+                else:
+                    assert isinstance(event, Scan)
+                    events.append(("scan", event.line, event.z.shape, event.z.tolist(),
+                                   event.time))  # fmt: skip
+        except InputError as error:
+            return events, str(error), warnings
+    return events, None, warnings
+
+
+@pytest.mark.parametrize("parser", ["compiled", "float"])
+@pytest.mark.parametrize("seed", range(12))
+def test_blocks_read_at_once_read_as_line_by_line(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, seed: int, parser: str
+) -> None:
+    """A block of plain lines is converted at once, any other read line by line; the
+    events, the first error (its line and words) and the warnings are the same as line
+    by line throughout, in blocks of every kind: odd lines that read (ids with leading
+    zeros or a sign, exponents, tabs, comments, empty steps and scans, ids past 2^53),
+    lines that do not, timestamps (a control spans the time since the last)."""
+    from ekfviz.io import extended
+    from ekfviz.io import text as text_io
+
+    if parser == "float":
+        monkeypatch.setattr(text_io, "_numbers", None)
+    elif not text_io.HAVE_PARSER:
+        pytest.skip("the compiled parser was not built")
+    monkeypatch.setattr(text_io, "BLOCK_BYTES", 600)  # some 20 lines a block
+    read_at_once: list[bool] = []  # whether each block read at once was plain
+    plain = extended._plain_events
+
+    def counted(*args: Any) -> Any:
+        made = plain(*args)
+        read_at_once.append(made is not None)
+        return made
+
+    monkeypatch.setattr(extended, "_plain_events", counted)
+    rng = np.random.default_rng(seed)
+    for case in range(6):
+        bad = None if case == 0 else str(rng.choice(_NOT_READ))
+        path = tmp_path / f"log{case}.txt"
+        timed = seed % 2 == 1
+        path.write_bytes(_odd_log(rng, 400, bad, timed))
+        at_once = _read(path, True, monkeypatch)
+        assert at_once == _read(path, False, monkeypatch), (seed, case, bad)
+        assert len(at_once[0]) > 150
+        # (a time before the last is no fault in a log without times)
+        assert (at_once[1] is None) == (bad is None or (bad == _TIME_BACK and not timed))
+    assert read_at_once.count(True) > 30 and read_at_once.count(False) > 10
+
+
+def test_a_long_plain_log_is_read_in_blocks(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The lines of a simulated run's log are plain: every block is read at once."""
+    from ekfviz.io import extended
+    from ekfviz.io import text as text_io
+
+    monkeypatch.setattr(text_io, "BLOCK_BYTES", 4096)
+    path = write(tmp_path, format_extended(classic().run(seed=3, laps=40).events))
+    calls: list[bool] = []
+    plain = extended._plain_events
+
+    def counted(*args: Any) -> Any:
+        made = plain(*args)
+        calls.append(made is not None)
+        return made
+
+    monkeypatch.setattr(extended, "_plain_events", counted)
+    assert _read(path, True, monkeypatch) == _read(path, False, monkeypatch)
+    assert len(calls) > 3 and all(calls)

@@ -48,12 +48,15 @@ from ekfviz.io.text import (
     BearingWrapper,
     ProgressCallback,
     WarningCallback,
+    block_tokens,
     check_time,
+    first_bad_time,
     format_number,
     line_blocks,
     open_input,
     parse_number,
     plain_numbers,
+    plain_table_digits,
     token_lines,
 )
 
@@ -98,23 +101,59 @@ def read_extended(
 ) -> Iterator[AnyEvent]:
     """Stream the events of an extended log (``warn`` as for :func:`read_log`).
 
+    The file is read in blocks (:func:`~ekfviz.io.text.line_blocks`). A block whose every
+    line is plain (a keyword after an optional timestamp, then decimal numbers, ids of
+    plain digits, each once a line, positive ranges, times in order) is converted in one
+    go (:func:`_plain_events`); any other is read line by line (:func:`_line_events`),
+    to name its first bad line after yielding the events before it. Both give the same
+    events: a long log's lines would each cost a regular expression and some lists.
+
     :raises InputError: for the first bad line met, naming it and what was expected
     """
-    last_time = -np.inf
-    previous: float | None = None  # the timestamp of the latest line that had one
+    clock = _Clock()
     wrap = BearingWrapper(path, warn)
-    for line, tokens in token_lines(path, progress):
+    with open_input(path) as handle:
+        for first, raw in line_blocks(path, handle):
+            events = _plain_events(first, raw, clock, wrap)
+            if events is None:
+                events = _line_events(path, block_tokens(path, first, raw), clock, wrap)
+            yield from events
+            if progress is not None:
+                progress(handle.tell())
+
+
+class _Clock:
+    """The timestamps read so far: the latest (-inf before any), which the next may not
+    precede, and the latest line's that had one (None before any), which a timed control
+    spans from."""
+
+    __slots__ = ("last", "previous")
+
+    def __init__(self) -> None:
+        self.last = -math.inf
+        self.previous: float | None = None
+
+    def passed(self, time: float) -> None:
+        self.last = self.previous = time
+
+
+def _line_events(
+    path: Path, lines: Iterable[tuple[int, list[str]]], clock: _Clock, wrap: BearingWrapper
+) -> Iterator[AnyEvent]:
+    """The events of ``lines`` (number, tokens) read one by one, up to the first bad line,
+    whose error is raised."""
+    for line, tokens in lines:
         time: float | None = None
         if not tokens[0].isalpha():
             time = check_time(path, line, parse_number(path, line, tokens[0]))
-            if time < last_time:
+            if time < clock.last:
                 raise InputError(
                     path,
                     line,
-                    f"found time {time:g} after {last_time:g},"
+                    f"found time {time:g} after {clock.last:g},"
                     " expected timestamps that never decrease",
                 )
-            last_time = time
+            clock.last = time
             tokens = tokens[1:]
             if not tokens:
                 raise InputError(path, line, "found only a timestamp, expected a keyword after it")
@@ -126,7 +165,7 @@ def read_extended(
                 )
             d, alpha = (parse_number(path, line, token) for token in values)
             # a timed control spans the time since the previous timestamp, when there is one
-            dt = None if time is None or previous is None else time - previous
+            dt = None if time is None or clock.previous is None else time - clock.previous
             yield read_control(line, d, alpha, time, dt)
         elif keyword == "observe":
             yield _observation(path, line, values, time, wrap)
@@ -141,7 +180,198 @@ def read_extended(
                 " (after an optional timestamp)",
             )
         if time is not None:
-            previous = time
+            clock.previous = time
+
+
+_CONTROL, _OBSERVE, _SCAN = 0, 1, 2
+_BLANK, _NONE = -2, -1  # a line without tokens, one whose first token is no keyword
+_KEYWORD_BYTES = {b"control": _CONTROL, b"observe": _OBSERVE, b"scan": _SCAN}
+_NUMBERS_AFTER = {_OBSERVE: 3, _SCAN: 2}  # per landmark (id, bearing, range), per measurement
+_EXACT_IDS = 2.0**53  # ids from it on are read line by line (a float may round them)
+
+
+def _plain_events(
+    first: int, raw: list[bytes], clock: _Clock, wrap: BearingWrapper
+) -> Iterator[AnyEvent] | None:
+    """The events of a block (``first``: its first line's number) converted at once, or
+    None where a line is not plain (see :func:`read_extended`): nothing is read then, and
+    the block is read line by line."""
+    joined = b"\n".join(raw)
+    if not joined.isascii():  # comments too: one policy for text (UTF-8, line by line)
+        return None
+    if b"#" in joined:
+        raw = [text.split(b"#", 1)[0] for text in raw]
+    # each line's keyword, whether a timestamp comes first and its numbers (the
+    # timestamp's first): a split or two a line, then the block's numbers in one pass
+    heads = [text.split(None, 1) for text in raw]
+    keyword = _KEYWORD_BYTES.get
+    kinds = [keyword(head[0], _NONE) if head else _BLANK for head in heads]
+    if _NONE not in kinds:  # no timestamps (nor anything to name): one comprehension each
+        lines = [k for k, kind in enumerate(kinds, start=first) if kind != _BLANK]
+        numbers = [head[1] if len(head) > 1 else b"" for head in heads if head]
+        timed = [False] * len(lines)
+        if len(lines) != len(kinds):
+            kinds = [kind for kind in kinds if kind != _BLANK]
+    else:
+        timed_lines = _timed_lines(first, heads)
+        if timed_lines is None:
+            return None
+        lines, kinds, timed, numbers = timed_lines
+    if not lines:
+        return iter(())
+    data = b"\n".join(numbers)
+    converted = plain_table_digits(data, len(lines))
+    if converted is None:
+        return None
+    values, counts, digits = converted
+    assert digits is not None
+    kind_of = np.array(kinds, dtype=np.int64)
+    has_time = np.array(timed, dtype=bool)
+    starts = np.zeros(len(lines), dtype=np.int64)
+    np.cumsum(counts[:-1], out=starts[1:])
+    after = starts + has_time  # where a line's numbers after its keyword start
+    sizes = counts - has_time
+    per_item = np.where(kind_of == _OBSERVE, 3, 2)
+    if not np.where(kind_of == _CONTROL, sizes == 2, sizes % per_item == 0).all():
+        return None
+    times = values[starts[has_time]]
+    if times.size and first_bad_time(times, clock.last) is not None:
+        return None
+    sighted, scanned = (
+        _Items.of(kind_of, after, sizes, _OBSERVE),
+        _Items.of(kind_of, after, sizes, _SCAN),
+    )
+    id_values = values[sighted.at]
+    if not (digits[sighted.at].all() and (id_values < _EXACT_IDS).all()):
+        return None
+    ids = id_values.astype(np.int64)
+    if _repeated(sighted.owner, ids):
+        return None
+    z = np.stack((values[sighted.at + 1], values[sighted.at + 2]), axis=1)
+    z_scans = np.stack((values[scanned.at], values[scanned.at + 1]), axis=1)
+    if not ((z[:, 1] > 0.0).all() and (z_scans[:, 1] > 0.0).all()):
+        return None
+    # plain: the clock goes on, and the events are made as they are asked for
+    line_times: list[float | None] = [None] * len(lines)
+    spans: list[float | None] = [None] * len(lines)
+    if times.size:
+        previous = math.nan if clock.previous is None else clock.previous
+        since = times - np.concatenate(([previous], times[:-1]))
+        for row, time, span in zip(
+            np.flatnonzero(has_time).tolist(), times.tolist(), since.tolist(), strict=True
+        ):
+            line_times[row] = time
+            spans[row] = None if math.isnan(span) else span
+        clock.passed(float(times[-1]))
+    outside = np.zeros(len(lines), dtype=bool)
+    for items, measured in ((sighted, z), (scanned, z_scans)):
+        bearings = measured[:, 0]
+        outside[items.owner[(bearings > math.pi) | (bearings <= -math.pi)]] = True
+    return _made(
+        lines, kinds, line_times, spans, values.tolist(), after.tolist(),
+        _Items.spans(len(lines), sighted, scanned), ids, z, z_scans, outside.tolist(), wrap,
+    )  # fmt: skip
+
+
+def _timed_lines(
+    first: int, heads: list[list[bytes]]
+) -> tuple[list[int], list[int], list[bool], list[bytes]] | None:
+    """The lines of a block with timestamps (``heads``: each line's first token and the
+    rest): their numbers, keywords, whether each has a timestamp and its numbers (the
+    timestamp first); None where a line's first token is neither a keyword nor followed
+    by one."""
+    lines: list[int] = []
+    kinds: list[int] = []
+    timed: list[bool] = []
+    numbers: list[bytes] = []
+    for number, head in enumerate(heads, start=first):
+        if not head:
+            continue
+        kind = _KEYWORD_BYTES.get(head[0])
+        if kind is not None:
+            numbers.append(head[1] if len(head) > 1 else b"")
+            timed.append(False)
+        else:  # a timestamp, then a keyword; or something for the line's reading to name
+            rest = head[1].split(None, 1) if len(head) > 1 else []
+            kind = _KEYWORD_BYTES.get(rest[0]) if rest else None
+            if kind is None:
+                return None
+            numbers.append(head[0] + b" " + rest[1] if len(rest) > 1 else head[0])
+            timed.append(True)
+        lines.append(number)
+        kinds.append(kind)
+    return lines, kinds, timed, numbers
+
+
+class _Items:
+    """The landmarks (or measurements) of a block's observation (or scan) lines: their
+    lines' rows in the block, where each line's start among them (len + 1), the row of
+    each one's line, and where its numbers start in the block's values."""
+
+    __slots__ = ("at", "bounds", "owner", "rows")
+
+    def __init__(self, rows: IntArray, bounds: IntArray, owner: IntArray, at: IntArray) -> None:
+        self.rows, self.bounds, self.owner, self.at = rows, bounds, owner, at
+
+    @staticmethod
+    def of(kind_of: IntArray, after: IntArray, sizes: IntArray, kind: int) -> _Items:
+        rows = np.flatnonzero(kind_of == kind)
+        per_line = sizes[rows] // _NUMBERS_AFTER[kind]
+        bounds = np.zeros(len(rows) + 1, dtype=np.int64)
+        np.cumsum(per_line, out=bounds[1:])
+        owner = np.repeat(rows, per_line)
+        within = np.arange(bounds[-1]) - np.repeat(bounds[:-1], per_line)
+        return _Items(rows, bounds, owner, after[owner] + _NUMBERS_AFTER[kind] * within)
+
+    @staticmethod
+    def spans(count: int, *kinds: _Items) -> list[tuple[int, int]]:
+        """Each of ``count`` lines' (start, end) among the items of its kind."""
+        spans = [(0, 0)] * count
+        for items in kinds:
+            bounds = items.bounds.tolist()
+            for k, row in enumerate(items.rows.tolist()):
+                spans[row] = (bounds[k], bounds[k + 1])
+        return spans
+
+
+def _repeated(owner: IntArray, ids: IntArray) -> bool:
+    """Whether a line names a landmark twice (``owner``: the line of each id)."""
+    if len(ids) < 2:
+        return False
+    order = np.lexsort((ids, owner))
+    owner, ids = owner[order], ids[order]
+    return bool(((owner[1:] == owner[:-1]) & (ids[1:] == ids[:-1])).any())
+
+
+def _made(
+    lines: list[int],
+    kinds: list[int],
+    times: list[float | None],
+    spans: list[float | None],
+    values: list[float],
+    after: list[int],
+    items: list[tuple[int, int]],
+    ids: IntArray,
+    z: FloatArray,
+    z_scans: FloatArray,
+    outside: list[bool],
+    wrap: BearingWrapper,
+) -> Iterator[AnyEvent]:
+    """The events of a plain block, as :func:`_line_events` makes them."""
+    for j, line in enumerate(lines):
+        kind = kinds[j]
+        if kind == _CONTROL:
+            k = after[j]
+            yield read_control(line, values[k], values[k + 1], times[j], spans[j])
+            continue
+        start, end = items[j]
+        measured = z[start:end] if kind == _OBSERVE else z_scans[start:end]
+        if outside[j]:
+            measured[:, 0] = wrap(line, measured[:, 0])
+        if kind == _OBSERVE:
+            yield read_sighting(line, ids[start:end], measured, times[j])
+        else:
+            yield Scan(line=line, z=measured, time=times[j])
 
 
 def _observation(
