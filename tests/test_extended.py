@@ -100,6 +100,15 @@ def test_filter_grows_on_sparse_ids_and_skips_empty_steps(tmp_path: Path) -> Non
         ("observe 1 0.1 nan\n", "found 'nan', expected a finite number"),
         ("2.0 control 1 0\n1.0 control 1 0\n", "log.txt:2: found time 1 after 2"),
         ("control 1 0\n3.0\n", "log.txt:2: found only a timestamp"),
+        (
+            "observe 1 0.1 2\nobserve\nscan\nscan 0.1 2\n",
+            "log.txt:4: found a scan after observations by landmark id (from line 1), expected"
+            " observations of one kind in a log: by id ('observe') or id-less ('scan')",
+        ),
+        (
+            "observe\nscan 0.1 2\ncontrol 1 0\nobserve 4 0.1 2\n",
+            "log.txt:4: found an observation by landmark id after id-less scans (from line 2)",
+        ),
     ],
 )
 def test_errors_name_the_line(tmp_path: Path, content: str, message: str) -> None:
@@ -171,39 +180,55 @@ def test_a_bad_noise_header_is_one_line_naming_it(tmp_path: Path, header: str) -
 # -- the reader's blocks read at once against line by line ---------------------------------
 
 _TIME_BACK = "0.5 control 1 0"  # before the times of _odd_log
-# lines that read, some as no writer of ours would write them, and lines that do not
+# lines that read, some as no writer of ours would write them, and lines that do not; in
+# a log of observations by id, and in one of id-less scans
 _ODD_BUT_READ = [
-    "observe 007 0.1 5.0", "observe +5 0.1 5.0", "control 3e0 -.5", "control\t3.0\t0.0  ",
-    "   observe 3 0.2 4.0   # seen", "observe 123456789012345678 0.1 2.0", "# a comment: é",
-    "observe 2 4.0 1.0 3 -3.5 2.0", "scan 3.2 1.0 -0.5 2.0", "scan", "observe", "",
-    "observe 9007199254740993 0.1 2.0", "control 1E+2 0", "observe 4 1e-3 .5",
+    "control 3e0 -.5", "control\t3.0\t0.0  ", "# a comment: é", "scan", "observe", "",
+    "control 1E+2 0",
 ]  # fmt: skip
+_ODD_BY_IDS = [
+    "observe 007 0.1 5.0", "observe +5 0.1 5.0", "   observe 3 0.2 4.0   # seen",
+    "observe 123456789012345678 0.1 2.0", "observe 2 4.0 1.0 3 -3.5 2.0",
+    "observe 9007199254740993 0.1 2.0", "observe 4 1e-3 .5",
+]  # fmt: skip
+_ODD_SCANS = ["scan 3.2 1.0 -0.5 2.0", "  scan\t1e-3 .5 # seen", "scan -3.5 2 +1 1"]
 _NOT_READ = [
-    "observe 5.0 0.1 5.0", "observe 1e1 0.1 5.0", "observe -1 0.1 5.0", "observe 3 0.1 0",
-    "observe 3 0.1 -2", "observe 3 0.1 5.0 3 0.2 4.0", "control 3.0", "control nan 0",
-    "control 1_0 0", "Control 3 0", "controls 3 0", "observe 1 2", "12.5", "1e10 control 1 0",
-    "control 3.0 0.0 observe", "scan 1.0", "scan 1 -1", "observe 3 0.1 1e19", "\xff control 1 0",
-    _TIME_BACK,
+    "control 3.0", "control nan 0", "control 1_0 0", "Control 3 0", "controls 3 0", "12.5",
+    "1e10 control 1 0", "control 3.0 0.0 observe", "\xff control 1 0", _TIME_BACK,
 ]  # fmt: skip
+_NOT_READ_BY_IDS = [
+    "observe 5.0 0.1 5.0", "observe 1e1 0.1 5.0", "observe -1 0.1 5.0", "observe 3 0.1 0",
+    "observe 3 0.1 -2", "observe 3 0.1 5.0 3 0.2 4.0", "observe 1 2", "observe 3 0.1 1e19",
+    "scan 1.0 2.0",  # (a scan among observations by id)
+]  # fmt: skip
+_NOT_READ_SCANS = ["scan 1.0", "scan 1 -1", "scan 1 nan", "observe 3 0.1 2.0"]
 
 
-def _odd_log(rng: np.random.Generator, lines: int, bad: str | None, timed: bool) -> bytes:
+def _odd_log(
+    rng: np.random.Generator, lines: int, bad: str | None, timed: bool, scans: bool
+) -> bytes:
     """A log of plain lines with odd ones among them, and ``bad`` somewhere after the
-    first few blocks; with timestamps (at some lines) where ``timed``."""
+    first few blocks; with timestamps (at some lines) where ``timed``, its observations
+    id-less scans where ``scans``."""
+    odd = _ODD_BUT_READ + (_ODD_SCANS if scans else _ODD_BY_IDS)
     out: list[str] = []
     time = 1.0
     for _ in range(lines):
         pick = rng.uniform()
         if pick < 0.1:
-            line = str(rng.choice(_ODD_BUT_READ))
+            line = str(rng.choice(odd))
         elif pick < 0.55:
             line = f"control {rng.normal():.4f} {rng.normal(0, 0.1):.5f}"
         else:
-            ids = rng.choice(40, size=int(rng.integers(0, 6)), replace=False)
-            line = " ".join(
-                ["observe"] + [f"{i} {rng.uniform(-3.3, 3.3):.4f} {rng.uniform(0.1, 9):.3f}"
-                               for i in ids]
-            )  # fmt: skip
+            seen = int(rng.integers(0, 6))
+            cells = [f"{rng.uniform(-3.3, 3.3):.4f} {rng.uniform(0.1, 9):.3f}" for _ in range(seen)]
+            if scans:
+                line = " ".join(["scan", *cells])
+            else:
+                ids = rng.choice(40, size=seen, replace=False)
+                line = " ".join(
+                    ["observe"] + [f"{i} {cell}" for i, cell in zip(ids, cells, strict=True)]
+                )
         if timed and rng.uniform() < 0.7 and line.strip() and not line.lstrip().startswith("#"):
             time += float(rng.uniform(0.0, 0.3))
             line = f"{time:.3f} {line.lstrip()}"
@@ -253,7 +278,8 @@ def test_blocks_read_at_once_read_as_line_by_line(
     events, the first error (its line and words) and the warnings are the same as line
     by line throughout, in blocks of every kind: odd lines that read (ids with leading
     zeros or a sign, exponents, tabs, comments, empty steps and scans, ids past 2^53),
-    lines that do not, timestamps (a control spans the time since the last)."""
+    lines that do not, timestamps (a control spans the time since the last), logs of
+    id-less scans, a scan among observations by id and the other way round."""
     from ekfviz.io import extended
     from ekfviz.io import text as text_io
 
@@ -272,11 +298,15 @@ def test_blocks_read_at_once_read_as_line_by_line(
 
     monkeypatch.setattr(extended, "_plain_events", counted)
     rng = np.random.default_rng(seed)
+    timed, scans = seed % 2 == 1, seed % 3 == 2
     for case in range(6):
-        bad = None if case == 0 else str(rng.choice(_NOT_READ))
+        bad = (
+            None
+            if case == 0
+            else str(rng.choice(_NOT_READ + (_NOT_READ_SCANS if scans else _NOT_READ_BY_IDS)))
+        )
         path = tmp_path / f"log{case}.txt"
-        timed = seed % 2 == 1
-        path.write_bytes(_odd_log(rng, 400, bad, timed))
+        path.write_bytes(_odd_log(rng, 400, bad, timed, scans))
         at_once = _read(path, True, monkeypatch)
         assert at_once == _read(path, False, monkeypatch), (seed, case, bad)
         assert len(at_once[0]) > 150

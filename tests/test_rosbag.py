@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import subprocess
 import sys
 from collections.abc import Iterator, Sequence
@@ -381,6 +382,23 @@ def test_markers_with_and_without_ids_a_repeated_id_or_nan_are_refused(tmp_path:
         bag = write_bag(tmp_path / name, run, truth=False)
         with pytest.raises(InputError, match=expected):
             list(open_source(bag).events())
+
+
+@pytest.mark.parametrize("named_first", [True, False])
+def test_named_and_id_less_arrays_in_one_bag_are_refused(tmp_path: Path, named_first: bool) -> None:
+    """The association numbers the landmarks it finds 1, 2, ...: in a bag that names
+    some arrays' markers and not others, they would take the named landmarks' ids."""
+    z = np.array([[0.1, 2.0], [0.2, 3.0]])
+    named = Sighting(1, np.array([1, 2]), z)
+    idless = Sighting(2, np.array([-1, -1]), z)
+    empty = Sighting(3, np.zeros(0, dtype=np.int64), np.zeros((0, 2)))  # of neither kind
+    first, second = (named, idless) if named_first else (idless, named)
+    run = Simulation((first, empty, second), np.zeros((1, 3)), np.array([1, 2]), z)
+    bag = write_bag(tmp_path / "both", run, truth=False)
+    found = "id-less markers (negative ids) after named ones" if named_first else (
+        "markers with ids after id-less ones")  # fmt: skip
+    with pytest.raises(InputError, match=rf"message 3: found {re.escape(found)} \(message 1\)"):
+        list(open_source(bag).events())
 
 
 def test_without_rosbags_the_bag_names_the_extra(tmp_path: Path, run: Simulation) -> None:

@@ -11,7 +11,10 @@ One event a line, a keyword first, ``#`` comments, an optional leading timestamp
 
 A ``scan`` line is an observation whose landmarks are unknown (any number of pairs,
 none included): ``--association nn|jcbb`` decides which landmark each one is.
-Landmark ids are non-negative integers; they need not be dense or ordered.
+Landmark ids are non-negative integers; they need not be dense or ordered. A log's
+observations are of one kind, by id or id-less (the association numbers the landmarks it
+finds itself: they would take the ids of the log's own); an empty line of either is
+neither.
 
 A log may state the noise of its odometry and sensor (and the prior of its start) in a
 comment before its first event, as ``ekfviz simulate`` does::
@@ -110,35 +113,63 @@ def read_extended(
 
     :raises InputError: for the first bad line met, naming it and what was expected
     """
-    clock = _Clock()
+    read = _Read()
     wrap = BearingWrapper(path, warn)
     with open_input(path) as handle:
         for first, raw in line_blocks(path, handle):
-            events = _plain_events(first, raw, clock, wrap)
+            events = _plain_events(first, raw, read, wrap)
             if events is None:
-                events = _line_events(path, block_tokens(path, first, raw), clock, wrap)
+                events = _line_events(path, block_tokens(path, first, raw), read, wrap)
             yield from events
             if progress is not None:
                 progress(handle.tell())
 
 
-class _Clock:
-    """The timestamps read so far: the latest (-inf before any), which the next may not
-    precede, and the latest line's that had one (None before any), which a timed control
-    spans from."""
+class _Read:
+    """What the lines read so far set for the next: the latest timestamp (-inf before
+    any), which the next may not precede, and the latest line's that had one (None before
+    any), which a timed control spans from; the first observation by landmark ids and
+    the first id-less scan (their lines, None before any): a log has one kind or the
+    other (see :func:`_one_kind`)."""
 
-    __slots__ = ("last", "previous")
+    __slots__ = ("by_ids", "last", "previous", "scans")
 
     def __init__(self) -> None:
         self.last = -math.inf
         self.previous: float | None = None
+        self.by_ids: int | None = None
+        self.scans: int | None = None
 
     def passed(self, time: float) -> None:
         self.last = self.previous = time
 
 
+def _one_kind(path: Path, line: int, scan: bool, read: _Read) -> None:
+    """Note an observation with landmarks in it (a scan, or by ids) at ``line``.
+
+    :raises InputError: where the log had observations of the other kind: the
+        association numbers its landmarks 1, 2, ... whatever ids the log's own have, so
+        a landmark found in a scan would take the id of another one of the log
+    """
+    first = read.by_ids if scan else read.scans
+    if first is not None:
+        found, before = (
+            ("a scan", "observations by landmark id")
+            if scan
+            else ("an observation by landmark id", "id-less scans")
+        )
+        raise InputError(
+            path, line, f"found {found} after {before} (from line {first}), expected"
+            " observations of one kind in a log: by id ('observe') or id-less ('scan')",
+        )  # fmt: skip
+    if scan and read.scans is None:
+        read.scans = line
+    elif not scan and read.by_ids is None:
+        read.by_ids = line
+
+
 def _line_events(
-    path: Path, lines: Iterable[tuple[int, list[str]]], clock: _Clock, wrap: BearingWrapper
+    path: Path, lines: Iterable[tuple[int, list[str]]], read: _Read, wrap: BearingWrapper
 ) -> Iterator[AnyEvent]:
     """The events of ``lines`` (number, tokens) read one by one, up to the first bad line,
     whose error is raised."""
@@ -146,14 +177,14 @@ def _line_events(
         time: float | None = None
         if not tokens[0].isalpha():
             time = check_time(path, line, parse_number(path, line, tokens[0]))
-            if time < clock.last:
+            if time < read.last:
                 raise InputError(
                     path,
                     line,
-                    f"found time {time:g} after {clock.last:g},"
+                    f"found time {time:g} after {read.last:g},"
                     " expected timestamps that never decrease",
                 )
-            clock.last = time
+            read.last = time
             tokens = tokens[1:]
             if not tokens:
                 raise InputError(path, line, "found only a timestamp, expected a keyword after it")
@@ -165,12 +196,18 @@ def _line_events(
                 )
             d, alpha = (parse_number(path, line, token) for token in values)
             # a timed control spans the time since the previous timestamp, when there is one
-            dt = None if time is None or clock.previous is None else time - clock.previous
+            dt = None if time is None or read.previous is None else time - read.previous
             yield read_control(line, d, alpha, time, dt)
         elif keyword == "observe":
-            yield _observation(path, line, values, time, wrap)
+            sighting = _observation(path, line, values, time, wrap)
+            if len(sighting.ids):
+                _one_kind(path, line, False, read)
+            yield sighting
         elif keyword == "scan":
-            yield _scan(path, line, values, time, wrap)
+            scan = _scan(path, line, values, time, wrap)
+            if len(scan.z):
+                _one_kind(path, line, True, read)
+            yield scan
         else:
             shown = keyword if len(keyword) <= 20 else keyword[:20] + "..."
             raise InputError(
@@ -180,7 +217,7 @@ def _line_events(
                 " (after an optional timestamp)",
             )
         if time is not None:
-            clock.previous = time
+            read.previous = time
 
 
 _CONTROL, _OBSERVE, _SCAN = 0, 1, 2
@@ -191,7 +228,7 @@ _EXACT_IDS = 2.0**53  # ids from it on are read line by line (a float may round 
 
 
 def _plain_events(
-    first: int, raw: list[bytes], clock: _Clock, wrap: BearingWrapper
+    first: int, raw: list[bytes], read: _Read, wrap: BearingWrapper
 ) -> Iterator[AnyEvent] | None:
     """The events of a block (``first``: its first line's number) converted at once, or
     None where a line is not plain (see :func:`read_extended`): nothing is read then, and
@@ -235,7 +272,7 @@ def _plain_events(
     if not np.where(kind_of == _CONTROL, sizes == 2, sizes % per_item == 0).all():
         return None
     times = values[starts[has_time]]
-    if times.size and first_bad_time(times, clock.last) is not None:
+    if times.size and first_bad_time(times, read.last) is not None:
         return None
     sighted, scanned = (
         _Items.of(kind_of, after, sizes, _OBSERVE),
@@ -251,18 +288,28 @@ def _plain_events(
     z_scans = np.stack((values[scanned.at], values[scanned.at + 1]), axis=1)
     if not ((z[:, 1] > 0.0).all() and (z_scans[:, 1] > 0.0).all()):
         return None
-    # plain: the clock goes on, and the events are made as they are asked for
+    by_ids = sighted.rows[np.diff(sighted.bounds) > 0]
+    scans = scanned.rows[np.diff(scanned.bounds) > 0]
+    if (by_ids.size and (scans.size or read.scans is not None)) or (
+        scans.size and read.by_ids is not None
+    ):
+        return None  # observations of both kinds: the line by line reading names the line
+    if by_ids.size and read.by_ids is None:
+        read.by_ids = lines[int(by_ids[0])]
+    if scans.size and read.scans is None:
+        read.scans = lines[int(scans[0])]
+    # plain: the timestamps go on, and the events are made as they are asked for
     line_times: list[float | None] = [None] * len(lines)
     spans: list[float | None] = [None] * len(lines)
     if times.size:
-        previous = math.nan if clock.previous is None else clock.previous
+        previous = math.nan if read.previous is None else read.previous
         since = times - np.concatenate(([previous], times[:-1]))
         for row, time, span in zip(
             np.flatnonzero(has_time).tolist(), times.tolist(), since.tolist(), strict=True
         ):
             line_times[row] = time
             spans[row] = None if math.isnan(span) else span
-        clock.passed(float(times[-1]))
+        read.passed(float(times[-1]))
     outside = np.zeros(len(lines), dtype=bool)
     for items, measured in ((sighted, z), (scanned, z_scans)):
         bearings = measured[:, 0]

@@ -148,6 +148,7 @@ class RosbagSource(Source):
         # an empty array (nothing in view) is a scan in a bag of id-less detections
         first = next((ids for _, _, ids, _ in detections if ids.size), None)
         idless = first is not None and bool((first < 0).all())
+        self._check_one_kind(detections)
         k, j = 1, 0
         while k < len(odometry) or j < len(detections):
             if k < len(odometry) and (j == len(detections) or odometry[k][0] <= detections[j][0]):
@@ -162,6 +163,27 @@ class RosbagSource(Source):
                 else:
                     yield Sighting(line=line, ids=ids, z=z, time=time)
                 j += 1
+
+    def _check_one_kind(self, detections: list[tuple[float, int, IntArray, FloatArray]]) -> None:
+        """Refuse a bag whose landmark arrays name their markers in some messages and not
+        in others: the association numbers the landmarks it finds 1, 2, ..., which would
+        be the ids of others that the bag names.
+
+        :raises InputError: naming the first message of the second kind
+        """
+        named = [(nth, bool((ids >= 0).all())) for nth, (_, _, ids, _) in
+                 enumerate(detections, start=1) if ids.size]  # fmt: skip
+        if named and any(kind != named[0][1] for _, kind in named):
+            nth = next(nth for nth, kind in named if kind != named[0][1])
+            found, before = (
+                ("markers with ids", "id-less ones")
+                if named[0][1] is False
+                else ("id-less markers (negative ids)", "named ones")
+            )
+            raise InputError(
+                self.path, 0, f"{self.landmarks} message {nth}: found {found} after {before}"
+                f" (message {named[0][0]}), expected all landmarks named or none in a bag",
+            )  # fmt: skip
 
     def _pose(self, message: Any, topic: str, nth: int) -> Pose:
         """The pose of the topic's ``nth`` message, refused when not finite."""
