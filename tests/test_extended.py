@@ -269,6 +269,22 @@ def _read(
     return events, None, warnings
 
 
+def _blocks_read_at_once(monkeypatch: pytest.MonkeyPatch) -> list[bool]:
+    """Whether each block the reader meets from now on is read at once (plain), in order."""
+    from ekfviz.io import extended
+
+    read_at_once: list[bool] = []
+    plain = extended._plain_events
+
+    def counted(*args: Any) -> Any:
+        made = plain(*args)
+        read_at_once.append(made is not None)
+        return made
+
+    monkeypatch.setattr(extended, "_plain_events", counted)
+    return read_at_once
+
+
 @pytest.mark.parametrize("parser", ["compiled", "float"])
 @pytest.mark.parametrize("seed", range(12))
 def test_blocks_read_at_once_read_as_line_by_line(
@@ -280,7 +296,6 @@ def test_blocks_read_at_once_read_as_line_by_line(
     zeros or a sign, exponents, tabs, comments, empty steps and scans, ids past 2^53),
     lines that do not, timestamps (a control spans the time since the last), logs of
     id-less scans, a scan among observations by id and the other way round."""
-    from ekfviz.io import extended
     from ekfviz.io import text as text_io
 
     if parser == "float":
@@ -288,15 +303,7 @@ def test_blocks_read_at_once_read_as_line_by_line(
     elif not text_io.HAVE_PARSER:
         pytest.skip("the compiled parser was not built")
     monkeypatch.setattr(text_io, "BLOCK_BYTES", 600)  # some 20 lines a block
-    read_at_once: list[bool] = []  # whether each block read at once was plain
-    plain = extended._plain_events
-
-    def counted(*args: Any) -> Any:
-        made = plain(*args)
-        read_at_once.append(made is not None)
-        return made
-
-    monkeypatch.setattr(extended, "_plain_events", counted)
+    read_at_once = _blocks_read_at_once(monkeypatch)
     rng = np.random.default_rng(seed)
     timed, scans = seed % 2 == 1, seed % 3 == 2
     for case in range(6):
@@ -319,19 +326,10 @@ def test_a_long_plain_log_is_read_in_blocks(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """The lines of a simulated run's log are plain: every block is read at once."""
-    from ekfviz.io import extended
     from ekfviz.io import text as text_io
 
     monkeypatch.setattr(text_io, "BLOCK_BYTES", 4096)
     path = write(tmp_path, format_extended(classic().run(seed=3, laps=40).events))
-    calls: list[bool] = []
-    plain = extended._plain_events
-
-    def counted(*args: Any) -> Any:
-        made = plain(*args)
-        calls.append(made is not None)
-        return made
-
-    monkeypatch.setattr(extended, "_plain_events", counted)
+    read_at_once = _blocks_read_at_once(monkeypatch)
     assert _read(path, True, monkeypatch) == _read(path, False, monkeypatch)
-    assert len(calls) > 3 and all(calls)
+    assert len(read_at_once) > 3 and all(read_at_once)
