@@ -7,6 +7,8 @@ from typing import Any
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from ekfviz.core.records import Control, EventKind, Scan, Sighting
 from ekfviz.io.classic import format_classic
@@ -333,3 +335,59 @@ def test_a_long_plain_log_is_read_in_blocks(
     read_at_once = _blocks_read_at_once(monkeypatch)
     assert _read(path, True, monkeypatch) == _read(path, False, monkeypatch)
     assert len(read_at_once) > 3 and all(read_at_once)
+
+
+_MUTATION_BYTES = b"0123456789+-.eE \t\n#xa\xc3\xff\x0b\r"
+_MUTATION_WORDS = [
+    b"control ", b"observe ", b"scan ", b"12.5 ", b"0.5 ", b"nan ", b"1e400 ", b"-", b"-0 ", b"0 ",
+    b"5.0 ", b"+3 ", b"7 ", b"\r\n", b"\n",
+]  # fmt: skip
+
+
+@settings(
+    max_examples=1000,
+    deadline=None,
+    suppress_health_check=[HealthCheck.function_scoped_fixture],
+    derandomize=True,  # the same examples on every run: a failure is reproducible
+)
+@given(
+    scans=st.booleans(),
+    timed=st.booleans(),
+    edits=st.lists(
+        st.tuples(st.integers(0, 4), st.floats(0, 1), st.integers(0, 255)), min_size=1, max_size=8
+    ),
+)
+def test_mutated_logs_read_at_once_as_line_by_line(
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    scans: bool,
+    timed: bool,
+    edits: list[tuple[int, float, int]],
+) -> None:
+    """A plain log with bytes replaced, dropped or put in (digits, signs, separators,
+    comments, keywords, a CR, bytes that are not UTF-8), and words put in or put for a
+    token (times, ids, numbers of all forms), reads the same at once as line by line: the
+    same events, first error and warnings."""
+    from ekfviz.io import text as text_io
+
+    monkeypatch.setattr(text_io, "BLOCK_BYTES", 97)
+    rng = np.random.default_rng(11)
+    data = bytearray(_odd_log(rng, 60, None, timed=timed, scans=scans))
+    for op, where, pick in edits:
+        at = int(where * len(data))
+        if op >= 3:  # at the start of a token
+            at = data.find(b" ", at) + 1
+        if op == 0:
+            data[at : at + 1] = _MUTATION_BYTES[pick % len(_MUTATION_BYTES) :][:1]
+        elif op == 1:
+            del data[at : at + 1 + pick % 3]
+        elif op == 2:
+            data[at:at] = _MUTATION_BYTES[pick % len(_MUTATION_BYTES) :][:1]
+        elif op == 3:  # a word put in
+            data[at:at] = _MUTATION_WORDS[pick % len(_MUTATION_WORDS)]
+        else:  # the token replaced by a word
+            end = min(i for i in (data.find(b" ", at), data.find(b"\n", at), len(data)) if i >= 0)
+            data[at:end] = _MUTATION_WORDS[pick % len(_MUTATION_WORDS)].rstrip(b" ")
+    path = tmp_path / "mutated.txt"
+    path.write_bytes(bytes(data))
+    assert _read(path, True, monkeypatch) == _read(path, False, monkeypatch)
