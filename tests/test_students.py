@@ -281,6 +281,21 @@ def test_grade_gives_each_submission_its_row(tmp_path: Path) -> None:
     assert (tmp_path / "rec" / "ada-classic.rrd").is_file()
 
 
+def test_a_submission_neither_file_nor_folder_is_named_as_what_it_is(tmp_path: Path) -> None:
+    """A FIFO, or a link to nothing, among the submissions gets a row saying so (it had
+    "no .py file in it"), and nothing waits on the FIFO."""
+    from ekfviz.pipeline.grade import NoModule, module_of
+
+    fifo = tmp_path / "fifo.py"
+    os.mkfifo(fifo)
+    with pytest.raises(NoModule, match=r"^fifo.py is a FIFO \(named pipe\), expected a \.py file"):
+        module_of(fifo)
+    dangling = tmp_path / "gone"
+    dangling.symlink_to(tmp_path / "nowhere")
+    with pytest.raises(NoModule, match=r"^gone is unreadable \(No such file or directory\)"):
+        module_of(dangling)
+
+
 def test_the_catalogue_is_in_the_readme() -> None:
     readme = (ROOT / "README.md").read_text()
     for cause in CATALOGUE:

@@ -60,7 +60,7 @@ def open_input(path: Path, what: str = "a text file") -> BinaryIO:
             raise InputError(path, 0, f"is a directory, expected {what}")
         # opened without waiting: a FIFO with no writer would block open() for ever
         fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
-        kind = _special_kind(os.fstat(fd).st_mode)
+        kind = special_kind(os.fstat(fd).st_mode)
         if kind is not None:
             os.close(fd)
             raise InputError(path, 0, f"is {kind}, not a regular file; expected {what}")
@@ -75,7 +75,7 @@ def open_input(path: Path, what: str = "a text file") -> BinaryIO:
         raise InputError(path, 0, f"cannot be read ({error.strerror})") from None
 
 
-def _special_kind(mode: int) -> str | None:
+def special_kind(mode: int) -> str | None:
     """What a file that is not a regular one is (None for a regular file). A log is read
     twice (its format told from its first line, then its events) and must end: a pipe
     cannot be read again, a terminal or a FIFO may wait for ever."""

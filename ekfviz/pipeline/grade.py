@@ -19,6 +19,7 @@ from pathlib import Path
 
 from ekfviz.core.tables import Styled, TextTable, one_line
 from ekfviz.filters.ekf import FilterParams
+from ekfviz.io.text import special_kind
 
 STATUSES = ("match", "diverged", "error", "timeout", "memory", "crashed")
 # how a failure's kind (WorkerFault, FilterSpecError) reads in the table
@@ -111,6 +112,12 @@ def module_of(entry: Path) -> Path:
         if entry.suffix != ".py":
             raise NoModule(f"{entry.name} is not a Python file")
         return entry
+    if not entry.is_dir():  # a FIFO, a socket, a device, a link to nothing
+        try:
+            kind = special_kind(entry.stat().st_mode) or "not a regular file"
+        except OSError as error:
+            kind = f"unreadable ({error.strerror})"
+        raise NoModule(f"{entry.name} is {kind}, expected a .py file or a directory")
     files = sorted(p for p in entry.rglob("*.py") if p.is_file() and "__pycache__" not in p.parts)
     if not files:
         raise NoModule("no .py file in it")
