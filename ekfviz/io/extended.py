@@ -233,27 +233,10 @@ def _plain_events(
     """The events of a block (``first``: its first line's number) converted at once, or
     None where a line is not plain (see :func:`read_extended`): nothing is read then, and
     the block is read line by line."""
-    joined = b"\n".join(raw)
-    if not joined.isascii():  # comments too: one policy for text (UTF-8, line by line)
+    split = _keyword_lines(first, raw)
+    if split is None:
         return None
-    if b"#" in joined:
-        raw = [text.split(b"#", 1)[0] for text in raw]
-    # each line's keyword, whether a timestamp comes first and its numbers (the
-    # timestamp's first): a split or two a line, then the block's numbers in one pass
-    heads = [text.split(None, 1) for text in raw]
-    keyword = _KEYWORD_BYTES.get
-    kinds = [keyword(head[0], _NONE) if head else _BLANK for head in heads]
-    if _NONE not in kinds:  # no timestamps (nor anything to name): one comprehension each
-        lines = [k for k, kind in enumerate(kinds, start=first) if kind != _BLANK]
-        numbers = [head[1] if len(head) > 1 else b"" for head in heads if head]
-        timed = [False] * len(lines)
-        if len(lines) != len(kinds):
-            kinds = [kind for kind in kinds if kind != _BLANK]
-    else:
-        timed_lines = _timed_lines(first, heads)
-        if timed_lines is None:
-            return None
-        lines, kinds, timed, numbers = timed_lines
+    lines, kinds, timed, numbers = split
     if not lines:
         return iter(())
     data = b"\n".join(numbers)
@@ -320,13 +303,36 @@ def _plain_events(
     )  # fmt: skip
 
 
+def _keyword_lines(
+    first: int, raw: list[bytes]
+) -> tuple[list[int], list[int], list[bool], list[bytes]] | None:
+    """The non-blank lines of a block (``first``: its first line's number): their
+    numbers, keywords, whether each has a timestamp and its numbers (the timestamp first),
+    a split or two a line; None where a line is not ASCII, or its first token is neither
+    a keyword nor followed by one (read line by line, to name it)."""
+    joined = b"\n".join(raw)
+    if not joined.isascii():  # comments too: one policy for text (UTF-8, line by line)
+        return None
+    if b"#" in joined:
+        raw = [text.split(b"#", 1)[0] for text in raw]
+    heads = [text.split(None, 1) for text in raw]
+    keyword = _KEYWORD_BYTES.get
+    kinds = [keyword(head[0], _NONE) if head else _BLANK for head in heads]
+    if _NONE in kinds:
+        return _timed_lines(first, heads)
+    # no timestamps (nor anything to name): one comprehension each
+    lines = [k for k, kind in enumerate(kinds, start=first) if kind != _BLANK]
+    numbers = [head[1] if len(head) > 1 else b"" for head in heads if head]
+    if len(lines) != len(kinds):
+        kinds = [kind for kind in kinds if kind != _BLANK]
+    return lines, kinds, [False] * len(lines), numbers
+
+
 def _timed_lines(
     first: int, heads: list[list[bytes]]
 ) -> tuple[list[int], list[int], list[bool], list[bytes]] | None:
-    """The lines of a block with timestamps (``heads``: each line's first token and the
-    rest): their numbers, keywords, whether each has a timestamp and its numbers (the
-    timestamp first); None where a line's first token is neither a keyword nor followed
-    by one."""
+    """:func:`_keyword_lines` of a block where some line's first token is no keyword
+    (``heads``: each line's first token and the rest)."""
     lines: list[int] = []
     kinds: list[int] = []
     timed: list[bool] = []
