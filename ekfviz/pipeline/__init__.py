@@ -127,8 +127,8 @@ def replay_log(
 
     Every record goes to the logger (Rerun), the consistency count and ``on_record``;
     the plain predicts and updates (by ids, no warning, no check) go to the logger as
-    columns, their NIS and NEES to the consistency count, and
-    not to ``on_record`` (see :class:`~ekfviz.core.records.EventRows`).
+    columns, their NIS and NEES to the consistency count, and not to ``on_record`` (see
+    :class:`~ekfviz.core.records.EventRows`).
     Bad input, a filter that cannot go on, Ctrl-C or SIGTERM stop the replay with the
     recording of everything before it kept and its last log line saying why.
 
