@@ -59,7 +59,7 @@ from ekfviz.io.text import (
     open_input,
     parse_number,
     plain_numbers,
-    plain_table_digits,
+    plain_table,
     token_lines,
 )
 
@@ -240,7 +240,7 @@ def _plain_events(
     if not lines:
         return iter(())
     data = b"\n".join(numbers)
-    converted = plain_table_digits(data, len(lines))
+    converted = plain_table(data, len(lines), digits=True)
     if converted is None:
         return None
     values, counts, digits = converted

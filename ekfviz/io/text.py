@@ -256,7 +256,7 @@ def _plain_block(first: int, raw: list[bytes]) -> NumberBlock | None:
     converted = plain_table(joined, len(raw))  # comments are cut: no byte of theirs
     if converted is None:
         return None
-    values, counts_all = converted
+    values, counts_all, _ = converted
     kept = np.flatnonzero(counts_all)
     counts = counts_all[kept]
     starts = np.zeros(len(counts), dtype=np.int64)
@@ -264,19 +264,14 @@ def _plain_block(first: int, raw: list[bytes]) -> NumberBlock | None:
     return NumberBlock((kept + first).tolist(), counts, starts, values)
 
 
-def plain_table(joined: bytes, lines: int) -> tuple[FloatArray, IntArray] | None:
-    """The numbers of ``lines`` lines joined by LF and how many each line holds, where
-    every byte is of plain decimal numbers or a separator and every number is within
-    +-:data:`MAX_MAGNITUDE`; else None (the caller reads line by line, to name the fault)."""
-    table = plain_table_digits(joined, lines, digits=False)
-    return None if table is None else (table[0], table[1])
-
-
-def plain_table_digits(
-    joined: bytes, lines: int, digits: bool = True
+def plain_table(
+    joined: bytes, lines: int, digits: bool = False
 ) -> tuple[FloatArray, IntArray, BoolArray | None] | None:
-    """:func:`plain_table`, and (``digits``) whether each number is written as ASCII
-    digits alone: an integer as written, not ``+5``, ``5.0`` or ``5e0``."""
+    """The numbers of ``lines`` lines joined by LF, how many each line holds and (where
+    ``digits``) whether each is written as ASCII digits alone (an integer as written, not
+    ``+5``, ``5.0`` or ``5e0``), where every byte is of plain decimal numbers or a
+    separator and every number is within +-:data:`MAX_MAGNITUDE`; else None (the caller
+    reads line by line, to name the fault)."""
     if joined.translate(None, _PLAIN_BYTES + b"\n"):
         return None  # a byte of something else ("nan", "1_000", another script's digits)
     converted = _converted(joined, lines, digits)
