@@ -297,9 +297,10 @@ def _plain_events(
     for items, measured in ((sighted, z), (scanned, z_scans)):
         bearings = measured[:, 0]
         outside[items.owner[(bearings > math.pi) | (bearings <= -math.pi)]] = True
+    controls = values[after[kind_of == _CONTROL, None] + np.arange(2)].tolist()
     return _made(
-        lines, kinds, line_times, spans, values.tolist(), after.tolist(),
-        _Items.spans(len(lines), sighted, scanned), ids, z, z_scans, outside.tolist(), wrap,
+        lines, kinds, line_times, spans, controls, _Items.spans(len(lines), sighted, scanned),
+        ids, z, z_scans, outside.tolist(), wrap,
     )  # fmt: skip
 
 
@@ -401,8 +402,7 @@ def _made(
     kinds: list[int],
     times: list[float | None],
     spans: list[float | None],
-    values: list[float],
-    after: list[int],
+    controls: list[list[float]],
     items: list[tuple[int, int]],
     ids: IntArray,
     z: FloatArray,
@@ -410,12 +410,14 @@ def _made(
     outside: list[bool],
     wrap: BearingWrapper,
 ) -> Iterator[AnyEvent]:
-    """The events of a plain block, as :func:`_line_events` makes them."""
+    """The events of a plain block, as :func:`_line_events` makes them (``controls``:
+    the (d, alpha) of each control line, in order)."""
+    each_control = iter(controls)
     for j, line in enumerate(lines):
         kind = kinds[j]
         if kind == _CONTROL:
-            k = after[j]
-            yield read_control(line, values[k], values[k + 1], times[j], spans[j])
+            d, alpha = next(each_control)
+            yield read_control(line, d, alpha, times[j], spans[j])
             continue
         start, end = items[j]
         measured = z[start:end] if kind == _OBSERVE else z_scans[start:end]
