@@ -146,9 +146,7 @@ class RosbagSource(Source):
         self._check_order(self.odom, [t for t, _, _ in odometry])
         self._check_order(self.landmarks, [t for t, _, _, _ in detections])
         # an empty array (nothing in view) is a scan in a bag of id-less detections
-        first = next((ids for _, _, ids, _ in detections if ids.size), None)
-        idless = first is not None and bool((first < 0).all())
-        self._check_one_kind(detections)
+        idless = self._idless(detections)
         k, j = 1, 0
         while k < len(odometry) or j < len(detections):
             if k < len(odometry) and (j == len(detections) or odometry[k][0] <= detections[j][0]):
@@ -164,26 +162,31 @@ class RosbagSource(Source):
                     yield Sighting(line=line, ids=ids, z=z, time=time)
                 j += 1
 
-    def _check_one_kind(self, detections: list[tuple[float, int, IntArray, FloatArray]]) -> None:
-        """Refuse a bag whose landmark arrays name their markers in some messages and not
-        in others: the association numbers the landmarks it finds 1, 2, ..., which would
-        be the ids of others that the bag names.
+    def _idless(self, detections: list[tuple[float, int, IntArray, FloatArray]]) -> bool:
+        """Whether the bag's landmark arrays leave their markers unnamed (negative ids),
+        as its first array with markers does: all of them must be of its kind. The
+        association numbers the landmarks it finds 1, 2, ..., which would be the ids of
+        others that the bag names.
 
-        :raises InputError: naming the first message of the second kind
+        :raises InputError: naming the first message of the other kind
         """
         named = [(nth, bool((ids >= 0).all())) for nth, (_, _, ids, _) in
                  enumerate(detections, start=1) if ids.size]  # fmt: skip
-        if named and any(kind != named[0][1] for _, kind in named):
-            nth = next(nth for nth, kind in named if kind != named[0][1])
+        if not named:
+            return False
+        first, by_ids = named[0]
+        other = next((nth for nth, kind in named if kind != by_ids), None)
+        if other is not None:
             found, before = (
-                ("markers with ids", "id-less ones")
-                if named[0][1] is False
-                else ("id-less markers (negative ids)", "named ones")
+                ("id-less markers (negative ids)", "named ones")
+                if by_ids
+                else ("markers with ids", "id-less ones")
             )
             raise InputError(
-                self.path, 0, f"{self.landmarks} message {nth}: found {found} after {before}"
-                f" (message {named[0][0]}), expected all landmarks named or none in a bag",
+                self.path, 0, f"{self.landmarks} message {other}: found {found} after {before}"
+                f" (message {first}), expected all landmarks named or none in a bag",
             )  # fmt: skip
+        return not by_ids
 
     def _pose(self, message: Any, topic: str, nth: int) -> Pose:
         """The pose of the topic's ``nth`` message, refused when not finite."""
