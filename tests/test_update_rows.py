@@ -20,6 +20,7 @@ from typer.testing import CliRunner
 
 from ekfviz.cli import app
 from ekfviz.core import correlation
+from ekfviz.core import records as records_module
 from ekfviz.core.records import Control, EventKind, EventRows, LogEvent, Sighting
 from ekfviz.core.truth import GroundTruth
 from ekfviz.core.types import FloatArray
@@ -151,9 +152,18 @@ def true_landmarks(case: str) -> GroundTruth | None:
     return GroundTruth(ids=np.arange(1, len(xy) + 1, dtype=np.int64), landmarks_xy=np.array(xy))
 
 
-def test_an_update_row_holds_what_its_record_would() -> None:
+@pytest.mark.parametrize("copies", ["compiled", "numpy"])
+def test_an_update_row_holds_what_its_record_would(
+    copies: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """The replay yields no record for an update written as a row, and the row made a
-    record is the record the replay would have yielded, map and observations alike."""
+    record is the record the replay would have yielded, map and observations alike, to
+    the bit, whether the rows are copied by the compiled module or by numpy; the rows'
+    maps stay read-only and what they were after their store was filled and replaced."""
+    if copies == "numpy":
+        monkeypatch.setattr(records_module, "_rows", None)
+    elif not records_module.HAVE_ROW_COPIES:
+        pytest.skip("the compiled row copies were not built (no C compiler)")
     log = events(60, first_seen=20)
     records = {r.event: r for r in replay(log, FilterParams())}
     rows = EventRows(4)  # grows past its first capacity
@@ -170,6 +180,8 @@ def test_an_update_row_holds_what_its_record_would() -> None:
         assert made.kind is EventKind.UPDATE and made.line == reference.line
         for name in ("pose", "pose_cov", "landmark_ids", "landmarks_xy", "landmark_covs"):
             np.testing.assert_array_equal(getattr(made, name), getattr(reference, name), name)
+        _, _, xy, covs = rows.updates[k]  # type: ignore[misc]
+        assert not xy.flags.writeable and not covs.flags.writeable
         assert made.observations is not None and reference.observations is not None
         for name in ("ids", "z", "z_pred", "innovation", "S", "nis", "initialised", "skipped"):
             np.testing.assert_array_equal(
@@ -178,6 +190,40 @@ def test_an_update_row_holds_what_its_record_would() -> None:
     # the map grew at step 20: the update that grew it is a record, not a row
     grown = next(r for r in kept if r.n_landmarks == 6)
     assert grown.kind is EventKind.UPDATE and grown.event not in at_rows
+
+
+@pytest.mark.skipif(
+    not records_module.HAVE_ROW_COPIES, reason="no compiled row copies (no C compiler)"
+)
+def test_the_compiled_row_copy_takes_what_numpy_takes() -> None:
+    """``_rows.copy_row`` copies the pose, its covariance and the landmarks' means and
+    2x2 diagonal blocks out of buffers of a larger capacity, as numpy's indexing does,
+    and refuses buffers it cannot read that way."""
+    from ekfviz.core._rows import copy_row
+
+    rng = np.random.default_rng(3)
+    capacity, n = 17, 5  # the state is 3 + 2 * 5 = 13 of the 17
+    x, P = rng.normal(size=capacity), rng.normal(size=(capacity, capacity))
+    poses, pose_covs = np.full((4, 3), np.nan), np.full((4, 3, 3), np.nan)
+    xy, covs = np.full((9, 2), np.nan), np.full((9, 2, 2), np.nan)
+    copy_row(x, P, poses, pose_covs, 2, xy, covs, 3, n)
+    np.testing.assert_array_equal(poses[2], x[:3])
+    np.testing.assert_array_equal(pose_covs[2], P[:3, :3])
+    np.testing.assert_array_equal(xy[3:8], x[3:13].reshape(n, 2))
+    for k in range(n):
+        at = 3 + 2 * k
+        np.testing.assert_array_equal(covs[3 + k], P[at : at + 2, at : at + 2])
+    assert np.isnan(poses[[0, 1, 3]]).all() and np.isnan(xy[[0, 1, 2, 8]]).all()
+    with pytest.raises(ValueError, match="square"):
+        copy_row(x, np.zeros((capacity, capacity + 2)), poses, pose_covs, 0, xy, covs, 0, 1)
+    with pytest.raises(ValueError, match="map_xy"):
+        copy_row(x, P, poses, pose_covs, 0, xy, covs, 6, n)  # beyond the map's room
+    with pytest.raises(ValueError, match="poses"):
+        copy_row(x, P, poses, pose_covs, 4, xy, covs, 0, 0)
+    with pytest.raises(ValueError, match="at least 0"):
+        copy_row(x, P, poses, pose_covs, -1, xy, covs, 0, 0)
+    with pytest.raises(ValueError, match="x"):
+        copy_row(x[:12], P, poses, pose_covs, 0, xy, covs, 0, n)  # 12 < 3 + 2 * 5
 
 
 def simulated_truth(steps: int, cut: int | None = None) -> GroundTruth:

@@ -16,6 +16,8 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "../_doubles.h"
+
 typedef struct {
     const double *C;          /* (2K x 2K) the candidates' joint covariance, without R */
     Py_ssize_t K;             /* candidates */
@@ -180,17 +182,15 @@ done:
     free(M);
 }
 
-static int get(PyObject *object, Py_buffer *view, Py_ssize_t count, const char *format,
-               const char *name)
+/* An int64 buffer of at least `count` items ('q', or 'l' where long is 64 bits). */
+static int get_int64s(PyObject *object, Py_buffer *view, Py_ssize_t count, const char *name)
 {
     if (PyObject_GetBuffer(object, view, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0)
         return -1;
-    int ok = view->itemsize == 8 && view->format != NULL &&
-             (strcmp(view->format, format) == 0 ||
-              (format[0] == 'q' && strcmp(view->format, "l") == 0)) &&
-             view->len >= count * 8;
-    if (!ok) {
-        PyErr_Format(PyExc_ValueError, "%s: expected %zd contiguous 8-byte items", name, count);
+    if (view->itemsize != 8 || view->format == NULL ||
+        (strcmp(view->format, "q") != 0 && strcmp(view->format, "l") != 0) ||
+        view->len < count * 8) {
+        PyErr_Format(PyExc_ValueError, "%s: expected at least %zd contiguous int64", name, count);
         PyBuffer_Release(view);
         return -1;
     }
@@ -222,9 +222,9 @@ static PyObject *jcbb_entry(PyObject *self, PyObject *args)
     }
     Py_buffer nub, d2b, icb, Cb, Rb, thrb;
     PyObject *result = NULL;
-    if (get(nu_o, &nub, 2 * m * K, "d", "nu") < 0)
+    if (get_doubles(nu_o, &nub, 2 * m * K, 0, "nu") < 0)
         return NULL;
-    if (get(d2_o, &d2b, m * K, "d", "d2") < 0)
+    if (get_doubles(d2_o, &d2b, m * K, 0, "d2") < 0)
         goto release_nu;
     if (PyObject_GetBuffer(ic_o, &icb, PyBUF_C_CONTIGUOUS) < 0)
         goto release_d2;
@@ -232,11 +232,11 @@ static PyObject *jcbb_entry(PyObject *self, PyObject *args)
         PyErr_SetString(PyExc_ValueError, "compatible: expected m x K bools");
         goto release_ic;
     }
-    if (get(C_o, &Cb, 4 * K * K, "d", "C") < 0)
+    if (get_doubles(C_o, &Cb, 4 * K * K, 0, "C") < 0)
         goto release_ic;
-    if (get(R_o, &Rb, 3, "d", "R") < 0)
+    if (get_doubles(R_o, &Rb, 3, 0, "R") < 0)
         goto release_C;
-    if (get(thr_o, &thrb, (m < max_joint ? m : max_joint) + 1, "d", "thresholds") < 0)
+    if (get_doubles(thr_o, &thrb, (m < max_joint ? m : max_joint) + 1, 0, "thresholds") < 0)
         goto release_R;
     const double *nu = nub.buf, *d2 = d2b.buf, *C = Cb.buf, *R = Rb.buf;
     const unsigned char *ic = icb.buf;
@@ -440,23 +440,23 @@ static PyObject *gate_entry(PyObject *self, PyObject *args)
         return NULL;
     Py_buffer xb, bb, pb, cb, zb, vb, ob, rb, fb;
     PyObject *result = NULL;
-    if (get(x_o, &xb, 3, "d", "x") < 0)
+    if (get_doubles(x_o, &xb, 3, 0, "x") < 0)
         return NULL;
     const Py_ssize_t n = xb.len / 8, N = (n - 3) / 2;
-    if (get(bearing_o, &bb, N, "d", "bearing") < 0)
+    if (get_doubles(bearing_o, &bb, N, 0, "bearing") < 0)
         goto release_x;
-    if (get(pose_o, &pb, 3 * n, "d", "pose_rows") < 0)
+    if (get_doubles(pose_o, &pb, 3 * n, 0, "pose_rows") < 0)
         goto release_b;
-    if (get(covs_o, &cb, 4 * N, "d", "covs") < 0)
+    if (get_doubles(covs_o, &cb, 4 * N, 0, "covs") < 0)
         goto release_p;
-    if (get(z_o, &zb, 0, "d", "z") < 0)
+    if (get_doubles(z_o, &zb, 0, 0, "z") < 0)
         goto release_c;
     const Py_ssize_t m = zb.len / 16;
-    if (get(values_o, &vb, 10, "d", "values") < 0)
+    if (get_doubles(values_o, &vb, 10, 0, "values") < 0)
         goto release_z;
-    if (get(out_o, &ob, N * (16 + 3 * m), "d", "out") < 0)
+    if (get_doubles(out_o, &ob, N * (16 + 3 * m), 0, "out") < 0)
         goto release_v;
-    if (get(rows_o, &rb, N, "q", "rows") < 0)
+    if (get_int64s(rows_o, &rb, N, "rows") < 0)
         goto release_o;
     if (PyObject_GetBuffer(flags_o, &fb, PyBUF_C_CONTIGUOUS | PyBUF_WRITABLE) < 0)
         goto release_r;

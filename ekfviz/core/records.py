@@ -20,6 +20,13 @@ from ekfviz.core.correlation import Correlation
 from ekfviz.core.health import CovarianceCheck
 from ekfviz.core.types import BoolArray, FloatArray, Int8Array, IntArray
 
+try:  # built by setup.py where a C compiler is (optional: numpy copies stand in)
+    from ekfviz.core import _rows
+except ImportError:  # pragma: no cover - an install without a C compiler
+    _rows = None  # type: ignore[assignment]
+
+HAVE_ROW_COPIES = _rows is not None
+
 
 class EventKind(str, enum.Enum):
     """What produced a record."""
@@ -499,6 +506,9 @@ class EventRows:
         self._state = _Columns(
             0, np.empty((capacity, 3)), np.empty((capacity, 3, 3)), [], [], [], [], [], []
         )
+        # the update rows' maps, row after row: a row holds read-only views of its part,
+        # and a part is never written again (a full store is replaced, not reused)
+        self._maps = _MapStore(16 * capacity)
         self.timed = False  # some row has a time
         self.takes_updates = False
         self.watch: Callable[[UpdatesWatched], object] | None = None
@@ -558,7 +568,8 @@ class EventRows:
     ) -> None:
         """A predict's row: its timelines and control, and the pose and pose covariance
         copied from the state ``x`` (3+2N,...) and ``P`` (classic layout, any capacity)."""
-        self._add(event, step, line, time, control, None, x, P)
+        self._copy(x, P, self._state)
+        self._add(event, step, line, time, control, None)
 
     def add_update(
         self,
@@ -569,14 +580,47 @@ class EventRows:
         observations: Observations,
         x: FloatArray,
         P: FloatArray,
-        landmarks: tuple[IntArray, FloatArray, FloatArray],
+        ids: IntArray,
     ) -> None:
         """An update's row: its timelines, what it did, the pose and pose covariance
-        copied from ``x`` and ``P`` as :meth:`add` does, and its map (landmark ids, means
-        and marginals: read-only arrays the row keeps, as a record would)."""
-        update = (observations, *landmarks)
-        self._add(event, step, line, time, None, update, x, P)
+        copied from ``x`` and ``P`` as :meth:`add` does, and its map: the landmarks
+        ``ids`` (an array the row keeps) with their means and 2x2 marginals copied from
+        ``x`` and ``P`` (landmark k at 3 + 2k, no changes of P pending) into read-only
+        arrays the row keeps, as a record would."""
+        n = len(ids)
+        xy, covs, start = self._maps.room(n)
+        self._copy(x, P, self._state, xy, covs, start, n)
+        update = (observations, ids, *self._maps.taken(start, n))
+        self._add(event, step, line, time, None, update)
         self._map = (event, update)
+
+    @staticmethod
+    def _copy(
+        x: FloatArray,
+        P: FloatArray,
+        state: _Columns,
+        xy: FloatArray | None = None,
+        covs: FloatArray | None = None,
+        start: int = 0,
+        n: int = 0,
+    ) -> None:
+        """Copy the pose and pose covariance into the next row of ``state`` (grown if
+        full) and the first ``n`` landmarks' means and marginals into ``xy`` and ``covs``
+        from ``start`` on: one compiled call where ``P`` is the square buffer of ``x``'s
+        capacity (a filter's own), numpy's copies otherwise."""
+        row = state.complete
+        if row == state.poses.shape[0]:
+            state.grown()
+        if _rows is not None and P.shape == (len(x), len(x)) and P.flags.c_contiguous:
+            map_xy, map_covs = _NO_MAP if xy is None or covs is None else (xy, covs)
+            _rows.copy_row(x, P, state.poses, state.pose_covs, row, map_xy, map_covs, start, n)
+            return
+        state.poses[row] = x[:3]
+        state.pose_covs[row] = P[:3, :3]
+        if n:
+            assert xy is not None and covs is not None
+            xy[start : start + n] = x[3 : 3 + 2 * n].reshape(n, 2)
+            covs[start : start + n] = landmark_marginals(P, n)
 
     def _add(
         self,
@@ -586,15 +630,10 @@ class EventRows:
         time: float | None,
         control: tuple[float, float] | None,
         update: UpdateParts | None,
-        x: FloatArray,
-        P: FloatArray,
     ) -> None:
+        """The row's other columns, after its pose (:meth:`_copy`); then it counts."""
         state = self._state
         row = state.complete
-        if row == state.poses.shape[0]:
-            state.grown()
-        state.poses[row] = x[:3]
-        state.pose_covs[row] = P[:3, :3]
         if len(state.events) != row:  # a row left half written (events come first)
             for column in state.lists():
                 del column[row:]
@@ -782,6 +821,40 @@ class _Columns:
             count, self.poses, self.pose_covs, *(column[:count] for column in self.lists())
         )
 
+
+class _MapStore:
+    """The update rows' maps: landmark means and marginals, update after update, in
+    buffers of their own that are filled once and never written again (a full one is
+    replaced): a row's read-only views of its part stay what they were for as long as
+    anything holds them."""
+
+    __slots__ = ("_covs", "_read_covs", "_read_xy", "_room", "_used", "_xy")
+
+    def __init__(self, room: int) -> None:
+        self._room = room
+        self._fresh(room)
+
+    def _fresh(self, room: int) -> None:
+        self._xy, self._covs = np.empty((room, 2)), np.empty((room, 2, 2))
+        self._read_xy, self._read_covs = self._xy.view(), self._covs.view()
+        self._read_xy.flags.writeable = self._read_covs.flags.writeable = False
+        self._used = 0
+
+    def room(self, n: int) -> tuple[FloatArray, FloatArray, int]:
+        """The buffers to write ``n`` landmarks into and where (:meth:`taken` after)."""
+        if self._used + n > len(self._xy):
+            self._fresh(max(self._room, n))
+        return self._xy, self._covs, self._used
+
+    def taken(self, start: int, n: int) -> tuple[FloatArray, FloatArray]:
+        """The ``n`` landmarks written from ``start`` on, as read-only views (means
+        (n, 2), marginals (n, 2, 2)); the buffers' room after them is the next part's."""
+        self._used = start + n
+        return self._read_xy[start : start + n], self._read_covs[start : start + n]
+
+
+# room for no landmark, where a row copies a pose alone
+_NO_MAP = (np.empty((0, 2)), np.empty((0, 2, 2)))
 
 # an update row's observations and map: landmark ids, means (N, 2), marginals (N, 2, 2)
 UpdateParts = tuple[Observations, IntArray, FloatArray, FloatArray]

@@ -22,6 +22,8 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "../_doubles.h"
+
 static const double PI = 3.14159265358979323846;
 static const double TWO_PI = 6.28318530717958647692;
 
@@ -32,29 +34,14 @@ static double wrap_angle(double angle)
     return wrapped == -PI ? PI : wrapped;
 }
 
-/* A writable C-contiguous float64 buffer of at least `count` doubles. */
-static int get_doubles(PyObject *object, Py_buffer *view, Py_ssize_t count, const char *name)
-{
-    if (PyObject_GetBuffer(object, view, PyBUF_WRITABLE | PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0)
-        return -1;
-    if (view->itemsize != 8 || view->format == NULL || strcmp(view->format, "d") != 0 ||
-        view->len < count * 8) {
-        PyErr_Format(PyExc_ValueError, "%s: expected at least %zd contiguous float64", name,
-                     count);
-        PyBuffer_Release(view);
-        return -1;
-    }
-    return 0;
-}
-
 /* The state's buffers, checked: x (capacity,), P (capacity, capacity) with capacity >= n. */
 static int get_state(PyObject *x_object, PyObject *P_object, Py_ssize_t n, Py_buffer *x,
                      Py_buffer *P, Py_ssize_t *capacity)
 {
-    if (get_doubles(x_object, x, n, "x") < 0)
+    if (get_doubles(x_object, x, n, 1, "x") < 0)
         return -1;
     *capacity = x->len / 8;
-    if (n < 3 || get_doubles(P_object, P, *capacity * *capacity, "P") < 0) {
+    if (n < 3 || get_doubles(P_object, P, *capacity * *capacity, 1, "P") < 0) {
         if (n < 3)
             PyErr_SetString(PyExc_ValueError, "n: expected at least 3");
         PyBuffer_Release(x);
@@ -81,9 +68,9 @@ static int get_line(PyObject *slots_object, PyObject *z_object, PyObject *table_
         PyErr_SetString(PyExc_ValueError, "slots: expected contiguous int64");
         goto release_slots;
     }
-    if (get_doubles(z_object, &line->z, 2 * m, "z") < 0)
+    if (get_doubles(z_object, &line->z, 2 * m, 1, "z") < 0)
         goto release_slots;
-    if (get_doubles(table_object, &line->table, 9 * m, "table") < 0)
+    if (get_doubles(table_object, &line->table, 9 * m, 1, "table") < 0)
         goto release_z;
     if (PyObject_GetBuffer(status_object, &line->status, PyBUF_WRITABLE | PyBUF_C_CONTIGUOUS) < 0)
         goto release_table;
@@ -465,7 +452,7 @@ static PyObject *model_update(PyObject *self, PyObject *args)
     PyObject *result = NULL;
     if (get_state(x_object, P_object, n, &xb, &Pb, &capacity) < 0)
         return NULL;
-    if (get_doubles(U_object, &Ub, 2 * capacity, "U") < 0)
+    if (get_doubles(U_object, &Ub, 2 * capacity, 1, "U") < 0)
         goto release_state;
     const Py_ssize_t U_rows = Ub.len / 8 / capacity;
     if (rank < 0 || rank + 2 > U_rows || rank % 2 || start < 0) {

@@ -406,14 +406,12 @@ class EkfSlam:
             time, warnings, covariance, association,
         )  # fmt: skip
 
-    def landmarks(self) -> tuple[IntArray, FloatArray, FloatArray] | None:
-        """The map as a record holds it (ids, means (N, 2), marginals (N, 2, 2), read-only
-        and kept while the map does not change, the same arrays :meth:`record` takes), or
-        None where changes of P are pending (a large map's update): a row of an update
-        (:class:`~ekfviz.core.records.EventRows`) reads the pose in the buffers then."""
-        if self._rank:
-            return None
-        return self.landmark_ids_array(), self._landmark_means(), self.landmark_marginals()
+    def settled_ids(self) -> IntArray | None:
+        """The landmark ids as records hold them (:meth:`landmark_ids_array`), or None
+        where changes of P are pending (a large map's update): a row of an update
+        (:class:`~ekfviz.core.records.EventRows`) copies the map's means and marginals
+        from the buffers, which holds only while nothing is pending."""
+        return None if self._rank else self.landmark_ids_array()
 
     def _landmark_means(self) -> FloatArray:
         """The landmarks' means (N, 2) as records hold them: read-only, one copy kept

@@ -305,15 +305,14 @@ def replay(
                         and covariance is None
                         and association is None
                         and not beside.busy
-                        and (landmarks := ekf.landmarks()) is not None  # type: ignore[union-attr]  # update_rows: the built-in filter's
-                        and landmarks[0] is map_ids
+                        and ekf.settled_ids() is map_ids  # type: ignore[union-attr]  # update_rows: the built-in filter's
                     ):
                         due = cadence.due(step, len(map_ids), last, log_event.time)
                         if not due:
                             x, P = ekf.buffers  # type: ignore[union-attr]
                             update_rows.add_update(
                                 event, step, log_event.line, log_event.time, observations, x, P,
-                                landmarks,
+                                map_ids,
                             )  # fmt: skip
                             continue
                     record = ekf.record(
