@@ -561,3 +561,55 @@ def test_a_submission_named_with_a_line_break_keeps_its_row_one_line() -> None:
     row = GradeRow("alice\nbob.py", "error", (), "", 0.1, detail="it raised")
     name = row.cells()[0].text
     assert name == "alice\\nbob.py" and "\n" not in "".join(c.text for c in row.cells())
+
+
+# -- a map larger than the memory ----------------------------------------------------------
+
+
+def _first_line_of(landmarks: int, path: Path) -> Path:
+    """A classic log whose first line sees ``landmarks`` landmarks (11 bytes each)."""
+    line = " ".join(["0.1 5.0"] * landmarks)
+    path.write_text(f"{line}\n1 0.1\n{line}\n")
+    return path
+
+
+def test_a_map_whose_covariance_cannot_fit_is_one_line_at_once(tmp_path: Path) -> None:
+    """40,000 landmarks on a first line (640 KB of log) ask for a 51 GB covariance: the
+    replay says so and stops, instead of filling memory it was lazily granted."""
+    log = _first_line_of(40_000, tmp_path / "wide.txt")
+    result = subprocess.run(
+        [sys.executable, "-m", "ekfviz", "replay", str(log), "--save", str(tmp_path / "r.rrd")],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
+    assert result.stderr.startswith(
+        f"error: {log}:1: 40000 landmarks make the covariance 80003 x 80003 (51.2 GB)"
+    )
+    assert "of memory available" in result.stderr and not (tmp_path / "r.rrd").exists()
+
+
+def test_the_memory_bound_follows_what_is_available(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A map of 3000 landmarks (a 288 MB covariance) is refused with 1 GB free, fits in 8."""
+    from ekfviz.filters import ekf
+
+    log = _first_line_of(3000, tmp_path / "wide.txt")  # P: 6003^2 doubles, 288 MB
+    monkeypatch.setattr(ekf, "available_memory", lambda: 1 << 30)
+    refused = runner.invoke(app, ["replay", str(log), "--save", str(tmp_path / "a.rrd")])
+    assert refused.exit_code == 2
+    assert "3000 landmarks make the covariance 6003 x 6003 (0.3 GB)" in refused.stderr
+    assert "more than the 1.1 GB of memory available" in refused.stderr
+    monkeypatch.setattr(ekf, "available_memory", lambda: 8 << 30)
+    with pytest.raises(ekf.FilterError):
+        ekf.room_for(3 + 2 * 8000)  # 1 GB: more than a sixth of 8 GB
+    ekf.room_for(3 + 2 * 3000)  # 288 MB: fits
+
+
+def test_available_memory_is_a_positive_number_of_bytes_here() -> None:
+    from ekfviz.core.memory import available_memory
+
+    available = available_memory()
+    if not Path("/proc/meminfo").exists():
+        pytest.skip("no /proc/meminfo")
+    assert available is not None and 0 < available < 1 << 50

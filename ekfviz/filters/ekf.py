@@ -35,6 +35,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from ekfviz.core.health import CovarianceCheck
+from ekfviz.core.memory import available_memory
 from ekfviz.core.records import (
     EventKind,
     EventRecord,
@@ -188,6 +189,34 @@ class FilterError(ValueError):
     """
 
 
+# A run holds the covariance about five times over at its peak (the copy checked beside
+# the filter, the eigen-decomposition of the whole-P checks, the records' copies):
+# 672 MB at N = 2000, whose P is 128 MB. A map whose P takes more than this share of the
+# memory available is refused before P is made.
+P_MEMORY_SHARE = 1 / 6
+
+
+def room_for(size: int) -> None:
+    """Refuse a state of ``size`` (3 + 2N) whose covariance would not fit in memory, in
+    one line, before it is made: numpy's zeros are granted lazily, and filling them
+    would swap the machine to a standstill (a first line of 20,000 landmarks, 320 KB of
+    log, asks for a 12.8 GB P).
+
+    :raises FilterError: saying how large P would be and what memory there is
+    """
+    need = 8 * size * size
+    if need < 1 << 28:  # under 256 MB: no need to ask
+        return
+    available = available_memory()
+    if available is None or need <= available * P_MEMORY_SHARE:
+        return
+    raise FilterError(
+        f"{(size - 3) // 2} landmarks make the covariance {size} x {size} ({need / 1e9:.1f} GB);"
+        f" a run needs about {round(1 / P_MEMORY_SHARE)} times that, more than the"
+        f" {available / 1e9:.1f} GB of memory available"
+    )
+
+
 def _noise_scale(model: MotionNoise, dt: float | None, moving: bool = True) -> float:
     """The factor of diag(sigma^2) in a control's Q: 1 per step, dt per second (0 for a
     control that reads no motion: ``moving`` False)."""
@@ -222,6 +251,8 @@ class EkfSlam:
         self._q = (p.sigma_x**2, p.sigma_y**2, p.sigma_alpha**2)
         self._r = (p.sigma_bearing**2, p.sigma_range**2)
         self._n = 3  # current state dimension, 3 + 2N
+        if capacity:
+            room_for(3 + 2 * capacity)
         self._x = np.zeros(3 + 2 * capacity)
         self._P = np.zeros((3 + 2 * capacity, 3 + 2 * capacity))
         self._x[:3] = p.init_pose
@@ -949,10 +980,14 @@ class EkfSlam:
     # -- landmark initialisation -------------------------------------------------------
 
     def _reserve(self, extra_landmarks: int) -> None:
-        """Grow the buffers so that ``extra_landmarks`` more fit without a copy each."""
+        """Grow the buffers so that ``extra_landmarks`` more fit without a copy each.
+
+        :raises FilterError: the covariance would not fit in memory (see :func:`room_for`)
+        """
         needed = self._n + 2 * extra_landmarks
         if needed <= self._x.shape[0]:
             return
+        room_for(needed)
         size = max(needed, 3 + (3 * (self._x.shape[0] - 3)) // 2)  # grow by half
         x = np.zeros(size)
         P = np.zeros((size, size))
