@@ -1,5 +1,7 @@
 """``ekfviz`` and ``python -m ekfviz``: the command line."""
 
+import errno
+
 from ekfviz import signals, startup
 
 
@@ -10,6 +12,7 @@ def main() -> None:
     import sys
 
     signals.defer()
+    startup.standard_streams()
     startup.one_blas_thread()
     startup.quiet_rerun_logs(sys.argv[1:])
     startup.pyarrow_without_pandas()
@@ -33,6 +36,13 @@ def main() -> None:
             from ekfviz.cli.common import interrupted
 
             interrupted(stop, "nothing was written; existing files are left as they were")
+        except OSError as error:  # written past ekfviz's own output (typer's help)
+            from ekfviz.cli.common import DEBUG
+
+            if DEBUG["traceback"] or not _stdout_refused(sys.stdout, error):
+                raise
+            sys.stderr.write(_said(error))
+            raise SystemExit(2) from None
     except SystemExit as leaving:
         if signals.fired():
             # Stopped by a signal, with its line said and its clean-up done: leave now.
@@ -69,10 +79,43 @@ def _leave_now(code: int) -> None:
     if sys.getprofile() is not None or sys.gettrace() is not None:
         return  # a profiler or a coverage tool writes its results at the normal exit
     atexit._run_exitfuncs()
-    for stream in (sys.stdout, sys.stderr):
-        with contextlib.suppress(OSError, ValueError):  # a closed pipe: nothing to say
-            stream.flush()
+    try:
+        sys.stdout.flush()
+    except BrokenPipeError:  # its reader went away (``| head``): nothing to say
+        pass
+    except (OSError, ValueError) as error:  # a full disk: what was printed is not whole
+        if code == 0:
+            with contextlib.suppress(OSError, ValueError):
+                sys.stderr.write(_said(error))
+            code = 2
+    with contextlib.suppress(OSError, ValueError):
+        sys.stderr.flush()
     os._exit(code)
+
+
+def _stdout_refused(stream: object, error: OSError) -> bool:
+    """Whether ``error`` is a standard stream's that takes nothing more (a full disk,
+    ``> /dev/full``), not a file's of the command (those name their file) nor a reader's
+    that went away (``| head``)."""
+    if isinstance(error, BrokenPipeError) or error.filename is not None:
+        return False
+    if error.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EIO):
+        return True
+    try:
+        stream.flush()  # type: ignore[attr-defined]
+    except BrokenPipeError:
+        return False
+    except (OSError, ValueError):
+        return True
+    return False
+
+
+def _said(error: BaseException) -> str:
+    """The error line for standard output that took nothing more, as ekfviz's own output
+    says it (see ``ekfviz.cli.common``, imported by then)."""
+    from ekfviz.cli.common import refused
+
+    return f"error: {refused('standard output', error)}\n"
 
 
 if __name__ == "__main__":

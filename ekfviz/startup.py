@@ -32,6 +32,34 @@ from types import ModuleType
 BLAS_THREADS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
 
+def standard_streams() -> None:
+    """Give a closed standard stream (``ekfviz ... >&-``) the null device, and one that
+    cannot encode all of Unicode a "?" for what it cannot.
+
+    With standard output closed, Python runs with ``sys.stdout`` None, and the first
+    file the command opens (a recording, a report) would get descriptor 1: whatever
+    writes to it as standard output, Python or a library's native code, would go into
+    that file.
+    """
+    for fd, name, mode in ((0, "stdin", "r"), (1, "stdout", "w"), (2, "stderr", "w")):
+        try:
+            os.fstat(fd)
+        except OSError:
+            null = os.open(os.devnull, os.O_RDWR)  # the lowest free descriptor: this one
+            if null != fd:
+                os.dup2(null, fd)
+                os.close(null)
+            if getattr(sys, name) is None:
+                setattr(sys, name, open(fd, mode, closefd=False))  # noqa: SIM115
+    for stream in (sys.stdout, sys.stderr):
+        encoding = str(getattr(stream, "encoding", None) or "utf-8").lower().replace("_", "-")
+        if not encoding.startswith("utf") and hasattr(stream, "reconfigure"):
+            # an ASCII or Latin-1 terminal (LC_ALL=C with PYTHONUTF8=0, PYTHONIOENCODING):
+            # what it cannot show (sigma, the tables' lines, a name) becomes "?", not an
+            # UnicodeEncodeError at the first table (rich draws its boxes in ASCII there)
+            stream.reconfigure(errors="replace")
+
+
 def one_blas_thread() -> None:
     """One BLAS thread for this process and its children, unless the user set a number;
     before numpy is imported (see the module). A variable set to nothing (``VAR=``) is no

@@ -214,3 +214,87 @@ def test_info_on_a_file_that_is_not_a_recording(tmp_path: Path) -> None:
     )
     assert result.returncode == 2
     assert str(bogus) in result.stderr and "Traceback" not in result.stderr
+
+
+@pytest.fixture(scope="module")
+def long_enough_for_a_bar(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A log over the progress bar's threshold (1 MiB), replayed in about a second."""
+    from ekfviz.cli.replay_run import PROGRESS_MIN_BYTES
+
+    log = tmp_path_factory.mktemp("bar") / "long.txt"
+    made = runner.invoke(
+        app, ["simulate", "--scenario", "loop", "--steps", "20000", "--landmarks", "40",
+              "-o", str(log), "--truth-out", str(log.with_suffix(".json"))],
+    )  # fmt: skip
+    assert made.exit_code == 0, made.output
+    assert log.stat().st_size > PROGRESS_MIN_BYTES
+    return log
+
+
+def test_a_long_replay_writes_nothing_to_a_standard_error_that_is_no_terminal(
+    long_enough_for_a_bar: Path, tmp_path: Path
+) -> None:
+    """No progress bar on a pipe or a file: not even the blank line a bar ends with."""
+    result = subprocess.run(
+        [sys.executable, "-m", "ekfviz", "replay", str(long_enough_for_a_bar),
+         "--save", str(tmp_path / "run.rrd")],
+        capture_output=True, text=True,
+    )  # fmt: skip
+    assert result.returncode == 0 and result.stderr == ""
+
+
+def test_a_long_replay_shows_its_progress_on_a_terminal_and_its_results_where_asked(
+    long_enough_for_a_bar: Path, tmp_path: Path
+) -> None:
+    """The bar on a terminal, the JSON document where standard output goes (a file
+    here): rich's bar, left to itself, sent standard output to its terminal too, and
+    ``replay BIG --json > out.json`` wrote an empty file."""
+    import os
+    import pty
+
+    leader, follower = pty.openpty()
+    document = tmp_path / "out.json"
+    with document.open("w") as stdout:
+        process = subprocess.Popen(
+            [sys.executable, "-m", "ekfviz", "replay", str(long_enough_for_a_bar), "--json",
+             "--save", str(tmp_path / "run.rrd")],
+            stdout=stdout, stderr=follower,
+            env={**os.environ, "TERM": "xterm", "COLUMNS": "120"},
+        )  # fmt: skip
+        os.close(follower)
+        shown = b""
+        while True:
+            try:
+                chunk = os.read(leader, 65536)
+            except OSError:  # the terminal's other end closed: the run is over
+                break
+            if not chunk:
+                break
+            shown += chunk
+        os.close(leader)
+        assert process.wait(timeout=60) == 0
+    assert f"replaying {long_enough_for_a_bar.name}".encode() in shown
+    assert b"Landmarks at the end of the run" in shown  # --json: the tables on stderr
+    assert b"error" not in shown and b"Traceback" not in shown
+    assert b'"final_pose"' not in shown
+    assert "final_pose" in json.loads(document.read_text())
+
+
+@pytest.mark.parametrize("encoding", ["ascii", "latin-1"])
+def test_a_terminal_that_cannot_show_unicode_gets_the_results_not_a_traceback(
+    tmp_path: Path, encoding: str
+) -> None:
+    """sigma, plus-minus and the tables' lines on an ASCII or Latin-1 standard output
+    (``LC_ALL=C`` with ``PYTHONUTF8=0``, ``PYTHONIOENCODING``): replaced, not fatal."""
+    import os
+
+    result = subprocess.run(
+        [sys.executable, "-m", "ekfviz", "replay", str(SAMPLE), "--save",
+         str(tmp_path / "run.rrd")],
+        capture_output=True, env={**os.environ, "PYTHONIOENCODING": encoding},
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr.decode(encoding, "replace")
+    assert result.stderr == b""
+    text = result.stdout.decode(encoding)
+    assert "Landmarks at the end of the run" in text and "Final pose: x " in text
+    assert "+----" in text  # the table drawn in ASCII

@@ -9,6 +9,7 @@ import shutil
 import sys
 import tempfile
 from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Annotated, Any, NoReturn
 
@@ -74,19 +75,43 @@ class _Unpadded:
         return str(getattr(self._stream, "encoding", None) or "utf-8")
 
     def write(self, text: str) -> int:
-        if self.isatty():
-            return int(self._stream.write(text))
-        lines = (self._partial + text).split("\n")
-        self._partial = lines.pop()
-        if lines:
-            self._stream.write("".join(line.rstrip(" ") + "\n" for line in lines))
-        return len(text)
+        with _unwritable("standard error" if self.to_stderr else "standard output"):
+            if self.isatty():
+                return int(self._stream.write(text))
+            lines = (self._partial + text).split("\n")
+            self._partial = lines.pop()
+            if lines:
+                self._stream.write("".join(line.rstrip(" ") + "\n" for line in lines))
+            return len(text)
 
     def flush(self) -> None:
-        if self._partial:
-            self._stream.write(self._partial.rstrip(" "))
-            self._partial = ""
-        self._stream.flush()
+        with _unwritable("standard error" if self.to_stderr else "standard output"):
+            if self._partial:
+                self._stream.write(self._partial.rstrip(" "))
+                self._partial = ""
+            self._stream.flush()
+
+
+@contextmanager
+def _unwritable(name: str) -> Iterator[None]:
+    """A standard stream that takes nothing more (a full disk, ``> /dev/full``) ends the
+    command with one line on stderr and exit 2; a reader that went away (a closed pipe,
+    ``| head``) is left to end it as Python does, quietly."""
+    try:
+        yield
+    except BrokenPipeError:
+        raise
+    except OSError as error:
+        if name == "standard error":
+            raise  # nowhere to say it
+        fail(refused(name, error))
+
+
+def refused(name: str, error: BaseException) -> str:
+    """What to say of a standard stream that took nothing more, why as the system says
+    it ("No space left on device")."""
+    why = (error.strerror if isinstance(error, OSError) else None) or str(error)
+    return f"{name}: {why}: what the command prints was not written whole"
 
 
 OUT_STREAM = _Unpadded()
@@ -108,8 +133,9 @@ def human_output_to_stderr() -> None:
 
 def print_json(document: object) -> None:
     """A JSON document on stdout, for scripts."""
-    sys.stdout.write(json.dumps(document, indent=2) + "\n")
-    sys.stdout.flush()
+    with _unwritable("standard output"):
+        sys.stdout.write(json.dumps(document, indent=2) + "\n")
+        sys.stdout.flush()
 
 
 RECORDINGS_DIR = Path("recordings")

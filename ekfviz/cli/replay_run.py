@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import numpy as np
 import typer
 from rich.markup import escape
-from rich.progress import BarColumn, DownloadColumn, Progress, TimeRemainingColumn
+from rich.progress import BarColumn, DownloadColumn, Progress, TaskID, TimeRemainingColumn
 
 from ekfviz import __version__, signals
 from ekfviz.association import AssociationError
@@ -51,7 +51,6 @@ from ekfviz.evaluation.errors import Evaluation
 from ekfviz.filters.ekf import EkfSlam, FilterError, FilterParams
 from ekfviz.filters.spec import FilterSpecError, load_filter, release
 from ekfviz.io.errors import InputError
-from ekfviz.io.text import ProgressCallback
 from ekfviz.sources import SourceArgs
 
 if TYPE_CHECKING:
@@ -305,6 +304,8 @@ def _record(
             events, params, make_filter=make_filter, name=request.filter_spec,
             data=request.data, truth=truth_xy, logger=run, on_record=warnings.add, scans=setup,
         )  # fmt: skip
+        if progress is not None:
+            progress.close()
         extra = setup.extra  # what the run added (scans, the reference): see finish()
         warnings.summarise()
         print_evaluation(evaluation, setup.truth_of_last())
@@ -365,13 +366,32 @@ class FilterWarnings:
             )
 
 
+@dataclass(frozen=True, slots=True)
+class ReadingBar:
+    """A progress bar over the bytes read: called with the sum read so far; closed
+    before the results are printed, so that they go where standard output goes."""
+
+    bar: Progress
+    task: TaskID
+
+    def __call__(self, done: int) -> None:
+        self.bar.update(self.task, completed=done)
+
+    def close(self) -> None:
+        self.bar.stop()  # (again at the block's end: a no-op)
+
+
 @contextmanager
-def open_progress(paths: list[Path]) -> Iterator[ProgressCallback | None]:
-    """A progress bar over the bytes of ``paths`` (read side by side, the callback told
-    the sum of the bytes read) when they are long, else nothing."""
+def open_progress(paths: list[Path]) -> Iterator[ReadingBar | None]:
+    """A progress bar over the bytes of ``paths`` (read side by side, the bar told the
+    sum of the bytes read) when they are long and standard error is a terminal, else
+    nothing (rich's bar would still end with a blank line on a pipe or a file).
+
+    What is printed to standard output while the bar is shown goes above it only where
+    standard output is a terminal too; to a file or a pipe it goes as ever."""
     size = sum(path.stat().st_size for path in paths if path.is_file())  # else the reader says
     path = paths[0]
-    if size < PROGRESS_MIN_BYTES:
+    if size < PROGRESS_MIN_BYTES or not err.is_terminal:
         yield None
         return
     with Progress(
@@ -381,9 +401,9 @@ def open_progress(paths: list[Path]) -> Iterator[ProgressCallback | None]:
         TimeRemainingColumn(),
         console=err,
         transient=True,
+        redirect_stdout=sys.stdout.isatty(),  # the same screen: above the bar
     ) as bar:
-        task = bar.add_task(f"replaying {path.name}", total=size)
-        yield lambda done: bar.update(task, completed=done)
+        yield ReadingBar(bar, bar.add_task(f"replaying {path.name}", total=size))
 
 
 def print_evaluation(evaluation: Evaluation, truth: GroundTruth | None) -> None:
