@@ -230,3 +230,93 @@ def test_ctrl_c_while_connecting_to_a_deaf_port_ends_the_run_with_130(
         pytest.fail("SIGINT did not end the run within 3 s")
     assert process.returncode == 130, stderr
     assert "Traceback" not in stderr
+
+
+# -- standard output itself -------------------------------------------------------------
+
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="no /dev/full here")
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["replay", str(SAMPLE), "--save", "run.rrd"],
+        ["replay", str(SAMPLE), "--save", "run.rrd", "--json"],
+        ["replay", "--help"],
+        ["--version"],
+    ],
+    ids=["replay", "replay --json", "help", "version"],
+)
+def test_standard_output_on_a_full_disk_is_one_line_and_exit_2(
+    tmp_path: Path, args: list[str]
+) -> None:
+    """``> /dev/full``: every write to it fails with "No space left on device"."""
+    with open("/dev/full", "w") as full:
+        result = subprocess.run(
+            [sys.executable, "-m", "ekfviz", *args],
+            stdout=full, stderr=subprocess.PIPE, text=True, cwd=tmp_path,
+        )  # fmt: skip
+    assert result.returncode == 2, result.stderr
+    last = result.stderr.splitlines()[-1]
+    assert last == (
+        "error: standard output: No space left on device: what the command prints was not"
+        " written whole"
+    )
+    assert "Traceback" not in result.stderr
+    if "--json" not in args:  # (--json puts the tables on stderr)
+        assert result.stderr.count("\n") == 1
+
+
+def test_a_closed_standard_output_is_the_null_device_not_the_recording(tmp_path: Path) -> None:
+    """``ekfviz replay ... >&-``: the recording would get descriptor 1, and standard
+    output would be written into it."""
+    from conftest import rrd_verify
+
+    from ekfviz import viz
+
+    result = subprocess.run(
+        [sys.executable, "-m", "ekfviz", "replay", str(SAMPLE), "--save", "run.rrd"],
+        stderr=subprocess.PIPE, text=True, cwd=tmp_path, preexec_fn=lambda: os.close(1),
+    )  # fmt: skip
+    assert result.returncode == 0 and result.stderr == ""
+    rrd_verify(tmp_path / "run.rrd")
+    info = viz.read_recording_info(tmp_path / "run.rrd")
+    assert info is not None and info.status is not None and info.status.state == "finished"
+
+
+@pytest.mark.parametrize("command", COMMANDS)
+def test_an_output_path_that_is_a_symbolic_link_writes_its_target_and_keeps_the_link(
+    place: Path, command: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A file moved over its path would replace the link itself, wherever it points
+    (``--save /dev/stdout`` replaced the system's link with a recording, as root)."""
+    monkeypatch.chdir(place)
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    if command.startswith("info"):
+        made = runner.invoke(app, ["replay", str(SAMPLE), "--save", str(place / "made.rrd")])
+        assert made.exit_code == 0, made.output
+    elsewhere = place / "folder" / "out.file"
+    link = place / "link.file"
+    link.symlink_to(elsewhere)  # dangling: convert and simulate write no existing file
+    result = runner.invoke(app, _command(command, str(link), place))
+    assert result.exit_code == 0, result.output
+    assert link.is_symlink() and os.readlink(link) == str(elsewhere)
+    assert elsewhere.is_file() and elsewhere.stat().st_size > 0
+    assert not list(place.glob(".*.part")) and not list((place / "folder").glob(".*"))
+
+
+def test_a_recording_saved_through_a_link_replaces_the_file_it_points_to(
+    tmp_path: Path,
+) -> None:
+    from ekfviz import viz
+
+    (tmp_path / "runs").mkdir()
+    real = tmp_path / "runs" / "run.rrd"
+    real.write_bytes(b"an earlier recording")
+    link = tmp_path / "latest.rrd"
+    link.symlink_to(Path("runs") / "run.rrd")
+    result = runner.invoke(app, ["replay", str(SAMPLE), "--save", str(link)])
+    assert result.exit_code == 0, result.output
+    assert link.is_symlink() and link.resolve() == real.resolve()
+    info = viz.read_recording_info(real)
+    assert info is not None and info.status is not None and info.status.state == "finished"

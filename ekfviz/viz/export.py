@@ -23,7 +23,7 @@ from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.models.angles import wrap_angles
 from ekfviz.viz import style
 from ekfviz.viz.apart import NotARecordingError, read_apart
-from ekfviz.viz.info import unreadable
+from ekfviz.viz.info import check_recording_path, unreadable
 
 TIME = "time"  # the timeline of a log's own time stamps, in seconds
 
@@ -123,10 +123,7 @@ def read_recorded_run(path: Path) -> RecordedRun:
 
 def _read_recorded_run(path: Path) -> RecordedRun:
     """:func:`read_recorded_run` in this process."""
-    if path.is_dir():
-        raise NotARecordingError(f"{path}: is a folder, expected a recording (.rrd)")
-    if not path.is_file():
-        raise NotARecordingError(f"{path}: no such file")
+    check_recording_path(path)
     wanted = {  # the poses: on the robot's point; before, on the robot frame's own entity
         f"/{style.ROBOT}": "robot",
         f"/{style.TRUTH_ROBOT}": "truth",

@@ -20,6 +20,7 @@ from typing import Any
 import pyarrow as pa  # type: ignore[import-untyped]
 from rerun.chunk import RrdReader
 
+from ekfviz.io.text import special_kind
 from ekfviz.viz import style
 from ekfviz.viz.apart import NotARecordingError, read_apart
 
@@ -201,10 +202,7 @@ def read_recording_info(path: Path) -> RecordingInfo:
 
 def _read_recording_info(path: Path) -> RecordingInfo:
     """:func:`read_recording_info` in this process."""
-    if path.is_dir():
-        raise NotARecordingError(f"{path}: is a folder, expected a recording (.rrd)")
-    if not path.is_file():
-        raise NotARecordingError(f"{path}: no such file")
+    check_recording_path(path)
     wanted = [
         PROPERTIES,
         EKFVIZ_PROPERTIES,
@@ -304,6 +302,27 @@ def _info(
         notes=notes,
         results=json.loads(str(latest.get(RESULTS_PROPERTIES, {}).get("json", "{}") or "{}")),
     )
+
+
+def check_recording_path(path: Path) -> None:
+    """Refuse what cannot be a recording before Rerun's reader is given it: a folder, a
+    missing file, a device, a FIFO, a socket (a device may never end).
+
+    :raises NotARecordingError: saying which
+    """
+    if path.is_dir():
+        raise NotARecordingError(f"{path}: is a folder, expected a recording (.rrd)")
+    try:
+        mode = path.stat().st_mode
+    except FileNotFoundError:
+        raise NotARecordingError(f"{path}: no such file") from None
+    except OSError as error:
+        raise NotARecordingError(f"{path}: cannot be read ({error.strerror})") from None
+    kind = special_kind(mode)
+    if kind is not None:
+        raise NotARecordingError(
+            f"{path}: is {kind}, not a regular file; expected a recording (.rrd)"
+        )
 
 
 def unreadable(path: Path, error: BaseException) -> str:

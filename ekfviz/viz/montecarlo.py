@@ -14,6 +14,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from ekfviz import __version__
+from ekfviz.io.paths import real_path
 from ekfviz.studies.montecarlo import MonteCarlo
 from ekfviz.viz import style
 from ekfviz.viz.run import temporary_beside
@@ -24,7 +25,9 @@ REPORT = "run/consistency"
 @contextlib.contextmanager
 def atomic_rrd(path: Path) -> Iterator[Path]:
     """A temporary path beside ``path`` to write a recording to, moved over ``path`` only
-    when the block completes; removed otherwise, leaving an existing file untouched."""
+    when the block completes; removed otherwise, leaving an existing file untouched (a
+    symbolic link's target is written, the link kept)."""
+    path = real_path(path)
     temporary = temporary_beside(path)
     try:
         yield temporary

@@ -37,7 +37,13 @@ from ekfviz.core.truth import GroundTruth
 from ekfviz.evaluation.errors import Evaluation
 from ekfviz.filters.ekf import HAVE_KERNEL
 from ekfviz.io.errors import InputError
-from ekfviz.io.paths import OutputPathError, check_output_path, temporary_prefix, unused_path
+from ekfviz.io.paths import (
+    OutputPathError,
+    check_output_path,
+    real_path,
+    temporary_prefix,
+    unused_path,
+)
 from ekfviz.models.range_bearing import RangeBearing
 from ekfviz.viz import style
 from ekfviz.viz.flush import (
@@ -670,7 +676,7 @@ def open_recording(info: RunInfo, sinks: Sinks) -> Iterator[Recording]:
         raise SinkError("no Rerun output: use --save PATH, --spawn, --serve or --connect URL")
     rec = rr.RecordingStream(APPLICATION_ID, recording_id=info.recording_id, send_properties=False)
     rec.set_log_time_enabled(False)  # only step and event: the same run gives the same data
-    temporary: Path | None = None
+    saving: tuple[Path, Path] | None = None  # the temporary file, the file it replaces
     recording: Recording | None = None
     unreachable: str | None = None
     if sinks.connect is not None and viewer_answers(sinks.connect) is False:
@@ -680,7 +686,7 @@ def open_recording(info: RunInfo, sinks: Sinks) -> Iterator[Recording]:
         sinks = Sinks(save=sinks.save, spawn=sinks.spawn, serve=sinks.serve)
     closers: list[Callable[[], None]] = []
     try:
-        log_sinks, temporary, url = _attach(rec, sinks, closers)
+        log_sinks, saving, url = _attach(rec, sinks, closers)
         rec.set_sinks(*log_sinks)
         _describe(rec, info)
         note_writer(rec)  # (its thread is running by now: the description took a while)
@@ -690,7 +696,7 @@ def open_recording(info: RunInfo, sinks: Sinks) -> Iterator[Recording]:
     finally:
         complete = recording is not None and recording.complete
         failed = recording is not None and recording.save_failed is not None
-        if temporary is not None and (failed or (not complete and disk_full(temporary))):
+        if saving is not None and (failed or (not complete and disk_full(saving[0]))):
             _abandon(rec)  # its file sink has stopped: a flush or disconnect would wait
         else:
             with contextlib.suppress(Exception):
@@ -698,8 +704,8 @@ def open_recording(info: RunInfo, sinks: Sinks) -> Iterator[Recording]:
             rec.disconnect()  # finalises the file (footer) and stops a server
         for close in closers:
             close()
-        if temporary is not None and sinks.save is not None:
-            saved = _commit_or_remove(temporary, sinks.save, recording)
+        if saving is not None and sinks.save is not None:
+            saved = _commit_or_remove(*saving, sinks.save, recording)
             if recording is not None:
                 recording.saved_to = saved
     if unreachable is not None:
@@ -744,13 +750,15 @@ def open_run(
 
 def _attach(
     rec: rr.RecordingStream, sinks: Sinks, closers: list[Callable[[], None]]
-) -> tuple[list[rr.LogSinkLike], Path | None, str | None]:
-    """Make the sinks; return them, the temporary file of a save, and a web viewer URL.
+) -> tuple[list[rr.LogSinkLike], tuple[Path, Path] | None, str | None]:
+    """Make the sinks; return them, a save's temporary file and the file it is to
+    replace (a symbolic link's target, not the link: see :func:`_commit_or_remove`),
+    and a web viewer URL.
 
     :param closers: gets what must be stopped once the recording is closed
     """
     log_sinks: list[rr.LogSinkLike] = []
-    temporary: Path | None = None
+    saving: tuple[Path, Path] | None = None
     url: str | None = None
     if sinks.spawn:
         if not has_display():
@@ -787,12 +795,14 @@ def _attach(
             check_output_path(target, "--save")
         except OutputPathError as error:
             raise SinkError(str(error)) from None
-        # Beside the target (same file system, so os.replace is atomic), made by the
-        # FileSink itself so that it gets the usual permissions.
-        temporary = temporary_beside(target)
+        # Beside the file it replaces (same file system, so os.replace is atomic), made
+        # by the FileSink itself so that it gets the usual permissions
+        real = real_path(target)
+        temporary = temporary_beside(real)
         log_sinks.append(rr.FileSink(temporary))
         watch_file(rec, temporary)  # a full disk stops a flush at once (see viz.flush)
-    return log_sinks, temporary, url
+        saving = temporary, real
+    return log_sinks, saving, url
 
 
 def _abandon(rec: rr.RecordingStream) -> None:
@@ -864,20 +874,27 @@ def partial_path(target: Path) -> Path:
     return target.with_name(f"{target.stem}.partial{target.suffix or '.rrd'}")
 
 
-def _commit_or_remove(temporary: Path, target: Path, recording: Recording | None) -> Path | None:
+def _commit_or_remove(
+    temporary: Path, real: Path, target: Path, recording: Recording | None
+) -> Path | None:
     """Move a complete recording over its path and a partial one over its path or,
     when a file is there already, beside it; drop an incomplete one.
 
-    :return: where the recording was written, None when it was dropped
+    ``real`` is ``target`` with its symbolic links followed: a link's target is
+    written, the link kept (moved over the link itself, the file would replace it:
+    ``--save /dev/stdout`` replaced the system's link with a recording).
+
+    :return: where the recording was written (``target`` as given when it went there),
+        None when it was dropped
     """
     if recording is None or not recording.complete:
         temporary.unlink(missing_ok=True)
         return None
-    destination = target
-    if recording.partial and target.exists():
-        destination = partial_path(target)
-    os.replace(temporary, destination)
-    return destination
+    if recording.partial and real.exists():
+        os.replace(temporary, partial_path(real))
+        return partial_path(real) if target.is_symlink() else partial_path(target)
+    os.replace(temporary, real)
+    return target
 
 
 def _describe(rec: rr.RecordingStream, info: RunInfo) -> None:
