@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -33,6 +34,38 @@ def _quiet_rerun(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
     patch.setenv("CI", "1")
     yield
     patch.undo()
+
+
+@pytest.fixture(scope="session")
+def slow_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A log whose replay is still running seconds after its recording started: 20,000
+    steps among 300 landmarks (about 13 s here; its map, not its length, makes it slow).
+
+    A test that signals a replay must not race its end: a 12,000-step log of 40
+    landmarks is replayed within 0.7 s of its recording's start now, and a signal that
+    lands while the recording is finished is acted on after it (the recording is kept
+    whole, replacing the file at its path)."""
+    from typer.testing import CliRunner
+
+    from ekfviz.cli import app
+
+    folder = tmp_path_factory.mktemp("slow")
+    log = folder / "slow.txt"
+    result = CliRunner().invoke(
+        app, ["simulate", "--scenario", "loop", "--steps", "20000", "--landmarks", "300",
+              "-o", str(log), "--truth-out", str(folder / "slow.json")],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    return log
+
+
+def recording_started(folder: Path, name: str, timeout: float = 60.0) -> None:
+    """Wait until a run saving ``folder/name`` has opened its recording (its temporary
+    file is there); a loaded machine takes seconds to import."""
+    deadline = time.monotonic() + timeout
+    while not list(folder.glob(f".{name}.*.part")):
+        assert time.monotonic() < deadline, f"no recording of {name} started in {timeout} s"
+        time.sleep(0.02)
 
 
 def entity_rows(path: Path, entity: str, *, static: bool = False) -> list[dict[str, object]]:

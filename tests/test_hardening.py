@@ -178,25 +178,22 @@ def test_info_on_what_is_not_a_whole_ekfviz_recording_is_one_line(
         assert f"truncated after {path.stat().st_size} bytes" in result.stderr
 
 
-def test_info_says_a_run_cut_by_sigterm_stopped_early_and_where(tmp_path: Path) -> None:
-    log = tmp_path / "long.txt"  # long enough to be still replaying a second in (~5 s)
-    made = ekfviz(
-        "simulate", "--scenario", "loop", "--steps", "20000", "--landmarks", "40",
-        "-o", str(log), "--truth-out", str(tmp_path / "t.json"),
-    )  # fmt: skip
-    assert made.returncode == 0, made.stderr
+def test_info_says_a_run_cut_by_sigterm_stopped_early_and_where(
+    tmp_path: Path, slow_log: Path
+) -> None:
+    from conftest import recording_started
+
     rrd = tmp_path / "cut.rrd"
     process = subprocess.Popen(
-        [sys.executable, "-m", "ekfviz", "replay", str(log), "--save", str(rrd)],
+        [sys.executable, "-m", "ekfviz", "replay", str(slow_log), "--save", str(rrd)],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
     )
-    time.sleep(1.0)  # a signal during start-up still stops right after the first event
+    recording_started(tmp_path, rrd.name)
+    time.sleep(0.5)  # into the replay, seconds before its end
     process.send_signal(signal.SIGTERM)
     _, stderr = process.communicate(timeout=60)
-    if process.returncode == 0:
-        pytest.skip("the replay finished before the signal: nothing to cut")
     assert process.returncode == 143, stderr
     document = json.loads(ekfviz("info", str(rrd), "--json").stdout)
     status = document["status"]
@@ -390,3 +387,23 @@ def test_info_says_a_run_stopped_by_bad_input_stopped_there(tmp_path: Path) -> N
     status = json.loads(runner.invoke(app, ["info", str(rrd), "--json"]).stdout)["status"]
     assert status["state"] == "stopped" and status["line"] == 9 and status["event"] == 8
     assert status["reason"].startswith(f"{log}:10: ")
+
+
+@pytest.mark.parametrize("kind", ["device", "fifo"])
+def test_info_and_export_of_a_special_file_say_what_it_is(tmp_path: Path, kind: str) -> None:
+    """Not "no such file" for a file that is there: what it is, and what was expected."""
+    import os
+
+    if kind == "device":
+        path, words = Path("/dev/zero"), "is a device, not a regular file"
+        if not path.exists():
+            pytest.skip("no /dev/zero here")
+    else:
+        path, words = tmp_path / "pipe.rrd", "is a FIFO (named pipe), not a regular file"
+        os.mkfifo(path)
+    for args in (["info", str(path)], ["export", str(path), "--tum", str(tmp_path / "t.tum")]):
+        result = ekfviz(*args)
+        assert result.returncode == 2 and result.stderr == (
+            f"error: {path}: {words}; expected a recording (.rrd)\n"
+        ), result.stderr
+    assert not (tmp_path / "t.tum").exists()

@@ -33,8 +33,8 @@ def ekfviz(*args: str) -> subprocess.CompletedProcess[str]:
 
 @pytest.fixture(scope="module")
 def long_log(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
-    """A loop of 12,000 steps: long enough that no study of it, and no replay (logging is
-    fast now), ends within seconds."""
+    """A loop of 12,000 steps: long enough that no study of it ends within seconds (a
+    replay of it does: a signalled replay takes ``slow_log``)."""
     folder = tmp_path_factory.mktemp("long")
     log, truth = folder / "long.txt", folder / "long.json"
     made = ekfviz(
@@ -91,7 +91,12 @@ def _interrupt(
     ],
 )
 def test_a_study_stops_at_once_with_one_line(
-    command: str, signum: int, group: bool, long_log: tuple[Path, Path], tmp_path: Path
+    command: str,
+    signum: int,
+    group: bool,
+    long_log: tuple[Path, Path],
+    slow_log: Path,
+    tmp_path: Path,
 ) -> None:
     log, truth = long_log
     save = tmp_path / "kept.rrd"
@@ -99,7 +104,8 @@ def test_a_study_stops_at_once_with_one_line(
     args = {
         "sweep": ["sweep", str(log), "--truth", str(truth), "--preset", "tuning", "--workers", "2"],
         "consistency": ["consistency", "--scenario", "loop", "--steps", "3000", "--runs", "40"],
-        "compare": ["compare", str(log), *["--filter", "ekf"] * 4, "--workers", "2"],
+        # (four replays of the long log end within 7 s here: a replay is fast now)
+        "compare": ["compare", str(slow_log), *["--filter", "ekf"] * 4, "--workers", "2"],
     }[command] + ["--save", str(save)]
     code, stderr, took = _interrupt(args, signum, group)
     name = signal.Signals(signum).name
@@ -160,21 +166,16 @@ def test_a_failed_replay_leaves_an_existing_recording_byte_for_byte(tmp_path: Pa
     assert f"saved in {fresh}" in result.stderr and "left as it was" not in result.stderr
 
 
-def test_an_interrupted_replay_leaves_an_existing_recording(
-    long_log: tuple[Path, Path], tmp_path: Path
-) -> None:
-    log, _ = long_log
+def test_an_interrupted_replay_leaves_an_existing_recording(slow_log: Path, tmp_path: Path) -> None:
     keep = tmp_path / "run.rrd"
     keep.write_bytes(b"a finished recording")
     code, stderr, took = _interrupt(
-        ["replay", str(log), "--save", str(keep)],
+        ["replay", str(slow_log), "--save", str(keep)],
         signal.SIGINT,
         group=True,
         after=0.5,
         ready=lambda: any(tmp_path.glob(".run.rrd.*.part")),  # recording
     )
-    if code == 0:
-        pytest.skip("the replay finished before the signal")
     assert code == 130 and stderr.count("\n") == 1, (code, stderr)
     assert keep.read_bytes() == b"a finished recording"
     assert (tmp_path / "run.partial.rrd").is_file()
@@ -326,3 +327,51 @@ def test_a_signal_while_a_recording_is_finished_is_acted_on_once_it_is() -> None
             signal.raise_signal(signal.SIGINT)
             done.append("not reached")
     assert done == ["finished", "again", "held one"]
+
+
+def test_ctrl_c_while_a_replay_finishes_keeps_the_whole_recording_and_says_where(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Every event replayed, the recording being finished: Ctrl-C then waits for it, and
+    the recording, whole, replaces the file at its path as a finished run's does; exit
+    130 and the line say so (what a signalled replay's test must not mistake for a cut)."""
+    from ekfviz import viz
+    from ekfviz.viz.run import RunLogger
+
+    finish = RunLogger.finish
+
+    def pressed(self: RunLogger, evaluation: object) -> None:
+        signal.raise_signal(signal.SIGINT)  # as the recording is finished
+        finish(self, evaluation)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(RunLogger, "finish", pressed)
+    keep = tmp_path / "run.rrd"
+    keep.write_bytes(b"an earlier recording")
+    result = runner.invoke(app, ["replay", str(SAMPLE), "--save", str(keep)])
+    assert result.exit_code == 130
+    assert result.output.strip().splitlines()[-1] == (
+        f"error: {SAMPLE}: interrupted (SIGINT): the finished recording is saved in {keep}"
+    )
+    info = viz.read_recording_info(keep)
+    assert info is not None and info.status is not None and info.status.state == "finished"
+    assert not list(tmp_path.glob("*.partial.rrd")) and not list(tmp_path.glob(".*.part"))
+
+
+def test_a_failed_replay_names_the_recording_it_kept_as_it_was_given(tmp_path: Path) -> None:
+    """A relative --save path, a run cut short by a bad line: the line names the file as
+    the user wrote it, and says "left as it was" only where a file was left."""
+    typo = _typo(tmp_path)
+
+    def replay() -> str:
+        result = subprocess.run(
+            [sys.executable, "-m", "ekfviz", "replay", typo.name, "--save", "run.rrd"],
+            capture_output=True, text=True, cwd=tmp_path,
+        )  # fmt: skip
+        assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
+        return result.stderr
+
+    assert replay().endswith("; the recording of everything before it is saved in run.rrd\n")
+    assert replay().endswith(
+        "; the recording of everything before it is saved in run.partial.rrd"
+        " (run.rrd is left as it was)\n"
+    )

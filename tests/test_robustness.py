@@ -100,38 +100,24 @@ def test_debug_shows_the_traceback(tmp_path: Path) -> None:
     assert debug.returncode != 0 and "Traceback" in debug.stderr and "InputError" in debug.stderr
 
 
-@pytest.fixture(scope="module")
-def long_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    folder = tmp_path_factory.mktemp("long")
-    log = folder / "loop.txt"
-    result = runner.invoke(
-        app, ["simulate", "--scenario", "loop", "--steps", "20000", "--landmarks", "300",
-              "-o", str(log), "--truth-out", str(folder / "truth.json")],
-    )  # fmt: skip
-    assert result.exit_code == 0, result.output
-    return log
-
-
 @pytest.mark.parametrize(("signum", "code", "word"), [(2, 130, "SIGINT"), (15, 143, "SIGTERM")])
 def test_a_signal_leaves_a_complete_recording(
-    tmp_path: Path, long_log: Path, signum: int, code: int, word: str
+    tmp_path: Path, slow_log: Path, signum: int, code: int, word: str
 ) -> None:
     import os
     import time
 
-    from conftest import entity_rows, rrd_verify
+    from conftest import entity_rows, recording_started, rrd_verify
 
     rrd = tmp_path / "run.rrd"
     process = subprocess.Popen(
-        [sys.executable, "-m", "ekfviz", "replay", str(long_log), "--save", str(rrd)],
+        [sys.executable, "-m", "ekfviz", "replay", str(slow_log), "--save", str(rrd)],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
     )
-    deadline = time.monotonic() + 60
-    while not list(tmp_path.glob(".run.rrd.*.part")) and time.monotonic() < deadline:
-        time.sleep(0.05)  # the recording has started once its temporary file exists
-    time.sleep(1.0)
+    recording_started(tmp_path, rrd.name)
+    time.sleep(1.0)  # well into the replay, seconds before its end
     os.kill(process.pid, signum)
     _, stderr = process.communicate(timeout=60)
     assert process.returncode == code, stderr
