@@ -158,6 +158,24 @@ def raise_pending() -> None:
 
 
 @contextmanager
+def interruptible() -> Iterator[None]:
+    """Inside the block SIGINT raises :class:`Interrupted` and SIGTERM :class:`Terminated`
+    at once: a wait that has nothing to lose (a pipe read ahead before the command
+    starts, see :mod:`ekfviz.io.piped`). Deferred again after; one that came before the
+    block stays deferred (a replay honours it once it has something to keep)."""
+
+    def stop(signum: int, frame: FrameType | None = None) -> None:
+        defer()  # a second signal while the first is answered is remembered, not raised
+        raise Terminated if signum == signal.SIGTERM else Interrupted
+
+    _handle(stop, stop)
+    try:
+        yield
+    finally:
+        defer()
+
+
+@contextmanager
 def held() -> Iterator[None]:
     """Inside the block a first SIGINT or SIGTERM is remembered, not acted on, and handled
     as before the block once the block is done (a recording being finished: cut short

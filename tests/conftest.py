@@ -20,6 +20,14 @@ def rrd_verify(path: Path) -> None:
     assert verify.returncode == 0, verify.stderr
 
 
+def catches_signal(pid: int, signum: int) -> bool:
+    """Whether a process has a handler for ``signum`` (Linux: SigCgt in /proc)."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("SigCgt:"):
+            return bool(int(line.split()[1], 16) >> (signum - 1) & 1)
+    return False
+
+
 @pytest.fixture(autouse=True, scope="session")
 def _quiet_rerun(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
     """A throw-away config/data home, and no analytics, for this process and its children.

@@ -159,14 +159,6 @@ def test_a_skipped_observation_is_a_warning_in_the_terminal_and_the_recording(
     assert all(value > 0 for row in checked for value in row["Scalars:scalars"])  # type: ignore[attr-defined]
 
 
-def _catches(pid: int, signum: int) -> bool:
-    """Whether a process has a handler for ``signum`` (Linux: SigCgt in /proc)."""
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("SigCgt:"):
-            return bool(int(line.split()[1], 16) >> (signum - 1) & 1)
-    return False
-
-
 @pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="reads /proc")
 @pytest.mark.parametrize(("signum", "code", "word"), [(2, 130, "SIGINT"), (15, 143, "SIGTERM")])
 def test_a_signal_during_start_up_still_leaves_a_recording(
@@ -178,7 +170,7 @@ def test_a_signal_during_start_up_still_leaves_a_recording(
     import signal
     import time
 
-    from conftest import entity_rows, rrd_verify
+    from conftest import catches_signal, entity_rows, rrd_verify
 
     log = tmp_path / "log.txt"
     log.write_text(f"{OBS}\n" + "1 0.1\n0.1 5 0.2 6\n" * 50)
@@ -191,7 +183,7 @@ def test_a_signal_during_start_up_still_leaves_a_recording(
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN),
     )
     deadline = time.monotonic() + 30
-    while not _catches(process.pid, signum) and time.monotonic() < deadline:
+    while not catches_signal(process.pid, signum) and time.monotonic() < deadline:
         time.sleep(0.005)
     os.kill(process.pid, signum)
     _, stderr = process.communicate(timeout=60)

@@ -52,9 +52,9 @@ if TYPE_CHECKING:
 CheckLog = Annotated[
     Path | None,
     typer.Argument(
-        help="A log in the classic or the extended format, or an MRCLAM dataset directory"
-        " (with --robot) [default: the bundled battery: the classic sample and the edge"
-        " log]; the Victoria Park directory is for replay only.",
+        help="A log in the classic or the extended format ('-': from standard input), or an"
+        " MRCLAM dataset directory (with --robot) [default: the bundled battery: the classic"
+        " sample and the edge log]; the Victoria Park directory is for replay only.",
         show_default=False,
     ),
 ]

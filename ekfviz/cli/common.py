@@ -315,7 +315,24 @@ def prepare_argv(argv: list[str]) -> list[str]:
                 found = next((v for v in values if not _is_number(v)), None)
                 what = f", found {found!r}" if found is not None else ", found fewer"
                 fail(f"{name} needs {count} numbers ({metavar}){what}")
-    return hoisted + rest + tail
+    return _read_pipes_ahead(hoisted + rest + tail)
+
+
+def _read_pipes_ahead(argv: list[str]) -> list[str]:
+    """``argv`` with its piped inputs read ahead (``-`` as ``/dev/stdin``; see
+    :mod:`ekfviz.io.piped`); a signal while a pipe is read stops the command at once.
+
+    :raises typer.Exit: (code 2) after one line on a pipe that cannot be read ahead
+    :raises SystemExit: (130 or 143) after one line on SIGINT or SIGTERM
+    """
+    from ekfviz.io.piped import PipedInputError, read_ahead
+
+    try:
+        return read_ahead(argv)
+    except PipedInputError as error:
+        fail(str(error))
+    except signals.Interrupted as stop:
+        interrupted(stop, "before the piped input had ended; nothing was written")
 
 
 def _is_number(text: str) -> bool:

@@ -122,9 +122,9 @@ ScenarioInitPoseSigma = Annotated[
 LogArgument = Annotated[
     Path,
     typer.Argument(
-        help="A log in the classic or the extended format, an MRCLAM dataset directory"
-        " (with --robot), the Victoria Park directory or a ROS 2 bag directory (with --odom,"
-        " --landmarks).",
+        help="A log in the classic or the extended format ('-': from standard input, as"
+        " a pipe gives it), an MRCLAM dataset directory (with --robot), the Victoria Park"
+        " directory or a ROS 2 bag directory (with --odom, --landmarks).",
         show_default=False,
     ),
 ]
@@ -132,8 +132,9 @@ LogArgument = Annotated[
 StudyLogArgument = Annotated[
     Path,
     typer.Argument(
-        help="A log in the classic or the extended format, or an MRCLAM dataset directory"
-        " (with --robot); the Victoria Park directory is for replay only.",
+        help="A log in the classic or the extended format ('-': from standard input), or"
+        " an MRCLAM dataset directory (with --robot); the Victoria Park directory is for"
+        " replay only.",
         show_default=False,
     ),
 ]

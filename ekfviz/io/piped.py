@@ -1,0 +1,126 @@
+"""Inputs that come through a pipe: a log on standard input (``-``) or from a process
+substitution (``ekfviz replay <(zcat run.txt.gz)``, which names ``/dev/fd/63``).
+
+A pipe can be read once, and ekfviz reads an input by its path, some of them more than
+once: the log's format is told from its first line before its events are read, the
+run's information hashes it, a study replays it once per filter. So a pipe named on the
+command line is read to its end before the command starts, into an anonymous temporary
+file that then takes the pipe's place under the same descriptor number: on Linux,
+opening ``/dev/fd/N`` (``/dev/stdin`` is ``/dev/fd/0``) opens the file that descriptor
+holds, so every later open of the path the user gave reads the whole input again, from
+its start, and every message still names that path. The file has no name on disk and
+is gone when ekfviz exits, however it exits.
+
+Elsewhere (``/dev/fd/N`` is a duplicate of the descriptor, sharing its offset) nothing
+is read ahead and the readers refuse a pipe as before.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import os
+import re
+import stat
+import sys
+import tempfile
+from collections.abc import Sequence
+
+from ekfviz import signals
+
+STDIN = "-"  # the argument that means standard input
+STDIN_PATH = "/dev/stdin"  # what it is replaced with: the path the readers open
+MAX_PIPED_BYTES = 2 << 30  # a pipe that gives more is refused (``yes | ekfviz replay -``)
+_BLOCK = 1 << 20
+_DESCRIPTOR_PATH = re.compile(r"/(?:dev|proc/self)/fd/([0-9]+)")
+
+
+class PipedInputError(ValueError):
+    """A piped input that cannot be read ahead: the message names it as given."""
+
+
+def read_ahead(argv: Sequence[str], limit: int = MAX_PIPED_BYTES) -> list[str]:
+    """``argv`` with a lone ``-`` made :data:`STDIN_PATH`, and every pipe it names (``-``,
+    ``/dev/stdin``, ``/dev/fd/N``, as an argument or an option's ``--name=value``) read
+    to its end into a file in its place (see the module).
+
+    :raises PipedInputError: ``-`` given twice or on a terminal, a pipe of more than
+        ``limit`` bytes, a temporary file that cannot hold what the pipe gave
+    :raises signals.Interrupted: SIGINT or SIGTERM while a pipe is read
+    """
+    if not sys.platform.startswith("linux"):
+        return list(argv)
+    end = list(argv).index("--") if "--" in argv else len(argv)
+    out: list[str] = []
+    read: set[int] = set()
+    stdin_given = False
+    for k, token in enumerate(argv):
+        if k >= end:
+            out.append(token)
+            continue
+        if token == STDIN:
+            if stdin_given:
+                raise PipedInputError(
+                    f"{STDIN}: standard input is given twice; it can be read once"
+                )
+            if os.isatty(0):
+                raise PipedInputError(
+                    f"{STDIN}: standard input is a terminal, expected a log piped in"
+                    " (zcat log.txt.gz | ekfviz replay -)"
+                )
+            token, stdin_given = STDIN_PATH, True
+        prefix, value = "", token
+        if token.startswith("--") and "=" in token:
+            name, value = token.split("=", 1)
+            prefix = name + "="
+        fd = _descriptor(value)
+        if fd is not None and fd not in read and _is_readable_pipe(fd):
+            with signals.interruptible():  # a pipe that never ends: Ctrl-C stops the wait
+                _spool(fd, value, limit)
+            read.add(fd)
+        out.append(prefix + value)
+    return out
+
+
+def _descriptor(path: str) -> int | None:
+    """The descriptor a path opens (``/dev/fd/N``, ``/proc/self/fd/N``, ``/dev/stdin``)."""
+    if path == STDIN_PATH:
+        return 0
+    match = _DESCRIPTOR_PATH.fullmatch(path)
+    return int(match.group(1)) if match else None
+
+
+def _is_readable_pipe(fd: int) -> bool:
+    """Whether ``fd`` is open for reading on a pipe or a socket (an output's ``>(...)``
+    is open for writing: left alone)."""
+    try:
+        mode = os.fstat(fd).st_mode
+        flags = fcntl.fcntl(fd, fcntl.F_GETFL)
+    except OSError:  # not open: the readers say "no such file"
+        return False
+    if not (stat.S_ISFIFO(mode) or stat.S_ISSOCK(mode)):
+        return False
+    return flags & os.O_ACCMODE in (os.O_RDONLY, os.O_RDWR)
+
+
+def _spool(fd: int, shown: str, limit: int) -> None:
+    """Read the pipe ``fd`` to its end into an anonymous file put in its place."""
+    where = tempfile.gettempdir()
+    try:
+        os.set_blocking(fd, True)  # (a shell's pipe is; one left non-blocking would not wait)
+        with tempfile.TemporaryFile(prefix="ekfviz-piped-") as spool:
+            total = 0
+            while block := os.read(fd, _BLOCK):
+                total += len(block)
+                if total > limit:
+                    raise PipedInputError(
+                        f"{shown}: the pipe gave more than {limit / (1 << 30):g} GiB, expected a"
+                        " log that ends (give a log that long as a file)"
+                    )
+                spool.write(block)
+            spool.flush()
+            os.dup2(spool.fileno(), fd, inheritable=fd <= 2)
+    except OSError as error:
+        raise PipedInputError(
+            f"{shown}: what the pipe gave could not be kept in a temporary file in {where}"
+            f" ({error.strerror or error})"
+        ) from None
