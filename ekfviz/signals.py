@@ -161,8 +161,10 @@ def raise_pending() -> None:
 def interruptible() -> Iterator[None]:
     """Inside the block SIGINT raises :class:`Interrupted` and SIGTERM :class:`Terminated`
     at once: a wait that has nothing to lose (a pipe read ahead before the command
-    starts, see :mod:`ekfviz.io.piped`). Deferred again after; one that came before the
-    block stays deferred (a replay honours it once it has something to keep)."""
+    starts, see :mod:`ekfviz.io.piped`). The handlers of before after it; a signal that
+    came before the block, while deferred, stays so (a replay honours it once it has
+    something to keep)."""
+    before = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
 
     def stop(signum: int, frame: FrameType | None = None) -> None:
         defer()  # a second signal while the first is answered is remembered, not raised
@@ -172,7 +174,7 @@ def interruptible() -> Iterator[None]:
     try:
         yield
     finally:
-        defer()
+        _handle(*before)
 
 
 @contextmanager

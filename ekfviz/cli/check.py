@@ -22,6 +22,7 @@ from ekfviz.cli.common import (
     fail,
     filter_module,
     out,
+    piped_input,
     plain,
     rendered,
     say,
@@ -56,6 +57,7 @@ CheckLog = Annotated[
         " MRCLAM dataset directory (with --robot) [default: the bundled battery: the classic"
         " sample and the edge log]; the Victoria Park directory is for replay only.",
         show_default=False,
+        callback=piped_input,
     ),
 ]
 CheckFilter = Annotated[

@@ -315,24 +315,7 @@ def prepare_argv(argv: list[str]) -> list[str]:
                 found = next((v for v in values if not _is_number(v)), None)
                 what = f", found {found!r}" if found is not None else ", found fewer"
                 fail(f"{name} needs {count} numbers ({metavar}){what}")
-    return _read_pipes_ahead(hoisted + rest + tail)
-
-
-def _read_pipes_ahead(argv: list[str]) -> list[str]:
-    """``argv`` with its piped inputs read ahead (``-`` as ``/dev/stdin``; see
-    :mod:`ekfviz.io.piped`); a signal while a pipe is read stops the command at once.
-
-    :raises typer.Exit: (code 2) after one line on a pipe that cannot be read ahead
-    :raises SystemExit: (130 or 143) after one line on SIGINT or SIGTERM
-    """
-    from ekfviz.io.piped import PipedInputError, read_ahead
-
-    try:
-        return read_ahead(argv)
-    except PipedInputError as error:
-        fail(str(error))
-    except signals.Interrupted as stop:
-        interrupted(stop, "before the piped input had ended; nothing was written")
+    return hoisted + rest + tail
 
 
 def _is_number(text: str) -> bool:
@@ -388,6 +371,27 @@ def warn(message: str) -> None:
 
 FILTER_NOISE = "Filter noise"
 FILTER_OPTIONS = "Filter options"
+
+
+def piped_input(ctx: typer.Context, value: Path | None) -> Path | None:
+    """The callback of an input's argument or option (a log, its truth): one given
+    through a pipe (``-``, ``<(zcat log.gz)``) read ahead, so that it reads as a file (see
+    :mod:`ekfviz.io.piped`); one line where it cannot be, exit 2 (130 or 143 on a signal
+    while the pipe has not ended)."""
+    if value is None:
+        return None
+    from ekfviz.io.piped import STDIN, PipedInputError, read_ahead
+
+    given, meta = str(value), ctx.find_root().meta
+    try:
+        path = read_ahead(given, stdin_taken=meta.get("ekfviz.stdin_taken", False))
+    except PipedInputError as error:
+        fail(str(error))
+    except signals.Interrupted as stop:
+        interrupted(stop, "before the piped input had ended; nothing was written")
+    if given == STDIN:
+        meta["ekfviz.stdin_taken"] = True
+    return value if path == given else Path(path)
 
 
 def _option(help: str, panel: str | None = None, **kwargs: Any) -> Any:

@@ -34,6 +34,7 @@ from ekfviz.cli.common import (
     _option,
     fail,
     out,
+    piped_input,
 )
 from ekfviz.cli.scans import (  # the association's options stay beside its set-up
     DEFAULT_ASSOCIATION,
@@ -126,6 +127,7 @@ LogArgument = Annotated[
         " a pipe gives it), an MRCLAM dataset directory (with --robot), the Victoria Park"
         " directory or a ROS 2 bag directory (with --odom, --landmarks).",
         show_default=False,
+        callback=piped_input,
     ),
 ]
 # sweep, compare, check and calibrate: Victoria Park has no ids nor true poses
@@ -136,10 +138,16 @@ StudyLogArgument = Annotated[
         " an MRCLAM dataset directory (with --robot); the Victoria Park directory is for"
         " replay only.",
         show_default=False,
+        callback=piped_input,
     ),
 ]
 TruthOption = Annotated[
-    Path | None, _option("True landmark positions: 'x y' per line, or JSON.", show_default=False)
+    Path | None,
+    _option(
+        "True landmark positions: 'x y' per line, or JSON.",
+        show_default=False,
+        callback=piped_input,
+    ),
 ]
 FilterOption = Annotated[
     str,

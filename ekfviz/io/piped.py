@@ -3,9 +3,10 @@ substitution (``ekfviz replay <(zcat run.txt.gz)``, which names ``/dev/fd/63``).
 
 A pipe can be read once, and ekfviz reads an input by its path, some of them more than
 once: the log's format is told from its first line before its events are read, the
-run's information hashes it, a study replays it once per filter. So a pipe named on the
-command line is read to its end before the command starts, into an anonymous temporary
-file that then takes the pipe's place under the same descriptor number: on Linux,
+run's information hashes it, a study replays it once per filter. So a pipe given as an
+input (a log, its truth) is read to its end as the command line is read, before the
+command starts, into an anonymous temporary file that then takes the pipe's place under
+the same descriptor number: on Linux,
 opening ``/dev/fd/N`` (``/dev/stdin`` is ``/dev/fd/0``) opens the file that descriptor
 holds, so every later open of the path the user gave reads the whole input again, from
 its start, and every message still names that path. The file has no name on disk and
@@ -23,7 +24,6 @@ import re
 import stat
 import sys
 import tempfile
-from collections.abc import Sequence
 
 from ekfviz import signals
 
@@ -38,47 +38,30 @@ class PipedInputError(ValueError):
     """A piped input that cannot be read ahead: the message names it as given."""
 
 
-def read_ahead(argv: Sequence[str], limit: int = MAX_PIPED_BYTES) -> list[str]:
-    """``argv`` with a lone ``-`` made :data:`STDIN_PATH`, and every pipe it names (``-``,
-    ``/dev/stdin``, ``/dev/fd/N``, as an argument or an option's ``--name=value``) read
-    to its end into a file in its place (see the module).
+def read_ahead(path: str, stdin_taken: bool = False, limit: int = MAX_PIPED_BYTES) -> str:
+    """The path to read an input given as ``path`` by: :data:`STDIN_PATH` for ``-``, the
+    path itself otherwise; where it names a pipe (``-``, ``/dev/stdin``, ``/dev/fd/N``),
+    the pipe read to its end into a file in its place first (see the module).
 
+    :param stdin_taken: another input of the command is standard input already
     :raises PipedInputError: ``-`` given twice or on a terminal, a pipe of more than
         ``limit`` bytes, a temporary file that cannot hold what the pipe gave
     :raises signals.Interrupted: SIGINT or SIGTERM while a pipe is read
     """
-    if not sys.platform.startswith("linux"):
-        return list(argv)
-    end = list(argv).index("--") if "--" in argv else len(argv)
-    out: list[str] = []
-    read: set[int] = set()
-    stdin_given = False
-    for k, token in enumerate(argv):
-        if k >= end:
-            out.append(token)
-            continue
-        if token == STDIN:
-            if stdin_given:
-                raise PipedInputError(
-                    f"{STDIN}: standard input is given twice; it can be read once"
-                )
-            if os.isatty(0):
-                raise PipedInputError(
-                    f"{STDIN}: standard input is a terminal, expected a log piped in"
-                    " (zcat log.txt.gz | ekfviz replay -)"
-                )
-            token, stdin_given = STDIN_PATH, True
-        prefix, value = "", token
-        if token.startswith("--") and "=" in token:
-            name, value = token.split("=", 1)
-            prefix = name + "="
-        fd = _descriptor(value)
-        if fd is not None and fd not in read and _is_readable_pipe(fd):
-            with signals.interruptible():  # a pipe that never ends: Ctrl-C stops the wait
-                _spool(fd, value, limit)
-            read.add(fd)
-        out.append(prefix + value)
-    return out
+    if path == STDIN:
+        if stdin_taken:
+            raise PipedInputError(f"{STDIN}: standard input is given twice; it can be read once")
+        if os.isatty(0):
+            raise PipedInputError(
+                f"{STDIN}: standard input is a terminal, expected a log piped in"
+                " (zcat log.txt.gz | ekfviz replay -)"
+            )
+        path = STDIN_PATH
+    fd = _descriptor(path)
+    if fd is not None and sys.platform.startswith("linux") and _is_readable_pipe(fd):
+        with signals.interruptible():  # a pipe that never ends: Ctrl-C stops the wait
+            _spool(fd, path, limit)
+    return path
 
 
 def _descriptor(path: str) -> int | None:
