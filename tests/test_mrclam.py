@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 import re
 import shlex
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -184,6 +185,39 @@ def test_a_long_malformed_file_names_its_line(tmp_path: Path) -> None:
     directory = write_dataset(tmp_path, {**HAND, "Robot1_Odometry.dat": "\n".join(lines)})
     with pytest.raises(InputError, match=r"Robot1_Odometry.dat:25001: found 'oops'"):
         list(read_mrclam(open_dataset(directory, 1)))
+
+
+@pytest.mark.parametrize(
+    ("name", "lines", "message"),
+    [  # a line short, the next long: the block's count is right, its lines' are not
+        ("Robot1_Odometry.dat", ["10.0 0.1", "0.0 10.01 0.1 0.0"], "Odometry.dat:2001: found 2 "),
+        ("Robot1_Measurement.dat", ["11 63 1 0 12", "63 1 0"], "Measurement.dat:2001: found 5 "),
+    ],
+)
+def test_a_line_of_another_length_is_refused_though_the_next_makes_up_for_it(
+    tmp_path: Path, name: str, lines: list[str], message: str
+) -> None:
+    """A long file is converted a block at a time: every line's count is still checked."""
+    good = {
+        "Robot1_Odometry.dat": [f"{k * 0.001:.3f} 0.1 0.0" for k in range(2000)],
+        "Robot1_Measurement.dat": [f"{k * 0.001:.3f} 63 1.0 0.0" for k in range(2000)],
+    }[name]
+    directory = write_dataset(tmp_path, {**HAND, name: "\n".join([*good, *lines]) + "\n"})
+    with pytest.raises(InputError, match=message):
+        list(read_mrclam(open_dataset(directory, 1)))
+
+
+@pytest.mark.parametrize("blank", ["\u00a0", "\u2003 \t", "\x1c", "\u00a0# a note"])
+def test_a_line_of_unicode_white_space_is_blank_as_in_the_other_readers(
+    tmp_path: Path, blank: str
+) -> None:
+    odometry = HAND["Robot1_Odometry.dat"].replace("11.0 1.0 0.2\n", f"11.0 1.0 0.2\n{blank}\n")
+    plain = list(read_mrclam(open_dataset(write_dataset(tmp_path / "a", HAND), 1)))
+    spaced = {**HAND, "Robot1_Odometry.dat": odometry}
+    read = list(read_mrclam(open_dataset(write_dataset(tmp_path / "b", spaced), 1)))
+    assert [repr(replace(event, line=0)) for event in read] == [
+        repr(replace(event, line=0)) for event in plain
+    ]  # the same events (the lines after the blank one one further down)
 
 
 def test_missing_robot_and_not_a_dataset(tmp_path: Path) -> None:

@@ -305,20 +305,6 @@ def _converted(
     return values, _token_counts(joined, lines), plain
 
 
-def _table(joined: bytes, count: int) -> FloatArray | None:
-    """The numbers of ``joined`` (one line), None unless there are ``count``; the
-    compiled parser where every byte is plain (see :func:`_converted`), else float()
-    (which raises ValueError on a token that is no number)."""
-    if joined.translate(None, _PLAIN_BYTES + b"\x0b\x0c"):
-        return None  # "nan", "1_000", another script's digits: line by line, to name it
-    if _numbers is not None:
-        converted = _converted(joined, 1)
-        if converted is not None:
-            return converted[0] if len(converted[0]) == count else None
-    values = list(map(float, joined.split()))
-    return np.array(values, dtype=np.float64) if len(values) == count else None
-
-
 def _token_counts(joined: bytes, lines: int) -> IntArray:
     """Tokens on each of the ``lines`` lines of ``joined`` (lines joined by LF, tokens
     separated by spaces and tabs), counted at once: a token starts at a byte that is no
@@ -365,40 +351,29 @@ def numeric_blocks(
     """
     with open_input(path) as handle:
         for first, raw in line_blocks(path, handle):
-            lines: list[int] = []
-            data: list[bytes] = []
-            for k, text in enumerate(raw, start=first):
-                body = text.split(b"#", 1)[0] if b"#" in text else text
-                if body.strip():
-                    lines.append(k)
-                    data.append(body)
-            try:
-                if not all(map(bytes.isascii, raw)):  # comments too: one policy for text
-                    b"\n".join(raw).decode("utf-8")  # a UnicodeDecodeError is a ValueError
-                table = _table(b" ".join(data), columns * len(data))
-                good = table is not None and bool(
-                    (np.abs(table) <= MAX_MAGNITUDE).all()  # False for nan too
-                )
-            except ValueError:
-                good = False
-            if not good:  # the slow way, to name the line at fault
-                rows, fault = _checked_rows(path, first, raw, columns, what)
+            block = _plain_block(first, raw)
+            if block is not None and (block.counts == columns).all():
+                lines, table = block.lines, block.values.reshape(len(block.lines), columns)
+            else:  # the slow way, to name the line at fault (every line's count checked)
+                lines, rows, fault = _checked_rows(path, first, raw, columns, what)
                 if fault is not None:
                     if rows:
-                        yield lines[: len(rows)], np.array(rows, dtype=np.float64)
+                        yield lines, np.array(rows, dtype=np.float64)
                     raise fault
-                table = np.array(rows, dtype=np.float64)
+                table = np.array(rows, dtype=np.float64).reshape(len(rows), columns)
             if progress is not None:
                 progress(handle.tell())
             if lines:
-                assert table is not None  # converted (good), else read line by line
-                yield lines, table.reshape(len(lines), columns)
+                yield lines, table
 
 
 def _checked_rows(
     path: Path, first: int, raw: list[bytes], columns: int, what: str
-) -> tuple[list[list[float]], InputError | None]:
-    """The rows of a block up to its first bad line, and the error of that line."""
+) -> tuple[list[int], list[list[float]], InputError | None]:
+    """The line numbers and rows of a block's non-blank lines up to its first bad line
+    (blank as :func:`block_tokens` has it: Unicode's white space too), and the error of
+    that line."""
+    lines: list[int] = []
     rows: list[list[float]] = []
     for number, text in enumerate(raw, start=first):
         try:
@@ -411,11 +386,12 @@ def _checked_rows(
                     path, number, f"found {len(tokens)} numbers, expected {columns}: {what}"
                 )
             rows.append([parse_number(path, number, token) for token in tokens])
+            lines.append(number)
         except UnicodeDecodeError:
-            return rows, InputError(path, number, "found bytes that are not UTF-8 text")
+            return lines, rows, InputError(path, number, "found bytes that are not UTF-8 text")
         except InputError as error:
-            return rows, error
-    return rows, None
+            return lines, rows, error
+    return lines, rows, None
 
 
 def parse_number(path: Path, line: int, token: str) -> float:
