@@ -220,6 +220,16 @@ def test_a_line_of_unicode_white_space_is_blank_as_in_the_other_readers(
     ]  # the same events (the lines after the blank one one further down)
 
 
+@pytest.mark.parametrize("name", ["Robot1_Groundtruth.dat", "Landmark_Groundtruth.dat"])
+def test_a_truth_file_that_is_a_folder_is_refused(tmp_path: Path, name: str) -> None:
+    directory = write_dataset(tmp_path / "data", {k: v for k, v in HAND.items() if k != name})
+    (directory / name).mkdir()
+    result = runner.invoke(app, ["replay", str(directory), "--save", str(tmp_path / "x.rrd")])
+    assert result.exit_code == 2
+    assert f"{name}: is a directory, expected a text file" in result.output
+    assert "warning" not in result.output
+
+
 def test_missing_robot_and_not_a_dataset(tmp_path: Path) -> None:
     directory = write_dataset(tmp_path / "data", HAND)
     result = runner.invoke(app, ["replay", str(directory), "--robot", "4", "--save", "x.rrd"])

@@ -123,6 +123,11 @@ def open_dataset(directory: Path, robot: int) -> MrclamDataset:
             raise InputError(
                 path, 0, f"no such file, expected robot {robot}'s files (robots here: {have})"
             )
+    for path in dataset.truth_files:  # may be missing (a run without truth), not anything else
+        if path.is_dir():
+            raise InputError(path, 0, "is a directory, expected a text file")
+        if path.exists() and not path.is_file():
+            raise InputError(path, 0, "is not a regular file, expected a text file")
     return dataset
 
 
