@@ -557,3 +557,32 @@ def test_json_limits(tmp_path: Path, text: str, line: int | None, words: str | N
     with pytest.raises(InputError) as caught:
         load_json(path)
     assert caught.value.line == line and words in caught.value.message
+
+
+def test_a_landmark_of_singular_covariance_has_no_mahalanobis_distance_and_stops_nothing(
+    tmp_path: Path,
+) -> None:
+    """A control of 1e17 (inside the +-1e18 the readers take) drives the covariances
+    singular: the run ends and is judged, the singular landmarks' distance NaN."""
+    from ekfviz.evaluation.errors import landmark_errors
+
+    covs = np.array([[[2.0, 0.5], [0.5, 1.0]], [[1.0, 1.0], [1.0, 1.0]], [[4.0, 0.0], [0.0, 9.0]]])
+    estimates, truth = np.array([[1.0, 2.0], [0.0, 0.0], [3.0, 3.0]]), np.zeros((3, 2))
+    euclidean, mahalanobis = landmark_errors(estimates, covs, truth)
+    regular = [0, 2]
+    alone = landmark_errors(estimates[regular], covs[regular], truth[regular])[1]
+    assert np.isnan(mahalanobis[1]) and np.array_equal(mahalanobis[regular], alone)
+    assert np.array_equal(euclidean, np.hypot(estimates[:, 0], estimates[:, 1]))
+    data = Path(__file__).resolve().parent.parent / "data"
+    lines = (data / "loop.txt").read_text().splitlines()[:60]
+    assert lines[9].startswith("control ")
+    lines[9] = "control 1e17 0"
+    log = tmp_path / "huge.txt"
+    log.write_text("\n".join(lines) + "\n")
+    result = CliRunner().invoke(
+        app,
+        ["replay", str(log), "--truth", str(data / "loop_truth.json"), "--save",
+         str(tmp_path / "x.rrd")],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert "Traceback" not in result.output

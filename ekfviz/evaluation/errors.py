@@ -44,7 +44,15 @@ def landmark_errors(
     if len(e) == 0:
         return euclidean, euclidean.copy()
     # solve, not inv: e^T C^-1 e for every 2x2 block at once
-    whitened = np.linalg.solve(landmark_covs, e[:, :, None])[:, :, 0]
+    try:
+        whitened = np.linalg.solve(landmark_covs, e[:, :, None])[:, :, 0]
+    except np.linalg.LinAlgError:  # a singular block (a run gone wrong): NaN for it alone
+        whitened = np.full_like(e, np.nan)
+        for k in range(len(e)):
+            try:
+                whitened[k] = np.linalg.solve(landmark_covs[k], e[k])
+            except np.linalg.LinAlgError:
+                pass
     mahalanobis = np.sqrt(np.einsum("ij,ij->i", e, whitened))
     return euclidean, mahalanobis
 
