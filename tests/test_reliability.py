@@ -559,6 +559,33 @@ def test_json_limits(tmp_path: Path, text: str, line: int | None, words: str | N
     assert caught.value.line == line and words in caught.value.message
 
 
+@pytest.mark.parametrize(
+    ("text", "line", "words"),
+    [
+        (
+            '{"landmarks": {\n "1": [3, 6],\n "2": [3, 6, 1]}}',
+            3,
+            "landmark 2 is [3, 6, 1], expected",
+        ),
+        ('{"landmarks": {\n "1": [3, 6],\n "01": [9, 9]}}', 3, "found landmark id '01' after '1'"),
+        ('{"landmarks": {\n "7": [1234567890123456789, 0]}}', 2, "expected [x, y] within +-1e18"),
+        ('{"landmarks": {"1": [0, 0]},\n "poses": [[0, 0]]}', 2, '"poses" must be a list'),
+        ('{"landmarks": {"1": [0, 0]},\n\n "noise": {"sigma_x": -1}}', 3, '"noise" is'),
+        ('{"landmarks": {\n "x1": [0, 0]}}', 2, "found landmark id 'x1'"),
+    ],
+)
+def test_a_truth_file_error_names_the_line_of_its_key(
+    tmp_path: Path, text: str, line: int, words: str
+) -> None:
+    from ekfviz.io.truth import read_truth
+
+    path = tmp_path / "t.json"
+    path.write_text(text, encoding="utf-8")
+    with pytest.raises(InputError) as caught:
+        read_truth(path)
+    assert (caught.value.line, words in caught.value.message) == (line, True), caught.value
+
+
 def test_a_landmark_of_singular_covariance_has_no_mahalanobis_distance_and_stops_nothing(
     tmp_path: Path,
 ) -> None:

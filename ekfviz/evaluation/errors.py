@@ -14,6 +14,7 @@ the map, whatever frame it ended in.
 
 from __future__ import annotations
 
+import contextlib
 import math
 from dataclasses import dataclass
 
@@ -49,10 +50,8 @@ def landmark_errors(
     except np.linalg.LinAlgError:  # a singular block (a run gone wrong): NaN for it alone
         whitened = np.full_like(e, np.nan)
         for k in range(len(e)):
-            try:
+            with contextlib.suppress(np.linalg.LinAlgError):
                 whitened[k] = np.linalg.solve(landmark_covs[k], e[k])
-            except np.linalg.LinAlgError:
-                pass
     mahalanobis = np.sqrt(np.einsum("ij,ij->i", e, whitened))
     return euclidean, mahalanobis
 

@@ -19,7 +19,7 @@ from ekfviz.core.records import AnyEvent, Scan, Sighting
 from ekfviz.core.truth import GroundTruth
 from ekfviz.io.errors import InputError
 from ekfviz.io.jsontext import load_json
-from ekfviz.io.text import MAX_MAGNITUDE, numeric_lines, open_input
+from ekfviz.io.text import MAX_MAGNITUDE, RANGE_TEXT, numeric_lines, open_input
 
 _ID = re.compile(r"\d+", re.ASCII)
 MAX_ID = 2**63 - 1  # ids are int64
@@ -60,45 +60,73 @@ def _read_json(path: Path) -> GroundTruth:
     document = load_json(path, "a JSON truth file")
     if not isinstance(document, dict):
         document = {}  # refused below, as an object without landmarks
+    where = _KeyLines(path)
     landmarks = document.get("landmarks")
     if isinstance(landmarks, list) and landmarks:
         ids = list(range(1, len(landmarks) + 1))
         pairs = landmarks
+        keys: list[str | None] = [None] * len(ids)
     elif isinstance(landmarks, dict) and landmarks:
         if not all(_ID.fullmatch(key) for key in landmarks):
             bad = next(key for key in landmarks if not _ID.fullmatch(key))
-            raise InputError(path, 1, f"found landmark id {bad!r}, expected an integer >= 0")
+            raise InputError(
+                path, where.line(bad), f"found landmark id {bad!r}, expected an integer >= 0"
+            )
         long = next((key for key in landmarks if len(key) > len(str(MAX_ID))), None)
         if long is not None:  # before int(): Python refuses over 4,300 digits
             raise InputError(
-                path, 1, f"found landmark id {long[:20]}..., expected an integer up to {MAX_ID}"
-            )
-        ids = [int(key) for key in landmarks]
+                path, where.line(long),
+                f"found landmark id {long[:20]}..., expected an integer up to {MAX_ID}",
+            )  # fmt: skip
+        names = list(landmarks)
+        keys = list(names)
+        ids = [int(key) for key in names]
         if max(ids, default=0) > MAX_ID:
-            raise InputError(path, 1, f"found landmark id {max(ids)}, expected up to {MAX_ID}")
+            key = names[ids.index(max(ids))]
+            raise InputError(
+                path, where.line(key), f"found landmark id {max(ids)}, expected up to {MAX_ID}"
+            )
+        if len(set(ids)) != len(ids):  # "1" and "01": JSON's keys differ, the ids do not
+            seen: dict[int, str] = {}
+            for key, landmark_id in zip(names, ids, strict=True):
+                if landmark_id in seen:
+                    raise InputError(
+                        path, where.line(key), f"found landmark id {key!r} after"
+                        f" {seen[landmark_id]!r}, the same landmark twice; expected each once",
+                    )  # fmt: skip
+                seen[landmark_id] = key
         pairs = list(landmarks.values())
     else:
         raise InputError(
-            path, 1, 'expected an object {"landmarks": {"<id>": [x, y], ...}} or [[x, y], ...]'
-        )
-    for landmark_id, pair in zip(ids, pairs, strict=True):
+            path, where.line("landmarks"),
+            'expected an object {"landmarks": {"<id>": [x, y], ...}} or [[x, y], ...]',
+        )  # fmt: skip
+    for landmark_id, key, pair in zip(ids, keys, pairs, strict=True):
         if not _finite_numbers(pair, 2):
+            line = where.line("landmarks") if key is None else where.line(key)
+            numbers = isinstance(pair, list) and len(pair) == 2 and all(map(_json_number, pair))
+            expected = f"[x, y] within {RANGE_TEXT}" if numbers else "[x, y]"
             raise InputError(
-                path, 1, f"landmark {landmark_id} is {json.dumps(pair)[:40]}, expected [x, y]"
+                path,
+                line,
+                f"landmark {landmark_id} is {json.dumps(pair)[:40]}, expected {expected}",
             )
     poses = document.get("poses")
     poses_xytheta = None
     if poses is not None:
         if not (isinstance(poses, list) and poses and all(_finite_numbers(p, 3) for p in poses)):
-            raise InputError(path, 1, '"poses" must be a list of [x, y, theta], one per step')
+            raise InputError(
+                path, where.line("poses"), '"poses" must be a list of [x, y, theta], one per step'
+            )
         poses_xytheta = np.array(poses, dtype=np.float64)
-    scan_ids = _scan_ids(path, document.get("scan_ids"))
+    scan_ids = _scan_ids(path, document.get("scan_ids"), where.line("scan_ids"))
     settings: dict[str, float | list[float]] = {}
     noise = document.get("noise")
     if noise is not None:
         if not isinstance(noise, dict) or not all(_sigma(v) for v in noise.values()):
             raise InputError(
-                path, 1, f'"noise" is {json.dumps(noise)[:60]}, expected {{"sigma_x": 0.1, ...}}'
+                path, where.line("noise"),
+                f'"noise" is {json.dumps(noise)[:60]}, expected {{"sigma_x": 0.1, ...}}'
                 " with sigmas >= 0",
             )  # fmt: skip
         settings.update({k: float(v) for k, v in noise.items()})
@@ -106,7 +134,8 @@ def _read_json(path: Path) -> GroundTruth:
     if prior is not None:
         if not (_finite_numbers(prior, 3) and all(map(_sigma, prior))):
             raise InputError(
-                path, 1, f'"init_pose_sigma" is {json.dumps(prior)[:60]}, expected [sx, sy,'
+                path, where.line("init_pose_sigma"),
+                f'"init_pose_sigma" is {json.dumps(prior)[:60]}, expected [sx, sy,'
                 " stheta] with sigmas >= 0",
             )  # fmt: skip
         settings["init_pose_sigma"] = [float(v) for v in prior]
@@ -119,20 +148,39 @@ def _read_json(path: Path) -> GroundTruth:
     )
 
 
-def _scan_ids(path: Path, value: object) -> tuple[tuple[int | None, ...], ...] | None:
-    """The truth's ``scan_ids``: per scan line, each measurement's landmark id or null."""
+class _KeyLines:
+    """The line of a JSON truth file where a key is first written (``"key":``), read
+    once asked: the line an error names (1 where the key is not found)."""
+
+    def __init__(self, path: Path) -> None:
+        self._path = path
+        self._text: str | None = None
+
+    def line(self, key: str) -> int:
+        if self._text is None:
+            with open_input(self._path) as handle:
+                self._text = handle.read().decode("utf-8", errors="replace")
+        found = re.search(rf'"{re.escape(key)}"\s*:', self._text)
+        return 1 if found is None else self._text.count("\n", 0, found.start()) + 1
+
+
+def _scan_ids(
+    path: Path, value: object, line: int = 1
+) -> tuple[tuple[int | None, ...], ...] | None:
+    """The truth's ``scan_ids``: per scan line, each measurement's landmark id or null
+    (``line``: where the key is written, for the message)."""
     if value is None:
         return None
     expected = '"scan_ids" must be a list with one list per scan line of landmark ids or null'
     if not isinstance(value, list):
-        raise InputError(path, 1, expected)
+        raise InputError(path, line, expected)
     scans: list[tuple[int | None, ...]] = []
     for k, ids in enumerate(value):
         if not isinstance(ids, list) or not all(
             i is None or (isinstance(i, int) and not isinstance(i, bool) and 0 <= i <= MAX_ID)
             for i in ids
         ):
-            raise InputError(path, 1, f"{expected}; scan {k + 1} is {json.dumps(ids)[:40]}")
+            raise InputError(path, line, f"{expected}; scan {k + 1} is {json.dumps(ids)[:40]}")
         scans.append(tuple(ids))
     return tuple(scans)
 
@@ -148,6 +196,11 @@ def _number(value: object) -> bool:
         and not isinstance(value, bool)
         and -MAX_MAGNITUDE <= value <= MAX_MAGNITUDE
     )
+
+
+def _json_number(value: object) -> bool:
+    """A JSON number, of any size (out of range: another message)."""
+    return isinstance(value, int | float) and not isinstance(value, bool)
 
 
 def _sigma(value: object) -> bool:
