@@ -206,7 +206,20 @@ def test_truth_lookup_by_id_with_gaps_and_unknown_ids() -> None:
 @pytest.mark.parametrize("parser", ["compiled", "float"])
 @pytest.mark.parametrize(
     "bad",
-    [b"nan", b"1_0", b"1e400", b"x", b"\xff\xfe", b"1.5e19", b"--1", b"# \xff", b"1.2.3", b"3e"],
+    [
+        b"nan",
+        b"1_0",
+        b"1e400",
+        b"x",
+        b"\xff\xfe",
+        b"1.5e19",
+        b"--1",
+        b"# \xff",
+        b"1.2.3",
+        b"3e",
+        b"1e-400",
+        b"-0.05e-330",
+    ],
 )
 def test_block_reader_reads_as_line_by_line(
     tmp_path: Path, bad: bytes, parser: str, monkeypatch: pytest.MonkeyPatch

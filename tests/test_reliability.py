@@ -613,3 +613,41 @@ def test_a_landmark_of_singular_covariance_has_no_mahalanobis_distance_and_stops
     )  # fmt: skip
     assert result.exit_code == 0, result.output
     assert "Traceback" not in result.output
+
+
+DATA = Path(__file__).resolve().parent.parent / "data"
+UNDERFLOW = "which reads as 0 (a float64 holds no magnitude below 4.9e-324)"
+
+
+@pytest.mark.parametrize(
+    ("name", "text", "where"),
+    [
+        ("classic.txt", "0.1 5 0.2 6\n1e-400 0\n0.1 5\n", "classic.txt:2: found '1e-400', "),
+        (
+            "ext.txt",
+            "observe 1 0.1 5 2 0.2 6\ncontrol 1 0\nobserve 1 7e-500 5\n",
+            "ext.txt:3: found ",
+        ),
+        ("ext.txt", "# noise: sigma_x=3e-401\nobserve 1 0.1 5\n", "ext.txt:1: found '3e-401', "),
+        ("truth.json", '{"landmarks": {"1": [0, 0],\n "2": [1e-400, 0]}}', "truth.json:2: found "),
+        ("truth.txt", "0 0\n5e-500 1\n", "truth.txt:2: found '5e-500', "),
+    ],
+)
+def test_a_nonzero_number_that_reads_as_zero_is_refused(
+    tmp_path: Path, name: str, text: str, where: str
+) -> None:
+    """1e-400 is 0.0 to float() and strtod: a value the file does not hold. A zero written
+    any way (0, -0.0, 0e-999) and a subnormal (1e-310) still read."""
+    path = tmp_path / name
+    path.write_text(text)
+    if name.startswith("truth"):
+        args = ["replay", str(DATA / "classic.txt"), "--truth", str(path)]
+    else:
+        args = ["replay", str(path)]
+    result = CliRunner().invoke(app, [*args, "--save", str(tmp_path / "x.rrd")])
+    assert result.exit_code == 2, result.output
+    assert where in result.output and UNDERFLOW in result.output, result.output
+    zeros = tmp_path / "zeros.txt"
+    zeros.write_text("0.1 5 0.2 6\n0 -0.0\n0.1 5 0.2 6\n0e-999 1e-310\n0.1 5 0.2 6\n")
+    result = CliRunner().invoke(app, ["replay", str(zeros), "--save", str(tmp_path / "z.rrd")])
+    assert result.exit_code == 0, result.output

@@ -89,6 +89,11 @@ static PyObject *parse(PyObject *self, PyObject *args)
         double value = strtod(at, &stop);
         if (stop == at || (stop < end && *stop != ' ' && *stop != '\t' && *stop != '\n'))
             goto done; /* not a number as a whole */
+        if (value == 0.0) { /* a digit other than 0 before the exponent: it underflowed */
+            for (const char *c = at; c < stop && *c != 'e' && *c != 'E'; ++c)
+                if (*c >= '1' && *c <= '9')
+                    goto done; /* the caller reads it line by line, to name it */
+        }
         if (digits != NULL) {
             const char *c = at;
             while (c < stop && *c >= '0' && *c <= '9')

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from ekfviz.io.errors import InputError
-from ekfviz.io.text import BOM, MAX_MAGNITUDE, RANGE_TEXT, open_input
+from ekfviz.io.text import BOM, MAX_MAGNITUDE, RANGE_TEXT, UNDERFLOW_TEXT, open_input, underflows
 
 MAX_JSON_BYTES = 256 << 20  # a truth of a million poses is some 60 MB
 MAX_JSON_DEPTH = 64  # a truth file nests 3 deep; room for what others add
@@ -77,6 +77,8 @@ def load_json(path: Path, what: str = "a JSON file") -> object:
     except _BadNumber as error:
         line = _line_of(text, error.token)
         shown = error.token if len(error.token) <= 20 else error.token[:20] + "..."
+        if float(error.token) == 0.0:  # a nonzero number that reads as 0 (see underflows)
+            raise InputError(path, line, f"found {shown}, {UNDERFLOW_TEXT}") from None
         raise InputError(
             path, line, f"found {shown}, expected a finite number within {RANGE_TEXT}"
         ) from None
@@ -123,7 +125,7 @@ def _int(token: str) -> int | float:
 
 def _float(token: str) -> float:
     value = float(token)  # no digit limit for floats: a long one is inf, refused
-    if not -MAX_MAGNITUDE <= value <= MAX_MAGNITUDE:
+    if not -MAX_MAGNITUDE <= value <= MAX_MAGNITUDE or (value == 0.0 and underflows(token)):
         raise _BadNumber(token)
     return value
 

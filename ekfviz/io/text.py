@@ -191,7 +191,10 @@ def plain_numbers(tokens: list[str]) -> list[float] | None:
     None (:func:`parse_number` then names the bad one)."""
     if _NUMBERS.fullmatch(" ".join(tokens)):
         values = list(map(float, tokens))
-        if all(-MAX_MAGNITUDE <= v <= MAX_MAGNITUDE for v in values):
+        if all(-MAX_MAGNITUDE <= v <= MAX_MAGNITUDE for v in values) and (
+            0.0 not in values
+            or not any(underflows(t) for t, v in zip(tokens, values, strict=True) if v == 0)
+        ):
             return values
     return None
 
@@ -301,6 +304,8 @@ def _converted(
         values = np.array(list(map(float, tokens)), dtype=np.float64)
     except ValueError:
         return None
+    if any(underflows(tokens[k]) for k in np.flatnonzero(values == 0).tolist()):
+        return None  # line by line, to name it
     plain = np.array(list(map(bytes.isdigit, tokens)), dtype=bool) if digits else None
     return values, _token_counts(joined, lines), plain
 
@@ -394,13 +399,30 @@ def _checked_rows(
     return lines, rows, None
 
 
+def underflows(token: str | bytes) -> bool:
+    """Whether a number written with a digit other than 0 before its exponent reads as
+    0.0 (``1e-400``: below float64's smallest, 4.9e-324): a value the file does not hold.
+    Asked of a token only where its value is 0."""
+    text = token.decode("ascii", errors="replace") if isinstance(token, bytes) else token
+    mantissa = text.lower().split("e", 1)[0]
+    return any(digit in mantissa for digit in "123456789")
+
+
+UNDERFLOW_TEXT = (
+    "which reads as 0 (a float64 holds no magnitude below 4.9e-324), expected 0 or a larger number"
+)
+
+
 def parse_number(path: Path, line: int, token: str) -> float:
-    """A decimal number within +-:data:`MAX_MAGNITUDE`, or an error naming the token."""
+    """A decimal number within +-:data:`MAX_MAGNITUDE`, or an error naming the token (a
+    nonzero one that reads as 0 too: see :func:`underflows`)."""
     if _NUMBER.fullmatch(token):
         value = float(token)
+        shown = repr(token if len(token) <= 20 else token[:20] + "...")
+        if value == 0.0 and underflows(token):
+            raise InputError(path, line, f"found {shown}, {UNDERFLOW_TEXT}")
         if -MAX_MAGNITUDE <= value <= MAX_MAGNITUDE:
             return value
-        shown = repr(token if len(token) <= 20 else token[:20] + "...")
         overflows = "" if math.isfinite(value) else " which overflows,"
         raise InputError(
             path, line, f"found {shown},{overflows} expected a number within {RANGE_TEXT}"
