@@ -651,3 +651,23 @@ def test_a_nonzero_number_that_reads_as_zero_is_refused(
     zeros.write_text("0.1 5 0.2 6\n0 -0.0\n0.1 5 0.2 6\n0e-999 1e-310\n0.1 5 0.2 6\n")
     result = CliRunner().invoke(app, ["replay", str(zeros), "--save", str(tmp_path / "z.rrd")])
     assert result.exit_code == 0, result.output
+
+
+@pytest.mark.parametrize("comment", ["# noise:", "#noise:", "#\tnoise:\t", "#  noise: "])
+def test_a_noise_header_is_read_however_it_is_spaced(tmp_path: Path, comment: str) -> None:
+    path = tmp_path / "log.txt"
+    path.write_text(f"# a log\n{comment}sigma_x=5 sigma_range=0.3\nobserve 1 0.1 5\n")
+    assert read_log_noise(path) == {"sigma_x": 5.0, "sigma_range": 0.3}
+
+
+def test_a_second_noise_header_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / "log.txt"
+    path.write_text("# noise: sigma_x=0.1\n# other words\n# noise: sigma_x=5\nobserve 1 0.1 5\n")
+    with pytest.raises(InputError) as caught:
+        read_log_noise(path)
+    assert str(caught.value) == (
+        f"{path}:3: found a second noise header (the first is on line 1), expected one"
+    )
+    later = tmp_path / "later.txt"  # after the first event a comment is a comment
+    later.write_text("# noise: sigma_x=0.1\nobserve 1 0.1 5\n# noise: sigma_x=5\ncontrol 1 0\n")
+    assert read_log_noise(later) == {"sigma_x": 0.1}

@@ -65,6 +65,7 @@ from ekfviz.io.text import (
 
 KEYWORDS = ("control", "observe", "scan")
 NOISE_HEADER = "# noise:"
+_NOISE_COMMENT = re.compile(r"#[ \t]*noise:(.*)", re.ASCII)  # the header, however spaced
 NOISE_NAMES = ("sigma_x", "sigma_y", "sigma_alpha", "sigma_bearing", "sigma_range")
 LogNoise = dict[str, float | tuple[float, float, float]]
 _ID = re.compile(r"\+?\d+", re.ASCII)  # as int() reads it, less other scripts' digits
@@ -536,6 +537,8 @@ def read_log_noise(path: Path) -> LogNoise:
         handle = open_input(path)
     except InputError:
         return {}  # the reader of the events says what is wrong with the file
+    noise: LogNoise = {}
+    header_line = 0
     with handle:
         for first, lines in line_blocks(path, handle):  # the readers' line ends and BOM
             for number, raw in enumerate(lines, start=first):
@@ -543,10 +546,17 @@ def read_log_noise(path: Path) -> LogNoise:
                 if not text:
                     continue
                 if not text.startswith("#"):
-                    return {}  # the first event: no header after it counts
-                if text.startswith(NOISE_HEADER):
-                    return _parse_noise(path, number, text[len(NOISE_HEADER) :].split())
-    return {}
+                    return noise  # the first event: no header after it counts
+                header = _NOISE_COMMENT.match(text)  # "# noise:", "#noise:", "#\tnoise:"
+                if header is None:
+                    continue
+                if header_line:
+                    raise InputError(
+                        path, number, f"found a second noise header (the first is on line"
+                        f" {header_line}), expected one",
+                    )  # fmt: skip
+                noise, header_line = _parse_noise(path, number, header.group(1).split()), number
+    return noise
 
 
 def _parse_noise(path: Path, line: int, cells: list[str]) -> LogNoise:
