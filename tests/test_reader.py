@@ -291,6 +291,9 @@ def test_compiled_parser_gives_the_bits_float_gives(lines: list[list[str]], gap:
         pytest.skip("the compiled parser was not built")
     joined = "\n".join(gap.join(tokens) for tokens in lines).encode()
     converted = text_io._converted(joined, len(lines), digits=True)
+    if any(float(t) == 0.0 and text_io.underflows(t) for tokens in lines for t in tokens):
+        assert converted is None  # 1e-400: line by line, to be named (it reads as 0)
+        return
     assert converted is not None
     values, counts, digits = converted
     expected = np.array([float(t) for tokens in lines for t in tokens], dtype=np.float64)

@@ -671,3 +671,44 @@ def test_a_second_noise_header_is_refused(tmp_path: Path) -> None:
     later = tmp_path / "later.txt"  # after the first event a comment is a comment
     later.write_text("# noise: sigma_x=0.1\nobserve 1 0.1 5\n# noise: sigma_x=5\ncontrol 1 0\n")
     assert read_log_noise(later) == {"sigma_x": 0.1}
+
+
+@pytest.mark.parametrize(
+    ("text", "args"),
+    [  # a warning of line 1 (a bearing wrapped), then the error of line 3
+        ("0.1 5 4.0 6\n1 0\n0.1 abc\n", ()),
+        ("observe 1 0.1 5 2 4.0 6\ncontrol 1 0\nobserve 1 0.1 abc\n", ("--json",)),
+        # --json: what is printed for people goes to stderr (the header's noise), held too
+        ("# noise: sigma_x=0.1\nobserve 1 0.1 5 2 0.2 6\nobserve 1.5 0.1 5\n", ("--json",)),
+    ],
+)
+def test_an_error_is_the_one_line_on_stderr_whatever_was_said_before_it(
+    tmp_path: Path, text: str, args: tuple[str, ...]
+) -> None:
+    log = tmp_path / "log.txt"
+    log.write_text(text)
+    done = subprocess.run(
+        [sys.executable, "-m", "ekfviz", "replay", str(log), *args, "--save",
+         str(tmp_path / "x.rrd")],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert done.returncode == 2
+    assert len(done.stderr.splitlines()) == 1 and done.stderr.startswith(f"error: {log}:3: ")
+
+
+def test_the_warnings_of_a_run_that_ends_well_are_all_said(tmp_path: Path) -> None:
+    log = tmp_path / "log.txt"
+    log.write_text("0.1 5 4.0 6\n1 0\n0.1 5 0.3 6\n")
+    done = subprocess.run(
+        [sys.executable, "-m", "ekfviz", "replay", str(log), "--json", "--save",
+         str(tmp_path / "x.rrd")],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert json.loads(done.stdout)["consistency"]
+    said = done.stderr.splitlines()
+    assert said[0] == (
+        f"warning: {log}:1: found bearing 4 outside (-pi, pi], wrapped it and any later ones"
+        " into range"
+    )
+    assert "Landmarks at the end of the run" in said  # the results after it

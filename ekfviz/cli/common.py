@@ -8,7 +8,7 @@ import os
 import shutil
 import sys
 import tempfile
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Annotated, Any, NoReturn
@@ -75,6 +75,8 @@ class _Unpadded:
         return str(getattr(self._stream, "encoding", None) or "utf-8")
 
     def write(self, text: str) -> int:
+        if self.to_stderr and HELD.add(lambda: self.write(text)):
+            return len(text)
         with _unwritable("standard error" if self.to_stderr else "standard output"):
             if self.isatty():
                 return int(self._stream.write(text))
@@ -112,6 +114,47 @@ def refused(name: str, error: BaseException) -> str:
     it ("No space left on device")."""
     why = (error.strerror if isinstance(error, OSError) else None) or str(error)
     return f"{name}: {why}: what the command prints was not written whole"
+
+
+class _Held:
+    """What a command says on stderr while it runs (its warnings; with ``--json``, what
+    it prints for people), held until it is done, so that a command stopped by an error
+    or a signal says that in one line, with nothing before it (a warning of line 3 is
+    noise beside the error of line 9). Said once the command is done, or where it says
+    its results (:func:`release_held`); dropped where it fails. ``--debug`` holds
+    nothing."""
+
+    def __init__(self) -> None:
+        self.active = False
+        self.items: list[Callable[[], object]] = []
+
+    def start(self) -> None:
+        self.active, self.items = not DEBUG["traceback"], []
+
+    def add(self, say: Callable[[], object]) -> bool:
+        """Hold ``say`` (True) or leave it to be said now (False: nothing is held)."""
+        if self.active:
+            self.items.append(say)
+        return self.active
+
+    def release(self) -> None:
+        self.active = False
+        items, self.items = self.items, []
+        for say in items:
+            say()
+        if items:
+            OUT_STREAM.flush()
+
+    def drop(self) -> None:
+        self.active, self.items = False, []
+
+
+HELD = _Held()
+
+
+def release_held() -> None:
+    """Say what was held (warnings, notes): the command's input has been read whole."""
+    HELD.release()
 
 
 OUT_STREAM = _Unpadded()
@@ -184,6 +227,7 @@ def fail(message: str, code: int = 2) -> NoReturn:
     ``--debug``, and then only when called while handling an exception)."""
     if DEBUG["traceback"] and sys.exc_info()[1] is not None:
         raise
+    HELD.drop()  # the error alone
     err.print(f"[bold red]error:[/] {escape(one_line(message))}", soft_wrap=True)
     raise typer.Exit(code)
 
@@ -196,6 +240,7 @@ def interrupted(stop: signals.Interrupted, kept: str) -> NoReturn:
     """
     if DEBUG["traceback"]:
         raise stop
+    HELD.drop()
     err.print(
         f"[bold red]error:[/] interrupted ({stop.name}): {escape(one_line(kept))}", soft_wrap=True
     )
@@ -355,16 +400,23 @@ def main(
     np.seterr(all="ignore")
     OUT_STREAM.to_stderr = False
     fit_consoles()
+    HELD.start()
+    ctx.call_on_close(HELD.release)  # a command done (one that failed dropped them)
     if ctx.invoked_subcommand != "replay":  # only a replay keeps signals for later
         ctx.call_on_close(signals.reset)  # (for a caller that goes on: tests, notebooks)
         signals.as_interrupts()
 
 
 def warn(message: str) -> None:
-    """One line on stderr that does not stop the run."""
-    err.print(
-        f"[yellow]warning:[/] {one_line(message)}", soft_wrap=True, markup=True, highlight=False
-    )
+    """One line on stderr that does not stop the run (held while the command runs: see
+    :class:`_Held`)."""
+    line = f"[yellow]warning:[/] {one_line(message)}"
+
+    def say() -> None:
+        err.print(line, soft_wrap=True, markup=True, highlight=False)
+
+    if not HELD.add(say):
+        say()
 
 
 # -- options shared by several commands ------------------------------------------------

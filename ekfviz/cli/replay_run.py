@@ -29,6 +29,7 @@ from ekfviz.cli.common import (
     out,
     print_json,
     refuse_output_over_input,
+    release_held,
     say,
     show,
     warn,
@@ -308,6 +309,7 @@ def _record(
             progress.close()
         extra = setup.extra  # what the run added (scans, the reference): see finish()
         warnings.summarise()
+        release_held()  # the log is read whole: its warnings, before the results
         print_evaluation(evaluation, setup.truth_of_last())
         setup.print_summary(extra)
         document = {
