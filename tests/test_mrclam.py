@@ -394,3 +394,26 @@ def test_an_extended_log_with_times_gets_a_duration_timeline(tmp_path: Path) -> 
     assert time_column(rrd, "/world/robot", "duration[ns]") == [0.5, 1.0, 1.0, 1.0, 2.25]
     info = runner.invoke(app, ["info", str(rrd)])
     assert "0.500 s to 2.250 s (1.750 s)" in info.output, info.output
+
+
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["sweep", "--vary", "sigma_range=x1,x2", "--workers", "1"],
+        ["compare", "--filter", "ekf", "--filter", "ekf", "--label", "a", "--label", "b",
+         "--workers", "1"],
+        ["check", "--filter", "ekf"],
+    ],
+)  # fmt: skip
+def test_the_studies_and_check_take_a_dataset_s_robot(
+    dataset: Path, tmp_path: Path, command: list[str]
+) -> None:
+    """``--robot`` as replay takes it (sweep and compare could not read a dataset at all:
+    the run's information hashed the directory as one file)."""
+    name, *rest = command
+    save = ["--save", str(tmp_path / "x.rrd")]
+    result = runner.invoke(app, [name, str(dataset), "--robot", "1", *rest, *save])
+    assert result.exit_code == 0, result.output
+    result = runner.invoke(app, [name, str(dataset), "--robot", "9", *rest, *save])
+    assert result.exit_code == 2
+    assert "Robot9_Odometry.dat: no such file, expected robot 9's files" in result.output

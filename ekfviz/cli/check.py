@@ -37,13 +37,14 @@ from ekfviz.cli.options import (
     UserFilter,
     expands_options,
 )
-from ekfviz.cli.sources import InitPoseOption
+from ekfviz.cli.sources import NO_SOURCE_ARGS, InitPoseOption, with_source_options
 from ekfviz.core.tables import Styled, one_line
 from ekfviz.filters.ekf import FilterError
 from ekfviz.filters.spec import FilterSpec, FilterSpecError
 from ekfviz.io.errors import InputError
 from ekfviz.runner.replay import FilterLineError
 from ekfviz.samples import write_battery
+from ekfviz.sources import SourceArgs
 
 if TYPE_CHECKING:
     from ekfviz.check.coverage import Item
@@ -107,13 +108,16 @@ class CheckRequest:
     noise: FilterNoise
     init_pose_sigma: Triple
     form: FilterForm
+    source_args: SourceArgs = NO_SOURCE_ARGS
 
 
 @app.command()
 @expands_options
+@with_source_options
 def check(
     *,
     data: CheckLog = None,
+    source_args: SourceArgs = NO_SOURCE_ARGS,  # every format's options (--robot...)
     filter_text: CheckFilter = "",
     every: EveryOption = False,
     truth: TruthOption = None,
@@ -139,7 +143,7 @@ def check(
         CheckRequest(
             data=data, filter_text=filter_text, every=every, truth=truth, tolerance=tolerance,
             report=report, save=save, user=user, init_pose=init_pose, noise=noise,
-            init_pose_sigma=init_pose_sigma, form=form,
+            init_pose_sigma=init_pose_sigma, form=form, source_args=source_args,
         )
     )  # fmt: skip
 
@@ -167,7 +171,9 @@ def run_check(request: CheckRequest) -> None:
             if start is not None:
                 params = replace(params, init_pose=start)
             target = save if data is not None or save is None else _per_log(save, log)
-            result, exercised = _run(log, log_truth, spec, params, request.tolerance, target, every)
+            result, exercised = _run(
+                log, log_truth, spec, params, request.tolerance, target, every, request.source_args
+            )
             _print(log, result, exercised, every, battery=data is None)
             diverged |= result.first_divergence is not None
             failed |= result.error is not None
@@ -199,11 +205,15 @@ def _run(
     tolerance: float,
     save: Path | None,
     every: bool,
+    source_args: SourceArgs,
 ) -> tuple[CheckResult, list[Item]]:
     from ekfviz import pipeline, viz
 
     try:
-        return pipeline.check(log, truth, spec, params, tolerance=tolerance, save=save, every=every)
+        return pipeline.check(
+            log, truth, spec, params, tolerance=tolerance, save=save, every=every,
+            source_args=source_args,
+        )  # fmt: skip
     except FilterLineError as error:
         fail(f"{log}:{error.line}: {error}" if error.line else f"{log}: {error}")
     except (InputError, FilterError, FilterSpecError, viz.SinkError) as error:

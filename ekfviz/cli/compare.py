@@ -21,9 +21,11 @@ from ekfviz.cli.options import (
     expands_options,
     study_save,
 )
+from ekfviz.cli.sources import NO_SOURCE_ARGS, with_source_options
 from ekfviz.cli.study import run_study
 from ekfviz.filters.spec import FilterSpec
 from ekfviz.io.errors import InputError
+from ekfviz.sources import SourceArgs
 
 if TYPE_CHECKING:
     from ekfviz.association import AssociationParams
@@ -55,9 +57,11 @@ CompareSave = Annotated[Path | None, study_save("compare")]
 
 @app.command()
 @expands_options
+@with_source_options
 def compare(
     *,
     data: StudyLogArgument,
+    source_args: SourceArgs = NO_SOURCE_ARGS,  # every format's options (--robot...)
     filters: FiltersOption,
     labels: LabelsOption = None,
     user: UserFilter,
@@ -86,7 +90,7 @@ def compare(
         workers=execution.workers, root="filters",
         parameters={"filters": filters, "parameters": params.as_dict()},
         report_extra={"parameters": params.as_dict()}, executor=execution.make(),
-        keep_going=True,
+        keep_going=True, source_args=source_args,
     )  # fmt: skip
 
 

@@ -30,6 +30,7 @@ from ekfviz.filters.ekf import FilterError
 from ekfviz.filters.spec import FilterSpecError
 from ekfviz.io.errors import InputError
 from ekfviz.runner.replay import FilterLineError
+from ekfviz.sources import SourceArgs
 from ekfviz.studies.executors import Executor, ExecutorError
 from ekfviz.studies.runs import RunSpec, study_markdown, study_table
 
@@ -50,6 +51,7 @@ def run_study(
     report_extra: dict[str, object],
     executor: Executor | None = None,
     keep_going: bool = False,
+    source_args: SourceArgs | None = None,
 ) -> None:
     """Run every spec on the log, print the table, save the recording and the report.
 
@@ -75,6 +77,7 @@ def run_study(
                 data, truth, specs, target=target, workers=workers, root=root,
                 parameters=parameters, markdown=lambda rows: study_markdown(rows, what),
                 done=advance, executor=executor, keep_going=keep_going,
+                source_args=source_args,
             )  # fmt: skip
     except signals.Interrupted as stop:
         interrupted(stop, stopped_study(len(finished), len(specs), f"{what}s", [target, report]))

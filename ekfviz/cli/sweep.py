@@ -24,9 +24,11 @@ from ekfviz.cli.options import (
     expands_options,
     study_save,
 )
+from ekfviz.cli.sources import NO_SOURCE_ARGS, with_source_options
 from ekfviz.cli.study import run_study
 from ekfviz.filters.spec import BUILTIN, FilterSpec
 from ekfviz.io.errors import InputError
+from ekfviz.sources import SourceArgs
 
 if TYPE_CHECKING:
     from ekfviz.filters.ekf import FilterParams
@@ -64,9 +66,11 @@ PresetOption = Annotated[
 
 @app.command()
 @expands_options
+@with_source_options
 def sweep(
     *,
     data: StudyLogArgument,
+    source_args: SourceArgs = NO_SOURCE_ARGS,  # every format's options (--robot...)
     truth: TruthOption = None,
     save: SweepSave = None,
     report: SummaryReport = None,
@@ -102,6 +106,7 @@ def sweep(
             "variants": [variant.label for variant in variants],
         },
         report_extra={"baseline": baseline.as_dict()}, executor=execution.make(),
+        source_args=source_args,
     )  # fmt: skip
 
 

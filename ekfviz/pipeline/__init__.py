@@ -12,7 +12,7 @@ from __future__ import annotations
 import json
 import shlex
 import sys
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Protocol
@@ -30,7 +30,7 @@ from ekfviz.io.text import ProgressCallback, WarningCallback
 from ekfviz.io.truth import checked_against, read_truth
 from ekfviz.runner.replay import FilterLineError
 from ekfviz.runner.run import Consumer, run
-from ekfviz.sources import open_source
+from ekfviz.sources import SourceArgs, open_source
 
 if TYPE_CHECKING:  # the studies' modules: imported by the functions that run them
     from ekfviz.association.associator import Associator
@@ -48,10 +48,11 @@ def log_events(
     truth_path: Path | None,
     progress: ProgressCallback | None = None,
     warn: WarningCallback | None = None,
+    source_args: SourceArgs | None = None,
 ) -> Iterator[AnyEvent]:
-    """The log's events (its source's options at their defaults), checked against the
-    truth's landmarks when there is one."""
-    source = open_source(data)
+    """The log's events (its source's options ``source_args``, else their defaults),
+    checked against the truth's landmarks when there is one."""
+    source = open_source(data, source_args)
     events = source.events(progress, warn)
     if truth is not None and truth_path is not None:
         every_id = source.names_every_landmark
@@ -220,6 +221,7 @@ def study(
     done: Callable[[], None] | None = None,
     executor: Executor | None = None,
     keep_going: bool = False,
+    source_args: SourceArgs | None = None,
 ) -> StudyResult:
     """Replay ``data`` with every spec, summarise against the first, save one recording.
 
@@ -238,7 +240,7 @@ def study(
     from ekfviz.viz.study import record_study
 
     truth = read_truth(truth_path) if truth_path is not None else None
-    for _ in log_events(data, truth, truth_path):
+    for _ in log_events(data, truth, truth_path, source_args=source_args):
         pass
     if not keep_going:
         for spec in specs:
@@ -251,6 +253,7 @@ def study(
         done=None if done is None else lambda _: done(),
         executor=executor,
         keep_going=keep_going,
+        source_args=source_args,
     )
     runs = [r for r in results if isinstance(r, Run)]
     failures = [r for r in results if isinstance(r, RunFailure)]
@@ -264,6 +267,7 @@ def study(
         input_path=data,
         truth=truth,
         truth_path=truth_path,
+        input_files=open_source(data, source_args).files,  # a dataset directory's
         kind="sweep" if root == "variants" else "compare",
     )
     with viz.open_recording(info, viz.Sinks(save=target)) as recording:
@@ -288,6 +292,7 @@ def check(
     tolerance: float,
     save: Path | None,
     every: bool = False,
+    source_args: SourceArgs | None = None,
 ) -> tuple[CheckResult, list[CoverageItem]]:
     """Check a protocol filter against the reference in lockstep over ``data``; with
     ``save``, one recording of both side by side, the divergences marked. Also what the
@@ -302,7 +307,7 @@ def check(
     make_filter = spec.load()
     truth = read_truth(truth_path) if truth_path is not None else None
     try:
-        events = list(with_ids(log_events(data, truth, truth_path)))
+        events = list(with_ids(log_events(data, truth, truth_path, source_args=source_args)))
         result = lockstep(
             events, params, make_filter, name=spec.text, tolerance=tolerance, every=every
         )
@@ -315,7 +320,8 @@ def check(
         release(make_filter)
     exercised = coverage(events, result.reference, params)
     if save is not None and result.records:
-        _record_check(data, truth, truth_path, spec, params, result, save)
+        files = open_source(data, source_args).files
+        _record_check(data, truth, truth_path, spec, params, result, save, files)
     return result, exercised
 
 
@@ -327,7 +333,9 @@ def _record_check(
     params: FilterParams,
     result: CheckResult,
     save: Path,
+    input_files: Sequence[Path],
 ) -> None:
+    """The recording of a check (``input_files``: what a dataset directory is read from)."""
     from dataclasses import replace
 
     from ekfviz import viz
@@ -366,6 +374,7 @@ def _record_check(
         input_path=data,
         truth=truth,
         truth_path=truth_path,
+        input_files=input_files,
     )
     verdict = json.dumps(result.to_json(), indent=2)
     summary = f"# Check of {spec.text} against the reference\n\n```json\n{verdict}\n```\n"

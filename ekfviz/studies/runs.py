@@ -31,7 +31,7 @@ from ekfviz.filters.spec import BUILTIN, FilterSpec, FilterSpecError, release
 from ekfviz.models.range_bearing import RangeBearing
 from ekfviz.runner.replay import FilterLineError
 from ekfviz.runner.run import Consumer, run
-from ekfviz.sources import read_log
+from ekfviz.sources import SourceArgs, open_source
 from ekfviz.studies.executors import Executor, LocalExecutor
 
 VARIABLE = ("sigma_x", "sigma_y", "sigma_alpha", "sigma_bearing", "sigma_range")
@@ -97,9 +97,14 @@ class _Timed:
 
 
 def run_spec(
-    path: Path, spec: RunSpec, truth: GroundTruth | None, keep_going: bool = False
+    path: Path,
+    spec: RunSpec,
+    truth: GroundTruth | None,
+    keep_going: bool = False,
+    source_args: SourceArgs | None = None,
 ) -> Run | RunFailure:
-    """Replay the log at ``path`` with one pipeline's filter and parameters.
+    """Replay the log at ``path`` (its source's options ``source_args``: ``--robot``...)
+    with one pipeline's filter and parameters.
 
     The run's seconds exclude loading and constructing the filter (its imports, a
     worker's start).
@@ -129,8 +134,9 @@ def run_spec(
         consumers.append(tally.add)
     failure = None
     try:
-        run(read_log(path), spec.params, consumers, make_filter=make_filter,
-            name=spec.filter.text, associator=associator)  # fmt: skip
+        events = open_source(path, source_args).events()
+        run(events, spec.params, consumers, make_filter=make_filter, name=spec.filter.text,
+            associator=associator)  # fmt: skip
     except FilterLineError as error:
         if not keep_going or not isinstance(error.__cause__, PluginError):
             raise  # not the filter's own failure: the input's, for every filter alike
@@ -159,6 +165,7 @@ def run_specs(
     done: Callable[[Run | RunFailure], None] | None = None,
     executor: Executor | None = None,
     keep_going: bool = False,
+    source_args: SourceArgs | None = None,
 ) -> list[Run | RunFailure]:
     """Replay every pipeline on ``executor`` (default: ``workers`` local processes);
     results in the specs' order.
@@ -167,7 +174,9 @@ def run_specs(
     the same replay.
     """
     executor = LocalExecutor(workers) if executor is None else executor
-    run = functools.partial(run_spec, path, truth=truth, keep_going=keep_going)
+    run = functools.partial(
+        run_spec, path, truth=truth, keep_going=keep_going, source_args=source_args
+    )
     return executor.map(run, specs, done=done)
 
 
