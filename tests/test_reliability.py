@@ -572,8 +572,14 @@ def test_json_limits(tmp_path: Path, text: str, line: int | None, words: str | N
         ('{"landmarks": {"1": [0, 0]},\n "poses": [[0, 0]]}', 2, '"poses" must be a list'),
         ('{"landmarks": {"1": [0, 0]},\n\n "noise": {"sigma_x": -1}}', 3, '"noise" is'),
         ('{"landmarks": {\n "x1": [0, 0]}}', 2, "found landmark id 'x1'"),
+        # the readers' line ends, CR alone too
+        ('{\r"landmarks": {\r"1": [3, NaN]}}\r', 3, "found NaN"),
+        ('{\r\n"landmarks": {\r"1": [3, 6],\r\n"01": [3, 6]}}', 4, "found landmark id '01'"),
+        # a sigma: the line of its own key
+        ('{"landmarks": {"1": [0, 0]},\n "noise": {\n  "sigma_x": 0.2,\n  "sigma_range": -1}}',
+         4, '"noise" is'),
     ],
-)
+)  # fmt: skip
 def test_a_truth_file_error_names_the_line_of_its_key(
     tmp_path: Path, text: str, line: int, words: str
 ) -> None:
@@ -653,7 +659,9 @@ def test_a_nonzero_number_that_reads_as_zero_is_refused(
     assert result.exit_code == 0, result.output
 
 
-@pytest.mark.parametrize("comment", ["# noise:", "#noise:", "#\tnoise:\t", "#  noise: "])
+@pytest.mark.parametrize(
+    "comment", ["# noise:", "#noise:", "#\tnoise:\t", "#  noise: ", "# noise : ", "# NOISE:"]
+)
 def test_a_noise_header_is_read_however_it_is_spaced(tmp_path: Path, comment: str) -> None:
     path = tmp_path / "log.txt"
     path.write_text(f"# a log\n{comment}sigma_x=5 sigma_range=0.3\nobserve 1 0.1 5\n")
@@ -712,3 +720,21 @@ def test_the_warnings_of_a_run_that_ends_well_are_all_said(tmp_path: Path) -> No
         " into range"
     )
     assert "Landmarks at the end of the run" in said  # the results after it
+
+
+@pytest.mark.parametrize(
+    "command",
+    [["sweep", "--vary", "sigma_range=x1,x2", "--workers", "1"], ["check", "--filter", "ekf"]],
+)
+def test_a_study_and_a_check_say_the_warnings_of_their_log(
+    tmp_path: Path, command: list[str]
+) -> None:
+    log = tmp_path / "log.txt"
+    log.write_text("0.1 5 4.0 6\n1 0\n0.1 5 0.3 6\n")
+    name, *rest = command
+    done = subprocess.run(
+        [sys.executable, "-m", "ekfviz", name, str(log), *rest, "--save", str(tmp_path / "x.rrd")],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert f"warning: {log}:1: found bearing 4 outside (-pi, pi]" in done.stderr

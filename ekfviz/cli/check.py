@@ -27,6 +27,7 @@ from ekfviz.cli.common import (
     rendered,
     say,
     show,
+    warn,
     write_json,
 )
 from ekfviz.cli.options import (
@@ -212,7 +213,7 @@ def _run(
     try:
         return pipeline.check(
             log, truth, spec, params, tolerance=tolerance, save=save, every=every,
-            source_args=source_args,
+            source_args=source_args, warn=warn,
         )  # fmt: skip
     except FilterLineError as error:
         fail(f"{log}:{error.line}: {error}" if error.line else f"{log}: {error}")

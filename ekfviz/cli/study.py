@@ -24,6 +24,7 @@ from ekfviz.cli.common import (
     out,
     show,
     stopped_study,
+    warn,
     write_json,
 )
 from ekfviz.filters.ekf import FilterError
@@ -77,7 +78,7 @@ def run_study(
                 data, truth, specs, target=target, workers=workers, root=root,
                 parameters=parameters, markdown=lambda rows: study_markdown(rows, what),
                 done=advance, executor=executor, keep_going=keep_going,
-                source_args=source_args,
+                source_args=source_args, warn=warn,
             )  # fmt: skip
     except signals.Interrupted as stop:
         interrupted(stop, stopped_study(len(finished), len(specs), f"{what}s", [target, report]))

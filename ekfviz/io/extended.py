@@ -65,7 +65,7 @@ from ekfviz.io.text import (
 
 KEYWORDS = ("control", "observe", "scan")
 NOISE_HEADER = "# noise:"
-_NOISE_COMMENT = re.compile(r"#[ \t]*noise:(.*)", re.ASCII)  # the header, however spaced
+_NOISE_COMMENT = re.compile(r"#[ \t]*noise[ \t]*:(.*)", re.ASCII | re.IGNORECASE)  # however spaced
 NOISE_NAMES = ("sigma_x", "sigma_y", "sigma_alpha", "sigma_bearing", "sigma_range")
 LogNoise = dict[str, float | tuple[float, float, float]]
 _ID = re.compile(r"\+?\d+", re.ASCII)  # as int() reads it, less other scripts' digits

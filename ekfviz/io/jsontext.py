@@ -48,7 +48,9 @@ def load_json(path: Path, what: str = "a JSON file") -> object:
         raise InputError(
             path, 0, f"found over {MAX_JSON_BYTES >> 20} MiB, expected {what} of at most that"
         )
-    raw = raw.removeprefix(BOM)
+    # the readers' line ends (CR alone too) as LF, so that every message counts lines as
+    # they do (a raw CR inside a string is invalid JSON either way)
+    raw = raw.removeprefix(BOM).replace(b"\r\n", b"\n").replace(b"\r", b"\n")
     depth, line = _depth(raw)
     if depth > MAX_JSON_DEPTH:
         raise InputError(

@@ -124,8 +124,11 @@ def _read_json(path: Path) -> GroundTruth:
     noise = document.get("noise")
     if noise is not None:
         if not isinstance(noise, dict) or not all(_sigma(v) for v in noise.values()):
+            bad = next((k for k, v in noise.items() if not _sigma(v)), None) if isinstance(
+                noise, dict
+            ) else None  # fmt: skip
             raise InputError(
-                path, where.line("noise"),
+                path, where.line("noise") if bad is None else where.line(bad, after="noise"),
                 f'"noise" is {json.dumps(noise)[:60]}, expected {{"sigma_x": 0.1, ...}}'
                 " with sigmas >= 0",
             )  # fmt: skip
@@ -156,11 +159,17 @@ class _KeyLines:
         self._path = path
         self._text: str | None = None
 
-    def line(self, key: str) -> int:
+    def line(self, key: str, after: str | None = None) -> int:
+        """The line of ``key`` (the first one after the key ``after``, where given)."""
         if self._text is None:
             with open_input(self._path) as handle:
-                self._text = handle.read().decode("utf-8", errors="replace")
-        found = re.search(rf'"{re.escape(key)}"\s*:', self._text)
+                raw = handle.read().replace(b"\r\n", b"\n").replace(b"\r", b"\n")
+                self._text = raw.decode("utf-8", errors="replace")
+        start = 0
+        if after is not None:
+            outer = re.search(rf'"{re.escape(after)}"\s*:', self._text)
+            start = 0 if outer is None else outer.end()
+        found = re.compile(rf'"{re.escape(key)}"\s*:').search(self._text, start)
         return 1 if found is None else self._text.count("\n", 0, found.start()) + 1
 
 

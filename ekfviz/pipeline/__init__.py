@@ -222,6 +222,7 @@ def study(
     executor: Executor | None = None,
     keep_going: bool = False,
     source_args: SourceArgs | None = None,
+    warn: WarningCallback | None = None,
 ) -> StudyResult:
     """Replay ``data`` with every spec, summarise against the first, save one recording.
 
@@ -240,8 +241,8 @@ def study(
     from ekfviz.viz.study import record_study
 
     truth = read_truth(truth_path) if truth_path is not None else None
-    for _ in log_events(data, truth, truth_path, source_args=source_args):
-        pass
+    for _ in log_events(data, truth, truth_path, warn=warn, source_args=source_args):
+        pass  # read whole once, its warnings said (the runs' readers say none)
     if not keep_going:
         for spec in specs:
             release(spec.filter.load())
@@ -293,6 +294,7 @@ def check(
     save: Path | None,
     every: bool = False,
     source_args: SourceArgs | None = None,
+    warn: WarningCallback | None = None,
 ) -> tuple[CheckResult, list[CoverageItem]]:
     """Check a protocol filter against the reference in lockstep over ``data``; with
     ``save``, one recording of both side by side, the divergences marked. Also what the
@@ -307,7 +309,9 @@ def check(
     make_filter = spec.load()
     truth = read_truth(truth_path) if truth_path is not None else None
     try:
-        events = list(with_ids(log_events(data, truth, truth_path, source_args=source_args)))
+        events = list(
+            with_ids(log_events(data, truth, truth_path, warn=warn, source_args=source_args))
+        )
         result = lockstep(
             events, params, make_filter, name=spec.text, tolerance=tolerance, every=every
         )
