@@ -3,6 +3,7 @@ mapping, interpolated truth, the time timeline, calibration, the gate."""
 
 from __future__ import annotations
 
+import json
 import math
 import re
 import shlex
@@ -417,3 +418,19 @@ def test_the_studies_and_check_take_a_dataset_s_robot(
     result = runner.invoke(app, [name, str(dataset), "--robot", "9", *rest, *save])
     assert result.exit_code == 2
     assert "Robot9_Odometry.dat: no such file, expected robot 9's files" in result.output
+
+
+def test_a_sweep_of_a_dataset_runs_the_filter_a_replay_of_it_runs(
+    dataset: Path, tmp_path: Path
+) -> None:
+    """Its odometry's noise per square-root second (as replay's --motion-noise auto), not
+    per control: the same baseline, the same NIS as the replay's."""
+    report = tmp_path / "sweep.json"
+    result = runner.invoke(
+        app,
+        ["sweep", str(dataset), "--robot", "1", "--vary", "sigma_range=x1", "--workers", "1",
+         "--save", str(tmp_path / "s.rrd"), "--report", str(report)],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    baseline = json.loads(report.read_text())["baseline"]
+    assert baseline["motion_noise"] == "per-sqrt-second"

@@ -21,7 +21,7 @@ from ekfviz.cli.options import (
     expands_options,
     study_save,
 )
-from ekfviz.cli.sources import NO_SOURCE_ARGS, with_source_options
+from ekfviz.cli.sources import NO_SOURCE_ARGS, source_motion_noise, with_source_options
 from ekfviz.cli.study import run_study
 from ekfviz.filters.spec import FilterSpec
 from ekfviz.io.errors import InputError
@@ -80,7 +80,7 @@ def compare(
     together; a grid of maps sits above overlaid NIS (and NEES, landmark error) plots,
     and a table compares them, the first filter being the baseline.
     """
-    params = form.params(noise, init_pose_sigma, log=data)
+    params = source_motion_noise(form.params(noise, init_pose_sigma, log=data), data, source_args)
     try:
         pairing = association.for_study(data)
     except InputError as error:

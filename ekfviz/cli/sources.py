@@ -22,6 +22,7 @@ from ekfviz.cli.common import FILTER_NOISE, FILTER_OPTIONS, _option, warn
 from ekfviz.core.records import AnyEvent, Control
 from ekfviz.core.truth import GroundTruth
 from ekfviz.filters.ekf import FilterParams, MotionNoise
+from ekfviz.io.errors import InputError
 from ekfviz.io.text import ProgressCallback
 from ekfviz.io.truth import checked_against, read_truth
 from ekfviz.sources import Source, SourceArgs, SourceOption, open_source, source_options
@@ -215,3 +216,19 @@ def resolve(
         init_pose=init_pose or params.init_pose,
         gate=params.gate if gate is None else gate,
     ), notes
+
+
+def source_motion_noise(
+    params: FilterParams, data: Path | None, source_args: SourceArgs
+) -> FilterParams:
+    """``params`` with the motion-noise model the log's source implies, as replay's
+    ``--motion-noise auto`` takes it (per-sqrt-second for odometry over known times: an
+    MRCLAM robot, a bag), so that a study or a check of a dataset runs the filter a
+    replay of it runs. A log that cannot be opened is left to the command to refuse."""
+    if data is None:
+        return params
+    try:
+        model = open_source(data, source_args).motion_noise
+    except InputError:
+        return params
+    return replace(params, motion_noise=model)

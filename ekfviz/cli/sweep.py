@@ -24,7 +24,7 @@ from ekfviz.cli.options import (
     expands_options,
     study_save,
 )
-from ekfviz.cli.sources import NO_SOURCE_ARGS, with_source_options
+from ekfviz.cli.sources import NO_SOURCE_ARGS, source_motion_noise, with_source_options
 from ekfviz.cli.study import run_study
 from ekfviz.filters.spec import BUILTIN, FilterSpec
 from ekfviz.io.errors import InputError
@@ -91,6 +91,7 @@ def sweep(
     that scrubbing moves them all together; a table compares them.
     """
     baseline = form.params(noise, init_pose_sigma, log=data)
+    baseline = source_motion_noise(baseline, data, source_args)
     try:
         pairing = association.for_study(data)
     except InputError as error:
