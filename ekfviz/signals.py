@@ -165,12 +165,7 @@ def interruptible() -> Iterator[None]:
     came before the block, while deferred, stays so (a replay honours it once it has
     something to keep)."""
     before = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
-
-    def stop(signum: int, frame: FrameType | None = None) -> None:
-        defer()  # a second signal while the first is answered is remembered, not raised
-        raise Terminated if signum == signal.SIGTERM else Interrupted
-
-    _handle(stop, stop)
+    _handle(_interrupt, _interrupt)  # a second signal while it is answered: deferred
     try:
         yield
     finally:

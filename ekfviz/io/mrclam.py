@@ -112,22 +112,18 @@ def open_dataset(directory: Path, robot: int) -> MrclamDataset:
     dataset = MrclamDataset(directory, robot)
     if robot < 1:
         raise InputError(directory, 0, f"found --robot {robot}, expected a robot number from 1")
-    for path in dataset.log_files:
+    # the truth files may be missing (a run without truth), not anything else
+    for path in (*dataset.log_files, *dataset.truth_files):
         if path.is_dir():
             raise InputError(path, 0, "is a directory, expected a text file")
         if path.exists() and not path.is_file():  # a FIFO, a device: would block or never end
             raise InputError(path, 0, "is not a regular file, expected a text file")
-        if not path.is_file():
+        if not path.is_file() and path in dataset.log_files:
             robots = robots_in(directory)
             have = ", ".join(map(str, robots)) if robots else "none"
             raise InputError(
                 path, 0, f"no such file, expected robot {robot}'s files (robots here: {have})"
             )
-    for path in dataset.truth_files:  # may be missing (a run without truth), not anything else
-        if path.is_dir():
-            raise InputError(path, 0, "is a directory, expected a text file")
-        if path.exists() and not path.is_file():
-            raise InputError(path, 0, "is not a regular file, expected a text file")
     return dataset
 
 

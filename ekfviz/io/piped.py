@@ -6,10 +6,10 @@ once: the log's format is told from its first line before its events are read, t
 run's information hashes it, a study replays it once per filter. So a pipe given as an
 input (a log, its truth) is read to its end as the command line is read, before the
 command starts, into an anonymous temporary file that then takes the pipe's place under
-the same descriptor number: on Linux,
-opening ``/dev/fd/N`` (``/dev/stdin`` is ``/dev/fd/0``) opens the file that descriptor
-holds, so every later open of the path the user gave reads the whole input again, from
-its start, and every message still names that path. The file has no name on disk and
+the same descriptor number: on Linux, opening ``/dev/fd/N`` (``/dev/stdin`` is
+``/dev/fd/0``) opens the file that descriptor holds, so every later open of the path the
+user gave reads the whole input again, from its start, and every message still names
+that path. The file has no name on disk and
 is gone when ekfviz exits, however it exits.
 
 Elsewhere (``/dev/fd/N`` is a duplicate of the descriptor, sharing its offset) nothing

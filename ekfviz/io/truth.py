@@ -65,7 +65,7 @@ def _read_json(path: Path) -> GroundTruth:
     if isinstance(landmarks, list) and landmarks:
         ids = list(range(1, len(landmarks) + 1))
         pairs = landmarks
-        keys: list[str | None] = [None] * len(ids)
+        names: list[str] = []  # ids by position: their lines are the list's
     elif isinstance(landmarks, dict) and landmarks:
         if not all(_ID.fullmatch(key) for key in landmarks):
             bad = next(key for key in landmarks if not _ID.fullmatch(key))
@@ -79,7 +79,6 @@ def _read_json(path: Path) -> GroundTruth:
                 f"found landmark id {long[:20]}..., expected an integer up to {MAX_ID}",
             )  # fmt: skip
         names = list(landmarks)
-        keys = list(names)
         ids = [int(key) for key in names]
         if max(ids, default=0) > MAX_ID:
             key = names[ids.index(max(ids))]
@@ -101,9 +100,9 @@ def _read_json(path: Path) -> GroundTruth:
             path, where.line("landmarks"),
             'expected an object {"landmarks": {"<id>": [x, y], ...}} or [[x, y], ...]',
         )  # fmt: skip
-    for landmark_id, key, pair in zip(ids, keys, pairs, strict=True):
+    for k, (landmark_id, pair) in enumerate(zip(ids, pairs, strict=True)):
         if not _finite_numbers(pair, 2):
-            line = where.line("landmarks") if key is None else where.line(key)
+            line = where.line(names[k]) if names else where.line("landmarks")
             numbers = isinstance(pair, list) and len(pair) == 2 and all(map(_json_number, pair))
             expected = f"[x, y] within {RANGE_TEXT}" if numbers else "[x, y]"
             raise InputError(

@@ -30,7 +30,7 @@ from ekfviz.io.text import ProgressCallback, WarningCallback
 from ekfviz.io.truth import checked_against, read_truth
 from ekfviz.runner.replay import FilterLineError
 from ekfviz.runner.run import Consumer, run
-from ekfviz.sources import SourceArgs, open_source
+from ekfviz.sources import Source, SourceArgs, open_source
 
 if TYPE_CHECKING:  # the studies' modules: imported by the functions that run them
     from ekfviz.association.associator import Associator
@@ -52,7 +52,17 @@ def log_events(
 ) -> Iterator[AnyEvent]:
     """The log's events (its source's options ``source_args``, else their defaults),
     checked against the truth's landmarks when there is one."""
-    source = open_source(data, source_args)
+    return source_events(open_source(data, source_args), truth, truth_path, progress, warn)
+
+
+def source_events(
+    source: Source,
+    truth: GroundTruth | None,
+    truth_path: Path | None,
+    progress: ProgressCallback | None = None,
+    warn: WarningCallback | None = None,
+) -> Iterator[AnyEvent]:
+    """:func:`log_events` of a source already open (its files are asked of it too)."""
     events = source.events(progress, warn)
     if truth is not None and truth_path is not None:
         every_id = source.names_every_landmark
@@ -241,7 +251,8 @@ def study(
     from ekfviz.viz.study import record_study
 
     truth = read_truth(truth_path) if truth_path is not None else None
-    for _ in log_events(data, truth, truth_path, warn=warn, source_args=source_args):
+    source = open_source(data, source_args)
+    for _ in source_events(source, truth, truth_path, warn=warn):
         pass  # read whole once, its warnings said (the runs' readers say none)
     if not keep_going:
         for spec in specs:
@@ -268,7 +279,7 @@ def study(
         input_path=data,
         truth=truth,
         truth_path=truth_path,
-        input_files=open_source(data, source_args).files,  # a dataset directory's
+        input_files=source.files,  # a dataset directory's
         kind="sweep" if root == "variants" else "compare",
     )
     with viz.open_recording(info, viz.Sinks(save=target)) as recording:
@@ -308,10 +319,9 @@ def check(
 
     make_filter = spec.load()
     truth = read_truth(truth_path) if truth_path is not None else None
+    source = open_source(data, source_args)
     try:
-        events = list(
-            with_ids(log_events(data, truth, truth_path, warn=warn, source_args=source_args))
-        )
+        events = list(with_ids(source_events(source, truth, truth_path, warn=warn)))
         result = lockstep(
             events, params, make_filter, name=spec.text, tolerance=tolerance, every=every
         )
@@ -324,8 +334,7 @@ def check(
         release(make_filter)
     exercised = coverage(events, result.reference, params)
     if save is not None and result.records:
-        files = open_source(data, source_args).files
-        _record_check(data, truth, truth_path, spec, params, result, save, files)
+        _record_check(data, truth, truth_path, spec, params, result, save, source.files)
     return result, exercised
 
 
