@@ -434,3 +434,68 @@ def test_a_sweep_of_a_dataset_runs_the_filter_a_replay_of_it_runs(
     assert result.exit_code == 0, result.output
     baseline = json.loads(report.read_text())["baseline"]
     assert baseline["motion_noise"] == "per-sqrt-second"
+
+
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["compare", "--filter", "ekf", "--workers", "1"],
+        ["sweep", "--vary", "sigma_range=x1", "--workers", "1"],
+    ],
+)
+def test_a_study_of_a_dataset_is_judged_against_the_dataset_s_own_truth(
+    dataset: Path, tmp_path: Path, command: list[str]
+) -> None:
+    """As a replay of it: from the true pose of the first event, against the Vicon track
+    and the surveyed landmarks (a study read only ``--truth``: no errors, no NEES, and its
+    filter started at 0 0 0). ``--no-truth`` drops the truth, as replay's does."""
+    replayed = tmp_path / "replay.json"
+    result = runner.invoke(
+        app, ["replay", str(dataset), "--save", str(tmp_path / "r.rrd"), "--report", str(replayed)]
+    )
+    assert result.exit_code == 0, result.output
+    replay = json.loads(replayed.read_text())
+    studied = tmp_path / "study.json"
+    rrd = tmp_path / "s.rrd"
+    name, *rest = command
+    result = runner.invoke(app, [name, str(dataset), *rest, "--save", str(rrd), "--report",
+                                 str(studied)])  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert "The filter starts at the true pose of the first event" in result.output
+    assert "--init-pose" not in result.output  # a study has no such option
+    study = json.loads(studied.read_text())
+    first = (study["filters"] if name == "compare" else study["variants"])[0]
+    assert first["summary"] == replay["summary"]  # the same errors, in the truth's frame
+    assert first["consistency"] == replay["consistency"]  # NEES by the track's times
+    assert first["consistency"]["nees"]["count"] > 0
+    info = runner.invoke(app, ["info", str(rrd)])
+    assert "Landmark_Groundtruth.dat" in info.output, info.output
+
+    result = runner.invoke(app, [name, str(dataset), *rest, "--no-truth", "--save", str(rrd),
+                                 "--report", str(studied)])  # fmt: skip
+    assert result.exit_code == 0, result.output
+    first = json.loads(studied.read_text())["filters" if name == "compare" else "variants"][0]
+    assert "summary" not in first
+    assert first["consistency"]["nees"]["count"] == 0
+
+
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["compare", "--filter", "ekf", "--workers", "1"],
+        ["sweep", "--vary", "sigma_range=x1", "--workers", "1"],
+        ["check", "--filter", "ekf"],
+    ],
+)
+def test_a_study_or_check_refuses_a_dataset_s_malformed_truth(
+    tmp_path: Path, command: list[str]
+) -> None:
+    """Where replay refuses it (they ran without a word before: they never read it)."""
+    directory = write_dataset(tmp_path / "data", {**HAND, "Robot1_Groundtruth.dat": "9 0 0\n"})
+    rrd = tmp_path / "x.rrd"
+    name, *rest = command
+    result = runner.invoke(app, [name, str(directory), *rest, "--save", str(rrd)])
+    assert result.exit_code == 2, result.output
+    assert "Robot1_Groundtruth.dat:1: found 3 numbers" in result.output
+    assert len(result.output.strip().splitlines()) == 1, result.output
+    assert not rrd.exists()

@@ -38,14 +38,20 @@ from ekfviz.cli.options import (
     UserFilter,
     expands_options,
 )
-from ekfviz.cli.sources import NO_SOURCE_ARGS, InitPoseOption, with_source_options
+from ekfviz.cli.sources import (
+    NO_SOURCE_ARGS,
+    InitPoseOption,
+    NoTruthOption,
+    study_input,
+    with_source_options,
+)
 from ekfviz.core.tables import Styled, one_line
 from ekfviz.filters.ekf import FilterError
 from ekfviz.filters.spec import FilterSpec, FilterSpecError
 from ekfviz.io.errors import InputError
 from ekfviz.runner.replay import FilterLineError
 from ekfviz.samples import write_battery
-from ekfviz.sources import SourceArgs
+from ekfviz.sources import OwnTruth, SourceArgs
 
 if TYPE_CHECKING:
     from ekfviz.check.coverage import Item
@@ -110,6 +116,7 @@ class CheckRequest:
     init_pose_sigma: Triple
     form: FilterForm
     source_args: SourceArgs = NO_SOURCE_ARGS
+    no_truth: bool = False
 
 
 @app.command()
@@ -122,6 +129,7 @@ def check(
     filter_text: CheckFilter = "",
     every: EveryOption = False,
     truth: TruthOption = None,
+    no_truth: NoTruthOption = False,
     tolerance: Tolerance = DEFAULT_TOLERANCE,
     report: CheckReport = None,
     save: CheckSave = None,
@@ -145,6 +153,7 @@ def check(
             data=data, filter_text=filter_text, every=every, truth=truth, tolerance=tolerance,
             report=report, save=save, user=user, init_pose=init_pose, noise=noise,
             init_pose_sigma=init_pose_sigma, form=form, source_args=source_args,
+            no_truth=no_truth,
         )
     )  # fmt: skip
 
@@ -171,10 +180,18 @@ def run_check(request: CheckRequest) -> None:
             params = request.form.params(request.noise, request.init_pose_sigma, log=log)
             if start is not None:
                 params = replace(params, init_pose=start)
+            # a dataset's own truth, and the start at its true pose (per-step noise kept: a
+            # course filter's predict takes no time span)
+            opened = study_input(params, log, request.source_args, log_truth, request.no_truth,
+                                 motion_noise=False, init_pose=start, pose_option=True)  # fmt: skip
+            params = opened.params
             target = save if data is not None or save is None else _per_log(save, log)
             result, exercised = _run(
-                log, log_truth, spec, params, request.tolerance, target, every, request.source_args
-            )
+                log, log_truth, spec, params, request.tolerance, target, every,
+                request.source_args, opened.own_truth,
+            )  # fmt: skip
+            for note in opened.notes:  # once the filter has loaded and run
+                out.print(plain(note), soft_wrap=True)
             _print(log, result, exercised, every, battery=data is None)
             diverged |= result.first_divergence is not None
             failed |= result.error is not None
@@ -207,13 +224,14 @@ def _run(
     save: Path | None,
     every: bool,
     source_args: SourceArgs,
+    own_truth: OwnTruth | None,
 ) -> tuple[CheckResult, list[Item]]:
     from ekfviz import pipeline, viz
 
     try:
         return pipeline.check(
             log, truth, spec, params, tolerance=tolerance, save=save, every=every,
-            source_args=source_args, warn=warn,
+            source_args=source_args, warn=warn, own_truth=own_truth,
         )  # fmt: skip
     except FilterLineError as error:
         fail(f"{log}:{error.line}: {error}" if error.line else f"{log}: {error}")

@@ -21,7 +21,7 @@ from ekfviz.cli.options import (
     expands_options,
     study_save,
 )
-from ekfviz.cli.sources import NO_SOURCE_ARGS, source_motion_noise, with_source_options
+from ekfviz.cli.sources import NO_SOURCE_ARGS, NoTruthOption, study_input, with_source_options
 from ekfviz.cli.study import run_study
 from ekfviz.filters.spec import FilterSpec
 from ekfviz.io.errors import InputError
@@ -66,6 +66,7 @@ def compare(
     labels: LabelsOption = None,
     user: UserFilter,
     truth: TruthOption = None,
+    no_truth: NoTruthOption = False,
     save: CompareSave = None,
     report: SummaryReport = None,
     noise: FilterNoise,
@@ -80,7 +81,9 @@ def compare(
     together; a grid of maps sits above overlaid NIS (and NEES, landmark error) plots,
     and a table compares them, the first filter being the baseline.
     """
-    params = source_motion_noise(form.params(noise, init_pose_sigma, log=data), data, source_args)
+    given = form.params(noise, init_pose_sigma, log=data)
+    start = study_input(given, data, source_args, truth, no_truth)
+    params = start.params
     try:
         pairing = association.for_study(data)
     except InputError as error:
@@ -90,7 +93,7 @@ def compare(
         workers=execution.workers, root="filters",
         parameters={"filters": filters, "parameters": params.as_dict()},
         report_extra={"parameters": params.as_dict()}, executor=execution.make(),
-        keep_going=True, source_args=source_args,
+        keep_going=True, source_args=source_args, own_truth=start.own_truth, notes=start.notes,
     )  # fmt: skip
 
 

@@ -18,14 +18,21 @@ import typer
 from typer._click.core import ParameterSource
 from typer._click.globals import get_current_context
 
-from ekfviz.cli.common import FILTER_NOISE, FILTER_OPTIONS, _option, warn
+from ekfviz.cli.common import FILTER_NOISE, FILTER_OPTIONS, _option, fail, warn
 from ekfviz.core.records import AnyEvent, Control
 from ekfviz.core.truth import GroundTruth
 from ekfviz.filters.ekf import FilterParams, MotionNoise
 from ekfviz.io.errors import InputError
 from ekfviz.io.text import ProgressCallback
 from ekfviz.io.truth import checked_against, read_truth
-from ekfviz.sources import Source, SourceArgs, SourceOption, open_source, source_options
+from ekfviz.sources import (
+    OwnTruth,
+    Source,
+    SourceArgs,
+    SourceOption,
+    open_source,
+    source_options,
+)
 
 
 class MotionNoiseChoice(str, enum.Enum):
@@ -188,8 +195,10 @@ def resolve(
     init_pose: tuple[float, float, float] | None,
     motion_noise: MotionNoiseChoice,
     gate: float | None = None,
+    pose_option: bool = True,
 ) -> tuple[FilterParams, list[str]]:
-    """The filter's start pose and motion-noise model, and notes saying what was chosen."""
+    """The filter's start pose and motion-noise model, and notes saying what was chosen
+    (``pose_option``: the command has ``--init-pose``, which the notes then name)."""
     notes: list[str] = []
     if motion_noise is MotionNoiseChoice.AUTO:
         model = opened.source.motion_noise
@@ -203,12 +212,12 @@ def resolve(
                 "The filter starts at the true pose of the first event (t = "
                 f"{start:.3f} s): x {init_pose[0]:.4f}, y {init_pose[1]:.4f}, theta"
                 f" {init_pose[2]:.4f}, so that its errors are in the truth's frame"
-                " (--init-pose X Y THETA to choose another)"
+                + (" (--init-pose X Y THETA to choose another)" if pose_option else "")
             )
         else:
             notes.append(
                 "The first event is outside the true track: the filter starts at 0 0 0"
-                " (--init-pose X Y THETA to choose)"
+                + (" (--init-pose X Y THETA to choose)" if pose_option else "")
             )
     return replace(
         params,
@@ -218,17 +227,63 @@ def resolve(
     ), notes
 
 
-def source_motion_noise(
-    params: FilterParams, data: Path | None, source_args: SourceArgs
-) -> FilterParams:
-    """``params`` with the motion-noise model the log's source implies, as replay's
-    ``--motion-noise auto`` takes it (per-sqrt-second for odometry over known times: an
-    MRCLAM robot, a bag), so that a study or a check of a dataset runs the filter a
-    replay of it runs. A log that cannot be opened is left to the command to refuse."""
+@dataclass(frozen=True, slots=True)
+class StudyInput:
+    """What a study or a check takes from its log's source, as a replay of it does.
+
+    :param params: the filter's parameters, with the source's motion-noise model (a
+        study's) and the true pose of the first event where the source's own truth is
+        timed (MRCLAM's Vicon track, a bag's truth topic)
+    :param own_truth: the source's own truth, where no ``--truth`` file replaces it and
+        ``--no-truth`` does not drop it
+    :param notes: what was chosen, for the user (the start pose)
+    """
+
+    params: FilterParams
+    own_truth: OwnTruth | None = None
+    notes: tuple[str, ...] = ()
+
+
+def study_input(
+    params: FilterParams,
+    data: Path | None,
+    source_args: SourceArgs,
+    truth_path: Path | None,
+    no_truth: bool,
+    *,
+    motion_noise: bool = True,
+    init_pose: tuple[float, float, float] | None = None,
+    pose_option: bool = False,
+) -> StudyInput:
+    """The source's defaults applied to ``params`` for a study or a check, and the
+    source's own truth, so that a study or a check of a dataset runs the filter a replay of
+    it runs and is judged against the same truth: ``replay --motion-noise auto`` where
+    ``motion_noise``, the start at the true pose unless ``init_pose`` (``pose_option``: the
+    command has ``--init-pose``, which its note then names). A log that cannot be opened
+    is left to the command to refuse in its own words."""
     if data is None:
-        return params
+        return StudyInput(params)
     try:
-        model = open_source(data, source_args).motion_noise
+        source = open_source(data, source_args)
     except InputError:
-        return params
-    return replace(params, motion_noise=model)
+        return StudyInput(params)
+    try:  # read here only: its errors are this command's
+        own = None if truth_path is not None or no_truth else source.own_truth(warn)
+    except InputError as error:
+        fail(str(error))
+    start = None
+    if own is not None and own.truth.track_times is not None and init_pose is None:
+        try:  # the first event's time (its warnings are said where the log is read whole)
+            start, _ = first_time(source.events(None, _unsaid))
+        except InputError:
+            return StudyInput(params)
+    truth, files = (own.truth, own.files) if own is not None else (None, [])
+    opened = OpenedLog(source, source_args, truth, files)
+    kept = MotionNoiseChoice(params.motion_noise.value)
+    choice = MotionNoiseChoice.AUTO if motion_noise else kept
+    resolved, notes = resolve(params, opened, start, init_pose, choice, pose_option=pose_option)
+    return StudyInput(resolved, own, tuple(notes))
+
+
+def _unsaid(message: str) -> None:
+    """A reader's warning on a read whose events are read again (and warned of) later."""

@@ -6,6 +6,7 @@ A sweep is a comparison of one filter under several parameter sets; both are a l
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -31,7 +32,7 @@ from ekfviz.filters.ekf import FilterError
 from ekfviz.filters.spec import FilterSpecError
 from ekfviz.io.errors import InputError
 from ekfviz.runner.replay import FilterLineError
-from ekfviz.sources import SourceArgs
+from ekfviz.sources import OwnTruth, SourceArgs
 from ekfviz.studies.executors import Executor, ExecutorError
 from ekfviz.studies.runs import RunSpec, study_markdown, study_table
 
@@ -53,11 +54,15 @@ def run_study(
     executor: Executor | None = None,
     keep_going: bool = False,
     source_args: SourceArgs | None = None,
+    own_truth: OwnTruth | None = None,
+    notes: Sequence[str] = (),
 ) -> None:
     """Run every spec on the log, print the table, save the recording and the report.
 
     :param target: where to save the recording; None: ``recordings/<log>-sweep.rrd`` (or
         ``-compare``), under a new name if that one is taken
+    :param own_truth: the source's own truth (a dataset's), where ``truth`` is None
+    :param notes: what was chosen for the runs (the start pose), said before the table
     """
     from ekfviz import pipeline, viz
 
@@ -78,7 +83,7 @@ def run_study(
                 data, truth, specs, target=target, workers=workers, root=root,
                 parameters=parameters, markdown=lambda rows: study_markdown(rows, what),
                 done=advance, executor=executor, keep_going=keep_going,
-                source_args=source_args, warn=warn,
+                source_args=source_args, warn=warn, own_truth=own_truth,
             )  # fmt: skip
     except signals.Interrupted as stop:
         interrupted(stop, stopped_study(len(finished), len(specs), f"{what}s", [target, report]))
@@ -86,6 +91,8 @@ def run_study(
         fail(f"{data}:{error.line}: {error}" if error.line else f"{data}: {error}")
     except (InputError, FilterError, FilterSpecError, viz.SinkError, ExecutorError) as error:
         fail(str(error))
+    for note in notes:
+        out.print(note, soft_wrap=True)
     _print_result(result, what)
     if report is not None:
         write_json(report, _report(data, result, what, report_extra))

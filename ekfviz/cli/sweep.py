@@ -24,7 +24,7 @@ from ekfviz.cli.options import (
     expands_options,
     study_save,
 )
-from ekfviz.cli.sources import NO_SOURCE_ARGS, source_motion_noise, with_source_options
+from ekfviz.cli.sources import NO_SOURCE_ARGS, NoTruthOption, study_input, with_source_options
 from ekfviz.cli.study import run_study
 from ekfviz.filters.spec import BUILTIN, FilterSpec
 from ekfviz.io.errors import InputError
@@ -72,6 +72,7 @@ def sweep(
     data: StudyLogArgument,
     source_args: SourceArgs = NO_SOURCE_ARGS,  # every format's options (--robot...)
     truth: TruthOption = None,
+    no_truth: NoTruthOption = False,
     save: SweepSave = None,
     report: SummaryReport = None,
     vary: VaryOption = None,
@@ -90,8 +91,9 @@ def sweep(
     Every variant lands in one recording under variants/<name>/ on shared timelines, so
     that scrubbing moves them all together; a table compares them.
     """
-    baseline = form.params(noise, init_pose_sigma, log=data)
-    baseline = source_motion_noise(baseline, data, source_args)
+    start = study_input(form.params(noise, init_pose_sigma, log=data), data, source_args, truth,
+                        no_truth)  # fmt: skip
+    baseline = start.params
     try:
         pairing = association.for_study(data)
     except InputError as error:
@@ -107,7 +109,7 @@ def sweep(
             "variants": [variant.label for variant in variants],
         },
         report_extra={"baseline": baseline.as_dict()}, executor=execution.make(),
-        source_args=source_args,
+        source_args=source_args, own_truth=start.own_truth, notes=start.notes,
     )  # fmt: skip
 
 

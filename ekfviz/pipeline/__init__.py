@@ -30,7 +30,7 @@ from ekfviz.io.text import ProgressCallback, WarningCallback
 from ekfviz.io.truth import checked_against, read_truth
 from ekfviz.runner.replay import FilterLineError
 from ekfviz.runner.run import Consumer, run
-from ekfviz.sources import Source, SourceArgs, open_source
+from ekfviz.sources import OwnTruth, Source, SourceArgs, open_source
 
 if TYPE_CHECKING:  # the studies' modules: imported by the functions that run them
     from ekfviz.association.associator import Associator
@@ -233,6 +233,7 @@ def study(
     keep_going: bool = False,
     source_args: SourceArgs | None = None,
     warn: WarningCallback | None = None,
+    own_truth: OwnTruth | None = None,
 ) -> StudyResult:
     """Replay ``data`` with every spec, summarise against the first, save one recording.
 
@@ -244,13 +245,14 @@ def study(
 
     :param root: ``variants`` (a sweep) or ``filters`` (a comparison)
     :param markdown: the summary table as markdown, for the recording
+    :param own_truth: the source's own truth (a dataset's), where ``truth_path`` is None
     :raises InputError, FilterLineError, FilterSpecError, SinkError: one line each
     """
     from ekfviz import viz
     from ekfviz.studies.runs import Run, RunFailure, run_specs, summarise
     from ekfviz.viz.study import record_study
 
-    truth = read_truth(truth_path) if truth_path is not None else None
+    truth, truth_files = study_truth(truth_path, own_truth)
     source = open_source(data, source_args)
     for _ in source_events(source, truth, truth_path, warn=warn):
         pass  # read whole once, its warnings said (the runs' readers say none)
@@ -278,14 +280,27 @@ def study(
         parameters=parameters,
         input_path=data,
         truth=truth,
-        truth_path=truth_path,
+        truth_path=truth_files[0] if truth_files else None,
         input_files=source.files,  # a dataset directory's
+        truth_files=truth_files,
         kind="sweep" if root == "variants" else "compare",
     )
     with viz.open_recording(info, viz.Sinks(save=target)) as recording:
         record_study(recording, runs, truth, markdown(summaries) + failed_markdown(runs, failures),
                      root=root)  # fmt: skip
     return StudyResult(runs, summaries, truth, info.input_sha256, failures)
+
+
+def study_truth(
+    truth_path: Path | None, own_truth: OwnTruth | None
+) -> tuple[GroundTruth | None, list[Path]]:
+    """The truth of a study or a check, and the files it was read from: a ``--truth``
+    file, else the source's own."""
+    if truth_path is not None:
+        return read_truth(truth_path), [truth_path]
+    if own_truth is not None:
+        return own_truth.truth, list(own_truth.files)
+    return None, []
 
 
 def failed_markdown(runs: list[Run], failures: list[RunFailure]) -> str:
@@ -306,19 +321,21 @@ def check(
     every: bool = False,
     source_args: SourceArgs | None = None,
     warn: WarningCallback | None = None,
+    own_truth: OwnTruth | None = None,
 ) -> tuple[CheckResult, list[CoverageItem]]:
     """Check a protocol filter against the reference in lockstep over ``data``; with
     ``save``, one recording of both side by side, the divergences marked. Also what the
     log exercised (:func:`ekfviz.check.coverage.coverage`).
 
     :param every: look for the cause of every divergent event (``check --all``)
+    :param own_truth: the source's own truth (a dataset's), where ``truth_path`` is None
     :raises InputError, FilterLineError, FilterSpecError, SinkError: one line each
     """
     from ekfviz.check.coverage import coverage
     from ekfviz.check.lockstep import lockstep
 
     make_filter = spec.load()
-    truth = read_truth(truth_path) if truth_path is not None else None
+    truth, truth_files = study_truth(truth_path, own_truth)
     source = open_source(data, source_args)
     try:
         events = list(with_ids(source_events(source, truth, truth_path, warn=warn)))
@@ -334,21 +351,22 @@ def check(
         release(make_filter)
     exercised = coverage(events, result.reference, params)
     if save is not None and result.records:
-        _record_check(data, truth, truth_path, spec, params, result, save, source.files)
+        _record_check(data, truth, truth_files, spec, params, result, save, source.files)
     return result, exercised
 
 
 def _record_check(
     data: Path,
     truth: GroundTruth | None,
-    truth_path: Path | None,
+    truth_files: list[Path],
     spec: FilterSpec,
     params: FilterParams,
     result: CheckResult,
     save: Path,
     input_files: Sequence[Path],
 ) -> None:
-    """The recording of a check (``input_files``: what a dataset directory is read from)."""
+    """The recording of a check (``input_files``: what a dataset directory is read from;
+    ``truth_files``: what its truth is)."""
     from dataclasses import replace
 
     from ekfviz import viz
@@ -386,8 +404,9 @@ def _record_check(
         parameters={"filter": spec.text, "tolerance": result.tolerance, **params.as_dict()},
         input_path=data,
         truth=truth,
-        truth_path=truth_path,
+        truth_path=truth_files[0] if truth_files else None,
         input_files=input_files,
+        truth_files=truth_files,
     )
     verdict = json.dumps(result.to_json(), indent=2)
     summary = f"# Check of {spec.text} against the reference\n\n```json\n{verdict}\n```\n"

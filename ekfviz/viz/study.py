@@ -55,7 +55,7 @@ def record_study(
             has_truth=truth is not None,
             bounds_xy=box,
             what="variant" if root == "variants" else "filter",
-            has_poses=truth is not None and truth.poses_xytheta is not None,
+            has_poses=truth is not None and truth.has_poses,
             nis_range=nis_axis(runs[0]),
             has={
                 f"{root}/{run.spec.key}": recorder.entities_with_data
