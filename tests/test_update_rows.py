@@ -235,13 +235,20 @@ def simulated_truth(steps: int, cut: int | None = None) -> GroundTruth:
     return GroundTruth(ids=sim.landmark_ids, landmarks_xy=sim.landmarks_xy, poses_xytheta=poses)
 
 
-@pytest.mark.parametrize("cut", [None, 150], ids=["every-pose", "poses-end-early"])
-def test_the_consistency_counts_are_the_same_with_updates_as_rows(cut: int | None) -> None:
+@pytest.mark.parametrize(
+    ("cut", "truth_steps"),
+    [(None, 200), (150, 200), (None, 260)],
+    ids=["every-pose", "poses-end-early", "poses-past-the-end"],
+)
+def test_the_consistency_counts_are_the_same_with_updates_as_rows(
+    cut: int | None, truth_steps: int
+) -> None:
     """The run's NIS and NEES counts see every update, the rows' through ``watch`` (each
     once, whether dropped, made records or settled) and the records' one by one; the
-    updates past the truth's last pose are counted as such."""
+    updates past the truth's last pose are counted as such, and so are the true poses
+    past the run's last step (a truth of a longer run: its NEES is said to be suspect)."""
     log = events(200, zero_range_at=50)
-    truth = simulated_truth(200, cut)
+    truth = simulated_truth(truth_steps, cut)
     alone = Consistency(truth)
     for r in replay(log, FilterParams()):
         alone.add(r)
@@ -263,6 +270,9 @@ def test_the_consistency_counts_are_the_same_with_updates_as_rows(cut: int | Non
     assert counted.to_json() == alone.to_json()
     assert alone.nees.total == (201 if cut is None else 151)
     assert alone.without_true_pose == (0 if cut is None else 50)
+    assert alone.unused_true_poses == truth_steps - 200
+    said = [line for line in alone.summary() if "past the run's last step (200)" in line]
+    assert len(said) == (truth_steps > 200)
 
 
 def test_a_run_that_stops_after_an_update_row_keeps_that_map() -> None:

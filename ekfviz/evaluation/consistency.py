@@ -184,9 +184,20 @@ class Consistency:
     nis: BoundCount = field(default_factory=BoundCount)
     without_true_pose: int = 0  # corrected states past the truth's last pose
     singular_pose: int = 0  # corrected states whose pose covariance is singular
+    last_step: int = -1  # the last step counted (a truth with poses past it: not this log's?)
+
+    @property
+    def unused_true_poses(self) -> int:
+        """The true poses (one per step) past the last step counted."""
+        poses = None if self.truth is None else self.truth.poses_xytheta
+        if poses is None or self.last_step < 0:
+            return 0
+        return max(0, len(poses) - (self.last_step + 1))
 
     def add(self, record: EventRecord) -> None:
         """Count a record: its NIS if an update used landmarks, its NEES if it ends a step."""
+        if record.step > self.last_step:
+            self.last_step = record.step
         nis = update_nis(record)
         if nis is not None:
             self.nis.add(nis[0], chi2_bounds(nis[1]))
@@ -205,6 +216,8 @@ class Consistency:
         :class:`~ekfviz.core.records.EventRows`) as :meth:`add` counts theirs: their
         NIS, and with true poses their NEES."""
         self.add_observations(rows.observations)
+        if len(rows.steps):
+            self.last_step = max(self.last_step, int(rows.steps.max()))
         truth = self.truth
         if truth is None or not truth.has_poses:
             return
@@ -291,6 +304,12 @@ class Consistency:
                     f"NEES: only {count.total} of {judged} corrected states have a true pose:"
                     " the truth file ends before the run does; the rest are not judged"
                 )
+            if name == "NEES" and self.unused_true_poses:
+                lines.append(
+                    f"NEES: the truth file has {self.unused_true_poses} true pose(s) past the"
+                    f" run's last step ({self.last_step}), not used: is it the truth of a"
+                    " longer run, or of another log?"
+                )
             if name == "NEES" and self.singular_pose:
                 lines.append(
                     f"NEES: {self.singular_pose} corrected state(s) with a singular pose"
@@ -308,6 +327,7 @@ class Consistency:
             "nis": self.nis.to_json(),
             "verdict": None if both is None else both[0].value,
             "steps_without_true_pose": self.without_true_pose,
+            "true_poses_unused": self.unused_true_poses,
             "confidence": CONFIDENCE,
         }
 
