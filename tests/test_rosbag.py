@@ -451,3 +451,114 @@ def test_rosbags_is_imported_only_when_a_bag_is_opened(tmp_path: Path, run: Simu
         [sys.executable, "-c", code, str(bag)], capture_output=True, text=True, check=True
     )
     assert result.stdout.split() == ["False", "True"]
+
+
+def _tiny_bag(
+    path: Path,
+    *,
+    quaternion: tuple[float, float, float, float] | None = None,
+    x: float = 1.0,
+    marker_xy: tuple[float, float] = (2.0, 1.0),
+    truth_times: Sequence[float] = (),
+) -> Path:
+    """Three odometry poses (the second's position ``x`` and orientation ``quaternion``
+    if given), a detection of landmark 1 at ``marker_xy`` after each, and a truth topic
+    /gt with a pose at each of ``truth_times`` (after T0)."""
+    landmark = Sighting(1, np.array([1]), np.array([[math.atan2(marker_xy[1], marker_xy[0]),
+                                                     math.hypot(*marker_xy)]]))  # fmt: skip
+    quaternion_type = STORE.types["geometry_msgs/msg/Quaternion"]
+    with Writer(path, version=9) as writer:
+        odom = writer.add_connection("/odom", "nav_msgs/msg/Odometry", typestore=STORE)
+        marks = writer.add_connection("/landmarks", MARKER_ARRAY, typestore=STORE)
+        gt = writer.add_connection("/gt", "geometry_msgs/msg/PoseStamped", typestore=STORE)
+        for k, pose in enumerate([(0.0, 0.0, 0.0), (x, 0.0, 0.1), (2.0, 0.1, 0.2)]):
+            time = T0 + k * DT
+            message = odometry(time, np.array(pose))
+            if k == 1 and quaternion is not None:
+                message.pose.pose.orientation = quaternion_type(*quaternion)
+            writer.write(odom, round(time * 1e9), STORE.serialize_cdr(message, ODOMETRY_TYPE))
+            array = markers(time, landmark)
+            writer.write(marks, round(time * 1e9), STORE.serialize_cdr(array, MARKER_ARRAY))
+        for k, time in enumerate(truth_times):  # recorded in turn, stamped ``time``
+            stamped = STORE.types["geometry_msgs/msg/PoseStamped"](
+                header=_header(T0 + time, "map"), pose=_pose(0.0, 0.0, 0.0)
+            )
+            data = STORE.serialize_cdr(stamped, "geometry_msgs/msg/PoseStamped")
+            writer.write(gt, round((T0 + k * 0.1) * 1e9), data)
+    return path
+
+
+ODOMETRY_TYPE = "nav_msgs/msg/Odometry"
+MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
+
+
+def _last_pose(bag: Path) -> FloatArray:
+    params = FilterParams(motion_noise=MotionNoise.PER_SQRT_SECOND)
+    return final(open_source(bag).events(), params).pose
+
+
+def test_a_quaternion_of_any_norm_gives_its_rotation_s_heading(tmp_path: Path) -> None:
+    """The heading of a quaternion scaled by 2 is its rotation's (the yaw formula read
+    it as 93.5 degrees at 45); a zero or non-finite one is refused, naming the message."""
+    theta = 0.1
+    unit = (0.0, 0.0, math.sin(theta / 2), math.cos(theta / 2))
+    plain = _last_pose(_tiny_bag(tmp_path / "unit", quaternion=unit))
+    scaled = _last_pose(_tiny_bag(tmp_path / "scaled", quaternion=tuple(2 * v for v in unit)))
+    np.testing.assert_allclose(scaled, plain, rtol=0, atol=1e-12)
+    for name, quaternion, expected in [
+        ("zero", (0.0, 0.0, 0.0, 0.0), "/odom message 2: found an orientation quaternion of"
+         " norm 0, expected a unit quaternion"),
+        ("inf", (0.0, 0.0, math.inf, 1.0), "/odom message 2: found orientation z inf,"
+         " expected a finite number"),
+    ]:  # fmt: skip
+        line = _failure(tmp_path, _tiny_bag(tmp_path / name, quaternion=quaternion))
+        assert line.endswith(expected), line
+
+
+def test_a_bag_s_numbers_are_checked_as_every_reader_s(tmp_path: Path) -> None:
+    """Beyond +-1e18 (the filter's arithmetic would overflow: it was a filter fault at
+    "line 21"), a marker at the sensor's origin (a landmark at the robot), a truth topic
+    whose stamps go back (it was sorted without a word, moving the start)."""
+    line = _failure(tmp_path, _tiny_bag(tmp_path / "far", x=1e300))
+    assert line.endswith("/odom message 2: found position x 1e+300, expected a number within"
+                         " +-1e18"), line  # fmt: skip
+    line = _failure(tmp_path, _tiny_bag(tmp_path / "origin", marker_xy=(0.0, 0.0)))
+    assert line.endswith("/landmarks message 1: found marker id 1 at range 0 (the sensor's"
+                         " origin), expected a positive range"), line  # fmt: skip
+    back = _tiny_bag(tmp_path / "back", truth_times=(0.0, 0.5, 0.25, 1.0))
+    line = _failure(tmp_path, back, "--truth-topic", "/gt")
+    assert "/gt message 3: found stamp" in line and "expected stamps that never decrease" in line
+
+
+@pytest.mark.parametrize("kind", ["fifo", "folder", "dangling link", "link loop"])
+def test_only_the_storage_files_the_metadata_lists_are_read(tmp_path: Path, kind: str) -> None:
+    """A file of the folder beside the bag's own is none of the bag's: a stray FIFO hung
+    the replay for ever (SIGTERM too: a FIFO's open waits for a writer), a dangling link
+    was a traceback, a folder refused a good bag. The bag's own storage file as a FIFO is
+    one line."""
+    bag = _tiny_bag(tmp_path / "bag")
+    stray = bag / "old.db3"
+    if kind == "fifo":
+        os.mkfifo(stray)
+    elif kind == "folder":
+        stray.mkdir()
+    elif kind == "dangling link":
+        stray.symlink_to(tmp_path / "nowhere.db3")
+    else:
+        stray.symlink_to(stray)
+    result = subprocess.run(
+        [sys.executable, "-m", "ekfviz", "replay", str(bag), "--save", str(tmp_path / "ok.rrd")],
+        capture_output=True, text=True, timeout=120,
+        env={**os.environ, "XDG_CONFIG_HOME": str(tmp_path), "XDG_DATA_HOME": str(tmp_path)},
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    assert result.stderr == ""
+    if kind == "fifo":
+        (storage,) = bag.glob("bag*.db3")
+        storage.unlink()
+        os.mkfifo(storage)
+        line = _failure(tmp_path, bag)
+        assert line.endswith(
+            f"{storage}: is a FIFO (named pipe), not a regular file; expected a storage file"
+            " of the bag (metadata.yaml lists it)"
+        ), line

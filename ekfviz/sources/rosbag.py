@@ -33,7 +33,7 @@ import itertools
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass
-from pathlib import Path
+from pathlib import Path, PurePath
 from typing import Any
 
 import numpy as np
@@ -43,7 +43,13 @@ from ekfviz.core.truth import GroundTruth
 from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.filters.ekf import MotionNoise
 from ekfviz.io.errors import InputError
-from ekfviz.io.text import ProgressCallback, WarningCallback
+from ekfviz.io.text import (
+    MAX_MAGNITUDE,
+    RANGE_TEXT,
+    ProgressCallback,
+    WarningCallback,
+    open_input,
+)
 from ekfviz.models.angles import wrap_angle
 from ekfviz.sources.base import OwnTruth, Source, SourceArgs, SourceOption, register
 
@@ -86,6 +92,7 @@ class RosbagSource(Source):
     odom: str = "/odom"
     landmarks: str = "/landmarks"
     truth_topic: str | None = None
+    storage: tuple[Path, ...] = ()  # the storage files metadata.yaml lists
 
     @classmethod
     def detect(cls, path: Path) -> bool:
@@ -95,16 +102,19 @@ class RosbagSource(Source):
     def open(cls, path: Path, args: SourceArgs) -> RosbagSource:
         """The bag, its topics checked: there, of the right type, not empty."""
         odom, landmarks, truth = (args.value(o) for o in (ODOM, LANDMARKS, TRUTH_TOPIC))
-        source = cls(path, str(odom), str(landmarks), None if truth is None else str(truth))
+        source = cls(
+            path, str(odom), str(landmarks), None if truth is None else str(truth),
+            _storage_files(path),
+        )  # fmt: skip
         with _Bag(path) as reader:
             source._topics(reader)
         return source
 
     @property
     def files(self) -> list[Path]:
-        """The metadata and the storage files."""
-        stored = sorted(p for p in self.path.iterdir() if p.suffix in (".db3", ".mcap"))
-        return [self.path / METADATA, *stored]
+        """The metadata and the storage files it lists (not every file of the folder:
+        an old recording beside them is none of the bag's)."""
+        return [self.path / METADATA, *self.storage]
 
     @property
     def progress_paths(self) -> list[Path]:
@@ -189,13 +199,25 @@ class RosbagSource(Source):
         return not by_ids
 
     def _pose(self, message: Any, topic: str, nth: int) -> Pose:
-        """The pose of the topic's ``nth`` message, refused when not finite."""
-        pose = _pose(message)
-        if not all(math.isfinite(v) for v in pose):
+        """The pose of the topic's ``nth`` message, its numbers checked as every reader
+        checks its own: finite, within +-1e18, a quaternion that is a rotation (of any
+        norm but 0: its heading does not depend on the norm).
+
+        :raises InputError: naming the topic's message and what was found
+        """
+        pose = message.pose.pose if hasattr(message.pose, "pose") else message.pose
+        where = f"{topic} message {nth}"
+        position, q = pose.position, pose.orientation
+        for name, value in (("x", position.x), ("y", position.y)):
+            _checked(self.path, where, f"position {name}", value)
+        quaternion = [_checked(self.path, where, f"orientation {name}", getattr(q, name))
+                      for name in ("x", "y", "z", "w")]  # fmt: skip
+        if math.hypot(*quaternion) < 1e-9:
             raise InputError(
-                self.path, 0, f"{topic} message {nth}: found a pose that is not finite"
-            )
-        return pose
+                self.path, 0, f"{where}: found an orientation quaternion of norm"
+                f" {math.hypot(*quaternion):.3g}, expected a unit quaternion",
+            )  # fmt: skip
+        return _heading(pose)
 
     def _detected(self, message: Any, nth: int) -> tuple[IntArray, FloatArray]:
         """The ids (negative: none) and (bearing, range) of the topic's ``nth`` array's
@@ -213,6 +235,16 @@ class RosbagSource(Source):
         where = f"{self.landmarks} message {nth}"
         if not np.isfinite(z).all():
             raise InputError(self.path, 0, f"{where}: found a position that is not finite")
+        for marker in markers:
+            for name in ("x", "y"):
+                _checked(self.path, where, f"marker {marker.id}'s {name}",
+                         getattr(marker.pose.position, name))  # fmt: skip
+        if len(z) and not (z[:, 1] > 0.0).all():
+            k = int(np.flatnonzero(~(z[:, 1] > 0.0))[0])
+            raise InputError(
+                self.path, 0, f"{where}: found marker id {int(ids[k])} at range 0 (the"
+                " sensor's origin), expected a positive range",
+            )  # fmt: skip
         if (ids < 0).any() and not (ids < 0).all():
             raise InputError(
                 self.path, 0, f"{where}: found markers with and without ids (negative),"
@@ -246,7 +278,7 @@ class RosbagSource(Source):
                     _messages(self.path, reader, [connection])
                 )
             ]
-        rows.sort(key=lambda row: row[0])
+        self._check_order(self.truth_topic, [t for t, _ in rows])
         truth = GroundTruth(
             ids=np.zeros(0, dtype=np.int64),
             landmarks_xy=np.zeros((0, 2)),
@@ -302,6 +334,8 @@ class _Bag:
             from rosbags.typesys import Stores, get_typestore
         except ImportError:
             raise InputError(self.path, 0, EXTRA) from None
+        for stored in _storage_files(self.path):  # each a regular file that opens
+            open_input(stored, "a storage file of the bag (metadata.yaml lists it)").close()
         # bags that do not carry their message definitions are read with Humble's
         reader = AnyReader([self.path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
         try:
@@ -345,13 +379,44 @@ def _stamp(message: Any, recorded: int) -> float:
     return float(stamp.sec) + float(stamp.nanosec) * 1e-9
 
 
-def _pose(message: Any) -> Pose:
-    """(x, y, heading) of an Odometry's or a PoseStamped's pose (the heading: the yaw of
-    its quaternion)."""
-    pose = message.pose.pose if hasattr(message.pose, "pose") else message.pose
+def _heading(pose: Any) -> Pose:
+    """(x, y, heading) of a pose, the heading the yaw of its quaternion. The yaw's two
+    terms both scale with the square of the norm, so a quaternion of another norm than 1
+    (float32 rounding, a scaled one) gives the heading of its rotation."""
     q = pose.orientation
-    yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+    yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), q.w * q.w + q.x * q.x - q.y * q.y - q.z * q.z)
     return float(pose.position.x), float(pose.position.y), yaw
+
+
+def _checked(path: Path, where: str, name: str, value: float) -> float:
+    """A number of a message: finite and within +-1e18, as every reader's.
+
+    :raises InputError: naming the message and the field
+    """
+    value = float(value)
+    if not math.isfinite(value) or abs(value) > MAX_MAGNITUDE:
+        finite = math.isfinite(value)
+        expected = f"a number within {RANGE_TEXT}" if finite else "a finite number"
+        raise InputError(path, 0, f"{where}: found {name} {value:g}, expected {expected}")
+    return value
+
+
+def _storage_files(path: Path) -> tuple[Path, ...]:
+    """The storage files a bag's ``metadata.yaml`` lists (``relative_file_paths``), as
+    ``rosbags`` finds them; none where it does not read (``rosbags`` then says why).
+
+    :raises InputError: the metadata that is no regular file (a FIFO would block)
+    """
+    with open_input(path / METADATA, "the bag's metadata (YAML)") as handle:
+        text = handle.read(1 << 20)
+    try:
+        from ruamel.yaml import YAML  # rosbags' own YAML reader
+
+        document = YAML(typ="safe").load(text)
+        names = document["rosbag2_bagfile_information"]["relative_file_paths"]
+        return tuple(path / PurePath(str(name)).name for name in names)
+    except Exception:  # not a bag's metadata: rosbags' open says what is wrong
+        return ()
 
 
 def _control(before: Pose, after: Pose) -> tuple[float, float]:

@@ -44,6 +44,7 @@ from ekfviz.io.paths import (
     temporary_prefix,
     unused_path,
 )
+from ekfviz.io.text import open_input
 from ekfviz.models.range_bearing import RangeBearing
 from ekfviz.viz import style
 from ekfviz.viz.flush import (
@@ -294,19 +295,16 @@ def _digest(path: Path, *, keep_up_to: int) -> tuple[int, str, bytes | None]:
     sha = hashlib.sha256()
     kept = bytearray()
     size = 0
-    try:
-        with path.open("rb") as file:
+    # opened as the readers open their files (a FIFO refused, not waited on for ever)
+    with open_input(path, "a regular file") as file:
+        try:
             while block := file.read(1 << 20):
                 sha.update(block)
                 size += len(block)
                 if size <= keep_up_to:
                     kept += block
-    except FileNotFoundError:
-        raise InputError(path, 0, "no such file") from None
-    except IsADirectoryError:
-        raise InputError(path, 0, "is a directory, expected a text file") from None
-    except OSError as error:  # the same words as the readers' errors
-        raise InputError(path, 0, f"cannot be read ({error.strerror})") from None
+        except OSError as error:  # the same words as the readers' errors
+            raise InputError(path, 0, f"cannot be read ({error.strerror})") from None
     return size, sha.hexdigest(), bytes(kept) if size <= keep_up_to else None
 
 
