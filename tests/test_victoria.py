@@ -181,3 +181,41 @@ def test_the_map_frames_the_gps_track_and_its_jumps_label(
     assert x_min + 0.1 * width <= jx <= x_max - 0.1 * width  # its label fits beside it
     assert x_min <= gps[:, 0].min() and gps[:, 0].max() <= x_max
     assert y_min <= -max(jy, gps[:, 1].max()) and -min(jy, gps[:, 1].min()) <= y_max
+
+
+@pytest.mark.parametrize(
+    "option",
+    [["--sigma-x", "0.3"], ["--odometry-scale", "1.1", "1"], ["--motion-noise", "per-step"]],
+)
+def test_an_option_of_the_d_alpha_model_is_refused_not_ignored(
+    tmp_path: Path, option: list[str]
+) -> None:
+    """The car's model takes speed and steering: these changed nothing, yet the recording
+    said the run used them."""
+    (tmp_path / "park").mkdir()
+    make_park(tmp_path / "park", seconds=5.0)
+    rrd = tmp_path / "x.rrd"
+    result = runner.invoke(app, ["replay", str(tmp_path / "park"), *option, "--save", str(rrd)])
+    assert result.exit_code == 2, result.output
+    assert result.output.strip() == (
+        f"error: {tmp_path / 'park'}: {option[0]} is for logs of (d, alpha) controls, not a"
+        " Victoria Park directory: its vehicle takes speed and steering (--sigma-speed,"
+        " --sigma-steering)"
+    )
+    assert not rrd.exists()
+
+
+@pytest.mark.parametrize("name", ["gps.dat", "inputs.dat", "measurements.dat"])
+def test_a_file_that_is_there_but_does_not_read_is_named(tmp_path: Path, name: str) -> None:
+    """A link to itself: a gps.dat was taken for none (a warning, no GPS fit), inputs.dat
+    and measurements.dat for no dataset at all (the folder named, not the file)."""
+    park = tmp_path / "park"
+    park.mkdir()
+    make_park(park, seconds=5.0)
+    (park / name).unlink()
+    (park / name).symlink_to(park / name)
+    result = runner.invoke(app, ["replay", str(park), "--save", str(tmp_path / "x.rrd")])
+    assert result.exit_code == 2, result.output
+    assert result.output.strip() == (
+        f"error: {park / name}: cannot be read (Too many levels of symbolic links)"
+    )

@@ -17,6 +17,7 @@ file; an error names the file and its line.
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -34,8 +35,9 @@ LASER_BEARING_AHEAD = math.pi / 2  # the laser's bearing of straight ahead
 
 
 def is_victoria(path: Path) -> bool:
-    """Whether ``path`` is a directory holding the Victoria Park logs."""
-    return path.is_dir() and (path / INPUTS).exists() and (path / MEASUREMENTS).exists()
+    """Whether ``path`` is a directory holding the Victoria Park logs (there, whether they
+    read or not: a broken link is then named by the reader, not taken for no file)."""
+    return path.is_dir() and os.path.lexists(path / INPUTS) and os.path.lexists(path / MEASUREMENTS)
 
 
 def read_victoria(path: Path, progress: ProgressCallback | None = None) -> Iterator[AnyEvent]:

@@ -10,6 +10,7 @@ noise defaults, detections beyond the laser's useful range dropped; and the GPS 
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -118,7 +119,20 @@ class VictoriaSource(Source):
         return _far_dropped(victoria.read_victoria(self.path, progress), VICTORIA.max_range)
 
     def models(self, params: FilterParams, given: Given) -> Models:
-        if (self.path / victoria.GPS).exists():  # optional, but a bad one is refused early
+        """The Ackermann vehicle and the laser's offset.
+
+        :raises InputError: an option of the (d, alpha) motion model given (the vehicle
+            takes speed and steering: it would be ignored), a ``gps.dat`` that is there
+            but does not read
+        """
+        for name, flag in _D_ALPHA_OPTIONS:
+            if given(name):
+                raise InputError(
+                    self.path, 0, f"{flag} is for logs of (d, alpha) controls, not a"
+                    " Victoria Park directory: its vehicle takes speed and steering"
+                    " (--sigma-speed, --sigma-steering)",
+                )  # fmt: skip
+        if os.path.lexists(self.path / victoria.GPS):  # optional, but a bad one is refused
             victoria.read_gps(self.path)
         v = VICTORIA
         changes: dict[str, Any] = {
@@ -148,6 +162,17 @@ class VictoriaSource(Source):
 
     def reference(self) -> GpsReference:
         return GpsReference(self.path)
+
+
+# the options of the (d, alpha) motion model (parameter, flag), which the vehicle ignores
+_D_ALPHA_OPTIONS = (
+    ("sigma_x", "--sigma-x"),
+    ("sigma_y", "--sigma-y"),
+    ("sigma_alpha", "--sigma-alpha"),
+    ("odometry_scale", "--odometry-scale"),
+    ("odometry_bias", "--odometry-bias"),
+    ("motion_noise", "--motion-noise"),
+)
 
 
 @dataclass(slots=True)
