@@ -101,6 +101,12 @@ def test_filter_grows_on_sparse_ids_and_skips_empty_steps(tmp_path: Path) -> Non
         ("observe 1 0.1 0\n", "found range 0 for landmark 1, expected a positive range"),
         ("observe 1 0.1 nan\n", "found 'nan', expected a finite number"),
         ("2.0 control 1 0\n1.0 control 1 0\n", "log.txt:2: found time 1 after 2"),
+        # a non-finite time is all letters: still a time where a keyword follows it
+        ("control 1 0\nnan control 1 0\n", "log.txt:2: found 'nan', expected a finite number"),
+        (
+            "1.0 control 1 0\nInfinity observe 1 0.1 2\n",
+            "log.txt:2: found 'Infinity', expected a finite number",
+        ),
         ("control 1 0\n3.0\n", "log.txt:2: found only a timestamp"),
         (
             "observe 1 0.1 2\nobserve\nscan\nscan 0.1 2\n",

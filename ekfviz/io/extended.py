@@ -176,7 +176,11 @@ def _line_events(
     whose error is raised."""
     for line, tokens in lines:
         time: float | None = None
-        if not tokens[0].isalpha():
+        # a timestamp leads, unless the line begins with its keyword (a non-finite time,
+        # "nan" or "inf", is all letters: it is one where a keyword follows it)
+        if not tokens[0].isalpha() or (
+            tokens[0] not in KEYWORDS and len(tokens) > 1 and tokens[1] in KEYWORDS
+        ):
             time = check_time(path, line, parse_number(path, line, tokens[0]))
             if time < read.last:
                 raise InputError(
