@@ -604,6 +604,9 @@ class _PatchingLoader(importlib.abc.Loader):
 # -- the loop ----------------------------------------------------------------------------------
 
 
+RESERVE_BYTES = 4 << 20  # memory kept to answer a MemoryError when the filter holds the rest
+
+
 class Worker:
     def __init__(self, commands: Any, answers: Any) -> None:
         self.commands = commands
@@ -613,6 +616,7 @@ class Worker:
         self.filter: Any = None
         self.matplotlib = _Matplotlib()
         sys.meta_path.insert(0, self.matplotlib)
+        self.reserve: Optional[bytearray] = bytearray(RESERVE_BYTES)  # see serve()
 
     def serve(self) -> None:
         while True:
@@ -628,7 +632,10 @@ class Worker:
             try:
                 answer, out = self.dispatch(op, header, arrays)
             except UserError as error:
-                self.reply(self.fault(error.function, error.error, error.trace))
+                if isinstance(error.error, MemoryError):  # formatted, it would need memory
+                    self.out_of_memory(error.function)  # that the filter may still hold
+                else:
+                    self.reply(self.fault(error.function, error.error, error.trace))
                 continue
             except FilterFault as error:
                 self.reply({"ok": False, "kind": error.kind, "message": str(error)})
@@ -644,12 +651,27 @@ class Worker:
                     }
                 )
                 continue
+            except MemoryError:
+                self.out_of_memory(str(op))
+                continue
             except BaseException as error:
                 self.reply(self.fault(str(op), error, traceback.format_exc()))
                 continue
             answer["ok"] = True
             answer["seconds"] = time.perf_counter() - started
             self.reply(answer, out)
+
+    def out_of_memory(self, where: str) -> None:
+        """Say a MemoryError where the memory may still be held (a module's list grown
+        without end): the reserve is given back to say it, without a traceback to format."""
+        self.reserve = None
+        answer = {"ok": False, "kind": "memory", "type": "MemoryError", "traceback": ""}
+        answer["message"] = "%s raised MemoryError" % where
+        self.reply(answer)
+        try:
+            self.reserve = bytearray(RESERVE_BYTES)
+        except MemoryError:
+            pass
 
     def fault(self, where: str, error: BaseException, trace: str) -> Dict[str, Any]:
         return {
@@ -662,8 +684,11 @@ class Worker:
         }
 
     def reply(self, header: Dict[str, Any], arrays: Optional[List[Any]] = None) -> None:
-        sys.stdout.flush()
-        sys.stderr.flush()
+        for stream in (sys.stdout, sys.stderr):  # the user's, whatever it made of them
+            try:  # (sys.stdout = None to silence prints: harmless in plain Python)
+                stream.flush()
+            except Exception:
+                pass
         write_message(self.answers, header, arrays or [])
 
     def dispatch(
@@ -895,6 +920,11 @@ class Worker:
             ids = [int(i) for i in list(np.asarray(slam.landmark_ids).reshape(-1))]
         except BaseException as error:
             raise UserError("reading landmark_ids", error, traceback.format_exc()) from None
+        wide = [i for i in ids if not -(1 << 63) <= i < (1 << 63)]
+        if wide:  # (a hash of 64 bits unsigned): refused here, not where ekfviz reads them
+            raise FilterFault(
+                "landmark_ids holds %d, expected ids that fit a 64-bit signed integer" % wide[0]
+            )
         answer: Dict[str, Any] = {"ids": ids, "extra": []}
         if isinstance(slam, CourseModule):
             answer["convention"] = slam.convention()

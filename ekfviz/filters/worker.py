@@ -50,6 +50,9 @@ START_TIMEOUT_S = 120.0
 MIN_LOAD_TIMEOUT_S = 10.0
 # what the filter may print before ekfviz stops echoing it (it is still drained)
 ECHO_LIMIT_BYTES = 1 << 20
+LINE_KEPT_BYTES = 1 << 16  # of each line a worker prints, what ekfviz keeps (echoes)
+LAST_OUTPUT_CHARS = 200  # of the worker's last line, what a one-line error quotes
+DRAIN_POLL_S = 0.05  # how often the output reader looks whether it is told to stop
 MIN_NUMPY = (1, 17)
 # the longest JSON header of an answer (a state's are a few hundred bytes): four bytes of
 # anything else read as a length must not make ekfviz wait for, or allocate, gigabytes
@@ -149,6 +152,7 @@ class WorkerProcess:
             settings["memory_bytes"] = int(options.memory_mb) * (1 << 20)
         env = _clean_env(options.cwd) if options.clean_env else dict(os.environ)
         env["PYTHONUNBUFFERED"] = "1"
+        env["PYTHONDONTWRITEBYTECODE"] = "1"  # no __pycache__ left in a submission's folder
         env.setdefault("MPLBACKEND", "Agg")
         try:
             self.process = subprocess.Popen(
@@ -171,9 +175,11 @@ class WorkerProcess:
         self._answers = self.process.stdout.fileno()
         self._echo_lock = threading.Lock()
         self._held: list[tuple[str, int]] | None = []  # (line, bytes) until it started
+        stop = threading.Event()
         self._reader = threading.Thread(
-            target=self._drain, args=(self.process.stderr,), daemon=True
+            target=self._drain, args=(self.process.stderr.fileno(), stop), daemon=True
         )
+        _DRAINS[self.process.pid] = (stop, self._reader)
         self._reader.start()
         self._finalizer = weakref.finalize(self, _end, self.process)
         _LIVE.add(self.process)
@@ -199,16 +205,49 @@ class WorkerProcess:
 
     # -- output -------------------------------------------------------------------------
 
-    def _drain(self, stream: Any) -> None:
-        for raw in iter(stream.readline, b""):
-            line = raw.decode("utf-8", "replace").rstrip("\n")
-            with self._echo_lock:
-                self.output.total_bytes += len(raw)
-                self.output.lines.append(line)
-                if self._held is not None:
-                    self._held.append((line, len(raw)))
-                else:
-                    self._echo(line, len(raw), self.output.total_bytes)
+    def _drain(self, fd: int, stop: threading.Event) -> None:
+        """Read what the worker prints, line by line, till its end or ``stop``.
+
+        Read from the descriptor, polled: a process the filter started in a session of
+        its own outlives the worker's group and may hold the pipe open for ever, and a
+        thread blocked in a buffered ``readline`` would hold the stream's lock, so that
+        closing the stream waited for that process. Each line is kept to its first
+        :data:`LINE_KEPT_BYTES` (its size still counted): a filter that prints 20 MB
+        lines does not grow ekfviz's memory.
+        """
+        kept, size = b"", 0  # the line so far: its start, its bytes
+        while not stop.is_set():
+            try:
+                ready, _, _ = select.select([fd], [], [], DRAIN_POLL_S)
+                chunk = os.read(fd, 1 << 16) if ready else None
+            except (OSError, ValueError):  # closed under it
+                return
+            if chunk is None:
+                continue
+            if not chunk:
+                break
+            start = 0
+            while (end := chunk.find(b"\n", start)) >= 0:
+                kept += chunk[start : end + 1][: max(0, LINE_KEPT_BYTES - len(kept))]
+                self._line(kept, size + end + 1 - start)
+                kept, size, start = b"", 0, end + 1
+            kept += chunk[start:][: max(0, LINE_KEPT_BYTES - len(kept))]
+            size += len(chunk) - start
+        if size:
+            self._line(kept, size)
+
+    def _line(self, kept: bytes, size: int) -> None:
+        """One line the worker printed: its start ``kept`` and its whole ``size``."""
+        line = kept.decode("utf-8", "replace").rstrip("\n")
+        if size > len(kept):
+            line += f" ... ({size:,} bytes)"
+        with self._echo_lock:
+            self.output.total_bytes += size
+            self.output.lines.append(line)
+            if self._held is not None:
+                self._held.append((line, size))
+            else:
+                self._echo(line, size, self.output.total_bytes)
 
     def _echo(self, line: str, size: int, total: int) -> None:
         """Echo one line the worker printed (``total``: bytes printed up to its end)."""
@@ -355,7 +394,10 @@ class WorkerProcess:
             why, kind = f"was killed by {name}", "crashed"
         else:
             why, kind = f"exited with code {code}", "exit" if code == 0 else "crashed"
-        said = f"; its last output: {last.strip()}" if last.strip() else ""
+        last = last.strip()
+        if len(last) > LAST_OUTPUT_CHARS:  # one line, however long the filter's was
+            last = last[:LAST_OUTPUT_CHARS] + " ..."
+        said = f"; its last output: {last}" if last else ""
         return WorkerFault(f"the filter's process {why} during {what}{said}", kind)
 
     def kill(self) -> None:
@@ -376,6 +418,9 @@ class WorkerProcess:
 
 
 _LIVE: weakref.WeakSet[subprocess.Popen[bytes]] = weakref.WeakSet()
+# each worker's output reader, by its process id: told to stop, joined, before the
+# worker's output pipe is closed
+_DRAINS: dict[int, tuple[threading.Event, threading.Thread]] = {}
 
 
 def _end(process: subprocess.Popen[bytes]) -> None:
@@ -390,7 +435,17 @@ def _end(process: subprocess.Popen[bytes]) -> None:
     if process.poll() is None:
         with contextlib.suppress(subprocess.TimeoutExpired):
             process.wait(timeout=5)
-    for stream in (process.stdin, process.stdout, process.stderr):
+    streams = [process.stdin, process.stdout]
+    stop, reader = _DRAINS.pop(process.pid, (None, None))
+    if stop is not None and reader is not None:
+        reader.join(timeout=DRAIN_POLL_S * 5)  # what the worker printed last, read
+        stop.set()
+        reader.join(timeout=DRAIN_POLL_S * 5)  # its poll sees the stop
+        if not reader.is_alive():
+            streams.append(process.stderr)  # else left open: its thread still reads it
+    else:
+        streams.append(process.stderr)
+    for stream in streams:
         try:
             if stream is not None:
                 stream.close()

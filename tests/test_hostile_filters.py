@@ -1,0 +1,194 @@
+"""Users' filters that do what real code does and ekfviz must outlive: a helper process
+started in a session of its own, a clean-up of the folder, lines of megabytes, a silenced
+``sys.stdout``, 64-bit hashed ids, a module list grown until memory runs out; and a class
+whose file names are not UTF-8 or collide once made safe. Each through the real command
+line, in a process of its own."""
+
+from __future__ import annotations
+
+import csv
+import os
+import shutil
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).parents[1]
+SAMPLE = ROOT / "data" / "classic.txt"
+BASE = ROOT / "examples" / "my_filter.py"  # a class filter of the protocol: MyFilter
+
+
+def ekfviz(*args: str, cwd: Path, timeout: float = 120) -> subprocess.CompletedProcess[str]:
+    """``python -m ekfviz ARGS`` in ``cwd``; a hang fails the test at ``timeout``."""
+    env = {**os.environ, "XDG_CONFIG_HOME": str(cwd), "XDG_DATA_HOME": str(cwd), "CI": "1"}
+    return subprocess.run(
+        [sys.executable, "-m", "ekfviz", *args], capture_output=True, text=True, cwd=cwd,
+        env=env, timeout=timeout,
+    )  # fmt: skip
+
+
+def filter_module(folder: Path, body: str, name: str = "f.py") -> str:
+    """A module of class ``F``, a subclass of the example filter, with ``body`` in it;
+    its spec."""
+    shutil.copy(BASE, folder / "basef.py")
+    (folder / name).write_text("import os, sys\nfrom basef import MyFilter as Base\n" + body)
+    return f"{name}:F"
+
+
+def test_a_helper_process_in_a_session_of_its_own_does_not_hold_the_run(tmp_path: Path) -> None:
+    """It outlives the worker's process group and held the worker's output pipe: ekfviz,
+    closing that pipe while a thread read it, waited for the helper to end (a class's
+    grade waited past its --timeout, and was killed with no table)."""
+    spec = filter_module(
+        tmp_path,
+        "import subprocess\n"
+        "helper = subprocess.Popen(['sleep', '600'], start_new_session=True)\n"
+        "open('helper.pid', 'w').write(str(helper.pid))\n"
+        "class F(Base):\n    pass\n",
+    )
+    try:
+        result = ekfviz("replay", str(SAMPLE), "--filter", spec, "--save", "run.rrd",
+                        cwd=tmp_path, timeout=60)  # fmt: skip
+        assert result.returncode == 0, result.stderr
+        assert (tmp_path / "run.rrd").stat().st_size > 0
+    finally:
+        pid = int((tmp_path / "helper.pid").read_text())
+        os.kill(pid, signal.SIGKILL)
+
+
+def test_a_recording_s_temporary_file_removed_by_the_filter_is_one_line(tmp_path: Path) -> None:
+    """ "Start from a clean results folder": the filter removes the recording being written;
+    the move into place then failed with ekfviz's traceback."""
+    spec = filter_module(
+        tmp_path,
+        "class F(Base):\n"
+        "    n = 0\n"
+        "    def predict(self, d, alpha):\n"
+        "        F.n += 1\n"
+        "        if F.n == 5:\n"
+        "            for name in os.listdir('.'):\n"
+        "                if name.endswith('.part'):\n"
+        "                    os.remove(name)\n"
+        "        super().predict(d, alpha)\n",
+    )
+    result = ekfviz("replay", str(SAMPLE), "--filter", spec, "--save", "keep.rrd", cwd=tmp_path)
+    assert result.returncode == 2, result.stderr
+    assert "Traceback" not in result.stderr
+    (line,) = result.stderr.strip().splitlines()
+    assert line.startswith("error: keep.rrd: the recording could not be saved: its temporary")
+    assert "removed during the run?" in line
+    assert not (tmp_path / "keep.rrd").exists()
+
+
+def test_a_line_of_megabytes_is_neither_kept_whole_nor_quoted_whole(tmp_path: Path) -> None:
+    """The error quoted the filter's last line whole (20 MB in "one line"), and every
+    line it printed was kept whole (200 of them: gigabytes)."""
+    spec = filter_module(
+        tmp_path,
+        "class F(Base):\n"
+        "    def predict(self, d, alpha):\n"
+        "        print('x' * (5 << 20), flush=True)\n"
+        "        os._exit(1)\n",
+    )
+    result = ekfviz("replay", str(SAMPLE), "--filter", spec, "--save", "run.rrd", cwd=tmp_path)
+    assert result.returncode == 2, result.stderr
+    error = result.stderr.strip().splitlines()[-1]
+    assert "its last output: xxxx" in error and " ...;" in error
+    assert len(error) < 1000
+
+
+def test_a_filter_that_silences_its_prints_runs(tmp_path: Path) -> None:
+    """``sys.stdout = None`` is harmless in plain Python; the worker's own flush of it
+    failed, and the run stopped blaming the filter with the worker's traceback."""
+    spec = filter_module(
+        tmp_path,
+        "class F(Base):\n"
+        "    def predict(self, d, alpha):\n"
+        "        sys.stdout = None\n"
+        "        super().predict(d, alpha)\n",
+    )
+    result = ekfviz("replay", str(SAMPLE), "--filter", spec, "--save", "run.rrd", "--json",
+                    cwd=tmp_path)  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    assert "Traceback" not in result.stderr
+
+
+def test_ids_beyond_a_64_bit_signed_integer_are_the_filter_s_named_fault(tmp_path: Path) -> None:
+    """A map keyed by 64-bit unsigned hashes: ekfviz's own conversion overflowed, and the
+    message said the user's update raised."""
+    spec = filter_module(
+        tmp_path,
+        "import numpy as np\n"
+        "class F:\n"
+        "    def __init__(self, params):\n"
+        "        self.x, self.P, self.keys = np.zeros(3), np.eye(3) * 0.01, []\n"
+        "    @property\n"
+        "    def landmark_ids(self):\n"
+        "        return np.array(self.keys, dtype=np.uint64)\n"
+        "    def predict(self, d, alpha):\n"
+        "        pass\n"
+        "    def update(self, ids, z):\n"
+        "        for i in ids.tolist():\n"
+        "            self.keys.append(2**64 - 1 - i)\n"
+        "            self.x = np.append(self.x, [0.0, 0.0])\n"
+        "            P = np.eye(len(self.x)) * 0.01\n"
+        "            P[:-2, :-2] = self.P\n"
+        "            self.P = P\n",
+    )
+    result = ekfviz("replay", str(SAMPLE), "--filter", spec, "--save", "run.rrd", cwd=tmp_path)
+    assert result.returncode == 2, result.stderr
+    assert "landmark_ids holds 18446744073709551614, expected ids that fit a 64-bit signed" \
+        " integer" in result.stderr  # fmt: skip
+    assert "raised OverflowError" not in result.stderr
+
+
+def test_a_list_grown_until_memory_runs_out_is_said_as_memory(tmp_path: Path) -> None:
+    """The memory stays held by the module's list: formatting the fault ran out again and
+    the worker died with its own traceback, the run read "exited with code 1"."""
+    spec = filter_module(
+        tmp_path,
+        "history = []\n"
+        "class F(Base):\n"
+        "    def predict(self, d, alpha):\n"
+        "        while True:\n"
+        "            history.append([0.0] * 1000)\n",
+    )
+    result = ekfviz("replay", str(SAMPLE), "--filter", spec, "--save", "run.rrd",
+                    "--filter-memory", "256", cwd=tmp_path)  # fmt: skip
+    assert result.returncode == 2, result.stderr
+    assert "Traceback" not in result.stderr
+    assert (
+        result.stderr.strip()
+        .splitlines()[-1]
+        .startswith(
+            f"error: {SAMPLE}:2: event 1 (predict): filter {spec}: predict raised MemoryError"
+        )
+    )
+
+
+def test_a_class_graded_whatever_its_file_names(tmp_path: Path) -> None:
+    """A name that is not UTF-8 (a zip from another system) crashed the CSV for the whole
+    class; two names made alike by making them safe (``a b.py``, ``a_b.py``) wrote one
+    recording over the other."""
+    if sys.platform != "linux":
+        pytest.skip("a file name of bytes that are not UTF-8")
+    group = tmp_path / "class"
+    group.mkdir()
+    source = (ROOT / "examples" / "course_skeleton" / "ekf_slam.py").read_text()
+    for name in ("a b.py", "a_b.py"):
+        (group / name).write_text(source)
+    os.close(os.open(os.fsencode(group) + b"/M\xfcller.py", os.O_CREAT | os.O_WRONLY))
+    with open(os.fsencode(group) + b"/M\xfcller.py", "w") as handle:
+        handle.write(source)
+    result = ekfviz("grade", "class", "--log", str(SAMPLE), "--workers", "1", "--report",
+                    "grades.csv", "--save-dir", "recs", cwd=tmp_path, timeout=300)  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    with (tmp_path / "grades.csv").open(encoding="utf-8") as handle:
+        names = sorted(row["submission"] for row in csv.DictReader(handle))
+    assert names == ["M\ufffdller.py", "a b.py", "a_b.py"]
+    recordings = sorted(p.name for p in (tmp_path / "recs").iterdir())
+    assert len(recordings) == 3, recordings
+    assert "a_b.py-classic.rrd" in recordings  # a safe name as it was
