@@ -257,3 +257,17 @@ def test_close_labels_are_stacked_not_overprinted() -> None:
     assert placed[1].tolist() == [0.1, 0.05]  # the highest stays
     apart = np.array([[0.0, 0.0], [3.0, 0.0]])
     assert unclutter(apart, 1.0, 0.6) is apart
+
+
+def test_labels_too_far_out_to_be_stacked_are_left_and_the_loop_ends() -> None:
+    """A filter that gives its landmarks a variance of 1e40 hangs their 3-sigma labels
+    3e20 m out, where a label's height is below the spacing of floats: moving one down
+    made no progress, and ``replay`` spun there for ever (past SIGTERM: it was in the
+    recording's finish)."""
+    import numpy as np
+
+    from ekfviz.viz.recorder import unclutter
+
+    anchors = np.array([[0.0, 3e20], [0.1, 3e20], [0.2, 3e20 + 1e5]])
+    placed = unclutter(anchors, 1.0, 0.6)  # returns (it did not)
+    assert np.isfinite(placed).all() and (placed[:, 0] == anchors[:, 0]).all()

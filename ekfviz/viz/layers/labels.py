@@ -43,8 +43,11 @@ def unclutter(anchors_xy: FloatArray, width: float, height: float) -> FloatArray
             moved = False
             for j in done:
                 if abs(placed[j, 0] - x) < width and abs(placed[j, 1] - y) < height:
-                    y = placed[j, 1] - 1.001 * height  # clear of it despite round-off
-                    moved = True
+                    below = placed[j, 1] - 1.001 * height  # clear of it despite round-off
+                    # y only falls, past each label at most once; where the height is
+                    # below y's float spacing (an anchor 1e17 m out) it cannot: left there
+                    if below < y:
+                        y, moved = below, True
         placed[i, 1] = y
         done.append(i)
     return placed
