@@ -33,6 +33,7 @@ from ekfviz.cli.options import (
     expands_options,
     worker_options,
 )
+from ekfviz.core.tables import utf8
 from ekfviz.io.paths import real_path
 from ekfviz.pipeline.grade import Battery, GradeRow, GradeTask
 from ekfviz.studies.executors import ExecutorError
@@ -144,7 +145,7 @@ def run_grade(request: GradeRequest) -> None:
     with tempfile.TemporaryDirectory(prefix="ekfviz-battery-") as battery_folder:
         battery = _battery(request, battery_folder)
         tasks = [
-            GradeTask(name=entry.name, path=real_path(entry), logs=battery,
+            GradeTask(name=utf8(entry.name), path=real_path(entry), logs=battery,
                       params=params, timeout_s=request.timeout, memory_mb=request.memory,
                       python=python_text,
                       save_dir=None if request.save_dir is None else real_path(request.save_dir))

@@ -33,6 +33,21 @@ class TextTable:
     lines: bool = True
 
 
+def utf8(text: str) -> str:
+    """``text`` as UTF-8 can hold it: the bytes of a file name that are not UTF-8 (which
+    Python keeps as lone surrogates, and which a UTF-8 file, JSON or Rerun would refuse)
+    as U+FFFD, one a byte."""
+    try:
+        text.encode("utf-8")
+        return text
+    except UnicodeEncodeError:
+        pass
+    try:
+        return text.encode("utf-8", "surrogateescape").decode("utf-8", "replace")
+    except UnicodeEncodeError:  # a surrogate that stands for no byte (from JSON's \ud800)
+        return text.encode("utf-8", "surrogatepass").decode("utf-8", "replace")
+
+
 def one_line(text: str) -> str:
     """``text`` as one line: a line break or another character that is not printable in
     it (from a file name, a user's exception, bytes that are not UTF-8) written as

@@ -28,6 +28,7 @@ import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from ekfviz.core.tables import utf8
 from ekfviz.filters.plugged import FilterFactory
 from ekfviz.filters.worker import Target, WorkerFactory, WorkerFault, WorkerOptions
 
@@ -101,7 +102,7 @@ class FilterSpec:
         where, sep, name = self.text.rpartition(":")
         if sep and name.isidentifier() and where:
             return name
-        return Path(self.text).stem or self.text
+        return utf8(Path(self.text).stem or self.text)  # a file's name may not be UTF-8
 
     @property
     def key(self) -> str:

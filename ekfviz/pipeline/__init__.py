@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Protocol
 
 from ekfviz import signals
 from ekfviz.core.records import AnyEvent, EventRecord, NeedsIds, with_ids
+from ekfviz.core.tables import utf8
 from ekfviz.core.truth import GroundTruth
 from ekfviz.evaluation.consistency import Consistency
 from ekfviz.evaluation.errors import Evaluation, evaluate
@@ -409,6 +410,6 @@ def _record_check(
         truth_files=truth_files,
     )
     verdict = json.dumps(result.to_json(), indent=2)
-    summary = f"# Check of {spec.text} against the reference\n\n```json\n{verdict}\n```\n"
+    summary = f"# Check of {utf8(spec.text)} against the reference\n\n```json\n{verdict}\n```\n"
     with viz.open_recording(info, viz.Sinks(save=save)) as recording:
         record_check(recording, result, runs, truth, summary)

@@ -11,13 +11,14 @@ Numpy only (the check recording, with ``save_dir``, imports the viz layer where 
 
 from __future__ import annotations
 
+import hashlib
 import re
 import tempfile
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from ekfviz.core.tables import Styled, TextTable, one_line
+from ekfviz.core.tables import Styled, TextTable, one_line, utf8
 from ekfviz.filters.ekf import FilterParams
 from ekfviz.io.text import special_kind
 
@@ -171,7 +172,7 @@ def grade_one(task: GradeTask) -> GradeRow:
     try:
         module = module_of(task.path)
     except NoModule as error:
-        return GradeRow(task.name, "error", (), "", 0.0, str(error))
+        return GradeRow(task.name, "error", (), "", 0.0, utf8(str(error)))
     causes: dict[str, None] = {}
     first = ""
     status = "match"
@@ -218,7 +219,7 @@ def grade_one(task: GradeTask) -> GradeRow:
                 detail = _one_line(f"{log.stem}:{result.error_line}: {result.error}")
                 break
     return GradeRow(task.name, status, tuple(causes), first,
-                    time.perf_counter() - started, detail, str(module))  # fmt: skip
+                    time.perf_counter() - started, detail, utf8(str(module)))  # fmt: skip
 
 
 def _failure(error: Exception) -> tuple[str, str]:
@@ -227,11 +228,18 @@ def _failure(error: Exception) -> tuple[str, str]:
 
 
 def _one_line(text: str) -> str:
-    return " ".join(text.split())[:500]
+    return utf8(" ".join(text.split())[:500])  # (a path in it may not be UTF-8)
 
 
 def _safe(name: str) -> str:
-    return re.sub(r"[^A-Za-z0-9_.-]+", "_", name) or "submission"
+    """A file name for the submission's recordings: its name where safe, else made safe
+    and told apart by a digest of the name (``José.py`` and ``Josè.py`` are two students,
+    ``a b.py`` and ``a_b.py`` too)."""
+    safe = re.sub(r"[^A-Za-z0-9_.-]+", "_", name) or "submission"
+    if safe == name:
+        return safe
+    digest = hashlib.sha256(name.encode("utf-8", "surrogatepass")).hexdigest()[:8]
+    return f"{safe}-{digest}"
 
 
 def submissions(folder: Path) -> list[Path]:

@@ -33,6 +33,7 @@ from rerun.any_batch_value import ComponentValueLike
 
 from ekfviz import __version__, signals
 from ekfviz.core.records import EventRecord, EventRows
+from ekfviz.core.tables import utf8
 from ekfviz.core.truth import GroundTruth
 from ekfviz.evaluation.errors import Evaluation
 from ekfviz.filters.ekf import HAVE_KERNEL
@@ -888,16 +889,23 @@ def _commit_or_remove(
     if recording is None or not recording.complete:
         temporary.unlink(missing_ok=True)
         return None
-    if recording.partial and real.exists():
-        os.replace(temporary, partial_path(real))
+    partial = recording.partial and real.exists()
+    try:
+        os.replace(temporary, partial_path(real) if partial else real)
+    except OSError as error:  # e.g. a user's filter that cleaned up the folder meanwhile
+        temporary.unlink(missing_ok=True)
+        raise SinkError(
+            f"{target}: the recording could not be saved: its temporary file {temporary.name}"
+            f" did not move there ({error.strerror}: removed during the run?)"
+        ) from None
+    if partial:
         return partial_path(real) if target.is_symlink() else partial_path(target)
-    os.replace(temporary, real)
     return target
 
 
 def _describe(rec: rr.RecordingStream, info: RunInfo) -> None:
     """Recording name and properties, the run information and the input, all static."""
-    rec.send_recording_name(_utf8(info.name))
+    rec.send_recording_name(utf8(info.name))
     values: dict[str, str | int | bool | None] = {
         "version": info.version,
         "kind": info.kind,
@@ -912,7 +920,7 @@ def _describe(rec: rr.RecordingStream, info: RunInfo) -> None:
         "files_sha256": _json(info.file_digests) if info.file_digests else None,
         "compiled_kernel": HAVE_KERNEL,  # numbers differ from numpy's by round-off only
     }
-    values = {k: _utf8(v) if isinstance(v, str) else v for k, v in values.items()}
+    values = {k: utf8(v) if isinstance(v, str) else v for k, v in values.items()}
     rec.send_property("ekfviz", _any_values(values))
     if info.parameters:
         rec.send_property(
@@ -920,7 +928,7 @@ def _describe(rec: rr.RecordingStream, info: RunInfo) -> None:
         )
     rec.log(
         style.RUN_INFO,
-        rr.TextDocument(_utf8(info.markdown()), media_type=rr.MediaType.MARKDOWN),
+        rr.TextDocument(utf8(info.markdown()), media_type=rr.MediaType.MARKDOWN),
         static=True,
     )
     if info.input_text is not None:
@@ -936,12 +944,6 @@ def _describe(rec: rr.RecordingStream, info: RunInfo) -> None:
         )
 
 
-def _utf8(text: str) -> str:
-    """``text`` as UTF-8 can hold it: the bytes of a file name that are not UTF-8 (which
-    Python keeps as lone surrogates, and Rerun would refuse with a warning) as U+FFFD."""
-    return text.encode("utf-8", "surrogatepass").decode("utf-8", "replace")
-
-
 def _any_values(values: Mapping[str, ComponentValueLike | None]) -> rr.AnyValues:
     bundle = rr.AnyValues()
     for name, value in values.items():
@@ -951,7 +953,9 @@ def _any_values(values: Mapping[str, ComponentValueLike | None]) -> rr.AnyValues
 
 def _property_value(value: object) -> str | int | float | bool | list[float]:
     """A parameter as a value the viewer shows well: scalars as is, the rest as JSON."""
-    if isinstance(value, (str, int, float, bool)):
+    if isinstance(value, str):
+        return utf8(value)  # (a filter's file name may not be UTF-8)
+    if isinstance(value, (int, float, bool)):
         return value
     if isinstance(value, (list, tuple)) and all(
         isinstance(v, (int, float)) and not isinstance(v, bool) for v in value
