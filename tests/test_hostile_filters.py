@@ -192,3 +192,64 @@ def test_a_class_graded_whatever_its_file_names(tmp_path: Path) -> None:
     recordings = sorted(p.name for p in (tmp_path / "recs").iterdir())
     assert len(recordings) == 3, recordings
     assert "a_b.py-classic.rrd" in recordings  # a safe name as it was
+
+
+def test_an_answer_too_large_to_take_is_refused_before_it_is_allocated(tmp_path: Path) -> None:
+    """A covariance "preallocated" for 6,000 landmarks (lazy zeros: nothing to the
+    filter) took ekfviz to 2.4 GB reading it before the shapes were checked."""
+    spec = filter_module(
+        tmp_path,
+        "import numpy as np\n"
+        "class F(Base):\n"
+        "    def predict(self, d, alpha):\n"
+        "        super().predict(d, alpha)\n"
+        "        big = np.zeros((12003, 12003))\n"
+        "        big[: len(self.P), : len(self.P)] = self.P\n"
+        "        self.P = big\n",
+    )
+    result = ekfviz("replay", str(SAMPLE), "--filter", spec, "--save", "run.rrd", cwd=tmp_path)
+    assert result.returncode == 2, result.stderr
+    assert "after predict, its arrays ((15,), (12003, 12003)) are 1.2 GB, more than the 1 GiB" \
+        " ekfviz takes from a filter" in result.stderr  # fmt: skip
+
+
+def test_a_state_the_reference_cannot_step_from_is_named_with_the_filter(tmp_path: Path) -> None:
+    """Landmarks left at a placeholder of 1e200: the reference's update from that state
+    overflowed and ``check`` said only "the state became non-finite in update", naming
+    neither the filter nor the event, and lost what it had found before."""
+    spec = filter_module(
+        tmp_path,
+        "import numpy as np\n"
+        "class F(Base):\n"
+        "    def update(self, ids, z):\n"
+        "        for i in ids.tolist():\n"
+        "            if i not in self.landmark_ids:\n"
+        "                self.landmark_ids.append(i)\n"
+        "                self.x = np.append(self.x, [1e200, 1e200])\n"
+        "                P = np.eye(len(self.x))\n"
+        "                P[:-2, :-2] = self.P\n"
+        "                self.P = P\n",
+    )
+    result = ekfviz("check", str(SAMPLE), "--filter", spec, "--all", cwd=tmp_path)
+    assert result.returncode == 2, result.stderr
+    assert f"{SAMPLE}:3: event 2 (update): the reference cannot update from the state" \
+        f" filter {spec} gave before it: the state became non-finite in update (the largest" \
+        " |x| is 1e+200" in result.stderr  # fmt: skip
+    assert "divergence at event 0 (step 0, init" in result.stdout  # found before: still said
+
+
+def test_a_submission_whose_time_ran_out_before_a_log_is_a_timeout(tmp_path: Path) -> None:
+    """Its row said "error: the filter's worker did not start (it needs Python >= 3.8
+    with numpy >= 1.17)", where its time had run out on the logs before."""
+    from ekfviz.filters.ekf import FilterParams
+    from ekfviz.pipeline.grade import GradeTask, grade_one
+
+    module = tmp_path / "ekf_slam.py"
+    shutil.copy(ROOT / "examples" / "course_skeleton" / "ekf_slam.py", module)
+    task = GradeTask(name="ekf_slam.py", path=module, logs=((SAMPLE, None, None),),
+                     params=FilterParams(), timeout_s=0.0, memory_mb=None)  # fmt: skip
+    row = grade_one(task)
+    assert (row.status, row.detail) == (
+        "timeout",
+        "its time (--timeout 0 s) ran out before the classic log",
+    )

@@ -35,7 +35,7 @@ from ekfviz.check.mistakes import (
 from ekfviz.core.records import Control, EventKind, EventRecord, LogEvent, Sighting
 from ekfviz.core.tables import Cell, Styled, TextTable
 from ekfviz.core.types import FloatArray, IntArray
-from ekfviz.filters.ekf import EkfSlam, FilterParams
+from ekfviz.filters.ekf import EkfSlam, FilterError, FilterParams
 from ekfviz.filters.plugged import FilterFactory, Plugged, PluginError
 from ekfviz.models.angles import wrap_angle
 from ekfviz.runner.replay import plugged
@@ -403,6 +403,15 @@ def lockstep(
         except PluginError as failure:
             message = f"event {event} ({kind.value}): {failure}"
             stopped = (message, log_event.line, str(getattr(failure, "kind", "raised")))
+            break
+        except FilterError as failure:  # the reference, started from the filter's state
+            largest = float(np.max(np.abs(before.x))) if before.x.size else 0.0
+            message = (
+                f"event {event} ({kind.value}): the reference cannot {kind.value} from the"
+                f" state filter {name} gave before it: {failure} (the largest |x| is"
+                f" {largest:.3g}: a value set as a placeholder, or one not set)"
+            )
+            stopped = (message, log_event.line, "raised")
             break
         after = _state(slam)
         worst = compare(_state(ekf), after)

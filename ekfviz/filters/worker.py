@@ -50,6 +50,7 @@ START_TIMEOUT_S = 120.0
 MIN_LOAD_TIMEOUT_S = 10.0
 # what the filter may print before ekfviz stops echoing it (it is still drained)
 ECHO_LIMIT_BYTES = 1 << 20
+MAX_ANSWER_BYTES = 1 << 30  # a state of 11,000 numbers: P alone is 1 GB
 LINE_KEPT_BYTES = 1 << 16  # of each line a worker prints, what ekfviz keeps (echoes)
 LAST_OUTPUT_CHARS = 200  # of the worker's last line, what a one-line error quotes
 DRAIN_POLL_S = 0.05  # how often the output reader looks whether it is told to stop
@@ -188,6 +189,9 @@ class WorkerProcess:
                                     limit_name="the bound of a worker's start")  # fmt: skip
         except WorkerFault as error:
             self.close()
+            if error.kind == "timeout" and options.deadline is not None:  # a grade's time
+                raise WorkerFault(f"its time ran out before its worker started: {error}",
+                                  "timeout") from None  # fmt: skip
             raise WorkerFault(
                 f"--python {python}: the filter's worker did not start (it needs Python >= 3.8"
                 f" with numpy >= 1.17): {error}",
@@ -317,11 +321,21 @@ class WorkerProcess:
             layouts = [(np.dtype(m["dtype"]), tuple(int(v) for v in m["shape"])) for m in metas]
         except (ValueError, TypeError, KeyError, AttributeError):  # JSON, UTF-8, dtype, shape
             raise self._garbled(what) from None
+        counts = [int(np.prod(shape)) if shape else 1 for _, shape in layouts]
+        sized = list(zip(counts, layouts, strict=True))
+        if any(count < 0 or dtype.hasobject for count, (dtype, _) in sized):
+            raise self._garbled(what)
+        total = sum(count * dtype.itemsize for count, (dtype, _) in sized)
+        if total > MAX_ANSWER_BYTES:  # refused before ekfviz allocates it
+            self.kill()
+            shapes = ", ".join(str(shape) for _, shape in layouts)
+            raise WorkerFault(
+                f"after {what}, its arrays ({shapes}) are {total / 1e9:.1f} GB, more than the"
+                f" {MAX_ANSWER_BYTES >> 30} GiB ekfviz takes from a filter; the filter was stopped",
+                "memory",
+            )
         received = []
-        for dtype, shape in layouts:
-            count = int(np.prod(shape)) if shape else 1
-            if count < 0 or dtype.hasobject:
-                raise self._garbled(what)
+        for count, (dtype, shape) in sized:
             buffer = self._read(count * dtype.itemsize, deadline, bound)
             received.append(np.frombuffer(buffer, dtype=dtype).reshape(shape))
         if not answer.get("ok"):

@@ -184,6 +184,11 @@ def grade_one(task: GradeTask) -> GradeRow:
                                 echo=False, deadline=deadline)  # fmt: skip
         spec = FilterSpec(spec_text(module), task.name, options)
         for log, truth, start in task.logs:
+            if time.time() >= deadline:  # its time ran out on the logs before
+                status = "timeout"
+                detail = _one_line(f"its time (--timeout {task.timeout_s:g} s) ran out before"
+                                   f" the {log.stem} log")  # fmt: skip
+                break
             params = task.params if start is None else replace(task.params, init_pose=start)
             save = None
             if task.save_dir is not None:
