@@ -253,3 +253,25 @@ def test_a_submission_whose_time_ran_out_before_a_log_is_a_timeout(tmp_path: Pat
         "timeout",
         "its time (--timeout 0 s) ran out before the classic log",
     )
+
+
+def test_grade_finds_a_class_whose_predict_is_the_course_s(tmp_path: Path) -> None:
+    """``class AliceFilter(MyFilter)`` with only its own ``update`` was an error row (no
+    ``def predict(`` in it), and a module's hint named the imported base class."""
+    from ekfviz.pipeline.grade import spec_text
+
+    module = tmp_path / "ekf_slam.py"
+    module.write_text(
+        "from base_filter import MyFilter\n\n\n"
+        "class Helper:\n    pass\n\n\n"
+        "class AliceFilter(MyFilter):\n"
+        "    def update(self, ids, z):\n"
+        "        super().update(ids, z)\n"
+    )
+    assert spec_text(module) == f"{module}:AliceFilter"
+    shutil.copy(BASE, tmp_path / "basef.py")
+    (tmp_path / "g.py").write_text("from basef import MyFilter as Base\n\n\nclass F(Base):\n"
+                                   "    pass\n")  # fmt: skip
+    result = ekfviz("replay", str(SAMPLE), "--filter", "g.py", "--save", "x.rrd", cwd=tmp_path)
+    assert result.returncode == 2
+    assert result.stderr.strip().endswith("g.py:F"), result.stderr  # not g.py:Base

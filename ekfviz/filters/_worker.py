@@ -782,12 +782,16 @@ class Worker:
                 self.module = instance
                 missing = []
         if missing:
+            # the module's own classes first: an imported base class is not its filter
             classes = sorted(
-                n
-                for n, v in vars(module).items()
-                if isinstance(v, type)
-                and callable(getattr(v, "predict", None))
-                and callable(getattr(v, "update", None))
+                (
+                    n
+                    for n, v in vars(module).items()
+                    if isinstance(v, type)
+                    and callable(getattr(v, "predict", None))
+                    and callable(getattr(v, "update", None))
+                ),
+                key=lambda n: (getattr(vars(module)[n], "__module__", "") != module.__name__, n),
             )
             also = "; or name its filter class: %s:%s" % (where, classes[0]) if classes else ""
             raise FilterFault(

@@ -155,9 +155,24 @@ def spec_text(module: Path) -> str:
         return str(module)
     if re.search(r"^\s*def init_landmarks\(", text, re.M):
         return str(module)
-    classes = re.findall(r"^class (\w+)\b", text, re.M)
-    with_predict = [c for c in classes if re.search(rf"class {c}\b[\s\S]*?def predict\(", text)]
-    return f"{module}:{with_predict[0]}" if len(with_predict) == 1 else str(module)
+    bodies = dict(_class_bodies(text))
+    # a class of its own predict, else one of its own update (its predict inherited from
+    # the course's base class: ``class AliceFilter(MyFilter)``)
+    for method in ("predict", "update"):
+        having = [c for c, body in bodies.items() if re.search(rf"^\s+def {method}\(", body, re.M)]
+        if len(having) == 1:
+            return f"{module}:{having[0]}"
+        if having:
+            break
+    return str(module)
+
+
+def _class_bodies(text: str) -> list[tuple[str, str]]:
+    """Each top-level class of a module's text and its body (its indented lines)."""
+    found = []
+    for match in re.finditer(r"^class (\w+)\b[^\n]*\n((?:[ \t]+[^\n]*\n|[ \t]*\n)*)", text, re.M):
+        found.append((match.group(1), match.group(2)))
+    return found
 
 
 def grade_one(task: GradeTask) -> GradeRow:
