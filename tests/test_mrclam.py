@@ -499,3 +499,14 @@ def test_a_study_or_check_refuses_a_dataset_s_malformed_truth(
     assert "Robot1_Groundtruth.dat:1: found 3 numbers" in result.output
     assert len(result.output.strip().splitlines()) == 1, result.output
     assert not rrd.exists()
+
+
+def test_a_filter_warning_names_the_file_of_its_line(tmp_path: Path) -> None:
+    """A dataset directory is two files of lines: a warning named ``DIR:LINE``, a line of
+    neither file. An update's line is the measurement file's (a predict's the odometry's)."""
+    measured = "# Time [s] Subject # range bearing\n11.5 63 2.0 0.1\n12.0 63 2.9 -0.4\n"
+    directory = write_dataset(tmp_path / "data", {**HAND, "Robot1_Measurement.dat": measured})
+    result = runner.invoke(app, ["replay", str(directory), "--gate", "1e-6", "--save",
+                                 str(tmp_path / "x.rrd")])  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert f"warning: {directory / 'Robot1_Measurement.dat'}:3: " in result.output, result.output

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import shlex
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -46,7 +46,7 @@ from ekfviz.cli.options import (
 )
 from ekfviz.cli.scans import ReplaySetup, replay_setup
 from ekfviz.cli.sources import MotionNoiseChoice, OpenedLog, first_time, open_log, resolve
-from ekfviz.core.records import AnyEvent, EventRecord
+from ekfviz.core.records import AnyEvent, EventKind, EventRecord
 from ekfviz.core.truth import GroundTruth
 from ekfviz.evaluation.errors import Evaluation
 from ekfviz.filters.ekf import EkfSlam, FilterError, FilterParams
@@ -297,13 +297,15 @@ def _record(
         signals.as_exceptions(),
     ):  # fmt: skip
         logger.append(run)
-        warnings = FilterWarnings(request.data)
+        file_of = opened.log.source.file_of
+        warnings = FilterWarnings(request.data, file_of)
         events = opened.events
         if progress is not None:
             events = opened.log.events(progress)  # read from the start, with a bar
         evaluation = pipeline.replay_log(
             events, params, make_filter=make_filter, name=request.filter_spec,
             data=request.data, truth=truth_xy, logger=run, on_record=warnings.add, scans=setup,
+            file_of=file_of,
         )  # fmt: skip
         if progress is not None:
             progress.close()
@@ -349,15 +351,17 @@ class FilterWarnings:
 
     PRINTED = 10
 
-    def __init__(self, data: Path) -> None:
+    def __init__(self, data: Path, file_of: Callable[[bool], Path | None]) -> None:
         self._data = data
+        self._file_of = file_of  # a dataset directory's file of the line (its source's)
         self.count = 0
 
     def add(self, record: EventRecord) -> None:
         for text in record.warnings:
             self.count += 1
             if self.count <= self.PRINTED:
-                where = f"{self._data}:{record.line}" if record.line else str(self._data)
+                path = self._file_of(record.kind is EventKind.PREDICT) or self._data
+                where = f"{path}:{record.line}" if record.line else str(self._data)
                 warn(escape(f"{where}: {text}"))
 
     def summarise(self) -> None:

@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Protocol
 
 from ekfviz import signals
-from ekfviz.core.records import AnyEvent, EventRecord, NeedsIds, with_ids
+from ekfviz.core.records import AnyEvent, EventKind, EventRecord, NeedsIds, with_ids
 from ekfviz.core.tables import utf8
 from ekfviz.core.truth import GroundTruth
 from ekfviz.evaluation.consistency import Consistency
@@ -111,15 +111,34 @@ class RunStopped(Exception):
             self.exit_code = 2
 
 
-def stop_reason(cause: BaseException, data: Path, last: EventRecord | None) -> str:
-    """One line saying why and where a replay stopped."""
-    after = f"after input line {last.line}" if last is not None and last.line else "at the start"
+def stop_reason(
+    cause: BaseException,
+    data: Path,
+    last: EventRecord | None,
+    file_of: Callable[[bool], Path | None] | None = None,
+) -> str:
+    """One line saying why and where a replay stopped.
+
+    :param file_of: the file of a motion's line number or an update's, where the input
+        is a dataset directory of several (:meth:`~ekfviz.sources.Source.file_of`)
+    """
+
+    def where(motion: bool | None) -> Path:
+        found = None if file_of is None or motion is None else file_of(motion)
+        return data if found is None else found
+
+    if last is not None and last.line:
+        motion = last.kind is EventKind.PREDICT
+        after = f"after line {last.line} of {where(motion)}" if where(motion) != data else (
+            f"after input line {last.line}")  # fmt: skip
+    else:
+        after = "at the start"
     if isinstance(cause, KeyboardInterrupt):
         return f"{data}: interrupted (SIGINT) {after}"
     if isinstance(cause, signals.Terminated):
         return f"{data}: terminated (SIGTERM) {after}"
     if isinstance(cause, FilterLineError):
-        return f"{data}:{cause.line}: {cause}" if cause.line else f"{data}: {cause}"
+        return f"{where(cause.motion)}:{cause.line}: {cause}" if cause.line else f"{data}: {cause}"
     return str(cause)
 
 
@@ -134,6 +153,7 @@ def replay_log(
     logger: RunLogger,
     on_record: Callable[[EventRecord], None] | None = None,
     scans: ScanHooks | None = None,
+    file_of: Callable[[bool], Path | None] | None = None,
 ) -> Evaluation:
     """One replay: the events through the filter into the logger, judged at the end.
 
@@ -178,7 +198,7 @@ def replay_log(
         if scans is not None and last.record is not None:
             truth = scans.truth_of(last.record)
         final = None if last.record is None else evaluate(last.record, truth, consistency)
-        reason = stop_reason(cause, data, last.record)
+        reason = stop_reason(cause, data, last.record, file_of)
         kept = logger.stop(reason, final)
         raise RunStopped(reason, cause, kept) from cause
     assert last.record is not None  # replay always yields the initialisation

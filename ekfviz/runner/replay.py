@@ -38,13 +38,14 @@ class FilterLineError(FilterError):
     :param line: the log line whose event failed
     """
 
-    def __init__(self, line: int, message: str) -> None:
+    def __init__(self, line: int, message: str, motion: bool | None = None) -> None:
         self.line = line
+        self.motion = motion  # the line's event a motion (a predict) or not; None: unknown
         super().__init__(message)
 
-    def __reduce__(self) -> tuple[type[FilterLineError], tuple[int, str]]:
-        # rebuilt from both arguments where a study's worker process hands it back
-        return type(self), (self.line, str(self))
+    def __reduce__(self) -> tuple[type[FilterLineError], tuple[int, str, bool | None]]:
+        # rebuilt from its arguments where a study's worker process hands it back
+        return type(self), (self.line, str(self), self.motion)
 
 
 def plugged(make_filter: FilterFactory, params: FilterParams, name: str) -> Plugged:
@@ -201,9 +202,9 @@ def replay(
             try:
                 observations, association = _observe(ekf, first, associator, last)
             except PluginError as error:
-                raise FilterLineError(first.line, f"event 0 (init): {error}") from error
+                raise FilterLineError(first.line, f"event 0 (init): {error}", False) from error
             except FilterError as error:
-                raise FilterLineError(first.line, str(error)) from error
+                raise FilterLineError(first.line, str(error), False) from error
             extra = checked(first.line, ekf.warnings)
             record = correlated(ekf.record(
                 event=0, step=0, kind=EventKind.INIT, line=first.line, time=first.time,
@@ -329,13 +330,20 @@ def replay(
                         yield from beside.hold(record)
                     else:
                         yield record
-            except FilterLineError:
+            except FilterLineError as error:  # (raised at this event's line: its kind)
+                if error.motion is None and error.line == log_event.line:
+                    error.motion = isinstance(log_event, Control | Drive)
                 raise
             except PluginError as error:
                 kind = "predict" if isinstance(log_event, Control) else "update"
-                raise FilterLineError(log_event.line, f"event {event} ({kind}): {error}") from error
+                raise FilterLineError(
+                    log_event.line, f"event {event} ({kind}): {error}",
+                    isinstance(log_event, Control | Drive),
+                ) from error  # fmt: skip
             except FilterError as error:
-                raise FilterLineError(log_event.line, str(error)) from error
+                raise FilterLineError(
+                    log_event.line, str(error), isinstance(log_event, Control | Drive)
+                ) from error
         if offline:
             assert isinstance(ekf, Plugged)
             try:

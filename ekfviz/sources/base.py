@@ -188,6 +188,11 @@ class Source(abc.ABC):
         should have)."""
         return None
 
+    def file_of(self, motion: bool) -> Path | None:
+        """The file an event's line number is in, where the source is more than one: of a
+        motion (a predict) or not (an update); None: the input as given (one file)."""
+        return None
+
     def stated_noise(self) -> LogNoise:
         """The noise the input states of itself (an extended log's ``# noise:`` header),
         the filter's defaults where no option is given; empty when it states none.

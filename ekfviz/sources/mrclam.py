@@ -56,6 +56,9 @@ class MrclamSource(Source):
     def progress_paths(self) -> list[Path]:
         return [self.dataset.odometry]  # read alongside the measurements, far longer
 
+    def file_of(self, motion: bool) -> Path | None:
+        return self.dataset.odometry if motion else self.dataset.measurement
+
     def events(
         self, progress: ProgressCallback | None = None, warn: WarningCallback | None = None
     ) -> Iterator[AnyEvent]:

@@ -108,6 +108,9 @@ class VictoriaSource(Source):
     def files(self) -> list[Path]:
         return [self.path / victoria.INPUTS, self.path / victoria.MEASUREMENTS]
 
+    def file_of(self, motion: bool) -> Path | None:
+        return self.path / (victoria.INPUTS if motion else victoria.MEASUREMENTS)
+
     @property
     def progress_paths(self) -> list[Path]:
         return self.files  # read side by side
