@@ -234,6 +234,7 @@ def replay(
         # correlation's cadence asked only where it can be due (updates, the last event)
         covariance: CovarianceCheck | None
         offline = isinstance(ekf, Plugged) and ekf.offline  # records only after finish()
+        gate_said = False  # --gate on a log of scans: said at the first
         for event, (log_event, last) in enumerate(chain(pending, stream), start=1):
             # the filter's own errors name the line; "try" costs nothing until one is raised
             try:
@@ -287,6 +288,9 @@ def replay(
                         log_event, rejected = gated(
                             ekf.x, ekf.P, ekf.landmark_ids, log_event, R, gate
                         )
+                    elif gate is not None and not gate_said and isinstance(log_event, Scan):
+                        gate_said = True  # said once, at the first scan
+                        rejected = (_GATE_ON_SCANS.format(gate=gate),)
                     if type(log_event) is Sighting:  # by its ids (the common case: no call)
                         observations, association = ekf.observe(log_event.ids, log_event.z), None
                     else:
@@ -368,6 +372,12 @@ def replay(
         raise
     finally:
         beside.close()
+
+
+_GATE_ON_SCANS = (
+    "--gate {gate:g} gates observations by landmark id; a scan's measurements are gated by"
+    " the association (--gate-probability), not by it"
+)
 
 
 def _observe(

@@ -924,7 +924,12 @@ def _describe(rec: rr.RecordingStream, info: RunInfo) -> None:
     rec.send_property("ekfviz", _any_values(values))
     if info.parameters:
         rec.send_property(
-            "parameters", _any_values({k: _property_value(v) for k, v in info.parameters.items()})
+            # a parameter left unset (no --gate) is left out: its column's type is the
+            # set value's, and a later recording in the process (a notebook's) would clash
+            "parameters",
+            _any_values(
+                {k: _property_value(v) for k, v in info.parameters.items() if v is not None}
+            ),
         )
     rec.log(
         style.RUN_INFO,
