@@ -275,3 +275,28 @@ def test_grade_finds_a_class_whose_predict_is_the_course_s(tmp_path: Path) -> No
     result = ekfviz("replay", str(SAMPLE), "--filter", "g.py", "--save", "x.rrd", cwd=tmp_path)
     assert result.returncode == 2
     assert result.stderr.strip().endswith("g.py:F"), result.stderr  # not g.py:Base
+
+
+def test_a_compare_s_table_has_a_row_for_each_filter_that_failed(tmp_path: Path) -> None:
+    """One that failed before its first event had no row (only a line on stderr); one
+    stopped in step 3 read "consistent", judged on its first steps without a word."""
+    broken = "class Broken(Base):\n    def __init__(self, params):\n        raise OSError\n"
+    filter_module(tmp_path, broken, name="broken.py")
+    filter_module(
+        tmp_path,
+        "class Stops(Base):\n"
+        "    n = 0\n"
+        "    def predict(self, d, alpha):\n"
+        "        Stops.n += 1\n"
+        "        if Stops.n == 3:\n"
+        "            raise RuntimeError('stop')\n"
+        "        super().predict(d, alpha)\n",
+        name="stops.py",
+    )
+    result = ekfviz("compare", str(SAMPLE), "--filter", "ekf", "--filter", "broken.py:Broken",
+                    "--filter", "stops.py:Stops", "--workers", "1", "--save", "c.rrd",
+                    cwd=tmp_path)  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    rows = {line.split()[0]: line for line in result.stdout.splitlines() if line.strip()}
+    assert rows["Broken"].rstrip().endswith("failed before its first event"), result.stdout
+    assert "stopped after step 2; till then: consistent" in rows["Stops"], result.stdout

@@ -102,7 +102,8 @@ def run_study(
 def _print_result(result: StudyResult, what: str) -> None:
     """The study's table, a note on the runs that used their own R, what stopped or failed."""
     own = {run.spec.label for run in result.runs if run.own_noise}
-    show(study_table(result.summaries, result.truth is not None, what, own))
+    failed = [failure.spec.label for failure in result.failures]
+    show(study_table(result.summaries, result.truth is not None, what, own, failed))
     if own:
         out.print(
             Text(

@@ -220,6 +220,7 @@ def summarise(run: Run, baseline: Run) -> Summary:
     count = consistency.nis if consistency is not None else None
     inside = sum(bool(r.inside_3sigma) for r in evaluation.landmarks) if distances else None
     summary = evaluation.summary
+    read = reading(consistency, inside, len(distances))
     return Summary(
         label=run.spec.label,
         parameters={name: getattr(run.spec.params, name) for name in VARIABLE},
@@ -232,7 +233,7 @@ def summarise(run: Run, baseline: Run) -> Summary:
         from_baseline=float(np.hypot(*(evaluation.pose[:2] - baseline.evaluation.pose[:2]))),
         mean_nis=float(np.mean(nis)) if nis else None,
         nis_inside=count.fraction_inside if count is not None and count.total else None,
-        reading=reading(consistency, inside, len(distances)),
+        reading=read if not run.failure else f"stopped after step {run.steps}; till then: {read}",
         filter=run.spec.filter.text,
         seconds=run.seconds,
         ms_per_step=1000.0 * run.seconds / run.steps if run.steps else None,
@@ -243,9 +244,14 @@ def summarise(run: Run, baseline: Run) -> Summary:
 
 
 def study_table(
-    summaries: list[Summary], has_truth: bool, what: str, own_noise: set[str] | None = None
+    summaries: list[Summary],
+    has_truth: bool,
+    what: str,
+    own_noise: set[str] | None = None,
+    failed: Sequence[str] = (),
 ) -> TextTable:
-    """The study's table for the terminal (the report has every column)."""
+    """The study's table for the terminal (the report has every column); ``failed``: the
+    labels of the runs that failed before any event, a row each saying so."""
     columns = [what]
     if has_truth:
         columns += ["mean err", "worst", "aligned", "3σ axis", "Mahal.", "in 3σ"]
@@ -262,6 +268,8 @@ def study_table(
         nis_inside = "-" if s.nis_inside is None else f"{s.nis_inside:.0%}"
         cells += [f"{s.from_baseline:.3f}", nis_inside, _num(s.ms_per_step, 3), s.reading]
         rows.append(tuple(cells))
+    for label in failed:  # (why: the line under the table)
+        rows.append((label, *(["-"] * (len(columns) - 2)), "failed before its first event"))
     left = frozenset({what, "reading"})
     return TextTable(f"{what.capitalize()}s", tuple(columns), tuple(rows), left=left, lines=False)
 
