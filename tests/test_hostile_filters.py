@@ -38,6 +38,16 @@ def filter_module(folder: Path, body: str, name: str = "f.py") -> str:
     return f"{name}:F"
 
 
+def refused(spec: str, folder: Path, *options: str) -> str:
+    """The stderr of a replay with the filter ``spec`` that must fail: exit 2, no
+    traceback of ekfviz's."""
+    result = ekfviz("replay", str(SAMPLE), "--filter", spec, "--save", "run.rrd", *options,
+                    cwd=folder)  # fmt: skip
+    assert result.returncode == 2, result.stderr
+    assert "Traceback" not in result.stderr
+    return result.stderr
+
+
 def test_a_helper_process_in_a_session_of_its_own_does_not_hold_the_run(tmp_path: Path) -> None:
     """It outlives the worker's process group and held the worker's output pipe: ekfviz,
     closing that pipe while a thread read it, waited for the helper to end (a class's
@@ -93,9 +103,8 @@ def test_a_line_of_megabytes_is_neither_kept_whole_nor_quoted_whole(tmp_path: Pa
         "        print('x' * (5 << 20), flush=True)\n"
         "        os._exit(1)\n",
     )
-    result = ekfviz("replay", str(SAMPLE), "--filter", spec, "--save", "run.rrd", cwd=tmp_path)
-    assert result.returncode == 2, result.stderr
-    error = result.stderr.strip().splitlines()[-1]
+    stderr = refused(spec, tmp_path)
+    error = stderr.strip().splitlines()[-1]
     assert "its last output: xxxx" in error and " ...;" in error
     assert len(error) < 1000
 
@@ -138,11 +147,10 @@ def test_ids_beyond_a_64_bit_signed_integer_are_the_filter_s_named_fault(tmp_pat
         "            P[:-2, :-2] = self.P\n"
         "            self.P = P\n",
     )
-    result = ekfviz("replay", str(SAMPLE), "--filter", spec, "--save", "run.rrd", cwd=tmp_path)
-    assert result.returncode == 2, result.stderr
+    stderr = refused(spec, tmp_path)
     assert "landmark_ids holds 18446744073709551614, expected ids that fit a 64-bit signed" \
-        " integer" in result.stderr  # fmt: skip
-    assert "raised OverflowError" not in result.stderr
+        " integer" in stderr  # fmt: skip
+    assert "raised OverflowError" not in stderr
 
 
 def test_a_list_grown_until_memory_runs_out_is_said_as_memory(tmp_path: Path) -> None:
@@ -156,12 +164,9 @@ def test_a_list_grown_until_memory_runs_out_is_said_as_memory(tmp_path: Path) ->
         "        while True:\n"
         "            history.append([0.0] * 1000)\n",
     )
-    result = ekfviz("replay", str(SAMPLE), "--filter", spec, "--save", "run.rrd",
-                    "--filter-memory", "256", cwd=tmp_path)  # fmt: skip
-    assert result.returncode == 2, result.stderr
-    assert "Traceback" not in result.stderr
+    stderr = refused(spec, tmp_path, "--filter-memory", "256")
     assert (
-        result.stderr.strip()
+        stderr.strip()
         .splitlines()[-1]
         .startswith(
             f"error: {SAMPLE}:2: event 1 (predict): filter {spec}: predict raised MemoryError"
@@ -207,10 +212,9 @@ def test_an_answer_too_large_to_take_is_refused_before_it_is_allocated(tmp_path:
         "        big[: len(self.P), : len(self.P)] = self.P\n"
         "        self.P = big\n",
     )
-    result = ekfviz("replay", str(SAMPLE), "--filter", spec, "--save", "run.rrd", cwd=tmp_path)
-    assert result.returncode == 2, result.stderr
+    stderr = refused(spec, tmp_path)
     assert "after predict, its arrays ((15,), (12003, 12003)) are 1.2 GB, more than the 1 GiB" \
-        " ekfviz takes from a filter" in result.stderr  # fmt: skip
+        " ekfviz takes from a filter" in stderr  # fmt: skip
 
 
 def test_a_state_the_reference_cannot_step_from_is_named_with_the_filter(tmp_path: Path) -> None:
