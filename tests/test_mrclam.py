@@ -510,3 +510,29 @@ def test_a_filter_warning_names_the_file_of_its_line(tmp_path: Path) -> None:
                                  str(tmp_path / "x.rrd")])  # fmt: skip
     assert result.exit_code == 0, result.output
     assert f"warning: {directory / 'Robot1_Measurement.dat'}:3: " in result.output, result.output
+
+
+@pytest.mark.parametrize(
+    ("command", "option"),
+    [
+        (["calibrate"], "--report"),
+        (["check", "--filter", "ekf"], "--report"),
+        (["sweep", "--vary", "sigma_x=x2", "--workers", "1"], "--save"),
+        (["compare", "--filter", "ekf", "--workers", "1"], "--report"),
+    ],
+)
+def test_no_command_writes_over_a_file_of_the_dataset_it_reads(
+    dataset: Path, command: list[str], option: str
+) -> None:
+    """``replay`` refused it; ``calibrate --report DIR/Robot1_Odometry.dat`` replaced the
+    odometry with its report, and the dataset no longer read."""
+    name, *rest = command
+    target = dataset / "Robot1_Odometry.dat"
+    before = target.read_bytes()
+    result = runner.invoke(app, [name, str(dataset), *rest, option, str(target)])
+    assert result.exit_code == 2, result.output
+    assert result.output.strip() == (
+        f"error: {option} {target}: is the input {target}, which writing it would replace:"
+        " give another file"
+    )
+    assert target.read_bytes() == before

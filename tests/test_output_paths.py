@@ -320,3 +320,36 @@ def test_a_recording_saved_through_a_link_replaces_the_file_it_points_to(
     assert link.is_symlink() and link.resolve() == real.resolve()
     info = viz.read_recording_info(real)
     assert info is not None and info.status is not None and info.status.state == "finished"
+
+
+@pytest.mark.parametrize(
+    ("command", "input_name"),
+    [
+        (["sweep", "run.txt", "--vary", "sigma_x=x2", "--workers", "1", "--report", "run.txt"],
+         "run.txt"),
+        (["sweep", "run.txt", "--vary", "sigma_x=x2", "--workers", "1", "--save", "run.txt"],
+         "run.txt"),
+        (["compare", "run.txt", "--truth", "truth.json", "--filter", "ekf", "--workers", "1",
+          "--report", "truth.json"], "truth.json"),
+        (["compare", "run.txt", "--filter", "ekf", "--filter", "mine.py", "--workers", "1",
+          "--save", "mine.py"], "mine.py"),
+        (["consistency", "--runs", "2", "--workers", "1", "--filter", "mine.py", "--report",
+          "mine.py"], "mine.py"),
+    ],
+)  # fmt: skip
+def test_a_study_s_output_never_replaces_its_input(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, command: list[str], input_name: str
+) -> None:
+    """``replay`` refused it; a sweep, a compare and a consistency study wrote their report
+    or recording over the log, the truth or the user's filter, exit 0."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "run.txt").write_text(SAMPLE.read_text())
+    (tmp_path / "truth.json").write_text((DATA / "classic_truth.json").read_text())
+    (tmp_path / "mine.py").write_text("# a user's filter\n")
+    before = (tmp_path / input_name).read_bytes()
+    result = runner.invoke(app, command)
+    assert result.exit_code == 2, result.output
+    assert result.output.strip().endswith(
+        f"is the input {input_name}, which writing it would replace: give another file"
+    )
+    assert (tmp_path / input_name).read_bytes() == before

@@ -35,6 +35,7 @@ from ekfviz.cli.common import (
     command_hint,
     fail,
     out,
+    refuse_output_over_input,
     say,
     show,
     warn,
@@ -92,7 +93,7 @@ def calibrate_command(
     The truth is --truth (with true poses: a JSON file with "poses") or a dataset's own.
     """
     check_outputs(("--report", report), inputs=[data, truth])
-    result, command = run_calibrate(data, truth, source_args, window, fit_share)
+    result, command = run_calibrate(data, truth, source_args, window, fit_share, report)
     if report is not None:
         try:
             write_json(report, calibration_json(result, data, command))
@@ -107,12 +108,20 @@ def calibrate_command(
 
 
 def run_calibrate(
-    data: Path, truth: Path | None, source_args: SourceArgs, window: float, fit_share: float
+    data: Path,
+    truth: Path | None,
+    source_args: SourceArgs,
+    window: float,
+    fit_share: float,
+    report: Path | None = None,
 ) -> tuple[Recommendation, list[str]]:
-    """The noise estimated and the candidates judged, printed; the best's replay line."""
+    """The noise estimated and the candidates judged, printed; the best's replay line
+    (``report``: where it goes, which may be none of a dataset directory's files)."""
     defaults_given = FilterForm().params(FilterNoise(), DEFAULT.init_pose_sigma, log=data)
     try:
         opened = open_log(data, source_args, truth, no_truth=False)
+        refuse_output_over_input(("--report", report),
+                                 inputs=[*opened.source.files, *opened.truth_files])  # fmt: skip
         if opened.truth is None or not opened.truth.has_poses:
             fail(
                 f"{truth or data}: calibrate needs true poses: --truth FILE.json with"

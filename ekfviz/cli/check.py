@@ -24,6 +24,7 @@ from ekfviz.cli.common import (
     out,
     piped_input,
     plain,
+    refuse_output_over_input,
     rendered,
     say,
     show,
@@ -185,6 +186,8 @@ def run_check(request: CheckRequest) -> None:
             opened = study_input(params, log, request.source_args, log_truth, request.no_truth,
                                  motion_noise=False, init_pose=start, pose_option=True)  # fmt: skip
             params = opened.params
+            refuse_output_over_input(("--report", request.report), ("--save", save),
+                                     inputs=opened.files)  # fmt: skip
             target = save if data is not None or save is None else _per_log(save, log)
             result, exercised = _run(
                 log, log_truth, spec, params, request.tolerance, target, every,

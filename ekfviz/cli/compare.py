@@ -94,6 +94,7 @@ def compare(
         parameters={"filters": filters, "parameters": params.as_dict()},
         report_extra={"parameters": params.as_dict()}, executor=execution.make(),
         keep_going=True, source_args=source_args, own_truth=start.own_truth, notes=start.notes,
+        inputs=start.files,
     )  # fmt: skip
 
 

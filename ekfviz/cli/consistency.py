@@ -22,6 +22,7 @@ from ekfviz.cli.common import (
     command_hint,
     err,
     fail,
+    filter_module,
     interrupted,
     out,
     show,
@@ -119,7 +120,8 @@ def consistency(
 
 def run_consistency(request: ConsistencyRequest) -> None:
     """Run the trials, print the verdict, write the report and the recording."""
-    check_outputs(("--report", request.report), ("--save", request.save))
+    check_outputs(("--report", request.report), ("--save", request.save),
+                  inputs=[filter_module(request.filter_spec)])  # fmt: skip
     trials = _trials(request)
     result = _average(request, trials)
     show(result.table(f"Consistency over {request.runs} runs ({request.scenario.value})"))

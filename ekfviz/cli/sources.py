@@ -237,11 +237,14 @@ class StudyInput:
     :param own_truth: the source's own truth, where no ``--truth`` file replaces it and
         ``--no-truth`` does not drop it
     :param notes: what was chosen, for the user (the start pose)
+    :param files: the files the source and its own truth are read from, none of which an
+        output may replace
     """
 
     params: FilterParams
     own_truth: OwnTruth | None = None
     notes: tuple[str, ...] = ()
+    files: tuple[Path, ...] = ()  # what the source reads (a dataset directory's files)
 
 
 def study_input(
@@ -271,18 +274,19 @@ def study_input(
         own = None if truth_path is not None or no_truth else source.own_truth(warn)
     except InputError as error:
         fail(str(error))
+    truth, files = (own.truth, own.files) if own is not None else (None, [])
+    read = (*source.files, *files)
     start = None
     if own is not None and own.truth.track_times is not None and init_pose is None:
         try:  # the first event's time (its warnings are said where the log is read whole)
             start, _ = first_time(source.events(None, _unsaid))
         except InputError:
-            return StudyInput(params)
-    truth, files = (own.truth, own.files) if own is not None else (None, [])
+            return StudyInput(params, files=read)
     opened = OpenedLog(source, source_args, truth, files)
     kept = MotionNoiseChoice(params.motion_noise.value)
     choice = MotionNoiseChoice.AUTO if motion_noise else kept
     resolved, notes = resolve(params, opened, start, init_pose, choice, pose_option=pose_option)
-    return StudyInput(resolved, own, tuple(notes))
+    return StudyInput(resolved, own, tuple(notes), read)
 
 
 def _unsaid(message: str) -> None:

@@ -21,6 +21,7 @@ from ekfviz.cli.common import (
     default_output,
     err,
     fail,
+    filter_module,
     interrupted,
     out,
     show,
@@ -56,6 +57,7 @@ def run_study(
     source_args: SourceArgs | None = None,
     own_truth: OwnTruth | None = None,
     notes: Sequence[str] = (),
+    inputs: Sequence[Path] = (),
 ) -> None:
     """Run every spec on the log, print the table, save the recording and the report.
 
@@ -63,11 +65,15 @@ def run_study(
         ``-compare``), under a new name if that one is taken
     :param own_truth: the source's own truth (a dataset's), where ``truth`` is None
     :param notes: what was chosen for the runs (the start pose), said before the table
+    :param inputs: the files the log's source reads (a dataset directory's)
     """
     from ekfviz import pipeline, viz
 
     what = "variant" if root == "variants" else "filter"
-    check_outputs(("--save", target), ("--report", report))
+    # none of them may be written over: the log (a dataset's files), the truth, the filters
+    modules = [filter_module(spec.filter.text) for spec in specs]
+    check_outputs(("--save", target), ("--report", report),
+                  inputs=[data, truth, *inputs, *modules])  # fmt: skip
     if target is None:
         target = default_output(f"{data.stem}-{'sweep' if root == 'variants' else 'compare'}.rrd")
     finished: list[None] = []

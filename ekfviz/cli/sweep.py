@@ -110,6 +110,7 @@ def sweep(
         },
         report_extra={"baseline": baseline.as_dict()}, executor=execution.make(),
         source_args=source_args, own_truth=start.own_truth, notes=start.notes,
+        inputs=start.files,
     )  # fmt: skip
 
 
