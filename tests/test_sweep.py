@@ -118,3 +118,26 @@ def test_sweep_does_not_depend_on_the_number_of_workers(tmp_path: Path) -> None:
             variant.pop("ms_per_step")
         reports.append(variants)
     assert reports[0] == reports[1]
+
+
+@pytest.mark.parametrize(
+    ("vary", "message"),
+    [
+        ([f"{name}=" + ",".join(str(1 + k / 100) for k in range(100))
+          for name in ("sigma_x", "sigma_y", "sigma_alpha", "sigma_bearing", "sigma_range")],
+         "--vary asks for 10,000,000,000 variants, more than a sweep runs (1,000)"),
+        (["sigma_bearing=0"], "gives sigma_bearing = 0, expected a positive sigma"),
+        (["sigma_range=/1e-320"], "gives sigma_range = inf, expected at most 1e+18"),
+        (["sigma_x=0.1,0.1000001"], "names two values that print alike"),
+    ],
+)  # fmt: skip
+def test_a_vary_that_cannot_run_as_asked_is_one_line(
+    tmp_path: Path, vary: list[str], message: str
+) -> None:
+    """A 2 KB command line asked for 10^10 variants and was built whole (memory); a zero
+    R ran (errors of 80 km); an infinite sigma blamed line 1 of the log; two values that
+    print alike ran as one."""
+    options = [part for text in vary for part in ("--vary", text)]
+    result = runner.invoke(app, ["sweep", str(SAMPLE), *options, "--save", str(tmp_path / "x.rrd")])
+    assert result.exit_code == 2, result.output
+    assert message in result.output and len(result.output.strip().splitlines()) == 1

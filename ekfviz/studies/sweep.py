@@ -16,12 +16,16 @@ from __future__ import annotations
 import itertools
 import math
 import re
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
 from ekfviz.filters.ekf import FilterParams
+from ekfviz.io.text import MAX_MAGNITUDE
 from ekfviz.studies.runs import VARIABLE, RunSpec
+
+MAX_VARIANTS = 1000  # variants a sweep runs: each is a whole replay
+MAX_SIGMA = MAX_MAGNITUDE  # as every number read
 
 _VALUE = re.compile(r"(?P<op>[x*/]?)(?P<number>(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)")
 
@@ -98,28 +102,53 @@ def build_variants(
 ) -> list[RunSpec]:
     """The baseline first, then a grid of the varied values or each value on its own."""
     variants = [RunSpec("baseline", "baseline", baseline)]
-    combinations: list[tuple[Change, ...]]
+    combinations: Iterable[tuple[Change, ...]]
     if one_at_a_time or len(varies) == 1:
+        count = sum(len(changes) for changes in varies)
         combinations = [(change,) for changes in varies for change in changes]
-    else:
-        combinations = list(itertools.product(*varies))
-    seen = {"baseline"}
+    else:  # the grid counted before it is made: five lists of 100 are 10^10 variants
+        count = math.prod(len(changes) for changes in varies)
+        combinations = itertools.product(*varies)
+    if count > MAX_VARIANTS:
+        raise SweepError(
+            f"--vary asks for {count:,} variants, more than a sweep runs ({MAX_VARIANTS:,}):"
+            " vary fewer values, or one at a time (--one-at-a-time)"
+        )
+    seen: dict[str, FilterParams] = {"baseline": baseline}
     for combination in combinations:
         names = [change.name for change in combination]
         if len(set(names)) != len(names):
             raise SweepError(f"--vary names {names[0]} twice in one variant")
-        values: dict[str, Any] = {c.name: c.apply(getattr(baseline, c.name)) for c in combination}
+        values: dict[str, Any] = {c.name: _checked(c, c.apply(getattr(baseline, c.name)))
+                                  for c in combination}  # fmt: skip
         params = replace(baseline, **values)
         key = "_".join(change.key for change in combination)
         if key in seen:
+            if seen[key] != params:  # two values that print alike: one would be lost
+                raise SweepError(
+                    f"--vary: {', '.join(c.label for c in combination)} names two values"
+                    " that print alike (6 significant digits): give values that differ there"
+                )
             continue
-        seen.add(key)
+        seen[key] = params
         variants.append(
             RunSpec(
                 ", ".join(change.label for change in combination), key, params, changes=combination
             )
         )
     return variants
+
+
+def _checked(change: Change, value: float) -> float:
+    """A varied sigma as the filter takes it, as ``replay`` checks its options: finite,
+    at most 1e18, and positive for the measurement's (R must be invertible)."""
+    if not math.isfinite(value) or value > MAX_SIGMA:
+        raise SweepError(f"--vary {change.label}: gives {change.name} = {value:g}, expected at"
+                         f" most {MAX_SIGMA:g}")  # fmt: skip
+    if change.name in ("sigma_bearing", "sigma_range") and value <= 0.0:
+        raise SweepError(f"--vary {change.label}: gives {change.name} = {value:g}, expected a"
+                         " positive sigma (R must be invertible)")  # fmt: skip
+    return value
 
 
 def tuning_preset(baseline: FilterParams) -> list[RunSpec]:
