@@ -49,6 +49,28 @@ def test_an_absent_scheduler_is_a_one_line_error() -> None:
     assert "\n" not in str(error.value)
 
 
+@pytest.mark.parametrize("address", ["tls://127.0.0.1:9", "workerless"])
+def test_a_scheduler_without_workers_or_its_tls_context_is_a_one_line_error(
+    address: str,
+) -> None:
+    """A scheduler with no worker held the study for ever without a word; a TLS address
+    without its context was a TypeError traceback after a minute."""
+    from distributed import LocalCluster
+
+    if address != "workerless":
+        with pytest.raises(ExecutorError, match="cannot reach a Dask scheduler") as error:
+            DaskExecutor(address, timeout_s=1.0).map(square_of, [1])
+        assert "\n" not in str(error.value)
+        return
+    with (
+        LocalCluster(  # type: ignore[no-untyped-call]
+            n_workers=0, processes=True, host="127.0.0.1", dashboard_address=None
+        ) as cluster,
+        pytest.raises(ExecutorError, match="the Dask scheduler has no workers"),
+    ):
+        DaskExecutor(str(cluster.scheduler_address), timeout_s=1.0).map(square_of, [1])
+
+
 @pytest.fixture(scope="module")
 def scheduler() -> Iterator[str]:
     """A Dask scheduler and two worker processes on loopback."""

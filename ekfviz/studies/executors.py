@@ -22,6 +22,7 @@ command stops them itself, so that a worker never prints a traceback of its own.
 
 from __future__ import annotations
 
+import contextlib
 import enum
 import os
 import signal
@@ -161,10 +162,19 @@ class DaskExecutor:
             client = Client(  # type: ignore[no-untyped-call]
                 self.scheduler, timeout=self.timeout_s, set_as_default=False
             )
-        except (OSError, TimeoutError, ValueError) as error:
+        except Exception as error:  # unreachable, a refused address, TLS without its context
             reason = str(error).splitlines()[0] if str(error) else type(error).__name__
             raise ExecutorError(
                 f"--scheduler {self.scheduler}: cannot reach a Dask scheduler ({reason})"
+            ) from None
+        try:  # a scheduler without workers would hold the tasks for ever, without a word
+            client.wait_for_workers(1, timeout=self.timeout_s)
+        except Exception:
+            with contextlib.suppress(Exception):
+                client.close(timeout=5)  # type: ignore[no-untyped-call]
+            raise ExecutorError(
+                f"--scheduler {self.scheduler}: the Dask scheduler has no workers (none joined"
+                f" in {self.timeout_s:g} s): start some with dask worker {self.scheduler}"
             ) from None
         with client, client.as_current():  # as_completed asks for the current client
             # pure=False: every item is a task of its own, even two equal ones
