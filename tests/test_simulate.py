@@ -7,6 +7,7 @@ import math
 from pathlib import Path
 
 import numpy as np
+import pytest
 from typer.testing import CliRunner
 
 from ekfviz.cli import app
@@ -19,6 +20,7 @@ from ekfviz.sim.scenarios import classic, loop
 from ekfviz.sim.simulate import Noise
 
 runner = CliRunner()
+SAMPLE = Path(__file__).parents[1] / "data" / "classic.txt"
 
 
 def simulate(tmp_path: Path, *args: str, stem: str = "run") -> tuple[Path, Path]:
@@ -141,3 +143,37 @@ def test_convert_keeps_every_number_exactly(tmp_path: Path) -> None:
 def test_scenario_prior_draws_the_true_start() -> None:
     starts = np.array([classic().run(seed=s).poses_xytheta[0] for s in range(200)])
     np.testing.assert_allclose(starts.std(axis=0), [0.02, 0.02, 0.1], rtol=0.2)
+
+
+@pytest.mark.parametrize(
+    ("options", "said"),
+    [
+        (["simulate", "--true-sigma-x", "nan"], "'--true-sigma-x': found nan, expected a number"),
+        (["simulate", "--true-sigma-bearing", "inf"], "'--true-sigma-bearing': inf is not in"),
+        (["simulate", "--init-pose-sigma", "-1", "0", "0"], "'--init-pose-sigma': -1.0 is not"),
+        (["simulate", "--seed", "-1"], "'--seed': -1 is not in the range x>=0"),
+        (["simulate", "--unknown-ids", "--clutter", "inf"], "'--clutter': inf is not in"),
+        (["simulate", "--scenario", "loop", "--steps", "1000000000000"], "'--steps':"),
+        (["simulate", "--scenario", "loop", "--max-range", "nan"], "'--max-range': found nan"),
+        (["simulate", "--layout", "mrclam", "--duration", "nan"], "'--duration': found nan"),
+        (["simulate", "--scenario", "loop", "--steps", "10000000", "--laps", "100"],
+         "--laps 100 of 10,000,000 controls make 1,000,000,000, more than a simulated run"),
+        (["consistency", "--runs", "2", "--true-sigma-x", "nan"], "'--true-sigma-x': found nan"),
+        (["consistency", "--runs", "2", "--seed", "-1"], "'--seed': -1 is not in the range"),
+        (["calibrate", "LOG", "--fit-share", "nan"], "'--fit-share': found nan"),
+    ],
+)  # fmt: skip
+def test_an_option_value_no_simulation_can_take_is_one_line(
+    tmp_path: Path, options: list[str], said: str
+) -> None:
+    """NaN passes a range (every comparison with it is false): a NaN sigma wrote a log of
+    NaN, ``consistency`` read "consistent"; an infinite clutter, a negative seed, 10^12
+    steps and a NaN duration ended in tracebacks (numpy's Poisson, its seed, its memory)."""
+    name, *rest = options
+    rest = [str(SAMPLE) if part == "LOG" else part for part in rest]
+    if name == "simulate":
+        rest += ["-o", str(tmp_path / "run"), "--truth-out", str(tmp_path / "t.json")]
+    result = runner.invoke(app, [name, *rest])
+    assert result.exit_code == 2, result.output
+    assert said in result.output and len(result.output.strip().splitlines()) == 1, result.output
+    assert not (tmp_path / "run").exists()

@@ -34,6 +34,7 @@ from ekfviz.cli.common import (
     check_outputs,
     command_hint,
     fail,
+    not_nan,
     out,
     refuse_output_over_input,
     say,
@@ -56,7 +57,12 @@ from ekfviz.sources import SourceArgs
 
 Window = Annotated[
     float,
-    typer.Option(help="Seconds of odometry per motion window of a timestamped log.", min=0.01),
+    typer.Option(
+        help="Seconds of odometry per motion window of a timestamped log.",
+        min=0.01,
+        max=3600.0,
+        callback=not_nan,
+    ),
 ]
 FitShare = Annotated[
     float,
@@ -65,6 +71,7 @@ FitShare = Annotated[
         " the rest judges the candidate settings.",
         min=0.2,
         max=0.9,
+        callback=not_nan,
     ),
 ]
 CalibrationReport = Annotated[

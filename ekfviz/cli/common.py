@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import enum
 import json
+import math
 import os
 import shutil
 import sys
@@ -447,7 +448,19 @@ def piped_input(ctx: typer.Context, value: Path | None) -> Path | None:
 
 
 def _option(help: str, panel: str | None = None, **kwargs: Any) -> Any:
+    if "min" in kwargs or "max" in kwargs:  # a number's range: NaN is in none
+        kwargs.setdefault("callback", not_nan)
     return typer.Option(help=help, rich_help_panel=panel, **kwargs)
+
+
+def not_nan(value: Any) -> Any:
+    """An option's value with no NaN in it: a range (``min=0``) lets NaN through, since
+    every comparison with it is false, and a NaN sigma, share or range ran without a word
+    (``consistency --true-sigma-x nan`` read "consistent")."""
+    values = value if isinstance(value, tuple | list) else (value,)
+    if any(isinstance(v, float) and math.isnan(v) for v in values):
+        raise typer.BadParameter("found nan, expected a number")
+    return value
 
 
 Triple = tuple[float, float, float]

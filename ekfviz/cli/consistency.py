@@ -43,6 +43,7 @@ from ekfviz.cli.options import (
     Sensing,
     TrueNoise,
     expands_options,
+    refuse_too_long,
 )
 from ekfviz.filters.ekf import FilterError
 from ekfviz.filters.spec import BUILTIN, FilterSpecError, load_filter
@@ -143,6 +144,7 @@ def _trials(request: ConsistencyRequest) -> Trials:
     world = request.loop.world(request.scenario, request.seed)
     prior = world.init_pose_sigma if request.init_pose_sigma is None else request.init_pose_sigma
     params = request.form.params(request.noise, prior)
+    refuse_too_long(len(world.controls), request.laps)
     noise = request.true_noise.of(world)
     detection = request.sensing.detection()
     unknown_ids, association = request.sensing.unknown_ids, request.association.association

@@ -206,8 +206,25 @@ SchedulerOption = Annotated[
 ]
 
 
+# bounds of what a simulation is asked for: beyond them the run is not a bigger study but
+# numbers that overflow (a sigma of 1e300), a Poisson draw numpy refuses, or memory
+MAX_TRUE_SIGMA = 1e6
+MAX_CLUTTER = 1000.0
+MAX_STEPS = 10_000_000
+MAX_LANDMARKS = 100_000
+MAX_LAPS = 10_000
+
+
+def refuse_too_long(steps: int, laps: int) -> None:
+    """Refuse (one line, exit 2) a simulated run of more than :data:`MAX_STEPS` controls:
+    ``--steps`` and ``--laps`` each within bounds multiply past them (memory)."""
+    if steps * laps > MAX_STEPS:
+        fail(f"--laps {laps} of {steps:,} controls make {steps * laps:,}, more than a simulated"
+             f" run takes ({MAX_STEPS:,})")  # fmt: skip
+
+
 def _true(what: str) -> Any:
-    return _option(f"True {what}.", TRUE_NOISE, min=0.0, show_default=False)
+    return _option(f"True {what}.", TRUE_NOISE, min=0.0, max=MAX_TRUE_SIGMA, show_default=False)
 
 
 TrueSigmaX = Annotated[float | None, _true("motion noise sigma along the heading")]
@@ -218,15 +235,33 @@ TrueSigmaRange = Annotated[float | None, _true("range noise sigma")]
 ScenarioOption = Annotated[ScenarioName, _option("The world and route.")]
 Steps = Annotated[
     int | None,
-    _option("loop: controls in one lap \\[default: 1000].", LOOP, min=4, show_default=False),
+    _option(
+        "loop: controls in one lap \\[default: 1000].",
+        LOOP,
+        min=4,
+        max=MAX_STEPS,
+        show_default=False,
+    ),
 ]
 Landmarks = Annotated[
     int | None,
-    _option("loop: number of landmarks \\[default: 200].", LOOP, min=1, show_default=False),
+    _option(
+        "loop: number of landmarks \\[default: 200].",
+        LOOP,
+        min=1,
+        max=MAX_LANDMARKS,
+        show_default=False,
+    ),
 ]
 MaxRange = Annotated[
     float | None,
-    _option("loop: sensor range in metres \\[default: 15].", LOOP, min=0.0, show_default=False),
+    _option(
+        "loop: sensor range in metres \\[default: 15].",
+        LOOP,
+        min=0.0,
+        max=1e6,
+        show_default=False,
+    ),
 ]
 Fov = Annotated[
     float | None,
@@ -253,14 +288,21 @@ Clutter = Annotated[
         "Mean false alarms per scan (Poisson), uniform over the field.",
         SENSOR,
         min=0.0,
+        max=MAX_CLUTTER,
         metavar="RATE",
     ),
 ]
 DetectionProbability = Annotated[
     float,
-    _option("Probability of detecting a landmark in reach (0 to 1).", SENSOR, metavar="P"),
+    _option(
+        "Probability of detecting a landmark in reach (0 to 1).",
+        SENSOR,
+        metavar="P",
+        min=0.0,
+        max=1.0,
+    ),
 ]
-Laps = Annotated[int, _option("Drive the route this many times.", min=1)]
+Laps = Annotated[int, _option("Drive the route this many times.", min=1, max=MAX_LAPS)]
 # sweep and compare: a study's outputs
 SummaryReport = Annotated[
     Path | None, _option("Write the summary as JSON here.", show_default=False)
@@ -275,7 +317,7 @@ def study_save(kind: str) -> Any:
     )
 
 
-Seed = Annotated[int, _option("Seed of the first run; run k uses seed + k.")]
+Seed = Annotated[int, _option("Seed of the first run; run k uses seed + k.", min=0)]
 
 
 # -- reading them ---------------------------------------------------------------------------

@@ -18,17 +18,20 @@ from ekfviz.cli.common import (
     check_outputs,
     command_hint,
     fail,
+    not_nan,
     out,
     refuse_overwrite,
     write_bytes_atomic,
 )
 from ekfviz.cli.options import (
+    MAX_TRUE_SIGMA,
     Laps,
     LoopShape,
     ScenarioOption,
     Sensing,
     TrueNoise,
     expands_options,
+    refuse_too_long,
 )
 from ekfviz.core.truth import GroundTruth
 from ekfviz.filters.ekf import FilterParams
@@ -72,8 +75,10 @@ LayoutOption = Annotated[
     ),
 ]
 DEFAULT_DURATION = MrclamWorld().duration_s
-Duration = Annotated[float, typer.Option(help="mrclam: seconds of the run.", min=1.0)]
-NoiseSeed = Annotated[int, _option("Seed of the noise (and of the loop's landmark field).")]
+Duration = Annotated[
+    float, _option("mrclam: seconds of the run.", min=1.0, max=1e6)  # (11 days)
+]
+NoiseSeed = Annotated[int, _option("Seed of the noise (and of the loop's landmark field).", min=0)]
 FormatOption = Annotated[
     LogFormat | None,
     typer.Option(
@@ -85,6 +90,9 @@ FormatOption = Annotated[
 TrueInitPoseSigma = Annotated[
     tuple[float, float, float] | None,
     typer.Option(
+        min=0.0,
+        max=MAX_TRUE_SIGMA,
+        callback=not_nan,
         metavar="SX SY STHETA",
         help="The true start is drawn from N(0, diag(sigma^2)), the prior a filter should"
         " assume \\[default: classic 0.02 0.02 0.1, loop 0.01 0.01 0.005].",
@@ -156,6 +164,7 @@ def run_simulate(request: SimulateRequest) -> None:
     check_outputs(("--output", output), ("--truth-out", truth_out))
     refuse_overwrite(request.force, ("--output", output), ("--truth-out", truth_out))
     world = request.loop.world(request.scenario, request.seed)
+    refuse_too_long(len(world.controls), request.laps)
     noise = request.true_noise.of(world)
     init_pose_sigma = request.init_pose_sigma
     if init_pose_sigma is None:
