@@ -407,3 +407,33 @@ def test_info_and_export_of_a_special_file_say_what_it_is(tmp_path: Path, kind: 
             f"error: {path}: {words}; expected a recording (.rrd)\n"
         ), result.stderr
     assert not (tmp_path / "t.tum").exists()
+
+
+def test_a_multi_value_option_given_with_equals_is_read_as_click_reads_it(
+    tmp_path: Path,
+) -> None:
+    """``--init-pose-sigma=0.1 0.1 0.1`` is click's syntax: ekfviz's own check counted the
+    first value twice and refused it ("found fewer", "found '-o'")."""
+    log, truth = tmp_path / "run.txt", tmp_path / "run.json"
+    result = runner.invoke(app, ["simulate", "--init-pose-sigma=0.1", "0.2", "0.3", "-o",
+                                 str(log), "--truth-out", str(truth)])  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert json.loads(truth.read_text())["init_pose_sigma"] == [0.1, 0.2, 0.3]
+
+
+def test_two_filters_of_one_label_and_a_run_too_short_to_calibrate(tmp_path: Path) -> None:
+    """Two rows named alike could not be told apart in a comparison's table or report; a
+    run too short to calibrate on said numpy's "Singular matrix"."""
+    result = runner.invoke(app, ["compare", str(SAMPLE), "--filter", "ekf", "--filter", "ekf",
+                                 "--label", "A", "--label", "A"])  # fmt: skip
+    assert result.exit_code == 2
+    assert result.output.strip() == (
+        "error: --label A given twice: give each filter a name of its own"
+    )
+    log, truth, short = tmp_path / "run.txt", tmp_path / "run.json", tmp_path / "short.txt"
+    result = runner.invoke(app, ["simulate", "-o", str(log), "--truth-out", str(truth)])
+    assert result.exit_code == 0, result.output
+    short.write_text("\n".join(log.read_text().splitlines()[:5]) + "\n")
+    result = runner.invoke(app, ["calibrate", str(short), "--truth", str(truth)])
+    assert result.exit_code == 2, result.output
+    assert "too short a run to calibrate on" in result.output

@@ -7,6 +7,7 @@ import shlex
 from pathlib import Path
 from typing import Annotated
 
+import numpy as np
 import typer
 
 from ekfviz.association.gating import CHI2_2_999
@@ -150,6 +151,9 @@ def run_calibrate(
         )  # fmt: skip
     except InputError as error:
         fail(str(error))
+    except np.linalg.LinAlgError:  # (a ValueError: before it) a fit of too few samples
+        fail(f"{data}: too short a run to calibrate on: its samples do not determine the"
+             f" noise (fitted on the first {fit_share:.0%}); give a longer run")  # fmt: skip
     except ValueError as error:  # an id-less scan, a vehicle's controls, nothing to fit
         fail(f"{data}: {error}")
     show(estimates_table(result.calibration))

@@ -353,10 +353,11 @@ def prepare_argv(argv: list[str]) -> list[str]:
     hoisted = [a for a in head if a in GLOBAL_FLAGS]
     rest = [a for a in head if a not in GLOBAL_FLAGS]
     for k, token in enumerate(rest):
-        name = token.split("=", 1)[0]
+        name, equals, first = token.partition("=")
         if name in NUMBER_OPTIONS:
             metavar, count = NUMBER_OPTIONS[name]
-            values = rest[k + 1 : k + 1 + count]
+            # --init-pose-sigma=0.1 0.1 0.1 (as click takes it): the first value in the token
+            values = ([first] if equals else []) + rest[k + 1 : k + 1 + count - bool(equals)]
             if len(values) < count or not all(_is_number(v) for v in values):
                 found = next((v for v in values if not _is_number(v)), None)
                 what = f", found {found!r}" if found is not None else ", found fewer"

@@ -113,6 +113,9 @@ def _specs(
     given = list(labels or [])
     if len(given) > len(filters):
         fail(f"{len(given)} --label for {len(filters)} --filter: give at most one label a filter")
+    twice = next((label for k, label in enumerate(given) if label in given[:k]), None)
+    if twice is not None:  # two rows of one name: the table and the report could not tell
+        fail(f"--label {twice} given twice: give each filter a name of its own")
     worker = user.worker()
     parsed = [
         FilterSpec.parse(text, given[index] if index < len(given) else None, worker)
