@@ -177,3 +177,25 @@ def test_an_option_value_no_simulation_can_take_is_one_line(
     assert result.exit_code == 2, result.output
     assert said in result.output and len(result.output.strip().splitlines()) == 1, result.output
     assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize(
+    ("options", "said"),
+    [
+        (["--layout", "mrclam", "--scenario", "loop"], "--scenario: not for --layout mrclam"),
+        (["--layout", "mrclam", "--steps", "50"], "--steps: not for --layout mrclam"),
+        (["--layout", "mrclam", "--unknown-ids"], "--unknown-ids: not for --layout mrclam"),
+        (["--layout", "mrclam", "--precision", "2"], "--precision: not for --layout mrclam"),
+        (["--duration", "5", "--truth-out", "TRUTH"], "--duration: not for --layout file"),
+    ],
+)
+def test_an_option_the_layout_does_not_use_is_refused(
+    tmp_path: Path, options: list[str], said: str
+) -> None:
+    """``--layout mrclam`` wrote its fixed dataset whatever the scenario, steps, scans or
+    precision asked for; the file layout ignored ``--duration``."""
+    options = [str(tmp_path / "t.json") if part == "TRUTH" else part for part in options]
+    result = runner.invoke(app, ["simulate", "-o", str(tmp_path / "out"), *options])
+    assert result.exit_code == 2, result.output
+    assert result.output.strip() == f"error: {said}"
+    assert not (tmp_path / "out").exists()

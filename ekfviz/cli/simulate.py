@@ -9,6 +9,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
 import typer
+from typer._click.core import ParameterSource
+from typer._click.globals import get_current_context
 
 from ekfviz.cli.common import (
     ForceOption,
@@ -148,10 +150,32 @@ def simulate(
         init_pose_sigma=init_pose_sigma, precision=precision, sensing=sensing, laps=laps,
         force=force,
     )  # fmt: skip
+    # an option the layout does not use is refused, not ignored without a word
+    for name, flag in _FILE_ONLY if layout is Layout.MRCLAM else _MRCLAM_ONLY:
+        if _given(name):
+            fail(f"{flag}: not for --layout {layout.value}")
     if layout is Layout.MRCLAM:
         _simulate_mrclam(output, seed, duration, truth_out, true_noise.given, force)
     else:
         run_simulate(request)
+
+
+_FILE_ONLY = (
+    ("scenario", "--scenario"), ("log_format", "--format"), ("precision", "--precision"),
+    ("laps", "--laps"), ("init_pose_sigma", "--init-pose-sigma"), ("steps", "--steps"),
+    ("landmarks", "--landmarks"), ("max_range", "--max-range"), ("fov", "--fov"),
+    ("unknown_ids", "--unknown-ids"), ("clutter", "--clutter"),
+    ("detection_probability", "--detection-probability"),
+)  # fmt: skip
+_MRCLAM_ONLY = (("duration", "--duration"),)
+
+
+def _given(name: str) -> bool:
+    """Whether the command line gave the option of parameter ``name``."""
+    context = get_current_context(silent=True)
+    if context is None or name not in context.params:
+        return False
+    return context.get_parameter_source(name) not in (ParameterSource.DEFAULT, None)
 
 
 def run_simulate(request: SimulateRequest) -> None:
