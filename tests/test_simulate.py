@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from pathlib import Path
 
 import numpy as np
@@ -199,3 +200,34 @@ def test_an_option_the_layout_does_not_use_is_refused(
     assert result.exit_code == 2, result.output
     assert result.output.strip() == f"error: {said}"
     assert not (tmp_path / "out").exists()
+
+
+def test_a_log_and_its_truth_are_replaced_together_or_not_at_all(tmp_path: Path) -> None:
+    """With ``--force`` the new log replaced the old one, then the truth's write failed
+    (a file-size limit): a log and a truth that no longer belonged together, under
+    "nothing was replaced"."""
+    import resource
+    import subprocess
+    import sys
+
+    log, truth = tmp_path / "run.txt", tmp_path / "run.json"
+    # a loop seeing nothing (--max-range 0): a short log, a long truth (the landmarks)
+    run = ["simulate", "-o", str(log), "--truth-out", str(truth), "--scenario", "loop",
+           "--steps", "200", "--max-range", "0"]  # fmt: skip
+    result = runner.invoke(app, run)
+    assert result.exit_code == 0, result.output
+    before = (log.read_bytes(), truth.read_bytes())
+    assert len(before[0]) < 16 << 10 < len(before[1])  # the log fits the limit, the truth not
+
+    def limited() -> None:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (16 << 10, 16 << 10))
+
+    done = subprocess.run(
+        [sys.executable, "-m", "ekfviz", *run, "--seed", "9", "--force"],
+        capture_output=True, text=True, preexec_fn=limited, timeout=120,
+        env={**os.environ, "XDG_CONFIG_HOME": str(tmp_path), "XDG_DATA_HOME": str(tmp_path)},
+    )  # fmt: skip
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.strip().endswith("cannot write (File too large); nothing was replaced")
+    assert (log.read_bytes(), truth.read_bytes()) == before
+    assert sorted(p.name for p in tmp_path.iterdir() if p.suffix == ".tmp") == []

@@ -486,21 +486,35 @@ def write_json(path: Path, document: dict[str, object]) -> None:
 
 def write_bytes_atomic(path: Path, content: bytes) -> None:
     """Write beside ``path`` and rename, so an existing file is never left half-written."""
-    path = real_path(path)  # (resolve() raises on a loop of links)
+    write_files_atomic({path: content})
+
+
+def write_files_atomic(contents: dict[Path, bytes]) -> None:
+    """Write every file beside its path first, then rename them all: an existing file is
+    never left half-written, and files that belong together (a log and its truth) are
+    replaced together or not at all."""
+    written: list[tuple[str, Path]] = []  # (the temporary file, its path)
     try:
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=temporary_prefix(path), suffix=".tmp")
-    except OSError as error:
-        fail(f"{path}: cannot write ({error.strerror})")
-    try:
-        with os.fdopen(fd, "wb") as handle:
-            handle.write(content)
-        os.chmod(tmp, _file_mode(path))
-        os.replace(tmp, path)
-    except OSError as error:  # a full disk, a file-size limit: the old file stays whole
-        Path(tmp).unlink(missing_ok=True)
-        fail(f"{path}: cannot write ({error.strerror or error}); nothing was replaced")
+        for given, content in contents.items():
+            path = real_path(given)  # (resolve() raises on a loop of links)
+            try:
+                fd, tmp = tempfile.mkstemp(
+                    dir=path.parent, prefix=temporary_prefix(path), suffix=".tmp"
+                )
+            except OSError as error:
+                fail(f"{path}: cannot write ({error.strerror}); nothing was replaced")
+            written.append((tmp, path))
+            try:
+                with os.fdopen(fd, "wb") as handle:
+                    handle.write(content)
+                os.chmod(tmp, _file_mode(path))
+            except OSError as error:  # a full disk, a file-size limit: the old files stay
+                fail(f"{path}: cannot write ({error.strerror or error}); nothing was replaced")
+        for tmp, path in written:
+            os.replace(tmp, path)
     except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+        for tmp, _ in written:
+            Path(tmp).unlink(missing_ok=True)
         raise
 
 

@@ -23,7 +23,7 @@ from ekfviz.cli.common import (
     not_nan,
     out,
     refuse_overwrite,
-    write_bytes_atomic,
+    write_files_atomic,
 )
 from ekfviz.cli.options import (
     MAX_TRUE_SIGMA,
@@ -208,8 +208,9 @@ def run_simulate(request: SimulateRequest) -> None:
     text = _log_text(run, log_format, request.precision, noise, init_pose_sigma)
     extra = _truth_extra(request, world, run, noise, init_pose_sigma)
     truth = GroundTruth(run.landmark_ids, run.landmarks_xy, run.poses_xytheta)
-    write_bytes_atomic(output, text.encode("utf-8"))
-    write_bytes_atomic(truth_out, truth_json(truth, **extra).encode("utf-8"))
+    write_files_atomic(  # the pair together, or neither
+        {output: text.encode("utf-8"), truth_out: truth_json(truth, **extra).encode("utf-8")}
+    )
     out.print(f"Wrote {output} ({len(run.events)} events) and {truth_out}")
     _replay_hint(request, world, noise, init_pose_sigma, log_format)
 
@@ -339,8 +340,7 @@ def _simulate_mrclam(
         output.mkdir(exist_ok=True)  # its parent was checked: no folders made above it
     except OSError as error:
         fail(f"{output}: cannot make the directory ({error.strerror})")
-    for name, text in files.items():
-        write_bytes_atomic(output / name, text.encode("utf-8"))
+    write_files_atomic({output / name: text.encode("utf-8") for name, text in files.items()})
     out.print(f"Wrote the MRCLAM-layout dataset {output} ({len(files)} files, robot 1)")
     flags = " ".join(f"--sigma-{n.removeprefix('sigma_').replace('_', '-')} {v:g}"
                      for n, v in asdict(noise).items() if n.startswith("sigma_"))  # fmt: skip
