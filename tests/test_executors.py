@@ -41,6 +41,8 @@ def test_make_executor_refuses_what_cannot_run() -> None:
     with pytest.raises(ExecutorError, match="is for --executor dask"):
         make_executor("local", "tcp://127.0.0.1:8786")
     assert isinstance(make_executor("dask", "tcp://127.0.0.1:8786"), DaskExecutor)
+    with pytest.raises(ExecutorError, match="--workers is for --executor local"):
+        make_executor("dask", "tcp://127.0.0.1:8786", workers=4)  # dropped without a word
 
 
 def test_an_absent_scheduler_is_a_one_line_error() -> None:

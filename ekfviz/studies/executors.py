@@ -202,6 +202,10 @@ def make_executor(
     if name is ExecutorName.DASK:
         if not scheduler:
             raise ExecutorError("--executor dask needs --scheduler ADDRESS (e.g. tcp://host:8786)")
+        if workers is not None:  # it would be dropped without a word
+            raise ExecutorError(
+                "--workers is for --executor local: a Dask cluster runs on the workers it has"
+            )
         return DaskExecutor(scheduler)
     if scheduler:
         raise ExecutorError("--scheduler is for --executor dask")
