@@ -503,7 +503,8 @@ def test_a_quaternion_of_any_norm_gives_its_rotation_s_heading(tmp_path: Path) -
     theta = 0.1
     unit = (0.0, 0.0, math.sin(theta / 2), math.cos(theta / 2))
     plain = _last_pose(_tiny_bag(tmp_path / "unit", quaternion=unit))
-    scaled = _last_pose(_tiny_bag(tmp_path / "scaled", quaternion=tuple(2 * v for v in unit)))
+    doubled = (2 * unit[0], 2 * unit[1], 2 * unit[2], 2 * unit[3])
+    scaled = _last_pose(_tiny_bag(tmp_path / "scaled", quaternion=doubled))
     np.testing.assert_allclose(scaled, plain, rtol=0, atol=1e-12)
     for name, quaternion, expected in [
         ("zero", (0.0, 0.0, 0.0, 0.0), "/odom message 2: found an orientation quaternion of"
