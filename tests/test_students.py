@@ -294,6 +294,9 @@ def test_a_submission_neither_file_nor_folder_is_named_as_what_it_is(tmp_path: P
     dangling.symlink_to(tmp_path / "nowhere")
     with pytest.raises(NoModule, match=r"^gone is unreadable \(No such file or directory\)"):
         module_of(dangling)
+    # as grade gives it: the link's target, named as the entry of the class's folder
+    with pytest.raises(NoModule, match=r"^gone is unreadable \(No such file or directory\)"):
+        module_of(dangling.resolve(), "gone")
 
 
 def test_the_catalogue_is_in_the_readme() -> None:

@@ -102,23 +102,25 @@ class NoModule(Exception):
     """A submission with no Python module to check."""
 
 
-def module_of(entry: Path) -> Path:
+def module_of(entry: Path, name: str | None = None) -> Path:
     """The module a submission hands in: the file itself, or in a directory the one
     ``.py`` file, else one named like the handout's (:data:`MODULE_NAMES`), else the one
     that defines ``predict`` and ``update``.
 
+    :param name: the submission's name in its folder, for messages (``entry``: maybe the
+        target of its link)
     :raises NoModule: none, or several that cannot be told apart
     """
     if entry.is_file():
         if entry.suffix != ".py":
-            raise NoModule(f"{entry.name} is not a Python file")
+            raise NoModule(f"{name or entry.name} is not a Python file")
         return entry
     if not entry.is_dir():  # a FIFO, a socket, a device, a link to nothing
         try:
             kind = special_kind(entry.stat().st_mode) or "not a regular file"
         except OSError as error:
             kind = f"unreadable ({error.strerror})"
-        raise NoModule(f"{entry.name} is {kind}, expected a .py file or a directory")
+        raise NoModule(f"{name or entry.name} is {kind}, expected a .py file or a directory")
     files = sorted(p for p in entry.rglob("*.py") if p.is_file() and "__pycache__" not in p.parts)
     if not files:
         raise NoModule("no .py file in it")
@@ -185,7 +187,7 @@ def grade_one(task: GradeTask) -> GradeRow:
 
     started = time.perf_counter()
     try:
-        module = module_of(task.path)
+        module = module_of(task.path, task.name)  # (its path: a link's target)
     except NoModule as error:
         return GradeRow(task.name, "error", (), "", 0.0, utf8(str(error)))
     causes: dict[str, None] = {}
