@@ -76,11 +76,12 @@ KINDS = {
 
 @pytest.fixture(scope="module")
 def short_loop(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A loop in the extended format, as the bundled one, of 300 steps."""
+    """A loop in the extended format, as the bundled one, of 300 steps and 60 landmarks
+    (the dense textbook filter of a compare is cubic in the map)."""
     log = tmp_path_factory.mktemp("loop") / "loop.txt"
     result = runner.invoke(
-        app, ["simulate", "--scenario", "loop", "--steps", "300", "-o", str(log),
-              "--truth-out", str(log.with_suffix(".json"))],
+        app, ["simulate", "--scenario", "loop", "--steps", "300", "--landmarks", "60",
+              "-o", str(log), "--truth-out", str(log.with_suffix(".json"))],
     )  # fmt: skip
     assert result.exit_code == 0, result.output
     return log
