@@ -21,6 +21,9 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 from rich.text import Text
+from typer import _click as click
+from typer._click.core import ParameterSource
+from typer._click.globals import get_current_context
 
 from ekfviz import __version__, signals
 from ekfviz.core.records import AnyEvent
@@ -454,6 +457,14 @@ def _option(help: str, panel: str | None = None, **kwargs: Any) -> Any:
     return typer.Option(help=help, rich_help_panel=panel, **kwargs)
 
 
+def given(name: str, context: click.Context | None = None) -> bool:
+    """Whether the command line gave the option of parameter ``name`` (not its default),
+    in ``context`` or the current one."""
+    context = context or get_current_context(silent=True)
+    source = None if context is None else context.get_parameter_source(name)
+    return source not in (None, ParameterSource.DEFAULT)
+
+
 def not_nan(value: Any) -> Any:
     """An option's value with no NaN in it: a range (``min=0``) lets NaN through, since
     every comparison with it is false, and a NaN sigma, share or range ran without a word
@@ -495,8 +506,8 @@ def write_files_atomic(contents: dict[Path, bytes]) -> None:
     replaced together or not at all."""
     written: list[tuple[str, Path]] = []  # (the temporary file, its path)
     try:
-        for given, content in contents.items():
-            path = real_path(given)  # (resolve() raises on a loop of links)
+        for target, content in contents.items():
+            path = real_path(target)  # (resolve() raises on a loop of links)
             try:
                 fd, tmp = tempfile.mkstemp(
                     dir=path.parent, prefix=temporary_prefix(path), suffix=".tmp"

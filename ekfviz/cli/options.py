@@ -21,8 +21,6 @@ from pathlib import Path
 from typing import Annotated, Any, ClassVar
 
 import typer
-from typer._click.core import ParameterSource
-from typer._click.globals import get_current_context
 
 from ekfviz.association import AssociationParams
 from ekfviz.cli.common import (
@@ -33,6 +31,7 @@ from ekfviz.cli.common import (
     Triple,
     _option,
     fail,
+    given,
     out,
     piped_input,
 )
@@ -421,12 +420,6 @@ def _log_noise(
         stated = open_source(log).stated_noise()
     except InputError as error:
         fail(str(error))
-    context = get_current_context(silent=True)
-
-    def given(name: str) -> bool:
-        source = None if context is None else context.get_parameter_source(name)
-        return source not in (None, ParameterSource.DEFAULT)
-
     values = dict(zip(NOISE_NAMES, sigmas, strict=True))
     used = []
     for name in NOISE_NAMES:

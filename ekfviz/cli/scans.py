@@ -9,11 +9,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
 import typer
-from typer._click.core import ParameterSource
 
 from ekfviz.association import AssociationParams, Method
 from ekfviz.association.evaluation import AssociationTally
-from ekfviz.cli.common import _option, out, warn
+from ekfviz.cli.common import _option, given, out, warn
 from ekfviz.cli.sources import OpenedLog
 from ekfviz.core.records import EventRecord
 from ekfviz.core.truth import GroundTruth
@@ -197,10 +196,7 @@ def replay_setup(
     """
     data, truth = opened.source.path, opened.truth
 
-    def given(name: str) -> bool:
-        return ctx.get_parameter_source(name) not in (ParameterSource.DEFAULT, None)
-
-    models = opened.source.models(params, given)
+    models = opened.source.models(params, lambda name: given(name, ctx))
     if models.builtin_only is not None and not builtin:
         raise InputError(data, 0, models.builtin_only)
     params = models.params

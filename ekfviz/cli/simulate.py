@@ -9,8 +9,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
 import typer
-from typer._click.core import ParameterSource
-from typer._click.globals import get_current_context
 
 from ekfviz.cli.common import (
     ForceOption,
@@ -20,6 +18,7 @@ from ekfviz.cli.common import (
     check_outputs,
     command_hint,
     fail,
+    given,
     not_nan,
     out,
     refuse_overwrite,
@@ -152,7 +151,7 @@ def simulate(
     )  # fmt: skip
     # an option the layout does not use is refused, not ignored without a word
     for name, flag in _FILE_ONLY if layout is Layout.MRCLAM else _MRCLAM_ONLY:
-        if _given(name):
+        if given(name):
             fail(f"{flag}: not for --layout {layout.value}")
     if layout is Layout.MRCLAM:
         _simulate_mrclam(output, seed, duration, truth_out, true_noise.given, force)
@@ -168,14 +167,6 @@ _FILE_ONLY = (
     ("detection_probability", "--detection-probability"),
 )  # fmt: skip
 _MRCLAM_ONLY = (("duration", "--duration"),)
-
-
-def _given(name: str) -> bool:
-    """Whether the command line gave the option of parameter ``name``."""
-    context = get_current_context(silent=True)
-    if context is None or name not in context.params:
-        return False
-    return context.get_parameter_source(name) not in (ParameterSource.DEFAULT, None)
 
 
 def run_simulate(request: SimulateRequest) -> None:

@@ -15,10 +15,8 @@ from pathlib import Path
 from typing import Annotated, Any, TypeVar
 
 import typer
-from typer._click.core import ParameterSource
-from typer._click.globals import get_current_context
 
-from ekfviz.cli.common import FILTER_NOISE, FILTER_OPTIONS, _option, fail, warn
+from ekfviz.cli.common import FILTER_NOISE, FILTER_OPTIONS, _option, fail, given, warn
 from ekfviz.core.records import AnyEvent, Control
 from ekfviz.core.truth import GroundTruth
 from ekfviz.filters.ekf import FilterParams, MotionNoise
@@ -111,14 +109,8 @@ def with_source_options(command: Command) -> Command:
     @functools.wraps(command)
     def run(*args: Any, **kwargs: Any) -> Any:
         values = {option.name: kwargs.pop(option.name) for option in options}
-        context = get_current_context(silent=True)
-        given = frozenset(
-            name
-            for name in values
-            if context is not None
-            and context.get_parameter_source(name) not in (ParameterSource.DEFAULT, None)
-        )
-        return command(*args, source_args=SourceArgs(values, given), **kwargs)
+        named = frozenset(name for name in values if given(name))
+        return command(*args, source_args=SourceArgs(values, named), **kwargs)
 
     run.__signature__ = signature.replace(parameters=parameters)  # type: ignore[attr-defined]
     run.__annotations__ = {p.name: p.annotation for p in parameters} | {"return": None}

@@ -127,12 +127,11 @@ def stop_reason(
         found = None if file_of is None or motion is None else file_of(motion)
         return data if found is None else found
 
+    after = "at the start"
     if last is not None and last.line:
-        motion = last.kind is EventKind.PREDICT
-        after = f"after line {last.line} of {where(motion)}" if where(motion) != data else (
-            f"after input line {last.line}")  # fmt: skip
-    else:
-        after = "at the start"
+        path = where(last.kind is EventKind.PREDICT)
+        after = f"after input line {last.line}" if path == data else (
+            f"after line {last.line} of {path}")  # fmt: skip
     if isinstance(cause, KeyboardInterrupt):
         return f"{data}: interrupted (SIGINT) {after}"
     if isinstance(cause, signals.Terminated):

@@ -157,7 +157,7 @@ def spec_text(module: Path) -> str:
         return str(module)
     if re.search(r"^\s*def init_landmarks\(", text, re.M):
         return str(module)
-    bodies = dict(_class_bodies(text))
+    bodies = _class_bodies(text)
     # a class of its own predict, else one of its own update (its predict inherited from
     # the course's base class: ``class AliceFilter(MyFilter)``)
     for method in ("predict", "update"):
@@ -169,12 +169,10 @@ def spec_text(module: Path) -> str:
     return str(module)
 
 
-def _class_bodies(text: str) -> list[tuple[str, str]]:
+def _class_bodies(text: str) -> dict[str, str]:
     """Each top-level class of a module's text and its body (its indented lines)."""
-    found = []
-    for match in re.finditer(r"^class (\w+)\b[^\n]*\n((?:[ \t]+[^\n]*\n|[ \t]*\n)*)", text, re.M):
-        found.append((match.group(1), match.group(2)))
-    return found
+    pattern = r"^class (\w+)\b[^\n]*\n((?:[ \t]+[^\n]*\n|[ \t]*\n)*)"
+    return {match[1]: match[2] for match in re.finditer(pattern, text, re.M)}
 
 
 def grade_one(task: GradeTask) -> GradeRow:

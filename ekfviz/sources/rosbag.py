@@ -106,7 +106,7 @@ class RosbagSource(Source):
             path, str(odom), str(landmarks), None if truth is None else str(truth),
             _storage_files(path),
         )  # fmt: skip
-        with _Bag(path) as reader:
+        with _Bag(source) as reader:
             source._topics(reader)
         return source
 
@@ -126,7 +126,7 @@ class RosbagSource(Source):
         """The controls and observations in time order (read whole, then merged)."""
         odometry: list[tuple[float, int, Pose]] = []
         detections: list[tuple[float, int, IntArray, FloatArray]] = []
-        with _Bag(self.path) as reader:
+        with _Bag(self) as reader:
             topics = self._topics(reader)
             wanted = [topics[self.odom], topics[self.landmarks]]
             total = sum(p.stat().st_size for p in self.progress_paths)
@@ -212,10 +212,11 @@ class RosbagSource(Source):
             _checked(self.path, where, f"position {name}", value)
         quaternion = [_checked(self.path, where, f"orientation {name}", getattr(q, name))
                       for name in ("x", "y", "z", "w")]  # fmt: skip
-        if math.hypot(*quaternion) < 1e-9:
+        norm = math.hypot(*quaternion)
+        if norm < 1e-9:
             raise InputError(
-                self.path, 0, f"{where}: found an orientation quaternion of norm"
-                f" {math.hypot(*quaternion):.3g}, expected a unit quaternion",
+                self.path, 0, f"{where}: found an orientation quaternion of norm {norm:.3g},"
+                " expected a unit quaternion",
             )  # fmt: skip
         return _heading(pose)
 
@@ -270,7 +271,7 @@ class RosbagSource(Source):
         """The truth topic's track, by stamp (no landmarks: a bag names none)."""
         if self.truth_topic is None:
             return None
-        with _Bag(self.path) as reader:
+        with _Bag(self) as reader:
             connection = self._topics(reader)[self.truth_topic]
             rows = [
                 (_stamp(message, recorded), self._pose(message, self.truth_topic, number + 1))
@@ -322,10 +323,11 @@ class RosbagSource(Source):
 
 
 class _Bag:
-    """The bag opened with ``rosbags`` (imported here), its errors one line each."""
+    """A source's bag opened with ``rosbags`` (imported here), its errors one line each."""
 
-    def __init__(self, path: Path) -> None:
-        self.path = path
+    def __init__(self, source: RosbagSource) -> None:
+        self.path = source.path
+        self.storage = source.storage  # (read from metadata.yaml once, when it opened)
         self.reader: Any = None
 
     def __enter__(self) -> Any:
@@ -334,7 +336,7 @@ class _Bag:
             from rosbags.typesys import Stores, get_typestore
         except ImportError:
             raise InputError(self.path, 0, EXTRA) from None
-        for stored in _storage_files(self.path):  # each a regular file that opens
+        for stored in self.storage:  # each a regular file that opens
             open_input(stored, "a storage file of the bag (metadata.yaml lists it)").close()
         # bags that do not carry their message definitions are read with Humble's
         reader = AnyReader([self.path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))

@@ -25,7 +25,6 @@ from ekfviz.io.text import MAX_MAGNITUDE
 from ekfviz.studies.runs import VARIABLE, RunSpec
 
 MAX_VARIANTS = 1000  # variants a sweep runs: each is a whole replay
-MAX_SIGMA = MAX_MAGNITUDE  # as every number read
 
 _VALUE = re.compile(r"(?P<op>[x*/]?)(?P<number>(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)")
 
@@ -142,9 +141,9 @@ def build_variants(
 def _checked(change: Change, value: float) -> float:
     """A varied sigma as the filter takes it, as ``replay`` checks its options: finite,
     at most 1e18, and positive for the measurement's (R must be invertible)."""
-    if not math.isfinite(value) or value > MAX_SIGMA:
+    if not math.isfinite(value) or value > MAX_MAGNITUDE:  # as every number read
         raise SweepError(f"--vary {change.label}: gives {change.name} = {value:g}, expected at"
-                         f" most {MAX_SIGMA:g}")  # fmt: skip
+                         f" most {MAX_MAGNITUDE:g}")  # fmt: skip
     if change.name in ("sigma_bearing", "sigma_range") and value <= 0.0:
         raise SweepError(f"--vary {change.label}: gives {change.name} = {value:g}, expected a"
                          " positive sigma (R must be invertible)")  # fmt: skip
