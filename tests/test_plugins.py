@@ -298,6 +298,35 @@ def test_a_faulty_plugin_is_one_line_and_keeps_the_recording(
         assert "division by zero in my predict" in debug.stderr and "textbook.py" in debug.stderr
 
 
+def test_a_p_that_drifts_from_symmetric_by_rounding_runs_and_is_said_once(
+    tmp_path: Path,
+) -> None:
+    # a Joseph form never symmetrised drifts a little at every event: not a wrong formula
+    save = tmp_path / "run.rrd"
+    command = [sys.executable, "-m", "ekfviz", "replay", str(CLASSIC), "--filter",
+               plugin("Drifting"), "--save", str(save)]  # fmt: skip
+    done = subprocess.run(command, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    said = [line for line in done.stderr.splitlines() if "P drifts from symmetric" in line]
+    assert len(said) == 1 and "symmetrise P after each update" in said[0], done.stderr
+    checked = subprocess.run(
+        [sys.executable, "-m", "ekfviz", "check", str(CLASSIC), "--filter", plugin("Drifting")],
+        capture_output=True, text=True,
+    )  # fmt: skip
+    assert checked.returncode == 0 and checked.stdout.startswith("match"), checked.stdout
+
+
+def test_a_drift_from_symmetric_that_keeps_growing_stops_with_its_own_hint() -> None:
+    done = subprocess.run(
+        [sys.executable, "-m", "ekfviz", "replay", str(CLASSIC), "--filter",
+         plugin("DriftingFast")], capture_output=True, text=True,
+    )  # fmt: skip
+    assert done.returncode == 2
+    (line,) = done.stderr.strip().splitlines()
+    assert "P is not symmetric" in line and "at most 1e-06" in line
+    assert "its asymmetry has grown event after event" in line and "K made" not in line
+
+
 @pytest.mark.parametrize(
     ("spec", "message"),
     [

@@ -510,9 +510,10 @@ def test_solutions_that_do_not_run_get_the_line_of_their_own_file(tmp_path: Path
         (("S = H @ P @ H.T + measure_cov\n        K = P @ H.T",
           "S = H @ P_pre @ H.T + measure_cov\n        K = P_pre @ H.T"),
          "after update, P is not symmetric (|P - P^T| up to 0.345, 0.319 of its largest"
-         " entry; at most 1e-09): P = (I - K H) P is symmetric only with K = P H^T S^-1 of"
-         " that same P and H: is K made from another P (P_pre inside a loop over the"
-         " landmarks)?"),
+         " entry; at most 1e-09): the corrected covariance (I - K H) P (or P - K S K^T, or"
+         " Joseph's form) is symmetric only with K = P H^T S^-1 of that same P and H: is a"
+         " factor missing (P - K H, or K without S^-1), or K made from another P (P_pre"
+         " inside a loop over the landmarks)?"),
     ],
 )  # fmt: skip
 def test_an_unfinished_update_is_one_line(

@@ -30,8 +30,15 @@ from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.filters.ekf import EkfSlam, FilterError, FilterParams
 from ekfviz.filters.protocol import DeclaresCapabilities, SlamFilter, state_of
 
-# P counts as symmetric when |P - P^T| <= SYMMETRY_TOLERANCE * max |P|
+# P counts as symmetric when |P - P^T| <= SYMMETRY_TOLERANCE * max |P|. A filter that
+# never symmetrises P (a Joseph form, G P G^T) drifts from it by rounding that adds up,
+# and grows, event after event (1e-8 after 60 updates of a loop): a drift is let be up to
+# SYMMETRY_DRIFT_LIMIT (where the filter's numbers start to differ by the check's
+# tolerance), and said once; a P symmetric before the event that is asymmetric by more
+# than SYMMETRY_STEP_TOLERANCE after it is a wrong formula (K of another P, G on one side)
 SYMMETRY_TOLERANCE = 1e-9
+SYMMETRY_STEP_TOLERANCE = 1e-7
+SYMMETRY_DRIFT_LIMIT = 1e-6
 
 FilterFactory = Callable[[FilterParams], SlamFilter]
 
@@ -52,6 +59,8 @@ class Plugged:
         self.slam = slam
         self.name = name
         self._warnings: tuple[str, ...] = ()
+        self._asymmetry = 0.0  # |P - P^T| / max |P| of the filter's last state
+        self._drift_said = False  # that P drifts from symmetric: said once, at an update
         if isinstance(slam, DeclaresCapabilities):
             capabilities = slam.capabilities
             self._predict_takes_dt = capabilities.takes_dt
@@ -99,6 +108,18 @@ class Plugged:
         self._warnings = reference.warnings
         return observations
 
+    def _drift_warning(self) -> tuple[str, ...]:
+        """Once a run, at an update: that the filter's P drifts from symmetric."""
+        if self._drift_said or self._asymmetry <= SYMMETRY_TOLERANCE:
+            return ()
+        self._drift_said = True
+        return (
+            f"filter {self.name}: P drifts from symmetric by rounding that adds up event after"
+            f" event (|P - P^T| now {self._asymmetry:.2g} of its largest entry): ekfviz uses"
+            f" (P + P^T) / 2, and stops the run past {SYMMETRY_DRIFT_LIMIT:g}; symmetrise P"
+            " after each update and predict (P = (P + P.T) / 2)",
+        )
+
     # -- events -------------------------------------------------------------------------
 
     def predict(self, d: float, alpha: float, dt: float | None = None) -> None:
@@ -127,6 +148,7 @@ class Plugged:
                 f" landmark(s) {sorted(missing)}"
             )
         self._x, self._P, self._ids = x, P, state_ids
+        self._warnings += self._drift_warning()
         return observations
 
     @property
@@ -231,14 +253,18 @@ class Plugged:
             raise PluginError(
                 f"{where} reading x, P and landmark_ids failed ({type(error).__name__}: {error})"
             ) from error
-        x, P = check_state(x, P, ids, where, _ASYMMETRY_HINTS.get(after, ""))
+        x, P, self._asymmetry = check_state(
+            x, P, ids, where, _ASYMMETRY_HINTS.get(after, ""), self._asymmetry
+        )
         return x, P, ids
 
 
 # where an asymmetric P of a predict or an update comes from, in students' code
 _ASYMMETRY_HINTS = {
-    "update": "P = (I - K H) P is symmetric only with K = P H^T S^-1 of that same P and H:"
-    " is K made from another P (P_pre inside a loop over the landmarks)?",
+    "update": "the corrected covariance (I - K H) P (or P - K S K^T, or Joseph's form) is"
+    " symmetric only with K = P H^T S^-1 of that same P and H: is a factor missing"
+    " (P - K H, or K without S^-1), or K made from another P (P_pre inside a loop over the"
+    " landmarks)?",
     "predict": "G P G^T + Q is symmetric when Q is: is the noise added not symmetric, or P"
     " multiplied by G on one side only?",
 }
@@ -278,13 +304,22 @@ def _with_own_noise(slam: object, name: str, params: FilterParams) -> tuple[Filt
 
 
 def check_state(
-    x: FloatArray, P: FloatArray, ids: IntArray, where: str, asymmetry_hint: str = ""
-) -> tuple[FloatArray, FloatArray]:
-    """Refuse a state that is not one: wrong shapes, non-finite, P not symmetric, ids off.
+    x: FloatArray,
+    P: FloatArray,
+    ids: IntArray,
+    where: str,
+    asymmetry_hint: str = "",
+    asymmetry_before: float = 0.0,
+) -> tuple[FloatArray, FloatArray, float]:
+    """Refuse a state that is not one: wrong shapes, non-finite, P not symmetric (see
+    :data:`SYMMETRY_TOLERANCE`: a jump from a symmetric P, or a drift grown too far), ids
+    off.
 
     :param where: how the message starts (which filter, after what)
     :param asymmetry_hint: said after the message of an asymmetric P
-    :return: x and P, P made exactly symmetric (its rounding is not the filter's fault)
+    :param asymmetry_before: |P - P^T| / max |P| of the state before the event
+    :return: x and P, P made exactly symmetric (its rounding is not the filter's fault),
+        and |P - P^T| / max |P| of the P given
     :raises PluginError: naming the first problem found
     """
     n = x.shape[0]
@@ -304,13 +339,23 @@ def check_state(
         raise PluginError(f"{where} P is not finite")
     scale = float(np.abs(P).max()) if n else 0.0
     asymmetry = float(np.abs(P - P.T).max())
-    if asymmetry > SYMMETRY_TOLERANCE * scale:
+    relative = asymmetry / scale if asymmetry else 0.0  # (a zero P is symmetric)
+    drifting = asymmetry_before > SYMMETRY_TOLERANCE
+    if drifting and relative > SYMMETRY_DRIFT_LIMIT:
+        raise PluginError(
+            f"{where} P is not symmetric (|P - P^T| up to {asymmetry:.3g}, {relative:.3g} of"
+            f" its largest entry; at most {SYMMETRY_DRIFT_LIMIT:g}): its asymmetry has grown"
+            f" event after event ({asymmetry_before:.2g} before this one), the rounding of a P"
+            " that is never made symmetric again; symmetrise P after each update and"
+            " predict (P = (P + P.T) / 2)"
+        )
+    if not drifting and relative - asymmetry_before > SYMMETRY_STEP_TOLERANCE:
         raise PluginError(
             f"{where} P is not symmetric (|P - P^T| up to {asymmetry:.3g},"
-            f" {asymmetry / scale:.3g} of its largest entry; at most {SYMMETRY_TOLERANCE:g})"
+            f" {relative:.3g} of its largest entry; at most {SYMMETRY_TOLERANCE:g})"
             + (f": {asymmetry_hint}" if asymmetry_hint else "")
         )
-    return x, 0.5 * (P + P.T) if asymmetry else P
+    return x, 0.5 * (P + P.T) if asymmetry else P, relative
 
 
 def _unjudged(ids: IntArray, z: FloatArray, state_ids: IntArray) -> Observations:

@@ -222,6 +222,34 @@ class Asymmetric(Textbook):
         self.P[0, 1] += 1e-3
 
 
+class Drifting(Textbook):
+    """A P made asymmetric a little more at every event, as the rounding of a filter that
+    never symmetrises P is: by ``growth`` times the share of the event before (starting at
+    ``first`` of P's largest entry), in one entry."""
+
+    first = 3e-9
+    growth = 1.0  # 1: the share adds up; over 1: it grows as a product does
+    _share = 0.0
+
+    def _drift(self) -> None:
+        self._share = self.first if not self._share else self._share * self.growth
+        self.P[0, 1] += self._share * float(np.abs(self.P).max())
+
+    def predict(self, d: float, alpha: float) -> None:
+        super().predict(d, alpha)
+        self._drift()
+
+    def update(self, ids: Any, z: Any) -> None:
+        super().update(ids, z)
+        self._drift()
+
+
+class DriftingFast(Drifting):
+    """Its asymmetry doubles at every event: past any drift rounding makes."""
+
+    growth = 2.0
+
+
 class LosesIds(Textbook):
     def update(self, ids: Any, z: Any) -> None:
         super().update(ids, z)
