@@ -250,7 +250,7 @@ def test_a_submission_whose_time_ran_out_before_a_log_is_a_timeout(tmp_path: Pat
 
     module = tmp_path / "ekf_slam.py"
     shutil.copy(ROOT / "examples" / "course_skeleton" / "ekf_slam.py", module)
-    task = GradeTask(name="ekf_slam.py", path=module, logs=((SAMPLE, None, None),),
+    task = GradeTask(name="ekf_slam.py", path=module, logs=((SAMPLE, None, None, None),),
                      params=FilterParams(), timeout_s=0.0, memory_mb=None)  # fmt: skip
     row = grade_one(task)
     assert (row.status, row.detail) == (
@@ -279,6 +279,49 @@ def test_grade_finds_a_class_whose_predict_is_the_course_s(tmp_path: Path) -> No
     result = ekfviz("replay", str(SAMPLE), "--filter", "g.py", "--save", "x.rrd", cwd=tmp_path)
     assert result.returncode == 2
     assert result.stderr.strip().endswith("g.py:F"), result.stderr  # not g.py:Base
+
+
+def test_grade_finds_a_module_s_only_class_whose_methods_are_all_inherited(
+    tmp_path: Path,
+) -> None:
+    """``class F(Base): pass`` (or only its own ``__init__``) was graded as a course module
+    of functions: an error row, "has no function init_landmarks"."""
+    from ekfviz.pipeline.grade import spec_text
+
+    module = tmp_path / "ekf_slam.py"
+    module.write_text("from basef import MyFilter as Base\n\n\nclass F(Base):\n    pass\n")
+    assert spec_text(module) == f"{module}:F"
+    module.write_text(
+        "from basef import MyFilter as Base\n\n\nclass Mine(Base):\n"
+        "    def __init__(self, params):\n        super().__init__(params)\n"
+    )
+    assert spec_text(module) == f"{module}:Mine"
+    module.write_text("class A:\n    pass\n\n\nclass B:\n    pass\n")  # which? none
+    assert spec_text(module) == str(module)
+
+
+def test_grade_of_a_log_takes_the_noise_its_header_states(tmp_path: Path) -> None:
+    """As ``check`` of that log does: ``grade --log`` judged a filter of the log's own noise
+    against the defaults (``different_motion_noise``)."""
+    log = tmp_path / "noisy.txt"
+    log.write_text("# noise: sigma_x=0.1 sigma_y=0.05 sigma_alpha=0.02\n" + SAMPLE.read_text())
+    class_folder = tmp_path / "class"
+    class_folder.mkdir()
+    shutil.copy(BASE, class_folder / "basef.py")
+    (class_folder / "alice.py").write_text(
+        "import numpy as np\nfrom basef import MyFilter as Base\n\n\nclass Alice(Base):\n"
+        "    def predict(self, d, alpha):\n"
+        "        self.Q = np.diag([0.1, 0.05, 0.02]) ** 2\n"
+        "        super().predict(d, alpha)\n"
+    )
+    checked = ekfviz("check", str(log), "--filter", "class/alice.py:Alice", cwd=tmp_path)
+    assert checked.returncode == 0, checked.stdout + checked.stderr
+    report = tmp_path / "grades.csv"
+    graded = ekfviz("grade", "class", "--log", str(log), "--report", str(report), cwd=tmp_path)
+    assert graded.returncode == 0, graded.stderr
+    rows = {row["submission"]: row for row in csv.DictReader(report.open())}
+    assert (rows["alice.py"]["status"], rows["alice.py"]["causes"]) == ("match", "")
+    assert "noisy.txt: the noise its header states: --sigma-x 0.1" in graded.stdout
 
 
 def test_a_compare_s_table_has_a_row_for_each_filter_that_failed(tmp_path: Path) -> None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
@@ -37,6 +37,9 @@ from ekfviz.core.tables import utf8
 from ekfviz.io.paths import real_path
 from ekfviz.pipeline.grade import Battery, GradeRow, GradeTask
 from ekfviz.studies.executors import ExecutorError
+
+if TYPE_CHECKING:
+    from ekfviz.filters.ekf import FilterParams
 
 Submissions = Annotated[
     Path,
@@ -143,7 +146,7 @@ def run_grade(request: GradeRequest) -> None:
     if request.save_dir is not None:
         request.save_dir.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="ekfviz-battery-") as battery_folder:
-        battery = _battery(request, battery_folder)
+        battery = _battery(request, battery_folder, params)
         tasks = [
             GradeTask(name=utf8(entry.name), path=real_path(entry), logs=battery,
                       params=params, timeout_s=request.timeout, memory_mb=request.memory,
@@ -177,13 +180,19 @@ def _check_inputs(request: GradeRequest) -> None:
             fail(f"--log {log}: no such file")
 
 
-def _battery(request: GradeRequest, folder: str) -> Battery:
-    """The logs to check on: --log, else the battery written into ``folder``."""
+def _battery(request: GradeRequest, folder: str, params: FilterParams) -> Battery:
+    """The logs to check on: --log, each with the noise its header states where no option
+    gives it (as ``check`` of that log takes it), else the battery written into ``folder``
+    (``params``)."""
     if request.logs:
-        return tuple((real_path(log), None, None) for log in request.logs)
+        noise, prior = request.noise, request.init_pose_sigma
+        return tuple(
+            (real_path(log), None, None, request.form.params(noise, prior, log=log))
+            for log in request.logs
+        )
     from ekfviz.samples import write_battery
 
-    return tuple(write_battery(Path(folder)))
+    return tuple((log, truth, start, None) for log, truth, start in write_battery(Path(folder)))
 
 
 def _read_files(request: GradeRequest, entries: list[Path]) -> list[Path | None]:

@@ -241,8 +241,8 @@ class CourseModule:
         if ids_list != self.landmark_ids:
             raise FilterFault(
                 "a course module reads the classic format: every observation names the %d"
-                " landmarks of the first one, in the same order (ids %s); this one names %s"
-                % (self.k, self.landmark_ids, ids_list)
+                " landmark%s of the first one, in the same order (ids %s); this one names %s"
+                % (self.k, "" if self.k == 1 else "s", self.landmark_ids, ids_list)
             )
         n = 3 + 2 * self.k
         attempts = []

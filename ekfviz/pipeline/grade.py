@@ -28,7 +28,11 @@ _STATUS_OF_KIND = {"timeout": "timeout", "memory": "memory", "crashed": "crashed
                    "exit": "crashed", "start": "error"}  # fmt: skip
 MODULE_NAMES = ("ekf_slam.py", "ekf.py", "slam.py")
 # the logs a submission is checked on: (log, truth, initial pose or None)
-Battery = tuple[tuple[Path, Path | None, tuple[float, float, float] | None], ...]
+# per log: (log, truth, initial pose or None, the parameters of that log or None for the
+# task's: a log's header states its noise, as ``check`` of that log takes it)
+Battery = tuple[
+    tuple[Path, Path | None, tuple[float, float, float] | None, FilterParams | None], ...
+]
 
 
 @dataclass(frozen=True, slots=True)
@@ -37,7 +41,7 @@ class GradeTask:
 
     :param name: how its row names it (the entry's name in the folder)
     :param path: the submission (a file or a directory)
-    :param logs: (log, truth, initial pose or None) to check it on
+    :param logs: (log, truth, initial pose or None, parameters or None) to check it on
     """
 
     name: str
@@ -150,7 +154,8 @@ def _defines_filter(path: Path) -> bool:
 def spec_text(module: Path) -> str:
     """``--filter`` for a module: itself (a course module of functions, or of a class
     whose methods are the handout's functions) unless it has no ``init_landmarks`` and
-    one filter class, then ``PATH.py:Class``."""
+    one filter class (the one class of its own ``predict``, else of its own ``update``,
+    else the module's only class), then ``PATH.py:Class``."""
     try:
         text = module.read_text(errors="replace")
     except OSError:
@@ -165,8 +170,10 @@ def spec_text(module: Path) -> str:
         if len(having) == 1:
             return f"{module}:{having[0]}"
         if having:
-            break
-    return str(module)
+            return str(module)
+    # else the module's one class, whose methods are all inherited (``class F(Base):
+    # pass``, or only its own __init__ with other noise)
+    return f"{module}:{next(iter(bodies))}" if len(bodies) == 1 else str(module)
 
 
 def _class_bodies(text: str) -> dict[str, str]:
@@ -198,13 +205,15 @@ def grade_one(task: GradeTask) -> GradeRow:
                                 memory_mb=task.memory_mb, clean_env=True, cwd=home,
                                 echo=False, deadline=deadline)  # fmt: skip
         spec = FilterSpec(spec_text(module), task.name, options)
-        for log, truth, start in task.logs:
+        for log, truth, start, log_params in task.logs:
             if time.time() >= deadline:  # its time ran out on the logs before
                 status = "timeout"
                 detail = _one_line(f"its time (--timeout {task.timeout_s:g} s) ran out before"
                                    f" the {log.stem} log")  # fmt: skip
                 break
-            params = task.params if start is None else replace(task.params, init_pose=start)
+            params = task.params if log_params is None else log_params
+            if start is not None:
+                params = replace(params, init_pose=start)
             save = None
             if task.save_dir is not None:
                 save = task.save_dir / f"{_safe(task.name)}-{log.stem}.rrd"
