@@ -18,6 +18,7 @@ import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+from ekfviz.check.mistakes import UNKNOWN
 from ekfviz.core.tables import Styled, TextTable, one_line, utf8
 from ekfviz.filters.ekf import FilterParams
 from ekfviz.io.text import special_kind
@@ -60,9 +61,11 @@ class GradeRow:
     """One submission's result.
 
     :param first: the first divergence, ``LOG:LINE event E (kind): quantity``
+    :param causes: the mistakes found, ``unknown`` last where some divergence is of no
+        known cause (a correct course module's row is ``independent_landmark_init`` alone:
+        the handout's block-diagonal P)
     :param detail: why it failed, for ``error``, ``timeout``, ``memory``, ``crashed``; for
         ``diverged``, how many divergent events no known mistake reproduces and the first
-        (a correct module and one of an unknown mistake have the same causes)
     """
 
     submission: str
@@ -196,6 +199,7 @@ def grade_one(task: GradeTask) -> GradeRow:
     except NoModule as error:
         return GradeRow(task.name, "error", (), "", 0.0, utf8(str(error)))
     causes: dict[str, None] = {}
+    any_unknown = False  # some divergence no known mistake reproduces
     first = ""
     status = "match"
     detail = ""
@@ -232,7 +236,8 @@ def grade_one(task: GradeTask) -> GradeRow:
                 break
             for cause in result.causes:
                 causes.setdefault(cause, None)
-            unknown = [group for group in result.groups if group.cause == "unknown"]
+            unknown = [group for group in result.groups if group.cause == UNKNOWN]
+            any_unknown = any_unknown or bool(unknown)
             if unknown and not detail:
                 u = min(unknown, key=lambda group: group.first.event).first
                 detail = (f"{sum(g.count for g in unknown)} divergent event(s) of no known"
@@ -247,6 +252,9 @@ def grade_one(task: GradeTask) -> GradeRow:
                 status = _STATUS_OF_KIND.get(result.error_kind, "error")
                 detail = _one_line(f"{log.stem}:{result.error_line}: {result.error}")
                 break
+    if any_unknown:  # last: a known mistake and more (else a correct course module's row)
+        causes.pop(UNKNOWN, None)
+        causes[UNKNOWN] = None
     return GradeRow(task.name, status, tuple(causes), first,
                     time.perf_counter() - started, detail, utf8(str(module)))  # fmt: skip
 
