@@ -300,6 +300,26 @@ def test_grade_finds_a_module_s_only_class_whose_methods_are_all_inherited(
     assert spec_text(module) == str(module)
 
 
+def test_a_module_that_imports_the_files_beside_it_relatively_loads(tmp_path: Path) -> None:
+    """``from .utils import ...`` in a submission's module was "ImportError: attempted
+    relative import with no known parent package", with no way around it."""
+    folder = tmp_path / "alice"
+    folder.mkdir()
+    (folder / "__init__.py").write_text("raise RuntimeError('a package __init__ is not run')\n")
+    (folder / "utils.py").write_text("def wrap(a):\n    return (a + 3.141592653589793) %"
+                                     " (2 * 3.141592653589793) - 3.141592653589793\n")  # fmt: skip
+    skeleton = (ROOT / "examples" / "course_skeleton" / "ekf_slam.py").read_text()
+    (folder / "ekf_slam.py").write_text(skeleton + "\nfrom .utils import wrap  # noqa\n")
+    result = ekfviz("check", str(SAMPLE), "--filter", "alice/ekf_slam.py", cwd=tmp_path)
+    assert result.returncode == 0 and result.stdout.startswith("course module"), result.stderr
+    shutil.copy(BASE, folder / "basef.py")
+    (folder / "g.py").write_text("from . import utils\nfrom .basef import MyFilter\n\n\n"
+                                 "class G(MyFilter):\n    pass\n")  # fmt: skip
+    replayed = ekfviz("replay", str(SAMPLE), "--filter", "alice/g.py:G", "--save", "g.rrd",
+                      cwd=tmp_path)  # fmt: skip
+    assert replayed.returncode == 0, replayed.stderr
+
+
 def test_grade_of_a_log_takes_the_noise_its_header_states(tmp_path: Path) -> None:
     """As ``check`` of that log does: ``grade --log`` judged a filter of the log's own noise
     against the defaults (``different_motion_noise``)."""

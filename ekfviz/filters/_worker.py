@@ -432,6 +432,25 @@ _SKIPPABLE = (
 )  # fmt: skip
 
 
+def _identifier(text: str) -> str:
+    return "".join(c if c.isalnum() else "_" for c in text)
+
+
+def _package_of(path: str) -> str:
+    """The name of a package made for the folder of the module at ``path`` (its
+    ``__init__.py``, if any, not run), so that the module's relative imports (``from
+    .utils import wrap``) find the files beside it, as they do where it is run as part of
+    its folder's package."""
+    folder = os.path.dirname(os.path.abspath(path))
+    name = "ekfviz_user_folder_" + _identifier(folder)[-60:]
+    if name not in sys.modules:
+        package = types.ModuleType(name)
+        package.__path__ = [folder]  # type: ignore[attr-defined]
+        package.__package__ = name
+        sys.modules[name] = package
+    return name
+
+
 def _top_level_line(error: BaseException, path: str) -> Optional[Tuple[int, str]]:
     """The line of the module at ``path``'s top-level code from which ``error`` was
     raised, and the name of the module's function it called there (empty when it raised
@@ -745,7 +764,7 @@ class Worker:
                 sys.path.insert(0, entry)
         try:
             if path is not None:
-                name = "ekfviz_user_" + "".join(c if c.isalnum() else "_" for c in path)[-60:]
+                name = _package_of(path) + ".ekfviz_user_" + _identifier(path)[-60:]
                 spec = importlib.util.spec_from_file_location(name, path)
                 if spec is None or spec.loader is None:
                     raise FilterFault("%s: not a Python file" % path)
@@ -821,6 +840,7 @@ class Worker:
             tree = ast.parse(handle.read(), path)
         module = types.ModuleType(name)
         module.__file__ = path
+        module.__package__ = name.rpartition(".")[0]  # its relative imports, as at import
         sys.modules[name] = module
         flags = 0
         skipped: List[int] = []
