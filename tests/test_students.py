@@ -506,6 +506,14 @@ def test_solutions_that_do_not_run_get_the_line_of_their_own_file(tmp_path: Path
         (("np.zeros((2 * k, 1))", "np.zeros((2 * k, 1), dtype=np.float)"),
          "init_landmarks raised AttributeError: module 'numpy' has no attribute 'float'."
          " `np.float` was a deprecated alias for the builtin `float`."),
+        # numpy 1's float() of an array of one element: numpy 2 refuses it (in either
+        # shape of the control, so that no other convention runs it)
+        (("d, alpha = control[0, 0], control[1, 0]",
+          "d, alpha = float(control[0:1]), float(control[1:2])"),
+         "predict raised TypeError: only 0-dimensional arrays can be converted to Python"
+         " scalars (at ekf_slam.py:{line} in predict: d, alpha = float(control[0:1]),"
+         " float(control[1:2])) (float() or int() of an array of one element, such as"
+         " control[0] of a (2, 1) column:"),
         # the gain of every landmark from the predicted P, the correction of the current one
         (("S = H @ P @ H.T + measure_cov\n        K = P @ H.T",
           "S = H @ P_pre @ H.T + measure_cov\n        K = P_pre @ H.T"),

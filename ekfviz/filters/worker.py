@@ -347,6 +347,14 @@ class WorkerProcess:
                     " refuses: run it with --python PATH, an interpreter of an environment"
                     " with numpy < 1.24)"
                 )
+            elif "only 0-dimensional arrays can be converted" in message:
+                message += (
+                    " (float() or int() of an array of one element, such as control[0] of a"
+                    f" (2, 1) column: numpy {self.numpy_version} refuses it, older numpy took"
+                    " it with a warning; take the element itself (control[0, 0], or"
+                    " .item()), or run it with --python PATH, an interpreter of an"
+                    " environment with numpy < 2)"
+                )
             raise WorkerFault(message, kind, str(answer.get("traceback", "")))
         return answer, received
 
