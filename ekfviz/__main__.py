@@ -1,6 +1,7 @@
 """``ekfviz`` and ``python -m ekfviz``: the command line."""
 
 import errno
+import os
 
 from ekfviz import signals, startup
 
@@ -37,25 +38,36 @@ def main() -> None:
 
             interrupted(stop, "nothing was written; existing files are left as they were")
         except OSError as error:  # written past ekfviz's own output (typer's help)
-            from ekfviz.cli.common import DEBUG
+            from ekfviz.cli.common import DEBUG, fail
 
-            if DEBUG["traceback"] or not _stdout_refused(sys.stdout, error):
+            if DEBUG["traceback"]:
                 raise
-            sys.stderr.write(_said(error))
-            raise SystemExit(2) from None
+            if _stdout_refused(sys.stdout, error):
+                sys.stderr.write(_said(error))
+                raise SystemExit(2) from None
+            if not isinstance(error.filename, str | bytes) or error.errno not in _PATH_ERRNOS:
+                raise
+            # a path of the user's that the command's own checks did not name (a name
+            # too long for its file system, a folder that cannot be searched)
+            try:
+                fail(f"{os.fsdecode(error.filename)}: {error.strerror}")
+            except typer.Exit as stop:
+                raise SystemExit(stop.exit_code) from None
     except SystemExit as leaving:
         if signals.fired():
             # Stopped by a signal, with its line said and its clean-up done: leave now.
             # Python's own exit would join a stopped process pool's threads, which can
             # wait for ever on a queue whose workers were killed.
-            import os
-
             sys.stdout.flush()
             sys.stderr.flush()
             os._exit(leaving.code if isinstance(leaving.code, int) else 1)
         if leaving.code is None or isinstance(leaving.code, int):
             _leave_now(leaving.code or 0)
         raise
+
+
+# what the system says of a path itself, not of the command's work on it
+_PATH_ERRNOS = frozenset((errno.ENAMETOOLONG, errno.EACCES, errno.EPERM, errno.ELOOP))
 
 
 def _leave_now(code: int) -> None:
@@ -99,7 +111,7 @@ def _stdout_refused(stream: object, error: OSError) -> bool:
     that went away (``| head``)."""
     if isinstance(error, BrokenPipeError) or error.filename is not None:
         return False
-    if error.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EIO):
+    if error.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EIO, errno.EBADF):
         return True
     try:
         stream.flush()  # type: ignore[attr-defined]

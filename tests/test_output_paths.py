@@ -353,3 +353,48 @@ def test_a_study_s_output_never_replaces_its_input(
         f"is the input {input_name}, which writing it would replace: give another file"
     )
     assert (tmp_path / input_name).read_bytes() == before
+
+
+def _env(cwd: Path) -> dict[str, str]:
+    env = {**os.environ, "XDG_CONFIG_HOME": str(cwd), "XDG_DATA_HOME": str(cwd), "CI": "1"}
+    env.pop("DISPLAY", None)
+    env.pop("WAYLAND_DISPLAY", None)
+    return env
+
+
+def _cli(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "ekfviz", *args], capture_output=True, text=True, cwd=cwd,
+        env=_env(cwd), timeout=120,
+    )  # fmt: skip
+
+
+def test_a_path_too_long_for_its_file_system_is_one_line(tmp_path: Path) -> None:
+    """A log name of 256 bytes was a traceback (OSError: File name too long, from a check
+    of the path); so was the default recording's name of a 251-byte log's second run."""
+    log = "a" * 256 + ".txt"
+    done = _cli("replay", log, cwd=tmp_path)
+    assert done.returncode == 2 and "Traceback" not in done.stderr
+    (line,) = done.stderr.strip().splitlines()
+    assert line.startswith("error: aaa") and line.endswith("File name too long"), line
+    stem = "b" * 251  # the log's name is 255 bytes, its recording's 255, then 257
+    (tmp_path / f"{stem}.txt").write_text((DATA / "classic.txt").read_text())
+    first = _cli("replay", f"{stem}.txt", cwd=tmp_path)
+    assert first.returncode == 0, first.stderr
+    second = _cli("replay", f"{stem}.txt", cwd=tmp_path)
+    assert second.returncode == 2 and "Traceback" not in second.stderr
+    (line,) = second.stderr.strip().splitlines()
+    assert "cannot save the recording as recordings/bbb" in line and "--save" in line, line
+
+
+def test_help_to_a_standard_output_that_cannot_be_written_is_one_line(tmp_path: Path) -> None:
+    with open(os.devnull) as read_only:  # stdout open for reading: EBADF at the write
+        done = subprocess.run(
+            [sys.executable, "-m", "ekfviz", "--help"], stdout=read_only,
+            stderr=subprocess.PIPE, text=True, cwd=tmp_path, env=_env(tmp_path), timeout=120,
+        )  # fmt: skip
+    assert done.returncode == 2
+    assert done.stderr == (
+        "error: standard output: Bad file descriptor: what the command prints was not written"
+        " whole\n"
+    )

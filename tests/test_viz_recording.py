@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import socket
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -444,9 +445,24 @@ def test_default_sinks(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
     sinks, note = viz.resolve_default_sinks(viz.Sinks(), Path("data/classic.txt"), tmp_path)
     assert sinks == viz.Sinks(save=tmp_path / "classic.rrd") and note and "no display" in note
-    monkeypatch.setenv("DISPLAY", ":0")
+    # a display server answers (a socket of WAYLAND_DISPLAY's): the viewer
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as server:
+        server.bind(str(tmp_path / "wayland-7"))
+        server.listen()
+        monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmp_path))
+        monkeypatch.setenv("WAYLAND_DISPLAY", "wayland-7")
+        sinks, note = viz.resolve_default_sinks(viz.Sinks(), Path("data/classic.txt"), tmp_path)
+        assert sinks == viz.Sinks(spawn=True) and note
+    # a DISPLAY left from a session that ended names no server: a file, at once (a viewer
+    # spawned for it failed to open, and the run waited for it for two minutes)
+    monkeypatch.setenv("DISPLAY", ":4711")
     sinks, note = viz.resolve_default_sinks(viz.Sinks(), Path("data/classic.txt"), tmp_path)
-    assert sinks == viz.Sinks(spawn=True) and note
+    assert sinks == viz.Sinks(save=tmp_path / "classic.rrd") and note
+    assert "no display server answers at WAYLAND_DISPLAY=wayland-7 or DISPLAY=:4711" in note
+    # a default name too long for the file system: one line that says to name the file
+    too_long = Path("x" * 300 + ".txt")
+    with pytest.raises(viz.SinkError, match=r"^cannot save the recording as .*--save$"):
+        viz.resolve_default_sinks(viz.Sinks(), too_long, tmp_path)
 
 
 def test_spawn_without_display_is_a_one_line_error(
@@ -462,6 +478,12 @@ def test_spawn_without_display_is_a_one_line_error(
     ):
         pass
     assert "\n" not in str(error.value)
+    monkeypatch.setenv("DISPLAY", "localhost:4711.0")  # (TCP port 10711: nobody there)
+    with (
+        pytest.raises(viz.SinkError, match=r"no display server answers at DISPLAY=localhost"),
+        viz.open_run(info, viz.Sinks(spawn=True)),
+    ):
+        pass
 
 
 def test_200_landmarks_are_one_batch(tmp_path: Path) -> None:

@@ -445,7 +445,7 @@ def _package_of(path: str) -> str:
     name = "ekfviz_user_folder_" + _identifier(folder)[-60:]
     if name not in sys.modules:
         package = types.ModuleType(name)
-        package.__path__ = [folder]  # type: ignore[attr-defined]
+        package.__path__ = [folder]
         package.__package__ = name
         sys.modules[name] = package
     return name

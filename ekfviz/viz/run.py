@@ -340,10 +340,57 @@ class Sinks:
 
 
 def has_display() -> bool:
-    """Whether a native viewer window can open here."""
+    """Whether a native viewer window can open here: on Linux, a display server answers
+    where ``WAYLAND_DISPLAY`` or ``DISPLAY`` says (a variable left from a session that
+    ended names none: the viewer would fail to open, and the run wait for it)."""
+    return display_problem() is None
+
+
+def display_problem() -> str | None:
+    """Why no viewer window can open here, or None where one can."""
     if sys.platform in ("darwin", "win32"):
+        return None
+    wayland, x11 = os.environ.get("WAYLAND_DISPLAY"), os.environ.get("DISPLAY")
+    if not wayland and not x11:
+        return "DISPLAY/WAYLAND_DISPLAY is not set"
+    said = []
+    if wayland:
+        folder = os.environ.get("XDG_RUNTIME_DIR", "")
+        path = wayland if wayland.startswith("/") else os.path.join(folder, wayland)
+        if _answers(socket.AF_UNIX, path):
+            return None
+        said.append(f"WAYLAND_DISPLAY={wayland}")
+    if x11:
+        if any(_answers(family, address) for family, address in _x_addresses(x11)):
+            return None
+        said.append(f"DISPLAY={x11}")
+    return f"no display server answers at {' or '.join(said)}"
+
+
+def _x_addresses(display: str) -> list[tuple[socket.AddressFamily, str | tuple[str, int]]]:
+    """Where the X server of ``display`` (``[host]:N[.screen]``) listens: its local socket
+    (a file, then Linux's abstract one) or, for a host, TCP port 6000 + N."""
+    host, _, rest = display.rpartition(":")
+    number = rest.split(".")[0]
+    if not number.isdigit():
+        return []
+    if host in ("", "unix"):
+        path = f"/tmp/.X11-unix/X{number}"
+        return [(socket.AF_UNIX, path), (socket.AF_UNIX, "\0" + path)]
+    if host.startswith("/"):  # a socket's path (macOS's launchd: /private/tmp/...:0)
+        return [(socket.AF_UNIX, display)]
+    return [(socket.AF_INET, (host, 6000 + int(number)))]
+
+
+def _answers(family: socket.AddressFamily, address: str | tuple[str, int]) -> bool:
+    """Whether something accepts a connection at ``address`` (within half a second)."""
+    try:
+        with socket.socket(family, socket.SOCK_STREAM) as probe:
+            probe.settimeout(0.5)
+            probe.connect(address)
         return True
-    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+    except (OSError, ValueError):  # (a host name that does not resolve; a path too long)
+        return False
 
 
 def resolve_default_sinks(
@@ -355,16 +402,27 @@ def resolve_default_sinks(
     """
     if sinks.any:
         return sinks, None
-    if has_display():
+    problem = display_problem()
+    if problem is None:
         return Sinks(spawn=True), "No Rerun output option given: sent the run to a Rerun viewer."
-    if not recordings_dir.is_dir():
-        try:  # the default folder, in the current one: made when missing (not its parents)
-            recordings_dir.mkdir()
-        except OSError as error:
-            raise SinkError(f"cannot make the folder {recordings_dir} ({error.strerror})") from None
-    path = unused_path(recordings_dir / f"{name or input_path.stem}.rrd")
+    try:
+        if not recordings_dir.is_dir():
+            try:  # the default folder, in the current one: made when missing (not its parents)
+                recordings_dir.mkdir()
+            except OSError as error:
+                raise SinkError(
+                    f"cannot make the folder {recordings_dir} ({error.strerror})"
+                ) from None
+        path = unused_path(recordings_dir / f"{name or input_path.stem}.rrd")
+    except OSError as error:  # a folder that cannot be read, a name too long for it
+        where = error.filename if isinstance(error.filename, str) else recordings_dir
+        raise SinkError(
+            f"cannot save the recording as {where} ({error.strerror or error});"
+            " name the file with --save"
+        ) from None
+    no_display = "no display" if problem.endswith("not set") else f"no display ({problem})"
     return Sinks(save=path), (
-        f"No Rerun output option and no display: saved the recording to {path}"
+        f"No Rerun output option and {no_display}: saved the recording to {path}"
         f" (open it with: {rerun_hint()} {path})"
     )
 
@@ -760,10 +818,9 @@ def _attach(
     saving: tuple[Path, Path] | None = None
     url: str | None = None
     if sinks.spawn:
-        if not has_display():
-            raise SinkError(
-                "--spawn needs a display: DISPLAY/WAYLAND_DISPLAY is not set; use --save or --serve"
-            )
+        problem = display_problem()
+        if problem is not None:
+            raise SinkError(f"--spawn needs a display: {problem}; use --save or --serve")
         executable = _rerun_executable()
         if executable is None:
             raise SinkError("--spawn needs the rerun viewer, which is not installed; use --save")
