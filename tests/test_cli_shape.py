@@ -217,3 +217,33 @@ def test_a_submission_named_like_markup_is_printed_as_it_is() -> None:
          Styled("1.2")),
     )  # fmt: skip
     assert table.left == {"submission", "status", "causes", "first divergence"}
+
+
+@pytest.mark.parametrize("width", [100, 60, 45])
+def test_a_table_on_a_narrow_terminal_folds_its_numbers_and_never_cuts_them(
+    width: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """At 80 columns the landmarks' x and y were cut to "13.71..." (rich's ellipsis): a
+    table now folds a cell onto more lines where it must, and drops its lines first."""
+    import io
+
+    from rich.console import Console
+
+    from ekfviz.cli import common
+    from ekfviz.core.tables import TextTable
+
+    values = [f"{v:.4f}" for v in np.linspace(-58.7021, 74.2133, 9)]
+    columns = ("id", "x", "y", "σ x", "σ y", "error (m)", "aligned (m)", "Mahalanobis", "in 3σ")
+    table = TextTable("Landmarks", columns, tuple((str(k), *values[:8]) for k in range(3)))
+    buffer = io.StringIO()
+    monkeypatch.setattr(common, "out", Console(file=buffer, width=width, color_system=None))
+    common.show(table)
+    text = buffer.getvalue()
+    assert "…" not in text and max(len(line) for line in text.splitlines()) <= width, text
+    # no character of a cell is lost, folded or not (the digits: the cells' and the "3"
+    # of "in 3σ")
+    cells = [cell for row in table.rows for cell in row]
+    digits = sum(ch.isdigit() for cell in cells for ch in str(cell)) + 1
+    assert sum(ch.isdigit() for ch in text) == digits, text
+    if width >= 100:  # room enough without the table's lines: every number on one line
+        assert all(str(cell) in text for cell in cells), text

@@ -19,6 +19,7 @@ import typer
 from rich import box
 from rich.console import Console
 from rich.markup import escape
+from rich.measure import Measurement
 from rich.table import Table
 from rich.text import Text
 from typer import _click as click
@@ -208,9 +209,17 @@ def show(table: TextTable) -> None:
     if not table.lines:
         rich_table.box = box.SIMPLE_HEAD
     for column in table.columns:
-        rich_table.add_column(column, justify="left" if column in table.left else "right")
+        # a terminal too narrow for the table folds a cell's text onto more lines, never
+        # cuts it ("13.71..." was 13.7164)
+        rich_table.add_column(
+            column, justify="left" if column in table.left else "right", overflow="fold"
+        )
     for row in table.rows:
         rich_table.add_row(*(rendered(cell) for cell in row))
+    if Measurement.get(out, out.options.update_width(1 << 16), rich_table).maximum > out.width:
+        # no lines, and two spaces between columns: room for the cells
+        rich_table.box, rich_table.pad_edge, rich_table.show_edge = box.SIMPLE_HEAD, False, False
+        rich_table.padding = (0, 2, 0, 0)
     out.print(rich_table)
 
 
