@@ -320,6 +320,21 @@ def test_a_module_that_imports_the_files_beside_it_relatively_loads(tmp_path: Pa
     assert replayed.returncode == 0, replayed.stderr
 
 
+def test_the_worker_closes_its_streams_under_pythonwarnings(tmp_path: Path) -> None:
+    """With PYTHONWARNINGS=default the worker printed a ResourceWarning for each stream of
+    its own it left to the garbage collector (commands, answers, /dev/null), as the
+    filter's output; with =error, "Exception ignored" tracebacks before the error line."""
+    env = {**os.environ, "PYTHONWARNINGS": "default", "XDG_CONFIG_HOME": str(tmp_path),
+           "XDG_DATA_HOME": str(tmp_path), "CI": "1"}  # fmt: skip
+    done = subprocess.run(
+        [sys.executable, "-m", "ekfviz", "replay", str(SAMPLE), "--filter", f"{BASE}:MyFilter",
+         "--save", str(tmp_path / "run.rrd")],
+        capture_output=True, text=True, env=env, timeout=120,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert "ResourceWarning" not in done.stderr and "Exception ignored" not in done.stderr
+
+
 def test_grade_of_a_log_takes_the_noise_its_header_states(tmp_path: Path) -> None:
     """As ``check`` of that log does: ``grade --log`` judged a filter of the log's own noise
     against the defaults (``different_motion_noise``)."""

@@ -1079,11 +1079,18 @@ def main() -> None:
     os.dup2(null, 0)
     os.close(null)
     os.dup2(2, 1)  # what the filter prints goes where ekfviz captures it
-    sys.stdin = open(os.devnull)  # noqa: SIM115 (for the whole life of the process)
+    stdin = sys.stdin = open(os.devnull)  # noqa: SIM115 (for the whole life of the process)
     builtins.input = _no_input
     sys.stdout = io.TextIOWrapper(os.fdopen(1, "wb", closefd=False), line_buffering=True)
     _guarded([commands, answers])
-    Worker(commands, answers).serve()
+    try:
+        Worker(commands, answers).serve()
+    finally:  # closed, not left to the garbage collector (a ResourceWarning each, which
+        for stream in (commands, answers, stdin):  # PYTHONWARNINGS=default prints)
+            try:
+                stream.close()
+            except Exception:  # (an answer that cannot be flushed: ekfviz has gone)
+                pass
 
 
 if __name__ == "__main__":
