@@ -101,3 +101,33 @@ def test_the_commands_say_one_line_where_the_reader_aborts(
     lines = result.output.strip().splitlines()
     assert len(lines) == 1 and "killed by SIGABRT" in lines[0] and str(path) in lines[0]
     assert not (tmp_path / "out.tum").exists()
+
+
+def test_a_path_as_text_reads_and_an_interrupt_leaves_no_child(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A str path (a notebook's habit) failed in the parent after the fork, an interrupt
+    while the child read too: each left a zombie child behind."""
+    path = tmp_path / "x.rrd"
+    path.write_bytes(b"")
+    answer = apart.read_apart(_answers, str(path))
+    assert isinstance(answer, dict) and answer["path"] == path
+    forked: list[int] = []
+    fork = os.fork
+
+    def recorded_fork() -> int:
+        pid = fork()
+        if pid:
+            forked.append(pid)
+        return pid
+
+    def interrupted(reader: int, timeout_s: float) -> bytes:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(os, "fork", recorded_fork)
+    monkeypatch.setattr(apart, "_answer", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        apart.read_apart(_answers, path)
+    (pid,) = forked
+    with pytest.raises(ChildProcessError):  # reaped already
+        os.waitpid(pid, os.WNOHANG)

@@ -46,13 +46,14 @@ class ReaderDied(RuntimeError):
     """The child reading a recording ended without an answer: its exit and what it said."""
 
 
-def read_apart(read: Callable[[Path], T], path: Path) -> T:
+def read_apart(read: Callable[[Path], T], path: Path | str) -> T:
     """``read(path)`` in a forked child process, its result or its error handed back.
 
     :raises NotARecordingError: what ``read`` raised, or, for any other error of the
         child or a child that died (killed by a signal, out of memory), one line naming
         ``path``; the child's traceback or last words are the error's cause
     """
+    path = Path(path)  # (a str from a notebook)
     if not FORKS:
         return read(path)
     with tempfile.TemporaryFile() as said:
@@ -66,7 +67,13 @@ def read_apart(read: Callable[[Path], T], path: Path) -> T:
             os.close(reader)
             _child(read, path, writer, said.fileno())
         os.close(writer)
-        data = _answer(reader, patience(path))
+        try:
+            data = _answer(reader, patience(path))
+        except BaseException:  # (Ctrl-C, a notebook's "interrupt"): no child left behind
+            with contextlib.suppress(OSError):
+                os.kill(pid, signal.SIGKILL)
+                os.waitpid(pid, 0)
+            raise
         if data is None:  # no answer in time: the child is stuck, read here instead
             os.kill(pid, signal.SIGKILL)
             os.waitpid(pid, 0)

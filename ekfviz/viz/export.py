@@ -110,7 +110,7 @@ def _seconds(column: pa.Array) -> FloatArray:
     return np.asarray(column.to_numpy(zero_copy_only=False), dtype=np.float64)
 
 
-def read_recorded_run(path: Path) -> RecordedRun:
+def read_recorded_run(path: Path | str) -> RecordedRun:
     """The trajectories, pose standard deviations and map of one replay's recording,
     read in a child process (:func:`~ekfviz.viz.apart.read_apart`: a damaged file cannot
     abort this one).

@@ -187,7 +187,7 @@ SWEEP_DOCUMENT = "/run/sweep"
 RECORDER_ENTITIES = [f"/{style.ROBOT}", f"/{style.LOG}"]
 
 
-def read_recording_info(path: Path) -> RecordingInfo:
+def read_recording_info(path: Path | str) -> RecordingInfo:
     """Read the kind, properties, embedded input, evaluation and status of a recording,
     in a child process (:func:`~ekfviz.viz.apart.read_apart`: a damaged file cannot
     abort this one).
