@@ -12,6 +12,7 @@ from typer.testing import CliRunner
 from ekfviz.cli import app
 
 runner = CliRunner()
+DATA = Path(__file__).parents[1] / "data"
 OBS = "0.1 5.0 0.2 6.0"
 
 # name -> (log content, truth content or None, expected message)
@@ -191,3 +192,59 @@ def test_a_signal_during_start_up_still_leaves_a_recording(
     assert f"({word}) after input line 1;" in stderr and "Traceback" not in stderr
     rrd_verify(rrd)
     assert word in str(entity_rows(rrd, "/log")[-1]["TextLog:text"])
+
+
+# -- the library, as a notebook calls it ---------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("given", "said"),
+    [
+        ({"update": "bogus"}, "update 'bogus': expected one of 'sequential', 'joint'"),
+        ({"landmark_init": "nonsense"}, "landmark_init 'nonsense': expected one of"),
+        ({"motion_noise": "per-minute"}, "motion_noise 'per-minute': expected one of"),
+        ({"sigma_bearing": 0}, "sigma_bearing 0.0: expected a sigma above 0 (R must be"),
+        ({"sigma_range": -0.1}, "sigma_range -0.1: expected a sigma above 0"),
+        ({"sigma_x": -1}, "sigma_x -1.0: expected a sigma of 0 or more"),
+        ({"sigma_alpha": float("nan")}, "sigma_alpha nan: expected a finite number"),
+        ({"sigma_y": "0.1"}, "sigma_y '0.1': expected a number"),
+        ({"init_pose": (1.0, 2.0)}, "init_pose (1.0, 2.0): expected 3 finite numbers"),
+        ({"init_pose_sigma": (0.1, 0.1, -0.1)}, "init_pose_sigma (0.1, 0.1, -0.1): expected"),
+        ({"odometry_scale": 1.0}, "odometry_scale 1.0: expected 2 finite numbers"),
+        ({"gate": 0.0}, "gate 0.0: expected a NIS threshold above 0, or None"),
+    ],
+)
+def test_filter_params_refuse_what_no_filter_runs_with(given: dict[str, object], said: str) -> None:
+    """``FilterParams(update="joint")`` ran the sequential update, ``"bogus"`` too;
+    ``sigma_bearing=0`` a singular R, with landmarks metres off; the command line refused
+    them, the library did not."""
+    from ekfviz.filters.ekf import FilterParams
+
+    with pytest.raises(ValueError) as error:
+        FilterParams(**given)  # type: ignore[arg-type]
+    assert str(error.value).startswith(said), str(error.value)
+
+
+def test_filter_params_take_an_option_as_text_and_a_pose_as_a_list() -> None:
+    import numpy as np
+
+    from ekfviz.filters.ekf import FilterParams, LandmarkInit, UpdateMode
+
+    params = FilterParams(update="joint", landmark_init="independent",  # type: ignore[arg-type]
+                          init_pose=[1, 2, np.float32(0.5)])  # type: ignore[arg-type]  # fmt: skip
+    assert params.update is UpdateMode.JOINT and params.landmark_init is LandmarkInit.INDEPENDENT
+    assert params.init_pose == (1.0, 2.0, 0.5)
+
+
+def test_the_readers_and_the_replay_take_paths_as_text_or_say_what_they_take() -> None:
+    from ekfviz.io.truth import read_truth
+    from ekfviz.runner.replay import replay
+    from ekfviz.sources import read_log
+
+    log, truth = str(DATA / "classic.txt"), str(DATA / "classic_truth.json")
+    events = list(read_log(log))
+    assert len(events) == 59 and read_truth(truth).ids.size == 6
+    with pytest.raises(TypeError, match=r"replay takes events, not a path: replay\(read_log"):
+        list(replay(log))  # type: ignore[arg-type]
+    with pytest.raises(TypeError, match=r"params: expected FilterParams\(\.\.\.\), got dict"):
+        list(replay(events, {"sigma_x": 0.1}))  # type: ignore[arg-type]

@@ -103,6 +103,19 @@ class MotionNoise(str, enum.Enum):
     PER_SQRT_SECOND = "per-sqrt-second"
 
 
+def _number(name: str, value: object) -> float:
+    """A finite real number of a parameter, as a float.
+
+    :raises ValueError: naming the parameter
+    """
+    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
+        raise ValueError(f"{name} {value!r}: expected a number")
+    number = float(value)
+    if not math.isfinite(number):
+        raise ValueError(f"{name} {value!r}: expected a finite number")
+    return number
+
+
 @dataclass(frozen=True, slots=True)
 class FilterParams:
     """Noise levels, prior and options of the filter; defaults are the classic ones.
@@ -129,6 +142,50 @@ class FilterParams:
     # rad per metre driven (wheels of unequal size turn the robot as it drives)
     odometry_scale: tuple[float, float] = (1.0, 1.0)
     odometry_bias: float = 0.0
+
+    def __post_init__(self) -> None:
+        """Refuse parameters no filter can run with, naming the field (a notebook's
+        ``FilterParams(update="joint")`` ran the sequential update, ``sigma_bearing=0``
+        a singular R), and take the options' values as text and the tuples as lists.
+
+        :raises ValueError: naming the field, its value and what was expected
+        """
+        for name, kind in (
+            ("landmark_init", LandmarkInit),
+            ("update", UpdateMode),
+            ("motion_noise", MotionNoise),
+        ):
+            value = getattr(self, name)
+            if not isinstance(value, kind):
+                try:
+                    object.__setattr__(self, name, kind(value))
+                except ValueError:
+                    choices = ", ".join(repr(member.value) for member in kind)
+                    raise ValueError(f"{name} {value!r}: expected one of {choices}") from None
+        for name in ("sigma_x", "sigma_y", "sigma_alpha", "sigma_bearing", "sigma_range"):
+            value = _number(name, getattr(self, name))
+            measured = name in ("sigma_bearing", "sigma_range")
+            if value < 0.0 or (value == 0.0 and measured):
+                raise ValueError(
+                    f"{name} {value!r}: "
+                    + ("expected a sigma above 0 (R must be invertible)" if measured
+                       else "expected a sigma of 0 or more")
+                )  # fmt: skip
+            object.__setattr__(self, name, value)
+        for name, size in (("init_pose", 3), ("init_pose_sigma", 3), ("odometry_scale", 2)):
+            values = getattr(self, name)
+            try:
+                numbers = tuple(_number(name, v) for v in values)
+            except (TypeError, ValueError):  # (not a sequence; not numbers)
+                numbers = ()
+            if len(numbers) != size:
+                raise ValueError(f"{name} {values!r}: expected {size} finite numbers")
+            if name == "init_pose_sigma" and min(numbers) < 0.0:
+                raise ValueError(f"{name} {values!r}: expected sigmas of 0 or more")
+            object.__setattr__(self, name, numbers)
+        object.__setattr__(self, "odometry_bias", _number("odometry_bias", self.odometry_bias))
+        if self.gate is not None and not _number("gate", self.gate) > 0.0:
+            raise ValueError(f"gate {self.gate!r}: expected a NIS threshold above 0, or None")
 
     @property
     def corrects_odometry(self) -> bool:

@@ -73,7 +73,7 @@ MAX_ID = 2**63 - 1  # ids are int64
 
 
 def read_log(
-    path: Path,
+    path: Path | str,
     progress: ProgressCallback | None = None,
     warn: WarningCallback | None = None,
 ) -> Iterator[AnyEvent]:
@@ -83,6 +83,7 @@ def read_log(
     :param progress: called now and then with the number of bytes read so far
     :param warn: told once when bearings outside (-pi, pi] are wrapped into range
     """
+    path = Path(path)  # (a str from a notebook)
     if is_extended(path):
         return read_extended(path, progress, warn)
     return read_classic(path, progress, warn)

@@ -25,11 +25,12 @@ _ID = re.compile(r"\d+", re.ASCII)
 MAX_ID = 2**63 - 1  # ids are int64
 
 
-def read_truth(path: Path) -> GroundTruth:
+def read_truth(path: Path | str) -> GroundTruth:
     """Read a truth file, JSON when it ends in ``.json`` or starts with ``{``.
 
     :raises InputError: naming the line and what was expected
     """
+    path = Path(path)  # (a str from a notebook)
     if path.suffix.lower() == ".json" or _starts_with_brace(path):
         return _read_json(path)
     return _read_text(path)

@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Iterator
 from dataclasses import replace
 from itertools import chain
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -130,6 +131,10 @@ def replay(
     :raises FilterLineError: the filter cannot go on at a line (a non-finite state, a
         protocol filter that raised or showed a broken state, ...)
     """
+    if isinstance(events, str | Path):  # (iterated, a path's characters: no events)
+        raise TypeError(f"replay takes events, not a path: replay(read_log({str(events)!r}))")
+    if params is not None and not isinstance(params, FilterParams):
+        raise TypeError(f"params: expected FilterParams(...), got {type(params).__name__}")
     params = params if params is not None else FilterParams()
     if params.corrects_odometry:  # every filter sees the corrected controls
         events = corrected_controls(events, params)

@@ -249,12 +249,13 @@ def source_options() -> list[SourceOption]:
     return list(seen.values())
 
 
-def open_source(path: Path, args: SourceArgs | None = None) -> Source:
+def open_source(path: Path | str, args: SourceArgs | None = None) -> Source:
     """The source of ``path``: the first registered format that claims it.
 
     :raises InputError: a directory of no known format, an option given for another
         format, what the format itself refuses
     """
+    path = Path(path)  # (a str from a notebook)
     args = SourceArgs() if args is None else args
     for fmt in _FORMATS:
         if fmt.detect(path):
@@ -282,7 +283,7 @@ def _refuse_others(fmt: type[Source], path: Path, args: SourceArgs) -> None:
 
 
 def read_log(
-    path: Path,
+    path: Path | str,
     progress: ProgressCallback | None = None,
     warn: WarningCallback | None = None,
 ) -> Iterator[AnyEvent]:
