@@ -231,3 +231,31 @@ def test_a_log_and_its_truth_are_replaced_together_or_not_at_all(tmp_path: Path)
     assert done.stderr.strip().endswith("cannot write (File too large); nothing was replaced")
     assert (log.read_bytes(), truth.read_bytes()) == before
     assert sorted(p.name for p in tmp_path.iterdir() if p.suffix == ".tmp") == []
+
+
+def test_the_commands_it_prints_are_quoted_for_the_shell(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``ekfviz replay sim space.txt --truth tru'th.json`` was printed as it is: pasted,
+    two arguments and an open quote."""
+    import shlex
+    import subprocess
+    import sys
+
+    monkeypatch.chdir(tmp_path)
+    env = {**os.environ, "XDG_CONFIG_HOME": str(tmp_path), "XDG_DATA_HOME": str(tmp_path)}
+    env.pop("DISPLAY", None)
+    env.pop("WAYLAND_DISPLAY", None)
+
+    def run(*args: str) -> str:
+        done = subprocess.run([sys.executable, "-m", "ekfviz", *args], capture_output=True,
+                              text=True, env=env, cwd=tmp_path, timeout=120)  # fmt: skip
+        assert done.returncode == 0, done.stderr
+        return done.stdout + done.stderr
+
+    said = run("simulate", "-o", "sim space.txt", "--truth-out", "tru'th.json")
+    command = shlex.split(said.strip().splitlines()[-1])
+    assert command[1:5] == ["replay", "sim space.txt", "--truth", "tru'th.json"], said
+    said = run("replay", "sim space.txt")
+    opened = said.strip().splitlines()[-1].split("open it with: ", 1)[1].removesuffix(")")
+    assert shlex.split(opened)[1] == "recordings/sim space.rrd", said

@@ -17,10 +17,10 @@ from ekfviz.cli.common import (
     _option,
     app,
     check_outputs,
-    command_hint,
     err,
     fail,
     filter_module,
+    open_hint,
     out,
     piped_input,
     plain,
@@ -202,7 +202,7 @@ def run_check(request: CheckRequest) -> None:
                             **result.to_json(),
                             "coverage": [item.to_json() for item in exercised]})  # fmt: skip
             if target is not None:
-                out.print(plain(f"Saved {target}; open it with: {command_hint('rerun')} {target}"))
+                out.print(plain(f"Saved {target}; open it with: {open_hint(target)}"))
     if request.report is not None:
         document: dict[str, Any] = {"ekfviz_version": __version__, "filter": spec.text,
                                     "parameters": params.as_dict()}  # fmt: skip

@@ -6,6 +6,7 @@ import enum
 import json
 import math
 import os
+import shlex
 import shutil
 import sys
 import tempfile
@@ -327,6 +328,12 @@ def default_output(name: str) -> Path:
     except OSError as error:
         fail(f"{RECORDINGS_DIR}: cannot make the folder for recordings ({error.strerror})")
     return unused_path(RECORDINGS_DIR / name)
+
+
+def open_hint(path: Path) -> str:
+    """The command that opens the recording at ``path`` in the viewer, quoted for the
+    user's shell (a name with a space, a quote or a line break in it)."""
+    return f"{shlex.quote(command_hint('rerun'))} {shlex.quote(str(path))}"
 
 
 def command_hint(program: str) -> str:

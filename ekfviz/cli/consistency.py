@@ -19,12 +19,13 @@ from ekfviz.cli.common import (
     _option,
     app,
     check_outputs,
-    command_hint,
     err,
     fail,
     filter_module,
     interrupted,
+    open_hint,
     out,
+    plain,
     show,
     stopped_study,
     write_json,
@@ -227,4 +228,4 @@ def _save(request: ConsistencyRequest, result: MonteCarlo, settings: dict[str, o
         command=shlex.join(["ekfviz", *sys.argv[1:]]),
         settings=settings,
     )
-    out.print(f"Saved {save}; open it with: {command_hint('rerun')} {save}")
+    out.print(plain(f"Saved {save}; open it with: {open_hint(save)}"))

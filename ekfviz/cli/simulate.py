@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import enum
 import math
+import shlex
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
@@ -287,11 +288,11 @@ def _replay_hint(
         f"Replay it with the filter told the true noise{stated}:\n  "
         + " ".join(
             [
-                command_hint("ekfviz"),
+                shlex.quote(command_hint("ekfviz")),
                 "replay",
-                str(output),
+                shlex.quote(str(output)),
                 "--truth",
-                str(truth_out),
+                shlex.quote(str(truth_out)),
                 *replay_noise,
             ]
         ),
@@ -337,6 +338,7 @@ def _simulate_mrclam(
                      for n, v in asdict(noise).items() if n.startswith("sigma_"))  # fmt: skip
     out.print(
         "Replay it with the filter told the true noise:\n  "
-        + f"{command_hint('ekfviz')} replay {output} --motion-noise per-sqrt-second {flags}",
+        + f"{shlex.quote(command_hint('ekfviz'))} replay {shlex.quote(str(output))}"
+        f" --motion-noise per-sqrt-second {flags}",
         soft_wrap=True,
     )

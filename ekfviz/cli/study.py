@@ -17,13 +17,14 @@ from rich.text import Text
 from ekfviz import __version__, signals
 from ekfviz.cli.common import (
     check_outputs,
-    command_hint,
     default_output,
     err,
     fail,
     filter_module,
     interrupted,
+    open_hint,
     out,
+    plain,
     show,
     stopped_study,
     warn,
@@ -102,7 +103,7 @@ def run_study(
     _print_result(result, what)
     if report is not None:
         write_json(report, _report(data, result, what, report_extra))
-    out.print(f"Saved {target}; open it with: {command_hint('rerun')} {target}")
+    out.print(plain(f"Saved {target}; open it with: {open_hint(target)}"))
 
 
 def _print_result(result: StudyResult, what: str) -> None:

@@ -13,6 +13,7 @@ import hashlib
 import ipaddress
 import json
 import os
+import shlex
 import shutil
 import signal
 import socket
@@ -423,7 +424,7 @@ def resolve_default_sinks(
     no_display = "no display" if problem.endswith("not set") else f"no display ({problem})"
     return Sinks(save=path), (
         f"No Rerun output option and {no_display}: saved the recording to {path}"
-        f" (open it with: {rerun_hint()} {path})"
+        f" (open it with: {shlex.quote(rerun_hint())} {shlex.quote(str(path))})"
     )
 
 
