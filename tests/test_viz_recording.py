@@ -650,3 +650,25 @@ def test_first_sighting_outlines_are_smooth_the_maps_light(run: Run) -> None:
             for strip in row.get("LineStrips2D:strips") or []  # type: ignore[attr-defined]
         ]
         assert strips and {len(strip) for strip in strips} == {points}, entity
+
+
+def test_info_shows_a_recording_s_names_and_never_obeys_them(tmp_path: Path) -> None:
+    """A log named ``esc<ESC>[31m...[bold]`` put the terminal's escape sequence raw on
+    the screen through ``info`` (errors escaped it), and rich read its markup."""
+    import os
+    import subprocess
+
+    log = tmp_path / "esc\x1b[31mred[bold]x.txt"
+    log.write_text((Path(__file__).parents[1] / "data" / "classic.txt").read_text())
+    env = {**os.environ, "XDG_CONFIG_HOME": str(tmp_path), "XDG_DATA_HOME": str(tmp_path)}
+
+    def ekfviz(*args: str) -> str:
+        done = subprocess.run([sys.executable, "-m", "ekfviz", *args], capture_output=True,
+                              text=True, env=env, timeout=120)  # fmt: skip
+        assert done.returncode == 0, done.stderr
+        return done.stdout
+
+    ekfviz("replay", str(log), "--save", str(tmp_path / "run.rrd"))
+    shown = ekfviz("info", str(tmp_path / "run.rrd"))
+    assert "\x1b" not in shown
+    assert "name               esc\\x1b[31mred[bold]x" in shown, shown

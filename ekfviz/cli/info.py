@@ -7,6 +7,7 @@ from typing import Annotated
 
 import typer
 from rich.table import Table
+from rich.text import Text
 
 from ekfviz.cli.common import (
     app,
@@ -17,6 +18,7 @@ from ekfviz.cli.common import (
     print_json,
     write_bytes_atomic,
 )
+from ekfviz.core.tables import one_line
 
 
 @app.command()
@@ -54,13 +56,16 @@ def info(
         table = Table(show_header=False, box=None, pad_edge=False)
         table.add_column(style="bold", no_wrap=True)
         table.add_column(overflow="fold")
+        # what a recording holds is shown, never obeyed: rich markup in a name is text, a
+        # control character (a terminal's escape sequence, a line break) is escaped
         for key, value in found.summary():
-            table.add_row(key, value)
+            table.add_row(Text(key), Text(one_line(value)))
         out.print(table)
         if found.evaluation_markdown:
             from rich.markdown import Markdown
 
-            out.print(Markdown(found.evaluation_markdown))
+            shown = "\n".join(one_line(line) for line in found.evaluation_markdown.split("\n"))
+            out.print(Markdown(shown))
     if extract_input is not None and found.input_text is not None:
         write_bytes_atomic(extract_input, found.input_text.encode("utf-8"))
         out.print(f"Wrote the input to {extract_input}")
