@@ -185,6 +185,8 @@ MISTAKES: dict[str, set[str]] = {
     "return_in_loop": HANDOUT | {"only_first_landmark"},
     "stale_linearisation": HANDOUT | {"linearised_once"},
     "r_twice": HANDOUT | {"measurement_noise_twice"},
+    "q_sigmas": HANDOUT | {"motion_noise_not_squared"},
+    "r_sigmas": HANDOUT | {"measurement_noise_not_squared"},
     "joseph_no_krk": HANDOUT | {"joseph_without_measurement_noise"},
     "control_swapped": HANDOUT | {"swapped_control"},
     "range_bearing_init": HANDOUT | {"init_range_bearing_swapped"},
@@ -262,6 +264,13 @@ EDITS: dict[str, tuple[tuple[str, str], ...]] = {
     "r_twice": (
         ("S = H @ P @ H.T + measure_cov",
          "S = H @ P @ H.T + measure_cov\n        S += measure_cov"),
+    ),
+    # the sigmas taken for variances: Q = diag(sigma), R = diag(sigma) (in S and at init)
+    "q_sigmas": (("Q[:3, :3] = rot @ control_cov @ rot.T",
+                  "Q[:3, :3] = rot @ np.sqrt(control_cov) @ rot.T"),),
+    "r_sigmas": (
+        ("S = H @ P @ H.T + measure_cov", "S = H @ P @ H.T + np.sqrt(measure_cov)"),
+        ("J_z @ init_measure_cov @ J_z.T", "J_z @ np.sqrt(init_measure_cov) @ J_z.T"),
     ),
     "joseph_no_krk": (
         ("P = (np.eye(n) - K @ H) @ P",

@@ -138,6 +138,12 @@ CATALOGUE: tuple[Cause, ...] = (
           " corrected",
           "the second and later landmarks of a line are corrected from a stale mean",
           "inside the loop, compute dx, dy, h(x) and H from the current X"),
+    Cause("measurement_noise_not_squared", "update",
+          "R is built from the sigmas, not their squares: R = diag(sigma_bearing,"
+          " sigma_range), in S and in a new landmark's covariance",
+          "every update is too weak (R too large, for sigmas under 1) and new landmarks"
+          " too uncertain",
+          "R = diag(sigma_bearing^2, sigma_range^2): a covariance holds variances"),
     Cause("measurement_noise_twice", "update",
           "R is added twice to the innovation covariance: S = H P H^T + 2 R",
           "the update is too weak",
@@ -198,6 +204,11 @@ CATALOGUE: tuple[Cause, ...] = (
           " alpha and turns d",
           "the predicted pose is far off at every predict",
           "d, alpha = control[0], control[1] (distance first, then the turn)"),
+    Cause("motion_noise_not_squared", "predict",
+          "Q is built from the sigmas, not their squares: Q = diag(sigma_x, sigma_y,"
+          " sigma_alpha)",
+          "the pose covariance of a predict grows by the sigmas, not their squares",
+          "Q = diag(sigma_x^2, sigma_y^2, sigma_alpha^2): a covariance holds variances"),
     Cause("different_motion_noise", "predict",
           "the filter adds a motion noise of its own, not the run's --sigma-x/-y/-alpha",
           "the pose covariance of a predict differs by a constant",
@@ -291,6 +302,11 @@ def _noise_causes(N: FloatArray, W: FloatArray, Q: FloatArray, tol: float) -> se
         return {"unrotated_motion_noise"}
     if _close(N, np.zeros((3, 3)), tol):
         return {"missing_motion_noise"}
+    sigmas = np.diag(np.sqrt(np.diag(Q)))  # Q = diag(sigma), in either frame
+    if _close(N, W @ sigmas @ W.T, tol):
+        return {"motion_noise_not_squared"}
+    if _close(N, sigmas, tol):
+        return {"motion_noise_not_squared", "unrotated_motion_noise"}
     if not _close(N, N.T, tol) or np.linalg.eigvalsh(0.5 * (N + N.T)).min() < -tol:
         return None
     in_robot = W.T @ N @ W
@@ -314,6 +330,7 @@ UPDATE_FLAGS = (
     "only_first_landmark",
     "linearised_once",
     "measurement_noise_twice",
+    "measurement_noise_not_squared",
     "joseph_without_measurement_noise",
     "measurement_jacobian_rows_swapped",
     "measurement_jacobian_bearing_sign",
@@ -327,6 +344,9 @@ INIT_FLAGS = (
     "init_range_bearing_swapped",
     "init_cos_sin_swapped",
 )
+# the update mistakes that change a new landmark's initialisation too: tried at a line
+# of new landmarks only
+_INIT_AND_UPDATE_FLAGS = ("measurement_noise_not_squared",)
 _EXCLUSIVE_UPDATE = (
     {
         "landmark_cov_missing_pose_term",
@@ -339,7 +359,7 @@ _EXCLUSIVE_UPDATE = (
     {"arctan_bearing", "bearing_not_relative_to_heading"},
     # one form of the loop over a line
     {"joint_update", "only_first_landmark", "linearised_once"},
-    {"missing_measurement_noise", "measurement_noise_twice"},
+    {"missing_measurement_noise", "measurement_noise_twice", "measurement_noise_not_squared"},
     {"measurement_jacobian_rows_swapped", "measurement_jacobian_bearing_sign"},
     {"init_range_bearing_swapped", "init_cos_sin_swapped"},
 )
@@ -376,6 +396,8 @@ def update_with(
     """
     x, P, state_ids = s.x.copy(), s.P.copy(), [int(i) for i in s.ids]
     unwrapped = "unwrapped_innovation" in flags
+    if "measurement_noise_not_squared" in flags:  # the one R of the filter, everywhere
+        R = np.diag(np.sqrt(np.diag(R)))
     noise = np.zeros((2, 2)) if "missing_measurement_noise" in flags else R
     if "measurement_noise_twice" in flags:
         noise = 2.0 * R
@@ -650,7 +672,9 @@ def explain_update(
         return Explanation(())
     has_new = any(int(i) not in before.ids.tolist() for i in ids)
     has_known = any(int(i) in before.ids.tolist() for i in ids)
-    flags_here = (UPDATE_FLAGS if has_known else ()) + (INIT_FLAGS if has_new else ())
+    flags_here = (UPDATE_FLAGS if has_known else _INIT_AND_UPDATE_FLAGS) + (
+        INIT_FLAGS if has_new else ()
+    )
     if not (has_new and has_known):  # the order of a line matters only with both in it
         flags_here = tuple(f for f in flags_here if f != "landmark_init_in_line_order")
     fixed = _fixed_block(before, after, ids) if has_new else None
@@ -710,7 +734,7 @@ def explain_update(
 _PRUNABLE = frozenset({
     "arctan_bearing", "bearing_not_relative_to_heading", "innovation_wrapped_to_0_2pi",
     "only_first_landmark", "linearised_once", "measurement_noise_twice",
-    "init_range_bearing_swapped", "init_cos_sin_swapped",
+    "measurement_noise_not_squared", "init_range_bearing_swapped", "init_cos_sin_swapped",
 })  # fmt: skip
 _LATER = _PRUNABLE | {
     "joseph_without_measurement_noise",
