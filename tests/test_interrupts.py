@@ -375,3 +375,29 @@ def test_a_failed_replay_names_the_recording_it_kept_as_it_was_given(tmp_path: P
         "; the recording of everything before it is saved in run.partial.rrd"
         " (run.rrd is left as it was)\n"
     )
+
+
+def test_a_signal_in_the_final_flush_leaves_no_hidden_temporary_file(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """SIGINT while the recording's last chunks were flushed (its file about whole) left
+    the hidden ``.RUN.rrd.<pid>.<hex>.part`` behind, for replay, sweep and compare: the
+    exception left the clean-up before the temporary file was moved or removed. A file not
+    known to be whole is dropped; the one at the path is left as it was."""
+    from ekfviz import signals, viz
+    from ekfviz.viz import run as viz_run
+
+    target = tmp_path / "run.rrd"
+    target.write_bytes(b"the previous recording")
+
+    def interrupted_flush(rec: object, timeout: float) -> None:
+        raise signals.Interrupted
+
+    monkeypatch.setattr(viz_run, "flush_interruptibly", interrupted_flush)
+    info = viz.run_info("run", "", {}, SAMPLE)
+    sinks = viz.Sinks(save=target)
+    with pytest.raises(signals.Interrupted), viz.open_recording(info, sinks) as rec:
+        rec.complete = True  # the run finished; the signal comes in the flush after it
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run.rrd"]
+    assert target.read_bytes() == b"the previous recording"
+    assert rec.saved_to is None

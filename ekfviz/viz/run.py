@@ -754,18 +754,24 @@ def open_recording(info: RunInfo, sinks: Sinks) -> Iterator[Recording]:
     finally:
         complete = recording is not None and recording.complete
         failed = recording is not None and recording.save_failed is not None
-        if saving is not None and (failed or (not complete and disk_full(saving[0]))):
-            _abandon(rec)  # its file sink has stopped: a flush or disconnect would wait
-        else:
-            with contextlib.suppress(Exception):
-                flush_interruptibly(rec, FLUSH_TIMEOUT_S)
-            rec.disconnect()  # finalises the file (footer) and stops a server
-        for close in closers:
-            close()
-        if saving is not None and sinks.save is not None:
-            saved = _commit_or_remove(*saving, sinks.save, recording)
-            if recording is not None:
-                recording.saved_to = saved
+        try:
+            if saving is not None and (failed or (not complete and disk_full(saving[0]))):
+                _abandon(rec)  # its file sink has stopped: a flush or disconnect would wait
+            else:
+                with contextlib.suppress(Exception):
+                    flush_interruptibly(rec, FLUSH_TIMEOUT_S)
+                rec.disconnect()  # finalises the file (footer) and stops a server
+            for close in closers:
+                close()
+        except BaseException:  # a signal in the flush: the file is not known to be whole,
+            if recording is not None:  # and is dropped (it left a hidden .part file)
+                recording.complete = False
+            raise
+        finally:
+            if saving is not None and sinks.save is not None:
+                saved = _commit_or_remove(*saving, sinks.save, recording)
+                if recording is not None:
+                    recording.saved_to = saved
     if unreachable is not None:
         kept = f"; the recording is saved in {sinks.save}" if sinks.save is not None else ""
         raise SinkError(f"no Rerun viewer at {unreachable}{kept}")
