@@ -36,7 +36,13 @@ def main() -> None:
         except signals.Interrupted as stop:  # a command that did not say more itself
             from ekfviz.cli.common import interrupted
 
-            interrupted(stop, "nothing was written; existing files are left as they were")
+            written = getattr(stop, "written", ())  # (files written whole just before it)
+            interrupted(
+                stop,
+                f"{', '.join(map(str, written))} written whole before it"
+                if written
+                else "nothing was written; existing files are left as they were",
+            )
         except OSError as error:  # written past ekfviz's own output (typer's help)
             from ekfviz.cli.common import DEBUG, fail
 

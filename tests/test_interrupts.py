@@ -401,3 +401,82 @@ def test_a_signal_in_the_final_flush_leaves_no_hidden_temporary_file(
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run.rrd"]
     assert target.read_bytes() == b"the previous recording"
     assert rec.saved_to is None
+
+
+def test_files_written_together_are_all_replaced_or_none_whatever_the_signal(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``export`` wrote its files one after another: a SIGINT among them left the new
+    TUM beside the old CSV, and said "nothing was written". Now a signal among the renames
+    waits for the last, and the line says what was written."""
+    from ekfviz import signals
+    from ekfviz.cli.common import write_files_atomic
+
+    first, second = tmp_path / "e.tum", tmp_path / "p.csv"
+    first.write_text("OLD")
+    second.write_text("OLD")
+    replace = os.replace
+
+    def replace_then_signal(source: str, target: Path) -> None:
+        replace(source, target)
+        if Path(target) == first:
+            os.kill(os.getpid(), signal.SIGINT)  # after the first rename, before the second
+
+    before = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
+    monkeypatch.setattr(os, "replace", replace_then_signal)
+    try:
+        signals.as_interrupts()
+        with pytest.raises(signals.Interrupted) as stopped:
+            write_files_atomic({first: b"NEW", second: b"NEW"})
+    finally:
+        signal.signal(signal.SIGINT, before[0])
+        signal.signal(signal.SIGTERM, before[1])
+    assert (first.read_text(), second.read_text()) == ("NEW", "NEW")
+    assert stopped.value.written == (first, second)  # type: ignore[attr-defined]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["e.tum", "p.csv"]
+
+
+def test_a_consistency_stopped_after_its_report_says_the_report_was_written(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """It said "nothing was written; existing files are left as they were" with the new
+    report in place."""
+    from ekfviz import signals
+    from ekfviz.cli import consistency
+
+    def stopped_saving(*args: object) -> None:
+        raise signals.Interrupted
+
+    monkeypatch.setattr(consistency, "_save", stopped_saving)
+    report, save = tmp_path / "mc.json", tmp_path / "mc.rrd"
+    result = CliRunner().invoke(app, ["consistency", "--runs", "2", "--report", str(report),
+                                      "--save", str(save)])  # fmt: skip
+    assert result.exit_code == 130, result.output
+    assert (
+        f"{report} written whole before it; {save} not written (an existing file left as it"
+        " was)" in " ".join(result.output.split())
+    ), result.output
+    assert report.is_file() and not save.exists()
+
+
+def test_a_grade_stopped_says_what_it_kept_and_removes_its_workers_temporary_files(
+    tmp_path: Path,
+) -> None:
+    from ekfviz.cli.grade import GradeRequest, _stopped
+    from ekfviz.filters.ekf import FilterParams
+    from ekfviz.pipeline.grade import GradeTask
+
+    task = GradeTask(name="s1.py", path=tmp_path / "s1.py", logs=((SAMPLE, None, None, None),),
+                     params=FilterParams(), timeout_s=10.0, memory_mb=None)  # fmt: skip
+    saved = tmp_path / "recs"
+    saved.mkdir()
+    (saved / ".s1.py-classic.rrd.4242.0badcafe.part").write_bytes(b"half")  # a killed worker's
+    (saved / "s1.py-classic.rrd").write_bytes(b"whole")
+    (saved / ".mine.part").write_bytes(b"not ekfviz's")
+    request = GradeRequest.__new__(GradeRequest)
+    object.__setattr__(request, "save_dir", saved)
+    said = _stopped(request, [task])
+    assert said == (
+        f"no report was written; the recordings of the submissions checked before it are in {saved}"
+    )
+    assert sorted(p.name for p in saved.iterdir()) == [".mine.part", "s1.py-classic.rrd"]

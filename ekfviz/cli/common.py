@@ -269,6 +269,15 @@ def stopped_study(done: int, total: int, what: str, outputs: Sequence[Path | Non
     return f"{done} of {total} {what} done, the rest cancelled; nothing was saved{kept}"
 
 
+def written_before(written: Sequence[Path], not_written: Sequence[Path | None]) -> str:
+    """What a command stopped while it wrote its outputs kept: those ``written`` (whole),
+    and those not (an existing one left as it was)."""
+    rest = [str(path) for path in not_written if path is not None]
+    said = f"{', '.join(map(str, written))} written whole before it" if written else ""
+    left = f"{', '.join(rest)} not written (an existing file left as it was)" if rest else ""
+    return "; ".join(part for part in (said, left) if part) or "nothing was written"
+
+
 def check_outputs(*outputs: tuple[str, Path | None], inputs: Sequence[Path | None] = ()) -> None:
     """Check every output path of a command before any work starts (see
     :func:`ekfviz.io.paths.check_output_path`); two outputs must be two files, and none
@@ -521,6 +530,7 @@ def write_files_atomic(contents: dict[Path, bytes]) -> None:
     never left half-written, and files that belong together (a log and its truth) are
     replaced together or not at all."""
     written: list[tuple[str, Path]] = []  # (the temporary file, its path)
+    renamed = False
     try:
         for target, content in contents.items():
             path = real_path(target)  # (resolve() raises on a loop of links)
@@ -537,11 +547,15 @@ def write_files_atomic(contents: dict[Path, bytes]) -> None:
                 os.chmod(tmp, _file_mode(path))
             except OSError as error:  # a full disk, a file-size limit: the old files stay
                 fail(f"{path}: cannot write ({error.strerror or error}); nothing was replaced")
-        for tmp, path in written:
-            os.replace(tmp, path)
-    except BaseException:
+        with signals.held():  # a signal now: after the last rename (all or none)
+            for tmp, path in written:
+                os.replace(tmp, path)
+            renamed = True
+    except BaseException as error:
         for tmp, _ in written:
             Path(tmp).unlink(missing_ok=True)
+        if renamed and isinstance(error, signals.Interrupted):  # said by the command line
+            error.written = tuple(path for _, path in written)  # type: ignore[attr-defined]
         raise
 
 

@@ -29,6 +29,7 @@ from ekfviz.cli.common import (
     show,
     stopped_study,
     write_json,
+    written_before,
 )
 from ekfviz.cli.options import (
     Association,
@@ -131,11 +132,17 @@ def run_consistency(request: ConsistencyRequest) -> None:
     if verdict is not None:
         out.print(f"The filter looks [bold]{verdict.value}[/] on this scenario (by its NEES).")
     settings = _settings(request, trials)
-    if request.report is not None:
-        document = {"ekfviz_version": __version__, **settings, **result.to_json()}
-        write_json(request.report, document)
-    if request.save is not None:
-        _save(request, result, settings)
+    written: list[Path] = []
+    try:
+        if request.report is not None:
+            document = {"ekfviz_version": __version__, **settings, **result.to_json()}
+            write_json(request.report, document)
+            written.append(request.report)
+        if request.save is not None:
+            _save(request, result, settings)
+    except signals.Interrupted as stop:  # said as it is: the report may be written already
+        outputs = (request.report, request.save)
+        interrupted(stop, written_before(written, [p for p in outputs if p not in written]))
 
 
 def _trials(request: ConsistencyRequest) -> Trials:

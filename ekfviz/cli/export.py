@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from ekfviz.cli.common import app, check_outputs, fail, out, write_bytes_atomic
+from ekfviz.cli.common import app, check_outputs, fail, out, plain, write_files_atomic
 from ekfviz.io.trajectory import format_landmarks_csv, format_poses_csv, format_tum
 
 
@@ -52,9 +52,10 @@ def export(
         inputs=[recording],
     )  # fmt: skip
     files = _files(recording, tum, truth_tum, landmarks, csv)
-    for path, text in files:
-        write_bytes_atomic(path, text.encode("utf-8"))
-        out.print(f"Wrote {path}")
+    # all of them replaced together, or none (a signal among them left old and new)
+    write_files_atomic({path: text.encode("utf-8") for path, text in files})
+    for path, _ in files:
+        out.print(plain(f"Wrote {path}"))
 
 
 def _files(

@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
+from ekfviz import signals
 from ekfviz.cli.common import (
     DEFAULT,
     Triple,
@@ -17,6 +18,7 @@ from ekfviz.cli.common import (
     check_outputs,
     fail,
     human_output_to_stderr,
+    interrupted,
     out,
     plain,
     print_json,
@@ -158,6 +160,8 @@ def run_grade(request: GradeRequest) -> None:
             rows = chosen.map(grade_one, tasks)
         except ExecutorError as error:
             fail(str(error))
+        except signals.Interrupted as stop:
+            interrupted(stop, _stopped(request, tasks))
     show(grades_table(rows))
     out.print(plain(", ".join(f"{n} {status}" for status, n in _counts(rows).items())))
     if request.report is not None:
@@ -165,6 +169,24 @@ def run_grade(request: GradeRequest) -> None:
         out.print(plain(f"Wrote {request.report}"))
     if request.json_output:
         print_json({"submissions": [row.to_json() for row in rows]})
+
+
+def _stopped(request: GradeRequest, tasks: list[GradeTask]) -> str:
+    """What a grade stopped by a signal kept: no report; the recordings of the submissions
+    checked whole (each is written whole or not at all), the temporary files of those its
+    stopped workers were writing removed."""
+    if request.save_dir is None:
+        return "no report was written; existing files are left as they were"
+    from ekfviz.pipeline.grade import recording_names
+
+    names = {name for task in tasks for name in recording_names(task)}
+    for leftover in request.save_dir.glob(".*.part"):  # a worker killed while it saved
+        if any(leftover.name.startswith(f".{name}.") for name in names):
+            leftover.unlink(missing_ok=True)
+    return (
+        f"no report was written; the recordings of the submissions checked before it are in"
+        f" {request.save_dir}"
+    )
 
 
 def _check_inputs(request: GradeRequest) -> None:

@@ -185,6 +185,11 @@ def _class_bodies(text: str) -> dict[str, str]:
     return {match[1]: match[2] for match in re.finditer(pattern, text, re.M)}
 
 
+def recording_names(task: GradeTask) -> list[str]:
+    """The file names of a submission's check recordings in ``--save-dir``, a log each."""
+    return [f"{_safe(task.name)}-{log.stem}.rrd" for log, *_ in task.logs]
+
+
 def grade_one(task: GradeTask) -> GradeRow:
     """Check one submission on every log of ``task``; never raises for what it does."""
     from ekfviz import pipeline
@@ -220,7 +225,7 @@ def grade_one(task: GradeTask) -> GradeRow:
                 params = replace(params, init_pose=start)
             save = None
             if task.save_dir is not None:
-                save = task.save_dir / f"{_safe(task.name)}-{log.stem}.rrd"
+                save = task.save_dir / f"{_safe(task.name)}-{log.stem}.rrd"  # recording_names
             try:
                 result, _ = pipeline.check(log, truth, spec, params, tolerance=task.tolerance,
                                            save=save, every=True)  # fmt: skip
