@@ -9,6 +9,7 @@ import subprocess
 import sys
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -243,3 +244,81 @@ def test_a_timestamped_dataset_exports_its_track_as_the_truth(tmp_path: Path) ->
     by_time = {row[0]: row for row in estimate}
     errors = [np.linalg.norm(by_time[row[0]][1:3] - row[1:3]) for row in truth]
     assert 0.0 < float(np.sqrt(np.mean(np.square(errors)))) < 1.0
+
+
+# -- recordings written by plain rerun-sdk code, as ekfviz's look-alikes -----------------------
+
+_PROPERTIES = {"version": "0.1.0", "kind": "replay", "command": "ekfviz replay x",
+               "parameters": "{}", "input_name": "x.txt", "input_size": 10,
+               "input_sha256": "ab" * 32, "input_embedded": False}  # fmt: skip
+
+
+def _look_alike(path: Path, extra: dict[str, dict[str, object]], landmarks: Any = None) -> None:
+    """A recording with ekfviz's properties (and ``extra`` ones), three robot poses and,
+    if given, a map (``rr.Points2D``)."""
+    import rerun as rr
+
+    def values(items: dict[str, object]) -> rr.AnyValues:
+        bundle = rr.AnyValues()
+        for key, value in items.items():
+            bundle.with_component_from_data(key, value)
+        return bundle
+
+    rec = rr.RecordingStream("ekfviz")
+    rec.save(path)
+    rec.send_property("ekfviz", values(_PROPERTIES))
+    for name, items in extra.items():
+        rec.send_property(name, values(items))
+    for k in range(3):
+        rec.set_time("step", sequence=k)
+        rec.set_time("event", sequence=k)
+        rec.log(
+            f"/{style.ROBOT}",
+            rr.Transform3D(
+                translation=[float(k), 0.0, 0.0], quaternion=rr.Quaternion(xyzw=[0, 0, 0, 1])
+            ),
+        )
+    if landmarks is not None:
+        rec.log(f"/{style.LANDMARKS}", landmarks)
+    rec.flush()
+    rec.disconnect()
+
+
+def test_look_alike_recordings_are_one_line_not_a_traceback(tmp_path: Path) -> None:
+    """Properties of the wrong shape (a list of results, a NaN or a 1e300 time span) were
+    tracebacks when ``info`` showed them; a map of three points and one id was one when
+    ``export`` wrote it, and NaN went into the CSV."""
+    import rerun as rr
+
+    cases: dict[str, tuple[dict[str, dict[str, object]], Any, str]] = {
+        "results.rrd": ({"results": {"json": "[1, 2, 3]"}}, None, "info"),
+        "nan_time.rrd": (
+            {"time": {"start": float("nan"), "end": float("inf"), "kind": "timestamp"}},
+            None,
+            "info",
+        ),
+        "huge_time.rrd": (
+            {"time": {"start": 1e300, "end": 1e300, "kind": "timestamp"}},
+            None,
+            "info",
+        ),
+        "ids.rrd": ({}, rr.Points2D([[1, 2], [3, 4], [5, 6]], class_ids=[7]), "export"),
+        "nan_map.rrd": (
+            {},
+            rr.Points2D(np.array([[np.nan, 1.0], [3.0, 4.0]]), class_ids=[1, 2]),
+            "export",
+        ),
+    }
+    env = {**os.environ, "XDG_CONFIG_HOME": str(tmp_path), "XDG_DATA_HOME": str(tmp_path)}
+    for name, (extra, landmarks, command) in cases.items():
+        _look_alike(tmp_path / name, extra, landmarks)
+        args = [command, str(tmp_path / name)]
+        if command == "export":
+            args += ["--landmarks", str(tmp_path / "map.csv")]
+        done = subprocess.run([sys.executable, "-m", "ekfviz", *args], capture_output=True,
+                              text=True, env=env, timeout=120)  # fmt: skip
+        assert done.returncode == 2, (name, done.stdout, done.stderr)
+        (line,) = done.stderr.strip().splitlines()
+        assert line.startswith(f"error: {tmp_path / name}: "), line
+        assert "another program wrote" in line, line
+        assert not (tmp_path / "map.csv").exists()

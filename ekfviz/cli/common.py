@@ -181,10 +181,22 @@ def human_output_to_stderr() -> None:
 
 
 def print_json(document: object) -> None:
-    """A JSON document on stdout, for scripts."""
+    """A JSON document on stdout, for scripts: a non-finite number as null (JSON has
+    none; Python's NaN and Infinity are not JSON)."""
     with _unwritable("standard output"):
-        sys.stdout.write(json.dumps(document, indent=2) + "\n")
+        sys.stdout.write(json.dumps(_finite(document), indent=2, allow_nan=False) + "\n")
         sys.stdout.flush()
+
+
+def _finite(value: object) -> object:
+    """``value`` with every non-finite float in it as None."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {key: _finite(item) for key, item in value.items()}
+    if isinstance(value, list | tuple):
+        return [_finite(item) for item in value]
+    return value
 
 
 RECORDINGS_DIR = Path("recordings")
@@ -517,7 +529,9 @@ def log_events(
 
 
 def write_json(path: Path, document: dict[str, object]) -> None:
-    write_bytes_atomic(path, (json.dumps(document, indent=2) + "\n").encode("utf-8"))
+    """A JSON report, as :func:`print_json` prints it (a non-finite number as null)."""
+    text = json.dumps(_finite(document), indent=2, allow_nan=False) + "\n"
+    write_bytes_atomic(path, text.encode("utf-8"))
 
 
 def write_bytes_atomic(path: Path, content: bytes) -> None:

@@ -155,14 +155,36 @@ def _read_recorded_run(path: Path) -> RecordedRun:
         raise NotARecordingError(
             f"{path}: no estimated poses ({style.ROBOT}): not a recording of an ekfviz replay"
         )
-    ids, landmarks_xy = _last_landmarks(rows["landmarks"])
-    return RecordedRun(
-        estimate=estimate,
-        truth=_trajectory(rows["truth"]) or _trajectory(rows["truth_frame"]),
-        sigmas_xytheta=_sigmas(rows["sigma"], estimate.steps),
-        landmark_ids=ids,
-        landmarks_xy=landmarks_xy,
-    )
+    try:
+        ids, landmarks_xy = _last_landmarks(rows["landmarks"])
+        run = RecordedRun(
+            estimate=estimate,
+            truth=_trajectory(rows["truth"]) or _trajectory(rows["truth_frame"]),
+            sigmas_xytheta=_sigmas(rows["sigma"], estimate.steps),
+            landmark_ids=ids,
+            landmarks_xy=landmarks_xy,
+        )
+    except (ValueError, TypeError, KeyError, IndexError) as error:  # entities another wrote
+        reason = str(error).splitlines()[0][:80] if str(error) else type(error).__name__
+        raise NotARecordingError(
+            f"{path}: its poses or map do not read ({reason}), expected what ekfviz writes:"
+            " a damaged recording or one another program wrote"
+        ) from None
+    if len(run.landmark_ids) != len(run.landmarks_xy):
+        raise NotARecordingError(
+            f"{path}: its map has {len(run.landmarks_xy)} landmarks and"
+            f" {len(run.landmark_ids)} ids, expected one id a landmark: a damaged recording"
+            " or one another program wrote"
+        )
+    finite = [run.estimate.poses_xytheta, run.landmarks_xy]
+    if run.truth is not None:
+        finite.append(run.truth.poses_xytheta)
+    if not all(np.isfinite(values).all() for values in finite):
+        raise NotARecordingError(
+            f"{path}: its poses or map hold numbers that are not finite, expected what a"
+            " replay writes: a damaged recording or one another program wrote"
+        )
+    return run
 
 
 def _last_per_step(steps: IntArray) -> IntArray:

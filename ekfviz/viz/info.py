@@ -250,8 +250,13 @@ def _read_recording_info(path: Path) -> RecordingInfo:
         notes.append("made by an older ekfviz: it does not say its version or command")
         properties = {"kind": kind}
     try:
-        return _info(path, entry, latest, properties, documents, name, notes)
-    except (ValueError, TypeError, AttributeError) as error:  # properties another wrote
+        info = _info(path, entry, latest, properties, documents, name, notes)
+        # shown here, in the child: what the properties hold reads as ekfviz writes it (a
+        # list of results, a NaN time span were tracebacks in the parent, showing them)
+        info.summary()
+        info.to_json()
+        return info
+    except (ValueError, TypeError, AttributeError, OverflowError, KeyError, IndexError) as error:
         reason = str(error).splitlines()[0][:80] if str(error) else type(error).__name__
         raise NotARecordingError(
             f"{path}: its ekfviz properties do not read ({reason}), expected those ekfviz"
