@@ -398,3 +398,24 @@ def test_help_to_a_standard_output_that_cannot_be_written_is_one_line(tmp_path: 
         "error: standard output: Bad file descriptor: what the command prints was not written"
         " whole\n"
     )
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["replay", "LOG", "--save", "newdir/"],
+        ["replay", "LOG", "--save", "x.rrd", "--report=newdir/"],
+        ["simulate", "--output", "sim.txt", "--truth-out", "newdir/"],
+    ],
+)
+def test_an_output_file_named_with_a_trailing_slash_is_refused(
+    tmp_path: Path, args: list[str]
+) -> None:
+    """``--save newdir/`` made a file ``newdir``: the path as typer hands it has lost its
+    slash."""
+    args = [str(DATA / "classic.txt") if a == "LOG" else a for a in args]
+    done = _cli(*args, cwd=tmp_path)
+    assert done.returncode == 2
+    (line,) = done.stderr.strip().splitlines()
+    assert line.endswith("newdir/: ends with '/', expected the name of a file"), line
+    assert not (tmp_path / "newdir").exists()

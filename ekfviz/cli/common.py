@@ -394,6 +394,10 @@ def prepare_argv(argv: list[str]) -> list[str]:
     rest = [a for a in head if a not in GLOBAL_FLAGS]
     for k, token in enumerate(rest):
         name, equals, first = token.partition("=")
+        if name in FILE_OPTIONS:  # (a Path drops the slash: "dir/" became a file "dir")
+            value = first if equals else (rest[k + 1] if k + 1 < len(rest) else "")
+            if value.endswith(("/", os.sep)) and value.strip("/" + os.sep):
+                fail(f"{name} {value}: ends with '/', expected the name of a file")
         if name in NUMBER_OPTIONS:
             metavar, count = NUMBER_OPTIONS[name]
             # --init-pose-sigma=0.1 0.1 0.1 (as click takes it): the first value in the token
@@ -403,6 +407,14 @@ def prepare_argv(argv: list[str]) -> list[str]:
                 what = f", found {found!r}" if found is not None else ", found fewer"
                 fail(f"{name} needs {count} numbers ({metavar}){what}")
     return hoisted + rest + tail
+
+
+# the options that name a file a command writes (a folder's, as --save-dir and simulate's
+# --output of a dataset, may end with '/')
+FILE_OPTIONS = frozenset((
+    "--save", "--report", "--tum", "--truth-tum", "--landmarks", "--csv", "--extract-input",
+    "--truth-out",
+))  # fmt: skip
 
 
 def _is_number(text: str) -> bool:
