@@ -25,6 +25,7 @@ from ekfviz.runner.replay import replay
 from ekfviz.viz import style
 
 runner = CliRunner()
+DATA = Path(__file__).parents[1] / "data"
 
 
 @dataclass(frozen=True, slots=True)
@@ -322,3 +323,21 @@ def test_look_alike_recordings_are_one_line_not_a_traceback(tmp_path: Path) -> N
         assert line.startswith(f"error: {tmp_path / name}: "), line
         assert "another program wrote" in line, line
         assert not (tmp_path / "map.csv").exists()
+
+
+def test_a_recording_whose_name_is_not_utf8_is_read(tmp_path: Path) -> None:
+    """``replay --save $'r\\xfe.rrd'`` saved it; ``info`` and ``export`` refused it: Rerun's
+    reader takes UTF-8 names only ("'utf-8' codec can't encode character '\\udcfe'")."""
+    name = os.fsdecode(b"r\xfe.rrd")
+    env = {**os.environ, "XDG_CONFIG_HOME": str(tmp_path), "XDG_DATA_HOME": str(tmp_path)}
+
+    def ekfviz(*args: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run([sys.executable, "-m", "ekfviz", *args], capture_output=True,
+                              text=True, env=env, cwd=tmp_path, timeout=120)  # fmt: skip
+
+    assert ekfviz("replay", str(DATA / "classic.txt"), "--save", name).returncode == 0
+    shown = ekfviz("info", name)
+    assert shown.returncode == 0 and "recording          r\ufffd.rrd" in shown.stdout, shown
+    exported = ekfviz("export", name, "--tum", "e.tum")
+    assert exported.returncode == 0, exported.stderr
+    assert len((tmp_path / "e.tum").read_text().splitlines()) == 30  # steps 0..29

@@ -18,7 +18,7 @@ from ekfviz.cli.common import (
     print_json,
     write_bytes_atomic,
 )
-from ekfviz.core.tables import one_line
+from ekfviz.core.tables import one_line, utf8
 
 
 @app.command()
@@ -59,7 +59,7 @@ def info(
         # what a recording holds is shown, never obeyed: rich markup in a name is text, a
         # control character (a terminal's escape sequence, a line break) is escaped
         for key, value in found.summary():
-            table.add_row(Text(key), Text(one_line(value)))
+            table.add_row(Text(key), Text(one_line(utf8(value))))
         out.print(table)
         if found.evaluation_markdown:
             from rich.markdown import Markdown

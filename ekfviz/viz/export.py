@@ -17,13 +17,12 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa  # type: ignore[import-untyped]
-from rerun.chunk import RrdReader
 
 from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.models.angles import wrap_angles
 from ekfviz.viz import style
 from ekfviz.viz.apart import NotARecordingError, read_apart
-from ekfviz.viz.info import check_recording_path, unreadable
+from ekfviz.viz.info import check_recording_path, reader_of, unreadable
 
 TIME = "time"  # the timeline of a log's own time stamps, in seconds
 
@@ -137,7 +136,7 @@ def _read_recorded_run(path: Path) -> RecordedRun:
         # Rerun warns (a Python warning) of a file without its footer: the error says more
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            reader = RrdReader(path)
+            reader = reader_of(path)
             recordings = reader.recordings()
             if not recordings:
                 raise NotARecordingError(f"{path}: a Rerun file without a recording")

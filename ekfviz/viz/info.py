@@ -11,6 +11,7 @@ entities.
 from __future__ import annotations
 
 import json
+import os
 import warnings
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
@@ -219,7 +220,7 @@ def _read_recording_info(path: Path) -> RecordingInfo:
     try:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            reader = RrdReader(path)
+            reader = reader_of(path)
             recordings = [entry for entry in reader.recordings() if entry.kind == "recording"]
         footerless = any("no footer" in str(w.message) for w in caught)
         if not recordings:
@@ -307,6 +308,19 @@ def _info(
         notes=notes,
         results=json.loads(str(latest.get(RESULTS_PROPERTIES, {}).get("json", "{}") or "{}")),
     )
+
+
+def reader_of(path: Path) -> RrdReader:
+    """Rerun's reader of the recording at ``path``, whatever its name: Rerun's reader takes
+    UTF-8 names only, so a name that is not (bytes a file system allows) is read through
+    the descriptor of the file opened here (``/proc/self/fd/N``, kept open: a recording is
+    read in a child process of its own, see :mod:`ekfviz.viz.apart`)."""
+    try:
+        str(path).encode("utf-8")
+    except UnicodeEncodeError:
+        if os.path.isdir("/proc/self/fd"):
+            return RrdReader(f"/proc/self/fd/{os.open(path, os.O_RDONLY)}")
+    return RrdReader(path)
 
 
 def check_recording_path(path: Path) -> None:
