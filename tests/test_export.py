@@ -341,3 +341,34 @@ def test_a_recording_whose_name_is_not_utf8_is_read(tmp_path: Path) -> None:
     exported = ekfviz("export", name, "--tum", "e.tum")
     assert exported.returncode == 0, exported.stderr
     assert len((tmp_path / "e.tum").read_text().splitlines()) == 30  # steps 0..29
+
+
+def test_a_recording_cut_at_a_chunk_s_end_is_not_exported_as_whole(tmp_path: Path) -> None:
+    """Cut between two chunks (every chunk reads), a recording exported with exit 0 and
+    half of its poses and landmarks; ``info`` said "finished"."""
+    import struct
+
+    env = {**os.environ, "XDG_CONFIG_HOME": str(tmp_path), "XDG_DATA_HOME": str(tmp_path)}
+
+    def ekfviz(*args: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run([sys.executable, "-m", "ekfviz", *args], capture_output=True,
+                              text=True, env=env, cwd=tmp_path, timeout=120)  # fmt: skip
+
+    assert ekfviz("replay", str(DATA / "loop.txt"), "--save", "whole.rrd").returncode == 0
+    data = (tmp_path / "whole.rrd").read_bytes()
+    starts, at = [], 12  # the file's header, then (kind, length) and the body of each message
+    while at + 16 <= len(data):
+        starts.append(at)
+        at += 16 + struct.unpack_from("<QQ", data, at)[1]
+    cut = starts[len(starts) // 2]
+    (tmp_path / "cut.rrd").write_bytes(data[:cut])
+    done = ekfviz("export", "cut.rrd", "--tum", "e.tum")
+    assert done.returncode == 2 and not (tmp_path / "e.tum").exists()
+    assert done.stderr == (
+        f"error: cut.rrd: the file has no footer: cut short after {cut} bytes, or its writer"
+        " did not close it; export reads whole recordings\n"
+    )
+    shown = ekfviz("info", "cut.rrd")
+    assert shown.returncode == 0 and "finished" not in shown.stdout
+    assert "the file has no footer: cut short" in " ".join(shown.stdout.split())
+    assert ekfviz("export", "whole.rrd", "--tum", "e.tum").returncode == 0

@@ -133,11 +133,18 @@ def _read_recorded_run(path: Path) -> RecordedRun:
     }
     rows = {name: _Rows([], [], [], {}) for name in wanted.values()}
     try:
-        # Rerun warns (a Python warning) of a file without its footer: the error says more
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
+        # Rerun warns (a Python warning) of a file without its footer: a file cut short (at
+        # a chunk's end: every chunk reads) or whose writer did not close it, which ekfviz
+        # never saves (it writes beside the path and renames once the footer is written)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
             reader = reader_of(path)
             recordings = reader.recordings()
+            if any("no footer" in str(warning.message) for warning in caught):
+                raise NotARecordingError(
+                    f"{path}: the file has no footer: cut short after {path.stat().st_size}"
+                    " bytes, or its writer did not close it; export reads whole recordings"
+                )
             if not recordings:
                 raise NotARecordingError(f"{path}: a Rerun file without a recording")
             chunks = reader.stream(store=recordings[0]).filter(

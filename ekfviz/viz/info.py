@@ -236,8 +236,12 @@ def _read_recording_info(path: Path) -> RecordingInfo:
     except (RuntimeError, ValueError, OSError) as error:
         raise NotARecordingError(unreadable(path, error)) from None
     entry = recordings[0]
-    if footerless:  # ekfviz saves atomically, footer included: a writer that did not close
-        notes.append("the file has no footer: its writer did not close it")
+    if footerless:  # ekfviz saves atomically, footer included: cut short, or not closed
+        notes.append(
+            "the file has no footer: cut short, or its writer did not close it; what it"
+            " holds may be its first part only (its status is not known)"
+        )
+        latest.pop(STATUS_PROPERTIES, None)  # ("finished": said before its last chunks)
     properties = latest.get(EKFVIZ_PROPERTIES)
     documents = {key: values.get("TextDocument:text") for key, values in latest.items()}
     name = _optional(latest.get(PROPERTIES, {}).get("RecordingInfo:name"))
