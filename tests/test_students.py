@@ -630,3 +630,26 @@ def test_every_pair_of_update_mistakes_re_runs_on_a_line_of_known_and_new() -> N
             after = update_with(R, before, ids, z, frozenset(pair), fixed=np.eye(2), **variant)
             assert sorted(after.ids.tolist()) == [3, 5, 8], pair
             assert after.P.shape == (9, 9) and np.isfinite(after.P).all(), pair
+
+
+def test_debug_shows_the_student_s_own_traceback(tmp_path: Path) -> None:
+    """``--debug`` showed ekfviz's own frames (replay) or nothing more (check): the
+    student's code ran in the worker, and its traceback was kept but never shown."""
+    module = tmp_path / "ekf_slam.py"
+    module.write_text(
+        students.source("correct").replace(
+            "    X, P = X_pre.copy(), P_pre.copy()\n",
+            "    X, P = X_pre.copy(), P_pre.copy()\n    X[99, 0] = 1.0\n",
+        )
+    )
+    for command in ("check", "replay"):
+        args = ["--debug", command, str(DATA / "classic.txt"), "--filter", str(module)]
+        if command == "replay":
+            args += ["--save", str(tmp_path / "run.rrd")]
+        result = ekfviz(*args)
+        assert result.returncode != 0
+        said = result.stderr.split("the filter's own traceback, in its worker:\n", 1)
+        assert len(said) == 2, (command, result.stderr)
+        assert f'File "{module}", line' in said[1] and "X[99, 0] = 1.0" in said[1], said[1]
+    plain = ekfviz("check", str(DATA / "classic.txt"), "--filter", str(module))
+    assert "own traceback" not in plain.stderr

@@ -178,6 +178,7 @@ class CheckResult:
     error: str | None = None
     error_line: int = 0
     error_kind: str = ""
+    error_traceback: str = ""  # the filter's own, from its worker (shown with --debug)
     # a course module's shapes as detected (argument -> "column" or "flat")
     convention: dict[str, str | None] | None = None
     next_divergence: Divergence | None = None
@@ -368,6 +369,7 @@ def lockstep(
     divergences: list[Divergence] = []
     found: set[str] = set()
     stopped: tuple[str, int, str] | None = None
+    user_traceback = ""
     # without every: the first divergence's causes, and the next one not explained by them
     first_causes: frozenset[str] | None = None
     next_at: int | None = None
@@ -403,6 +405,7 @@ def lockstep(
         except PluginError as failure:
             message = f"event {event} ({kind.value}): {failure}"
             stopped = (message, log_event.line, str(getattr(failure, "kind", "raised")))
+            user_traceback = str(getattr(failure, "user_traceback", "") or "")
             break
         except FilterError as failure:  # the reference, started from the filter's state
             largest = float(np.max(np.abs(before.x))) if before.x.size else 0.0
@@ -453,6 +456,7 @@ def lockstep(
         error=None if stopped is None else stopped[0],
         error_line=0 if stopped is None else stopped[1],
         error_kind="" if stopped is None else stopped[2],
+        error_traceback=user_traceback,
         convention=getattr(slam.slam, "convention", None) or None,
         next_divergence=None if next_at is None else divergences[next_at],
     )

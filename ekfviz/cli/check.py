@@ -12,6 +12,7 @@ import typer
 from ekfviz import __version__
 from ekfviz.check.lockstep import DEFAULT_TOLERANCE
 from ekfviz.cli.common import (
+    DEBUG,
     DEFAULT,
     Triple,
     _option,
@@ -27,6 +28,7 @@ from ekfviz.cli.common import (
     refuse_output_over_input,
     rendered,
     say,
+    say_user_traceback,
     show,
     warn,
     write_json,
@@ -257,6 +259,8 @@ def _print(
         err.print(rendered((Styled("error: ", "bold red"),
                             Styled(one_line(f"{name}:{result.error_line}: {result.error}")))),
                   soft_wrap=True)  # fmt: skip
+        if DEBUG["traceback"]:
+            say_user_traceback(result.error_traceback)
     missing = [item for item in exercised if not item.exercised]
     if missing:
         say([Styled(f"  not exercised by {name}:")])

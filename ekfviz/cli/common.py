@@ -252,10 +252,27 @@ def fail(message: str, code: int = 2) -> NoReturn:
     """Print one line on stderr and exit: no traceback for a user's mistake (unless
     ``--debug``, and then only when called while handling an exception)."""
     if DEBUG["traceback"] and sys.exc_info()[1] is not None:
+        say_user_traceback(sys.exc_info()[1])
         raise
     HELD.drop()  # the error alone
     err.print(f"[bold red]error:[/] {escape(one_line(message))}", soft_wrap=True)
     raise typer.Exit(code)
+
+
+def say_user_traceback(error: BaseException | str | None) -> None:
+    """With ``--debug``: the traceback a user's filter raised in its worker (the error's
+    own, or of one it came from), on stderr: ekfviz's own frames do not show the user's
+    code, which ran in another process."""
+    seen: set[int] = set()
+    while isinstance(error, BaseException) and id(error) not in seen:
+        seen.add(id(error))
+        text = getattr(error, "user_traceback", "")
+        if text:
+            error = str(text)
+            break
+        error = error.__cause__ or error.__context__
+    if isinstance(error, str) and error:
+        sys.stderr.write(f"the filter's own traceback, in its worker:\n{error.rstrip()}\n")
 
 
 def interrupted(stop: signals.Interrupted, kept: str) -> NoReturn:
