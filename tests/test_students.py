@@ -548,7 +548,9 @@ def test_the_parts_of_an_update_that_differ_say_where_to_look() -> None:
     assert mean.startswith("only the mean differs: the covariance agrees, so H, S and K do")
     covariance = _update_hint({Quantity.POSE_COVARIANCE}, known, sighting)
     assert covariance.startswith("only the covariance differs: the mean agrees")
-    assert _update_hint({Quantity.POSE_MEAN, Quantity.POSE_COVARIANCE}, known, sighting) == ""
+    # both: what they share (a wrong H, S or K, seen by students as "the covariance")
+    both = _update_hint({Quantity.POSE_MEAN, Quantity.POSE_COVARIANCE}, known, sighting)
+    assert both.startswith("the mean and the covariance both differ: look first at what they")
     # a new landmark's parts come from its initialisation: nothing said here
     new = State(np.zeros(3), np.eye(3), np.zeros(0, dtype=np.int64))
     assert _update_hint({Quantity.LANDMARK_MEAN}, new, sighting) == ""

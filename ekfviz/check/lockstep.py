@@ -711,8 +711,9 @@ _MEANS = frozenset({Quantity.POSE_MEAN, Quantity.LANDMARK_MEAN})
 def _update_hint(differ: set[Quantity], before: State, event: Sighting) -> str:
     """What an update's differing parts say of where its mistake is: only the mean (H, S
     and K agree, as the covariance does: the innovation), only the covariance (the mean,
-    hence K (z - h(x)), agrees: the covariance's own formula); empty otherwise, or when
-    the update initialises a landmark (whose mean and covariance come from elsewhere)."""
+    hence K (z - h(x)), agrees: the covariance's own formula), both (what they share: H,
+    S, K); empty when the update initialises a landmark (whose mean and covariance come
+    from elsewhere)."""
     if not differ or any(int(i) not in before.ids.tolist() for i in event.ids):
         return ""
     if differ <= _MEANS:
@@ -727,7 +728,12 @@ def _update_hint(differ: set[Quantity], before: State, event: Sighting) -> str:
             " the covariance's own update: P = (I - K H) P, or (I - K H) P (I - K H)^T +"
             " K R K^T (Joseph's form), with the same K and H as the mean's"
         )
-    return ""
+    return (
+        "the mean and the covariance both differ: look first at what they share, H (its"
+        " rows bearing then range, the landmark's columns at 3 + 2j), S = H P H^T + R and"
+        " K = P H^T S^-1 (S inverted); a wrong covariance formula alone leaves the mean"
+        " as it is"
+    )
 
 
 def pattern_hint(kind: str, worst: Difference, before: State, event: LogEvent) -> str:
