@@ -372,3 +372,29 @@ def test_a_recording_cut_at_a_chunk_s_end_is_not_exported_as_whole(tmp_path: Pat
     assert shown.returncode == 0 and "finished" not in shown.stdout
     assert "the file has no footer: cut short" in " ".join(shown.stdout.split())
     assert ekfviz("export", "whole.rrd", "--tum", "e.tum").returncode == 0
+
+
+def test_another_program_s_recording_of_ekfviz_s_entities_is_not_taken_for_ekfviz_s(
+    tmp_path: Path,
+) -> None:
+    """A recording of application ``foo_app`` that logs the robot and the text log was
+    described as "a filter of your own, made by an older ekfviz"."""
+    import rerun as rr
+
+    for application, said in (("foo_app", "error: "), ("ekfviz", "made by an older ekfviz")):
+        path = tmp_path / f"{application}.rrd"
+        rec = rr.RecordingStream(application)
+        rec.save(path)
+        rec.set_time("step", sequence=0)
+        rec.log(f"/{style.ROBOT}", rr.Points2D([[0.0, 0.0]]))
+        rec.log(f"/{style.LOG}", rr.TextLog("hello"))
+        rec.flush()
+        rec.disconnect()
+        done = subprocess.run([sys.executable, "-m", "ekfviz", "info", str(path)],
+                              capture_output=True, text=True, timeout=120,
+                              env={**os.environ, "XDG_CONFIG_HOME": str(tmp_path)})  # fmt: skip
+        assert said in done.stdout + done.stderr, (application, done.stdout, done.stderr)
+        if application == "foo_app":
+            assert done.returncode == 2 and done.stderr.endswith(
+                "a Rerun recording (application id 'foo_app'), but not one written by ekfviz\n"
+            )

@@ -247,7 +247,9 @@ def _read_recording_info(path: Path) -> RecordingInfo:
     name = _optional(latest.get(PROPERTIES, {}).get("RecordingInfo:name"))
     if properties is None or "version" not in properties:
         kind = _kind_by_entities(latest)
-        if kind is None:
+        # (an older ekfviz's is ekfviz's application: another program's that logs the
+        # same entities is not ekfviz's)
+        if kind is None or entry.application_id != style.APPLICATION_ID:
             raise NotARecordingError(
                 f"{path}: a Rerun recording (application id {entry.application_id!r}),"
                 " but not one written by ekfviz"

@@ -59,7 +59,7 @@ from ekfviz.viz.flush import (
 )
 from ekfviz.viz.recorder import Recorder
 
-APPLICATION_ID = "ekfviz"
+APPLICATION_ID = style.APPLICATION_ID
 TIME_PROPERTY = "time"  # the span of the time timeline: start, end (seconds), kind
 RESULTS_PROPERTY = "results"  # a replay's results beside its evaluation, as JSON
 INPUT_TEXT_CAP = 4 * 1024 * 1024  # bytes of input embedded in a recording

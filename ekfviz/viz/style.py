@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import textwrap
 
+APPLICATION_ID = "ekfviz"  # every recording ekfviz writes
+
 # -- entity paths ----------------------------------------------------------------------
 
 WORLD = "world"
