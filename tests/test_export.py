@@ -398,3 +398,25 @@ def test_another_program_s_recording_of_ekfviz_s_entities_is_not_taken_for_ekfvi
             assert done.returncode == 2 and done.stderr.endswith(
                 "a Rerun recording (application id 'foo_app'), but not one written by ekfviz\n"
             )
+
+
+def test_a_file_of_two_merged_recordings_is_refused_not_read_as_one(tmp_path: Path) -> None:
+    """``rerun rrd merge a.rrd b.rrd -o m.rrd`` of two replays: info and export read the
+    one of the lower recording id, without a word."""
+    rerun = Path(sys.executable).parent / "rerun"
+    env = {**os.environ, "XDG_CONFIG_HOME": str(tmp_path), "XDG_DATA_HOME": str(tmp_path)}
+
+    def run(*args: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run(list(args), capture_output=True, text=True, env=env,
+                              cwd=tmp_path, timeout=120)  # fmt: skip
+
+    for name, log in (("a.rrd", "classic.txt"), ("b.rrd", "edge.txt")):
+        assert run(sys.executable, "-m", "ekfviz", "replay", str(DATA / log), "--save",
+                   name).returncode == 0  # fmt: skip
+    merged = run(str(rerun), "rrd", "merge", "a.rrd", "b.rrd", "-o", "m.rrd")
+    assert merged.returncode == 0, merged.stderr
+    for command in (["info", "m.rrd"], ["export", "m.rrd", "--tum", "e.tum"]):
+        done = run(sys.executable, "-m", "ekfviz", *command)
+        assert done.returncode == 2
+        assert done.stderr == "error: m.rrd: holds 2 recordings, expected one (files merged?)\n"
+    assert not (tmp_path / "e.tum").exists()

@@ -139,7 +139,7 @@ def _read_recorded_run(path: Path) -> RecordedRun:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             reader = reader_of(path)
-            recordings = reader.recordings()
+            recordings = [entry for entry in reader.recordings() if entry.kind == "recording"]
             if any("no footer" in str(warning.message) for warning in caught):
                 raise NotARecordingError(
                     f"{path}: the file has no footer: cut short after {path.stat().st_size}"
@@ -147,6 +147,10 @@ def _read_recorded_run(path: Path) -> RecordedRun:
                 )
             if not recordings:
                 raise NotARecordingError(f"{path}: a Rerun file without a recording")
+            if len(recordings) > 1:  # (rerun rrd merge): which one is meant is not known
+                raise NotARecordingError(
+                    f"{path}: holds {len(recordings)} recordings, expected one (files merged?)"
+                )
             chunks = reader.stream(store=recordings[0]).filter(
                 content=list(wanted), is_static=False
             )

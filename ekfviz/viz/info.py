@@ -225,6 +225,10 @@ def _read_recording_info(path: Path) -> RecordingInfo:
         footerless = any("no footer" in str(w.message) for w in caught)
         if not recordings:
             raise NotARecordingError(f"{path}: a Rerun file without a recording")
+        if len(recordings) > 1:  # (rerun rrd merge): which one is meant is not known
+            raise NotARecordingError(
+                f"{path}: holds {len(recordings)} recordings, expected one (files merged?)"
+            )
         for chunk in reader.stream(store=recordings[0]).filter(content=wanted):
             values = latest.setdefault(chunk.entity_path, {})
             values.update(_last_values(chunk.to_record_batch()))
