@@ -248,3 +248,30 @@ def test_the_readers_and_the_replay_take_paths_as_text_or_say_what_they_take() -
         list(replay(log))  # type: ignore[arg-type]
     with pytest.raises(TypeError, match=r"params: expected FilterParams\(\.\.\.\), got dict"):
         list(replay(events, {"sigma_x": 0.1}))  # type: ignore[arg-type]
+
+
+def test_a_non_ascii_file_name_in_an_ascii_locale_is_one_line_and_recorded(
+    tmp_path: Path,
+) -> None:
+    """With LC_ALL=C and Python's UTF-8 mode off, ``bäd.txt`` reaches Python as lone
+    surrogates: Rerun refused them with two warnings before the error, the recording lost
+    why the run stopped, and the error named ``b\\udcc3\\udca4d.txt``."""
+    import json
+    import os
+
+    log = tmp_path / "bäd.txt"
+    log.write_text((DATA / "classic.txt").read_text() + "1.0 abc\n")
+    env = {**os.environ, "LC_ALL": "C", "PYTHONUTF8": "0", "XDG_CONFIG_HOME": str(tmp_path),
+           "XDG_DATA_HOME": str(tmp_path)}  # fmt: skip
+    run = [sys.executable, "-m", "ekfviz"]
+    done = subprocess.run([*run, "replay", "bäd.txt", "--save", "o.rrd"], capture_output=True,
+                          env=env, cwd=tmp_path, timeout=120)  # fmt: skip
+    assert done.returncode == 2
+    (line,) = done.stderr.decode("ascii", "replace").strip().splitlines()
+    assert line.startswith("error: b?d.txt:60: found 'abc'"), line  # (ä in ASCII: ?)
+    shown = subprocess.run([*run, "info", "o.rrd", "--json"], capture_output=True, env=env,
+                           cwd=tmp_path, timeout=120)  # fmt: skip
+    assert shown.returncode == 0 and not shown.stderr, shown.stderr
+    info = json.loads(shown.stdout)
+    assert info["status"]["reason"].startswith("bäd.txt:60: found 'abc'"), info
+    assert info["name"] == "bäd"

@@ -29,7 +29,7 @@ from typer._click.globals import get_current_context
 
 from ekfviz import __version__, signals
 from ekfviz.core.records import AnyEvent
-from ekfviz.core.tables import Cell, Styled, TextTable, one_line
+from ekfviz.core.tables import Cell, Styled, TextTable, one_line, utf8
 from ekfviz.core.truth import GroundTruth
 from ekfviz.filters.ekf import HAVE_KERNEL, FilterParams
 from ekfviz.io.paths import (
@@ -255,7 +255,8 @@ def fail(message: str, code: int = 2) -> NoReturn:
         say_user_traceback(sys.exc_info()[1])
         raise
     HELD.drop()  # the error alone
-    err.print(f"[bold red]error:[/] {escape(one_line(message))}", soft_wrap=True)
+    # a file name's bytes as UTF-8 shows them, where the locale could not decode them
+    err.print(f"[bold red]error:[/] {escape(one_line(utf8(message)))}", soft_wrap=True)
     raise typer.Exit(code)
 
 
@@ -481,7 +482,7 @@ def main(
 def warn(message: str) -> None:
     """One line on stderr that does not stop the run (held while the command runs: see
     :class:`_Held`)."""
-    line = f"[yellow]warning:[/] {one_line(message)}"
+    line = f"[yellow]warning:[/] {escape(one_line(utf8(message)))}"
 
     def say() -> None:
         err.print(line, soft_wrap=True, markup=True, highlight=False)

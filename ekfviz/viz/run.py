@@ -1015,8 +1015,8 @@ def _describe(rec: rr.RecordingStream, info: RunInfo) -> None:
 
 def _any_values(values: Mapping[str, ComponentValueLike | None]) -> rr.AnyValues:
     bundle = rr.AnyValues()
-    for name, value in values.items():
-        bundle.with_component_from_data(name, value)
+    for name, value in values.items():  # a file name in it may not be UTF-8 (Rerun's is)
+        bundle.with_component_from_data(name, utf8(value) if isinstance(value, str) else value)
     return bundle
 
 

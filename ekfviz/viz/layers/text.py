@@ -16,6 +16,7 @@ import numpy as np
 import pyarrow as pa  # type: ignore[import-untyped]
 import rerun as rr
 
+from ekfviz.core.tables import utf8
 from ekfviz.core.types import BoolArray, IntArray
 from ekfviz.viz import style
 from ekfviz.viz.layers.arrow import INFO, WARN, column
@@ -104,8 +105,9 @@ class TextLayer:
             for k, record in enumerate(batch.records)
             if record is not None and record.warnings
         ]
-        if warned:
+        if warned:  # (a warning may name a file whose name is not UTF-8)
             text, level, line_of = self._with_warnings(batch, held, at, text, warned)
+            text = [utf8(line) for line in text]
         self._canvas.send(
             style.LOG,
             batch.rows.pick(line_of),
@@ -184,4 +186,4 @@ class TextLayer:
     def note(self, step: int, event: int, text: str, level: str | rr.TextLogLevel) -> None:
         """A line at ``step`` and ``event``, at the latest time logged."""
         self._canvas.set_times(step, event, self._canvas.clock.last)
-        self._canvas.entities.log(style.LOG, rr.TextLog(text, level=level))
+        self._canvas.entities.log(style.LOG, rr.TextLog(utf8(text), level=level))
