@@ -216,3 +216,21 @@ def test_a_bad_piped_truth_is_named_as_given(tmp_path: Path) -> None:
     assert done.returncode == 2
     assert done.stderr.startswith("error: /dev/stdin:1: ")
     assert len(done.stderr.splitlines()) == 1
+
+
+def test_a_consistency_whose_reader_went_away_still_writes_its_files(tmp_path: Path) -> None:
+    """``consistency ... | head -1`` printed its table first: the closed pipe ended it
+    before its report and recording were written (replay, sweep and compare keep them)."""
+    env = {**os.environ, "XDG_CONFIG_HOME": str(tmp_path), "XDG_DATA_HOME": str(tmp_path)}
+    report, save = tmp_path / "mc.json", tmp_path / "mc.rrd"
+    reader, writer = os.pipe()
+    os.close(reader)  # nobody reads: the first write to stdout breaks the pipe
+    try:
+        done = subprocess.run(
+            [sys.executable, "-m", "ekfviz", "consistency", "--runs", "2", "--report",
+             str(report), "--save", str(save)],
+            stdout=writer, stderr=subprocess.PIPE, env=env, timeout=300,
+        )  # fmt: skip
+    finally:
+        os.close(writer)
+    assert report.is_file() and save.is_file(), done.stderr

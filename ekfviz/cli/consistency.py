@@ -127,10 +127,6 @@ def run_consistency(request: ConsistencyRequest) -> None:
                   inputs=[filter_module(request.filter_spec)])  # fmt: skip
     trials = _trials(request)
     result = _average(request, trials)
-    show(result.table(f"Consistency over {request.runs} runs ({request.scenario.value})"))
-    verdict = result.nees.verdict
-    if verdict is not None:
-        out.print(f"The filter looks [bold]{verdict.value}[/] on this scenario (by its NEES).")
     settings = _settings(request, trials)
     written: list[Path] = []
     try:
@@ -143,6 +139,13 @@ def run_consistency(request: ConsistencyRequest) -> None:
     except signals.Interrupted as stop:  # said as it is: the report may be written already
         outputs = (request.report, request.save)
         interrupted(stop, written_before(written, [p for p in outputs if p not in written]))
+    # said once both are written: a reader that went away (| head) loses no file
+    show(result.table(f"Consistency over {request.runs} runs ({request.scenario.value})"))
+    verdict = result.nees.verdict
+    if verdict is not None:
+        out.print(f"The filter looks [bold]{verdict.value}[/] on this scenario (by its NEES).")
+    if request.save is not None:
+        out.print(plain(f"Saved {request.save}; open it with: {open_hint(request.save)}"))
 
 
 def _trials(request: ConsistencyRequest) -> Trials:
@@ -235,4 +238,3 @@ def _save(request: ConsistencyRequest, result: MonteCarlo, settings: dict[str, o
         command=shlex.join(["ekfviz", *sys.argv[1:]]),
         settings=settings,
     )
-    out.print(plain(f"Saved {save}; open it with: {open_hint(save)}"))
