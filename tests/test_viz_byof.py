@@ -5,9 +5,11 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+import pytest
 import rerun as rr
 from conftest import entity_rows
 
@@ -95,3 +97,33 @@ def test_your_filters_covariance_is_checked_and_its_faults_logged(tmp_path: Path
     assert [row["Scalars:scalars"] for row in asymmetry] == [[0.0], [0.0], [0.002], [0.0]]
     landmark = entity_rows(out, f"/{style.HEALTH_LANDMARK_MIN_EIG}")
     assert [row["Scalars:scalars"] for row in landmark] == [[0.01], [0.01]]
+
+
+def test_the_array_api_says_what_is_wrong_with_what_it_is_handed(tmp_path: Path) -> None:
+    """A P of the wrong shape was numpy's broadcast error, a 1-D P a LinAlgError, ids and
+    z of different lengths "cannot reshape array of size 4 into shape (1,2)", an array of
+    ids "the truth value of an array ... is ambiguous"; an x of shape (7, 3), a control
+    of three numbers and a P of NaN failed only at finish(), long after the call."""
+
+    rec = rr.RecordingStream("mine")
+    rec.save(tmp_path / "mine.rrd")
+    recorder = Recorder(rec, blueprint=False, landmark_ids=np.array([7, 8]))
+    x, P = np.zeros(7), np.eye(7)
+    recorder.initialise(x[:, None], P)  # a column x is taken
+    cases: list[tuple[Callable[[], None], str]] = [
+        (lambda: recorder.predict(x, np.eye(6)), r"^P has shape \(6, 6\), expected \(7, 7\)"),
+        (lambda: recorder.predict(x, np.ones(7)), r"^P has shape \(7,\), expected \(7, 7\)"),
+        (lambda: recorder.predict(np.zeros((7, 3)), P), r"^x has shape \(7, 3\), expected"),
+        (lambda: recorder.predict(x, P, control=(1.0, 0.0, 0.5)), r"^control has shape \(3,\)"),
+        (lambda: recorder.predict(x, np.full((7, 7), np.nan)), r"^P is not finite"),
+        (lambda: recorder.update(x, P, landmark_ids=[7], z=np.zeros(4)),
+         r"^z has 4 numbers, expected 1 \(bearing, range\) pairs"),
+        (lambda: recorder.update(x, P, landmark_ids=[2**64], z=np.zeros(2)),
+         r"^landmark_ids: expected 64-bit integers"),
+    ]  # fmt: skip
+    for call, said in cases:
+        with pytest.raises(ValueError, match=said):
+            call()
+    recorder.predict(x, P, control=(1.0, 0.0))  # the recording goes on
+    recorder.finish()
+    rec.disconnect()

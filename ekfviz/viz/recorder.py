@@ -116,7 +116,7 @@ class Recorder:
         rec: rr.RecordingStream,
         *,
         truth: GroundTruth | None = None,
-        landmark_ids: Sequence[int] | None = None,
+        landmark_ids: Sequence[int] | IntArray | None = None,
         blueprint: bool = True,
         live_layout: bool = True,
         run_documents: bool = False,

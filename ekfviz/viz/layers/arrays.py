@@ -18,6 +18,32 @@ from ekfviz.models.angles import wrap_angles
 CHECK_ALL_DIM = 64  # the array API checks a covariance up to this size at every call
 
 
+def state_arrays(x: object, P: object) -> tuple[FloatArray, FloatArray]:
+    """``x`` (3+2N,) and ``P`` (3+2N, 3+2N) as float arrays; a column x (3+2N, 1) is taken.
+
+    :raises ValueError: naming the array, its shape and what was expected
+    """
+    try:
+        x_arr = np.asarray(x, dtype=np.float64)
+        P_arr = np.asarray(P, dtype=np.float64)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"x and P: expected arrays of numbers ({error})") from None
+    if x_arr.ndim == 2 and x_arr.shape[1] == 1:
+        x_arr = x_arr[:, 0]
+    n = x_arr.shape[0] if x_arr.ndim == 1 else 0
+    if x_arr.ndim != 1 or n < 3 or (n - 3) % 2:
+        raise ValueError(
+            f"x has shape {x_arr.shape}, expected (3+2N,): x, y, theta, then the landmarks"
+        )
+    if P_arr.shape != (n, n):
+        raise ValueError(f"P has shape {P_arr.shape}, expected ({n}, {n}) to match x")
+    if not np.isfinite(x_arr).all():
+        raise ValueError(f"x is not finite (entry {int(np.argmin(np.isfinite(x_arr)))})")
+    if not np.isfinite(P_arr).all():
+        raise ValueError("P is not finite")
+    return x_arr, P_arr
+
+
 class ArrayInput:
     """Landmark ids, observations, covariance checks and correlations from plain arrays.
 
@@ -25,8 +51,10 @@ class ArrayInput:
         front; otherwise the order of first sighting, and 1..N when no ids are given
     """
 
-    def __init__(self, landmark_ids: Sequence[int] | None) -> None:
-        self.order: list[int] = [int(i) for i in landmark_ids] if landmark_ids else []
+    def __init__(self, landmark_ids: Sequence[int] | IntArray | None) -> None:
+        # (an array's truth is ambiguous: its length says whether ids were given)
+        given = landmark_ids is not None and len(landmark_ids) > 0
+        self.order: list[int] = [int(i) for i in landmark_ids] if given else []  # type: ignore[union-attr]
         self._in_order: set[int] = set(self.order)
         self._seen: set[int] = set()  # ids observed so far through the array API
         self._correlation = CorrelationCadence()  # (a replay's records own theirs)
@@ -54,7 +82,14 @@ class ArrayInput:
         control: FloatArray | None = None,
     ) -> EventRecord:
         """The record of a state handed in, its covariance checked as a replay checks its
-        own, with the correlation matrix where due (at an initialisation or update)."""
+        own, with the correlation matrix where due (at an initialisation or update).
+
+        :raises ValueError: ``x`` or ``P`` of the wrong shape or not finite, a control that
+            is not (d, alpha): said here, not later where the recording is finished
+        """
+        x, P = state_arrays(x, P)
+        if control is not None and control.shape != (2,):
+            raise ValueError(f"control has shape {control.shape}, expected (2,): (d, alpha)")
         record = snapshot(
             x, P, event=event, step=step, kind=kind, line=line, landmark_ids=self.state_ids(x),
             control=control, observations=observations, **self.check(P, step),
@@ -94,9 +129,24 @@ class ArrayInput:
         """Build what an update did from plain arrays; ids not met before are new."""
         if landmark_ids is None or z is None:
             return None
-        ids = np.asarray(landmark_ids, dtype=np.int64).reshape(-1)
+        try:
+            ids = np.asarray(landmark_ids, dtype=np.int64).reshape(-1)
+        except (OverflowError, ValueError, TypeError) as error:
+            raise ValueError(f"landmark_ids: expected 64-bit integers ({error})") from None
         m = len(ids)
-        z = np.asarray(z, dtype=np.float64).reshape(m, 2)
+        z = np.asarray(z, dtype=np.float64)
+        if z.size != 2 * m:
+            raise ValueError(
+                f"z has {z.size} numbers, expected {m} (bearing, range) pairs, one for each of"
+                f" the {m} landmark ids"
+            )
+        z = z.reshape(m, 2)
+        for name, given, size in (("z_pred", z_pred, 2 * m), ("S", S, 4 * m)):
+            if given is not None and np.asarray(given).size != size:
+                raise ValueError(
+                    f"{name} has {np.asarray(given).size} numbers, expected {size} for the"
+                    f" {m} landmark ids"
+                )
         initialised = np.array([i not in self._seen for i in ids.tolist()], dtype=bool)
         for landmark_id in ids[initialised].tolist():
             self._seen.add(landmark_id)
