@@ -419,3 +419,14 @@ def test_an_output_file_named_with_a_trailing_slash_is_refused(
     (line,) = done.stderr.strip().splitlines()
     assert line.endswith("newdir/: ends with '/', expected the name of a file"), line
     assert not (tmp_path / "newdir").exists()
+
+
+def test_an_output_that_is_a_loop_of_symbolic_links_is_refused(tmp_path: Path) -> None:
+    """``--save lp1`` with lp1 -> lp2 -> lp1 replaced the link with a file, where the same
+    loop as an input is refused."""
+    (tmp_path / "lp1").symlink_to("lp2")
+    (tmp_path / "lp2").symlink_to("lp1")
+    done = _cli("replay", str(DATA / "classic.txt"), "--save", "lp1", cwd=tmp_path)
+    assert done.returncode == 2
+    assert done.stderr == "error: --save lp1: a loop of symbolic links\n"
+    assert (tmp_path / "lp1").is_symlink() and os.readlink(tmp_path / "lp1") == "lp2"

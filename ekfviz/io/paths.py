@@ -45,6 +45,12 @@ def check_output_path(path: Path | str, option_name: str) -> Path:
 def _checked_output_path(path: Path, where: str) -> Path:
     """:func:`check_output_path` past its first checks; ``where`` names the path."""
     _check_name_length(path, where)
+    if path.is_symlink() and not path.exists():  # a link to nothing, or a loop of links
+        try:
+            os.stat(path)
+        except OSError as error:
+            if error.errno == errno.ELOOP:  # (writing "through" it replaced the link)
+                raise OutputPathError(f"{where}: a loop of symbolic links") from None
     if path.is_dir():
         raise OutputPathError(f"{where}: is a folder, expected a file name")
     parent = path.parent
