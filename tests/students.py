@@ -186,6 +186,8 @@ MISTAKES: dict[str, set[str]] = {
     "stale_linearisation": HANDOUT | {"linearised_once"},
     "r_twice": HANDOUT | {"measurement_noise_twice"},
     "q_sigmas": HANDOUT | {"motion_noise_not_squared"},
+    "atan2_swapped": HANDOUT | {"atan2_arguments_swapped"},
+    "z_hat_swapped": HANDOUT | {"predicted_measurement_swapped"},
     "r_sigmas": HANDOUT | {"measurement_noise_not_squared"},
     "joseph_no_krk": HANDOUT | {"joseph_without_measurement_noise"},
     "control_swapped": HANDOUT | {"swapped_control"},
@@ -264,6 +266,11 @@ EDITS: dict[str, tuple[tuple[str, str], ...]] = {
     "r_twice": (
         ("S = H @ P @ H.T + measure_cov",
          "S = H @ P @ H.T + measure_cov\n        S += measure_cov"),
+    ),
+    "atan2_swapped": ((_BEARING, _BEARING.replace("np.arctan2(dy, dx)", "np.arctan2(dx, dy)")),),
+    # h(x) as (range, bearing) where z is (bearing, range)
+    "z_hat_swapped": (
+        (_BEARING, "z_hat = np.array([[sq], [warp2pi(np.arctan2(dy, dx) - X[2, 0])]])"),
     ),
     # the sigmas taken for variances: Q = diag(sigma), R = diag(sigma) (in S and at init)
     "q_sigmas": (("Q[:3, :3] = rot @ control_cov @ rot.T",

@@ -104,6 +104,16 @@ CATALOGUE: tuple[Cause, ...] = (
           " behind the robot from one ahead of it",
           "updates differ (by pi in the bearing) whenever a landmark has dx < 0",
           "h(x)'s bearing = wrap(arctan2(dy, dx) - theta)"),
+    Cause("atan2_arguments_swapped", "update",
+          "the expected bearing uses np.arctan2(dx, dy), the arguments the other way round"
+          " (arctan2 takes y first)",
+          "every update's bearing innovation is off (by pi/2 minus twice the direction)",
+          "h(x)'s bearing = wrap(arctan2(dy, dx) - theta): dy first"),
+    Cause("predicted_measurement_swapped", "update",
+          "h(x) is built as (range, bearing) while the measurement z is (bearing, range):"
+          " the innovation subtracts a range from a bearing and a bearing from a range",
+          "every update's innovation is far off, in both components",
+          "h(x) = (bearing, range), in the order of z"),
     Cause("bearing_not_relative_to_heading", "update",
           "the expected bearing is arctan2(dy, dx), the landmark's direction in the world,"
           " without subtracting the heading theta",
@@ -326,6 +336,8 @@ UPDATE_FLAGS = (
     "landmark_init_in_line_order",
     "arctan_bearing",
     "bearing_not_relative_to_heading",
+    "atan2_arguments_swapped",
+    "predicted_measurement_swapped",
     "innovation_wrapped_to_0_2pi",
     "only_first_landmark",
     "linearised_once",
@@ -354,9 +366,9 @@ _EXCLUSIVE_UPDATE = (
         "fixed_landmark_init_covariance",
     },
     # one way of wrapping the innovation
-    {"unwrapped_innovation", "innovation_wrapped_to_0_2pi"},
+    {"unwrapped_innovation", "innovation_wrapped_to_0_2pi", "predicted_measurement_swapped"},
     # one expression of the expected bearing
-    {"arctan_bearing", "bearing_not_relative_to_heading"},
+    {"arctan_bearing", "bearing_not_relative_to_heading", "atan2_arguments_swapped"},
     # one form of the loop over a line
     {"joint_update", "only_first_landmark", "linearised_once"},
     {"missing_measurement_noise", "measurement_noise_twice", "measurement_noise_not_squared"},
@@ -460,10 +472,16 @@ def update_with(
             if "measurement_jacobian_rows_swapped" in flags:
                 H[[2 * k, 2 * k + 1]] = H[[2 * k + 1, 2 * k]]
             direction = math.atan(dy / dx) if "arctan_bearing" in flags else math.atan2(dy, dx)
+            if "atan2_arguments_swapped" in flags:
+                direction = math.atan2(dx, dy)
             if "bearing_not_relative_to_heading" in flags:
                 predicted = direction
             else:
                 predicted = direction - at[2]
+            if "predicted_measurement_swapped" in flags:  # z - (range, bearing)
+                nu[2 * k] = wrap_angle(bearing - r)
+                nu[2 * k + 1] = rng - (wrap_angle(predicted) if wrap == "difference" else predicted)
+                continue
             if "innovation_wrapped_to_0_2pi" in flags:
                 nu[2 * k] = (bearing - predicted) % (2 * math.pi)
             elif not unwrapped:
@@ -733,6 +751,7 @@ def explain_update(
 # those already found) but in the deep search
 _PRUNABLE = frozenset({
     "arctan_bearing", "bearing_not_relative_to_heading", "innovation_wrapped_to_0_2pi",
+    "atan2_arguments_swapped", "predicted_measurement_swapped",
     "only_first_landmark", "linearised_once", "measurement_noise_twice",
     "measurement_noise_not_squared", "init_range_bearing_swapped", "init_cos_sin_swapped",
 })  # fmt: skip
