@@ -176,10 +176,12 @@ def test_a_loop_of_links_as_an_output_or_a_source_is_no_traceback(tmp_path: Path
     log = tmp_path / "log.txt"
     log.write_text(CLASSIC)
     report = tmp_path / "report.json"
-    report.symlink_to(report.name)  # the link is replaced by the report
+    report.symlink_to(report.name)  # refused, as the same loop as an input is: the link kept
     args = ["replay", str(log), "--save", str(tmp_path / "r.rrd"), "--report", str(report)]
-    assert runner.invoke(app, args).exit_code == 0
-    assert '"final_pose"' in report.read_text()
+    result = runner.invoke(app, args)
+    assert result.exit_code == 2
+    one_error_line(result.output, f"--report {report}: a loop of symbolic links")
+    assert report.is_symlink() and not (tmp_path / "r.rrd").exists()
 
 
 def test_a_name_that_is_not_utf8_is_saved_without_a_warning(tmp_path: Path) -> None:
