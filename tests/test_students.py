@@ -264,7 +264,7 @@ def test_grade_gives_each_submission_its_row(tmp_path: Path) -> None:
     for name, body in bodies.items():
         (folder / name).write_text(hostile.format(body=body))
     csv = tmp_path / "grades.csv"
-    result = ekfviz("grade", str(folder), "--timeout", "20", "--memory", "1024", "--report",
+    result = ekfviz("grade", str(folder), "--timeout", "8", "--memory", "1024", "--report",
                     str(csv), "--json", "--save-dir", str(tmp_path / "rec"))  # fmt: skip
     assert result.returncode == 0, result.stderr
     rows = {row["submission"]: row for row in json.loads(result.stdout)["submissions"]}
