@@ -34,12 +34,12 @@ def main() -> None:
         try:
             app(args=argv, prog_name="ekfviz")
         except signals.Interrupted as stop:  # a command that did not say more itself
-            from ekfviz.cli.common import interrupted
+            from ekfviz.cli.common import interrupted, written_before
 
             written = getattr(stop, "written", ())  # (files written whole just before it)
             interrupted(
                 stop,
-                f"{', '.join(map(str, written))} written whole before it"
+                written_before(written, [])
                 if written
                 else "nothing was written; existing files are left as they were",
             )

@@ -21,13 +21,13 @@ from ekfviz.cli.common import (
     err,
     fail,
     filter_module,
-    open_hint,
     out,
     piped_input,
     plain,
     refuse_output_over_input,
     rendered,
     say,
+    say_saved,
     say_user_traceback,
     show,
     warn,
@@ -204,7 +204,7 @@ def run_check(request: CheckRequest) -> None:
                             **result.to_json(),
                             "coverage": [item.to_json() for item in exercised]})  # fmt: skip
             if target is not None:
-                out.print(plain(f"Saved {target}; open it with: {open_hint(target)}"))
+                say_saved(target)
     if request.report is not None:
         document: dict[str, Any] = {"ekfviz_version": __version__, "filter": spec.text,
                                     "parameters": params.as_dict()}  # fmt: skip

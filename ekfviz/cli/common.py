@@ -184,8 +184,14 @@ def print_json(document: object) -> None:
     """A JSON document on stdout, for scripts: a non-finite number as null (JSON has
     none; Python's NaN and Infinity are not JSON)."""
     with _unwritable("standard output"):
-        sys.stdout.write(json.dumps(_finite(document), indent=2, allow_nan=False) + "\n")
+        sys.stdout.write(json_text(document))
         sys.stdout.flush()
+
+
+def json_text(document: object) -> str:
+    """A document as ekfviz writes JSON (reports and ``--json``): indented, a non-finite
+    number as null."""
+    return json.dumps(_finite(document), indent=2, allow_nan=False) + "\n"
 
 
 def _finite(value: object) -> object:
@@ -369,10 +375,11 @@ def default_output(name: str) -> Path:
     return unused_path(RECORDINGS_DIR / name)
 
 
-def open_hint(path: Path) -> str:
-    """The command that opens the recording at ``path`` in the viewer, quoted for the
-    user's shell (a name with a space, a quote or a line break in it)."""
-    return f"{shlex.quote(command_hint('rerun'))} {shlex.quote(str(path))}"
+def say_saved(path: Path) -> None:
+    """That a recording was saved at ``path``, with the command that opens it in the
+    viewer, quoted for the user's shell (a name with a space, a quote or a line break)."""
+    opens = f"{shlex.quote(command_hint('rerun'))} {shlex.quote(str(path))}"
+    out.print(plain(f"Saved {path}; open it with: {opens}"))
 
 
 def command_hint(program: str) -> str:
@@ -560,8 +567,7 @@ def log_events(
 
 def write_json(path: Path, document: dict[str, object]) -> None:
     """A JSON report, as :func:`print_json` prints it (a non-finite number as null)."""
-    text = json.dumps(_finite(document), indent=2, allow_nan=False) + "\n"
-    write_bytes_atomic(path, text.encode("utf-8"))
+    write_bytes_atomic(path, json_text(document).encode("utf-8"))
 
 
 def write_bytes_atomic(path: Path, content: bytes) -> None:

@@ -23,9 +23,8 @@ from ekfviz.cli.common import (
     fail,
     filter_module,
     interrupted,
-    open_hint,
     out,
-    plain,
+    say_saved,
     show,
     stopped_study,
     write_json,
@@ -145,7 +144,7 @@ def run_consistency(request: ConsistencyRequest) -> None:
     if verdict is not None:
         out.print(f"The filter looks [bold]{verdict.value}[/] on this scenario (by its NEES).")
     if request.save is not None:
-        out.print(plain(f"Saved {request.save}; open it with: {open_hint(request.save)}"))
+        say_saved(request.save)
 
 
 def _trials(request: ConsistencyRequest) -> Trials:

@@ -22,9 +22,8 @@ from ekfviz.cli.common import (
     fail,
     filter_module,
     interrupted,
-    open_hint,
     out,
-    plain,
+    say_saved,
     show,
     stopped_study,
     warn,
@@ -103,7 +102,7 @@ def run_study(
     _print_result(result, what)
     if report is not None:
         write_json(report, _report(data, result, what, report_extra))
-    out.print(plain(f"Saved {target}; open it with: {open_hint(target)}"))
+    say_saved(target)
 
 
 def _print_result(result: StudyResult, what: str) -> None:

@@ -187,7 +187,11 @@ def _class_bodies(text: str) -> dict[str, str]:
 
 def recording_names(task: GradeTask) -> list[str]:
     """The file names of a submission's check recordings in ``--save-dir``, a log each."""
-    return [f"{_safe(task.name)}-{log.stem}.rrd" for log, *_ in task.logs]
+    return [_recording_name(task, log) for log, *_ in task.logs]
+
+
+def _recording_name(task: GradeTask, log: Path) -> str:
+    return f"{_safe(task.name)}-{log.stem}.rrd"
 
 
 def grade_one(task: GradeTask) -> GradeRow:
@@ -225,7 +229,7 @@ def grade_one(task: GradeTask) -> GradeRow:
                 params = replace(params, init_pose=start)
             save = None
             if task.save_dir is not None:
-                save = task.save_dir / f"{_safe(task.name)}-{log.stem}.rrd"  # recording_names
+                save = task.save_dir / _recording_name(task, log)
             try:
                 result, _ = pipeline.check(log, truth, spec, params, tolerance=task.tolerance,
                                            save=save, every=True)  # fmt: skip

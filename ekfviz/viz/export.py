@@ -22,7 +22,7 @@ from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.models.angles import wrap_angles
 from ekfviz.viz import style
 from ekfviz.viz.apart import NotARecordingError, read_apart
-from ekfviz.viz.info import check_recording_path, reader_of, unreadable
+from ekfviz.viz.info import check_recording_path, recordings_of, the_recording, unreadable
 
 TIME = "time"  # the timeline of a log's own time stamps, in seconds
 
@@ -133,28 +133,19 @@ def _read_recorded_run(path: Path) -> RecordedRun:
     }
     rows = {name: _Rows([], [], [], {}) for name in wanted.values()}
     try:
-        # Rerun warns (a Python warning) of a file without its footer: a file cut short (at
-        # a chunk's end: every chunk reads) or whose writer did not close it, which ekfviz
-        # never saves (it writes beside the path and renames once the footer is written)
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            reader = reader_of(path)
-            recordings = [entry for entry in reader.recordings() if entry.kind == "recording"]
-            if any("no footer" in str(warning.message) for warning in caught):
-                raise NotARecordingError(
-                    f"{path}: the file has no footer: cut short after {path.stat().st_size}"
-                    " bytes, or its writer did not close it; export reads whole recordings"
-                )
-            if not recordings:
-                raise NotARecordingError(f"{path}: a Rerun file without a recording")
-            if len(recordings) > 1:  # (rerun rrd merge): which one is meant is not known
-                raise NotARecordingError(
-                    f"{path}: holds {len(recordings)} recordings, expected one (files merged?)"
-                )
-            chunks = reader.stream(store=recordings[0]).filter(
-                content=list(wanted), is_static=False
+        # a file cut short (at a chunk's end: every chunk reads) or whose writer did not
+        # close it, which ekfviz never saves (it writes beside the path and renames once
+        # the footer is written)
+        reader, recordings, footerless = recordings_of(path)
+        if footerless:
+            raise NotARecordingError(
+                f"{path}: the file has no footer: cut short after {path.stat().st_size}"
+                " bytes, or its writer did not close it; export reads whole recordings"
             )
-            for chunk in chunks:
+        entry = the_recording(path, recordings)
+        with warnings.catch_warnings():  # (Rerun's own, of what it reads: the error says more)
+            warnings.simplefilter("ignore")
+            for chunk in reader.stream(store=entry).filter(content=list(wanted), is_static=False):
                 name = wanted.get(chunk.entity_path)
                 if name is not None:
                     rows[name].add(chunk.to_record_batch())

@@ -218,28 +218,18 @@ def _read_recording_info(path: Path) -> RecordingInfo:
     latest: dict[str, dict[str, object]] = {}
     notes: list[str] = []
     try:
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            reader = reader_of(path)
-            recordings = [entry for entry in reader.recordings() if entry.kind == "recording"]
-        footerless = any("no footer" in str(w.message) for w in caught)
-        if not recordings:
-            raise NotARecordingError(f"{path}: a Rerun file without a recording")
-        if len(recordings) > 1:  # (rerun rrd merge): which one is meant is not known
-            raise NotARecordingError(
-                f"{path}: holds {len(recordings)} recordings, expected one (files merged?)"
-            )
-        for chunk in reader.stream(store=recordings[0]).filter(content=wanted):
+        reader, recordings, footerless = recordings_of(path)
+        entry = the_recording(path, recordings)
+        for chunk in reader.stream(store=entry).filter(content=wanted):
             values = latest.setdefault(chunk.entity_path, {})
             values.update(_last_values(chunk.to_record_batch()))
         if EKFVIZ_PROPERTIES not in latest:  # an older ekfviz's? look for the Recorder's
-            for chunk in reader.stream(store=recordings[0]).filter(content=RECORDER_ENTITIES):
+            for chunk in reader.stream(store=entry).filter(content=RECORDER_ENTITIES):
                 latest.setdefault(chunk.entity_path, {})
                 if all(entity in latest for entity in RECORDER_ENTITIES):
                     break
     except (RuntimeError, ValueError, OSError) as error:
         raise NotARecordingError(unreadable(path, error)) from None
-    entry = recordings[0]
     if footerless:  # ekfviz saves atomically, footer included: cut short, or not closed
         notes.append(
             "the file has no footer: cut short, or its writer did not close it; what it"
@@ -331,6 +321,32 @@ def reader_of(path: Path) -> RrdReader:
         if os.path.isdir("/proc/self/fd"):
             return RrdReader(f"/proc/self/fd/{os.open(path, os.O_RDONLY)}")
     return RrdReader(path)
+
+
+def recordings_of(path: Path) -> tuple[RrdReader, list[Any], bool]:
+    """Rerun's reader of the file at ``path``, its recordings (not its blueprints), and
+    whether it lacks its footer (cut short, or its writer did not close it: Rerun says so
+    in a Python warning)."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        reader = reader_of(path)
+        recordings = [entry for entry in reader.recordings() if entry.kind == "recording"]
+    return reader, recordings, any("no footer" in str(w.message) for w in caught)
+
+
+def the_recording(path: Path, recordings: list[Any]) -> Any:
+    """The one recording of a file (:func:`recordings_of`).
+
+    :raises NotARecordingError: none, or several (``rerun rrd merge``: which one is meant
+        is not known)
+    """
+    if not recordings:
+        raise NotARecordingError(f"{path}: a Rerun file without a recording")
+    if len(recordings) > 1:
+        raise NotARecordingError(
+            f"{path}: holds {len(recordings)} recordings, expected one (files merged?)"
+        )
+    return recordings[0]
 
 
 def check_recording_path(path: Path) -> None:

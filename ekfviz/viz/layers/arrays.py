@@ -52,9 +52,8 @@ class ArrayInput:
     """
 
     def __init__(self, landmark_ids: Sequence[int] | IntArray | None) -> None:
-        # (an array's truth is ambiguous: its length says whether ids were given)
-        given = landmark_ids is not None and len(landmark_ids) > 0
-        self.order: list[int] = [int(i) for i in landmark_ids] if given else []  # type: ignore[union-attr]
+        # (not "if landmark_ids": an array's truth is ambiguous)
+        self.order: list[int] = [] if landmark_ids is None else [int(i) for i in landmark_ids]
         self._in_order: set[int] = set(self.order)
         self._seen: set[int] = set()  # ids observed so far through the array API
         self._correlation = CorrelationCadence()  # (a replay's records own theirs)
