@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 from reference import find_reference
 
-from ekfviz.viz.export import read_recorded_run
+from ekfviz.readback.export import read_recorded_run
 
 BIN = Path(sys.executable).parent
 DATASET = "VictoriaPark"

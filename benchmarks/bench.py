@@ -69,8 +69,9 @@ from pathlib import Path
 import numpy as np
 
 import ekfviz
+from ekfviz.core.params import FilterParams, UpdateMode
 from ekfviz.core.records import Control, EventKind, LogEvent, Sighting
-from ekfviz.filters.ekf import HAVE_KERNEL, KERNEL_MAX_DIM, EkfSlam, FilterParams, UpdateMode
+from ekfviz.filters.ekf import HAVE_KERNEL, KERNEL_MAX_DIM, EkfSlam
 from ekfviz.io.classic import format_classic, read_classic
 from ekfviz.sim.simulate import CLASSIC_LANDMARKS_XY, Noise, classic_controls, simulate
 

@@ -15,8 +15,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from ekfviz.core.params import FilterParams
 from ekfviz.core.records import LogEvent
-from ekfviz.filters.ekf import FilterParams
 from ekfviz.filters.spec import load_filter, load_in_process
 from ekfviz.runner.replay import replay
 

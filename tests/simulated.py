@@ -1,5 +1,5 @@
-"""Simulated classic runs for the tests of a replay's rows (tests/test_predict_rows.py,
-tests/test_update_rows.py), with what those tests vary in them."""
+"""Simulated classic runs for the tests of a replay's rows (tests/runner/test_predict_rows.py,
+tests/runner/test_update_rows.py), with what those tests vary in them."""
 
 from __future__ import annotations
 

@@ -8,8 +8,8 @@ import sys
 from pathlib import Path
 
 # The packages below the logging layer: numpy and the standard library only
-NUMPY_ONLY = ("core", "models", "io", "sim", "filters", "association", "evaluation", "sources",
-              "runner", "check", "calibrate", "studies")  # fmt: skip
+NUMPY_ONLY = ("core", "models", "io", "sim", "filters", "sandbox", "association", "evaluation",
+              "sources", "runner", "check", "calibrate", "studies")  # fmt: skip
 PACKAGE = Path(__file__).parents[1] / "ekfviz"
 
 
@@ -130,19 +130,19 @@ def _imports(package: Path, root: str) -> dict[str, set[str]]:
 # shared vocabulary (types, events and records, truth, statistics) is at the bottom; the
 # command line at the top. Where a module sits is said by the longest prefix that names it.
 LAYERS: tuple[tuple[str, ...], ...] = (
-    ("ekfviz.core", "ekfviz.signals", "ekfviz.startup", "ekfviz.io.errors", "ekfviz.io.paths"),
+    ("ekfviz.core", "ekfviz.signals", "ekfviz.startup", "ekfviz.io.paths"),
     ("ekfviz.models",),
     ("ekfviz.io",),
     ("ekfviz.sim",),
-    ("ekfviz.filters",),
+    ("ekfviz.filters", "ekfviz.sandbox"),
     ("ekfviz.association",),
     ("ekfviz.evaluation",),
     ("ekfviz.sources",),
     ("ekfviz.runner",),
     ("ekfviz.check", "ekfviz.calibrate"),
     ("ekfviz.studies",),
-    ("ekfviz.viz",),
-    ("ekfviz.pipeline",),
+    ("ekfviz.viz", "ekfviz.readback"),
+    ("ekfviz.app",),
     ("ekfviz.cli", "ekfviz.samples", "ekfviz.__main__"),
 )
 

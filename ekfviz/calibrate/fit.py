@@ -30,10 +30,10 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ekfviz.core.params import MotionNoise
 from ekfviz.core.records import Control, LogEvent, Sighting
 from ekfviz.core.truth import GroundTruth
 from ekfviz.core.types import FloatArray
-from ekfviz.filters.ekf import MotionNoise
 from ekfviz.models.angles import wrap_angles
 from ekfviz.models.classic import motion
 

@@ -20,12 +20,14 @@ import numpy as np
 
 from ekfviz.association.gating import gated
 from ekfviz.calibrate.fit import NO_CORRECTION, WINDOW_S, Calibration, calibrate
+from ekfviz.core.errors import FilterError
+from ekfviz.core.params import FilterParams
 from ekfviz.core.records import Control, EventKind, EventRecord, LogEvent, Sighting
 from ekfviz.core.truth import GroundTruth
 from ekfviz.core.types import FloatArray
 from ekfviz.evaluation.consistency import Consistency, chi2_bounds, pose_nees, update_nis
 from ekfviz.evaluation.errors import Evaluation, MapSummary, evaluate
-from ekfviz.filters.ekf import EkfSlam, FilterError, FilterParams
+from ekfviz.filters.ekf import EkfSlam
 from ekfviz.runner.run import run
 
 FIT_SHARE = 0.6  # the first 60 % of the run are fitted, the rest judges

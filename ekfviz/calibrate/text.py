@@ -10,8 +10,8 @@ from pathlib import Path
 
 from ekfviz.calibrate.fit import HEAVY_TAIL_SHARE, OUTLIER_SIGMAS, Calibration, ResidualStats
 from ekfviz.calibrate.recommend import LARGE_SCALE, MAP_CREDIBLE, Recommendation
+from ekfviz.core.params import MotionNoise
 from ekfviz.core.tables import Cell, Styled, TextTable
-from ekfviz.filters.ekf import MotionNoise
 
 
 def estimates_table(result: Calibration) -> TextTable:

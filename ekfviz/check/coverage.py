@@ -13,8 +13,8 @@ import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
+from ekfviz.core.params import FilterParams
 from ekfviz.core.records import Control, EventRecord, LogEvent, Sighting
-from ekfviz.filters.ekf import FilterParams
 
 NEAR_PI = 0.1  # rad: a bearing or heading this close to +-pi exercises angle wrapping
 

@@ -32,10 +32,12 @@ from ekfviz.check.mistakes import (
     explain_predict,
     explain_update,
 )
+from ekfviz.core.errors import FilterError
+from ekfviz.core.params import FilterParams
 from ekfviz.core.records import Control, EventKind, EventRecord, LogEvent, Sighting
 from ekfviz.core.tables import Cell, Styled, TextTable
 from ekfviz.core.types import FloatArray, IntArray
-from ekfviz.filters.ekf import EkfSlam, FilterError, FilterParams
+from ekfviz.filters.ekf import EkfSlam
 from ekfviz.filters.plugged import FilterFactory, Plugged, PluginError
 from ekfviz.models.angles import wrap_angle
 from ekfviz.runner.replay import plugged
@@ -159,7 +161,7 @@ class CheckResult:
     :param every: whether causes were looked for at every divergent event (``--all``)
     :param error: why the filter stopped early (it raised, crashed, timed out), if it did
     :param error_line: the input line of that event
-    :param error_kind: as :class:`~ekfviz.filters.worker.WorkerFault`'s kind
+    :param error_kind: as :class:`~ekfviz.sandbox.host.WorkerFault`'s kind
     :param next_divergence: without ``every``, when the first divergence's causes are
         named: the first later divergence not explained by them alone (a course module's
         first divergence is the handout's block-diagonal P; the student's own mistake

@@ -52,8 +52,8 @@ from ekfviz.cli.sources import (
     resolve,
     with_source_options,
 )
+from ekfviz.core.errors import InputError
 from ekfviz.core.records import NeedsIds, with_ids
-from ekfviz.io.errors import InputError
 from ekfviz.sources import SourceArgs
 
 Window = Annotated[

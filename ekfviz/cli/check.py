@@ -48,10 +48,9 @@ from ekfviz.cli.sources import (
     study_input,
     with_source_options,
 )
+from ekfviz.core.errors import FilterError, InputError
 from ekfviz.core.tables import Styled, one_line
-from ekfviz.filters.ekf import FilterError
 from ekfviz.filters.spec import FilterSpec, FilterSpecError
-from ekfviz.io.errors import InputError
 from ekfviz.runner.replay import FilterLineError
 from ekfviz.samples import write_battery
 from ekfviz.sources import OwnTruth, SourceArgs
@@ -231,7 +230,8 @@ def _run(
     source_args: SourceArgs,
     own_truth: OwnTruth | None,
 ) -> tuple[CheckResult, list[Item]]:
-    from ekfviz import pipeline, viz
+    from ekfviz import app as pipeline
+    from ekfviz import viz
 
     try:
         return pipeline.check(

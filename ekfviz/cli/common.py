@@ -28,10 +28,11 @@ from typer._click.core import ParameterSource
 from typer._click.globals import get_current_context
 
 from ekfviz import __version__, signals
+from ekfviz.core.params import FilterParams
 from ekfviz.core.records import AnyEvent
 from ekfviz.core.tables import Cell, Styled, TextTable, one_line, utf8
 from ekfviz.core.truth import GroundTruth
-from ekfviz.filters.ekf import HAVE_KERNEL, FilterParams
+from ekfviz.filters.ekf import HAVE_KERNEL
 from ekfviz.io.paths import (
     OutputPathError,
     check_output_path,
@@ -208,7 +209,7 @@ def _finite(value: object) -> object:
 RECORDINGS_DIR = Path("recordings")
 
 
-# as ekfviz.filters.worker.DEFAULT_TIMEOUT_S (a test holds them equal; that module is
+# as ekfviz.sandbox.host.DEFAULT_TIMEOUT_S (a test holds them equal; that module is
 # not imported at start-up)
 DEFAULT_FILTER_TIMEOUT_S = 60.0
 
@@ -560,7 +561,7 @@ def log_events(
     progress: ProgressCallback | None = None,
 ) -> Iterator[AnyEvent]:
     """The log's events, checked against the truth's landmarks, reader warnings printed."""
-    from ekfviz.pipeline import log_events as events
+    from ekfviz.app import log_events as events
 
     return events(data, truth, truth_path, progress, warn)
 

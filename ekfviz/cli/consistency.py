@@ -46,7 +46,7 @@ from ekfviz.cli.options import (
     expands_options,
     refuse_too_long,
 )
-from ekfviz.filters.ekf import FilterError
+from ekfviz.core.errors import FilterError
 from ekfviz.filters.spec import BUILTIN, FilterSpecError, load_filter
 from ekfviz.sim.scenarios import ScenarioName
 from ekfviz.studies.executors import ExecutorError

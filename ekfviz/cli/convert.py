@@ -16,7 +16,7 @@ from ekfviz.cli.common import (
     refuse_overwrite,
     write_bytes_atomic,
 )
-from ekfviz.io.errors import InputError
+from ekfviz.core.errors import InputError
 from ekfviz.io.paths import real_path, same_file
 
 

@@ -66,11 +66,11 @@ def _files(
     csv: Path | None,
 ) -> list[tuple[Path, str]]:
     """Every file asked for and its text, all built before any is written."""
-    from ekfviz import viz
+    from ekfviz import readback
 
     try:
-        run = viz.read_recorded_run(recording)
-    except viz.NotARecordingError as error:
+        run = readback.read_recorded_run(recording)
+    except readback.NotARecordingError as error:
         fail(str(error))
     if truth_tum is not None and run.truth is None:
         fail(

@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from ekfviz import signals
+from ekfviz.app.grade import Battery, GradeRow, GradeTask
 from ekfviz.cli.common import (
     DEFAULT,
     Triple,
@@ -37,11 +38,10 @@ from ekfviz.cli.options import (
 )
 from ekfviz.core.tables import utf8
 from ekfviz.io.paths import real_path
-from ekfviz.pipeline.grade import Battery, GradeRow, GradeTask
 from ekfviz.studies.executors import ExecutorError
 
 if TYPE_CHECKING:
-    from ekfviz.filters.ekf import FilterParams
+    from ekfviz.core.params import FilterParams
 
 Submissions = Annotated[
     Path,
@@ -127,7 +127,7 @@ def grade(
 
 def run_grade(request: GradeRequest) -> None:
     """Grade every submission, print the table, write the CSV and JSON asked for."""
-    from ekfviz.pipeline.grade import grade_one, grades_table, submissions, to_csv
+    from ekfviz.app.grade import grade_one, grades_table, submissions, to_csv
 
     if request.json_output:
         human_output_to_stderr()
@@ -177,7 +177,7 @@ def _stopped(request: GradeRequest, tasks: list[GradeTask]) -> str:
     stopped workers were writing removed."""
     if request.save_dir is None:
         return "no report was written; existing files are left as they were"
-    from ekfviz.pipeline.grade import recording_names
+    from ekfviz.app.grade import recording_names
 
     names = {name for task in tasks for name in recording_names(task)}
     for leftover in request.save_dir.glob(".*.part"):  # a worker killed while it saved

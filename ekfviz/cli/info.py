@@ -38,14 +38,14 @@ def info(
     """Print what a recording is (replay, sweep, consistency study, your own filter's),
     how it was made (version, command, parameters, input), whether the run finished or
     stopped early (where and why), and its result."""
-    from ekfviz import viz
+    from ekfviz import readback
 
     check_outputs(("--extract-input", extract_input), inputs=[recording])
     if as_json:
         human_output_to_stderr()
     try:
-        found = viz.read_recording_info(recording)
-    except viz.NotARecordingError as error:
+        found = readback.read_recording_info(recording)
+    except readback.NotARecordingError as error:
         fail(str(error))
     if extract_input is not None and found.input_text is None:
         reason = "it was over the size cap" if found.has_input else "this kind has no input"

@@ -44,8 +44,8 @@ from ekfviz.cli.scans import (  # the association's options stay beside its set-
     association_params,
     study_association,
 )
-from ekfviz.filters.ekf import FilterParams, LandmarkInit, UpdateMode
-from ekfviz.io.errors import InputError
+from ekfviz.core.errors import InputError
+from ekfviz.core.params import FilterParams, LandmarkInit, UpdateMode
 from ekfviz.io.text import MAX_MAGNITUDE, RANGE_TEXT
 from ekfviz.sim.scenarios import Scenario, ScenarioName
 from ekfviz.sim.simulate import Detection, Noise
@@ -330,12 +330,12 @@ def worker_options(
     *,
     timeout_option: str = "--filter-timeout",
 ) -> Any:
-    """How a user's filter runs (:class:`~ekfviz.filters.worker.WorkerOptions`), the
+    """How a user's filter runs (:class:`~ekfviz.sandbox.host.WorkerOptions`), the
     interpreter checked first.
 
     :param timeout_option: how the time limit was given, for the message of a bad one
     """
-    from ekfviz.filters.worker import WorkerOptions
+    from ekfviz.sandbox.host import WorkerOptions
 
     if math.isnan(timeout_s):
         fail(f"{timeout_option} {timeout_s}: expected a number of seconds (inf: no bound)")
@@ -574,7 +574,7 @@ class UserFilter(OptionGroup):
     filter_memory: FilterMemory = None
 
     def worker(self) -> Any:
-        """The :class:`~ekfviz.filters.worker.WorkerOptions`, the interpreter checked."""
+        """The :class:`~ekfviz.sandbox.host.WorkerOptions`, the interpreter checked."""
         return worker_options(self.python, self.filter_timeout, self.filter_memory)
 
 
@@ -596,7 +596,7 @@ class Association(OptionGroup):
     def for_study(self, data: Path) -> AssociationParams | None:
         """As :meth:`params`, for the runs of a study of ``data`` (Victoria Park refused).
 
-        :raises ekfviz.io.errors.InputError: for the Victoria Park directory
+        :raises ekfviz.core.errors.InputError: for the Victoria Park directory
         """
         return study_association(
             data, self.association, self.gate_probability, self.confirm, self.confirm_window

@@ -46,12 +46,13 @@ from ekfviz.cli.options import (
 )
 from ekfviz.cli.scans import ReplaySetup, replay_setup
 from ekfviz.cli.sources import MotionNoiseChoice, OpenedLog, first_time, open_log, resolve
+from ekfviz.core.errors import FilterError, InputError
+from ekfviz.core.params import FilterParams
 from ekfviz.core.records import AnyEvent, EventKind, EventRecord
 from ekfviz.core.truth import GroundTruth
 from ekfviz.evaluation.errors import Evaluation
-from ekfviz.filters.ekf import EkfSlam, FilterError, FilterParams
+from ekfviz.filters.ekf import EkfSlam
 from ekfviz.filters.spec import FilterSpecError, load_filter, release
-from ekfviz.io.errors import InputError
 from ekfviz.sources import SourceArgs
 
 if TYPE_CHECKING:
@@ -179,7 +180,8 @@ class Opened:
 
 def run_replay(request: ReplayRequest) -> None:
     """Replay as asked; every error is one line and its exit code (see the module)."""
-    from ekfviz import pipeline, viz  # rerun loads only for commands that record
+    from ekfviz import app as pipeline  # rerun loads only for commands that record
+    from ekfviz import viz
 
     check_outputs_of(request)
     params = _params(request)
@@ -274,7 +276,8 @@ def _record(
     logger: list[RunLogger],
 ) -> None:
     """Replay into the recording, then print and write the evaluation."""
-    from ekfviz import pipeline, viz
+    from ekfviz import app as pipeline
+    from ekfviz import viz
 
     setup, params, truth_xy = opened.setup, opened.params, opened.log.truth
     info = viz.run_info(

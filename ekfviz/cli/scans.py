@@ -14,10 +14,11 @@ from ekfviz.association import AssociationParams, Method
 from ekfviz.association.evaluation import AssociationTally
 from ekfviz.cli.common import _option, given, out, warn
 from ekfviz.cli.sources import OpenedLog
+from ekfviz.core.errors import InputError
+from ekfviz.core.params import FilterParams
 from ekfviz.core.records import EventRecord
 from ekfviz.core.truth import GroundTruth
-from ekfviz.filters.ekf import EkfSlam, FilterParams
-from ekfviz.io.errors import InputError
+from ekfviz.filters.ekf import EkfSlam
 from ekfviz.models.range_bearing import RangeBearing
 from ekfviz.sources import Reference, open_source
 

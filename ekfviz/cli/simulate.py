@@ -35,8 +35,8 @@ from ekfviz.cli.options import (
     expands_options,
     refuse_too_long,
 )
+from ekfviz.core.params import FilterParams
 from ekfviz.core.truth import GroundTruth
-from ekfviz.filters.ekf import FilterParams
 from ekfviz.io.paths import OutputPathError, check_output_folder
 from ekfviz.sim.mrclam import MrclamNoise, MrclamWorld
 from ekfviz.sim.scenarios import ScenarioName

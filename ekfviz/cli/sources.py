@@ -17,10 +17,10 @@ from typing import Annotated, Any, TypeVar
 import typer
 
 from ekfviz.cli.common import FILTER_NOISE, FILTER_OPTIONS, _option, fail, given, warn
+from ekfviz.core.errors import InputError
+from ekfviz.core.params import FilterParams, MotionNoise
 from ekfviz.core.records import AnyEvent, Control
 from ekfviz.core.truth import GroundTruth
-from ekfviz.filters.ekf import FilterParams, MotionNoise
-from ekfviz.io.errors import InputError
 from ekfviz.io.text import ProgressCallback
 from ekfviz.io.truth import checked_against, read_truth
 from ekfviz.sources import (

@@ -1,7 +1,7 @@
 """What ``sweep`` and ``compare`` share: run a study, print and save its table, record it.
 
 A sweep is a comparison of one filter under several parameter sets; both are a list of
-:class:`~ekfviz.studies.runs.RunSpec` run by :func:`ekfviz.pipeline.study`.
+:class:`~ekfviz.studies.runs.RunSpec` run by :func:`ekfviz.app.study`.
 """
 
 from __future__ import annotations
@@ -29,16 +29,15 @@ from ekfviz.cli.common import (
     warn,
     write_json,
 )
-from ekfviz.filters.ekf import FilterError
+from ekfviz.core.errors import FilterError, InputError
 from ekfviz.filters.spec import FilterSpecError
-from ekfviz.io.errors import InputError
 from ekfviz.runner.replay import FilterLineError
 from ekfviz.sources import OwnTruth, SourceArgs
 from ekfviz.studies.executors import Executor, ExecutorError
 from ekfviz.studies.runs import RunSpec, study_markdown, study_table
 
 if TYPE_CHECKING:
-    from ekfviz.pipeline import StudyResult
+    from ekfviz.app import StudyResult
 
 
 def run_study(
@@ -67,7 +66,8 @@ def run_study(
     :param notes: what was chosen for the runs (the start pose), said before the table
     :param inputs: the files the log's source reads (a dataset directory's)
     """
-    from ekfviz import pipeline, viz
+    from ekfviz import app as pipeline
+    from ekfviz import viz
 
     what = "variant" if root == "variants" else "filter"
     # none of them may be written over: the log (a dataset's files), the truth, the filters

@@ -26,12 +26,12 @@ from ekfviz.cli.options import (
 )
 from ekfviz.cli.sources import NO_SOURCE_ARGS, NoTruthOption, study_input, with_source_options
 from ekfviz.cli.study import run_study
+from ekfviz.core.errors import InputError
 from ekfviz.filters.spec import BUILTIN, FilterSpec
-from ekfviz.io.errors import InputError
 from ekfviz.sources import SourceArgs
 
 if TYPE_CHECKING:
-    from ekfviz.filters.ekf import FilterParams
+    from ekfviz.core.params import FilterParams
     from ekfviz.studies.runs import RunSpec
 
 

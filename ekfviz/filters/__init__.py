@@ -5,6 +5,6 @@
 - :mod:`~ekfviz.filters.protocol`: what a filter must do (:class:`SlamFilter`);
 - :mod:`~ekfviz.filters.plugged`: a filter of the protocol driven like the built-in;
 - :mod:`~ekfviz.filters.spec`: ``--filter`` parsed, registered backends, user code loaded;
-- :mod:`~ekfviz.filters.worker` and ``_worker``: user code in a process of its own;
+- user code runs in a process of its own: :mod:`ekfviz.sandbox`;
 - :mod:`~ekfviz.filters.gtsam`: the factor-graph smoothers (optional extra).
 """

@@ -37,8 +37,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ekfviz.core.errors import FilterError
+from ekfviz.core.params import FilterParams
 from ekfviz.core.types import FloatArray, IntArray
-from ekfviz.filters.ekf import FilterError, FilterParams
 from ekfviz.models.angles import wrap_angle
 from ekfviz.models.classic import (
     landmark_from_measurement,

@@ -25,6 +25,8 @@ from typing import Any
 
 import numpy as np
 
+from ekfviz.core.errors import FilterError
+from ekfviz.core.params import FilterParams
 from ekfviz.core.records import EventRecord, kept_record
 from ekfviz.core.types import FloatArray
 from ekfviz.filters.ekf import (
@@ -32,8 +34,6 @@ from ekfviz.filters.ekf import (
     _ZERO_RANGE,
     MIN_PREDICTED_RANGE,
     EkfSlam,
-    FilterError,
-    FilterParams,
     _nan_table,
     _not_definite,
     _whitened,

@@ -17,7 +17,9 @@ from dataclasses import replace
 
 import numpy as np
 
+from ekfviz.core.errors import FilterError
 from ekfviz.core.health import CovarianceCheck
+from ekfviz.core.params import FilterParams
 from ekfviz.core.records import (
     EventKind,
     EventRecord,
@@ -27,7 +29,7 @@ from ekfviz.core.records import (
     snapshot,
 )
 from ekfviz.core.types import FloatArray, IntArray
-from ekfviz.filters.ekf import EkfSlam, FilterError, FilterParams
+from ekfviz.filters.ekf import EkfSlam
 from ekfviz.filters.protocol import DeclaresCapabilities, SlamFilter, state_of
 
 # P counts as symmetric when |P - P^T| <= SYMMETRY_TOLERANCE * max |P|. A filter that

@@ -1,7 +1,7 @@
 """The filter protocol: what any EKF-SLAM filter must offer to run through ekfviz.
 
 A filter class is constructed as ``Class(params)`` with ekfviz's
-:class:`~ekfviz.filters.ekf.FilterParams` (noise sigmas, ``Q``, ``R``, the initial pose and
+:class:`~ekfviz.core.params.FilterParams` (noise sigmas, ``Q``, ``R``, the initial pose and
 its sigmas). It then takes the log's events one by one and shows its state in the classic
 layout; ekfviz derives everything it records (predicted measurements, innovations, S,
 NIS, landmark marginals, health checks) from that state, before and after each event,

@@ -12,7 +12,7 @@
 - any of these as ``LABEL=SPEC``: the same, called LABEL in tables and recordings.
 
 The built-in and registered filters run in ekfviz's process; a user's code runs in a
-worker process of its own (:mod:`ekfviz.filters.worker`), under ``--python`` if given.
+worker process of its own (:mod:`ekfviz.sandbox.host`), under ``--python`` if given.
 Every class is constructed as ``Class(params)`` and follows the
 :class:`~ekfviz.filters.protocol.SlamFilter` protocol. Numpy only: nothing here imports a
 backend until it is asked for.
@@ -30,7 +30,7 @@ from pathlib import Path
 
 from ekfviz.core.tables import utf8
 from ekfviz.filters.plugged import FilterFactory
-from ekfviz.filters.worker import Target, WorkerFactory, WorkerFault, WorkerOptions
+from ekfviz.sandbox.host import Target, WorkerFactory, WorkerFault, WorkerOptions
 
 BUILTIN = "ekf"
 # name -> ("module:Class", the extra that provides its dependency, or None)
@@ -44,7 +44,7 @@ REGISTRY: dict[str, tuple[str, str | None]] = {
 class FilterSpecError(ValueError):
     """A ``--filter`` that cannot be loaded; the message is one line.
 
-    :param kind: as :class:`~ekfviz.filters.worker.WorkerFault`'s (``error`` where the
+    :param kind: as :class:`~ekfviz.sandbox.host.WorkerFault`'s (``error`` where the
         spec itself is wrong)
     """
 
@@ -119,7 +119,7 @@ class FilterSpec:
 
 def release(make_filter: object) -> None:
     """End what a loaded filter holds: the spare worker a user's filter keeps started
-    (:class:`~ekfviz.filters.worker.WorkerFactory`); nothing for the others."""
+    (:class:`~ekfviz.sandbox.host.WorkerFactory`); nothing for the others."""
     if isinstance(make_filter, WorkerFactory):
         make_filter.close()
 

@@ -13,9 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
+from ekfviz.core.errors import InputError
 from ekfviz.core.records import Control, LogEvent, frozen, read_control, read_sighting
 from ekfviz.core.types import IntArray
-from ekfviz.io.errors import InputError
 from ekfviz.io.text import (
     BearingWrapper,
     NumberBlock,

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ekfviz.core.errors import InputError
 from ekfviz.io.classic import read_classic
-from ekfviz.io.errors import InputError
 from ekfviz.io.extended import is_extended
 from ekfviz.io.text import token_lines
 

@@ -35,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ekfviz.core.errors import InputError
 from ekfviz.core.records import (
     AnyEvent,
     Control,
@@ -46,7 +47,6 @@ from ekfviz.core.records import (
 )
 from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.io.classic import read_classic
-from ekfviz.io.errors import InputError
 from ekfviz.io.text import (
     BearingWrapper,
     ProgressCallback,

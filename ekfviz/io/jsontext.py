@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from ekfviz.io.errors import InputError
+from ekfviz.core.errors import InputError
 from ekfviz.io.text import BOM, MAX_MAGNITUDE, RANGE_TEXT, UNDERFLOW_TEXT, open_input, underflows
 
 MAX_JSON_BYTES = 256 << 20  # a truth of a million poses is some 60 MB

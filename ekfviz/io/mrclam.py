@@ -31,10 +31,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ekfviz.core.errors import InputError
 from ekfviz.core.records import Control, LogEvent, Sighting
 from ekfviz.core.truth import GroundTruth
 from ekfviz.core.types import FloatArray
-from ekfviz.io.errors import InputError
 from ekfviz.io.text import (
     BearingWrapper,
     ProgressCallback,

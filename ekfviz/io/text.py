@@ -13,8 +13,8 @@ from typing import BinaryIO, NoReturn
 
 import numpy as np
 
+from ekfviz.core.errors import InputError
 from ekfviz.core.types import BoolArray, FloatArray, IntArray
-from ekfviz.io.errors import InputError
 from ekfviz.models.angles import wrap_angles
 
 try:  # optional, built with the filter's kernel: without it the blocks convert in numpy

@@ -15,9 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
+from ekfviz.core.errors import InputError
 from ekfviz.core.records import AnyEvent, Scan, Sighting
 from ekfviz.core.truth import GroundTruth
-from ekfviz.io.errors import InputError
 from ekfviz.io.jsontext import load_json
 from ekfviz.io.text import MAX_MAGNITUDE, RANGE_TEXT, numeric_lines, open_input
 

@@ -23,9 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
+from ekfviz.core.errors import InputError
 from ekfviz.core.records import AnyEvent, Drive, Scan
 from ekfviz.core.types import FloatArray
-from ekfviz.io.errors import InputError
 from ekfviz.io.text import ProgressCallback, first_bad_time, numeric_blocks, time_error
 
 INPUTS = "inputs.dat"

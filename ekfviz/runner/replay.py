@@ -11,7 +11,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ekfviz.core.correlation import CorrelationCadence, correlation_of
+from ekfviz.core.errors import FilterError
 from ekfviz.core.health import NOT_FINITE, CovarianceCheck, check_covariance, check_interval
+from ekfviz.core.params import FilterParams
 from ekfviz.core.records import (
     AnyEvent,
     Control,
@@ -25,7 +27,7 @@ from ekfviz.core.records import (
     Sighting,
     frozen,
 )
-from ekfviz.filters.ekf import EkfSlam, FilterError, FilterParams
+from ekfviz.filters.ekf import EkfSlam
 from ekfviz.filters.plugged import FilterFactory, Plugged, PluginError
 from ekfviz.runner.beside import Beside
 

@@ -33,7 +33,8 @@ from ekfviz.runner.replay import replay
 
 if TYPE_CHECKING:
     from ekfviz.association.associator import Associator
-    from ekfviz.filters.ekf import EkfSlam, FilterParams
+    from ekfviz.core.params import FilterParams
+    from ekfviz.filters.ekf import EkfSlam
     from ekfviz.filters.plugged import FilterFactory
 
 

@@ -17,12 +17,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import ClassVar, Protocol, TypeVar
 
+from ekfviz.core.errors import InputError
+from ekfviz.core.params import FilterParams, MotionNoise
 from ekfviz.core.records import AnyEvent, EventRecord
 from ekfviz.core.truth import GroundTruth
 from ekfviz.core.types import FloatArray
 from ekfviz.evaluation.reference import ReferenceFit
-from ekfviz.filters.ekf import EkfSlam, FilterParams, MotionNoise
-from ekfviz.io.errors import InputError
+from ekfviz.filters.ekf import EkfSlam
 from ekfviz.io.extended import LogNoise
 from ekfviz.io.text import ProgressCallback, WarningCallback
 from ekfviz.models.range_bearing import RangeBearing

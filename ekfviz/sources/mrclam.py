@@ -11,8 +11,8 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
+from ekfviz.core.params import MotionNoise
 from ekfviz.core.records import AnyEvent
-from ekfviz.filters.ekf import MotionNoise
 from ekfviz.io import mrclam
 from ekfviz.io.text import ProgressCallback, WarningCallback
 from ekfviz.sources.base import OwnTruth, Source, SourceArgs, SourceOption, register

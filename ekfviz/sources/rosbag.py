@@ -38,11 +38,11 @@ from typing import Any
 
 import numpy as np
 
+from ekfviz.core.errors import InputError
+from ekfviz.core.params import MotionNoise
 from ekfviz.core.records import AnyEvent, Control, Scan, Sighting
 from ekfviz.core.truth import GroundTruth
 from ekfviz.core.types import FloatArray, IntArray
-from ekfviz.filters.ekf import MotionNoise
-from ekfviz.io.errors import InputError
 from ekfviz.io.text import (
     MAX_MAGNITUDE,
     RANGE_TEXT,

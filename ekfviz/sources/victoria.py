@@ -18,12 +18,12 @@ from typing import Any
 
 import numpy as np
 
+from ekfviz.core.errors import InputError
+from ekfviz.core.params import FilterParams
 from ekfviz.core.records import AnyEvent, EventRecord, Scan
 from ekfviz.evaluation.reference import JUMP_M, fit_reference
-from ekfviz.filters.ekf import FilterParams
 from ekfviz.filters.model_ekf import ModelEkfSlam
 from ekfviz.io import victoria
-from ekfviz.io.errors import InputError
 from ekfviz.io.text import ProgressCallback, WarningCallback
 from ekfviz.models.ackermann import Ackermann
 from ekfviz.models.range_bearing import RangeBearing

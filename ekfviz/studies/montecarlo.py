@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ekfviz.association import AssociationParams, Associator
+from ekfviz.core.params import FilterParams
 from ekfviz.core.records import EventKind, EventRecord
 from ekfviz.core.stats import chi2_quantile
 from ekfviz.core.tables import Styled, TextTable
@@ -28,7 +29,6 @@ from ekfviz.evaluation.consistency import (
     pose_nees,
     update_nis,
 )
-from ekfviz.filters.ekf import FilterParams
 from ekfviz.filters.spec import BUILTIN, load_filter
 from ekfviz.models.range_bearing import RangeBearing
 from ekfviz.runner.run import run as replay_run

@@ -19,12 +19,12 @@ import numpy as np
 
 from ekfviz.association import AssociationParams, Associator
 from ekfviz.association.evaluation import AssociationTally
+from ekfviz.core.params import FilterParams
 from ekfviz.core.records import EventRecord
 from ekfviz.core.tables import TextTable
 from ekfviz.core.truth import GroundTruth
 from ekfviz.evaluation.consistency import Consistency, reading
 from ekfviz.evaluation.errors import Evaluation, evaluate
-from ekfviz.filters.ekf import FilterParams
 from ekfviz.filters.plugged import FilterFactory, PluginError
 from ekfviz.filters.protocol import SlamFilter
 from ekfviz.filters.spec import BUILTIN, FilterSpec, FilterSpecError, release

@@ -20,7 +20,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
-from ekfviz.filters.ekf import FilterParams
+from ekfviz.core.params import FilterParams
 from ekfviz.io.text import MAX_MAGNITUDE
 from ekfviz.studies.runs import VARIABLE, RunSpec
 

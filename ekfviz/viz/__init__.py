@@ -6,9 +6,9 @@
 - :mod:`ekfviz.viz.ellipses` -- the 3-sigma outline of a covariance;
 - :mod:`ekfviz.viz.style` -- entity paths and colours;
 - :mod:`ekfviz.viz.blueprint` -- the default viewer layout;
-- :mod:`ekfviz.viz.run` -- one ``ekfviz replay`` run: properties, sinks, atomic save;
-- :mod:`ekfviz.viz.info` -- reading a recording's properties and documents back;
-- :mod:`ekfviz.viz.export` -- reading its trajectories and map back (``ekfviz export``).
+- :mod:`ekfviz.viz.run` -- one ``ekfviz replay`` run: properties, sinks, atomic save.
+
+Reading a recording back is :mod:`ekfviz.readback`'s.
 
 Bring your own filter::
 
@@ -29,10 +29,7 @@ See ``examples/byof_minimal.py`` for a complete, runnable loop.
 
 from __future__ import annotations
 
-from ekfviz.viz.apart import NotARecordingError
 from ekfviz.viz.ellipses import ellipse_outlines
-from ekfviz.viz.export import RecordedRun, Trajectory, read_recorded_run
-from ekfviz.viz.info import RecordingInfo, read_recording_info
 from ekfviz.viz.recorder import Recorder
 from ekfviz.viz.run import (
     LOOPBACK,
@@ -50,22 +47,16 @@ from ekfviz.viz.run import (
 
 __all__ = [
     "LOOPBACK",
-    "NotARecordingError",
-    "RecordedRun",
     "Recorder",
     "Recording",
-    "RecordingInfo",
     "RunInfo",
     "RunLogger",
     "SinkError",
     "Sinks",
-    "Trajectory",
     "check_bind",
     "ellipse_outlines",
     "open_recording",
     "open_run",
-    "read_recorded_run",
-    "read_recording_info",
     "resolve_default_sinks",
     "run_info",
 ]

@@ -33,12 +33,12 @@ import rerun as rr
 from rerun.any_batch_value import ComponentValueLike
 
 from ekfviz import __version__, signals
+from ekfviz.core.errors import InputError
 from ekfviz.core.records import EventRecord, EventRows
 from ekfviz.core.tables import utf8
 from ekfviz.core.truth import GroundTruth
 from ekfviz.evaluation.errors import Evaluation
 from ekfviz.filters.ekf import HAVE_KERNEL
-from ekfviz.io.errors import InputError
 from ekfviz.io.paths import (
     OutputPathError,
     check_output_path,

@@ -1,0 +1,482 @@
+"""Interrupts, saved recordings and exposure (issue 22): Ctrl-C and SIGTERM stop every
+command at once with one line; a failed run never replaces a recording; ``--serve``
+listens on loopback only; the recorded truth digest is the file's sha256."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from ekfviz.cli import app
+
+ROOT = Path(__file__).parents[2]
+DATA = ROOT / "data"
+SAMPLE, TRUTH = DATA / "classic.txt", DATA / "classic_truth.json"
+EXIT_BOUND_S = 10.0  # generous for a loaded machine; measured well under 2 s when idle
+runner = CliRunner()
+
+
+def ekfviz(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "ekfviz", *args], capture_output=True, text=True)
+
+
+@pytest.fixture(scope="module")
+def long_log(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """A loop of 12,000 steps: long enough that no study of it ends within seconds (a
+    replay of it does: a signalled replay takes ``slow_log``)."""
+    folder = tmp_path_factory.mktemp("long")
+    log, truth = folder / "long.txt", folder / "long.json"
+    made = ekfviz(
+        "simulate", "--scenario", "loop", "--steps", "12000", "--landmarks", "40",
+        "-o", str(log), "--truth-out", str(truth),
+    )  # fmt: skip
+    assert made.returncode == 0, made.stderr
+    return log, truth
+
+
+def _interrupt(
+    args: list[str],
+    signum: int,
+    group: bool,
+    after: float = 3.0,
+    ready: Callable[[], bool] | None = None,
+) -> tuple[int, str, float]:
+    """Run ekfviz, send ``signum`` (to its whole process group, as a terminal's Ctrl-C
+    does, or to it alone, as ``kill`` does), and return its exit code, its stderr and how
+    long it took to exit."""
+    process = subprocess.Popen(
+        [sys.executable, "-m", "ekfviz", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
+    deadline = time.monotonic() + 60.0
+    while ready is not None and not ready() and time.monotonic() < deadline:
+        time.sleep(0.05)  # started up (a loaded machine takes seconds to import)
+    time.sleep(after)
+    assert process.poll() is None, "the command ended before the signal: make it longer"
+    sent = time.monotonic()
+    if group:
+        os.killpg(process.pid, signum)
+    else:
+        process.send_signal(signum)
+    _, stderr = process.communicate(timeout=60)
+    took = time.monotonic() - sent
+    time.sleep(0.5)
+    with pytest.raises(ProcessLookupError):  # no worker is left running
+        os.killpg(process.pid, 0)
+    return process.returncode, stderr, took
+
+
+@pytest.mark.parametrize(
+    ("command", "signum", "group"),
+    [
+        ("sweep", signal.SIGINT, True),
+        ("consistency", signal.SIGINT, True),
+        ("compare", signal.SIGINT, True),
+        ("sweep", signal.SIGTERM, False),
+        ("compare", signal.SIGTERM, False),
+    ],
+)
+def test_a_study_stops_at_once_with_one_line(
+    command: str,
+    signum: int,
+    group: bool,
+    long_log: tuple[Path, Path],
+    slow_log: Path,
+    tmp_path: Path,
+) -> None:
+    log, truth = long_log
+    save = tmp_path / "kept.rrd"
+    save.write_bytes(b"an earlier recording")
+    args = {
+        "sweep": ["sweep", str(log), "--truth", str(truth), "--preset", "tuning", "--workers", "2"],
+        "consistency": ["consistency", "--scenario", "loop", "--steps", "3000", "--runs", "40"],
+        # (four replays of the long log end within 7 s here: a replay is fast now)
+        "compare": ["compare", str(slow_log), *["--filter", "ekf"] * 4, "--workers", "2"],
+    }[command] + ["--save", str(save)]
+    code, stderr, took = _interrupt(args, signum, group)
+    name = signal.Signals(signum).name
+    assert code == 128 + signum, stderr
+    assert stderr.count("\n") == 1, stderr  # one line, no worker traceback
+    assert f"interrupted ({name})" in stderr and "Traceback" not in stderr
+    # said by the study once its runs started, else by the command line
+    assert ("cancelled; nothing was saved" in stderr and f"{save} left as it was" in stderr) or (
+        "nothing was written; existing files are left as they were" in stderr
+    )
+    assert save.read_bytes() == b"an earlier recording"
+    print(f"{command} {name}: exited {took:.2f} s after the signal")
+    assert took < EXIT_BOUND_S
+
+
+def test_a_command_without_a_message_of_its_own_still_says_one_line(tmp_path: Path) -> None:
+    """simulate stopped by SIGTERM: the generic line, exit 143."""
+    out = tmp_path / "big.txt"
+    code, stderr, took = _interrupt(
+        ["simulate", "--scenario", "loop", "--steps", "200000", "--landmarks", "400",
+         "-o", str(out), "--truth-out", str(tmp_path / "big.json")],
+        signal.SIGTERM, group=False, after=2.0,
+    )  # fmt: skip
+    assert code == 143 and stderr == (
+        "error: interrupted (SIGTERM): nothing was written; existing files are left as they were\n"
+    )
+    assert not out.exists() and took < EXIT_BOUND_S
+
+
+def _typo(tmp_path: Path) -> Path:
+    lines = SAMPLE.read_text().splitlines()
+    fields = lines[19].split()
+    fields[-1] = "1.x"
+    lines[19] = " ".join(fields)
+    typo = tmp_path / "typo.txt"
+    typo.write_text("\n".join(lines) + "\n")
+    return typo
+
+
+def test_a_failed_replay_leaves_an_existing_recording_byte_for_byte(tmp_path: Path) -> None:
+    keep = tmp_path / "keep.rrd"
+    assert runner.invoke(app, ["replay", str(SAMPLE), "--save", str(keep)]).exit_code == 0
+    before = keep.read_bytes()
+    result = ekfviz("replay", str(_typo(tmp_path)), "--save", str(keep))
+    assert result.returncode == 2
+    assert keep.read_bytes() == before
+    partial = tmp_path / "keep.partial.rrd"
+    assert partial.stat().st_size > 0
+    assert result.stderr.count("\n") == 1, result.stderr
+    assert "typo.txt:20:" in result.stderr
+    assert f"saved in {partial} ({keep} is left as it was)" in result.stderr
+    info = json.loads(ekfviz("info", str(partial), "--json").stdout)
+    assert info["status"]["state"] == "stopped"
+    # with nothing at the path, the partial recording goes there, as before
+    fresh = tmp_path / "fresh.rrd"
+    result = ekfviz("replay", str(_typo(tmp_path)), "--save", str(fresh))
+    assert result.returncode == 2 and fresh.is_file()
+    assert f"saved in {fresh}" in result.stderr and "left as it was" not in result.stderr
+
+
+def test_an_interrupted_replay_leaves_an_existing_recording(slow_log: Path, tmp_path: Path) -> None:
+    keep = tmp_path / "run.rrd"
+    keep.write_bytes(b"a finished recording")
+    code, stderr, took = _interrupt(
+        ["replay", str(slow_log), "--save", str(keep)],
+        signal.SIGINT,
+        group=True,
+        after=0.5,
+        ready=lambda: any(tmp_path.glob(".run.rrd.*.part")),  # recording
+    )
+    assert code == 130 and stderr.count("\n") == 1, (code, stderr)
+    assert keep.read_bytes() == b"a finished recording"
+    assert (tmp_path / "run.partial.rrd").is_file()
+    assert "run.partial.rrd" in stderr and took < EXIT_BOUND_S
+
+
+def test_stale_part_files_of_dead_runs_are_removed_on_the_next_run(tmp_path: Path) -> None:
+    target = tmp_path / "run.rrd"
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                          capture_output=True, text=True)  # fmt: skip
+    stale = tmp_path / f".run.rrd.{int(dead.stdout)}.0123abcd.part"
+    live = tmp_path / f".run.rrd.{os.getpid()}.4567cdef.part"  # a run still writing
+    other = tmp_path / f".other.rrd.{int(dead.stdout)}.89abcdef.part"  # another path's
+    for path in (stale, live, other):
+        path.write_bytes(b"half a recording")
+    assert runner.invoke(app, ["replay", str(SAMPLE), "--save", str(target)]).exit_code == 0
+    assert not stale.exists() and live.exists() and other.exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["run.rrd", live.name, other.name])
+
+
+@pytest.mark.parametrize("command", ["convert", "simulate"])
+def test_convert_and_simulate_refuse_to_overwrite_without_force(
+    command: str, tmp_path: Path
+) -> None:
+    target = tmp_path / "out.txt"
+    target.write_text("keep me\n")
+    truth_out = tmp_path / "t.json"
+    args = (
+        ["convert", str(SAMPLE), str(target)]
+        if command == "convert"
+        else ["simulate", "-o", str(target), "--truth-out", str(truth_out)]
+    )
+    refused = ekfviz(*args)
+    assert refused.returncode == 2
+    assert refused.stderr == f"error: {'TARGET' if command == 'convert' else '--output'}" \
+        f" {target}: exists; add --force to replace it\n"  # fmt: skip
+    assert target.read_text() == "keep me\n" and not truth_out.exists()
+    forced = ekfviz(*args, "--force")
+    assert forced.returncode == 0, forced.stderr
+    assert target.read_text() != "keep me\n"
+
+
+def test_the_recorded_truth_digest_is_the_files_sha256(tmp_path: Path) -> None:
+    rrd = tmp_path / "run.rrd"
+    result = runner.invoke(app, ["replay", str(SAMPLE), "--truth", str(TRUTH), "--save", str(rrd)])
+    assert result.exit_code == 0, result.output
+    info = json.loads(ekfviz("info", str(rrd), "--json").stdout)
+    assert info["truth"]["sha256"] == hashlib.sha256(TRUTH.read_bytes()).hexdigest()
+    assert info["input"]["sha256"] == hashlib.sha256(SAMPLE.read_bytes()).hexdigest()
+
+
+def _outward_address() -> str | None:
+    """An address of this machine that is not loopback, if it has one."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        try:
+            probe.connect(("192.0.2.1", 9))  # TEST-NET: no packet is sent for UDP connect
+        except OSError:
+            return None
+        address = str(probe.getsockname()[0])
+    return None if address.startswith("127.") or address == "0.0.0.0" else address
+
+
+def _reachable(host: str, port: int) -> bool:
+    try:
+        socket.create_connection((host, port), timeout=2.0).close()
+    except OSError:
+        return False
+    return True
+
+
+def test_serve_listens_on_loopback_only() -> None:
+    from ekfviz.viz.run import GRPC_PORT, WEB_PORT
+
+    outward = _outward_address()
+    if outward is None:
+        pytest.skip("no non-loopback address to try")
+    if _reachable("127.0.0.1", WEB_PORT) or _reachable("127.0.0.1", GRPC_PORT):
+        pytest.skip("the viewer ports are taken on this machine")
+    process = subprocess.Popen(
+        [sys.executable, "-m", "ekfviz", "replay", str(SAMPLE), "--serve"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert process.stdout is not None
+        for line in process.stdout:
+            if line.startswith("Serving the web viewer at"):
+                assert "http://localhost:9090/" in line
+                break
+        else:
+            pytest.fail(f"no web viewer: {process.communicate()[1]}")
+        assert _reachable("127.0.0.1", WEB_PORT) and _reachable("127.0.0.1", GRPC_PORT)
+        assert not _reachable(outward, WEB_PORT) and not _reachable(outward, GRPC_PORT)
+    finally:
+        process.send_signal(signal.SIGINT)
+        _, stderr = process.communicate(timeout=30)
+    assert process.returncode in (0, 130) and "Traceback" not in stderr  # Ctrl-C ends serving
+    time.sleep(0.5)
+    assert not _reachable("127.0.0.1", WEB_PORT)  # the viewer program ended with it
+
+
+def test_bind_says_what_it_expects() -> None:
+    result = ekfviz("replay", str(SAMPLE), "--serve", "--bind", "everywhere")
+    assert result.returncode == 2 and result.stderr.count("\n") == 1
+    assert "--bind everywhere: expected an IP address" in result.stderr
+    alone = ekfviz("replay", str(SAMPLE), "--bind", "0.0.0.0")
+    assert alone.returncode == 2 and "add --serve" in alone.stderr
+
+
+def test_an_interrupt_python_had_to_drop_is_raised_again(capfd: pytest.CaptureFixture[str]) -> None:
+    """A signal handled where its exception cannot propagate (an at-fork hook, a
+    finaliser) still stops the command at its next wait, and Python says nothing of it."""
+    from ekfviz import signals
+
+    class Dropper:
+        def __del__(self) -> None:
+            signal.raise_signal(signal.SIGINT)  # handled here: the exception is dropped
+
+    signals.as_interrupts()
+    try:
+        Dropper()
+        with pytest.raises(signals.Interrupted):
+            signals.raise_if_interrupted()
+    finally:
+        signals.reset()
+    signals.raise_if_interrupted()  # nothing left once reset
+    assert capfd.readouterr().err == ""
+
+
+def test_a_signal_while_a_recording_is_finished_is_acted_on_once_it_is() -> None:
+    """signals.held(): SIGTERM inside the block (a replay finishing its recording) waits
+    for the block's end, then raises as the replay's handlers do; none: nothing raised."""
+    from ekfviz import signals
+
+    done: list[str] = []
+    with signals.as_exceptions():
+        with pytest.raises(signals.Terminated), signals.held():
+            signal.raise_signal(signal.SIGTERM)  # remembered, not raised here
+            done.append("finished")
+        assert done == ["finished"]
+        with signals.held():
+            done.append("again")  # no signal: the block ends as usual
+        with pytest.raises(KeyboardInterrupt):  # the replay's handlers are back
+            signal.raise_signal(signal.SIGINT)
+        with pytest.raises(KeyboardInterrupt), signals.held():  # asked twice: at once
+            signal.raise_signal(signal.SIGINT)
+            done.append("held one")
+            signal.raise_signal(signal.SIGINT)
+            done.append("not reached")
+    assert done == ["finished", "again", "held one"]
+
+
+def test_ctrl_c_while_a_replay_finishes_keeps_the_whole_recording_and_says_where(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Every event replayed, the recording being finished: Ctrl-C then waits for it, and
+    the recording, whole, replaces the file at its path as a finished run's does; exit
+    130 and the line say so (what a signalled replay's test must not mistake for a cut)."""
+    from ekfviz import readback
+    from ekfviz.viz.run import RunLogger
+
+    finish = RunLogger.finish
+
+    def pressed(self: RunLogger, evaluation: object) -> None:
+        signal.raise_signal(signal.SIGINT)  # as the recording is finished
+        finish(self, evaluation)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(RunLogger, "finish", pressed)
+    keep = tmp_path / "run.rrd"
+    keep.write_bytes(b"an earlier recording")
+    result = runner.invoke(app, ["replay", str(SAMPLE), "--save", str(keep)])
+    assert result.exit_code == 130
+    assert result.output.strip().splitlines()[-1] == (
+        f"error: {SAMPLE}: interrupted (SIGINT): the finished recording is saved in {keep}"
+    )
+    info = readback.read_recording_info(keep)
+    assert info is not None and info.status is not None and info.status.state == "finished"
+    assert not list(tmp_path.glob("*.partial.rrd")) and not list(tmp_path.glob(".*.part"))
+
+
+def test_a_failed_replay_names_the_recording_it_kept_as_it_was_given(tmp_path: Path) -> None:
+    """A relative --save path, a run cut short by a bad line: the line names the file as
+    the user wrote it, and says "left as it was" only where a file was left."""
+    typo = _typo(tmp_path)
+
+    def replay() -> str:
+        result = subprocess.run(
+            [sys.executable, "-m", "ekfviz", "replay", typo.name, "--save", "run.rrd"],
+            capture_output=True, text=True, cwd=tmp_path,
+        )  # fmt: skip
+        assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
+        return result.stderr
+
+    assert replay().endswith("; the recording of everything before it is saved in run.rrd\n")
+    assert replay().endswith(
+        "; the recording of everything before it is saved in run.partial.rrd"
+        " (run.rrd is left as it was)\n"
+    )
+
+
+def test_a_signal_in_the_final_flush_leaves_no_hidden_temporary_file(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """SIGINT while the recording's last chunks were flushed (its file about whole) left
+    the hidden ``.RUN.rrd.<pid>.<hex>.part`` behind, for replay, sweep and compare: the
+    exception left the clean-up before the temporary file was moved or removed. A file not
+    known to be whole is dropped; the one at the path is left as it was."""
+    from ekfviz import signals, viz
+    from ekfviz.viz import run as viz_run
+
+    target = tmp_path / "run.rrd"
+    target.write_bytes(b"the previous recording")
+
+    def interrupted_flush(rec: object, timeout: float) -> None:
+        raise signals.Interrupted
+
+    monkeypatch.setattr(viz_run, "flush_interruptibly", interrupted_flush)
+    info = viz.run_info("run", "", {}, SAMPLE)
+    sinks = viz.Sinks(save=target)
+    with pytest.raises(signals.Interrupted), viz.open_recording(info, sinks) as rec:
+        rec.complete = True  # the run finished; the signal comes in the flush after it
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run.rrd"]
+    assert target.read_bytes() == b"the previous recording"
+    assert rec.saved_to is None
+
+
+def test_files_written_together_are_all_replaced_or_none_whatever_the_signal(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``export`` wrote its files one after another: a SIGINT among them left the new
+    TUM beside the old CSV, and said "nothing was written". Now a signal among the renames
+    waits for the last, and the line says what was written."""
+    from ekfviz import signals
+    from ekfviz.cli.common import write_files_atomic
+
+    first, second = tmp_path / "e.tum", tmp_path / "p.csv"
+    first.write_text("OLD")
+    second.write_text("OLD")
+    replace = os.replace
+
+    def replace_then_signal(source: str, target: Path) -> None:
+        replace(source, target)
+        if Path(target) == first:
+            os.kill(os.getpid(), signal.SIGINT)  # after the first rename, before the second
+
+    before = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
+    monkeypatch.setattr(os, "replace", replace_then_signal)
+    try:
+        signals.as_interrupts()
+        with pytest.raises(signals.Interrupted) as stopped:
+            write_files_atomic({first: b"NEW", second: b"NEW"})
+    finally:
+        signal.signal(signal.SIGINT, before[0])
+        signal.signal(signal.SIGTERM, before[1])
+    assert (first.read_text(), second.read_text()) == ("NEW", "NEW")
+    assert stopped.value.written == (first, second)  # type: ignore[attr-defined]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["e.tum", "p.csv"]
+
+
+def test_a_consistency_stopped_after_its_report_says_the_report_was_written(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """It said "nothing was written; existing files are left as they were" with the new
+    report in place."""
+    from ekfviz import signals
+    from ekfviz.cli import consistency
+
+    def stopped_saving(*args: object) -> None:
+        raise signals.Interrupted
+
+    monkeypatch.setattr(consistency, "_save", stopped_saving)
+    report, save = tmp_path / "mc.json", tmp_path / "mc.rrd"
+    result = CliRunner().invoke(app, ["consistency", "--runs", "2", "--report", str(report),
+                                      "--save", str(save)])  # fmt: skip
+    assert result.exit_code == 130, result.output
+    assert (
+        f"{report} written whole before it; {save} not written (an existing file left as it"
+        " was)" in " ".join(result.output.split())
+    ), result.output
+    assert report.is_file() and not save.exists()
+
+
+def test_a_grade_stopped_says_what_it_kept_and_removes_its_workers_temporary_files(
+    tmp_path: Path,
+) -> None:
+    from ekfviz.app.grade import GradeTask
+    from ekfviz.cli.grade import GradeRequest, _stopped
+    from ekfviz.core.params import FilterParams
+
+    task = GradeTask(name="s1.py", path=tmp_path / "s1.py", logs=((SAMPLE, None, None, None),),
+                     params=FilterParams(), timeout_s=10.0, memory_mb=None)  # fmt: skip
+    saved = tmp_path / "recs"
+    saved.mkdir()
+    (saved / ".s1.py-classic.rrd.4242.0badcafe.part").write_bytes(b"half")  # a killed worker's
+    (saved / "s1.py-classic.rrd").write_bytes(b"whole")
+    (saved / ".mine.part").write_bytes(b"not ekfviz's")
+    request = GradeRequest.__new__(GradeRequest)
+    object.__setattr__(request, "save_dir", saved)
+    said = _stopped(request, [task])
+    assert said == (
+        f"no report was written; the recordings of the submissions checked before it are in {saved}"
+    )
+    assert sorted(p.name for p in saved.iterdir()) == [".mine.part", "s1.py-classic.rrd"]

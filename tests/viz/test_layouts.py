@@ -1,0 +1,274 @@
+"""The default layout of every kind of recording, read back from the file: every entity
+with data is in some view, no view is empty, a check opens on its divergence."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from blueprints import Layout, read_layout
+from conftest import entity_rows
+from parks import make_park
+from typer.testing import CliRunner
+
+from ekfviz.cli import app
+from ekfviz.viz import check as check_viz
+from ekfviz.viz import style
+
+DATA = Path(__file__).resolve().parents[2] / "data"
+CLASSIC, TRUTH = DATA / "classic.txt", DATA / "classic_truth.json"
+LOOP, LOOP_TRUTH = DATA / "loop.txt", DATA / "loop_truth.json"
+SCANS, SCANS_TRUTH = DATA / "scans.txt", DATA / "scans_truth.json"
+PLUGINS = Path(__file__).resolve().parents[1] / "plugins" / "textbook.py"
+runner = CliRunner()
+
+
+def plugin(name: str) -> str:
+    return f"{PLUGINS}:{name}"
+
+
+def made(args: list[str], save: Path, code: int = 0) -> Layout:
+    result = runner.invoke(app, [*args, "--save", str(save)])
+    assert result.exit_code == code, result.output
+    return read_layout(save)
+
+
+@pytest.fixture(scope="module")
+def mrclam(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    directory = tmp_path_factory.mktemp("sim") / "MRCLAM_Sim"
+    result = runner.invoke(
+        app, ["simulate", "--layout", "mrclam", "-o", str(directory), "--seed", "3",
+              "--duration", "40"],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    return directory
+
+
+@pytest.fixture(scope="module")
+def park(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    folder = tmp_path_factory.mktemp("park") / "VictoriaPark"
+    folder.mkdir()
+    make_park(folder, seconds=40.0)
+    return folder
+
+
+KINDS = {
+    "classic": ["replay", str(CLASSIC), "--truth", str(TRUTH)],
+    "classic-history": ["replay", str(CLASSIC), "--truth", str(TRUTH), "--history"],
+    "classic-no-truth": ["replay", str(CLASSIC)],
+    "loop": ["replay", str(LOOP), "--truth", str(LOOP_TRUTH)],
+    "scans": ["replay", str(SCANS), "--truth", str(SCANS_TRUTH)],
+    "scans-no-truth": ["replay", str(SCANS), "--association", "nn"],
+    "compare-2": ["compare", str(CLASSIC), "--truth", str(TRUTH), "--filter", "ekf",
+                  "--filter", plugin("Textbook"), "--workers", "1"],
+    "compare-3": ["compare", str(CLASSIC), "--truth", str(TRUTH), "--filter", "ekf",
+                  "--filter", plugin("Textbook"), "--filter", plugin("Offline"), "--workers", "1"],
+    # (a short loop: the dense textbook filter takes 13 s over the bundled one's 2,000 lines)
+    "compare-4": ["compare", "SHORT_LOOP", "--filter", "ekf", "--filter", plugin("Textbook"),
+                  "--filter", plugin("Offline"), "--filter", plugin("OfflineWithPath"),
+                  "--workers", "1"],
+    "sweep": ["sweep", str(CLASSIC), "--truth", str(TRUTH), "--preset", "tuning",
+              "--workers", "1"],
+    "check-match": ["check", str(CLASSIC), "--filter", plugin("Textbook")],
+    "consistency": ["consistency", "--runs", "3", "--workers", "1"],
+}  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def short_loop(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A loop in the extended format, as the bundled one, of 300 steps and 60 landmarks
+    (the dense textbook filter of a compare is cubic in the map)."""
+    log = tmp_path_factory.mktemp("loop") / "loop.txt"
+    result = runner.invoke(
+        app, ["simulate", "--scenario", "loop", "--steps", "300", "--landmarks", "60",
+              "-o", str(log), "--truth-out", str(log.with_suffix(".json"))],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    return log
+
+
+@pytest.mark.parametrize("kind", list(KINDS))
+def test_every_entity_with_data_is_in_a_view_and_no_view_is_empty(
+    kind: str, tmp_path: Path, request: pytest.FixtureRequest
+) -> None:
+    args = KINDS[kind]
+    if "SHORT_LOOP" in args:
+        short = str(request.getfixturevalue("short_loop"))
+        args = [short if arg == "SHORT_LOOP" else arg for arg in args]
+    layout = made(args, tmp_path / f"{kind}.rrd")
+    assert layout.views and layout.data
+    assert layout.unshown() == []
+    assert layout.empty() == []
+
+
+@pytest.mark.parametrize("source", ["mrclam", "park"])
+def test_real_formats_show_everything_they_record(
+    source: str, tmp_path: Path, request: pytest.FixtureRequest
+) -> None:
+    directory: Path = request.getfixturevalue(source)
+    args = ["replay", str(directory)] + (["--robot", "1"] if source == "mrclam" else [])
+    layout = made(args, tmp_path / "run.rrd")
+    assert layout.unshown() == []
+    assert layout.empty() == []
+    if source == "park":  # the GPS error and the association counts are plotted
+        assert layout.showing("/metrics/reference/gps_rmse")
+        assert layout.showing("/metrics/association/matched")
+
+
+def test_a_recording_without_landmark_errors_has_no_landmark_error_plot(tmp_path: Path) -> None:
+    # id-less scans with truth: the landmark errors are not logged (the pairing is the
+    # association's), so neither are their plots
+    layout = made(KINDS["scans"], tmp_path / "scans.rrd")
+    names = {view.name for view in layout.views}
+    assert "Landmark error [m]" not in names and "Mahalanobis distance" not in names
+    assert "Association per scan (counts)" in names
+    with_truth = made(KINDS["classic"], tmp_path / "classic.rrd")
+    assert {"Landmark error [m]", "Mahalanobis distance"} <= {v.name for v in with_truth.views}
+
+
+def test_pose_sigma_shows_lengths_and_the_angle_apart(tmp_path: Path) -> None:
+    layout = made(KINDS["classic"], tmp_path / "classic.rrd")
+    lengths, angle = layout.view("Pose sigma x, y [m]"), layout.view("Pose sigma theta [rad]")
+    assert lengths.shown == angle.shown == {f"/{style.POSE_SIGMA}"}
+    visible = {
+        view.name: [
+            value
+            for key, fields in view.properties.items()
+            if key.endswith(f"{style.POSE_SIGMA}/visualizers") or "pose_sigma" in key
+            for name, value in fields.items()
+            if name.endswith("visible_series")
+        ]
+        for view in (lengths, angle)
+    }
+    assert visible == {
+        "Pose sigma x, y [m]": [[True, True, False]],
+        "Pose sigma theta [rad]": [[False, False, True]],
+    }
+
+
+def test_a_check_recording_opens_on_the_divergence(tmp_path: Path) -> None:
+    save = tmp_path / "check.rrd"
+    layout = made(["check", str(CLASSIC), "--filter", plugin("NoRInS")], save, code=1)
+    assert layout.unshown() == [] and layout.empty() == []
+    maps = [view for view in layout.views if view.kind == "2D" and "correlation" not in view.origin]
+    assert len(maps) == 3  # the reference, the filter, the filter at the divergence
+    for view in maps:  # the divergence is marked on every map
+        assert any(entity.endswith(f"/{check_viz.DIVERGENCE}") for entity in view.shown), view.name
+    zoom = maps[-1]
+    assert {
+        f"/filters/NoRInS/{check_viz.EXPECTED}",
+        f"/filters/NoRInS/{check_viz.GOT}",
+    } <= zoom.shown
+    assert f"/filters/NoRInS/{check_viz.EXPECTED}" not in maps[1].shown  # not over the map
+    # the ERROR line is in the log view, at the divergent event
+    (log,) = [view for view in layout.views if f"/{check_viz.LOG}" in view.shown]
+    assert log.kind == "TextLog"
+    lines = entity_rows(save, f"/{check_viz.LOG}")
+    errors = [row for row in lines if row["TextLog:level"] == ["ERROR"]]
+    assert [row["event"] for row in errors] == [2]
+    assert "landmark mean x[L2.x]" in str(errors[0]["TextLog:text"])
+    # then its values and cause, on lines of their own (no level) that the view shows whole
+    rest = [str(row["TextLog:text"]) for row in lines if row["TextLog:level"] == [""]]
+    assert {row["event"] for row in lines} == {2} and len(rest) == len(lines) - 1
+    assert "expected 2.74994, got 2.16497" in rest[0]
+    assert any("likely cause" in line for line in rest)
+    assert all(len(line) <= style.LOG_WIDTH + 8 for line in rest)  # 8: the list's quoting
+    # the time cursor: the event timeline, following to the end, which is the divergence
+    assert layout.time_panel["TimePanelBlueprint:timeline"] == ["event"]
+    assert [row["event"] for row in entity_rows(save, "/filters/NoRInS/world/robot")][-1] == 2
+    # a plot with data at every event up to the divergence, the divergent one marked
+    differences = entity_rows(save, f"/{check_viz.DIFFERENCE}")
+    assert [row["event"] for row in differences] == [0, 1, 2]
+    assert differences[-1]["Scalars:scalars"][0] > -6 > differences[0]["Scalars:scalars"][0]  # type: ignore[index]
+    (divergent,) = entity_rows(save, f"/{check_viz.DIVERGENT}")
+    assert divergent["event"] == 2
+    assert layout.showing(f"/{check_viz.DIFFERENCE}") and layout.showing(f"/{check_viz.DIVERGENT}")
+    assert layout.showing(f"/{check_viz.TABLE}")
+
+
+def test_gps_dropouts_are_gaps_not_chords() -> None:
+    import numpy as np
+
+    from ekfviz.viz.association import gps_pieces
+
+    times = np.array([0.0, 1.0, 2.0, 3.0, 30.0, 31.0, 32.5, 33.0])
+    xy = np.column_stack([times, np.zeros(8)])
+    pieces = gps_pieces(xy, times)
+    assert [piece[:, 0].tolist() for piece in pieces] == [[0, 1, 2, 3], [30, 31, 32.5, 33]]
+    assert len(gps_pieces(xy[:1], times[:1])) == 1
+    assert len(gps_pieces(xy[:4], times[:4])) == 1  # a steady track stays one piece
+
+
+def test_real_data_maps_draw_only_the_latest_first_sighting(tmp_path: Path, mrclam: Path) -> None:
+    layout = made(["replay", str(mrclam), "--robot", "1"], tmp_path / "run.rrd")
+    (world,) = [view for view in layout.views if view.name == "Map"]
+    ranged = {key for key in world.properties if key.endswith("/visualizers")}
+    assert not any(style.LANDMARK_INITIAL in key for key in ranged)
+    assert any(style.TRAJECTORY in key for key in ranged)
+    history = made(["replay", str(mrclam), "--robot", "1", "--history"], tmp_path / "h.rrd")
+    (world,) = [view for view in history.views if view.name == "Map"]
+    assert any(style.LANDMARK_INITIAL in key for key in world.properties)
+
+
+def test_info_shows_a_runs_results_and_only_the_parameters_that_applied(tmp_path: Path) -> None:
+    scans = tmp_path / "scans.rrd"
+    made(KINDS["scans"], scans)
+    shown = runner.invoke(app, ["info", str(scans)])
+    assert shown.exit_code == 0, shown.output
+    (line,) = [line for line in shown.output.splitlines() if line.startswith("association ")]
+    assert "matched" in line and "precision" in line
+    assert '"jcbb"' in shown.output  # its association's parameters: they applied
+    classic = tmp_path / "classic.rrd"
+    made(KINDS["classic"], classic)
+    shown = runner.invoke(app, ["info", str(classic)])
+    # no association parameter among the parameters (the command line shown may name
+    # anything: under pytest it is pytest's own)
+    parameters = [line.split()[0] for line in shown.output.splitlines() if line.startswith("  ")]
+    assert "sigma_x" in parameters
+    assert not {"association", "jcbb_budget", "confirm_window"} & set(parameters)
+    assert not any(line.startswith("association ") for line in shown.output.splitlines())
+
+
+def test_victoria_park_info_has_its_gps_rmse(tmp_path: Path, park: Path) -> None:
+    save = tmp_path / "park.rrd"
+    made(["replay", str(park)], save)
+    shown = runner.invoke(app, ["info", str(save), "--json"])
+    assert shown.exit_code == 0, shown.output
+    import json
+
+    results = json.loads(shown.stdout)["results"]
+    assert results["gps"]["rmse_m"] > 0 and results["association"]["matched"] > 0
+
+
+def test_close_labels_are_stacked_not_overprinted() -> None:
+    import numpy as np
+
+    from ekfviz.viz.recorder import unclutter
+
+    # three labels within one label's box of each other (MRCLAM's L6, L7, L8) and one apart;
+    # 0.05 and 0.6 make a round-off that once kept a label in place forever
+    anchors = np.array([[0.0, 0.0], [0.1, 0.05], [0.2, -0.02], [5.0, 5.0]])
+    placed = unclutter(anchors, 1.0, 0.6)
+    assert placed[3].tolist() == [5.0, 5.0]  # alone: where it was
+    assert (placed[:, 0] == anchors[:, 0]).all()  # moved down only
+    for i in range(4):
+        for j in range(i):
+            dx, dy = abs(placed[i] - placed[j])
+            assert dx >= 1.0 or dy >= 0.6, (i, j)
+    assert placed[1].tolist() == [0.1, 0.05]  # the highest stays
+    apart = np.array([[0.0, 0.0], [3.0, 0.0]])
+    assert unclutter(apart, 1.0, 0.6) is apart
+
+
+def test_labels_too_far_out_to_be_stacked_are_left_and_the_loop_ends() -> None:
+    """A filter that gives its landmarks a variance of 1e40 hangs their 3-sigma labels
+    3e20 m out, where a label's height is below the spacing of floats: moving one down
+    made no progress, and ``replay`` spun there for ever (past SIGTERM: it was in the
+    recording's finish)."""
+    import numpy as np
+
+    from ekfviz.viz.recorder import unclutter
+
+    anchors = np.array([[0.0, 3e20], [0.1, 3e20], [0.2, 3e20 + 1e5]])
+    placed = unclutter(anchors, 1.0, 0.6)  # returns (it did not)
+    assert np.isfinite(placed).all() and (placed[:, 0] == anchors[:, 0]).all()
