@@ -18,13 +18,13 @@
 5. The interpreter plus ``import rerun, numpy, typer``, which every replay pays, and the
    import of the compiled kernel.
 6. Real data (``mrclam_bench.py``): MRCLAM dataset 6, all five robots, calibrated and
-   replayed beside the defaults as the issue's check does; skipped with a note when the
+   replayed beside the defaults against the targets of real data; skipped with a note when the
    dataset is not found. ``--mrclam-only`` runs just this and replaces its section of RESULTS.md.
 7. Smoothers (``smoother_bench.py``): GTSAM's iSAM2 and the batch optimum against the EKF,
    end to end on the bundled samples; ``--smoother-only`` runs just this.
 8. Association (``association_bench.py``): the Victoria Park run end to end (time,
    landmarks, RMSE against GPS read back from the recording) and simulated id-less
-   two-lap runs with clutter judged as the hidden check is; ``--association-only`` runs
+   two-lap runs with clutter judged against the association's targets; ``--association-only`` runs
    just this.
 9. Start-up (``startup_bench.py``): replay, check, compare and consistency on the classic
    sample, each one's start-up (to its first event) and wrap-up (after its last) apart,
@@ -34,7 +34,7 @@
    10 observed), drawn as ``scaling_length.png`` and ``scaling_map.png`` beside
    RESULTS.md; ``--scaling-only`` runs just this (the 1,000,000-step run alone takes a
    few minutes; ``--quick`` leaves it out).
-11. Targets (``targets_bench.py``): issue 26's three speed targets measured together in
+11. Targets (``targets_bench.py``): the three speed targets measured together in
    one run (the classic sample against the imports, a 102,000-step log, Victoria Park);
    ``--targets-only`` runs just this.
 
@@ -382,7 +382,8 @@ def end_to_end(folder: Path, quick: bool) -> list[EndToEnd]:
     return rows
 
 
-# Recording sizes before the size work (issue 17), same commands, commit 9b3d7d7:
+# Recording sizes of an earlier ekfviz (commit 9b3d7d7, before recordings were made
+# smaller), same commands:
 # bytes of the bundled samples replayed with their truth, MB of the 100,000-step log.
 # data/loop.txt was regenerated since (seed 0, a noise header): its number is 9b3d7d7's
 # code run on the current sample (7,791,198 bytes on the sample of then).
@@ -797,7 +798,7 @@ def report(
              long.rrd_mb <= 50),
         ]  # fmt: skip
     targets += [
-        (f"{size.name}: .rrd >= 3x smaller than before",
+        (f"{size.name}: .rrd >= 3x smaller than at 9b3d7d7",
          f"{size.bytes_before / size.bytes_now:.2f}x", size.bytes_before >= 3 * size.bytes_now)
         for size in sizes
     ]  # fmt: skip
@@ -820,10 +821,10 @@ def report(
             "## Recording size",
             "",
             "`ekfviz replay LOG --truth TRUTH --save RUN.rrd` of the bundled samples, against"
-            " the same command before the size work (commit 9b3d7d7; the 100,000-step log"
-            f" gave {LONG_RRD_MB_BEFORE:.0f} MB then).",
+            " the same command in an earlier ekfviz (commit 9b3d7d7, whose recordings were"
+            f" larger: the 100,000-step log gave {LONG_RRD_MB_BEFORE:.0f} MB).",
             "",
-            "| recording | before bytes | now bytes | smaller by |",
+            "| recording | 9b3d7d7 bytes | now bytes | smaller by |",
             "|---|---:|---:|---:|",
         ]
         lines += [
@@ -900,7 +901,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument(
         "--targets-only",
         action="store_true",
-        help="only the section of issue 26's targets (classic start-up, 102,000 steps,"
+        help="only the section of the speed targets (classic start-up, 102,000 steps,"
         " Victoria Park), in one run",
     )
     parser.add_argument(
@@ -969,7 +970,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         association = association_section(Path(tmp), args.quick)
         print("start-up and wrap-up of four commands", flush=True)
         startups = startup_section(Path(tmp))
-        print("issue 26's targets in one run", flush=True)
+        print("the speed targets in one run", flush=True)
         from association_bench import find_dataset
         from targets_bench import targets_section
 

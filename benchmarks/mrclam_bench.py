@@ -137,8 +137,8 @@ def mrclam_section(folder: Path) -> str:
         rows.append(replay_row(dataset, robot, folder, calibrated=True))
     lines += [
         f"`{DATASET}` (Leung et al., IJRR 2011), all {len(robots)} robots: `ekfviz calibrate"
-        " DIR --robot R` and the replay line it prints (with `--save` and `--report`), as the"
-        " issue's check does, beside the plain replay with the defaults. Median of"
+        " DIR --robot R` and the replay line it prints (with `--save` and `--report`),"
+        " beside the plain replay with the defaults. Median of"
         f" {REPEATS} replays; end to end as a subprocess (start-up, reading, filter, logging,"
         " writing); *CPU s*: user + system time over all threads, which other load on the"
         " machine does not inflate as it does the wall time. *err*: mean landmark error in"
