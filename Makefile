@@ -1,12 +1,12 @@
 # Two commands for a fresh machine with Python 3.10+ and make:
 #   make demo   replay the bundled sample and write recordings/classic.rrd
-#   make test   ruff, mypy and pytest
+#   make test   ruff, mypy, pytest and the documentation site
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 RECORDING := recordings/classic.rrd
 
-.PHONY: demo test bench sample clean screenshots
+.PHONY: demo test bench sample clean screenshots docs
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -54,13 +54,14 @@ test: $(VENV)/.installed-dev $(VENV)/.compiled $(NUMPY1)
 	$(BIN)/ruff format --check .
 	$(BIN)/mypy
 	$(BIN)/pytest
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --quiet --site-dir site
 
 # Regenerate the bundled sample (a test checks data/ matches this).
 sample: $(VENV)/.installed $(VENV)/.compiled
 	$(BIN)/python -m ekfviz.samples data
 
 clean:
-	rm -rf $(VENV) .venv-numpy1 .mypy_cache .ruff_cache .pytest_cache .hypothesis build
+	rm -rf $(VENV) .venv-numpy1 .mypy_cache .ruff_cache .pytest_cache .hypothesis build site
 	rm -f ekfviz/filters/_kernel*.so ekfviz/core/_rows*.so ekfviz/io/_numbers*.so \
 		ekfviz/association/_search*.so
 
@@ -77,3 +78,8 @@ bench: $(VENV)/.installed-dev $(VENV)/.compiled
 # MRCLAM=PATH/MRCLAM_Dataset6 VICTORIA=PATH/VictoriaPark (else a simulated MRCLAM run).
 screenshots: $(VENV)/.installed-dev $(VENV)/.compiled
 	$(BIN)/python docs/screenshots.py $(if $(MRCLAM),--mrclam $(MRCLAM)) $(if $(VICTORIA),--victoria $(VICTORIA))
+
+# The documentation site, served at http://127.0.0.1:8000 while its sources change (make
+# test builds it into site/ with --strict: a broken link or a missing page fails)
+docs: $(VENV)/.installed-dev
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs serve
