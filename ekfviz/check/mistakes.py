@@ -746,9 +746,9 @@ def explain_update(
     return _choose(results, found)
 
 
-# the update mistakes added to the catalogue after the first ones (issue: real students'
-# hand-ins): tried only where they change the event's result, and one at a time (beside
-# those already found) but in the deep search
+# the update mistakes met in real students' hand-ins beside the textbook ones: tried only
+# where they change the event's result, and one at a time (beside those already found)
+# but in the deep search
 _PRUNABLE = frozenset({
     "arctan_bearing", "bearing_not_relative_to_heading", "innovation_wrapped_to_0_2pi",
     "atan2_arguments_swapped", "predicted_measurement_swapped",
