@@ -16,8 +16,6 @@ import pytest
 import students
 from conftest import entity_rows
 
-from ekfviz.check.mistakes import CATALOGUE
-
 ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT / "data"
 # an interpreter with numpy 1.23 (make test builds it: .venv-numpy1)
@@ -297,12 +295,6 @@ def test_a_submission_neither_file_nor_folder_is_named_as_what_it_is(tmp_path: P
     # as grade gives it: the link's target, named as the entry of the class's folder
     with pytest.raises(NoModule, match=r"^gone is unreadable \(No such file or directory\)"):
         module_of(dangling.resolve(), "gone")
-
-
-def test_the_catalogue_is_in_the_readme() -> None:
-    readme = (ROOT / "README.md").read_text()
-    for cause in CATALOGUE:
-        assert f"`{cause.id}`" in readme, cause.id
 
 
 def test_the_battery_is_the_bundled_data(tmp_path: Path) -> None:
