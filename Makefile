@@ -73,8 +73,8 @@ clean:
 bench: $(VENV)/.installed-dev $(VENV)/.compiled
 	$(BIN)/python benchmarks/bench.py $(BENCH_ARGS)
 
-# The README's screenshots from the current layouts, in the real viewer off screen (not part
-# of make test; needs Xvfb without a display). With the datasets: make screenshots
+# The documentation's screenshots from the current layouts, in the real viewer off screen (not
+# part of make test; needs Xvfb without a display). With the datasets: make screenshots
 # MRCLAM=PATH/MRCLAM_Dataset6 VICTORIA=PATH/VictoriaPark (else a simulated MRCLAM run).
 screenshots: $(VENV)/.installed-dev $(VENV)/.compiled
 	$(BIN)/python docs/screenshots.py $(if $(MRCLAM),--mrclam $(MRCLAM)) $(if $(VICTORIA),--victoria $(VICTORIA))

@@ -1,4 +1,4 @@
-"""Regenerate the README's screenshots from the current default layouts (``make screenshots``).
+"""Regenerate the documentation's screenshots from the current layouts (``make screenshots``).
 
     .venv/bin/python docs/screenshots.py [--mrclam DIR] [--victoria DIR] [--out docs]
 

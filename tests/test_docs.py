@@ -180,6 +180,20 @@ def test_the_readme_sets_up_with_the_two_commands_the_makefile_has() -> None:
         assert re.search(rf"^{target}:", makefile, re.MULTILINE), target
 
 
+def test_every_section_the_readme_links_is_a_heading_of_its_page() -> None:
+    from markdown.extensions.toc import slugify  # as the site names its headings
+
+    text = README.read_text(encoding="utf-8")
+    anchors = re.findall(r"\]\((docs/[\w-]+\.md)#([\w-]+)\)", text)
+    assert len(anchors) >= 8
+    missing = []
+    for page, anchor in anchors:
+        headings = re.findall(r"^#+ (.+)$", (ROOT / page).read_text(encoding="utf-8"), re.M)
+        if anchor not in {slugify(heading, "-") for heading in headings}:
+            missing.append(f"{page}#{anchor}")
+    assert missing == []
+
+
 def test_every_site_page_the_readme_links_is_in_the_site() -> None:
     text = README.read_text(encoding="utf-8")
     nav = (ROOT / "mkdocs.yml").read_text(encoding="utf-8")
