@@ -186,6 +186,15 @@ FilterMemory = Annotated[
         show_default=False,
     ),
 ]
+NoSandbox = Annotated[
+    bool,
+    typer.Option(
+        "--no-sandbox",
+        help="Run user code without the sandbox (bubblewrap), as you, with your files and"
+        " network: only for code you trust, where the sandbox cannot start.",
+        rich_help_panel=USER_FILTERS,
+    ),
+]
 Workers = Annotated[
     int | None, _option("Processes to use \\[default: one per core].", min=1, show_default=False)
 ]
@@ -329,11 +338,13 @@ def worker_options(
     echo: bool = True,
     *,
     timeout_option: str = "--filter-timeout",
+    sandbox: bool = True,
 ) -> Any:
     """How a user's filter runs (:class:`~ekfviz.sandbox.host.WorkerOptions`), the
     interpreter checked first.
 
     :param timeout_option: how the time limit was given, for the message of a bad one
+    :param sandbox: in the sandbox (else ``--no-sandbox`` was given)
     """
     from ekfviz.sandbox.host import WorkerOptions
 
@@ -349,6 +360,7 @@ def worker_options(
         timeout_s=None if math.isinf(timeout_s) else timeout_s,
         memory_mb=memory_mb,
         echo=echo,
+        sandbox=sandbox,
     )
 
 
@@ -572,10 +584,12 @@ class UserFilter(OptionGroup):
     python: PythonOption = None
     filter_timeout: FilterTimeout = DEFAULT_FILTER_TIMEOUT_S
     filter_memory: FilterMemory = None
+    no_sandbox: NoSandbox = False
 
     def worker(self) -> Any:
         """The :class:`~ekfviz.sandbox.host.WorkerOptions`, the interpreter checked."""
-        return worker_options(self.python, self.filter_timeout, self.filter_memory)
+        return worker_options(self.python, self.filter_timeout, self.filter_memory,
+                              sandbox=not self.no_sandbox)  # fmt: skip
 
 
 @dataclass(frozen=True, slots=True)

@@ -12,7 +12,9 @@
 - any of these as ``LABEL=SPEC``: the same, called LABEL in tables and recordings.
 
 The built-in and registered filters run in ekfviz's process; a user's code runs in a
-worker process of its own (:mod:`ekfviz.sandbox.host`), under ``--python`` if given.
+worker process of its own (:mod:`ekfviz.sandbox.host`), in a sandbox that shows it a
+private copy of its file's folder (its Python files), or of the top-level package of its
+module, under ``--python`` if given.
 Every class is constructed as ``Class(params)`` and follows the
 :class:`~ekfviz.filters.protocol.SlamFilter` protocol. Numpy only: nothing here imports a
 backend until it is asked for.
@@ -22,7 +24,9 @@ from __future__ import annotations
 
 import hashlib
 import importlib
+import importlib.machinery
 import importlib.util
+import os
 import re
 import sys
 from dataclasses import dataclass, field
@@ -31,6 +35,7 @@ from pathlib import Path
 from ekfviz.core.tables import utf8
 from ekfviz.filters.plugged import FilterFactory
 from ekfviz.sandbox.host import Target, WorkerFactory, WorkerFault, WorkerOptions
+from ekfviz.sandbox.submission import Submission
 
 BUILTIN = "ekf"
 # name -> ("module:Class", the extra that provides its dependency, or None)
@@ -133,7 +138,7 @@ def target_of(text: str) -> Target:
     if sep and where and name.isidentifier():
         if where.endswith(".py") or "/" in where or "\\" in where:
             return Target(_python_file(Path(where), text), None, name)
-        return Target(None, where, name)
+        return _module_target(where, name, text)
     if text.endswith(".py") or Path(text).is_dir():
         return Target(_python_file(Path(text), text), None, None)
     names = ", ".join(REGISTRY)
@@ -141,6 +146,36 @@ def target_of(text: str) -> Target:
         f"--filter {text}: expected one of {names}, PATH.py (a course module),"
         " PATH.py:ClassName or package.module:ClassName"
     )
+
+
+def _module_target(module: str, name: str, text: str) -> Target:
+    """A class of an importable module: its top-level package (or module) found where
+    Python would import it from, without importing anything of it, and shown to the
+    worker as the submission.
+
+    :raises FilterSpecError: nowhere to be found, or one of ekfviz's own modules
+    """
+    top = module.partition(".")[0]
+    search = [os.getcwd(), *(p for p in sys.path if p)]
+    try:
+        found = importlib.machinery.PathFinder.find_spec(top, search)
+    except (ImportError, ValueError):
+        found = None
+    if found is None:
+        raise FilterSpecError(f"--filter {text}: No module named {top!r} (on Python's path)")
+    locations = list(found.submodule_search_locations or [])
+    here = str(Path(__file__).resolve().parents[1])
+    place = locations[0] if locations else os.path.dirname(str(found.origin))
+    if os.path.realpath(place).startswith(here):
+        raise FilterSpecError(
+            f"--filter {text}: one of ekfviz's own modules is not a user's filter: --filter"
+            f" {BUILTIN} runs the built-in, in ekfviz's process"
+        )
+    if locations:  # a package: its folder, shown in the folder that holds it
+        return Target(None, module, name, os.path.dirname(place), Submission(place))
+    origin = str(found.origin)
+    only = Submission(os.path.dirname(origin), only=os.path.basename(origin))
+    return Target(None, module, name, os.path.dirname(origin), only)
 
 
 def _python_file(path: Path, text: str) -> str:
@@ -198,6 +233,9 @@ def load_in_process(text: str) -> FilterFactory:
     """
     if text in REGISTRY:
         return load_filter(text)
+    where, sep, name = text.rpartition(":")
+    if sep and where and name.isidentifier() and not where.endswith(".py") and "/" not in where:
+        return _class_in(_import(where), name, text)  # (a module's: imported as it is)
     target = target_of(text)
     if target.name is None:
         raise FilterSpecError(f"--filter {text}: expected PATH.py:ClassName")

@@ -44,7 +44,19 @@ import traceback
 import types
 from typing import Any, Callable, Dict, List, Optional, Tuple
 
-import numpy as np
+
+def _sandbox_paths_first() -> None:
+    """In a sandbox, the interpreter runs without its site-packages (``-S``): the folder
+    that holds numpy there (the settings' ``sys_path``) goes first on ``sys.path``, before
+    numpy is imported below."""
+    if len(sys.argv) > 1 and sys.argv[1].startswith("{"):
+        for entry in reversed(json.loads(sys.argv[1]).get("sys_path", [])):
+            sys.path.insert(0, entry)
+
+
+_sandbox_paths_first()
+
+import numpy as np  # noqa: E402 (after the sandbox's sys.path)
 
 PROTOCOL = 1
 COURSE_FUNCTIONS = ("init_landmarks", "predict", "update")
@@ -1005,6 +1017,33 @@ def _die_with_parent() -> None:
 GUARD_IGNORES = ("SIGTERM", "SIGINT", "SIGHUP", "SIGQUIT", "SIGUSR1", "SIGUSR2", "SIGALRM")
 
 
+def _undumpable() -> None:
+    """No other process of the same user may ptrace this one or read its memory
+    (``PR_SET_DUMPABLE`` 0); also no core file."""
+    try:
+        import ctypes
+
+        ctypes.CDLL(None).prctl(4, 0, 0, 0, 0)  # PR_SET_DUMPABLE
+    except Exception:
+        pass
+
+
+def _no_new_processes(program: bytes) -> None:
+    """Load a seccomp filter (classic BPF, built by ekfviz: no new process, threads
+    allowed) on this process and all it starts; raises where the kernel refuses it."""
+    import ctypes
+
+    class Filter(ctypes.Structure):
+        _fields_ = [("len", ctypes.c_ushort), ("filter", ctypes.c_char_p)]
+
+    libc = ctypes.CDLL(None, use_errno=True)
+    program_buffer = ctypes.create_string_buffer(program, len(program))
+    prog = Filter(len(program) // 8, ctypes.cast(program_buffer, ctypes.c_char_p))
+    # PR_SET_NO_NEW_PRIVS 38, PR_SET_SECCOMP 22 with SECCOMP_MODE_FILTER 2
+    if libc.prctl(38, 1, 0, 0, 0) != 0 or libc.prctl(22, 2, ctypes.byref(prog), 0, 0) != 0:
+        raise OSError(ctypes.get_errno(), "seccomp: " + os.strerror(ctypes.get_errno()))
+
+
 def _guarded(channels: List[Any]) -> None:
     """Serve in a child process, this one (the guard) waiting for it, then ending as it
     ended (its exit code, or the signal that killed it), for ekfviz to say.
@@ -1026,6 +1065,7 @@ def _guarded(channels: List[Any]) -> None:
     if child == 0:
         _die_with_parent()  # with the guard (which dies with ekfviz)
         return
+    _undumpable()  # (in a sandbox, the filter's only neighbour: nothing to ptrace or read)
     for name in GUARD_IGNORES:
         if hasattr(signal, name):
             signal.signal(getattr(signal, name), signal.SIG_IGN)
@@ -1053,13 +1093,79 @@ def _guarded(channels: List[Any]) -> None:
     os._exit(os.WEXITSTATUS(status) if os.WIFEXITED(status) else 1)
 
 
+def probe() -> Dict[str, Any]:
+    """What this interpreter needs to run the worker, for its sandbox (``--probe``): its
+    executable, prefixes, standard library, ``sys.path`` and site-packages, numpy's folder,
+    the files it maps once numpy and the standard library's compiled modules are loaded
+    (its shared libraries), and where ekfviz would be imported from (to be hidden)."""
+    import site
+    import sysconfig
+
+    for name in ("ctypes", "decimal", "hashlib", "zlib", "bz2", "lzma", "math", "select"):
+        try:
+            importlib.import_module(name)
+        except Exception:  # (an interpreter built without it: not needed then)
+            pass
+    maps = set()
+    try:
+        with open("/proc/self/maps") as handle:
+            for line in handle:
+                fields = line.split(None, 5)
+                if len(fields) == 6 and fields[5].startswith("/"):
+                    maps.add(fields[5].strip())
+    except OSError:
+        pass
+    sites = list(getattr(site, "getsitepackages", lambda: [])())
+    user_site = getattr(site, "getusersitepackages", lambda: "")()
+    paths = sysconfig.get_paths()
+    base = getattr(sys, "base_prefix", sys.prefix)
+    for key in ("purelib", "platlib"):  # the base interpreter's own, beside a venv's
+        sites.append(sysconfig.get_paths(vars={"base": base, "platbase": base})[key])
+    ekfviz: List[str] = []
+    try:
+        found = importlib.util.find_spec("ekfviz")
+    except (ImportError, ValueError):
+        found = None
+    if found is not None:
+        ekfviz = list(found.submodule_search_locations or [])
+        if found.origin and not ekfviz:
+            ekfviz = [os.path.dirname(found.origin)]
+    return {
+        "executable": sys.executable,
+        "prefix": sys.prefix,
+        "base_prefix": getattr(sys, "base_prefix", sys.prefix),
+        "stdlib": [paths.get("stdlib", ""), paths.get("platstdlib", "")],
+        "path": [p for p in sys.path if p],
+        "site": sites + ([user_site] if user_site else []),
+        "numpy": os.path.dirname(os.path.abspath(np.__file__)),
+        "numpy_version": np.__version__,
+        "maps": sorted(maps),
+        "ekfviz": ekfviz,
+    }
+
+
+def _no_core_dumps() -> None:
+    """No core file of the worker: a crash is said by its signal, and its memory (the
+    filter's) is nobody's to keep."""
+    try:
+        import resource
+
+        resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
+    except (ImportError, ValueError, OSError):
+        pass
+
+
 def main() -> None:
+    if sys.argv[1:] == ["--probe"]:
+        sys.stdout.write(json.dumps(probe()))
+        return
     # the script's own folder (ekfviz/filters) must not shadow the user's imports
     here = os.path.dirname(os.path.abspath(__file__))
     if sys.path and os.path.abspath(sys.path[0] or ".") == here:
         del sys.path[0]
     options = json.loads(sys.argv[1]) if len(sys.argv) > 1 else {}
     _die_with_parent()
+    _no_core_dumps()
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # ekfviz handles Ctrl-C and ends this
     memory = options.get("memory_bytes")
     if memory:
@@ -1083,6 +1189,8 @@ def main() -> None:
     builtins.input = _no_input
     sys.stdout = io.TextIOWrapper(os.fdopen(1, "wb", closefd=False), line_buffering=True)
     _guarded([commands, answers])
+    if options.get("seccomp"):  # the sandbox's bound: the filter starts no process
+        _no_new_processes(bytes.fromhex(options["seccomp"]))
     try:
         Worker(commands, answers).serve()
     finally:  # closed, not left to the garbage collector (a ResourceWarning each, which

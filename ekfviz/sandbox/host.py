@@ -3,8 +3,11 @@
 The filter's code runs in ``child.py`` (beside this file) under the interpreter of
 ``--python`` (ekfviz's own by default), which needs only the standard library and numpy:
 its imports, globals, ``matplotlib.use``, prints, ``sys.exit``, crashes and hangs touch
-nothing of ekfviz's. What it prints is captured (never on ekfviz's stdout); one call is
-bounded by ``timeout_s``; its address space by ``memory_mb``. Its state crosses as raw
+nothing of ekfviz's. The worker starts in a sandbox (:mod:`.bwrap`: no network, no file of
+the caller's but a private copy of the submission, :mod:`.submission`) unless
+``WorkerOptions.sandbox`` is off; this module is the only place that starts one. What it
+prints is captured (never on ekfviz's stdout) and shown escaped (:mod:`.text`); one call
+is bounded by ``timeout_s``; its address space by ``memory_mb``. Its state crosses as raw
 float64 buffers with their shapes (see ``child.py``), never as numpy pickles.
 
 :class:`RemoteFilter` is the filter protocol (:class:`~ekfviz.filters.protocol.SlamFilter`)
@@ -39,6 +42,9 @@ from ekfviz.core.params import FilterParams
 from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.filters.plugged import PluginError
 from ekfviz.filters.protocol import Capabilities
+from ekfviz.sandbox import bwrap
+from ekfviz.sandbox.submission import Submission, SubmissionRefused, copy, remove, survey
+from ekfviz.sandbox.text import printable
 
 WORKER_SCRIPT = Path(__file__).with_name("child.py")
 DEFAULT_TIMEOUT_S = 60.0
@@ -65,7 +71,9 @@ class WorkerFault(PluginError):
 
     :param kind: ``raised`` (an exception), ``fault`` (a wrong shape or value), ``exit``
         (``sys.exit``), ``timeout``, ``memory``, ``crashed`` (the process died), ``start``
-        (the interpreter or its numpy cannot run the worker)
+        (the interpreter, its numpy or the sandbox cannot run the worker: ekfviz's side),
+        ``refused`` (a submission not copied into the sandbox: over a bound, a link
+        leading out)
     :param user_traceback: the filter's own traceback, for ``--debug``
     """
 
@@ -85,12 +93,18 @@ class WorkerOptions:
     :param python: the interpreter (None: ekfviz's own)
     :param timeout_s: the longest one call may take (None: no bound)
     :param memory_mb: the worker's address-space limit (None: none)
-    :param clean_env: start it without the caller's environment variables
-    :param cwd: its working directory (None: the caller's)
+    :param clean_env: without the sandbox, start it without the caller's environment
+        variables (in the sandbox it has none of them)
+    :param cwd: without the sandbox, its working directory (None: the caller's; in the
+        sandbox, its private /tmp)
     :param echo: what it prints goes to ekfviz's stderr as it comes, prefixed by the
         filter's name (else it is only kept, see :attr:`WorkerProcess.output`)
     :param deadline: a time (``time.time()``) by which every call must be done, the
         bound of a whole submission in ``grade`` (None: none)
+    :param sandbox: start it in the sandbox (:mod:`.bwrap`); off: as the caller, with the
+        caller's files and network (``--no-sandbox``)
+    :param submission: what of the caller's files it sees (None: the filter file's
+        folder, its Python files)
     """
 
     python: str | None = None
@@ -100,6 +114,8 @@ class WorkerOptions:
     cwd: str | None = None
     echo: bool = True
     deadline: float | None = None
+    sandbox: bool = True
+    submission: Submission | None = None
 
 
 @dataclass
@@ -142,7 +158,9 @@ class WorkerProcess:
     :raises WorkerFault: the interpreter cannot start the worker (kind ``start``)
     """
 
-    def __init__(self, options: WorkerOptions, label: str) -> None:
+    def __init__(
+        self, options: WorkerOptions, label: str, mounts: Sequence[bwrap.Mount] = ()
+    ) -> None:
         self.options = options
         self.label = label
         self.output = Output()
@@ -151,17 +169,15 @@ class WorkerProcess:
         settings: dict[str, object] = {}
         if options.memory_mb:
             settings["memory_bytes"] = int(options.memory_mb) * (1 << 20)
-        env = _clean_env(options.cwd) if options.clean_env else dict(os.environ)
-        env["PYTHONUNBUFFERED"] = "1"
-        env["PYTHONDONTWRITEBYTECODE"] = "1"  # no __pycache__ left in a submission's folder
-        env.setdefault("MPLBACKEND", "Agg")
+        launch = _sandboxed(options, mounts, settings) if options.sandbox else _plain(options)
+        argv, env, cwd = launch
         try:
             self.process = subprocess.Popen(
-                [python, str(WORKER_SCRIPT), json.dumps(settings)],
+                argv,
                 stdin=subprocess.PIPE,
                 stdout=subprocess.PIPE,
                 stderr=subprocess.PIPE,
-                cwd=options.cwd,
+                cwd=cwd,
                 env=env,
                 start_new_session=True,  # Ctrl-C reaches ekfviz, which ends the worker
             )
@@ -192,10 +208,9 @@ class WorkerProcess:
             if error.kind == "timeout" and options.deadline is not None:  # a grade's time
                 raise WorkerFault(f"its time ran out before its worker started: {error}",
                                   "timeout") from None  # fmt: skip
+            needs = "" if options.sandbox else " (it needs Python >= 3.8 with numpy >= 1.17)"
             raise WorkerFault(
-                f"--python {python}: the filter's worker did not start (it needs Python >= 3.8"
-                f" with numpy >= 1.17): {error}",
-                "start",
+                f"--python {python}: the filter's worker did not start{needs}: {error}", "start"
             ) from None
         self.python_version = str(hello.get("python"))
         self.numpy_version = str(hello.get("numpy"))
@@ -242,7 +257,7 @@ class WorkerProcess:
 
     def _line(self, kept: bytes, size: int) -> None:
         """One line the worker printed: its start ``kept`` and its whole ``size``."""
-        line = kept.decode("utf-8", "replace").rstrip("\n")
+        line = printable(kept.decode("utf-8", "replace").rstrip("\n"))
         if size > len(kept):
             line += f" ... ({size:,} bytes)"
         with self._echo_lock:
@@ -340,7 +355,7 @@ class WorkerProcess:
             received.append(np.frombuffer(buffer, dtype=dtype).reshape(shape))
         if not answer.get("ok"):
             kind = str(answer.get("kind", "raised"))
-            message = str(answer.get("message"))
+            message = printable(str(answer.get("message")))
             if "inhomogeneous" in message and _version(self.numpy_version) >= (1, 24):
                 message += (
                     f" (this code builds a ragged array, which numpy {self.numpy_version}"
@@ -355,7 +370,9 @@ class WorkerProcess:
                     " .item()), or run it with --python PATH, an interpreter of an"
                     " environment with numpy < 2)"
                 )
-            raise WorkerFault(message, kind, str(answer.get("traceback", "")))
+            if kind not in _CHILD_KINDS:  # (what the worker may say; the rest is ekfviz's)
+                kind = "raised"
+            raise WorkerFault(message, kind, printable(str(answer.get("traceback", ""))))
         return answer, received
 
     def _read(
@@ -411,6 +428,8 @@ class WorkerProcess:
             code = self.process.wait()
         self._reader.join(timeout=1)
         last = self.output.lines[-1] if self.output.lines else ""
+        if self.options.sandbox and 128 < code < 128 + 65:  # bwrap: 128 + the signal
+            code = 128 - code
         if code < 0:
             name = _signal_name(-code)
             why, kind = f"was killed by {name}", "crashed"
@@ -495,6 +514,42 @@ def _widen_pipe(fd: int) -> None:
         pass
 
 
+# the kinds of failure a worker may report of the user's code (the others are ekfviz's)
+_CHILD_KINDS = frozenset(("raised", "fault", "exit", "memory"))
+Launch = tuple[list[str], dict[str, str], str | None]
+
+
+def _plain(options: WorkerOptions) -> Launch:
+    """The worker's command line without the sandbox: (argv, environment, working
+    directory)."""
+    env = _clean_env(options.cwd) if options.clean_env else dict(os.environ)
+    env["PYTHONUNBUFFERED"] = "1"
+    env["PYTHONDONTWRITEBYTECODE"] = "1"  # no __pycache__ left in a submission's folder
+    env.setdefault("MPLBACKEND", "Agg")
+    settings = {"memory_bytes": options.memory_mb * (1 << 20)} if options.memory_mb else {}
+    python = options.python or sys.executable
+    return [python, str(WORKER_SCRIPT), json.dumps(settings)], env, options.cwd
+
+
+def _sandboxed(
+    options: WorkerOptions, mounts: Sequence[bwrap.Mount], settings: dict[str, object]
+) -> Launch:
+    """The worker's command line in the sandbox, its seccomp program in its settings.
+
+    :raises WorkerFault: the sandbox cannot start here (kind ``start``)
+    """
+    try:
+        view = bwrap.interpreter_view(options.python)
+        bwrap.find_bwrap()
+    except bwrap.SandboxUnavailable as error:
+        raise WorkerFault(str(error), "start") from None
+    program = bwrap.seccomp_program()
+    settings = {**settings, "sys_path": list(view.sys_path),
+                "seccomp": "" if program is None else program.hex()}  # fmt: skip
+    argv = bwrap.command(view, mounts, json.dumps(settings))
+    return argv, dict(bwrap.ENVIRONMENT), "/"
+
+
 def _clean_env(cwd: str | None) -> dict[str, str]:
     """An environment without the caller's variables: a PATH, a locale, a home of its own."""
     home = cwd or tempfile.gettempdir()
@@ -525,11 +580,26 @@ def _version(text: str) -> tuple[int, int]:
 @dataclass(frozen=True, slots=True)
 class Target:
     """What the worker loads: a file (``path``) or an importable ``module``, and the class
-    ``name`` in it (None: a course module of functions)."""
+    ``name`` in it (None: a course module of functions).
+
+    :param folder: first on the worker's ``sys.path`` (None: the file's folder, else the
+        working directory)
+    :param submission: what the sandbox shows of the caller's files (None: the file's
+        folder, its Python files)
+    """
 
     path: str | None
     module: str | None
     name: str | None
+    folder: str | None = None
+    submission: Submission | None = None
+
+    @property
+    def import_folder(self) -> str:
+        """The folder the worker imports the user's module beside."""
+        if self.folder:
+            return self.folder
+        return os.path.dirname(os.path.abspath(self.path)) if self.path else os.getcwd()
 
     def describe(self) -> str:
         where = self.path or self.module or "?"
@@ -542,10 +612,16 @@ class LoadedWorker:
     :raises WorkerFault: the module cannot be imported, or lacks what it needs
     """
 
-    def __init__(self, target: Target, options: WorkerOptions, label: str) -> None:
-        self.process = WorkerProcess(options, label)
+    def __init__(
+        self,
+        target: Target,
+        options: WorkerOptions,
+        label: str,
+        mounts: Sequence[bwrap.Mount] = (),
+    ) -> None:
+        self.process = WorkerProcess(options, label, mounts)
         self.target = target
-        sys_path = [str(Path(target.path).resolve().parent)] if target.path else [os.getcwd()]
+        sys_path = [target.import_folder]
         header = {"op": "load", "path": target.path, "module": target.module,
                   "name": target.name, "sys_path": sys_path}  # fmt: skip
         try:
@@ -641,14 +717,20 @@ class WorkerFactory:
         self.target = target
         self.options = options
         self.label = label
-        self._spare: LoadedWorker | None = LoadedWorker(target, options, label)
-        self.style = self._spare.style
+        self.mounts = _private_copy(target, options)
+        self._removal = weakref.finalize(self, _remove_copies, self.mounts)
         self._made: list[LoadedWorker] = []  # the workers of the filters made, to end them
+        try:
+            self._spare: LoadedWorker | None = LoadedWorker(target, options, label, self.mounts)
+        except BaseException:
+            self._removal()
+            raise
+        self.style = self._spare.style
 
     def __call__(self, params: FilterParams) -> RemoteFilter:
         loaded, self._spare = self._spare, None
         if loaded is None or loaded.process.process.poll() is not None:
-            loaded = LoadedWorker(self.target, self.options, self.label)
+            loaded = LoadedWorker(self.target, self.options, self.label, self.mounts)
         self._made.append(loaded)
         return RemoteFilter(loaded, params)
 
@@ -662,3 +744,40 @@ class WorkerFactory:
         for loaded in self._made:
             loaded.process.close()
         self._made.clear()
+        self._removal()
+
+
+def submission_of(target: Target, options: WorkerOptions) -> Submission | None:
+    """What of the caller's files the sandbox shows the worker: the options' choice
+    (``grade``: the submission), else the target's, else a file's folder (its Python
+    files); None: nothing."""
+    if options.submission is not None:
+        return options.submission
+    if target.submission is not None:
+        return target.submission
+    if target.path is not None:
+        return Submission(os.path.dirname(os.path.abspath(target.path)), python_only=True)
+    return None
+
+
+def _private_copy(target: Target, options: WorkerOptions) -> tuple[bwrap.Mount, ...]:
+    """The private copy of the submission a sandboxed worker sees, as its mount (none
+    without the sandbox).
+
+    :raises WorkerFault: the submission is not copied (kind ``refused``)
+    """
+    submission = submission_of(target, options) if options.sandbox else None
+    if submission is None:
+        return ()
+    try:
+        folder = copy(submission, survey(submission))
+    except SubmissionRefused as error:
+        raise WorkerFault(printable(str(error)), "refused") from None
+    except OSError as error:  # (ekfviz's side: its temporary folder)
+        raise WorkerFault(f"the submission could not be copied: {error}", "start") from None
+    return (bwrap.Mount(folder, submission.root),)
+
+
+def _remove_copies(mounts: Sequence[bwrap.Mount]) -> None:
+    for mount in mounts:
+        remove(mount.source)

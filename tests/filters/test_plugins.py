@@ -355,9 +355,13 @@ def test_a_filter_that_cannot_be_loaded_is_one_line(
 
 def test_a_plugin_in_a_package_module() -> None:
     assert load_in_process("ekfviz.filters.ekf:EkfSlam").__name__ == "EkfSlam"
-    # through --filter, a module's class runs in a worker like a file's
-    remote = load_filter("ekfviz.filters.ekf:EkfSlam")(FilterParams())
+    # through --filter, a module's class runs in a worker like a file's: its top-level
+    # package (tests/plugins, on the tests' path) is what its sandbox shows
+    remote = load_filter("plugins.textbook:Textbook")(FilterParams())
     assert np.allclose(np.asarray(remote.x), [0.0, 0.0, 0.0])
+    # ekfviz's own modules are no user's filter: the built-in runs in process
+    with pytest.raises(FilterSpecError, match="one of ekfviz's own modules"):
+        load_filter("ekfviz.filters.ekf:EkfSlam")
 
 
 # -- compare and sweep ---------------------------------------------------------------------

@@ -61,12 +61,17 @@ def test_a_helper_process_in_a_session_of_its_own_does_not_hold_the_run(tmp_path
     )
     try:
         result = ekfviz("replay", str(SAMPLE), "--filter", spec, "--save", "run.rrd",
-                        cwd=tmp_path, timeout=60)  # fmt: skip
+                        "--no-sandbox", cwd=tmp_path, timeout=60)  # fmt: skip
         assert result.returncode == 0, result.stderr
         assert (tmp_path / "run.rrd").stat().st_size > 0
     finally:
         pid = int((tmp_path / "helper.pid").read_text())
         os.kill(pid, signal.SIGKILL)
+    # in the sandbox no helper starts (and its pid file would be nowhere of the caller's)
+    (tmp_path / "helper.pid").unlink()
+    stderr = refused(spec, tmp_path)
+    assert "PermissionError: [Errno 1] Operation not permitted" in stderr
+    assert not (tmp_path / "helper.pid").exists()
 
 
 def test_a_recording_s_temporary_file_removed_by_the_filter_is_one_line(tmp_path: Path) -> None:
@@ -85,6 +90,10 @@ def test_a_recording_s_temporary_file_removed_by_the_filter_is_one_line(tmp_path
         "        super().predict(d, alpha)\n",
     )
     result = ekfviz("replay", str(SAMPLE), "--filter", spec, "--save", "keep.rrd", cwd=tmp_path)
+    assert result.returncode == 0, result.stderr  # in the sandbox it sees none of the folder
+    (tmp_path / "keep.rrd").unlink()
+    result = ekfviz("replay", str(SAMPLE), "--filter", spec, "--save", "keep.rrd",
+                    "--no-sandbox", cwd=tmp_path)  # fmt: skip
     assert result.returncode == 2, result.stderr
     assert "Traceback" not in result.stderr
     (line,) = result.stderr.strip().splitlines()
