@@ -17,7 +17,14 @@ A study stops at once when interrupted: on any exception while it waits (Ctrl-C,
 SIGTERM, a run that failed) the runs still queued are cancelled and the running ones
 stopped, instead of waiting for every one as leaving a process pool's ``with`` does.
 Local workers ignore SIGINT, which a terminal sends to the whole process group: the
-command stops them itself, so that a worker never prints a traceback of its own.
+command stops them itself, so that a worker never prints a traceback of its own; they
+die with the command (Linux), even one killed with SIGKILL.
+
+A process that dies under a run (the OOM killer, a crash of a compiled library) breaks
+a local pool: with ``lost`` given, the runs it broke are run again, each alone in a pool
+of its own, and one that breaks that one too is ``lost(item, why)`` as its result; the
+others go on. On a Dask cluster, a task whose workers died (``KilledWorker``) is likewise
+``lost``.
 """
 
 from __future__ import annotations
@@ -26,7 +33,8 @@ import contextlib
 import enum
 import os
 import signal
-from collections.abc import Callable, Sequence
+import sys
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
@@ -56,6 +64,7 @@ class Executor(Protocol):
         fn: Callable[[T], R],
         items: Sequence[T],
         done: Callable[[R], None] | None = None,
+        lost: Callable[[T, str], R] | None = None,
     ) -> list[R]: ...
 
 
@@ -70,6 +79,7 @@ class LocalExecutor:
         fn: Callable[[T], R],
         items: Sequence[T],
         done: Callable[[R], None] | None = None,
+        lost: Callable[[T, str], R] | None = None,
     ) -> list[R]:
         workers = min(len(items), self.workers or os.cpu_count() or 1)
         if workers <= 1:
@@ -79,18 +89,50 @@ class LocalExecutor:
                 if done is not None:
                     done(results[-1])
             return results
-        from concurrent.futures import ProcessPoolExecutor  # not at start-up: 30 ms
+        found: dict[int, R] = {}
+        broken = _pooled(fn, items, range(len(items)), workers, found, done)
+        if broken and lost is None:
+            from concurrent.futures.process import BrokenProcessPool
 
-        pool = ProcessPoolExecutor(max_workers=workers, initializer=_worker_signals)
-        try:
-            futures = [pool.submit(fn, item) for item in items]
-            _report(futures, done)
-            results = [future.result() for future in futures]
-        except BaseException:
-            _stop_pool(pool)
-            raise
-        pool.shutdown()
-        return results
+            raise BrokenProcessPool(f"a process of the pool died during {len(broken)} run(s)")
+        for index in broken:  # each alone: the one that broke the pool again is lost
+            if _pooled(fn, items, [index], 1, found, done) and lost is not None:
+                found[index] = lost(items[index], "died (a process of the pool ended under it)")
+                if done is not None:
+                    done(found[index])
+        return [found[index] for index in range(len(items))]
+
+
+def _pooled(
+    fn: Callable[[T], R],
+    items: Sequence[T],
+    indices: Sequence[int],
+    workers: int,
+    found: dict[int, R],
+    done: Callable[[R], None] | None,
+) -> list[int]:
+    """Run ``fn`` on the items at ``indices`` in a new pool, into ``found``; the indices
+    whose runs a dead process of the pool broke."""
+    from concurrent.futures import ProcessPoolExecutor  # not at start-up: 30 ms
+    from concurrent.futures.process import BrokenProcessPool
+
+    pool = ProcessPoolExecutor(max_workers=workers, initializer=_worker_signals)
+    broken: list[int] = []
+    try:
+        futures = {pool.submit(fn, items[index]): index for index in indices}
+        for future in _completed(list(futures)):
+            try:
+                found[futures[future]] = future.result()
+            except BrokenProcessPool:
+                broken.append(futures[future])
+                continue
+            if done is not None:
+                done(found[futures[future]])
+    except BaseException:
+        _stop_pool(pool)
+        raise
+    pool.shutdown(wait=not broken)
+    return sorted(broken)
 
 
 STOP_GRACE_S = 0.5  # how long a stopped worker gets to exit before it is killed
@@ -98,9 +140,18 @@ POLL_S = 0.2  # how often a wait looks for an interrupt whose exception was swal
 
 
 def _worker_signals() -> None:
-    """In a local worker: SIGINT ignored (the parent stops the pool), SIGTERM ends it."""
+    """In a local worker: SIGINT ignored (the parent stops the pool), SIGTERM ends it, and
+    so does its parent's end (Linux: ``PR_SET_PDEATHSIG``), so that no worker and no
+    sandbox of its outlives a command killed outright."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    if sys.platform.startswith("linux"):
+        with contextlib.suppress(Exception):
+            import ctypes
+
+            ctypes.CDLL(None).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+        if os.getppid() == 1:  # the parent died before the above: go too
+            os._exit(1)
 
 
 def _stop_pool(pool: ProcessPoolExecutor) -> None:
@@ -120,8 +171,8 @@ def _stop_pool(pool: ProcessPoolExecutor) -> None:
             process.join(1.0)
 
 
-def _report(futures: Sequence[Future[R]], done: Callable[[R], None] | None) -> None:
-    """``done`` with every result as it completes (the first error is raised); an
+def _completed(futures: Sequence[Future[R]]) -> Iterator[Future[R]]:
+    """Every future as it completes, in the items' order among those done together; an
     interrupt whose exception was swallowed (see :func:`signals.raise_if_interrupted`)
     is raised within ``POLL_S``."""
     from concurrent.futures import FIRST_COMPLETED, wait
@@ -130,10 +181,7 @@ def _report(futures: Sequence[Future[R]], done: Callable[[R], None] | None) -> N
     while pending:
         finished, pending = wait(pending, timeout=POLL_S, return_when=FIRST_COMPLETED)
         signals.raise_if_interrupted()
-        for future in [f for f in futures if f in finished]:  # in the items' order
-            result = future.result()
-            if done is not None:
-                done(result)
+        yield from (f for f in futures if f in finished)
 
 
 @dataclass(frozen=True, slots=True)
@@ -149,9 +197,10 @@ class DaskExecutor:
         fn: Callable[[T], R],
         items: Sequence[T],
         done: Callable[[R], None] | None = None,
+        lost: Callable[[T, str], R] | None = None,
     ) -> list[R]:
         try:
-            from distributed import Client
+            from distributed import Client, KilledWorker
             from distributed import as_completed as dask_completed
         except ImportError:
             raise ExecutorError(
@@ -179,16 +228,23 @@ class DaskExecutor:
         with client, client.as_current():  # as_completed asks for the current client
             # pure=False: every item is a task of its own, even two equal ones
             futures: list[Any] = client.map(fn, list(items), pure=False)
+            where = {future.key: index for index, future in enumerate(futures)}
+            results: dict[int, R] = {}
             try:
                 for future in dask_completed(futures):  # type: ignore[no-untyped-call]
-                    result = future.result()
+                    index = where[future.key]
+                    try:
+                        results[index] = future.result()
+                    except KilledWorker:
+                        if lost is None:
+                            raise
+                        results[index] = lost(items[index], "died (its Dask workers died)")
                     if done is not None:
-                        done(result)
-                results: list[R] = client.gather(futures)  # type: ignore[no-untyped-call]
+                        done(results[index])
             except BaseException:  # interrupted or failed: the cluster drops the rest
                 client.cancel(futures)  # type: ignore[no-untyped-call]
                 raise
-            return results
+            return [results[index] for index in range(len(items))]
 
 
 def make_executor(

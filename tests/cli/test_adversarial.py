@@ -563,7 +563,7 @@ def test_a_landmark_surveyed_twice_is_refused(tmp_path: Path) -> None:
 
 def test_a_submission_named_with_a_line_break_keeps_its_row_one_line() -> None:
     """grade's table: a file named with a line break split its row over two lines."""
-    from ekfviz.app.grade import GradeRow
+    from ekfviz.app.grade_rows import GradeRow
 
     row = GradeRow("alice\nbob.py", "error", (), "", 0.1, detail="it raised")
     name = row.cells()[0].text

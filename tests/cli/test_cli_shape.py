@@ -14,7 +14,7 @@ import pytest
 import typer
 from typer.testing import CliRunner
 
-from ekfviz.app.grade import GradeRow, grades_table
+from ekfviz.app.grade_rows import GradeRow, grades_table
 from ekfviz.cli import app
 from ekfviz.cli.options import (
     Association,
