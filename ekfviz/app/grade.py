@@ -295,8 +295,8 @@ def _check_log(
         result, _ = pipeline.check(log, truth, spec, params, tolerance=tolerance, save=save,
                                    every=True)  # fmt: skip
     except FilterSpecError as error:  # (the row names the submission: not its --filter)
-        said = str(error).removeprefix(f"--filter {spec.text}: ")
-        verdict.failed(_STATUS_OF_KIND.get(error.kind, "error"), said)
+        reason = str(error).removeprefix(f"--filter {spec.text}: ")
+        verdict.failed(_STATUS_OF_KIND.get(error.kind, "error"), reason)
         return False
     except (InputError, FilterError) as error:
         verdict.failed(_STATUS_OF_KIND.get(str(getattr(error, "kind", "")), "error"), str(error))
