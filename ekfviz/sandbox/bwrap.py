@@ -55,6 +55,7 @@ ENVIRONMENT = {
     "OPENBLAS_NUM_THREADS": "1",
     "OMP_NUM_THREADS": "1",
     "MKL_NUM_THREADS": "1",
+    "PWD": "/tmp",
 }
 # the options of bwrap this command line uses (0.10 or later has them all)
 NEEDED_OPTIONS = ("--disable-userns", "--size", "--as-pid-1", "--remount-ro")
@@ -338,49 +339,67 @@ def command(view: InterpreterView, mounts: Sequence[Mount], settings: str) -> li
     return [*line, "--", view.executable, *view.flags, WORKER_PATH, settings]
 
 
-# -- seccomp: no new process ---------------------------------------------------------------------
+# -- seccomp: no new process, no network socket -------------------------------------------------
 
-# (audit arch, clone, clone3, fork, vfork, the syscall numbers of another ABI from)
+# (audit arch, clone, clone3, socket, fork, vfork, the first syscall number of another ABI)
 _SYSCALLS = {
-    "x86_64": (0xC000003E, 56, 435, 57, 58, 0x40000000),
-    "aarch64": (0xC00000B7, 220, 435, None, None, None),
+    "x86_64": (0xC000003E, 56, 435, 41, 57, 58, 0x40000000),
+    "aarch64": (0xC00000B7, 220, 435, 198, None, None, None),
 }
 CLONE_THREAD = 0x00010000
+AF_UNIX = 1
+_CODES = {"ld": 0x20, "jeq": 0x15, "jge": 0x35, "jset": 0x45, "ret": 0x06}
+_RESULTS = {"allow": 0x7FFF0000, "eperm": 0x00050000 | 1, "enosys": 0x00050000 | 38}
+Instruction = tuple[str, int, str | None, str | None]  # (op, k, label if true, if false)
 
 
 def seccomp_program(machine: str | None = None) -> bytes | None:
-    """A classic BPF program for seccomp that refuses every new process (``fork``,
-    ``vfork``, ``clone`` without ``CLONE_THREAD``: EPERM; ``clone3``, whose flags it cannot
-    read: ENOSYS, so that the C library falls back to ``clone``) and every system call of
-    another ABI; threads are allowed. None for a machine it does not know.
+    """A classic BPF program for seccomp: no new process (``fork``, ``vfork``, ``clone``
+    without ``CLONE_THREAD``: EPERM; ``clone3``, whose flags it cannot read: ENOSYS, so
+    that the C library falls back to ``clone``), no socket but a Unix one (the network
+    namespace's own loopback unused too: EPERM), no system call of another ABI; threads
+    allowed. None for a machine it does not know.
 
-    Layout of ``struct seccomp_data``: nr at 0, arch at 4, args[0] (low half) at 16.
+    ``struct seccomp_data``: nr at offset 0, arch at 4, args[0] (its low half) at 16.
     """
     numbers = _SYSCALLS.get(machine or platform.machine())
     if numbers is None:
         return None
-    arch, clone, clone3, fork, vfork, other_abi = numbers
-    load, jeq, jge, jset, ret = 0x20, 0x15, 0x35, 0x45, 0x06
-    allow, eperm, enosys = 0x7FFF0000, 0x00050000 | 1, 0x00050000 | 38
-    refused = [n for n in (fork, vfork) if n is not None]
-    # instructions, jumps relative to the next one; the last three: allow, EPERM, ENOSYS
-    body: list[tuple[int, int, int, int]] = [(load, 0, 0, 0)]
+    arch, clone, clone3, socket, fork, vfork, other_abi = numbers
+    steps: list[Instruction | str] = [("ld", 4, None, None), ("jeq", arch, None, "eperm"),
+                                      ("ld", 0, None, None)]  # fmt: skip
     if other_abi is not None:
-        body.append((jge, -2, 0, other_abi))  # -2: EPERM (resolved below)
-    body.append((jeq, -3, 0, clone3))  # -3: ENOSYS
-    body.append((jeq, -4, 0, clone))  # -4: the clone check
-    body += [(jeq, -2, 0, number) for number in refused]
-    body.append((ret, 0, 0, allow))
-    check = [(load, 0, 0, 16), (jset, -1, -2, CLONE_THREAD)]
-    head = [(load, 0, 0, 4), (jeq, 0, -2, arch)]
-    program = head + body + check + [(ret, 0, 0, allow), (ret, 0, 0, eperm), (ret, 0, 0, enosys)]
-    end = len(program)
-    targets = {-1: end - 3, -2: end - 2, -3: end - 1, -4: len(head) + len(body)}
-    packed = []
-    for index, (code, jt, jf, k) in enumerate(program):
-        jt = targets[jt] - index - 1 if jt < 0 else jt
-        jf = targets[jf] - index - 1 if jf < 0 else jf
-        packed.append(struct.pack("<HBBI", code, jt, jf, k))
+        steps.append(("jge", other_abi, "eperm", None))
+    steps += [("jeq", clone3, "enosys", None), ("jeq", clone, "clone", None),
+              ("jeq", socket, "socket", None)]  # fmt: skip
+    steps += [("jeq", number, "eperm", None) for number in (fork, vfork) if number is not None]
+    steps += [("ret", _RESULTS["allow"], None, None),
+              "clone", ("ld", 16, None, None), ("jset", CLONE_THREAD, "allow", "eperm"),
+              "socket", ("ld", 16, None, None), ("jeq", AF_UNIX, "allow", "eperm")]  # fmt: skip
+    for name, result in _RESULTS.items():
+        steps += [name, ("ret", result, None, None)]
+    return _assembled(steps)
+
+
+def _assembled(steps: Sequence[Instruction | str]) -> bytes:
+    """Classic BPF from instructions and labels (a label: the next instruction's place);
+    a jump's None: the next instruction."""
+    places: dict[str, int] = {}
+    index = 0
+    for step in steps:
+        if isinstance(step, str):
+            places[step] = index
+        else:
+            index += 1
+    packed, index = [], 0
+    for step in steps:
+        if isinstance(step, str):
+            continue
+        op, k, if_true, if_false = step
+        jt = 0 if if_true is None else places[if_true] - index - 1
+        jf = 0 if if_false is None else places[if_false] - index - 1
+        packed.append(struct.pack("<HBBI", _CODES[op], jt, jf, k))
+        index += 1
     return b"".join(packed)
 
 

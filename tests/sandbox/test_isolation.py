@@ -1,0 +1,237 @@
+"""What the sandbox of a user's filter holds, each statement of the README's "What the
+sandbox protects" seen from inside a worker: a filter that looks around at its
+construction and prints what it saw, read back here."""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from ekfviz.core.params import FilterParams
+from ekfviz.sandbox import bwrap
+from ekfviz.sandbox.host import Target, WorkerFactory, WorkerFault, WorkerOptions
+from ekfviz.sandbox.submission import MAX_BYTES, MAX_DEPTH, MAX_FILES, Submission
+
+ROOT = Path(__file__).parents[2]
+SECRET = "ekfviz-test-secret-7d1f"
+
+
+def looks(folder: Path, code: str, **options: object) -> dict[str, object]:
+    """What a filter whose construction runs ``code`` (filling ``seen``) printed of it."""
+    module = folder / "probe.py"
+    module.write_text(
+        "import json, os, sys\nimport numpy as np\n\n\nclass Probe:\n"
+        "    def __init__(self, params):\n        seen = {}\n"
+        + textwrap.indent(textwrap.dedent(code), "        ")
+        + "\n        print('SEEN ' + json.dumps(seen), flush=True)\n"
+        "        self.x, self.P, self.landmark_ids = np.zeros(3), np.eye(3), []\n"
+        "    def predict(self, d, alpha):\n        pass\n"
+        "    def update(self, ids, z):\n        pass\n"
+    )
+    worker = WorkerOptions(echo=False, **options)  # type: ignore[arg-type]
+    factory = WorkerFactory(Target(str(module), None, "Probe"), worker, "filter probe.py")
+    try:
+        remote = factory(FilterParams())
+    finally:
+        factory.close()
+    lines = [line for line in remote.output.lines if line.startswith("SEEN ")]
+    assert lines, list(remote.output.lines)
+    return dict(json.loads(lines[-1][5:]))
+
+
+def test_it_sees_no_file_of_the_caller_s_but_its_copy_the_interpreter_and_numpy(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    folder = tmp_path / "mine"
+    folder.mkdir()
+    (tmp_path / "neighbour.py").write_text(f"# {SECRET}\n")
+    (folder / "helper.py").write_text("VALUE = 42\n")
+    (folder / "notes.txt").write_text("not python: not shown for --filter\n")
+    seen = looks(folder, f"""
+        import importlib.util
+        seen["root"] = sorted(os.listdir("/"))
+        seen["here"] = sorted(os.listdir({str(folder)!r}))
+        seen["parent"] = sorted(os.listdir({str(tmp_path)!r}))
+        seen["home"] = os.path.exists({os.path.expanduser("~")!r} + "/.bashrc")
+        seen["ekfviz"] = importlib.util.find_spec("ekfviz") is not None
+        seen["cwd"], seen["tmp"] = os.getcwd(), os.listdir("/tmp")
+        import helper
+        seen["helper"] = helper.VALUE
+        seen["numpy"] = np.__version__
+    """)
+    assert seen["here"] == ["helper.py", "probe.py"]  # a private copy: its Python files
+    assert seen["parent"] == ["mine"]  # no neighbour
+    assert seen["home"] is False and seen["ekfviz"] is False
+    # its own /tmp: empty but for the way to its copy, where that is under the caller's /tmp
+    on_the_way = [folder.parts[2]] if folder.parts[1] == "tmp" else []
+    assert seen["cwd"] == "/tmp" and seen["tmp"] == on_the_way
+    assert seen["helper"] == 42 and seen["numpy"]
+    assert "work" not in seen["root"] or str(ROOT).startswith("/work")  # (ekfviz's own path)
+
+
+def test_it_writes_nothing_but_its_own_tmp(tmp_path: Path) -> None:
+    seen = looks(tmp_path, f"""
+        for place in ({str(tmp_path)!r}, {str(tmp_path / "probe.py")!r}, np.__file__,
+                      os.path.dirname(np.__file__), "/", "/usr", "/dev/shm"):
+            try:
+                with open(os.path.join(place, "x") if os.path.isdir(place) else place, "a"):
+                    pass
+                seen[place] = "written"
+            except OSError as error:
+                seen[place] = error.strerror
+        with open("/tmp/mine.txt", "w") as handle:
+            handle.write("x" * 1000)
+        seen["tmp"] = os.path.getsize("/tmp/mine.txt")
+    """)
+    assert seen.pop("tmp") == 1000
+    assert "written" not in seen.values(), seen
+    assert (tmp_path / "probe.py").read_text().startswith("import json")  # unchanged
+
+
+def test_it_has_none_of_the_caller_s_environment(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("TA_TOKEN", SECRET)
+    seen = looks(tmp_path, """
+        seen["env"] = dict(os.environ)
+        for pid in ("1", "self"):
+            try:
+                seen[pid] = open("/proc/%s/environ" % pid, "rb").read().decode()
+            except OSError as error:
+                seen[pid] = error.strerror
+    """)
+    assert seen["env"] == bwrap.ENVIRONMENT
+    assert SECRET not in json.dumps(seen)
+    assert seen["1"] == "Permission denied"  # its guard, PID 1, cannot be read
+
+
+def test_it_has_no_network_not_even_loopback(tmp_path: Path) -> None:
+    with socket.socket() as listening:
+        listening.bind(("127.0.0.1", 0))
+        listening.listen()
+        port = listening.getsockname()[1]
+        seen = looks(tmp_path, f"""
+            import socket
+            for name, family in (("ipv4", socket.AF_INET), ("ipv6", socket.AF_INET6),
+                                 ("netlink", socket.AF_NETLINK), ("packet", socket.AF_PACKET)):
+                try:
+                    socket.socket(family, socket.SOCK_DGRAM if name == "netlink" else
+                                  socket.SOCK_STREAM if family != socket.AF_PACKET else
+                                  socket.SOCK_RAW).close()
+                    seen[name] = "made"
+                except OSError as error:
+                    seen[name] = error.strerror
+            try:
+                socket.create_connection(("127.0.0.1", {port}), timeout=2)
+                seen["loopback"] = "connected"
+            except OSError as error:
+                seen["loopback"] = error.strerror
+            local = socket.socket(socket.AF_UNIX)  # (its own, in its own /tmp)
+            local.bind("/tmp/mine.sock")
+            seen["unix"] = "bound"
+        """)
+    assert seen.pop("unix") == "bound"
+    assert set(seen.values()) == {"Operation not permitted"}, seen
+
+
+def test_it_starts_no_process_sees_none_of_the_caller_s_and_signals_none(
+    tmp_path: Path,
+) -> None:
+    seen = looks(tmp_path, f"""
+        import signal, subprocess, threading
+        for name, start in (("fork", os.fork),
+                            ("subprocess", lambda: subprocess.Popen(["/bin/true"]))):
+            try:
+                start()
+                seen[name] = "started"
+            except OSError as error:
+                seen[name] = error.strerror
+        ran = []
+        thread = threading.Thread(target=lambda: ran.append(1))
+        thread.start()
+        thread.join()
+        seen["thread"] = ran
+        seen["pids"] = sorted(p for p in os.listdir("/proc") if p.isdigit())
+        seen["parent"] = os.getppid()
+        os.kill(os.getppid(), signal.SIGKILL)  # its guard: nothing happens
+        seen["after"] = os.getpid()
+    """)
+    assert seen["fork"] == seen["subprocess"] == "Operation not permitted"
+    assert seen["thread"] == [1]
+    assert seen["pids"] == ["1", "2"] and seen["parent"] == 1
+    assert seen["after"] == 2
+
+
+def test_its_links_that_lead_out_are_refused_and_never_followed(tmp_path: Path) -> None:
+    secret = tmp_path / "secret.txt"
+    secret.write_text(SECRET)
+    folder = tmp_path / "submission"
+    folder.mkdir()
+    (folder / "ekf.py").write_text("x = 1\n")
+    (folder / "data.txt").symlink_to(secret)
+    options = WorkerOptions(echo=False, submission=Submission(str(folder)))
+    with pytest.raises(WorkerFault, match="data.txt is a symbolic link that leads out") as raised:
+        WorkerFactory(Target(str(folder / "ekf.py"), None, "F"), options, "f")
+    assert raised.value.kind == "refused"
+    (folder / "data.txt").unlink()
+    os.link(secret, folder / "data.txt")  # a hard link: another's content
+    with pytest.raises(WorkerFault, match="data.txt has other hard links"):
+        WorkerFactory(Target(str(folder / "ekf.py"), None, "F"), options, "f")
+
+
+@pytest.mark.parametrize("shape", ["files", "bytes", "depth"])
+def test_a_submission_over_a_bound_is_refused_without_being_read(
+    tmp_path: Path, shape: str
+) -> None:
+    folder = tmp_path / "submission"
+    folder.mkdir()
+    (folder / "ekf.py").write_text("x = 1\n")
+    if shape == "files":
+        for index in range(MAX_FILES + 1):
+            (folder / f"f{index}.py").touch()
+    elif shape == "bytes":
+        with open(folder / "big.py", "wb") as handle:  # sparse: nothing on disk
+            handle.truncate(1500 << 20)
+    else:
+        deep = folder
+        for _ in range(MAX_DEPTH + 1):
+            deep = deep / "d"
+        deep.mkdir(parents=True)
+    said = {"files": f"more than {MAX_FILES} files", "bytes": f"more than {MAX_BYTES >> 20} MiB",
+            "depth": f"more than {MAX_DEPTH} deep"}[shape]  # fmt: skip
+    options = WorkerOptions(echo=False, submission=Submission(str(folder)))
+    with pytest.raises(WorkerFault, match=said):
+        WorkerFactory(Target(str(folder / "ekf.py"), None, "F"), options, "f")
+
+
+def test_a_sandbox_that_cannot_start_is_one_line_naming_what_to_check(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """As where user namespaces are off: bwrap says so, ekfviz says what to look at."""
+    fake = tmp_path / "bin" / "bwrap"
+    fake.parent.mkdir()
+    options = " ".join(bwrap.NEEDED_OPTIONS)
+    fake.write_text(
+        "#!/bin/sh\n"
+        f'if [ "$1" = --help ]; then echo "{options}"; exit 0; fi\n'
+        'if [ "$1" = --version ]; then echo "bubblewrap 0.0"; exit 0; fi\n'
+        "echo 'bwrap: No permissions to create a new namespace' >&2\nexit 1\n"
+    )
+    fake.chmod(0o755)
+    monkeypatch.setenv("PATH", f"{fake.parent}:{os.environ['PATH']}")
+    for cached in (bwrap.find_bwrap, bwrap.check):
+        cached.cache_clear()
+    try:
+        with pytest.raises(bwrap.SandboxUnavailable) as raised:
+            bwrap.check(None)
+    finally:
+        for cached in (bwrap.find_bwrap, bwrap.check):
+            cached.cache_clear()
+    said = str(raised.value)
+    assert "\n" not in said and "No permissions to create a new namespace" in said
+    assert "user.max_user_namespaces" in said and "--no-sandbox" in said
