@@ -52,7 +52,9 @@ def test_it_sees_no_file_of_the_caller_s_but_its_copy_the_interpreter_and_numpy(
     (tmp_path / "neighbour.py").write_text(f"# {SECRET}\n")
     (folder / "helper.py").write_text("VALUE = 42\n")
     (folder / "notes.txt").write_text("not python: not shown for --filter\n")
-    seen = looks(folder, f"""
+    seen = looks(
+        folder,
+        f"""
         import importlib.util
         seen["root"] = sorted(os.listdir("/"))
         seen["here"] = sorted(os.listdir({str(folder)!r}))
@@ -63,7 +65,8 @@ def test_it_sees_no_file_of_the_caller_s_but_its_copy_the_interpreter_and_numpy(
         import helper
         seen["helper"] = helper.VALUE
         seen["numpy"] = np.__version__
-    """)
+    """,
+    )
     assert seen["here"] == ["helper.py", "probe.py"]  # a private copy: its Python files
     assert seen["parent"] == ["mine"]  # no neighbour
     assert seen["home"] is False and seen["ekfviz"] is False
@@ -75,7 +78,9 @@ def test_it_sees_no_file_of_the_caller_s_but_its_copy_the_interpreter_and_numpy(
 
 
 def test_it_writes_nothing_but_its_own_tmp(tmp_path: Path) -> None:
-    seen = looks(tmp_path, f"""
+    seen = looks(
+        tmp_path,
+        f"""
         for place in ({str(tmp_path)!r}, {str(tmp_path / "probe.py")!r}, np.__file__,
                       os.path.dirname(np.__file__), "/", "/usr", "/dev/shm"):
             try:
@@ -87,7 +92,8 @@ def test_it_writes_nothing_but_its_own_tmp(tmp_path: Path) -> None:
         with open("/tmp/mine.txt", "w") as handle:
             handle.write("x" * 1000)
         seen["tmp"] = os.path.getsize("/tmp/mine.txt")
-    """)
+    """,
+    )
     assert seen.pop("tmp") == 1000
     assert "written" not in seen.values(), seen
     assert (tmp_path / "probe.py").read_text().startswith("import json")  # unchanged
@@ -97,14 +103,17 @@ def test_it_has_none_of_the_caller_s_environment(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     monkeypatch.setenv("TA_TOKEN", SECRET)
-    seen = looks(tmp_path, """
+    seen = looks(
+        tmp_path,
+        """
         seen["env"] = dict(os.environ)
         for pid in ("1", "self"):
             try:
                 seen[pid] = open("/proc/%s/environ" % pid, "rb").read().decode()
             except OSError as error:
                 seen[pid] = error.strerror
-    """)
+    """,
+    )
     assert seen["env"] == bwrap.ENVIRONMENT
     assert SECRET not in json.dumps(seen)
     assert seen["1"] == "Permission denied"  # its guard, PID 1, cannot be read
@@ -115,7 +124,9 @@ def test_it_has_no_network_not_even_loopback(tmp_path: Path) -> None:
         listening.bind(("127.0.0.1", 0))
         listening.listen()
         port = listening.getsockname()[1]
-        seen = looks(tmp_path, f"""
+        seen = looks(
+            tmp_path,
+            f"""
             import socket
             for name, family in (("ipv4", socket.AF_INET), ("ipv6", socket.AF_INET6),
                                  ("netlink", socket.AF_NETLINK), ("packet", socket.AF_PACKET)):
@@ -134,7 +145,8 @@ def test_it_has_no_network_not_even_loopback(tmp_path: Path) -> None:
             local = socket.socket(socket.AF_UNIX)  # (its own, in its own /tmp)
             local.bind("/tmp/mine.sock")
             seen["unix"] = "bound"
-        """)
+        """,
+        )
     assert seen.pop("unix") == "bound"
     assert set(seen.values()) == {"Operation not permitted"}, seen
 
@@ -142,7 +154,9 @@ def test_it_has_no_network_not_even_loopback(tmp_path: Path) -> None:
 def test_it_starts_no_process_sees_none_of_the_caller_s_and_signals_none(
     tmp_path: Path,
 ) -> None:
-    seen = looks(tmp_path, f"""
+    seen = looks(
+        tmp_path,
+        """
         import signal, subprocess, threading
         for name, start in (("fork", os.fork),
                             ("subprocess", lambda: subprocess.Popen(["/bin/true"]))):
@@ -160,7 +174,8 @@ def test_it_starts_no_process_sees_none_of_the_caller_s_and_signals_none(
         seen["parent"] = os.getppid()
         os.kill(os.getppid(), signal.SIGKILL)  # its guard: nothing happens
         seen["after"] = os.getpid()
-    """)
+    """,
+    )
     assert seen["fork"] == seen["subprocess"] == "Operation not permitted"
     assert seen["thread"] == [1]
     assert seen["pids"] == ["1", "2"] and seen["parent"] == 1
@@ -175,12 +190,12 @@ def test_its_links_that_lead_out_are_refused_and_never_followed(tmp_path: Path) 
     (folder / "ekf.py").write_text("x = 1\n")
     (folder / "data.txt").symlink_to(secret)
     options = WorkerOptions(echo=False, submission=Submission(str(folder)))
-    with pytest.raises(WorkerFault, match="data.txt is a symbolic link that leads out") as raised:
+    with pytest.raises(WorkerFault, match=r"data\.txt is a symbolic link that leads out") as raised:
         WorkerFactory(Target(str(folder / "ekf.py"), None, "F"), options, "f")
     assert raised.value.kind == "refused"
     (folder / "data.txt").unlink()
     os.link(secret, folder / "data.txt")  # a hard link: another's content
-    with pytest.raises(WorkerFault, match="data.txt has other hard links"):
+    with pytest.raises(WorkerFault, match=r"data\.txt has other hard links"):
         WorkerFactory(Target(str(folder / "ekf.py"), None, "F"), options, "f")
 
 
