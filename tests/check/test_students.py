@@ -322,6 +322,8 @@ def test_an_open_source_style_filter_gets_its_predict_mistakes_named(
 
 
 def test_grade_on_a_dask_cluster_gives_the_same_rows(tmp_path: Path) -> None:
+    """Each submission in its sandbox on the cluster's workers: one that dials the
+    scheduler (its address was in an ancestor's command line) reaches nothing."""
     from distributed import LocalCluster
 
     folder = tmp_path / "class"
@@ -332,14 +334,22 @@ def test_grade_on_a_dask_cluster_gives_the_same_rows(tmp_path: Path) -> None:
         n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
         dashboard_address=None,
     ) as cluster:  # fmt: skip
+        host, port = str(cluster.scheduler_address).removeprefix("tcp://").split(":")
+        (folder / "dialer.py").write_text(
+            "import socket\n\n\ndef predict(X, P, c, q, k):\n    return X, P\n\n\n"
+            "def update(X, P, m, r, k):\n    return X, P\n\n\n"
+            "def init_landmarks(m, r, pose, cov):\n"
+            f"    socket.create_connection(({host!r}, {port}), timeout=5)\n"
+        )
         result = ekfviz("grade", str(folder), "--executor", "dask", "--scheduler",
                         str(cluster.scheduler_address), "--json")  # fmt: skip
     assert result.returncode == 0, result.stderr
     rows = {r["submission"]: r for r in json.loads(result.stdout)["submissions"]}
     assert {n: r["status"] for n, r in rows.items()} == {
-        "ada": "diverged", "bob": "diverged", "quitter.py": "crashed"
+        "ada": "diverged", "bob": "diverged", "quitter.py": "crashed", "dialer.py": "error"
     }  # fmt: skip
     assert set(rows["bob"]["causes"]) == students.MISTAKES["joint"]
+    assert "PermissionError: [Errno 1] Operation not permitted" in rows["dialer.py"]["detail"]
 
 
 def test_a_state_turning_complex_is_one_line_without_a_warning(tmp_path: Path) -> None:
