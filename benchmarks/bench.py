@@ -37,6 +37,9 @@
 11. Targets (``targets_bench.py``): the three speed targets measured together in
    one run (the classic sample against the imports, a 102,000-step log, Victoria Park);
    ``--targets-only`` runs just this.
+12. The sandbox (``sandbox_bench.py``): a submission's worker started in its sandbox
+   against without it, and ``grade`` of 30 submissions with and without the sandbox;
+   ``--sandbox-only`` runs just this.
 
 It prints the tables and writes them, with the machine, the date and the command, to
 ``benchmarks/RESULTS.md``. Timings are medians (bounds: best) of repeated runs; where
@@ -78,6 +81,7 @@ from ekfviz.sim.simulate import CLASSIC_LANDMARKS_XY, Noise, classic_controls, s
 sys.path.insert(0, str(Path(__file__).parent))
 from association_bench import association_section
 from mrclam_bench import mrclam_section, splice
+from sandbox_bench import sandbox_section
 from scaling_bench import scaling_section
 from smoother_bench import smoother_section
 from startup_bench import startup_section
@@ -909,6 +913,9 @@ def main(argv: Sequence[str] | None = None) -> None:
         action="store_true",
         help="only the association section (Victoria Park, simulated clutter) of RESULTS.md",
     )
+    parser.add_argument(
+        "--sandbox-only", action="store_true", help="only the sandbox section of RESULTS.md"
+    )
     args = parser.parse_args(argv)
     started = time.perf_counter()
     if args.worker_only:
@@ -933,9 +940,12 @@ def main(argv: Sequence[str] | None = None) -> None:
         or args.association_only
         or args.startup_only
         or args.scaling_only
+        or args.sandbox_only
     ):
         with tempfile.TemporaryDirectory() as tmp:
-            if args.startup_only:
+            if args.sandbox_only:
+                section = sandbox_section(Path(tmp), args.quick)
+            elif args.startup_only:
                 section = startup_section(Path(tmp))
             elif args.scaling_only:
                 section = scaling_section(Path(tmp), args.quick, args.out.parent)
@@ -976,6 +986,8 @@ def main(argv: Sequence[str] | None = None) -> None:
 
         targets = targets_section(Path(tmp), find_dataset())
         scaling = scaling_section(Path(tmp), args.quick, args.out.parent)
+        print("the sandbox of user code", flush=True)
+        sandbox = sandbox_section(Path(tmp), args.quick)
     print("core against dense (one BLAS thread)", flush=True)
     rows = core_rows(args.quick)
     flops = dgemm_flops()
@@ -987,7 +999,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     print("a user's filter in its worker", flush=True)
     workers = worker_section(worker_worlds(args.quick))
     text = splice(splice(splice(splice(text, mrclam), smoothers), association), workers)
-    text = splice(splice(splice(text, startups), scaling), targets)
+    text = splice(splice(splice(splice(text, startups), scaling), targets), sandbox)
     args.out.write_text(text)
     print()
     print(text)

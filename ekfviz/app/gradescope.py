@@ -25,6 +25,7 @@ import os
 import sys
 import tempfile
 import time
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -185,8 +186,19 @@ class Setting:
     said: str  # how it ran, for the results' output
 
 
-def grade_submission(folder: Path, rubric: Rubric, setting: Setting) -> dict[str, object]:
-    """Gradescope's results document for the submission in ``folder``."""
+Log = tuple[Path, Path | None, tuple[float, float, float] | None]
+
+
+def grade_submission(
+    folder: Path, rubric: Rubric, setting: Setting, battery: Mapping[str, Log]
+) -> dict[str, object]:
+    """Gradescope's results document for the submission in ``folder``.
+
+    :param battery: the battery's logs by name (log, truth, start), for the parts that
+        name one
+
+    :raises RubricError: a part names a log that is neither the battery's nor a file
+    """
     from ekfviz import __version__
     from ekfviz.app.grade import NoModule, module_of, spec_text
     from ekfviz.sandbox.submission import Submission, SubmissionRefused, survey
@@ -202,8 +214,8 @@ def grade_submission(folder: Path, rubric: Rubric, setting: Setting) -> dict[str
             tests.append(_test(part, False, f"not graded: {said}"))
         return _document(tests, started, f"ekfviz {__version__}: {said}. {setting.said}")
     spec_of = spec_text(module)
+    logs = _logs(rubric, battery)
     with tempfile.TemporaryDirectory(prefix="ekfviz-gradescope-") as scratch:
-        logs = _logs(rubric, Path(scratch))
         for part in rubric.parts:
             tests.append(_graded(part, rubric, setting, spec_of, logs, Path(scratch), folder))
     total = sum(float(str(t["max_score"])) for t in tests)
@@ -229,18 +241,9 @@ def _test(part: Part, passed: bool, output: str) -> dict[str, object]:
             "output": output, "visibility": part.visibility}  # fmt: skip
 
 
-Log = tuple[Path, Path | None, tuple[float, float, float] | None]
-
-
-def _logs(rubric: Rubric, scratch: Path) -> dict[str, Log]:
-    """Every log a part names: the battery's (written into ``scratch``) and files beside
-    the rubric."""
-    from ekfviz.samples import BATTERY, write_battery
-
-    logs: dict[str, Log] = {}
-    if any(part.log in BATTERY for part in rubric.parts):
-        for log, truth, start in write_battery(scratch):
-            logs[log.stem] = (log, truth, start)
+def _logs(rubric: Rubric, battery: Mapping[str, Log]) -> dict[str, Log]:
+    """Every log a part names: the battery's and files beside the rubric."""
+    logs: dict[str, Log] = dict(battery)
     for part in rubric.parts:
         if part.log not in logs:
             path = (rubric.folder / part.log).resolve()
@@ -404,9 +407,12 @@ exec ekfviz grade --gradescope --rubric "$root/source/rubric.toml" \\
 """
 
 
-def autograder_files(rubric_path: Path | None, rubric: Rubric) -> dict[str, tuple[bytes, int]]:
+def autograder_files(
+    rubric_path: Path | None, rubric: Rubric, battery: Sequence[str]
+) -> dict[str, tuple[bytes, int]]:
     """The zip Gradescope asks for, as {name: (content, mode)}: ``setup.sh``,
-    ``run_autograder``, the rubric and the log files it names, ekfviz's source.
+    ``run_autograder``, the rubric and the log files it names beyond the ``battery``'s
+    (names of the logs ekfviz writes itself), ekfviz's source.
 
     :raises RubricError: ekfviz is not installed from its source, or a log outside the
         rubric's folder
@@ -419,10 +425,8 @@ def autograder_files(rubric_path: Path | None, rubric: Rubric) -> dict[str, tupl
             0o644,
         ),
     }
-    from ekfviz.samples import BATTERY
-
     for part in rubric.parts:
-        if part.log in BATTERY:
+        if part.log in battery:
             continue
         path = (rubric.folder / part.log).resolve()
         if not str(path).startswith(str(rubric.folder.resolve()) + os.sep) or not path.is_file():

@@ -353,7 +353,9 @@ def write_autograder_zip(target: Path, rubric_path: Path | None) -> None:
 
     check_outputs(("--gradescope-zip", target))
     try:
-        files = autograder_files(rubric_path, read_rubric(rubric_path))
+        from ekfviz.samples import BATTERY
+
+        files = autograder_files(rubric_path, read_rubric(rubric_path), BATTERY)
     except RubricError as error:
         fail(str(error))
     buffer = io.BytesIO()
@@ -407,8 +409,14 @@ def run_gradescope(
             sandbox = False
             said = (f"ekfviz's sandbox could not start here ({error}); the submission ran"
                     " without it, in Gradescope's container only.")  # fmt: skip
+    from ekfviz.samples import write_battery
+
     try:
-        document = grade_submission(folder, rubric, Setting(python_text, sandbox, said))
+        with tempfile.TemporaryDirectory(prefix="ekfviz-battery-") as scratch:
+            battery = {log.stem: (log, truth, start)
+                       for log, truth, start in write_battery(Path(scratch))}  # fmt: skip
+            setting = Setting(python_text, sandbox, said)
+            document = grade_submission(folder, rubric, setting, battery)
     except RubricError as error:
         fail(str(error))
     write_bytes_atomic(target, json_text(document).encode("utf-8"))

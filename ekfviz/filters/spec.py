@@ -34,7 +34,8 @@ from pathlib import Path
 
 from ekfviz.core.tables import utf8
 from ekfviz.filters.plugged import FilterFactory
-from ekfviz.sandbox.host import Target, WorkerFactory, WorkerFault, WorkerOptions
+from ekfviz.sandbox.host import WorkerFault, WorkerOptions
+from ekfviz.sandbox.remote import Target, WorkerFactory
 from ekfviz.sandbox.submission import Submission
 
 BUILTIN = "ekf"
@@ -124,7 +125,7 @@ class FilterSpec:
 
 def release(make_filter: object) -> None:
     """End what a loaded filter holds: the spare worker a user's filter keeps started
-    (:class:`~ekfviz.sandbox.host.WorkerFactory`); nothing for the others."""
+    (:class:`~ekfviz.sandbox.remote.WorkerFactory`); nothing for the others."""
     if isinstance(make_filter, WorkerFactory):
         make_filter.close()
 

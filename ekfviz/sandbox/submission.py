@@ -7,7 +7,8 @@ the first bound it passes, so that a submission of a million folders or a sparse
 gigabytes costs ekfviz nothing: at most :data:`MAX_FILES` entries, :data:`MAX_BYTES` of
 files in all, :data:`MAX_DEPTH` folders deep. A symbolic link is copied as the file it
 names only where that file is inside the submission (one that leads out is refused, never
-followed), and a file with other hard links is refused (its content may be another's).
+followed). In a folder, a file with hard links outside the folder is refused (its
+content may be another's); a submission that is one file is that file, however linked.
 Numpy only.
 """
 
@@ -103,7 +104,27 @@ def survey(submission: Submission, name: str | None = None) -> Survey:
                     " its module and the files it needs)"
                 )
             files.append((relative, real))
+    if not submission.only:
+        _linked_only_inside(files, said)
     return Survey(tuple(files), tuple(folders), size)
+
+
+def _linked_only_inside(files: list[tuple[str, str]], said: str) -> None:
+    """Refuse a folder's file with hard links outside the folder: its links (the inode's
+    count) must all be among the folder's own files."""
+    seen: dict[tuple[int, int], int] = {}
+    links: dict[tuple[int, int], tuple[int, str]] = {}
+    for relative, real in files:
+        info = os.lstat(real)
+        key = (info.st_dev, info.st_ino)
+        seen[key] = seen.get(key, 0) + 1
+        links[key] = (info.st_nlink, relative)
+    for key, (count, relative) in links.items():
+        if count > seen[key]:
+            raise SubmissionRefused(
+                f"{said}: {relative} has hard links outside the submission (its content may"
+                " be another's)"
+            )
 
 
 def _names(root: Path, folder: str, said: str) -> Iterator[str]:
@@ -143,10 +164,6 @@ def _kind(root: Path, relative: str, said: str) -> tuple[str, str]:
         return "folder", real
     if not stat.S_ISREG(info.st_mode):
         return "other", real
-    if info.st_nlink > 1:
-        raise SubmissionRefused(
-            f"{said}: {relative} has other hard links (its content may be another's)"
-        )
     return "file", real
 
 

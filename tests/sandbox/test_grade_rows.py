@@ -130,7 +130,7 @@ def test_a_submission_over_a_bound_or_not_its_own_is_an_error_row(
         "sparse": "more than 8 MiB",
         "folders": "more than 200 files and folders",
         "link": "bob.py is a symbolic link that leads out",
-        "hard link": "has other hard",
+        "hard link": "has hard links outside",
     }
     assert said[shape] in row.detail, row.detail
 

@@ -14,7 +14,8 @@ import pytest
 
 from ekfviz.core.params import FilterParams
 from ekfviz.sandbox import bwrap
-from ekfviz.sandbox.host import Target, WorkerFactory, WorkerFault, WorkerOptions
+from ekfviz.sandbox.host import WorkerFault, WorkerOptions
+from ekfviz.sandbox.remote import Target, WorkerFactory
 from ekfviz.sandbox.submission import MAX_BYTES, MAX_DEPTH, MAX_FILES, Submission
 
 ROOT = Path(__file__).parents[2]
@@ -195,7 +196,7 @@ def test_its_links_that_lead_out_are_refused_and_never_followed(tmp_path: Path) 
     assert raised.value.kind == "refused"
     (folder / "data.txt").unlink()
     os.link(secret, folder / "data.txt")  # a hard link: another's content
-    with pytest.raises(WorkerFault, match=r"data\.txt has other hard links"):
+    with pytest.raises(WorkerFault, match=r"data\.txt has hard links outside"):
         WorkerFactory(Target(str(folder / "ekf.py"), None, "F"), options, "f")
 
 
