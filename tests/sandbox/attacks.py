@@ -120,7 +120,8 @@ ATTACKS: list[Attack] = [
                 found.append(open('/proc/%s/environ' % pid, 'rb').read().decode('latin-1'))
             except (OSError, ValueError):
                 pass
-        raise RuntimeError('found: ' + ' '.join(f for f in found if 'TA_TOKEN' in f)[:400])
+        tokens = [e for f in found for e in f.split('\\0') if e.startswith('TA_TOKEN')]
+        raise RuntimeError('found: ' + ' '.join(tokens)[:400])
     """,
     ),
     Attack(

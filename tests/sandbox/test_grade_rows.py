@@ -174,3 +174,16 @@ def test_a_dead_pool_process_is_its_item_s_row_and_the_rest_go_on() -> None:
 
     with pytest.raises(BrokenProcessPool):
         LocalExecutor(workers=2).map(dies_at_three, list(range(6)))
+
+
+def test_what_a_filter_prints_reaches_the_terminal_escaped(tmp_path: Path) -> None:
+    """A line that erased the ``filter NAME |`` prefix and retitled the terminal."""
+    module = tmp_path / "loud.py"
+    module.write_text(
+        SKELETON.read_text()
+        + "\nprint('\\x1b[2K\\x1b[1Gok \\x1b]0;owned\\x07 \\u202eevil', flush=True)\n"
+    )
+    result = runner.invoke(app, ["check", str(SAMPLE), "--filter", str(module)])
+    assert result.exit_code == 0, result.output
+    assert "filter loud.py | \\x1b[2K\\x1b[1Gok \\x1b]0;owned\\x07 \\u202eevil" in result.output
+    assert "\x1b" not in result.output and "\u202e" not in result.output
