@@ -536,7 +536,7 @@ def _sandboxed(
     """
     try:
         view = bwrap.interpreter_view(options.python)
-        bwrap.find_bwrap()
+        bwrap.check(options.python)  # (once a process: why it cannot start, what to check)
     except bwrap.SandboxUnavailable as error:
         raise WorkerFault(str(error), "start") from None
     program = bwrap.seccomp_program()

@@ -82,6 +82,17 @@ def test_it_writes_nothing_but_its_own_tmp(tmp_path: Path) -> None:
     seen = looks(
         tmp_path,
         f"""
+        seen["descriptors"] = []
+        for fd in os.listdir("/proc/self/fd"):
+            try:
+                seen["descriptors"].append(os.readlink("/proc/self/fd/" + fd).split(":")[0])
+            except OSError:  # (the listing's own, closed since)
+                pass
+        try:
+            os.open("/dev/tty", os.O_RDWR)
+            seen["terminal"] = "opened"
+        except OSError as error:
+            seen["terminal"] = error.strerror
         for place in ({str(tmp_path)!r}, {str(tmp_path / "probe.py")!r}, np.__file__,
                       os.path.dirname(np.__file__), "/", "/usr", "/dev/shm"):
             try:
@@ -96,6 +107,9 @@ def test_it_writes_nothing_but_its_own_tmp(tmp_path: Path) -> None:
     """,
     )
     assert seen.pop("tmp") == 1000
+    # no descriptor of ekfviz's: /dev/null and the pipes of its channel
+    assert set(seen.pop("descriptors")) == {"/dev/null", "pipe"}
+    assert seen.pop("terminal") == "No such device or address"  # a session of its own
     assert "written" not in seen.values(), seen
     assert (tmp_path / "probe.py").read_text().startswith("import json")  # unchanged
 
@@ -251,3 +265,28 @@ def test_a_sandbox_that_cannot_start_is_one_line_naming_what_to_check(
     said = str(raised.value)
     assert "\n" not in said and "No permissions to create a new namespace" in said
     assert "user.max_user_namespaces" in said and "--no-sandbox" in said
+    # as the commands say it: one line, exit 2; --no-sandbox runs the class as before
+    from typer.testing import CliRunner
+
+    from ekfviz.cli import app
+
+    folder = tmp_path / "class"
+    folder.mkdir()
+    (folder / "alice.py").write_text((ROOT / "examples/course_skeleton/ekf_slam.py").read_text())
+    log = str(ROOT / "data" / "classic.txt")
+    runner = CliRunner()
+    try:
+        refused = runner.invoke(app, ["grade", str(folder), "--log", log, "--workers", "1"])
+        checked = runner.invoke(app, ["check", log, "--filter", str(folder / "alice.py")])
+        graded = runner.invoke(app, ["grade", str(folder), "--log", log, "--workers", "1",
+                                     "--no-sandbox"])  # fmt: skip
+    finally:
+        for cached in (bwrap.find_bwrap, bwrap.check):
+            cached.cache_clear()
+    for result in (refused, checked):
+        assert result.exit_code == 2, result.output
+        (line,) = result.output.strip().splitlines()
+        assert line.startswith("error: ") and "user.max_user_namespaces" in line, line
+    assert graded.exit_code == 0, graded.output
+    assert "each in a sandbox: none (--no-sandbox)" in graded.output
+    assert "1 match" in graded.output
