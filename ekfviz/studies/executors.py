@@ -21,10 +21,10 @@ command stops them itself, so that a worker never prints a traceback of its own;
 die with the command (Linux), even one killed with SIGKILL.
 
 A process that dies under a run (the OOM killer, a crash of a compiled library) breaks
-a local pool: with ``lost`` given, the runs it broke are run again, each alone in a pool
-of its own, and one that breaks that one too is ``lost(item, why)`` as its result; the
-others go on. On a Dask cluster, a task whose workers died (``KilledWorker``) is likewise
-``lost``.
+a local pool: with ``lost`` given, the runs it broke are run again in a new pool, and
+those broken again each alone in a pool of its own, where one that breaks it too is
+``lost(item, why)`` as its result; the others go on. On a Dask cluster, a task whose
+workers died (``KilledWorker``) is likewise ``lost``.
 """
 
 from __future__ import annotations
@@ -95,7 +95,9 @@ class LocalExecutor:
             from concurrent.futures.process import BrokenProcessPool
 
             raise BrokenProcessPool(f"a process of the pool died during {len(broken)} run(s)")
-        for index in broken:  # each alone: the one that broke the pool again is lost
+        if broken:  # the runs it broke, again in a new pool
+            broken = _pooled(fn, items, broken, workers, found, done)
+        for index in broken:  # broken twice: each alone, the one that breaks it again lost
             if _pooled(fn, items, [index], 1, found, done) and lost is not None:
                 found[index] = lost(items[index], "died (a process of the pool ended under it)")
                 if done is not None:
