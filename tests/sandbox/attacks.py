@@ -45,7 +45,9 @@ ROOT = Path(__file__).resolve().parents[2]
 SKELETON = ROOT / "examples" / "course_skeleton" / "ekf_slam.py"
 SAMPLE = ROOT / "data" / "classic.txt"
 GRADE_TIMEOUT_S = 8  # --timeout of each submission
+BOUND_SLACK_S = 30  # past it, a row's time is not bounded by --timeout (a loaded machine)
 RUN_TIMEOUT_S = 600  # the whole grade
+PEAK_MB = 1536  # the most memory one process of the grade may hold (--memory 1024 each)
 
 # the functions of a do-nothing course module, after an attack's top-level code
 STUB = """
@@ -188,9 +190,7 @@ ATTACKS: list[Attack] = [
         "forge",
         "",
         build=lambda folder, stage: (folder / "wrap_the_reference.py").write_text(
-            f"import sys\nsys.path.insert(0, {str(ROOT)!r})\n"
-            "from ekfviz.filters.ekf import EkfSlam  # the reference, wrapped\n"
-            + SKELETON.read_text()
+            f"import sys\nsys.path.insert(0, {str(ROOT)!r})\n" + WRAPPED_REFERENCE
         ),
     ),
     Attack(
@@ -359,6 +359,11 @@ ATTACKS: list[Attack] = [
         build=lambda folder, stage: _folder(folder / "sparse_gigabytes", sparse=1500 << 20),
     ),
     Attack(
+        "sparse_gigabyte_module",
+        "unbounded",
+        build=lambda folder, stage: _sparse(folder / "sparse_gigabyte_module.py", 1 << 30),
+    ),
+    Attack(
         "blank_lines",
         "unbounded",
         build=lambda folder, stage: (folder / "blank_lines.py").write_text(
@@ -381,9 +386,38 @@ ATTACKS: list[Attack] = [
         build=lambda folder, stage: _folder(folder / "a_fifo_for_a_module", fifo=True),
     ),
     # -- names and links in --save-dir ----------------------------------------------------
-    Attack("names_that_collide", "names", "", name=b"honest_g\xfcod.py", save_dir=True),
+    Attack("names_that_collide", "names", save_dir=True, build=lambda f, stage: _twins(f)),
     Attack("planted_link_in_save_dir", "names", "", save_dir=True),
 ]
+
+
+# a class that is ekfviz's built-in filter, handed ekfviz's own parameters
+WRAPPED_REFERENCE = """from ekfviz.core.params import FilterParams
+from ekfviz.filters.ekf import EkfSlam
+
+
+class F(EkfSlam):
+    def __init__(self, params):
+        fields = FilterParams.__dataclass_fields__
+        values = {k: tuple(v) if isinstance(v, list) else v
+                  for k, v in params.as_dict().items() if k in fields}
+        super().__init__(FilterParams(**values))
+"""
+
+
+def _sparse(path: Path, size: int) -> None:
+    """A file of ``size`` bytes that takes no room on disk."""
+    with open(path, "wb") as handle:
+        handle.truncate(size)
+
+
+def _twins(folder: Path) -> None:
+    """A correct module and a do-nothing one, named with bytes that are not UTF-8 and read
+    alike once replaced: each must keep its own recording."""
+    with open(os.fsencode(folder) + b"/twin\xfc.py", "w") as handle:
+        handle.write(SKELETON.read_text())
+    with open(os.fsencode(folder) + b"/twin\xfd.py", "w") as handle:
+        handle.write(module_of(""))
 
 
 def _folder(
@@ -427,11 +461,15 @@ class Stage:
     mark: str = field(default_factory=lambda: uuid.uuid4().hex[:12])
     received: list[bytes] = field(default_factory=list)
     addresses: dict[str, str] = field(default_factory=dict)  # of the listeners, by token
+    peak_mb: float = 0.0  # of the last grade's processes
 
     @property
     def secrets(self) -> list[str]:
+        """What no output may hold: the TA's token and files, a neighbour's source, the
+        start of the log graded on."""
+        log = SAMPLE.read_text().split("\n", 1)[0][:24]
         return [f"token-{self.mark}", f"secret-{self.mark}", f"neighbour-{self.mark}",
-                f"grades-{self.mark}", f"key-{self.mark}"]  # fmt: skip
+                f"grades-{self.mark}", f"key-{self.mark}", log]  # fmt: skip
 
     def paths(self) -> dict[str, Path]:
         return {name: self.top / name for name in ("class", "cwd", "home", "logs")}
@@ -468,8 +506,7 @@ class Stage:
             code = code.replace(token, value)
         path = os.fsencode(folder) + b"/" + attack.entry_name()
         with open(path, "w") as handle:
-            handle.write(SKELETON.read_text() if attack.key == "names_that_collide" else
-                         module_of(code))  # fmt: skip
+            handle.write(module_of(code))
 
     def tokens(self) -> dict[str, str]:
         places = self.paths()
@@ -618,11 +655,42 @@ class Verdict:
         return not self.reasons
 
 
+def measured(
+    command: list[str], cwd: Path, env: dict[str, str]
+) -> tuple[subprocess.CompletedProcess[str], float]:
+    """Run ``command`` to its end (killed at :data:`RUN_TIMEOUT_S`: TimeoutExpired), and
+    the peak resident memory of it and of every process it waited for, in MB."""
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               cwd=cwd, env=env)  # fmt: skip
+    outputs: dict[str, bytes] = {}
+    readers = [threading.Thread(target=lambda n=n, s=s: outputs.__setitem__(n, s.read()))
+               for n, s in (("out", process.stdout), ("err", process.stderr))]  # fmt: skip
+    for reader in readers:
+        reader.start()
+    fired: list[bool] = []
+    timer = threading.Timer(RUN_TIMEOUT_S, lambda: (fired.append(True), process.kill()))
+    timer.start()
+    try:
+        _, status, usage = os.wait4(process.pid, 0)
+    finally:
+        timer.cancel()
+    process.returncode = os.waitstatus_to_exitcode(status)
+    for reader in readers:
+        reader.join()
+    if fired:
+        raise subprocess.TimeoutExpired(command, RUN_TIMEOUT_S)
+    done = subprocess.CompletedProcess(command, process.returncode,
+                                       outputs["out"].decode("utf-8", "replace"),
+                                       outputs["err"].decode("utf-8", "replace"))  # fmt: skip
+    return done, usage.ru_maxrss / 1024
+
+
 def grade(
     stage: Stage, folder: Path, save_dir: bool, sandbox: bool
 ) -> tuple[subprocess.CompletedProcess[str], Path]:
     """``ekfviz grade`` of ``folder`` as a TA runs it: from the stage's working directory,
-    with a token in the environment and the stage's home; the CSV's path."""
+    with a token in the environment and the stage's home; the CSV's path. Its peak
+    memory (of every process of it) goes to ``stage.peak_mb``."""
     cwd = stage.top / "cwd"
     report = cwd / "g.csv"
     env = {**os.environ, "TA_TOKEN": f"token-{stage.mark}", "HOME": str(stage.top / "home"),
@@ -640,9 +708,16 @@ def grade(
         command += ["--save-dir", str(recs)]
     if not sandbox:
         command.append("--no-sandbox")
-    done = subprocess.run(command, capture_output=True, text=True, cwd=cwd, env=env,
-                          timeout=RUN_TIMEOUT_S)  # fmt: skip
+    done, stage.peak_mb = measured(command, cwd, env)
     return done, report
+
+
+def _listed(stdout: str) -> list[dict[str, object]]:
+    """The rows of the JSON document on stdout, as listed (two rows of one name kept)."""
+    try:
+        return list(json.loads(stdout)["submissions"])
+    except (ValueError, KeyError, TypeError):
+        return []
 
 
 def rows_of(
@@ -684,13 +759,15 @@ def judge(
         shared.append(f"grade exited {done.returncode}: {done.stderr.strip()[-300:]}")
     rows, cells, wrong = rows_of(done, report)
     shared += wrong
+    every = [r for r in _listed(done.stdout) if r.get("status") in ("match", "diverged")]
     for name in HONEST:
         got = {k: rows.get(name, {}).get(k) for k in FIELDS}
         if got != {k: baseline[name].get(k) for k in FIELDS}:
             shared.append(f"honest row {name} changed: {got}")
     texts = (done.stdout, done.stderr, "\n".join(",".join(row) for row in cells))
+    flat = [" ".join(t.replace("\\t", " ").replace("\\n", " ").split()) for t in texts]
     for secret in stage.secrets:
-        if any(secret in text for text in texts):
+        if any(" ".join(secret.split()) in text for text in flat):
             shared.append(f"a secret ({secret.split('-')[0]}) is in the outputs")
     if any(stage.mark.encode() in received or b"secret" in received
            for received in stage.received):  # fmt: skip
@@ -707,12 +784,13 @@ def judge(
         shared.append(f"changed outside the sandbox: {', '.join(changed)[:300]}")
     if stage.leftovers():
         shared.append("a process of the attack outlived the grade")
+    if stage.peak_mb > PEAK_MB:
+        shared.append(f"a process of the grade held {stage.peak_mb:.0f} MB")
     recs = stage.top / "cwd" / "recs"
     if recs.is_dir():
         recorded = [p for p in recs.iterdir() if p.name.endswith(".rrd") and not p.is_symlink()]
-        graded = [r for r in rows.values() if r.get("status") in ("match", "diverged")]
-        if len(recorded) < len(graded):
-            shared.append(f"{len(recorded)} recordings for {len(graded)} graded submissions")
+        if len(recorded) < len(every):
+            shared.append(f"{len(recorded)} recordings for {len(every)} graded submissions")
     verdicts = []
     for attack in attacks:
         reasons = list(shared)
@@ -720,8 +798,11 @@ def judge(
         row = next((r for n, r in rows.items() if n.startswith(attack.key) or n == name), None)
         if rows and attack.kind not in ("spoof", "names") and row is None:
             reasons.append("no row of its own")
-        if row is not None and row.get("status") == "match" and attack.key != "names_that_collide":
+        if row is not None and row.get("status") == "match":
             reasons.append("its grade is forged: match")
+        seconds = (row or {}).get("seconds")
+        if isinstance(seconds, (int, float)) and seconds > GRADE_TIMEOUT_S + BOUND_SLACK_S:
+            reasons.append(f"its row took {seconds:.0f} s, past --timeout {GRADE_TIMEOUT_S}")
         verdicts.append(Verdict(attack.key, reasons, str((row or {}).get("status", ""))))
     return verdicts
 
