@@ -349,22 +349,22 @@ def test_grade_of_a_log_takes_the_noise_its_header_states(tmp_path: Path) -> Non
     against the defaults (``different_motion_noise``)."""
     log = tmp_path / "noisy.txt"
     log.write_text("# noise: sigma_x=0.1 sigma_y=0.05 sigma_alpha=0.02\n" + SAMPLE.read_text())
-    class_folder = tmp_path / "class"
-    class_folder.mkdir()
-    shutil.copy(BASE, class_folder / "basef.py")
-    (class_folder / "alice.py").write_text(
+    submission = tmp_path / "class" / "alice"  # (its base class in its own folder)
+    submission.mkdir(parents=True)
+    shutil.copy(BASE, submission / "basef.py")
+    (submission / "ekf_slam.py").write_text(
         "import numpy as np\nfrom basef import MyFilter as Base\n\n\nclass Alice(Base):\n"
         "    def predict(self, d, alpha):\n"
         "        self.Q = np.diag([0.1, 0.05, 0.02]) ** 2\n"
         "        super().predict(d, alpha)\n"
     )
-    checked = ekfviz("check", str(log), "--filter", "class/alice.py:Alice", cwd=tmp_path)
+    checked = ekfviz("check", str(log), "--filter", "class/alice/ekf_slam.py:Alice", cwd=tmp_path)
     assert checked.returncode == 0, checked.stdout + checked.stderr
     report = tmp_path / "grades.csv"
     graded = ekfviz("grade", "class", "--log", str(log), "--report", str(report), cwd=tmp_path)
     assert graded.returncode == 0, graded.stderr
     rows = {row["submission"]: row for row in csv.DictReader(report.open())}
-    assert (rows["alice.py"]["status"], rows["alice.py"]["causes"]) == ("match", "")
+    assert (rows["alice"]["status"], rows["alice"]["causes"]) == ("match", "")
     assert "noisy.txt: the noise its header states: --sigma-x 0.1" in graded.stdout
 
 
