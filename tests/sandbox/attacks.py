@@ -543,15 +543,18 @@ class Stage:
         return seen
 
     def leftovers(self) -> list[int]:
-        """Processes whose command line holds the stage's mark (an attack's)."""
+        """Processes whose command line holds the stage's mark (an attack's) or its class
+        folder (the grade's own, or a sandbox of it)."""
         found = []
+        marks = (self.mark.encode(), os.fsencode(self.top / "class"))
         for entry in Path("/proc").iterdir():
-            if entry.name.isdigit():
+            if entry.name.isdigit() and int(entry.name) != os.getpid():
                 try:
-                    if self.mark.encode() in (entry / "cmdline").read_bytes():
-                        found.append(int(entry.name))
+                    command = (entry / "cmdline").read_bytes()
                 except OSError:
                     continue
+                if any(mark in command for mark in marks):
+                    found.append(int(entry.name))
         return found
 
     def clean_up(self) -> None:
@@ -655,20 +658,25 @@ class Verdict:
         return not self.reasons
 
 
+def _kill_group(pid: int) -> None:
+    with suppress(OSError):
+        os.killpg(pid, 9)
+
+
 def measured(
     command: list[str], cwd: Path, env: dict[str, str]
 ) -> tuple[subprocess.CompletedProcess[str], float]:
     """Run ``command`` to its end (killed at :data:`RUN_TIMEOUT_S`: TimeoutExpired), and
     the peak resident memory of it and of every process it waited for, in MB."""
     process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                               cwd=cwd, env=env)  # fmt: skip
+                               cwd=cwd, env=env, start_new_session=True)  # fmt: skip
     outputs: dict[str, bytes] = {}
     readers = [threading.Thread(target=lambda n=n, s=s: outputs.__setitem__(n, s.read()))
                for n, s in (("out", process.stdout), ("err", process.stderr))]  # fmt: skip
     for reader in readers:
         reader.start()
     fired: list[bool] = []
-    timer = threading.Timer(RUN_TIMEOUT_S, lambda: (fired.append(True), process.kill()))
+    timer = threading.Timer(RUN_TIMEOUT_S, lambda: (fired.append(True), _kill_group(process.pid)))
     timer.start()
     try:
         _, status, usage = os.wait4(process.pid, 0)
@@ -783,7 +791,7 @@ def judge(
     if changed:
         shared.append(f"changed outside the sandbox: {', '.join(changed)[:300]}")
     if stage.leftovers():
-        shared.append("a process of the attack outlived the grade")
+        shared.append("a process of the attack or of the grade outlived the grade")
     if stage.peak_mb > PEAK_MB:
         shared.append(f"a process of the grade held {stage.peak_mb:.0f} MB")
     recs = stage.top / "cwd" / "recs"
