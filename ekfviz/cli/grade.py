@@ -19,6 +19,7 @@ from ekfviz.cli.common import (
     app,
     check_outputs,
     fail,
+    given,
     human_output_to_stderr,
     interrupted,
     json_text,
@@ -180,12 +181,17 @@ def grade(
     a broken or hostile one gets its row (error, timeout, memory, crashed) and the others
     go on. SIGINT or SIGTERM writes the rows done, the rest "not graded".
     """
+    if gradescope_zip is not None or gradescope:
+        _refuse_class_options(gradescope_zip is not None)
     if gradescope_zip is not None:
         write_autograder_zip(gradescope_zip, rubric)
         return
     if gradescope:
         run_gradescope(submission, results, rubric, python, no_sandbox)
         return
+    for name in ("submission", "results", "rubric"):
+        if given(name):
+            fail(f"--{name} is for --gradescope (one submission in Gradescope's layout)")
     if folder is None:
         fail("grade needs the folder of submissions (or --gradescope)")
     request = (
@@ -199,6 +205,25 @@ def grade(
         run_grade(request)
     except signals.Interrupted as stop:  # before any submission was graded
         interrupted(stop, "nothing was graded; nothing was written")
+
+
+# the options of a class's grade, which a rubric replaces in Gradescope's layout
+CLASS_OPTIONS = ("folder", "logs", "timeout", "memory", "report", "json_output", "save_dir",
+                 "workers", "executor", "scheduler")  # fmt: skip
+
+
+def _refuse_class_options(zip_only: bool) -> None:
+    """--gradescope and --gradescope-zip take a rubric, not a class's options (each part
+    has its own log, time and memory there)."""
+    used = [name for name in CLASS_OPTIONS if given(name)]
+    if zip_only and given("gradescope"):
+        used.append("gradescope")
+    if used:
+        shown = ", ".join("FOLDER" if n == "folder" else "--json" if n == "json_output" else
+                          "--" + n.replace("_", "-") for n in used)  # fmt: skip
+        what = "--gradescope-zip" if zip_only else "--gradescope"
+        fail(f"{what} does not take {shown}: a rubric (--rubric) gives each part its log,"
+             " time and memory")  # fmt: skip
 
 
 def sandbox_said(python: str | None, no_sandbox: bool) -> str:

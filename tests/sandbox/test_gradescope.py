@@ -120,3 +120,20 @@ def test_each_part_has_its_own_time(tmp_path: Path) -> None:
     tests = json.loads((tmp_path / "r.json").read_text())["tests"]
     assert [(t["name"], t["status"]) for t in tests] == [("P", "passed"), ("U", "failed")]
     assert "time" in tests[1]["output"]
+
+
+@pytest.mark.parametrize(
+    ("args", "said"),
+    [
+        (["--gradescope", "--timeout", "5"], "--gradescope does not take --timeout: a rubric"),
+        (["--gradescope-zip", "z.zip", "--report", "g.csv"], "does not take --report"),
+        (["class", "--rubric", "r.toml"], "--rubric is for --gradescope"),
+    ],
+)
+def test_a_class_s_options_and_gradescope_s_do_not_mix(
+    tmp_path: Path, args: list[str], said: str
+) -> None:
+    result = runner.invoke(app, ["grade", *args])
+    assert result.exit_code == 2
+    (line,) = result.output.strip().splitlines()
+    assert said in line, line
