@@ -21,7 +21,7 @@ named as a cause at the start; the reference never adopts it.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -45,7 +45,7 @@ from ekfviz.runner.replay import plugged
 
 __all__ = [
     "DEFAULT_TOLERANCE", "CheckResult", "Difference", "Divergence", "Quantity", "compare",
-    "lockstep", "numbered",
+    "course_cannot_read", "lockstep", "numbered", "skipped",
 ]  # fmt: skip
 
 DEFAULT_TOLERANCE = 1e-6
@@ -102,6 +102,32 @@ def lockstep(
         if not run.event(event, step, kind, log_event):
             break
     return run.result()
+
+
+def course_cannot_read(events: Sequence[LogEvent]) -> str:
+    """Why a course module cannot read ``events`` (empty: it can): its functions read the
+    classic format, every line naming the landmarks of the first in the same order."""
+    lines = [event for event in events if isinstance(event, Sighting)]
+    if not lines:
+        return ""
+    first = [int(i) for i in lines[0].ids]
+    for line in lines[1:]:
+        ids = [int(i) for i in line.ids]
+        if ids != first:
+            return (
+                f"a course module cannot read this log: its line {line.line} names landmarks"
+                f" {ids[:6]}{' ...' if len(ids) > 6 else ''}, not the {len(first)} of its first"
+                " line in their order; the handout's update(X, P, measure, measure_cov, k)"
+                " takes the measurements of all k landmarks, in order, and init_landmarks is"
+                " called once, on the first line, so a landmark first seen later has no"
+                " function to initialise it"
+            )
+    return ""
+
+
+def skipped(why: str, tolerance: float) -> CheckResult:
+    """The result of a log the filter was not run on, and why."""
+    return CheckResult(0, 0.0, tolerance, None, (), (), (), skipped=why)
 
 
 def _source_of(make_filter: FilterFactory) -> str | None:
@@ -250,7 +276,7 @@ class _Lockstep:
         self._precision_of(expected, after)
         worst = compare(expected, after)
         self.differences.append(0.0 if worst is None else worst.difference)
-        rerun_step = _step_of(log_event)
+        rerun_step = step_of(log_event)
         if worst is None or worst.difference <= self.tolerance:
             if worst is not None and worst.difference > self.asked:
                 self.within_precision = max(self.within_precision, worst.difference)
@@ -393,7 +419,7 @@ class _Lockstep:
                           causes, divergence.unexplained, resolved.inherited)  # fmt: skip
 
 
-def _step_of(event: LogEvent) -> Step:
+def step_of(event: LogEvent) -> Step:
     if isinstance(event, Control):
         return Step(d=float(event.d), alpha=float(event.alpha))
     assert isinstance(event, Sighting)

@@ -157,6 +157,8 @@ class CheckResult:
     :param within_precision: the largest difference, past the tolerance asked for, that
         the filter's own precision accounts for (0: none)
     :param notes: what the check says beside the verdict (the noise the filter declares)
+    :param skipped: why the filter was not run on the log (a course module and a log of
+        landmarks first seen after its first line), if it was not
     """
 
     events_checked: int
@@ -178,6 +180,7 @@ class CheckResult:
     precision: str = "float64"
     within_precision: float = 0.0
     notes: tuple[str, ...] = ()
+    skipped: str = ""
 
     @property
     def match(self) -> bool:
@@ -213,9 +216,11 @@ class CheckResult:
         or the first divergence with its cause and hint, how many more diverge."""
         lines: list[Cell] = []
         tolerance = self.tolerance
+        if self.skipped:
+            return [Styled(f"skipped: {self.skipped}")]
         if self.convention:
             said = [
-                (_SHAPES if how == "column" else _FLAT)[what]
+                {"column": _SHAPES, "flat": _FLAT}.get(how, _EITHER)[what]
                 for what, how in self.convention.items()
                 if how is not None and what in _SHAPES
             ]
@@ -305,6 +310,7 @@ class CheckResult:
             "all": self.every,
             "convention": self.convention,
             "notes": list(self.notes),
+            "skipped": self.skipped or None,
             "error": None
             if self.error is None
             else {"message": self.error, "line": self.error_line, "kind": self.error_kind},
@@ -329,3 +335,4 @@ def _divergence_lines(title: str, divergence: Divergence, name: str, tolerance: 
 
 _SHAPES = {"X": "X (3+2k, 1)", "control": "control (2, 1)", "measure": "measure (2k, 1)"}
 _FLAT = {"X": "X (3+2k,)", "control": "control (2,)", "measure": "measure (2k,)"}
+_EITHER = {name: f"{name} (either shape, by function or call)" for name in _SHAPES}

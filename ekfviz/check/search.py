@@ -121,7 +121,7 @@ class Diagnosis:
         the earlier events of ``history`` refute are dropped."""
         close = max(self.tolerance * 10, 1e-8, 1e-9 * divergence)
         trial = _Trial(self.noise, before, after, step, close)
-        base = [m for m in self.found.values() if _acts_on(m, step, before)]
+        base = [m for m in self.found.values() if acts_on(m, step, before)]
         forms = self._forms(step, before)
         hit = trial.first(base, forms)
         if hit is not None:
@@ -132,7 +132,7 @@ class Diagnosis:
         candidates = [
             m
             for m in MUTATIONS
-            if m.family != "form" and m.operation not in taken and _acts_on(m, step, before)
+            if m.family != "form" and m.operation not in taken and acts_on(m, step, before)
         ]
         found_sets, hit_form = self._search(trial, base, candidates, forms)
         if not found_sets:
@@ -462,7 +462,7 @@ def _kind(step: Step) -> str:
     return "predict" if step.is_predict else "update"
 
 
-def _acts_on(mutation: Mutation, step: Step, before: State) -> bool:
+def acts_on(mutation: Mutation, step: Step, before: State) -> bool:
     """Whether ``mutation`` can change ``step`` from ``before`` at all."""
     event = mutation.event
     if step.is_predict:
@@ -502,7 +502,7 @@ def _minimal(trial: _Trial, base: Sequence[Mutation], form: Form) -> list[Mutati
 def _refutes(noise: Noise, option: Sequence[Mutation], seen: Seen, tolerance: float) -> bool:
     """Whether ``option`` breaks the explanation of an earlier event (see
     :meth:`Diagnosis._unrefuted`)."""
-    acting = [m for m in option if _acts_on(m, seen.step, seen.before)]
+    acting = [m for m in option if acts_on(m, seen.step, seen.before)]
     if not acting or any(m.id in seen.explained_by for m in acting):
         return False
     explained = [MUTATION_BY_ID[c] for c in seen.explained_by if c in MUTATION_BY_ID]
@@ -569,7 +569,7 @@ def fingerprint(mutation_id: str) -> tuple[bytes, ...]:
     if mutation.family in ("own", "form"):
         return (mutation_id.encode(),)
     return tuple(
-        _fingerprint([mutation], before, step) if _acts_on(mutation, step, before) else b""
+        _fingerprint([mutation], before, step) if acts_on(mutation, step, before) else b""
         for before, step in _probes()
     )
 
