@@ -409,7 +409,7 @@ class _Lockstep:
         )
 
     def _resolved(self, divergence: Divergence, finding: Finding | None) -> Divergence:
-        if finding is None or not finding.alternatives:
+        if finding is None or not finding.indistinct:
             return divergence
         resolved = self.diagnosis.resolve(finding, self.seen)
         causes = named(resolved.causes, self.source) if resolved.known else ()

@@ -39,10 +39,10 @@ _GAIN_OPERATIONS = frozenset({"innovation_covariance", "kalman_gain"})
 # are made of; and how many of the nearest a deeper search adds one at a time (see
 # Diagnosis._beam)
 PAIR_CANDIDATES = 20
-TRIPLE_ANCHORS = 4
+TRIPLE_ANCHORS = 3
 SECOND_ANCHORS = 2
-# how many events of a run may get the search of three more mistakes at once
-DEEP_SEARCHES = 3
+BEAM_CANDIDATES = 60  # the nearest singles the deeper search adds, one at a time
+DEEP_SEARCHES = 2
 # a variance this many times the square of the state's extent is beyond any a run makes
 INVALID_VARIANCE = 1e12
 # the smallest eigenvalue of a valid P to its largest: below it, P is singular to
@@ -51,8 +51,11 @@ SINGULAR = 1e-13
 # the share of a divergence the mistakes found may leave unexplained at a later event
 # (see Diagnosis._nearly)
 UNEXPLAINED_SHARE = 1e-3
-# how many events of a run may get the search of two more mistakes at once
-PAIR_SEARCHES = 8
+# how many events of each kind (predict, update) the mistakes found do not explain get a
+# search of one more (later ones are unknown but for the mistakes found: a second mistake
+# shows at the first events of its kind), of two more, and of three more
+FULL_SEARCHES = 4
+PAIR_SEARCHES = 4
 
 
 @dataclass(frozen=True, slots=True)
@@ -107,6 +110,7 @@ class Diagnosis:
     form: Form | None = None
     deep_left: int = DEEP_SEARCHES
     pairs_left: int = PAIR_SEARCHES
+    searches_left: dict[str, int] = field(default_factory=dict)
 
     def explain(
         self,
@@ -128,6 +132,10 @@ class Diagnosis:
             return self._named([_minimal(trial, base, hit)], hit, trial, history)
         if base and (invalid(before) or self._nearly(trial, base, forms)):
             return Finding(tuple(m.id for m in base), inherited=True)
+        kind = _kind(step)
+        if self.searches_left.get(kind, FULL_SEARCHES) <= 0:
+            return Finding()
+        self.searches_left[kind] = self.searches_left.get(kind, FULL_SEARCHES) - 1
         taken = {m.operation for m in base}
         candidates = [
             m
@@ -187,11 +195,8 @@ class Diagnosis:
         if self.deep_left <= 0:
             return [], None
         self.deep_left -= 1
-        for joint in modes:
-            found = self._beam(trial, base, candidates, by_mode[joint], ranked[joint])
-            if found[0]:
-                return found
-        return [], None
+        first = modes[0]  # three mistakes at once: in the likelier mode only
+        return self._beam(trial, base, candidates, by_mode[first], ranked[first])
 
     def _beam(
         self,
@@ -202,12 +207,13 @@ class Diagnosis:
         ranked: list[Mutation],
     ) -> tuple[list[list[Mutation]], Form | None]:
         """Sets of two or three more mutations, one at a time: beside each of the nearest
-        singles (an anchor), every single again, then beside each of the nearest of those,
-        every single once more (a mistake whose effect the others hide ranks high once
-        they are in)."""
+        singles (an anchor), each of the :data:`BEAM_CANDIDATES` nearest again, then beside
+        each of the nearest of those, each once more (a mistake whose effect the others
+        hide ranks high once they are in)."""
+        shortlist = ranked[:BEAM_CANDIDATES]
         for anchor in ranked[:TRIPLE_ANCHORS]:
             chain = [*base, anchor]
-            beside = [m for m in candidates if m.operation != anchor.operation]
+            beside = [m for m in shortlist if m.operation != anchor.operation]
             reached, form_of, nearest = self._singles(trial, chain, beside, forms)
             if reached:
                 return reached, form_of
@@ -252,7 +258,9 @@ class Diagnosis:
     ) -> Finding:
         """The finding of the reproducing ``sets``: one cause where they are one class; of
         several, those ``history`` does not refute (a specific mutation before one that
-        reads the filter's own quantity); the form noted, the causes named kept."""
+        reads the filter's own quantity), the broadest of them named and the others kept
+        as what the log has not told it from (:meth:`resolve` looks again at the end); the
+        form noted, the causes named kept for the events after."""
         distinct: dict[tuple[tuple[bytes, ...], ...], list[Mutation]] = {}
         for chosen in sets:  # (in the catalogue's order: a class's first stands for it)
             key = tuple(sorted(fingerprint(m.id) for m in chosen))
@@ -261,20 +269,17 @@ class Diagnosis:
         smallest = [s for s in options if len(s) == len(options[0])]
         smallest = self._unrefuted(smallest, history)
         specific = [s for s in smallest if all(m.family != "own" for m in s)]
-        smallest = specific or smallest
-        if len(smallest) == 1:
-            if not trial.step.is_predict and self.form is None and trial.decides_mode():
-                self.form = Form(form.joint, form.covariance)
-            self._keep(smallest[0])
-        else:  # what every option shares is found all the same
-            self._keep([m for m in smallest[0] if all(m in option for option in smallest)])
+        smallest = _broadest_first(specific or smallest)
+        if not trial.step.is_predict and self.form is None and trial.decides_mode():
+            self.form = Form(form.joint, form.covariance)
+        self._keep(smallest[0])
         chosen = smallest[0]
         causes = [m.id for m in chosen]
         if not trial.step.is_predict and form.joint != self.reference.joint:
             causes.append("update_loop.joint" if form.joint else "update_loop.sequential")
         detail = _detail(chosen, trial, form)
-        alternatives = tuple(tuple(m.id for m in s) for s in smallest) if len(smallest) > 1 else ()
-        return Finding(tuple(causes), alternatives, detail=detail)
+        others = tuple(tuple(m.id for m in s) for s in smallest[1:])
+        return Finding(tuple(causes), (), detail=detail, indistinct=others)
 
     def _keep(self, mutations: Iterable[Mutation]) -> None:
         for mutation in mutations:
@@ -298,21 +303,26 @@ class Diagnosis:
         return kept or options
 
     def resolve(self, finding: Finding, history: Sequence[Seen]) -> Finding:
-        """``finding`` with the alternatives the whole run's ``history`` refutes dropped;
-        of those left, the broadest (the one that changes the most kinds of event: R's
-        sigmas everywhere before S's alone), the others kept as what this log cannot
-        tell it from."""
-        if not finding.alternatives:
+        """``finding`` looked at again with the whole run's ``history``: of its cause and
+        the options the log had not told from it when it was named, those the history
+        does not refute, the broadest first."""
+        if not finding.indistinct:
             return finding
-        options = [[MUTATION_BY_ID[c] for c in option] for option in finding.alternatives]
-        options = self._unrefuted(options, history)
-        options.sort(key=lambda option: -sum(_breadth(m.id) for m in option))
+        form_causes = tuple(c for c in finding.causes if MUTATION_BY_ID[c].family == "form")
+        named = tuple(c for c in finding.causes if c not in form_causes)
+        options = [[MUTATION_BY_ID[c] for c in option] for option in (named, *finding.indistinct)]
+        options = _broadest_first(self._unrefuted(options, history))
         self._keep(options[0])
         left = tuple(tuple(m.id for m in option) for option in options[1:])
-        causes = tuple(m.id for m in options[0]) + tuple(
-            c for c in finding.causes if MUTATION_BY_ID[c].family == "form"
-        )
+        causes = tuple(m.id for m in options[0]) + form_causes
         return Finding(causes, (), finding.inherited, finding.detail, left)
+
+
+def _broadest_first(options: list[list[Mutation]]) -> list[list[Mutation]]:
+    """``options`` ordered by how many kinds of event they change, the most first (R's
+    sigmas everywhere before S's alone: the one that explains the most), in catalogue
+    order among equals."""
+    return sorted(options, key=lambda option: -sum(_breadth(m.id) for m in option))
 
 
 MUTATION_BY_ID: dict[str, Mutation] = {m.id: m for m in MUTATIONS}
