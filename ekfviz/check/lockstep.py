@@ -347,16 +347,19 @@ class _Lockstep:
         differ."""
         if worst.quantity is Quantity.LANDMARK_IDS:
             return IDS_HINT
+        said = []
         truncated = whole_numbers(expected, after, self.tolerance)
         if truncated:
             listed = ", ".join(truncated[:3]) + (", ..." if len(truncated) > 3 else "")
-            return (
+            said.append(
                 f"{listed}: whole numbers where the reference's are not, as an integer array"
                 " (np.zeros(..., dtype=int), np.array([[1, 0], ...]) of ints) truncates what"
                 " is stored in it: make it float"
             )
         blocks = differing_blocks(expected, after, self.tolerance)
-        return f"Differs: {blocks}" if blocks else ""
+        if blocks:
+            said.append(f"Differs: {blocks}")
+        return ". ".join(said)
 
     def _precision_of(self, expected: State, after: State) -> None:
         """Whether the filter computes in float32: every number of its state a float32,

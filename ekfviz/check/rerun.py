@@ -105,10 +105,13 @@ class Form:
     :param joint: every known landmark of a line at once (one stacked H, S, K)
     :param covariance: ``ikh`` ((I - K H) P), ``sks`` (P - K S K^T) or ``joseph``
         ((I - K H) P (I - K H)^T + K R K^T): equal for a right K, not for a wrong one
+    :param wrap_h: h(x)'s bearing wrapped (or left atan2(dy, dx) - theta, which the
+        innovation's wrap makes the same, unless a mistake moves it elsewhere)
     """
 
     joint: bool = False
     covariance: str = "ikh"
+    wrap_h: bool = True
 
 
 FORMS = (Form(False, "ikh"), Form(False, "sks"), Form(False, "joseph"))
@@ -136,7 +139,6 @@ class Rerun:
     x_line: FloatArray = field(default_factory=lambda: np.zeros(3))
     P_line: FloatArray = field(default_factory=lambda: np.zeros((3, 3)))
     line_size: int = 3
-    heading: float = 0.0  # the heading h(x) is computed at
     new_ids: list[int] = field(default_factory=list)
 
     @classmethod
@@ -235,10 +237,9 @@ class Rerun:
         # (a landmark initialised in this line is linearised where it was put)
         at = np.concatenate([self.x_line, x[self.line_size :]]) if stale else x
         H_rows, nu_rows = [], []
-        self.heading = float(at[2])
         for z_i, j in rows:
             offset = self.call("landmark_offset", _offset_at, at, j)
-            h = self.call("expected_measurement", expected_measurement, offset, float(at[2]))
+            h = self.call("expected_measurement", self._expected, offset, float(at[2]))
             H_p = self.call("measurement_jacobian_pose", measurement_jacobian_pose, offset)
             H_l = self.call("measurement_jacobian_landmark", measurement_jacobian_landmark, offset)
             H_rows.append(self.call("measurement_jacobian", _full_jacobian, H_p, H_l, j, n))
@@ -247,11 +248,23 @@ class Rerun:
         nu = np.concatenate(nu_rows)
         R = self.call("measurement_noise", _same, self.noise.R)
         R_all = R if len(rows) == 1 else _block_diagonal(R, len(rows))
-        S = self.call("innovation_covariance", innovation_covariance, H, P, R_all)
-        K = self.call("kalman_gain", _gain, P, H, S)
+        P_gain = P
+        if self.mutated("update_loop", "stale_covariance"):
+            if self.P_line.shape != P.shape:
+                raise IndexError("the state grew within the line")
+            P_gain = self.P_line
+        S = self.call("innovation_covariance", innovation_covariance, H, P_gain, R_all)
+        K = self.call("kalman_gain", _gain, P_gain, H, S)
         x = self.call("corrected_mean", corrected_mean, x, K, nu)
         P = self.call("corrected_covariance", self._covariance_update, P, K, S, H, R_all)
         return x, P
+
+    def _expected(self, offset: FloatArray, theta: float) -> FloatArray:
+        """h(x), its bearing wrapped or not as the filter's form has it."""
+        h = expected_measurement(offset, theta)
+        if not self.form.wrap_h:
+            h[..., 0] = np.arctan2(offset[..., 1], offset[..., 0]) - theta
+        return h
 
     def _covariance_update(
         self, P: FloatArray, K: FloatArray, S: FloatArray, H: FloatArray, R: FloatArray

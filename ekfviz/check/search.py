@@ -22,12 +22,12 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cache
 
 import numpy as np
 
-from ekfviz.check.mutations import MUTATIONS, Mutation
+from ekfviz.check.mutations import INERT, MUTATIONS, Mutation
 from ekfviz.check.rerun import FORMS, RERUN_ERRORS, Form, Noise, Rerun, State, Step
 from ekfviz.core.types import FloatArray
 from ekfviz.models.angles import wrap_angle
@@ -35,6 +35,10 @@ from ekfviz.models.angles import wrap_angle
 # the operations whose mutations make K other than P H^T (H P H^T + R)^-1: only with them
 # do the forms of the covariance update differ
 _GAIN_OPERATIONS = frozenset({"innovation_covariance", "kalman_gain"})
+_GAIN_MUTATIONS = frozenset({"update_loop.stale_covariance"})
+# the operations whose mutations may move h(x)'s bearing where no wrap meets it: only with
+# them does a bearing h(x) wrapped or not differ
+_BEARING_OPERATIONS = frozenset({"expected_measurement", "innovation"})
 # how many single mutations (the ones that bring the result nearest the filter's) pairs
 # are made of; and how many of the nearest a deeper search adds one at a time (see
 # Diagnosis._beam)
@@ -45,6 +49,9 @@ BEAM_CANDIDATES = 60  # the nearest singles the deeper search adds, one at a tim
 DEEP_SEARCHES = 2
 # a variance this many times the square of the state's extent is beyond any a run makes
 INVALID_VARIANCE = 1e12
+# metres: a position beyond this is no robot's (10,000 km), but a filter's that has lost
+# its map (an update that pushes the mean away, event after event)
+FAR = 1e7
 # the smallest eigenvalue of a valid P to its largest: below it, P is singular to
 # float64's precision (a correct filter's P keeps the prior's rank and R's)
 SINGULAR = 1e-13
@@ -111,6 +118,8 @@ class Diagnosis:
     deep_left: int = DEEP_SEARCHES
     pairs_left: int = PAIR_SEARCHES
     searches_left: dict[str, int] = field(default_factory=dict)
+    # the causes named among equals, and the options the log had not told them from
+    undecided: dict[tuple[str, ...], tuple[tuple[str, ...], ...]] = field(default_factory=dict)
 
     def explain(
         self,
@@ -128,9 +137,18 @@ class Diagnosis:
         base = [m for m in self.found.values() if acts_on(m, step, before)]
         forms = self._forms(step, before)
         hit = trial.first(base, forms)
+        if hit is None:
+            base, hit = self._swapped(trial, base, forms)
         if hit is not None:
-            return self._named([_minimal(trial, base, hit)], hit, trial, history)
-        if base and (invalid(before) or self._nearly(trial, base, forms)):
+            needed = _minimal(trial, base, hit)
+            if needed or not (self.found and invalid(before)):
+                return self._named([needed], hit, trial, history)
+            # the filter did what the operations say; the reference skipped what an invalid
+            # state (of the mistakes found's making) does not allow (an S not definite)
+            return Finding(tuple(self.found), inherited=True)
+        if self.found and invalid(before):  # of the earlier mistakes' making, whatever kind
+            return Finding(tuple(self.found), inherited=True)
+        if base and self._nearly(trial, base, forms):
             return Finding(tuple(m.id for m in base), inherited=True)
         kind = _kind(step)
         if self.searches_left.get(kind, FULL_SEARCHES) <= 0:
@@ -140,7 +158,10 @@ class Diagnosis:
         candidates = [
             m
             for m in MUTATIONS
-            if m.family != "form" and m.operation not in taken and acts_on(m, step, before)
+            if m.family != "form"
+            and m.id not in INERT
+            and m.operation not in taken
+            and acts_on(m, step, before)
         ]
         found_sets, hit_form = self._search(trial, base, candidates, forms)
         if not found_sets:
@@ -156,6 +177,31 @@ class Diagnosis:
         with_base = trial.best(base, forms).distance
         without = trial.best([], forms[:1]).distance
         return math.isfinite(without) and with_base <= UNEXPLAINED_SHARE * without
+
+    def _swapped(
+        self, trial: _Trial, base: list[Mutation], forms: list[Form]
+    ) -> tuple[list[Mutation], Form | None]:
+        """``base`` with a cause named among equals (:attr:`Finding.indistinct`) swapped for
+        one of the options it could not then be told from, where that reproduces the
+        event (which tells them apart: the option is kept from now on); else ``base``."""
+        for chosen, others in list(self.undecided.items()):
+            if not any(m.id in chosen for m in base):
+                continue
+            kept = [m for m in base if m.id not in chosen]
+            for option in others:
+                mutations = [MUTATION_BY_ID[c] for c in option]
+                hit = trial.first(kept + mutations, forms)
+                if hit is None:
+                    continue
+                for cause in chosen:
+                    self.found.pop(cause, None)
+                self._keep(mutations)
+                del self.undecided[chosen]
+                rest = tuple(o for o in others if o != option)
+                if rest:
+                    self.undecided[tuple(option)] = rest
+                return kept + mutations, hit
+        return base, None
 
     def _forms(self, step: Step, before: State) -> list[Form]:
         """The forms of the update to try: the filter's, once known; else the reference's
@@ -279,6 +325,8 @@ class Diagnosis:
             causes.append("update_loop.joint" if form.joint else "update_loop.sequential")
         detail = _detail(chosen, trial, form)
         others = tuple(tuple(m.id for m in s) for s in smallest[1:])
+        if others:
+            self.undecided[tuple(m.id for m in chosen)] = others
         return Finding(tuple(causes), (), detail=detail, indistinct=others)
 
     def _keep(self, mutations: Iterable[Mutation]) -> None:
@@ -378,8 +426,10 @@ class _Trial:
     def best(self, mutations: Sequence[Mutation], forms: Sequence[Form]) -> _Result:
         """Whether any of ``forms`` (only one covariance form unless the set changes the
         gain) reproduces the event with ``mutations``, else the nearest distance."""
-        if not any(m.operation in _GAIN_OPERATIONS for m in mutations):
+        if not any(m.operation in _GAIN_OPERATIONS or m.id in _GAIN_MUTATIONS for m in mutations):
             forms = [f for f in forms if f.covariance == "ikh"] or list(forms)
+        if any(m.operation in _BEARING_OPERATIONS for m in mutations):
+            forms = [*forms, *(replace(f, wrap_h=False) for f in forms)]
         nearest, state = math.inf, None
         for form in forms:
             result = self.run(mutations, form)
@@ -453,12 +503,14 @@ def scaled_distance(expected: State, got: State) -> float:
 
 
 def invalid(s: State) -> bool:
-    """Whether a state is beyond what any run makes: P not positive definite to
-    float64's precision (a negative eigenvalue, or one under :data:`SINGULAR` of the
-    largest: the update of a P it made singular is round-off), or a variance far beyond
-    the square of the state's extent."""
+    """Whether a state is beyond what any run makes: a position beyond :data:`FAR`, P not
+    positive definite to float64's precision (a negative eigenvalue, or one under
+    :data:`SINGULAR` of the largest: the update of a P it made singular is round-off), or a
+    variance far beyond the square of the state's extent."""
     if not (np.isfinite(s.x).all() and np.isfinite(s.P).all()):
         return True
+    if float(np.max(np.abs(s.x[:2]))) > FAR or (len(s.x) > 3 and np.max(np.abs(s.x[3:])) > FAR):
+        return True  # a filter that has lost its map: its floats no longer hold a metre
     extent = 1.0 + float(np.max(np.abs(s.x[:2]))) if len(s.x) else 1.0
     if len(s.x) > 3:
         extent = max(extent, 1.0 + float(np.max(np.abs(s.x[3:]))))

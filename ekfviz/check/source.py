@@ -63,11 +63,17 @@ class Source:
         return cls(data.decode("utf-8", errors="replace"), Path(path).name)
 
     def _find_functions(self) -> None:
-        """Each ``def``'s lines: up to the next line indented no deeper than it."""
+        """Each ``def``'s lines: up to the next line indented no deeper than it, after its
+        signature (which may run over several lines)."""
         open_defs: list[tuple[int, str, int]] = []  # (indent, name, first line)
+        depth = 0  # of the brackets of a signature still open
         for number, line in enumerate(self.lines):
-            stripped = line.strip()
-            if not stripped or stripped.startswith("#"):
+            code = line.split("#", 1)[0]
+            if depth > 0:
+                depth += _balance(code)
+                continue
+            stripped = code.strip()
+            if not stripped:
                 continue
             indent = len(line) - len(line.lstrip())
             while open_defs and indent <= open_defs[-1][0]:
@@ -76,6 +82,7 @@ class Source:
             match = _DEF.match(line)
             if match:
                 open_defs.append((len(match.group(1)), match.group(2), number))
+                depth = max(0, _balance(code))
         for _, name, first in open_defs:
             self.functions.setdefault(name, (first, len(self.lines)))
 
@@ -107,3 +114,9 @@ class Source:
             if best is not None:
                 return Quoted(best[1] + 1, function, self.lines[best[1]].strip())
         return None
+
+
+def _balance(code: str) -> int:
+    """Brackets opened minus closed on a line of code (strings not told apart: a
+    signature rarely holds a bracket in a string)."""
+    return sum(code.count(c) for c in "([{") - sum(code.count(c) for c in ")]}")

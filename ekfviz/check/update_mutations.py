@@ -234,6 +234,16 @@ def loop_mutations() -> Iterator[Mutation]:
         fix="initialise a new landmark from its measurement and"
         " do not fold that measurement in again",
     )
+    yield written(
+        "update_loop",
+        "stale_covariance",
+        "stale",
+        "S and K are made from P as it was before the line (P_pre) for every landmark,"
+        " not from the P the previous landmarks corrected",
+        result(list),
+        fix="inside the loop, S = H P H^T + R and K = P H^T S^-1 with the current P",
+        tokens=("P_pre",),
+    )
     yield Mutation(
         "update_loop",
         "joint",
@@ -535,6 +545,26 @@ def correction_mutations() -> Iterator[Mutation]:
 
 
 def init_mutations() -> Iterator[Mutation]:
+    yield written(
+        "init_measurement",
+        "bearing_negated",
+        "sign",
+        "a new landmark's direction is theta - beta (the bearing's sign flipped), in its"
+        " position and its Jacobians",
+        result(lambda pairs: pairs * (-1.0, 1.0)),
+        fix="phi = theta + beta",
+        tokens=("phi",),
+    )
+    yield written(
+        "init_pose",
+        "heading_missing",
+        "missing",
+        "a new landmark's direction is beta alone, in its position and its Jacobians: the"
+        " heading theta is not added",
+        operands(lambda pose: (np.array([pose[0], pose[1], 0.0]),)),
+        fix="phi = theta + beta",
+        tokens=("phi",),
+    )
     yield written(
         "init_pose",
         "before_line",
