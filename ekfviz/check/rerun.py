@@ -13,11 +13,12 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import numpy as np
 
 from ekfviz.core.types import FloatArray, IntArray
+from ekfviz.models.angles import wrap_angle
 from ekfviz.models.classic import (
     expected_measurement,
     init_jacobian_measurement,
@@ -42,8 +43,21 @@ from ekfviz.models.kalman import (
     predicted_pose_covariance,
 )
 
-if TYPE_CHECKING:
-    from ekfviz.check.mutations import Mutation
+
+class Mutation(Protocol):
+    """What a re-run asks of a mutation (see :class:`ekfviz.check.operators.Mutation`):
+    the operation it replaces, its name, and what it makes of the operation's call."""
+
+    @property
+    def operation(self) -> str: ...
+
+    @property
+    def name(self) -> str: ...
+
+    def apply(
+        self, rerun: Rerun, function: Callable[..., Any], operands: tuple[Any, ...]
+    ) -> Any: ...
+
 
 # what a re-run may raise on a state it does not fit (a singular S, a landmark at the
 # robot, an index past the state): that mutation does not reproduce the event
@@ -105,13 +119,14 @@ class Form:
     :param joint: every known landmark of a line at once (one stacked H, S, K)
     :param covariance: ``ikh`` ((I - K H) P), ``sks`` (P - K S K^T) or ``joseph``
         ((I - K H) P (I - K H)^T + K R K^T): equal for a right K, not for a wrong one
-    :param wrap_h: h(x)'s bearing wrapped (or left atan2(dy, dx) - theta, which the
-        innovation's wrap makes the same, unless a mistake moves it elsewhere)
+    :param wrap_angles: h(x)'s bearing and the corrected heading wrapped (or left as
+        atan2(dy, dx) - theta and theta + (K nu)_theta: the innovation's wrap makes them the
+        same, unless a mistake moves an unwrapped angle where no wrap meets it)
     """
 
     joint: bool = False
     covariance: str = "ikh"
-    wrap_h: bool = True
+    wrap_angles: bool = True
 
 
 FORMS = (Form(False, "ikh"), Form(False, "sks"), Form(False, "joseph"))
@@ -255,14 +270,18 @@ class Rerun:
             P_gain = self.P_line
         S = self.call("innovation_covariance", innovation_covariance, H, P_gain, R_all)
         K = self.call("kalman_gain", _gain, P_gain, H, S)
+        heading = float(x[2])
         x = self.call("corrected_mean", corrected_mean, x, K, nu)
+        if not self.form.wrap_angles:  # theta + (K nu)_theta as it is, however far
+            turn = float((K @ nu)[2])
+            x[2] = heading + turn + wrap_angle(float(x[2]) - heading - turn)
         P = self.call("corrected_covariance", self._covariance_update, P, K, S, H, R_all)
         return x, P
 
     def _expected(self, offset: FloatArray, theta: float) -> FloatArray:
         """h(x), its bearing wrapped or not as the filter's form has it."""
         h = expected_measurement(offset, theta)
-        if not self.form.wrap_h:
+        if not self.form.wrap_angles:
             h[..., 0] = np.arctan2(offset[..., 1], offset[..., 0]) - theta
         return h
 
