@@ -122,11 +122,14 @@ class Form:
     :param wrap_angles: h(x)'s bearing and the corrected heading wrapped (or left as
         atan2(dy, dx) - theta and theta + (K nu)_theta: the innovation's wrap makes them the
         same, unless a mistake moves an unwrapped angle where no wrap meets it)
+    :param symmetric: P made symmetric after each landmark's correction (or left as the
+        correction makes it: the same, unless a mistake makes it asymmetric)
     """
 
     joint: bool = False
     covariance: str = "ikh"
     wrap_angles: bool = True
+    symmetric: bool = True
 
 
 FORMS = (Form(False, "ikh"), Form(False, "sks"), Form(False, "joseph"))
@@ -268,7 +271,7 @@ class Rerun:
             if self.P_line.shape != P.shape:
                 raise IndexError("the state grew within the line")
             P_gain = self.P_line
-        S = self.call("innovation_covariance", innovation_covariance, H, P_gain, R_all)
+        S = self.call("innovation_covariance", self._innovation_covariance, H, P_gain, R_all)
         K = self.call("kalman_gain", _gain, P_gain, H, S)
         heading = float(x[2])
         x = self.call("corrected_mean", corrected_mean, x, K, nu)
@@ -276,7 +279,11 @@ class Rerun:
             turn = float((K @ nu)[2])
             x[2] = heading + turn + wrap_angle(float(x[2]) - heading - turn)
         P = self.call("corrected_covariance", self._covariance_update, P, K, S, H, R_all)
-        return x, P
+        return x, _symmetric(P) if self.form.symmetric else P
+
+    def _innovation_covariance(self, H: FloatArray, P: FloatArray, R: FloatArray) -> FloatArray:
+        """S, symmetrised where the filter keeps P symmetric (see :class:`Form`)."""
+        return innovation_covariance(H, P, R, symmetrised=self.form.symmetric)
 
     def _expected(self, offset: FloatArray, theta: float) -> FloatArray:
         """h(x), its bearing wrapped or not as the filter's form has it."""

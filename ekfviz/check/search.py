@@ -39,6 +39,9 @@ _GAIN_MUTATIONS = frozenset({"update_loop.stale_covariance"})
 # the operations whose mutations may move h(x)'s bearing where no wrap meets it: only with
 # them does a bearing h(x) wrapped or not differ
 _BEARING_OPERATIONS = frozenset({"expected_measurement", "innovation"})
+# the operations whose mutations may leave P asymmetric within a line: only with them does
+# a filter that symmetrises P after each landmark differ from one that does not
+_ASYMMETRIC_OPERATIONS = frozenset({"corrected_covariance", "kalman_gain"})
 # how many single mutations (the ones that bring the result nearest the filter's) pairs
 # are made of; and how many of the nearest a deeper search adds one at a time (see
 # Diagnosis._beam)
@@ -430,6 +433,8 @@ class _Trial:
             forms = [f for f in forms if f.covariance == "ikh"] or list(forms)
         if any(m.operation in _BEARING_OPERATIONS for m in mutations):
             forms = [*forms, *(replace(f, wrap_angles=False) for f in forms)]
+        if any(m.operation in _ASYMMETRIC_OPERATIONS for m in mutations):
+            forms = [*forms, *(replace(f, symmetric=False) for f in forms)]
         nearest, state = math.inf, None
         for form in forms:
             result = self.run(mutations, form)

@@ -80,15 +80,20 @@ def predicted_cross_covariance(G: FloatArray, P_rm: FloatArray) -> FloatArray:
 # -- update ----------------------------------------------------------------------------------
 
 
-def innovation_covariance(H: FloatArray, P: FloatArray, R: FloatArray) -> FloatArray:
+def innovation_covariance(
+    H: FloatArray, P: FloatArray, R: FloatArray, *, symmetrised: bool = True
+) -> FloatArray:
     """S, the covariance of the innovation.
 
     :param H: (k, n) the measurement Jacobian over the n entries of P it reads (all of x,
         or only the columns where H is not zero: the pose's and the landmark's)
     :param P: (n, n) P over the same entries; R (k, k)
+    :param symmetrised: made exactly symmetric (else as the product leaves it: the S of a
+        P some code left asymmetric)
     :return: (k, k) S = H P H^T + R
     """
-    return _symmetric(H @ P @ H.T + R)
+    S: FloatArray = H @ P @ H.T + R
+    return _symmetric(S) if symmetrised else S
 
 
 def kalman_gain(P_Ht: FloatArray, S: FloatArray) -> FloatArray:
@@ -97,7 +102,8 @@ def kalman_gain(P_Ht: FloatArray, S: FloatArray) -> FloatArray:
     :param P_Ht: (n, k) P H^T; S (k, k)
     :return: (n, k) K = P H^T S^-1
     """
-    K: FloatArray = np.linalg.solve(S, P_Ht.T).T  # S symmetric: (S^-1 H P)^T = P H^T S^-1
+    # (S^-T H P)^T = P H^T S^-1, also for an S some code left asymmetric
+    K: FloatArray = np.linalg.solve(S.T, P_Ht.T).T
     return K
 
 

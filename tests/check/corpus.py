@@ -484,7 +484,7 @@ def main(folder: Path) -> None:
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(text)
         found = verdict(path)
-        if found.mistakes == {cause} and not found.unknown and not found.errors:
+        if found.mistakes == {cause} and not found.unknown:  # (its own code may then fail)
             exact += 1
             said = "exact"
         elif found.mistakes - {cause}:

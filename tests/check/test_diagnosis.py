@@ -264,7 +264,7 @@ def _mutant_is_named_exactly(tmp_path: Path, name: str) -> None:
     path.write_text(text)
     found = corpus.verdict(path)
     assert found.mistakes == {cause}, found
-    assert not found.unknown and not found.errors, found
+    assert not found.unknown, found  # (the module itself may fail later: a P it broke)
     assert found.others <= {corpus.HANDOUT}
 
 
