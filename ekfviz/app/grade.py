@@ -230,8 +230,10 @@ def grade_one(task: GradeTask) -> GradeRow:
             if task.save_dir is not None:
                 save = task.save_dir / _recording_name(task, log)
             try:
+                # (a course module is not run on a log of the battery it cannot read)
                 result, _ = pipeline.check(log, truth, spec, params, tolerance=task.tolerance,
-                                           save=save, every=True)  # fmt: skip
+                                           save=save, every=True,
+                                           skip_unreadable=log_params is None)  # fmt: skip
             except FilterSpecError as error:
                 status = _STATUS_OF_KIND.get(error.kind, "error")
                 detail = _one_line(str(error))

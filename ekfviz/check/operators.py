@@ -268,7 +268,7 @@ def written(operation: str, name: str, family: str, wrong: str, apply: Apply, *,
                     tokens, when)  # fmt: skip
 
 
-# -- helpers of the appliers ---------------------------------------------------------------------
+# -- what the appliers share ---------------------------------------------------------------------
 
 
 def with_heading(pose: FloatArray, theta: float, *, wrap: bool = True) -> FloatArray:

@@ -24,6 +24,13 @@ from ekfviz.check.operators import (
 
 
 def predict_mutations() -> Iterator[Mutation]:
+    yield from _control_and_motion()
+    yield from _jacobians_and_noise()
+    yield from _covariance_mutations()
+
+
+def _control_and_motion() -> Iterator[Mutation]:
+    """The control's and the motion model's."""
     yield written(
         "control",
         "swapped",
@@ -115,6 +122,10 @@ def predict_mutations() -> Iterator[Mutation]:
         "the pose is not moved by the control",
         in_context(lambda rr, f, pose, d, alpha: np.array(pose, dtype=np.float64)),
     )
+
+
+def _jacobians_and_noise() -> Iterator[Mutation]:
+    """G's, W's (and the pose they are evaluated at) and Q's."""
     yield written(
         "linearisation_pose",
         "after_motion",
@@ -173,6 +184,10 @@ def predict_mutations() -> Iterator[Mutation]:
         fix="W at the heading before the predict",
     )
     yield from motion_noise_mutations()
+
+
+def _covariance_mutations() -> Iterator[Mutation]:
+    """The predicted covariances'."""
     yield written(
         "pose_covariance",
         "transposed",

@@ -31,6 +31,14 @@ from ekfviz.models.angles import wrap_angle
 
 
 def update_mutations() -> Iterator[Mutation]:
+    yield from _reading_and_loop()
+    yield from _offset_and_prediction()
+    yield from _jacobian_mutations()
+    yield from _correction_chain()
+
+
+def _reading_and_loop() -> Iterator[Mutation]:
+    """The measurements' reading's and the loop over a line's."""
     readings = (("measurement", "the measurements"),
                 ("init_measurement", "a new landmark's first measurement"))  # fmt: skip
     for operation, what in readings:
@@ -63,6 +71,10 @@ def update_mutations() -> Iterator[Mutation]:
             tokens=("deg2rad", "radians", "180"),
         )
     yield from loop_mutations()
+
+
+def _offset_and_prediction() -> Iterator[Mutation]:
+    """The landmark's offset's and h(x)'s."""
     yield written(
         "landmark_offset",
         "sign",
@@ -112,6 +124,10 @@ def update_mutations() -> Iterator[Mutation]:
         fix="lx, ly = X[3 + 2 i], X[4 + 2 i]",
     )
     yield from expected_measurement_mutations()
+
+
+def _jacobian_mutations() -> Iterator[Mutation]:
+    """H's (beside the generated ones of its blocks)."""
     yield written(
         "measurement_jacobian",
         "rows_swapped",
@@ -166,6 +182,10 @@ def update_mutations() -> Iterator[Mutation]:
             f"{block}'s bearing row divides by r = sqrt(q) where it divides by q (dy/r, dx/r)",
             in_context(lambda rr, f, offset: f(offset) * ((norm(offset),), (1.0,))),
         )
+
+
+def _correction_chain() -> Iterator[Mutation]:
+    """The innovation's, R's, S's, K's and the corrections'."""
     yield from innovation_and_noise_mutations()
     yield from correction_mutations()
 
@@ -355,6 +375,12 @@ def expected_measurement_mutations() -> Iterator[Mutation]:
 
 
 def innovation_and_noise_mutations() -> Iterator[Mutation]:
+    yield from _innovation_mutations()
+    yield from _noise_mutations()
+
+
+def _innovation_mutations() -> Iterator[Mutation]:
+    """The innovation's."""
     yield written(
         "innovation",
         "sign",
@@ -394,6 +420,10 @@ def innovation_and_noise_mutations() -> Iterator[Mutation]:
         "the innovation's components are in the order (range, bearing)",
         result(lambda value: value[::-1]),
     )
+
+
+def _noise_mutations() -> Iterator[Mutation]:
+    """R's and S's."""
     yield written(
         "measurement_noise",
         "sigmas",
@@ -545,6 +575,12 @@ def correction_mutations() -> Iterator[Mutation]:
 
 
 def init_mutations() -> Iterator[Mutation]:
+    yield from _init_position_mutations()
+    yield from _init_covariance_mutations()
+
+
+def _init_position_mutations() -> Iterator[Mutation]:
+    """The first measurement's, the pose's and the position's."""
     yield written(
         "init_measurement",
         "bearing_negated",
@@ -599,6 +635,10 @@ def init_mutations() -> Iterator[Mutation]:
         "a new landmark's direction is beta alone: the heading theta is not added",
         operands(lambda pose, z: (np.array([pose[0], pose[1], 0.0]), z)),
     )
+
+
+def _init_covariance_mutations() -> Iterator[Mutation]:
+    """P_ll's and P_lx's."""
     yield written(
         "landmark_covariance",
         "pose_term_missing",

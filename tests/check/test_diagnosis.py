@@ -323,3 +323,58 @@ def test_the_corpus_holds_both_styles_and_enough_of_each() -> None:
     assert styles == {"skeleton", "solution"}
     assert len(MUTANTS) >= 60 and len(corpus.CORRECT) >= 20
     assert set(students.STUDENTS) <= set(students.MISTAKES)
+
+
+# -- the battery and what a log cannot tell apart ------------------------------------------------
+
+
+def test_what_each_log_of_the_battery_cannot_tell_apart() -> None:
+    """The classic log never stands still (no noise at a standstill passes it), the edge log
+    does; neither tells a landmark placed before the line's corrections (every landmark
+    is new on the first line only), the mid-run log does."""
+    from ekfviz.check.coverage import untellable
+    from ekfviz.core.records import with_ids
+    from ekfviz.sim.scenarios import EDGE_START
+    from ekfviz.sources import read_log
+
+    def untold(log: str, params: FilterParams) -> set[str]:
+        events = list(with_ids(read_log(ROOT / "data" / f"{log}.txt")))
+        return {item.untested.rsplit("(", 1)[1] for item in untellable(events, params)}
+
+    classic = untold("classic", FilterParams())
+    assert any("motion_noise.missing_when_still" in said for said in classic)
+    assert any("init_pose.before_line" in said for said in classic)
+    edge = untold("edge", FilterParams(init_pose=EDGE_START))
+    assert not any("motion_noise.missing_when" in said for said in edge)
+    assert not any("innovation.not_wrapped" in said for said in edge)
+    # (the noise the mid-run log's header states)
+    midrun = untold("midrun", FilterParams(sigma_x=0.124907, sigma_y=0.062453,
+                                           sigma_alpha=0.012491))  # fmt: skip
+    assert not any("init_pose.before_line" in said for said in midrun)
+
+
+def test_a_course_module_is_not_run_on_the_mid_run_log_and_says_why() -> None:
+    from ekfviz.check.lockstep import course_cannot_read
+    from ekfviz.core.records import with_ids
+    from ekfviz.sources import read_log
+
+    events = list(with_ids(read_log(ROOT / "data" / "midrun.txt")))
+    why = course_cannot_read(events)
+    assert why.startswith("a course module cannot read this log: its line")
+    assert "init_landmarks is called once, on the first line" in why
+    assert course_cannot_read(list(with_ids(read_log(ROOT / "data" / "classic.txt")))) == ""
+
+
+def test_a_filter_class_is_checked_on_the_mid_run_log() -> None:
+    from ekfviz.check.lockstep import lockstep
+    from ekfviz.core.records import with_ids
+    from ekfviz.filters.spec import load_in_process
+    from ekfviz.sources import read_log
+
+    plugin = str(ROOT / "tests" / "plugins" / "textbook.py") + ":Textbook"
+    params = FilterParams(sigma_x=0.124907, sigma_y=0.062453, sigma_alpha=0.012491,
+                          init_pose_sigma=(0.01, 0.01, 0.005))  # fmt: skip
+    result = lockstep(with_ids(read_log(ROOT / "data" / "midrun.txt")), params,
+                      load_in_process(plugin), name="textbook")  # fmt: skip
+    assert result.match, result.first_divergence
+    assert result.events_checked == 49
