@@ -262,8 +262,8 @@ class Rerun:
             H_l = self.call("measurement_jacobian_landmark", measurement_jacobian_landmark, offset)
             H_rows.append(self.call("measurement_jacobian", _full_jacobian, H_p, H_l, j, n))
             nu_rows.append(self.call("innovation", innovation, z_i, h))
-        H = np.vstack(H_rows)
-        nu = np.concatenate(nu_rows)
+        H = H_rows[0] if len(rows) == 1 else np.vstack(H_rows)
+        nu = nu_rows[0] if len(rows) == 1 else np.concatenate(nu_rows)
         R = self.call("measurement_noise", _same, self.noise.R)
         R_all = R if len(rows) == 1 else _block_diagonal(R, len(rows))
         P_gain = P
