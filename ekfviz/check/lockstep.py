@@ -434,6 +434,8 @@ def _float32(s: State) -> bool:
     """Whether every number of a state is a float32 (and some is not a small dyadic
     fraction, which both precisions hold alike)."""
     values = np.concatenate([s.x, s.P.ravel()])
+    if not values.size or float(np.max(np.abs(values))) > float(np.finfo(np.float32).max):
+        return False
     return bool(np.array_equal(values.astype(np.float32).astype(np.float64), values)) and bool(
         np.any(values * 2.0**20 != np.round(values * 2.0**20))
     )

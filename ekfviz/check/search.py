@@ -419,7 +419,8 @@ class _Trial:
     def run(self, mutations: Sequence[Mutation], form: Form) -> State | None:
         try:
             rerun = Rerun.with_mutations(self.noise, mutations, form, self.after)
-            result = rerun.run(self.before, self.step)
+            with np.errstate(all="ignore"):  # a mutation may overflow: it reproduces nothing
+                result = rerun.run(self.before, self.step)
         except RERUN_ERRORS:
             return None
         if not (np.isfinite(result.x).all() and np.isfinite(result.P).all()):
