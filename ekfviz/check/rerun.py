@@ -119,16 +119,18 @@ class Form:
     :param joint: every known landmark of a line at once (one stacked H, S, K)
     :param covariance: ``ikh`` ((I - K H) P), ``sks`` (P - K S K^T) or ``joseph``
         ((I - K H) P (I - K H)^T + K R K^T): equal for a right K, not for a wrong one
-    :param wrap_angles: h(x)'s bearing and the corrected heading wrapped (or left as
-        atan2(dy, dx) - theta and theta + (K nu)_theta: the innovation's wrap makes them the
-        same, unless a mistake moves an unwrapped angle where no wrap meets it)
+    :param wrap_h: h(x)'s bearing wrapped (or left atan2(dy, dx) - theta), and
+    :param wrap_heading: the corrected heading wrapped (or left theta + (K nu)_theta): the
+        innovation's wrap makes them the same, unless a mistake moves an unwrapped angle
+        where no wrap meets it
     :param symmetric: P made symmetric after each landmark's correction (or left as the
         correction makes it: the same, unless a mistake makes it asymmetric)
     """
 
     joint: bool = False
     covariance: str = "ikh"
-    wrap_angles: bool = True
+    wrap_h: bool = True
+    wrap_heading: bool = True
     symmetric: bool = True
 
 
@@ -275,7 +277,7 @@ class Rerun:
         K = self.call("kalman_gain", _gain, P_gain, H, S)
         heading = float(x[2])
         x = self.call("corrected_mean", corrected_mean, x, K, nu)
-        if not self.form.wrap_angles:  # theta + (K nu)_theta as it is, however far
+        if not self.form.wrap_heading:  # theta + (K nu)_theta as it is, however far
             turn = float((K @ nu)[2])
             x[2] = heading + turn + wrap_angle(float(x[2]) - heading - turn)
         P = self.call("corrected_covariance", self._covariance_update, P, K, S, H, R_all)
@@ -288,7 +290,7 @@ class Rerun:
     def _expected(self, offset: FloatArray, theta: float) -> FloatArray:
         """h(x), its bearing wrapped or not as the filter's form has it."""
         h = expected_measurement(offset, theta)
-        if not self.form.wrap_angles:
+        if not self.form.wrap_h:
             h[..., 0] = np.arctan2(offset[..., 1], offset[..., 0]) - theta
         return h
 

@@ -433,7 +433,8 @@ class _Trial:
         if not any(m.operation in _GAIN_OPERATIONS or m.id in _GAIN_MUTATIONS for m in mutations):
             forms = [f for f in forms if f.covariance == "ikh"] or list(forms)
         if any(m.operation in _BEARING_OPERATIONS for m in mutations):
-            forms = [*forms, *(replace(f, wrap_angles=False) for f in forms)]
+            forms = [*forms, *(replace(f, wrap_h=False) for f in forms),
+                     *(replace(f, wrap_h=False, wrap_heading=False) for f in forms)]  # fmt: skip
         if any(m.operation in _ASYMMETRIC_OPERATIONS for m in mutations):
             forms = [*forms, *(replace(f, symmetric=False) for f in forms)]
         nearest, state = math.inf, None
