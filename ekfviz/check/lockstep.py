@@ -161,13 +161,8 @@ class _Lockstep:
         every: bool,
         source: Source | None,
     ) -> None:
-        self.params, self.slam, self.name, self.every, self.source = (
-            params,
-            slam,
-            name,
-            every,
-            source,
-        )
+        self.params, self.slam, self.name = params, slam, name
+        self.every, self.source = every, source
         self.tolerance = self.asked = tolerance
         declared_Q, declared_R = declared_noise(slam.slam)
         self.noise = Noise(motion_noise(params.sigma_x, params.sigma_y, params.sigma_alpha),

@@ -117,7 +117,7 @@ class Diagnosis:
     reference: Form
     tolerance: float
     found: dict[str, Mutation] = field(default_factory=dict)
-    form: Form | None = None
+    joint: bool | None = None  # the filter's mode of update, once a line has told it
     deep_left: int = DEEP_SEARCHES
     pairs_left: int = PAIR_SEARCHES
     searches_left: dict[str, int] = field(default_factory=dict)
@@ -207,15 +207,15 @@ class Diagnosis:
         return base, None
 
     def _forms(self, step: Step, before: State) -> list[Form]:
-        """The forms of the update to try: the filter's, once known; else the reference's
-        first, then the other mode where the line has two known landmarks."""
+        """The forms of the update to try: in the filter's mode, once known; else in the
+        reference's first, then the other mode where the line has two known landmarks."""
         if step.is_predict:
             return [Form()]
-        if self.form is not None:
-            return [self.form]
         assert step.ids is not None
         known = sum(1 for i in step.ids.tolist() if i in set(before.ids.tolist()))
         modes = [self.reference.joint] + ([not self.reference.joint] if known > 1 else [])
+        if self.joint is not None:  # the filter's own, once a line has told
+            modes = [self.joint]
         return [Form(joint, form.covariance) for joint in modes for form in FORMS]
 
     def _search(
@@ -319,8 +319,8 @@ class Diagnosis:
         smallest = self._unrefuted(smallest, history)
         specific = [s for s in smallest if all(m.family != "own" for m in s)]
         smallest = _broadest_first(specific or smallest)
-        if not trial.step.is_predict and self.form is None and trial.decides_mode():
-            self.form = Form(form.joint, form.covariance)
+        if not trial.step.is_predict and self.joint is None and trial.decides_mode():
+            self.joint = form.joint
         self._keep(smallest[0])
         chosen = smallest[0]
         causes = [m.id for m in chosen]
