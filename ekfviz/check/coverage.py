@@ -122,16 +122,16 @@ def untellable(events: Sequence[LogEvent], params: FilterParams) -> list[Item]:
     """For each operation, the families of its mutations no event of the log tells from
     correct code (each mutation re-run at every event it acts on, from the reference's
     own state before it, until one changes the result by more than round-off)."""
-    from ekfviz.check.mutations import FAMILIES, MUTATIONS
+    from ekfviz.check.mutations import FAMILIES, INERT, MUTATIONS
     from ekfviz.check.operations import OPERATION
-    from ekfviz.check.search import acts_on, is_inert, scaled_distance
+    from ekfviz.check.search import acts_on, scaled_distance
 
     noise = Noise(params.Q, params.R)
     joint = Form(params.update is UpdateMode.JOINT)
     walk = _reference_walk(events, params, noise, joint)
     untold: dict[tuple[str, str], list[str]] = {}
     for mutation in MUTATIONS:
-        if mutation.family in ("own", "form") or is_inert(mutation.id):
+        if mutation.family in ("own", "form") or mutation.id in INERT:
             continue
         told = False
         for before, step, after in walk:

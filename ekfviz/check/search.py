@@ -311,10 +311,13 @@ class Diagnosis:
         as what the log has not told it from (:meth:`resolve` looks again at the end); the
         form noted, the causes named kept for the events after."""
         distinct: dict[tuple[tuple[bytes, ...], ...], list[Mutation]] = {}
-        for chosen in sets:  # (in the catalogue's order: a class's first stands for it)
+        smallest_size = min(len(chosen) for chosen in sets)
+        sets = [chosen for chosen in sets if len(chosen) == smallest_size]
+        for chosen in sets if len(sets) > 1 else ():  # (a class's first stands for it)
             key = tuple(sorted(fingerprint(m.id) for m in chosen))
             distinct.setdefault(key, chosen)
-        options = sorted(distinct.values(), key=lambda s: (len(s), [m.id for m in s]))
+        options = sorted(distinct.values() if distinct else sets,
+                         key=lambda s: (len(s), [m.id for m in s]))  # fmt: skip
         smallest = [s for s in options if len(s) == len(options[0])]
         smallest = self._unrefuted(smallest, history)
         specific = [s for s in smallest if all(m.family != "own" for m in s)]
