@@ -909,6 +909,15 @@ def main(argv: Sequence[str] | None = None) -> None:
         " Victoria Park), in one run",
     )
     parser.add_argument(
+        "--check-only", action="store_true", help="only the check --all section of RESULTS.md"
+    )
+    parser.add_argument(
+        "--before",
+        type=Path,
+        default=None,
+        help="a clone from before (with its own .venv) to time check --all against",
+    )
+    parser.add_argument(
         "--association-only",
         action="store_true",
         help="only the association section (Victoria Park, simulated clutter) of RESULTS.md",
@@ -920,6 +929,15 @@ def main(argv: Sequence[str] | None = None) -> None:
     started = time.perf_counter()
     if args.worker_only:
         section = worker_section(worker_worlds(args.quick))
+        old = args.out.read_text() if args.out.exists() else ""
+        args.out.write_text(splice(old, section))
+        print(section)
+        return
+    if args.check_only:
+        from check_bench import check_section
+
+        with tempfile.TemporaryDirectory() as tmp:
+            section = check_section(Path(tmp), args.before)
         old = args.out.read_text() if args.out.exists() else ""
         args.out.write_text(splice(old, section))
         print(section)
@@ -988,6 +1006,10 @@ def main(argv: Sequence[str] | None = None) -> None:
         scaling = scaling_section(Path(tmp), args.quick, args.out.parent)
         print("the sandbox of user code", flush=True)
         sandbox = sandbox_section(Path(tmp), args.quick)
+        print("check --all", flush=True)
+        from check_bench import check_section
+
+        checks = check_section(Path(tmp), args.before)
     print("core against dense (one BLAS thread)", flush=True)
     rows = core_rows(args.quick)
     flops = dgemm_flops()
@@ -1000,6 +1022,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     workers = worker_section(worker_worlds(args.quick))
     text = splice(splice(splice(splice(text, mrclam), smoothers), association), workers)
     text = splice(splice(splice(splice(text, startups), scaling), targets), sandbox)
+    text = splice(text, checks)
     args.out.write_text(text)
     print()
     print(text)

@@ -3,8 +3,9 @@
 Full (3+2N)^2 products everywhere: F_x selection matrices, G = I + F_x^T g F_x, full H
 through a selection matrix, ``inv(S)``, ``(I - K H) P``. It is the baseline the
 benchmarks time ekfviz against, and an independent oracle for the tests: it shares no
-code with ``ekfviz.core``. Landmarks are all known from the first line (the classic
-format), so the state has a fixed size.
+code with ekfviz (whose filter math is written once, in ``ekfviz/models``), kept on
+purpose as an independent dense derivation to cross-check against. Landmarks are all
+known from the first line (the classic format), so the state has a fixed size.
 """
 
 from __future__ import annotations

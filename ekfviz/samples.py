@@ -16,6 +16,24 @@ SAMPLES: dict[str, list[str]] = {
     # the classic format's corner cases (bearings across +-pi, a start heading nearly pi,
     # a turn of over pi) for `ekfviz check`'s battery; replay with --init-pose 4 -2 3.136593
     "edge": ["--scenario", "edge", "--seed", "2", "--precision", "6"],
+    # landmarks first seen mid-run, lines of known and new ones, some behind the robot (the
+    # extended format, for `ekfviz check`'s battery; a course module cannot read it)
+    "midrun": [
+        "--scenario",
+        "loop",
+        "--seed",
+        "3",
+        "--steps",
+        "24",
+        "--landmarks",
+        "24",
+        "--max-range",
+        "20",
+        "--fov",
+        "360",
+        "--precision",
+        "6",
+    ],
     # the loop scenario as `ekfviz simulate --scenario loop` gives it by default (seed 0)
     "loop": ["--scenario", "loop", "--precision", "4"],
     # id-less scans with clutter and misses, for --association (see README)
@@ -49,7 +67,7 @@ def simulate_arguments(folder: Path, stem: str) -> list[str]:
     ]
 
 
-BATTERY = ("classic", "edge")
+BATTERY = ("classic", "edge", "midrun")
 
 
 def write_battery(folder: Path) -> list[tuple[Path, Path, tuple[float, float, float] | None]]:

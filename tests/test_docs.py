@@ -245,11 +245,3 @@ def test_the_sites_pages_are_the_ones_the_nav_names() -> None:
     written = {p.name for p in DOCS.glob("*.md")}
     assert named - written == {"results.md"}  # made from benchmarks/RESULTS.md
     assert written - named == set()
-
-
-def test_the_catalogue_of_causes_is_on_its_page() -> None:
-    from ekfviz.check.mistakes import CATALOGUE
-
-    text = (DOCS / "causes.md").read_text(encoding="utf-8")
-    listed = re.findall(r"^\| `(\w+)` \|", text, re.MULTILINE)
-    assert sorted(listed) == sorted(cause.id for cause in CATALOGUE)

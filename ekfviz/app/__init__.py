@@ -342,6 +342,7 @@ def check(
     source_args: SourceArgs | None = None,
     warn: WarningCallback | None = None,
     own_truth: OwnTruth | None = None,
+    skip_unreadable: bool = False,
 ) -> tuple[CheckResult, list[CoverageItem]]:
     """Check a protocol filter against the reference in lockstep over ``data``; with
     ``save``, one recording of both side by side, the divergences marked. Also what the
@@ -349,16 +350,21 @@ def check(
 
     :param every: look for the cause of every divergent event (``check --all``)
     :param own_truth: the source's own truth (a dataset's), where ``truth_path`` is None
+    :param skip_unreadable: a course module and a log it cannot read (landmarks first seen
+        after the first line): a result that says so, the module not run (the battery)
     :raises InputError, FilterLineError, FilterSpecError, SinkError: one line each
     """
     from ekfviz.check.coverage import coverage
-    from ekfviz.check.lockstep import lockstep
+    from ekfviz.check.lockstep import course_cannot_read, lockstep, skipped
 
     make_filter = spec.load()
     truth, truth_files = study_truth(truth_path, own_truth)
     source = open_source(data, source_args)
     try:
         events = list(with_ids(source_events(source, truth, truth_path, warn=warn)))
+        why = course_cannot_read(events) if getattr(make_filter, "style", "") == "functions" else ""
+        if skip_unreadable and why:
+            return skipped(why, tolerance), []
         result = lockstep(
             events, params, make_filter, name=spec.text, tolerance=tolerance, every=every
         )
@@ -369,7 +375,7 @@ def check(
         ) from None  # fmt: skip
     finally:
         release(make_filter)
-    exercised = coverage(events, result.reference, params)
+    exercised = coverage(events, result.reference, params, operations=True)
     if save is not None and result.records:
         _record_check(data, truth, truth_files, spec, params, result, save, source.files)
     return result, exercised

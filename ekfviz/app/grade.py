@@ -258,7 +258,9 @@ def _checked(
         if start is not None:
             params = replace(params, init_pose=start)
         save = None if task.save_dir is None else _fresh(task.save_dir / name)
-        if not _check_log(verdict, spec, log, truth, params, task.tolerance, save):
+        # (a course module is not run on a log of the battery it cannot read)
+        if not _check_log(verdict, spec, log, truth, params, task.tolerance, save,
+                          skip_unreadable=log_params is None):  # fmt: skip
             break
     causes = verdict.causes or {}
     if verdict.any_unknown:  # last: a known mistake and more (else a correct module's row)
@@ -285,6 +287,7 @@ def _check_log(
     params: FilterParams,
     tolerance: float,
     save: Path | None,
+    skip_unreadable: bool,
 ) -> bool:
     """Check on one log, adding to ``verdict``; whether the next log is to be checked."""
     from ekfviz import app as pipeline
@@ -293,7 +296,7 @@ def _check_log(
 
     try:
         result, _ = pipeline.check(log, truth, spec, params, tolerance=tolerance, save=save,
-                                   every=True)  # fmt: skip
+                                   every=True, skip_unreadable=skip_unreadable)  # fmt: skip
     except FilterSpecError as error:  # (the row names the submission: not its --filter)
         reason = str(error).removeprefix(f"--filter {spec.text}: ")
         verdict.failed(_STATUS_OF_KIND.get(error.kind, "error"), reason)

@@ -15,7 +15,8 @@ the updates of a whole log), per battery log (``log``: every event) and ``consis
 its own with its own time limit, so one slow part never zeroes the others (predict and
 update still start from the landmarks' initialisation). A part's events pass when every
 divergence among them is of a cause the rubric accepts (``accept``: by default the
-handout's block-diagonal P, ``independent_landmark_init``). :func:`autograder_files`
+handout's block-diagonal P, ``landmark_cross_covariance.skipped``; a cause's short name
+is taken too). :func:`autograder_files`
 makes the zip Gradescope asks for. Numpy only.
 """
 
@@ -41,7 +42,7 @@ DEFAULT_RUBRIC = """\
 [grade]
 memory = 2048                            # MB of address space, each part
 tolerance = 1e-6                         # the largest scaled difference that agrees
-accept = ["independent_landmark_init"]   # causes that lose no points: the handout's P
+accept = ["landmark_cross_covariance.skipped"]   # causes that lose no points: the handout's P
 visibility = "visible"                   # Gradescope's, for every part not saying its own
 
 [[part]]
@@ -137,13 +138,27 @@ def read_rubric(path: Path | None) -> Rubric:
     visibility = _field(head, "visibility", str, "visible", where, "[grade]")
     memory = _field(head, "memory", int, 2048, where, "[grade]")
     tolerance = float(_field(head, "tolerance", (int, float), 1e-6, where, "[grade]"))
-    accept = _field(head, "accept", list, ["independent_landmark_init"], where, "[grade]")
+    accept = _field(head, "accept", list, ["landmark_cross_covariance.skipped"], where, "[grade]")
     if visibility not in VISIBILITIES or memory < 64 or not tolerance > 0:
         raise RubricError(f"--rubric {where}: [grade] expects visibility one of"
                           f" {', '.join(VISIBILITIES)}, memory >= 64, tolerance > 0")  # fmt: skip
     read = tuple(_part(part, index, where, visibility) for index, part in enumerate(parts))
     folder = Path(".") if path is None else path.resolve().parent
-    return Rubric(read, tuple(str(c) for c in accept), memory, tolerance, folder)
+    return Rubric(read, _causes(accept, where), memory, tolerance, folder)
+
+
+def _causes(accept: list[Any], where: str) -> tuple[str, ...]:
+    """The rubric's accepted causes as ``check`` names them; an id it never names refused."""
+    from ekfviz.check.mistakes import catalogue
+    from ekfviz.check.mutations import resolve
+
+    known = {cause.id for cause in catalogue()}
+    named = tuple(resolve(str(cause)) for cause in accept)
+    for given, cause in zip(accept, named, strict=True):
+        if cause not in known:
+            raise RubricError(f"--rubric {where}: [grade] accept: {given!s} is not a cause"
+                              " check names (see the documentation's list of causes)")  # fmt: skip
+    return named
 
 
 def _field(table: dict[str, Any], key: str, kind: Any, default: Any, where: str, at: str) -> Any:

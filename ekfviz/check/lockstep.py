@@ -2,349 +2,81 @@
 
 Before every event the reference (the built-in :class:`~ekfviz.filters.ekf.EkfSlam`)
 starts from the checked filter's **own** state (x, P, landmark ids) and applies the same
-event with the same parameters; the two results are compared by landmark id. Every
+event with the run's parameters; the two results are compared by landmark id. Every
 difference found is therefore that event's own: errors do not pile up, and every event
 that differs by more than the tolerance is a place where the filter's algebra differs.
 
 A difference is scaled as |got - expected| / max(1, |expected|): absolute for the small
-entries of a covariance, relative for large ones. A divergent event's cause is found by
-re-running it from the same state with the mistakes of the catalogue
-(:mod:`ekfviz.check.mistakes`), combined with those already found: a set that reproduces
-what the filter did is named; otherwise the hint says which part of the algebra produces
-the quantity that differs.
+entries of a covariance, relative for large ones. A filter that computes in float32
+(every number of its state a float32) is held to its own precision: the tolerance grows
+to :data:`FLOAT32_TOLERANCE`, and a difference within it is said to be the precision's.
+A divergent event's cause is found by the search of :mod:`ekfviz.check.search`: the
+smallest set of mutations of the named operations that reproduces what the filter did.
+
+The noise a filter declares as its own (``motion_noise`` 3x3, ``measurement_noise``
+2x2) is compared with the run's (the options, or the log's header) and a difference is
+named as a cause at the start; the reference never adopts it.
 """
 
 from __future__ import annotations
 
-import enum
 import math
-from collections.abc import Iterable, Iterator
-from dataclasses import dataclass, replace
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from ekfviz.check.mistakes import (
-    RERUN_ERRORS,
-    UNKNOWN,
-    Explanation,
-    State,
-    describe,
-    explain_predict,
-    explain_update,
-)
+from ekfviz.check.hints import IDS_HINT, PRIOR_HINT, hint, named
+from ekfviz.check.mutations import MUTATION
+from ekfviz.check.rerun import Form, Noise, State, Step
+from ekfviz.check.result import CheckResult, Difference, Divergence, Quantity
+from ekfviz.check.search import Diagnosis, Finding, Seen
+from ekfviz.check.source import Source
+from ekfviz.check.unknown import unexplained
 from ekfviz.core.errors import FilterError
-from ekfviz.core.params import FilterParams
+from ekfviz.core.params import FilterParams, UpdateMode
 from ekfviz.core.records import Control, EventKind, EventRecord, LogEvent, Sighting
-from ekfviz.core.tables import Cell, Styled, TextTable
 from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.filters.ekf import EkfSlam
 from ekfviz.filters.plugged import FilterFactory, Plugged, PluginError
 from ekfviz.models.angles import wrap_angle
+from ekfviz.models.kalman import measurement_noise, motion_noise
 from ekfviz.runner.replay import plugged
 
+__all__ = [
+    "DEFAULT_TOLERANCE", "CheckResult", "Difference", "Divergence", "Quantity", "compare",
+    "course_cannot_read", "lockstep", "numbered", "skipped",
+]  # fmt: skip
+
 DEFAULT_TOLERANCE = 1e-6
-# the mistakes are re-run (dense algebra) only up to this state dimension
+# the tolerance of a filter that computes in float32 (about 2^-23 = 1.2e-7 per operation):
+# the largest difference a correct float32 module showed on the battery's logs, 3.5e-6,
+# times 30 (a margin for longer runs and worse-conditioned updates)
+FLOAT32_TOLERANCE = 1e-4
+# the mutations are re-run (dense algebra) only up to this state dimension
 HYPOTHESIS_MAX_DIM = 400
-# without --all, how many divergent events after the first are re-run to find the next
-# one with a cause of its own (each costs the catalogue's re-runs)
+# without --all, how many divergent events after the first are searched to find the next
+# one with a cause of its own (each costs the search's re-runs)
 NEXT_SEARCH_LIMIT = 25
-# how many unexplained updates of a run get the deep search of the catalogue (any three
-# more mistakes at once; after them, the later mistakes one at a time: see
-# mistakes.explain_update); a run's mistakes, once found, are tried at every event
-DEEP_SEARCHES = 3
+# the events kept for the search to look back at (their states, for a state of a few
+# hundred entries a few MB each): the divergent ones, and this many matching ones
+SEEN_MATCHED = 200
 
 
-class Quantity(str, enum.Enum):
-    """The part of the state a difference is in."""
-
-    LANDMARK_IDS = "landmark ids"
-    POSE_MEAN = "pose mean"
-    POSE_COVARIANCE = "pose covariance"
-    POSE_LANDMARK = "pose-landmark cross-covariance"
-    LANDMARK_MEAN = "landmark mean"
-    LANDMARK_COVARIANCE = "landmark covariance"
-    LANDMARK_LANDMARK = "landmark-landmark cross-covariance"
-
-
-@dataclass(frozen=True, slots=True)
-class Difference:
-    """The worst entry of one comparison.
-
-    :param entry: which entry, e.g. ``P[x, theta]`` or ``x[L3.y]``
-    :param difference: |got - expected| / max(1, |expected|)
-    """
-
-    quantity: Quantity
-    landmark_id: int | None
-    entry: str
-    expected: float
-    got: float
-    difference: float
-
-
-@dataclass(frozen=True, slots=True)
-class Divergence:
-    """One event where the filter leaves the reference, and its cause.
-
-    :param worst: the worst entry of the event's comparison
-    :param causes: the catalogue's ids that reproduce the event (empty: not found, or
-        not looked for)
-    :param alternatives: other sets of causes that reproduce it equally (the event
-        cannot tell them apart; ``causes`` is then not named)
-    """
-
-    event: int
-    step: int
-    line: int
-    kind: EventKind
-    worst: Difference
-    hint: str
-    causes: tuple[str, ...] = ()
-    alternatives: tuple[tuple[str, ...], ...] = ()
-
-    @property
-    def cause(self) -> str:
-        """The cause as one id (``a+b`` for two combined), or ``unknown``."""
-        return "+".join(self.causes) if self.causes and not self.alternatives else UNKNOWN
-
-    def to_json(self) -> dict[str, object]:
-        worst = self.worst
-        return {
-            "event": self.event,
-            "step": self.step,
-            "line": self.line,
-            "kind": self.kind.value,
-            "quantity": worst.quantity.value,
-            "landmark_id": worst.landmark_id,
-            "entry": worst.entry,
-            "expected": worst.expected,
-            "got": worst.got,
-            "difference": worst.difference,
-            "cause": self.cause,
-            "hint": self.hint,
-        }
-
-
-@dataclass(frozen=True, slots=True)
-class DivergenceGroup:
-    """Divergent events of one kind, quantity and cause: how many, and the first."""
-
-    kind: str
-    quantity: str
-    cause: str
-    count: int
-    first: Divergence
-
-    def to_json(self) -> dict[str, object]:
-        return {
-            "kind": self.kind,
-            "quantity": self.quantity,
-            "count": self.count,
-            "first_event": self.first.event,
-            "first_step": self.first.step,
-            "first_line": self.first.line,
-            "cause": self.cause,
-            "hint": self.first.hint,
-        }
-
-
-@dataclass(frozen=True, slots=True)
-class CheckResult:
-    """What a lockstep check found.
-
-    :param records: the checked filter's record of every event it ran
-    :param reference: the reference's record of the same events (each from the
-        filter's state before the event)
-    :param differences: the largest scaled difference at every event, in order
-    :param divergences: every divergent event, in order; causes looked for in all of
-        them (``every``) or in the first only
-    :param every: whether causes were looked for at every divergent event (``--all``)
-    :param error: why the filter stopped early (it raised, crashed, timed out), if it did
-    :param error_line: the input line of that event
-    :param error_kind: as :class:`~ekfviz.sandbox.host.WorkerFault`'s kind
-    :param next_divergence: without ``every``, when the first divergence's causes are
-        named: the first later divergence not explained by them alone (a course module's
-        first divergence is the handout's block-diagonal P; the student's own mistake
-        comes after it)
-    """
-
-    events_checked: int
-    max_difference: float
-    tolerance: float
-    first_divergence: Divergence | None
-    records: tuple[EventRecord, ...]
-    reference: tuple[EventRecord, ...]
-    differences: tuple[float, ...]
-    divergences: tuple[Divergence, ...] = ()
-    every: bool = False
-    error: str | None = None
-    error_line: int = 0
-    error_kind: str = ""
-    error_traceback: str = ""  # the filter's own, from its worker (shown with --debug)
-    # a course module's shapes as detected (argument -> "column" or "flat")
-    convention: dict[str, str | None] | None = None
-    next_divergence: Divergence | None = None
-
-    @property
-    def match(self) -> bool:
-        return self.first_divergence is None and self.error is None
-
-    @property
-    def groups(self) -> list[DivergenceGroup]:
-        """The divergences grouped by kind, quantity and cause, in order of first event."""
-        groups: dict[tuple[str, str, str], list[Divergence]] = {}
-        for divergence in self.divergences:
-            shown = (self.first_divergence, self.next_divergence)
-            if not self.every and not any(divergence is d for d in shown):
-                continue
-            key = (divergence.kind.value, divergence.worst.quantity.value, divergence.cause)
-            groups.setdefault(key, []).append(divergence)
-        return [
-            DivergenceGroup(kind, quantity, cause, len(found), found[0])
-            for (kind, quantity, cause), found in groups.items()
-        ]
-
-    @property
-    def causes(self) -> list[str]:
-        """The distinct causes named, in the order first found."""
-        seen: dict[str, None] = {}
-        for divergence in self.divergences:
-            if divergence.cause != UNKNOWN:
-                for cause in divergence.causes:
-                    seen.setdefault(cause, None)
-        return list(seen)
-
-    def verdict_lines(self, name: str, every: bool) -> list[Cell]:
-        """The verdict on the log called ``name``: the shapes of a course module, the match
-        or the first divergence with its cause and hint, how many more diverge."""
-        lines: list[Cell] = []
-        tolerance = self.tolerance
-        if self.convention:
-            said = [
-                (_SHAPES if how == "column" else _FLAT)[what]
-                for what, how in self.convention.items()
-                if how is not None
-            ]
-            lines.append(Styled(f"course module, shapes detected: {', '.join(said)}"))
-        if self.match:
-            lines.append((
-                Styled("match:", "green"),
-                Styled(f" all {self.events_checked} events agree with the reference (largest"
-                       f" difference {self.max_difference:.3g}, tolerance {tolerance:g})"),
-            ))  # fmt: skip
-        first = self.first_divergence
-        if first is None:
-            return lines
-        lines.append(_divergence_lines("divergence", first, name, tolerance))
-        if self.convention and first.causes == ("independent_landmark_init",):
-            lines.append(Styled(f"  ({_HANDOUT_NOTE})"))
-        following = self.next_divergence
-        if following is not None and not every:
-            title = "next divergence (not explained by the first one's causes)"
-            lines.append(_divergence_lines(title, following, name, tolerance))
-        more = len(self.divergences) - 1 - (following is not None and not every)
-        if more and not every:
-            lines.append(
-                Styled(f"  {more} more event(s) diverge; --all finds the cause of every one")
-            )
-        return lines
-
-    def groups_table(self) -> TextTable:
-        """Every divergent event, grouped by kind, quantity and cause."""
-        columns = ("kind", "quantity", "events", "first", "line", "cause")
-        rows = []
-        for group in self.groups:
-            first = group.first
-            values = (group.kind, group.quantity, group.count, first.event, first.line, group.cause)
-            rows.append(tuple(Styled(str(value)) for value in values))
-        left = frozenset({"kind", "quantity", "cause"})
-        return TextTable("every divergent event, grouped", columns, tuple(rows), left=left)
-
-    def group_lines(self) -> list[Cell]:
-        """The causes found, and the hint of each group whose cause is unknown."""
-        causes = self.causes
-        lines: list[Cell] = [Styled("causes: " + (", ".join(causes) if causes else "none found"))]
-        for group in self.groups:
-            if group.cause == "unknown":
-                lines.append(Styled(
-                    f"  unknown at event {group.first.event} ({group.quantity}):"
-                    f" {group.first.hint}"
-                ))  # fmt: skip
-        return lines
-
-    def to_json(self) -> dict[str, object]:
-        return {
-            "match": self.match,
-            "events_checked": self.events_checked,
-            "max_difference": self.max_difference,
-            "tolerance": self.tolerance,
-            "divergent_events": len(self.divergences),
-            "first_divergence": (
-                None if self.first_divergence is None else self.first_divergence.to_json()
-            ),
-            "next_divergence": (
-                None if self.next_divergence is None else self.next_divergence.to_json()
-            ),
-            "divergences": [group.to_json() for group in self.groups],
-            "causes": self.causes,
-            "all": self.every,
-            "convention": self.convention,
-            "error": None
-            if self.error is None
-            else {"message": self.error, "line": self.error_line, "kind": self.error_kind},
-        }
-
-
-_HANDOUT_NOTE = (
-    "a course module's P starts as the handout's main() builds it, block_diag(pose_cov,"
-    " landmark_cov), so every one shows this; init_cross_covariance in the module (README)"
-    " fills in the cross-covariances"
-)
-
-
-def _divergence_lines(title: str, divergence: Divergence, name: str, tolerance: float) -> Cell:
-    """One divergent event as the console says it: where, the worst entry, cause, hint."""
-    worst = divergence.worst
-    landmark = "" if worst.landmark_id is None else f" of landmark {worst.landmark_id}"
-    return (
-        Styled(title, "bold red"),
-        Styled(
-            f" at event {divergence.event} (step {divergence.step}, {divergence.kind.value},"
-            f" {name}:{divergence.line}): the {worst.quantity.value}{landmark} differs\n  worst"
-            f" entry {worst.entry}: expected {worst.expected:.9g}, got {worst.got:.9g}"
-            f" (difference {worst.difference:.3g}, tolerance {tolerance:g})\n  cause:"
-            f" {divergence.cause}\n  hint: {divergence.hint}"
-        ),
-    )
-
-
-_SHAPES = {"X": "X (3+2k, 1)", "control": "control (2, 1)", "measure": "measure (2k, 1)"}
-_FLAT = {"X": "X (3+2k,)", "control": "control (2,)", "measure": "measure (2k,)"}
-
-
-def reference_params(params: FilterParams, slam: object) -> FilterParams:
-    """The run's parameters with the noise the filter exposes as its own
-    (``measurement_noise`` 2x2, ``motion_noise`` 3x3, both diagonal), which the reference
-    then uses: the check is of the filter's algebra, not of its noise levels."""
-    changes: dict[str, float] = {}
-    for name, fields in (
-        ("measurement_noise", ("sigma_bearing", "sigma_range")),
-        ("motion_noise", ("sigma_x", "sigma_y", "sigma_alpha")),
-    ):
+def declared_noise(slam: object) -> tuple[FloatArray | None, FloatArray | None]:
+    """The motion noise (3x3) and measurement noise (2x2) the filter declares as its own
+    (``motion_noise``, ``measurement_noise``), each None where it declares none that is a
+    finite matrix of that shape."""
+    declared: list[FloatArray | None] = []
+    for attribute, size in (("motion_noise", 3), ("measurement_noise", 2)):
         try:
-            value = getattr(slam, name, None)
+            value = getattr(slam, attribute, None)
         except Exception:  # the user's property: Plugged reports it
             value = None
-        if value is None:
-            continue
-        matrix = np.array(value, dtype=np.float64)
-        size = len(fields)
-        if matrix.shape != (size, size) or not np.isfinite(matrix).all():
-            continue
-        if np.abs(matrix - np.diag(np.diag(matrix))).max() > 0 or np.diag(matrix).min() <= 0:
-            continue
-        changes.update(zip(fields, np.sqrt(np.diag(matrix)).tolist(), strict=True))
-    return replace(params, **changes) if changes else params  # type: ignore[arg-type]
+        matrix = None if value is None else np.array(value, dtype=np.float64)
+        ok = matrix is not None and matrix.shape == (size, size) and np.isfinite(matrix).all()
+        declared.append(matrix if ok else None)
+    return declared[0], declared[1]
 
 
 def lockstep(
@@ -364,103 +96,343 @@ def lockstep(
     :raises FilterLineError: the checked filter cannot even be constructed
     """
     slam = plugged(make_filter, params, name)
-    params = reference_params(params, slam.slam)
-    records: list[EventRecord] = []
-    reference: list[EventRecord] = []
-    differences: list[float] = []
-    divergences: list[Divergence] = []
-    found: set[str] = set()
-    stopped: tuple[str, int, str] | None = None
-    user_traceback = ""
-    # without every: the first divergence's causes, and the next one not explained by them
-    first_causes: frozenset[str] | None = None
-    next_at: int | None = None
-    searched = 0
-    # the first updates that nothing explains get the deep search (see explain_update)
-    deep_left = DEEP_SEARCHES
-
-    # the prior itself: the filter must start where the parameters say
-    prior = EkfSlam(params)
-    before = _state(slam)
-    worst = compare(_state(prior), before)
-    if worst is not None and worst.difference > tolerance:
-        divergences.append(Divergence(0, 0, 0, EventKind.INIT, worst, _PRIOR_HINT))
-
+    run = _Lockstep(params, slam, name, tolerance, every, Source.read(_source_of(make_filter)))
+    run.prior()
     for event, step, kind, log_event in numbered(events):
-        before = _state(slam)
-        ekf = EkfSlam.from_state(params, before.x, before.P, before.ids, compiled=False)
-        line, time = log_event.line, log_event.time
+        if not run.event(event, step, kind, log_event):
+            break
+    return run.result()
+
+
+def course_cannot_read(events: Sequence[LogEvent]) -> str:
+    """Why a course module cannot read ``events`` (empty: it can): its functions read the
+    classic format, every line naming the landmarks of the first in the same order."""
+    lines = [event for event in events if isinstance(event, Sighting)]
+    if not lines:
+        return ""
+    first = [int(i) for i in lines[0].ids]
+    for line in lines[1:]:
+        ids = [int(i) for i in line.ids]
+        if ids != first:
+            return (
+                f"a course module cannot read this log: its line {line.line} names landmarks"
+                f" {ids[:6]}{' ...' if len(ids) > 6 else ''}, not the {len(first)} of its first"
+                " line in their order; the handout's update(X, P, measure, measure_cov, k)"
+                " takes the measurements of all k landmarks, in order, and init_landmarks is"
+                " called once, on the first line, so a landmark first seen later has no"
+                " function to initialise it"
+            )
+    return ""
+
+
+def skipped(why: str, tolerance: float) -> CheckResult:
+    """The result of a log the filter was not run on, and why."""
+    return CheckResult(0, 0.0, tolerance, None, (), (), (), skipped=why)
+
+
+def _source_of(make_filter: FilterFactory) -> str | None:
+    """The file of a user's filter (a worker's target), if it is one."""
+    target = getattr(make_filter, "target", None)
+    path = getattr(target, "path", None)
+    return path if isinstance(path, str) else None
+
+
+@dataclass(slots=True)
+class _Records:
+    """The records of both filters, event by event (what the recording of a check shows)."""
+
+    filter: list[EventRecord] = field(default_factory=list)
+    reference: list[EventRecord] = field(default_factory=list)
+
+    def add(self, ekf: EkfSlam, slam: Plugged, **what: object) -> None:
+        for target, source in ((self.reference, ekf), (self.filter, slam)):
+            target.append(source.record(**what))  # type: ignore[arg-type]
+
+
+class _Lockstep:
+    """One check's run: both filters event by event, the divergences and their causes."""
+
+    def __init__(
+        self,
+        params: FilterParams,
+        slam: Plugged,
+        name: str,
+        tolerance: float,
+        every: bool,
+        source: Source | None,
+    ) -> None:
+        self.params, self.slam, self.name = params, slam, name
+        self.every, self.source = every, source
+        self.tolerance = self.asked = tolerance
+        declared_Q, declared_R = declared_noise(slam.slam)
+        self.noise = Noise(motion_noise(params.sigma_x, params.sigma_y, params.sigma_alpha),
+                           measurement_noise(params.sigma_bearing, params.sigma_range),
+                           declared_Q, declared_R)  # fmt: skip
+        joint = params.update is UpdateMode.JOINT
+        self.diagnosis = Diagnosis(self.noise, Form(joint), tolerance)
+        self.records = _Records()
+        self.differences: list[float] = []
+        self.divergences: list[Divergence] = []
+        self.findings: list[Finding | None] = []
+        self.seen: list[Seen] = []
+        self.stopped: tuple[str, int, str] | None = None
+        self.user_traceback = ""
+        self.precision, self.within_precision = "float64", 0.0
+        self.notes: list[str] = []
+        self.first_searched = False
+        # without every: the first divergence's causes, and the next one not explained by them
+        self.first_causes: frozenset[str] | None = None
+        self.next_at: int | None = None
+        self.searched = 0
+
+    def prior(self) -> None:
+        """The filter must start where the parameters say, with the run's noise."""
+        before = _state(self.slam)
+        worst = compare(_state(EkfSlam(self.params)), before)
+        if worst is not None and worst.difference > self.tolerance:
+            self._add(Divergence(0, 0, 0, EventKind.INIT, worst, PRIOR_HINT), None)
+        for declared, run, what in ((self.noise.declared_motion, self.noise.Q, "motion"),
+                                    (self.noise.declared_measurement, self.noise.R,
+                                     "measurement")):  # fmt: skip
+            if declared is not None and not np.allclose(declared, run, rtol=1e-9, atol=0.0):
+                self._declared(declared, run, what)
+
+    def _declared(self, declared: FloatArray, run: FloatArray, what: str) -> None:
+        """A declared noise other than the run's: named as a cause, kept for the search."""
+        operation = f"{what}_noise"
+        if np.allclose(declared, np.sqrt(run), rtol=1e-9, atol=0.0):
+            mutation = MUTATION[f"{operation}.sigmas"]
+        elif np.allclose(declared, np.square(run), rtol=1e-9, atol=0.0):
+            mutation = MUTATION[f"{operation}.squared"]
+        else:
+            mutation = MUTATION[f"{operation}.declared"]
+        self.diagnosis.found[mutation.id] = mutation
+        attribute = "motion_noise" if what == "motion" else "measurement_noise"
+        self.notes.append(
+            f"the filter declares {attribute} = {np.round(declared, 9).tolist()}; the run's is"
+            f" {np.round(run, 9).tolist()} (the reference keeps the run's)"
+        )
+        i = int(np.argmax(np.abs(declared - run)))
+        r, c = divmod(i, len(run))
+        expected, got = float(run[r, c]), float(declared[r, c])
+        worst = Difference(Quantity.DECLARED_NOISE, None, f"{attribute}[{r}, {c}]", expected,
+                           got, abs(got - expected) / max(1.0, abs(expected)))  # fmt: skip
+        finding = Finding((mutation.id,))
+        causes = named(finding.causes, self.source)
+        text = hint(finding, causes, None, self._file(), "")
+        self._add(Divergence(0, 0, 0, EventKind.INIT, worst, text, finding.causes, (), causes),
+                  finding)  # fmt: skip
+
+    def event(self, event: int, step: int, kind: EventKind, log_event: LogEvent) -> bool:
+        """Run one event in both filters and compare; False where the run stops."""
+        before = _state(self.slam)
+        ekf = EkfSlam.from_state(self.params, before.x, before.P, before.ids, compiled=False)
+        what: dict[str, object] = dict(event=event, step=step, kind=kind, line=log_event.line,
+                                       time=log_event.time)  # fmt: skip
         try:
             if isinstance(log_event, Control):
                 control = (log_event.d, log_event.alpha)
                 ekf.predict(*control)
-                slam.predict(*control)
-                for target, source in ((reference, ekf), (records, slam)):
-                    target.append(source.record(event=event, step=step, kind=kind, line=line,
-                                                time=time, control=control))  # fmt: skip
+                self.slam.predict(*control)
+                self.records.add(ekf, self.slam, control=control, **what)
             else:
-                expected = ekf.observe(log_event.ids, log_event.z)
-                got = slam.observe(log_event.ids, log_event.z)
-                for target, source, seen in ((reference, ekf, expected), (records, slam, got)):
-                    target.append(source.record(event=event, step=step, kind=kind, line=line,
-                                                time=time, observations=seen))  # fmt: skip
+                expected_seen = ekf.observe(log_event.ids, log_event.z)
+                got_seen = self.slam.observe(log_event.ids, log_event.z)
+                self.records.reference.append(ekf.record(observations=expected_seen, **what))  # type: ignore[arg-type]
+                self.records.filter.append(self.slam.record(observations=got_seen, **what))  # type: ignore[arg-type]
         except PluginError as failure:
             message = f"event {event} ({kind.value}): {failure}"
-            stopped = (message, log_event.line, str(getattr(failure, "kind", "raised")))
-            user_traceback = str(getattr(failure, "user_traceback", "") or "")
-            break
+            self.stopped = (message, log_event.line, str(getattr(failure, "kind", "raised")))
+            self.user_traceback = str(getattr(failure, "user_traceback", "") or "")
+            return False
         except FilterError as failure:  # the reference, started from the filter's state
             largest = float(np.max(np.abs(before.x))) if before.x.size else 0.0
             message = (
                 f"event {event} ({kind.value}): the reference cannot {kind.value} from the"
-                f" state filter {name} gave before it: {failure} (the largest |x| is"
+                f" state filter {self.name} gave before it: {failure} (the largest |x| is"
                 f" {largest:.3g}: a value set as a placeholder, or one not set)"
             )
-            stopped = (message, log_event.line, "raised")
-            break
-        after = _state(slam)
-        worst = compare(_state(ekf), after)
-        differences.append(0.0 if worst is None else worst.difference)
-        if worst is None or worst.difference <= tolerance:
-            continue
-        searching = first_causes is not None and next_at is None and searched < NEXT_SEARCH_LIMIT
-        if every or not divergences or searching:
-            found_now = frozenset(found)
-            explanation = explain(params, before, after, log_event, worst, tolerance, found_now,
-                                  deep=deep_left > 0)  # fmt: skip
-            found.update(explanation.causes if explanation.known else ())
-            if isinstance(log_event, Sighting) and not explanation.causes:
-                deep_left -= 1
-            hint = _hint(explanation, kind, worst, before, log_event, _state(ekf), after,
-                         tolerance)  # fmt: skip
-            causes, alternatives = explanation.causes, explanation.alternatives
-            if not every and not divergences and explanation.known:
-                first_causes = frozenset(causes)
-            elif searching:
-                searched += 1
-                if not (explanation.known and first_causes and set(causes) <= first_causes):
-                    next_at = len(divergences)
-            divergences.append(
-                Divergence(event, step, log_event.line, kind, worst, hint, causes, alternatives)
+            self.stopped = (message, log_event.line, "raised")
+            return False
+        self._compare(event, step, kind, log_event, before, _state(ekf), _state(self.slam))
+        return True
+
+    def _compare(
+        self,
+        event: int,
+        step: int,
+        kind: EventKind,
+        log_event: LogEvent,
+        before: State,
+        expected: State,
+        after: State,
+    ) -> None:
+        """Compare one event's results; search a divergence's cause where asked."""
+        self._precision_of(expected, after)
+        worst = compare(expected, after)
+        self.differences.append(0.0 if worst is None else worst.difference)
+        rerun_step = step_of(log_event)
+        if worst is None or worst.difference <= self.tolerance:
+            if worst is not None and worst.difference > self.asked:
+                self.within_precision = max(self.within_precision, worst.difference)
+            self._seen(Seen(rerun_step, before, after))
+            return
+        searching = (
+            self.first_causes is not None and self.next_at is None
+            and self.searched < NEXT_SEARCH_LIMIT
+        )  # fmt: skip
+        if not (self.every or not self.first_searched or searching):
+            self._add(Divergence(event, step, log_event.line, kind, worst, ""), None)
+            return
+        finding = self._explain(before, after, rerun_step, worst)
+        divergence = self._divergence(event, step, kind, log_event, worst, finding,
+                                      before, expected, after, rerun_step)  # fmt: skip
+        if not self.first_searched:
+            self.first_searched = True
+            if not self.every and finding.known:
+                self.first_causes = frozenset(finding.causes)
+        elif searching:
+            self.searched += 1
+            named_ok = finding.known and self.first_causes
+            if not (named_ok and set(finding.causes) <= (self.first_causes or frozenset())):
+                self.next_at = len(self.divergences)
+        self._add(divergence, finding)
+        if finding.known:
+            self._seen(Seen(rerun_step, before, after, finding.causes), divergent=True)
+
+    def _explain(self, before: State, after: State, step: Step, worst: Difference) -> Finding:
+        if worst.quantity is Quantity.LANDMARK_IDS or len(before.x) > HYPOTHESIS_MAX_DIM:
+            return Finding()
+        self.diagnosis.tolerance = self.tolerance
+        divergence = worst.difference if math.isfinite(worst.difference) else 0.0
+        return self.diagnosis.explain(before, after, step, divergence, self.seen)
+
+    def _divergence(
+        self,
+        event: int,
+        step: int,
+        kind: EventKind,
+        log_event: LogEvent,
+        worst: Difference,
+        finding: Finding,
+        before: State,
+        expected: State,
+        after: State,
+        rerun_step: Step,
+    ) -> Divergence:
+        """The divergent event with its causes, their lines, and its hint."""
+        causes = named(finding.causes, self.source) if finding.known else ()
+        numbers = None
+        if (
+            not finding.causes
+            and worst.quantity is not Quantity.LANDMARK_IDS
+            and (len(before.x) <= HYPOTHESIS_MAX_DIM)
+        ):
+            numbers = unexplained(self.noise, before, after, rerun_step, self.tolerance)
+        fallback = self._fallback(worst, expected, after)
+        text = hint(finding, causes, numbers, self._file(), fallback)
+        if numbers is not None and fallback and not causes and not finding.alternatives:
+            text = f"{text}. {fallback}"
+        return Divergence(event, step, log_event.line, kind, worst, text, finding.causes,
+                          finding.alternatives, causes, numbers, finding.inherited)  # fmt: skip
+
+    def _fallback(self, worst: Difference, expected: State, after: State) -> str:
+        """What is said of a divergence nothing explains, beside its numbers: the ids, or
+        whole numbers where the reference's are not (an integer array), or the parts that
+        differ."""
+        if worst.quantity is Quantity.LANDMARK_IDS:
+            return IDS_HINT
+        said = []
+        truncated = whole_numbers(expected, after, self.tolerance)
+        if truncated:
+            listed = ", ".join(truncated[:3]) + (", ..." if len(truncated) > 3 else "")
+            said.append(
+                f"{listed}: whole numbers where the reference's are not, as an integer array"
+                " (np.zeros(..., dtype=int), np.array([[1, 0], ...]) of ints) truncates what"
+                " is stored in it: make it float"
             )
-        else:
-            divergences.append(Divergence(event, step, log_event.line, kind, worst, ""))
-    return CheckResult(
-        events_checked=len(differences),
-        max_difference=max(differences, default=0.0),
-        tolerance=tolerance,
-        first_divergence=divergences[0] if divergences else None,
-        records=tuple(records),
-        reference=tuple(reference),
-        differences=tuple(differences),
-        divergences=tuple(divergences),
-        every=every,
-        error=None if stopped is None else stopped[0],
-        error_line=0 if stopped is None else stopped[1],
-        error_kind="" if stopped is None else stopped[2],
-        error_traceback=user_traceback,
-        convention=getattr(slam.slam, "convention", None) or None,
-        next_divergence=None if next_at is None else divergences[next_at],
+        blocks = differing_blocks(expected, after, self.tolerance)
+        if blocks:
+            said.append(f"Differs: {blocks}")
+        return ". ".join(said)
+
+    def _precision_of(self, expected: State, after: State) -> None:
+        """Whether the filter computes in float32: every number of its state a float32,
+        where the float64 reference's are not (its tolerance grows from then on)."""
+        if self.precision == "float32" or not (_float32(after) and not _float32(expected)):
+            return
+        self.precision = "float32"
+        self.tolerance = max(self.asked, FLOAT32_TOLERANCE)
+
+    def _seen(self, seen: Seen, divergent: bool = False) -> None:
+        if len(seen.before.x) > HYPOTHESIS_MAX_DIM:
+            return
+        self.seen.append(seen)
+        matched = [k for k, s in enumerate(self.seen) if not s.explained_by]
+        if not divergent and len(matched) > SEEN_MATCHED:
+            del self.seen[matched[0]]
+
+    def _add(self, divergence: Divergence, finding: Finding | None) -> None:
+        self.divergences.append(divergence)
+        self.findings.append(finding)
+
+    def _file(self) -> str:
+        return self.source.name if self.source is not None else "the filter"
+
+    def result(self) -> CheckResult:
+        """The check's result, the alternatives the whole run tells apart resolved."""
+        divergences = [self._resolved(d, f) for d, f in zip(self.divergences, self.findings,
+                                                            strict=True)]  # fmt: skip
+        stopped = self.stopped
+        first = next((d for d in divergences), None)
+        return CheckResult(
+            events_checked=len(self.differences),
+            max_difference=max(self.differences, default=0.0),
+            tolerance=self.tolerance,
+            first_divergence=first,
+            records=tuple(self.records.filter),
+            reference=tuple(self.records.reference),
+            differences=tuple(self.differences),
+            divergences=tuple(divergences),
+            every=self.every,
+            error=None if stopped is None else stopped[0],
+            error_line=0 if stopped is None else stopped[1],
+            error_kind="" if stopped is None else stopped[2],
+            error_traceback=self.user_traceback,
+            convention=getattr(self.slam.slam, "convention", None) or None,
+            next_divergence=None if self.next_at is None else divergences[self.next_at],
+            precision=self.precision,
+            within_precision=self.within_precision,
+            notes=tuple(self.notes),
+        )
+
+    def _resolved(self, divergence: Divergence, finding: Finding | None) -> Divergence:
+        if finding is None or not finding.indistinct:
+            return divergence
+        resolved = self.diagnosis.resolve(finding, self.seen)
+        causes = named(resolved.causes, self.source) if resolved.known else ()
+        text = hint(resolved, causes, divergence.unexplained, self._file(), divergence.hint)
+        return Divergence(divergence.event, divergence.step, divergence.line, divergence.kind,
+                          divergence.worst, text, resolved.causes, resolved.alternatives,
+                          causes, divergence.unexplained, resolved.inherited)  # fmt: skip
+
+
+def step_of(event: LogEvent) -> Step:
+    if isinstance(event, Control):
+        return Step(d=float(event.d), alpha=float(event.alpha))
+    assert isinstance(event, Sighting)
+    ids = np.asarray(event.ids, dtype=np.int64)
+    return Step(ids=ids, z=np.asarray(event.z, dtype=np.float64).reshape(-1, 2))
+
+
+def _float32(s: State) -> bool:
+    """Whether every number of a state is a float32 (and some is not a small dyadic
+    fraction, which both precisions hold alike)."""
+    values = np.concatenate([s.x, s.P.ravel()])
+    if not values.size or float(np.max(np.abs(values))) > float(np.finfo(np.float32).max):
+        return False
+    return bool(np.array_equal(values.astype(np.float32).astype(np.float64), values)) and bool(
+        np.any(values * 2.0**20 != np.round(values * 2.0**20))
     )
 
 
@@ -531,22 +503,24 @@ def _scaled(expected: State, got: State) -> tuple[FloatArray, FloatArray, FloatA
 
 
 def differing_blocks(expected: State, got: State, tolerance: float) -> str:
-    """Every part of the state that differs beyond ``tolerance``: its largest difference
-    and the landmarks it is at (at most four named), e.g. ``pose mean (up to 0.31);
-    landmark mean of landmarks 1, 3 (up to 0.12)``; empty when the ids differ."""
+    """Every part of the state that differs beyond ``tolerance`` and the landmarks it is
+    at (at most four named), e.g. ``pose mean; landmark mean at landmarks 1, 3``; empty
+    when the ids differ."""
     worst = _differing(expected, got, tolerance)
     ids = expected.ids.tolist()
     parts = []
     for quantity in Quantity:
         if quantity not in worst:
             continue
-        largest, where = worst[quantity]
-        named = sorted(where, key=ids.index)
+        _, where = worst[quantity]
+        named_ids = sorted(where, key=ids.index)
         at = ""
-        if named:
-            listed = ", ".join(str(i) for i in named[:4]) + (", ..." if len(named) > 4 else "")
-            at = f" at landmark{'s' if len(named) > 1 else ''} {listed}"
-        parts.append(f"{quantity.value}{at} (up to {largest:.3g})")
+        if named_ids:
+            listed = ", ".join(str(i) for i in named_ids[:4]) + (
+                ", ..." if len(named_ids) > 4 else ""
+            )
+            at = f" at landmark{'s' if len(named_ids) > 1 else ''} {listed}"
+        parts.append(f"{quantity.value}{at}")
     return "; ".join(parts)
 
 
@@ -610,162 +584,3 @@ def _names(ids: IntArray) -> list[str]:
 
 def _state(slam: EkfSlam | Plugged) -> State:
     return State(np.array(slam.x), np.array(slam.P), np.array(slam.landmark_ids, dtype=np.int64))
-
-
-# -- hints ---------------------------------------------------------------------------------
-
-_PRIOR_HINT = (
-    "the filter does not start from the prior: x = init_pose, P = diag(init_pose_sigma^2)"
-    " (FilterParams.init_pose, init_pose_sigma)"
-)
-
-
-_PATTERN_HINTS: dict[tuple[str, Quantity], str] = {
-    ("predict", Quantity.POSE_MEAN): "the motion model: x' = x + d cos(theta),"
-    " y' = y + d sin(theta), theta' = wrap(theta + alpha)",
-    ("predict", Quantity.POSE_COVARIANCE): "the pose covariance of the predict:"
-    " G P_rr G^T + W Q W^T (G's heading column, W the rotation of the robot frame)",
-    ("predict", Quantity.POSE_LANDMARK): "the pose-landmark cross-covariances of the"
-    " predict: P_rm' = G P_rm",
-    ("predict", Quantity.LANDMARK_MEAN): "a predict must not move the landmarks",
-    ("predict", Quantity.LANDMARK_COVARIANCE): "a predict must not change the landmark"
-    " covariances (only the robot's rows and columns of P)",
-    ("predict", Quantity.LANDMARK_LANDMARK): "a predict must not change the landmark"
-    " covariances (only the robot's rows and columns of P)",
-}
-
-
-def explain(
-    params: FilterParams,
-    before: State,
-    after: State,
-    event: LogEvent,
-    worst: Difference,
-    tolerance: float,
-    found: frozenset[str] = frozenset(),
-    *,
-    deep: bool = False,
-) -> Explanation:
-    """The causes of a divergence at ``event`` (see :mod:`ekfviz.check.mistakes`), combined
-    with the causes already ``found``; none where the state is too large to re-run.
-
-    :param deep: an update's search tries three more mistakes at once of all the catalogue
-    """
-    if worst.quantity is Quantity.LANDMARK_IDS or len(before.x) > HYPOTHESIS_MAX_DIM:
-        return Explanation(())
-    divergence = worst.difference if math.isfinite(worst.difference) else 0.0
-    try:
-        if isinstance(event, Control):
-            return explain_predict(
-                params.Q, before, after, event.d, event.alpha, found, tolerance, divergence
-            )
-        assert isinstance(event, Sighting)
-        ids = np.asarray(event.ids, dtype=np.int64)
-        z = np.asarray(event.z, dtype=np.float64).reshape(-1, 2)
-        return explain_update(params.R, before, after, ids, z, found, tolerance, divergence,
-                              deep=deep)  # fmt: skip
-    except RERUN_ERRORS:
-        return Explanation(())
-
-
-def _hint(
-    explanation: Explanation,
-    kind: EventKind,
-    worst: Difference,
-    before: State,
-    event: LogEvent,
-    expected: State | None = None,
-    after: State | None = None,
-    tolerance: float = DEFAULT_TOLERANCE,
-) -> str:
-    """What to tell the user: the causes found, else where the quantity comes from (and,
-    given the reference's and the filter's results, which parts of the state differ)."""
-    if explanation.alternatives:
-        options = " OR ".join("+".join(option) for option in explanation.alternatives)
-        return (
-            f"this event is reproduced equally by {options}: it cannot tell them apart"
-            " (check --all on a longer log may)"
-        )
-    if explanation.causes:
-        text = describe(explanation.causes)
-        return f"{text} ({explanation.detail})" if explanation.detail else text
-    hint = pattern_hint("predict" if isinstance(event, Control) else "update", worst, before,
-                        event)  # fmt: skip
-    if expected is None or after is None:
-        return hint
-    truncated = whole_numbers(expected, after, tolerance)
-    if truncated:
-        listed = ", ".join(truncated[:3]) + (", ..." if len(truncated) > 3 else "")
-        hint = (
-            f"{listed}: whole numbers where the reference's are not, as an integer array"
-            " (np.zeros(..., dtype=int), np.array([[1, 0], ...]) of ints) truncates what is"
-            f" stored in it: make it float. Otherwise: {hint}"
-        )
-    elif isinstance(event, Sighting) and worst.quantity is not Quantity.LANDMARK_IDS:
-        hint = _update_hint(set(_differing(expected, after, tolerance)), before, event) or hint
-    blocks = differing_blocks(expected, after, tolerance)
-    return f"{hint}. Differs: {blocks}" if blocks else hint
-
-
-_MEANS = frozenset({Quantity.POSE_MEAN, Quantity.LANDMARK_MEAN})
-
-
-def _update_hint(differ: set[Quantity], before: State, event: Sighting) -> str:
-    """What an update's differing parts say of where its mistake is: only the mean (H, S
-    and K agree, as the covariance does: the innovation), only the covariance (the mean,
-    hence K (z - h(x)), agrees: the covariance's own formula), both (what they share: H,
-    S, K); empty when the update initialises a landmark (whose mean and covariance come
-    from elsewhere)."""
-    if not differ or any(int(i) not in before.ids.tolist() for i in event.ids):
-        return ""
-    if differ <= _MEANS:
-        return (
-            "only the mean differs: the covariance agrees, so H, S and K do; look at the"
-            " innovation z - h(x): h = (wrap(atan2(dy, dx) - theta), sqrt(dx^2 + dy^2)),"
-            " bearing first, its bearing wrapped to [-pi, pi), and at x + K (z - h(x))"
-        )
-    if not differ & _MEANS:
-        return (
-            "only the covariance differs: the mean agrees, so K (z - h(x)) does; look at"
-            " the covariance's own update: P = (I - K H) P, or (I - K H) P (I - K H)^T +"
-            " K R K^T (Joseph's form), with the same K and H as the mean's"
-        )
-    return (
-        "the mean and the covariance both differ: look first at what they share, H (its"
-        " rows bearing then range, the landmark's columns at 3 + 2j), S = H P H^T + R and"
-        " K = P H^T S^-1 (S inverted); a wrong covariance formula alone leaves the mean"
-        " as it is"
-    )
-
-
-def pattern_hint(kind: str, worst: Difference, before: State, event: LogEvent) -> str:
-    """Where the quantity that differs comes from, when no known mistake reproduces it."""
-    if worst.quantity is Quantity.LANDMARK_IDS:
-        return (
-            "the filter's landmark_ids differ from the observed landmarks: every id of an"
-            " update must be in the state afterwards, new ones appended in the order seen"
-        )
-    pattern = _PATTERN_HINTS.get((kind, worst.quantity))
-    if pattern is not None:
-        return pattern
-    # a new landmark's mean or covariance comes from its initialisation, not a correction
-    newly = (
-        isinstance(event, Sighting)
-        and worst.landmark_id is not None
-        and (worst.landmark_id not in before.ids.tolist())
-    )
-    if newly:
-        return (
-            "the initialisation of a new landmark: l = pose + r (cos(theta + beta),"
-            " sin(theta + beta)) with (beta, r) the measurement (bearing first),"
-            " P_ll = J_p P_pp J_p^T + J_z R J_z^T, P_lx = J_p P_px"
-        )
-    if worst.quantity in (Quantity.POSE_MEAN, Quantity.LANDMARK_MEAN):
-        return (
-            "the corrected mean: the innovation z - h(x) (bearing first, wrapped), the"
-            " measurement Jacobian H and the gain K = P H^T S^-1"
-        )
-    return (
-        "the covariance update: P - K S K^T (or Joseph's form) with S = H P H^T + R and"
-        " H's five non-zero columns (pose, and the landmark's two)"
-    )

@@ -65,7 +65,8 @@ CheckLog = Annotated[
     typer.Argument(
         help="A log in the classic or the extended format ('-': from standard input), or an"
         " MRCLAM dataset directory (with --robot) [default: the bundled battery: the classic"
-        " sample and the edge log]; the Victoria Park directory is for replay only.",
+        " sample, the edge log and the mid-run log]; the Victoria Park directory is for"
+        " replay only.",
         show_default=False,
         callback=piped_input,
     ),
@@ -192,7 +193,7 @@ def run_check(request: CheckRequest) -> None:
             target = save if data is not None or save is None else _per_log(save, log)
             result, exercised = _run(
                 log, log_truth, spec, params, request.tolerance, target, every,
-                request.source_args, opened.own_truth,
+                request.source_args, opened.own_truth, battery=data is None,
             )  # fmt: skip
             for note in opened.notes:  # once the filter has loaded and run
                 out.print(plain(note), soft_wrap=True)
@@ -202,7 +203,7 @@ def run_check(request: CheckRequest) -> None:
             results.append({"log": str(log) if data is not None else log.stem,
                             **result.to_json(),
                             "coverage": [item.to_json() for item in exercised]})  # fmt: skip
-            if target is not None:
+            if target is not None and not result.skipped:
                 say_saved(target)
     if request.report is not None:
         document: dict[str, Any] = {"ekfviz_version": __version__, "filter": spec.text,
@@ -229,6 +230,8 @@ def _run(
     every: bool,
     source_args: SourceArgs,
     own_truth: OwnTruth | None,
+    *,
+    battery: bool = False,
 ) -> tuple[CheckResult, list[Item]]:
     from ekfviz import app as pipeline
     from ekfviz import viz
@@ -236,7 +239,7 @@ def _run(
     try:
         return pipeline.check(
             log, truth, spec, params, tolerance=tolerance, save=save, every=every,
-            source_args=source_args, warn=warn, own_truth=own_truth,
+            source_args=source_args, warn=warn, own_truth=own_truth, skip_unreadable=battery,
         )  # fmt: skip
     except FilterLineError as error:
         fail(f"{log}:{error.line}: {error}" if error.line else f"{log}: {error}")

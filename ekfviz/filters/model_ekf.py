@@ -5,10 +5,12 @@ landmark removal) with the measurement model of :mod:`ekfviz.models.range_bearin
 sensor mounted ``a`` ahead and ``b`` left of the pose's origin) and, for :class:`Drive`
 events, the vehicle of :mod:`ekfviz.models.ackermann`. Classic logs keep the classic
 filter and its compiled kernel; these models update sequentially (the ``--update joint``
-option does not apply to them), on numpy, or in the kernel where the map is large
-enough to keep P's changes pending (``model_update``: a landmark's H P and whitened rows
-in a few vectorised passes, where numpy takes a dozen calls); the Ackermann vehicle's
-spans are driven in the kernel too (``ackermann_drive``, the same floats).
+option does not apply to them), on numpy (the built-in's loop of named operations, with
+the sensor's h(x) and H: :meth:`ModelEkfSlam._predicted`), or in the kernel where the map
+is large enough to keep P's changes pending (``model_update``: a landmark's H P and
+whitened rows in a few vectorised passes, where numpy takes a dozen calls); the
+Ackermann vehicle's spans are driven in the kernel too (``ackermann_drive``, whose Python
+reference is :meth:`ModelEkfSlam.drive`'s loop of the named operations).
 
 The state's pose is the vehicle's origin (the rear axle's centre for the Ackermann
 vehicle), where the models are simplest. Its records may report another point of the
@@ -29,18 +31,20 @@ from ekfviz.core.errors import FilterError
 from ekfviz.core.params import FilterParams
 from ekfviz.core.records import EventRecord, kept_record
 from ekfviz.core.types import FloatArray
-from ekfviz.filters.ekf import (
-    _NOT_DEFINITE,
-    _ZERO_RANGE,
+from ekfviz.filters.ekf import EkfSlam
+from ekfviz.filters.ekf_update import (
     MIN_PREDICTED_RANGE,
-    EkfSlam,
-    _nan_table,
-    _not_definite,
-    _whitened,
-    _zero_range,
+    NOT_DEFINITE,
+    ZERO_RANGE,
+    nan_table,
+    not_definite,
+    zero_range,
 )
 from ekfviz.models.ackermann import Ackermann
-from ekfviz.models.angles import wrap_angle
+from ekfviz.models.kalman import (
+    predicted_cross_covariance,
+    predicted_pose_covariance,
+)
 from ekfviz.models.range_bearing import RangeBearing
 
 try:
@@ -49,6 +53,7 @@ except ImportError:  # installed without a C compiler: numpy throughout
     _kernel = None  # type: ignore[assignment]
 
 _NO_SPANS = np.zeros((0, 3))  # where the kernel drove them
+_UPPER = np.triu_indices(3)  # the upper triangle of a 3x3 block, row by row
 _NO_SPANS.flags.writeable = False
 
 # what _kernel.model_update says of a line: S not finite, or U full (fold it, go on)
@@ -130,64 +135,48 @@ class ModelEkfSlam(EkfSlam):
         """Drive the vehicle through (speed, steering, dt) spans in one predict; O(N).
 
         Each span is linearised at the pose it starts from, as one predict per span
-        would; the pose block is propagated span by span and the cross-covariances
-        with the map once, with the product of the spans' G. The spans of the built-in
-        :class:`Ackermann` run in the kernel (``ackermann_drive``) where it was built:
-        the same float operations, the same results.
+        would: P_rr' = G P_rr G^T + W Q W^T span by span, and the cross-covariances with
+        the map once, P_rm' = G_all P_rm with G_all the product of the spans' G (the
+        identity but for the sum of their heading columns). The spans of the built-in
+        :class:`Ackermann` run in the kernel (``ackermann_drive``) where it was built; this
+        loop of the named operations is its Python reference.
         """
         if self.vehicle is None:
             raise FilterError("this filter has no vehicle model for speed and steering controls")
         n = self._n
         x, P = self._x, self._P
         vehicle = self.vehicle
-        qv, qs = vehicle.sigma_speed**2, vehicle.sigma_steering**2  # Q = diag(qv, qs)
-        # the pose and the upper triangle of its covariance in floats: a span costs a few
-        # dozen float operations where 3x3 products cost a few microseconds each
-        px, py, pt = x[:3].tolist()
-        (p00, p01, p02), (_, p11, p12), (_, _, p22) = P[:3, :3].tolist()
-        # the product of the spans' G is the identity but for column theta: (a, b, 1)
-        a_all = b_all = 0.0
+        Q = vehicle.Q
+        pose, P_rr = x[:3].copy(), P[:3, :3].copy()
+        G_all = np.eye(3)
         spans = np.asarray(segments, dtype=np.float64)
-        if self._model_kernel and type(vehicle) is Ackermann:  # the same floats, in C
+        if self._model_kernel and type(vehicle) is Ackermann:  # the same algebra, in C
+            (px, py, pt), (p00, p01, p02, p11, p12, p22) = pose.tolist(), P_rr[_UPPER].tolist()
             (px, py, pt, p00, p01, p02, p11, p12, p22, a_all, b_all) = _kernel.ackermann_drive(
                 np.ascontiguousarray(spans), px, py, pt, p00, p01, p02, p11, p12, p22,
-                vehicle.wheelbase, vehicle.encoder_offset, qv, qs,
+                vehicle.wheelbase, vehicle.encoder_offset, float(Q[0, 0]), float(Q[1, 1]),
             )  # fmt: skip
+            pose = np.array((px, py, pt))
+            P_rr = np.array(((p00, p01, p02), (p01, p11, p12), (p02, p12, p22)))
+            G_all[0, 2], G_all[1, 2] = a_all, b_all
             spans = _NO_SPANS
         for speed, steering, dt in spans.tolist():
             if dt <= 0.0:
                 continue
-            (nx, ny, nt, g02, g12, w00, w01, w10, w11, w20, w21) = vehicle.step(
-                px, py, pt, speed, steering, dt
-            )
-            # G P G^T, G the identity but for G[0, 2] = g02 and G[1, 2] = g12
-            r02 = p02 + g02 * p22
-            r12 = p12 + g12 * p22
-            m00 = (p00 + g02 * p02) + g02 * r02
-            m01 = (p01 + g02 * p12) + g12 * r02
-            m11 = (p11 + g12 * p12) + g12 * r12
-            # + W Q W^T
-            p00 = m00 + (qv * w00 * w00 + qs * w01 * w01)
-            p01 = m01 + (qv * w00 * w10 + qs * w01 * w11)
-            p02 = r02 + (qv * w00 * w20 + qs * w01 * w21)
-            p11 = m11 + (qv * w10 * w10 + qs * w11 * w11)
-            p12 = r12 + (qv * w10 * w20 + qs * w11 * w21)
-            p22 = p22 + (qv * w20 * w20 + qs * w21 * w21)
-            a_all += g02
-            b_all += g12
-            px, py, pt = nx, ny, nt
-        if not math.isfinite(px + py + pt + p00 + p01 + p02 + p11 + p12 + p22):
+            G, W = vehicle.jacobians(pose, speed, steering, dt)
+            P_rr = predicted_pose_covariance(P_rr, G, W, Q)
+            pose = vehicle.motion(pose, speed, steering, dt)
+            G_all[:2, 2] += G[:2, 2]
+        if not (np.isfinite(pose).all() and np.isfinite(P_rr).all()):
             raise FilterError("the state became non-finite in predict")
-        x[:3] = (px, py, pt)
+        x[:3] = pose
         if self._rank:  # the pending changes of P through G_all (see EkfSlam._fold)
-            self._predict_pending(a_all, b_all)
+            self._predict_pending(float(G_all[0, 2]), float(G_all[1, 2]))
         if n > 3:
-            # rows x and y of G_all P_rm (row theta unchanged), and their mirror
-            P[0, 3:n] += a_all * P[2, 3:n]
-            P[1, 3:n] += b_all * P[2, 3:n]
-            P[3:n, 0] = P[0, 3:n]
-            P[3:n, 1] = P[1, 3:n]
-        P[:3, :3] = ((p00, p01, p02), (p01, p11, p12), (p02, p12, p22))
+            P_rm = predicted_cross_covariance(G_all, P[:3, 3:n])
+            P[:3, 3:n] = P_rm
+            P[3:n, :3] = P_rm.T
+        P[:3, :3] = P_rr
 
     def _update_sequential(
         self,
@@ -206,7 +195,7 @@ class ModelEkfSlam(EkfSlam):
         """
         U, rank = self._pending()
         if not (self._model_kernel and U.shape[0]):
-            self._update_numpy(ids, z, known, table, skipped)
+            super()._update_sequential(ids, z, known, table, skipped)
             return
         m = len(ids)
         slot = self._slot
@@ -215,7 +204,7 @@ class ModelEkfSlam(EkfSlam):
             slots[k] = slot[ids[k]]
         slot_array = np.array(slots, dtype=np.int64)
         z_array = np.array(z, dtype=np.float64).reshape(m, 2)
-        values = _nan_table(m)
+        values = nan_table(m)
         status = np.zeros(m, dtype=np.int8)
         n = self._n
         a, b = self.sensor.a, self.sensor.b
@@ -238,87 +227,23 @@ class ModelEkfSlam(EkfSlam):
             raise FilterError(f"the covariance became non-finite (S of landmark {ids[k]})")
         for k in known:  # in file order: the warnings as the numpy loop gives them
             why = int(status[k])
-            if why == _ZERO_RANGE:
-                self._skip(k, ids[k], skipped, _zero_range(float(values[k, 1])))
+            if why == ZERO_RANGE:
+                self._skip(k, ids[k], skipped, zero_range(float(values[k, 1])))
                 continue  # its row stays NaN
-            if why == _NOT_DEFINITE:
+            if why == NOT_DEFINITE:
                 s00, s01, _, s11 = values[k, 4:8].tolist()
-                self._skip(k, ids[k], skipped, _not_definite(s00, s01, s11))
+                self._skip(k, ids[k], skipped, not_definite(s00, s01, s11))
             table[k] = tuple(values[k].tolist())
 
-    def _update_numpy(
-        self,
-        ids: list[int],
-        z: list[list[float]],
-        known: Sequence[int],
-        table: list[tuple[float, ...]],
-        skipped: list[bool],
-    ) -> None:
-        """EKF updates with the known landmarks one after another, in file order, with
-        the sensor model (H has the 5 non-zero columns 0, 1, 2, j, j+1), on numpy.
-
-        As in :meth:`EkfSlam._update_sequential`: with S = L L^T, A = L^-1 H P (2 x n) and
-        w = L^-1 nu, x += A^T w at once and P -= A^T A deferred. The rank-2 changes are
-        kept as the rows of U, so that the current P is P - U^T U: its rows c (all that
-        H P needs) cost O(rank n), and P itself is changed once per ``DEFER_LANDMARKS``
-        landmarks (one pass), across scans, instead of once per landmark or per scan
-        (Victoria Park's state has 600 to 900 rows and a scan sees 5 landmarks).
-        """
-        n = self._n
-        x = self._x[:n]
-        P_buffer = self._P
-        spare = P_buffer.shape[0] > n
-        r00, r01, r11 = (float(v) for v in (self._R[0, 0], self._R[0, 1], self._R[1, 1]))
-        U, rank = self._pending()  # the current P is P - U[:rank, :n]^T U[:rank, :n]
-        a, b = self.sensor.a, self.sensor.b
-        for k in known:
-            landmark_id = ids[k]
-            j = self._slot[landmark_id]
-            rows = self._rows.get(j)
-            if rows is None:
-                rows = self._rows[j] = np.array((0, 1, 2, j, j + 1))
-            # the sensor model's measure() and jacobians(), the same operations in floats
-            px, py, theta, lx, ly = x.take(rows).tolist()
-            c, s = math.cos(theta), math.sin(theta)
-            ox, oy = a * c - b * s, a * s + b * c  # the sensor's offset; d/dtheta: (-oy, ox)
-            dx, dy = lx - (px + ox), ly - (py + oy)
-            bearing = wrap_angle(math.atan2(dy, dx) - theta)
-            rng = math.hypot(dx, dy)
-            if not rng > MIN_PREDICTED_RANGE:
-                self._skip(k, landmark_id, skipped, _zero_range(rng))
-                continue
-            q = dx * dx + dy * dy
-            r = math.sqrt(q)
-            H = np.array(
-                (
-                    (dy / q, -dx / q, (dy * -oy - dx * ox) / q - 1.0, -dy / q, dx / q),
-                    (-dx / r, -dy / r, (-dx * -oy - dy * ox) / r, dx / r, dy / r),
-                )
-            )
-            P_c = P_buffer.take(rows, 0)  # the rows c of P (5 x capacity)
-            HP = H.dot(P_c[:, :n] if spare else P_c)
-            if rank:
-                U_r = U[:rank]  # contiguous rows of the buffer: take() copies no more
-                HP -= H.dot(U_r.take(rows, 1).T).dot(U_r[:, :n])
-            (S00, S01), (S10, S11) = HP.take(rows, 1).dot(H.T).tolist()
-            s00, s11 = S00 + r00, S11 + r11
-            s01 = 0.5 * (S01 + S10) + r01
-            if not math.isfinite(s00 + s01 + s11):
-                raise FilterError(f"the covariance became non-finite (S of landmark {landmark_id})")
-            z_bearing, z_range = z[k]
-            nu0 = wrap_angle(z_bearing - bearing)
-            nu1 = z_range - rng
-            whitened = _whitened(HP, s00, s01, s11, nu0, nu1)
-            if whitened is None:
-                table[k] = (bearing, rng, nu0, nu1, s00, s01, s01, s11, math.nan)
-                self._skip(k, landmark_id, skipped, _not_definite(s00, s01, s11))
-                continue
-            B, w0, w1 = whitened
-            np.add(x, B[2], out=x)
-            x[2] = wrap_angle(float(x[2]))
-            rank = self._fold(B[:2], U, rank)
-            table[k] = (bearing, rng, nu0, nu1, s00, s01, s01, s11, w0 * w0 + w1 * w1)
-        self._rank = rank  # left pending (see ekfviz.filters.ekf)
+    def _predicted(self, pose_and_landmark: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """The sensor model's h(x) (2,) and H's five non-zero columns (2, 5) (see
+        :meth:`~ekfviz.filters.ekf_update.LineUpdates._predicted`)."""
+        pose, landmark = pose_and_landmark[:3], pose_and_landmark[3:]
+        z_pred = self.sensor.measure(pose, landmark)
+        if not z_pred[1] > MIN_PREDICTED_RANGE:  # no Jacobian there: the caller skips it
+            return z_pred, np.full((2, 5), np.nan)
+        z_D_pose, z_D_landmark = self.sensor.jacobians(pose, landmark)
+        return z_pred, np.hstack((z_D_pose, z_D_landmark))
 
     def _update_joint(
         self,

@@ -90,34 +90,3 @@ class Ackermann:
             ]
         )
         return G, W
-
-    def step(
-        self, x: float, y: float, theta: float, speed: float, steering: float, dt: float
-    ) -> tuple[float, float, float, float, float, float, float, float, float, float, float]:
-        """:meth:`motion` and :meth:`jacobians` in floats, for a loop over many spans.
-
-        :return: (x', y', theta', G[0, 2], G[1, 2], W[0, 0], W[0, 1], W[1, 0], W[1, 1],
-            W[2, 0], W[2, 1]): the pose (theta wrapped) and the entries of G and W that are
-            not those of the identity or zero
-        """
-        c, s = math.cos(theta), math.sin(theta)
-        L, H = self.wheelbase, self.encoder_offset
-        t = math.tan(steering)
-        sec2 = 1.0 + t * t
-        k = 1.0 - t * H / L
-        v_c = speed / k  # centre_speed(), the same operations
-        vc_D_speed = 1.0 / k
-        vc_D_steering = speed * (H / L) * sec2 / (k * k)
-        return (
-            x + dt * v_c * c,
-            y + dt * v_c * s,
-            wrap_angle(theta + dt * v_c * t / L),
-            -dt * v_c * s,
-            dt * v_c * c,
-            dt * c * vc_D_speed,
-            dt * c * vc_D_steering,
-            dt * s * vc_D_speed,
-            dt * s * vc_D_steering,
-            dt * t / L * vc_D_speed,
-            dt / L * (vc_D_steering * t + v_c * sec2),
-        )

@@ -131,22 +131,24 @@ def write_message(stream: Any, header: Dict[str, Any], arrays: List[Any]) -> Non
 
 
 class Params:
-    """ekfviz's filter parameters as plain attributes, with ``Q`` and ``R`` as arrays."""
+    """ekfviz's filter parameters as plain attributes, with ``Q`` and ``R`` as arrays (as
+    ekfviz made them: ``noise``)."""
 
-    def __init__(self, values: Dict[str, Any]) -> None:
+    def __init__(self, values: Dict[str, Any], noise: Dict[str, Any]) -> None:
         self._values = dict(values)
+        self._noise = noise
         for name, value in values.items():
             setattr(self, name, tuple(value) if isinstance(value, list) else value)
 
     @property
     def Q(self) -> Any:
         """Motion noise covariance (3x3) in the robot frame."""
-        return np.diag(np.square([self.sigma_x, self.sigma_y, self.sigma_alpha]))  # type: ignore[attr-defined]
+        return np.array(self._noise["Q"], dtype=np.float64)
 
     @property
     def R(self) -> Any:
         """Measurement noise covariance (2x2) of (bearing, range)."""
-        return np.diag(np.square([self.sigma_bearing, self.sigma_range]))  # type: ignore[attr-defined]
+        return np.array(self._noise["R"], dtype=np.float64)
 
     def as_dict(self) -> Dict[str, Any]:
         return dict(self._values)
@@ -197,21 +199,27 @@ def _floats(value: Any, function: str, name: str) -> Any:
 class CourseModule:
     """A module of the handout's functions behind the filter protocol.
 
-    The state is kept as the module keeps it (X a (3+2k, 1) column or (3+2k,)); k
-    landmarks, all named by the first observation (the classic format).
+    The state is kept as a (3+2k, 1) column; k landmarks, all named by the first
+    observation (the classic format). Each function is called with the shapes it takes
+    (X a column (3+2k, 1) or flat (3+2k,), likewise the control, the measurements and the
+    initial pose): the shapes it took last first, then the handout's, then the others, at
+    every call. The adapter does no filter math: Q, R and the prior's covariance come
+    from ekfviz (``noise``), and P after the first line is the handout's main()'s
+    block_diag(pose_cov, landmark_cov) (with init_cross_covariance, where the module has
+    it, in its off-diagonal blocks).
     """
 
-    def __init__(self, module: Any, params: Params) -> None:
+    def __init__(self, module: Any, params: Params, noise: Dict[str, Any]) -> None:
         self.module = module
-        pose = np.array(params.init_pose, dtype=np.float64)  # type: ignore[attr-defined]
-        sigma = np.array(params.init_pose_sigma, dtype=np.float64)  # type: ignore[attr-defined]
-        self.X = pose.reshape(3, 1)
-        self.P = np.diag(np.square(sigma))
-        self.control_cov = params.Q
-        self.measure_cov = params.R
+        self.X = np.array(params.init_pose, dtype=np.float64).reshape(3, 1)  # type: ignore[attr-defined]
+        self.P = np.array(noise["prior"], dtype=np.float64)
+        self.control_cov = np.array(noise["Q"], dtype=np.float64)
+        self.measure_cov = np.array(noise["R"], dtype=np.float64)
         self.landmark_ids: List[int] = []
-        # which shapes the functions take: None until a call has told
-        self.columns: Dict[str, Optional[bool]] = {"X": None, "control": None, "measure": None}
+        # the shapes each function took at its last call (argument -> column?), and every
+        # shape each argument was taken in (what check reports)
+        self.last: Dict[str, Dict[str, bool]] = {}
+        self.taken: Dict[str, List[bool]] = {"X": [], "control": [], "measure": []}
 
     # the protocol ------------------------------------------------------------------------
 
@@ -224,25 +232,27 @@ class CourseModule:
         return len(self.landmark_ids)
 
     def convention(self) -> Dict[str, Any]:
-        """The shapes detected so far, by argument: "column", "flat" or None."""
-        return {
-            name: (None if value is None else ("column" if value else "flat"))
-            for name, value in self.columns.items()
-        }
+        """The shapes taken so far, by argument: "column", "flat", "either" (both, by
+        function or by call) or None."""
+        said = {}
+        for name, taken in self.taken.items():
+            kinds = set(taken)
+            said[name] = (
+                None if not kinds else "either" if len(kinds) > 1
+                else ("column" if taken[0] else "flat")
+            )  # fmt: skip
+        return said
 
     def predict(self, d: float, alpha: float) -> None:
         n = 3 + 2 * self.k
-        attempts = []
-        for x_col in self._options("X"):
-            for c_col in self._options("control"):
-                control = np.array([[d], [alpha]]) if c_col else np.array([d, alpha])
-                attempts.append(({"X": x_col, "control": c_col}, control))
 
-        def call(option: Dict[str, bool], control: Any) -> Any:
-            X = self._state_as(option["X"])
-            return self.module.predict(X, self.P.copy(), control, self.control_cov.copy(), self.k)
+        def call(shape: Dict[str, bool]) -> Any:
+            control = np.array([[d], [alpha]]) if shape["control"] else np.array([d, alpha])
+            return self.module.predict(
+                self._state_as(shape["X"]), self.P.copy(), control, self.control_cov.copy(), self.k
+            )
 
-        self.X, self.P = self._first_working("predict", attempts, call, n)
+        self.X, self.P = self._first_working("predict", ("X", "control"), call, n)
 
     def update(self, ids: Any, z: Any) -> None:
         ids_list = [int(i) for i in ids]
@@ -254,48 +264,56 @@ class CourseModule:
             raise FilterFault(
                 "a course module reads the classic format: every observation names the %d"
                 " landmark%s of the first one, in the same order (ids %s); this one names %s"
+                " (the handout's update takes the measurements of all k landmarks, in their"
+                " order, and init_landmarks is called once, on the first line)"
                 % (self.k, "" if self.k == 1 else "s", self.landmark_ids, ids_list)
             )
         n = 3 + 2 * self.k
-        attempts = []
-        for x_col in self._options("X"):
-            for m_col in self._options("measure"):
-                attempts.append(({"X": x_col, "measure": m_col}, None))
 
-        def call(option: Dict[str, bool], _: Any) -> Any:
-            measure = z.reshape(-1, 1) if option["measure"] else z.reshape(-1)
-            X = self._state_as(option["X"])
+        def call(shape: Dict[str, bool]) -> Any:
+            measure = z.reshape(-1, 1) if shape["measure"] else z.reshape(-1)
             return self.module.update(
-                X, self.P.copy(), measure.copy(), self.measure_cov.copy(), self.k
-            )
+                self._state_as(shape["X"]), self.P.copy(), measure.copy(),
+                self.measure_cov.copy(), self.k,
+            )  # fmt: skip
 
-        self.X, self.P = self._first_working("update", attempts, call, n)
+        self.X, self.P = self._first_working("update", ("X", "measure"), call, n)
 
     # inside -------------------------------------------------------------------------------
 
-    def _options(self, name: str) -> List[bool]:
-        known = self.columns[name]
-        return [True, False] if known is None else [known]
+    def _shapes(self, function: str, names: Tuple[str, ...]) -> List[Dict[str, bool]]:
+        """The shapes to call ``function`` with, in order: those it took last, the
+        handout's (every argument a column), then the others."""
+        options = [{}]  # type: List[Dict[str, bool]]
+        for name in names:
+            options = [dict(o, **{name: column}) for o in options for column in (True, False)]
+        last = self.last.get(function)
+        if last is not None:
+            options.sort(key=lambda option: option != last)
+        return options
 
     def _state_as(self, column: bool) -> Any:
         """A copy of X as the functions take it: a (3+2k, 1) column or (3+2k,)."""
         X = self.X.reshape(-1, 1) if column else self.X.reshape(-1)
         return X.copy()
 
-    def _first_working(
-        self, function: str, attempts: List[Any], call: Callable[..., Any], n: int
-    ) -> Tuple[Any, Any]:
-        """The first of the argument shapes under which ``function`` works; its X, P.
+    def _took(self, function: str, shape: Dict[str, bool]) -> None:
+        self.last[function] = shape
+        for name, column in shape.items():
+            taken = self.taken.setdefault("X" if name == "pose" else name, [])
+            if column not in taken:
+                taken.append(column)
 
-        The handout's shapes come first; when they fail, the next is tried, and the
-        first failure is the one reported if none works.
-        """
+    def _first_working(
+        self, function: str, names: Tuple[str, ...], call: Callable[..., Any], n: int
+    ) -> Tuple[Any, Any]:
+        """X, P of the first of the shapes (see :meth:`_shapes`) ``function`` works with;
+        the first failure is the one reported if none works."""
         first_error: Optional[BaseException] = None
         first_trace: Optional[str] = None
-        for option, control in attempts:
+        for shape in self._shapes(function, names):
             try:
-                result = call(option, control)
-                X, P = self._checked(function, result, n, option.get("X", True))
+                X, P = self._checked(function, call(shape), n)
             except (SystemExit, KeyboardInterrupt):
                 raise
             except BaseException as error:
@@ -303,15 +321,14 @@ class CourseModule:
                     first_error = error
                     first_trace = traceback.format_exc()
                 continue
-            for name, value in option.items():
-                self.columns[name] = value
+            self._took(function, shape)
             return X, P
         assert first_error is not None
         if isinstance(first_error, FilterFault):
             raise first_error
         raise UserError(function, first_error, first_trace or "")
 
-    def _checked(self, function: str, result: Any, n: int, x_column: bool) -> Tuple[Any, Any]:
+    def _checked(self, function: str, result: Any, n: int) -> Tuple[Any, Any]:
         """X and P as returned by ``function``, their shapes and values checked."""
         if not isinstance(result, (tuple, list)) or len(result) != 2:
             what = "None (no return statement?)" if result is None else _shape(result)
@@ -326,7 +343,7 @@ class CourseModule:
                 "%s returned (P, X), expected (X, P): its first value has shape %s, its"
                 " second %s" % (function, X.shape, P.shape)
             )
-        if X.shape not in ((n, 1), (n,)):
+        if X.shape not in ((n, 1), (n,), (1, n)):
             raise FilterFault(
                 "%s returned X of shape %s, expected (%d, 1) or (%d,) (3 + 2k with k = %d)"
                 % (function, X.shape, n, n, self.k)
@@ -342,50 +359,58 @@ class CourseModule:
         pose = self.X[:3].copy()
         pose_cov = self.P[:3, :3].copy()
         k = len(ids)
+
+        def call(shape: Dict[str, bool]) -> Any:
+            measure = z.reshape(-1, 1) if shape["measure"] else z.reshape(-1)
+            init_pose = pose.reshape(3, 1) if shape["pose"] else pose.reshape(3)
+            result = self.module.init_landmarks(
+                measure.copy(), self.measure_cov.copy(), init_pose.copy(), pose_cov.copy()
+            )
+            landmark, landmark_cov = self._checked_init(result, k)
+            cross = self._cross_covariance(measure, init_pose, pose_cov, k)
+            return landmark, landmark_cov, cross
+
         errors: List[Tuple[BaseException, str]] = []
-        for m_col in self._options("measure"):
-            for x_col in self._options("X"):
-                measure = z.reshape(-1, 1) if m_col else z.reshape(-1)
-                init_pose = pose.reshape(3, 1) if x_col else pose.reshape(3)
-                try:
-                    result = self.module.init_landmarks(
-                        measure.copy(), self.measure_cov.copy(), init_pose.copy(), pose_cov.copy()
-                    )
-                    landmark, landmark_cov = self._checked_init(result, k)
-                except (SystemExit, KeyboardInterrupt):
-                    raise
-                except BaseException as error:
-                    errors.append((error, traceback.format_exc()))
-                    continue
-                n = 3 + 2 * k
-                P = np.zeros((n, n))
-                P[:3, :3] = pose_cov
-                P[3:, 3:] = landmark_cov
-                cross_of = getattr(self.module, "init_cross_covariance", None)
-                if callable(cross_of):
-                    cross = _floats(
-                        cross_of(measure.copy(), init_pose.copy(), pose_cov.copy()),
-                        "init_cross_covariance",
-                        "the cross-covariance",
-                    )
-                    if cross.shape != (2 * k, 3):
-                        raise FilterFault(
-                            "init_cross_covariance returned shape %s, expected (%d, 3)"
-                            % (cross.shape, 2 * k)
-                        )
-                    P[3:, :3] = cross
-                    P[:3, 3:] = cross.T
-                self.X = np.vstack([pose.reshape(3, 1), landmark.reshape(-1, 1)])
-                self.P = P
-                self.landmark_ids = list(ids)
-                self.columns["measure"] = m_col
-                if self.columns["X"] is None:
-                    self.columns["X"] = x_col
-                return
+        for shape in self._shapes("init_landmarks", ("measure", "pose")):
+            try:
+                landmark, landmark_cov, cross = call(shape)
+            except (SystemExit, KeyboardInterrupt):
+                raise
+            except BaseException as error:
+                errors.append((error, traceback.format_exc()))
+                continue
+            n = 3 + 2 * k
+            P = np.zeros((n, n))  # the handout's block_diag(pose_cov, landmark_cov)
+            P[:3, :3] = pose_cov
+            P[3:, 3:] = landmark_cov
+            if cross is not None:
+                P[3:, :3] = cross
+                P[:3, 3:] = cross.T
+            self.X = np.vstack([pose.reshape(3, 1), landmark.reshape(-1, 1)])
+            self.P = P
+            self.landmark_ids = list(ids)
+            self._took("init_landmarks", shape)
+            return
         first, trace = errors[0]
         if isinstance(first, FilterFault):
             raise first
         raise UserError("init_landmarks", first, trace)
+
+    def _cross_covariance(self, measure: Any, init_pose: Any, pose_cov: Any, k: int) -> Any:
+        """The module's own init_cross_covariance (2k, 3), where it has one; else None."""
+        cross_of = getattr(self.module, "init_cross_covariance", None)
+        if not callable(cross_of):
+            return None
+        cross = _floats(
+            cross_of(measure.copy(), init_pose.copy(), pose_cov.copy()),
+            "init_cross_covariance",
+            "the cross-covariance",
+        )
+        if cross.shape != (2 * k, 3):
+            raise FilterFault(
+                "init_cross_covariance returned shape %s, expected (%d, 3)" % (cross.shape, 2 * k)
+            )
+        return cross
 
     def _checked_init(self, result: Any, k: int) -> Tuple[Any, Any]:
         if not isinstance(result, (tuple, list)) or len(result) != 3:
@@ -405,7 +430,7 @@ class CourseModule:
             )
         landmark = _floats(landmark, "init_landmarks", "the landmarks")
         landmark_cov = _floats(landmark_cov, "init_landmarks", "landmark_cov")
-        if landmark.shape not in ((2 * k, 1), (2 * k,)):
+        if landmark.shape not in ((2 * k, 1), (2 * k,), (1, 2 * k)):
             raise FilterFault(
                 "init_landmarks returned the landmarks with shape %s, expected (%d, 1) or (%d,)"
                 % (landmark.shape, 2 * k, 2 * k)
@@ -933,12 +958,12 @@ class Worker:
         }
 
     def construct(self, header: Dict[str, Any]) -> Tuple[Dict[str, Any], List[Any]]:
-        params = Params(header["params"])
+        params = Params(header["params"], header["noise"])
         if self.target:
             cls = getattr(self.module, self.target)
             self.call("construction", lambda: setattr(self, "filter", cls(params)))
         else:
-            self.filter = CourseModule(self.module, params)
+            self.filter = CourseModule(self.module, params, header["noise"])
         return self.state(noise=True)
 
     def state(self, path: bool = False, noise: bool = False) -> Tuple[Dict[str, Any], List[Any]]:

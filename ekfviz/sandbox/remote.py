@@ -20,6 +20,7 @@ import numpy as np
 from ekfviz.core.params import FilterParams
 from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.filters.protocol import Capabilities
+from ekfviz.models.kalman import measurement_noise, motion_noise, prior_covariance
 from ekfviz.sandbox import bwrap
 from ekfviz.sandbox.host import (
     Output,
@@ -95,6 +96,15 @@ class LoadedWorker:
         )
 
 
+def worker_noise(params: FilterParams) -> dict[str, list[list[float]]]:
+    """Q, R and the prior's covariance as a worker takes them (it does no filter math)."""
+    return {
+        "Q": motion_noise(params.sigma_x, params.sigma_y, params.sigma_alpha).tolist(),
+        "R": measurement_noise(params.sigma_bearing, params.sigma_range).tolist(),
+        "prior": prior_covariance(params.init_pose_sigma).tolist(),
+    }
+
+
 class RemoteFilter:
     """A user's filter running in a worker, seen through the filter protocol.
 
@@ -113,7 +123,8 @@ class RemoteFilter:
         self.poses_xytheta: FloatArray | None = None
         values = params.as_dict()
         answer, arrays = self._worker.request(
-            {"op": "construct", "params": values}, [], "construction",
+            {"op": "construct", "params": values, "noise": worker_noise(params)}, [],
+            "construction",
             timeout_s=load_timeout(self._worker.options),
             limit_name=load_limit_name(self._worker.options),
         )  # fmt: skip

@@ -4,7 +4,8 @@
   every landmark seen at every step;
 - ``edge``: the classic format's corner cases, every landmark seen at every step: a start
   away from the origin heading nearly pi, landmarks right behind the robot (bearings on
-  both sides of +-pi), the heading crossing +-pi, a single turn of over pi;
+  both sides of +-pi), the heading crossing +-pi, a single turn of over pi, a robot that
+  stands still (a control of d = alpha = 0) and one that turns on the spot (d = 0);
 - ``loop``: a closed stadium-shaped route of ``steps`` controls through a field of
   ``landmarks`` landmarks, seen by a sensor of limited range and field of view, so that
   landmarks enter and leave view, are first seen mid-run, and the loop closes.
@@ -101,11 +102,12 @@ EDGE_START = (4.0, -2.0, math.pi - 0.005)
 
 
 def edge() -> Scenario:
-    """The classic format's corner cases (see the module docstring): 6 landmarks, 24
+    """The classic format's corner cases (see the module docstring): 6 landmarks, 26
     controls, the classic noise and prior, a start at :data:`EDGE_START`."""
     controls = np.array(
         [(1.0, 0.0)] * 3  # straight on, landmark 1 right behind: bearings of about +-pi
         + [(1.0, 0.2), (1.0, 0.0), (1.0, 0.0)]  # the heading crosses +-pi
+        + [(0.0, 0.0), (0.0, 0.6)]  # standing still, then turning on the spot
         + [(0.5, 3.3)]  # one turn of over pi
         + [(1.0, 0.0)] * 3
         + [(1.0, -1.0), (1.0, -1.0), (1.0, 0.0), (1.0, 0.0)]

@@ -55,20 +55,6 @@ def test_ackermann_jacobians_match_finite_differences() -> None:
     assert np.allclose(W, W_fd, atol=1e-7)
 
 
-def test_ackermann_step_is_motion_and_jacobians_in_floats() -> None:
-    car = Ackermann()
-    for pose, speed, steering, dt in (
-        (np.array([1.0, -2.0, 0.7]), 3.0, 0.2, 0.025),
-        (np.array([-40.0, 7.5, 3.1]), 5.5, -0.4, 0.3),  # theta' wraps past pi
-    ):
-        px, py, pt = pose.tolist()
-        x, y, theta, g02, g12, *w = car.step(px, py, pt, speed, steering, dt)
-        G, W = car.jacobians(pose, speed, steering, dt)
-        assert np.array_equal([x, y, theta], car.motion(pose, speed, steering, dt))
-        assert np.allclose([g02, g12], G[:2, 2], rtol=1e-15, atol=0.0)
-        assert np.allclose(w, W.ravel(), rtol=1e-15, atol=0.0)
-
-
 def test_model_drive_equals_a_dense_predict_per_span() -> None:
     """drive() (floats per span, the map's rows once) against P' = F P F^T + F W Q W^T F^T
     with the whole F of each span, on a state with landmarks."""
@@ -95,10 +81,10 @@ def test_model_drive_equals_a_dense_predict_per_span() -> None:
 
 
 @pytest.mark.parametrize("seed", range(4))
-def test_compiled_drive_is_the_python_one_bit_for_bit(seed: int) -> None:
-    """The kernel's ackermann_drive against drive()'s loop of Ackermann.step in Python
-    floats: the same operations, so the same state and covariance to the last bit, over
-    spans of every kind (turning both ways, standing still, dt of zero)."""
+def test_compiled_drive_is_the_python_one(seed: int) -> None:
+    """The kernel's ackermann_drive against drive()'s loop of the named operations in
+    Python: the same state and covariance to round-off, over spans of every kind (turning
+    both ways, standing still, dt of zero)."""
     from ekfviz.filters.ekf import HAVE_KERNEL
     from ekfviz.filters.model_ekf import ModelEkfSlam
 
@@ -121,8 +107,9 @@ def test_compiled_drive_is_the_python_one_bit_for_bit(seed: int) -> None:
         spans[rng.random(k) < 0.2, 0] = 0.0
         for ekf in filters:
             ekf.drive(spans)
-        assert np.array_equal(filters[0].x, filters[1].x)
-        assert np.array_equal(filters[0].P, filters[1].P)
+        assert np.allclose(filters[0].x, filters[1].x, rtol=1e-13, atol=1e-13)
+        assert np.allclose(filters[0].P, filters[1].P, rtol=1e-12, atol=1e-14)
+        assert np.array_equal(filters[0].P, filters[0].P.T)
 
 
 def test_predicted_innovation_covariances_equal_dense_h_p_h_t() -> None:

@@ -275,6 +275,38 @@ def test_the_kernel_is_built_wherever_a_c_compiler_is() -> None:
     assert not EkfSlam(compiled=False)._compiled
 
 
+@pytest.mark.parametrize(("n_landmarks", "seen", "mode"), [
+    (6, 6, UpdateMode.SEQUENTIAL), (40, 12, UpdateMode.SEQUENTIAL), (6, 6, UpdateMode.JOINT),
+])  # fmt: skip
+def test_the_filter_is_its_named_operations_in_the_textbook_form(
+    n_landmarks: int, seen: int, mode: UpdateMode
+) -> None:
+    """The built-in filter (its factored update, the pending low-rank changes of a large
+    map, the compiled kernel of a small one) against the named operations of
+    ekfviz.models composed as the textbook writes them (check's dense re-run: K = P H^T
+    S^-1, P - K S K^T), each event from the filter's own state before it."""
+    from ekfviz.check.rerun import Form, Rerun, State, Step
+    from ekfviz.check.rerun import Noise as RunNoise
+
+    params = FilterParams(update=mode)
+    ekf = EkfSlam(params)
+    textbook = Rerun(RunNoise(params.Q, params.R), form=Form(joint=mode is UpdateMode.JOINT))
+    for event in partially_seen(n_landmarks, seen, steps=30, seed=3):
+        before = State(ekf.x.copy(), ekf.P.copy(), np.array(ekf.landmark_ids))
+        if isinstance(event, Control):
+            ekf.predict(event.d, event.alpha)
+            step = Step(d=event.d, alpha=event.alpha)
+        else:
+            ekf.observe(event.ids, event.z)
+            step = Step(ids=np.asarray(event.ids), z=np.asarray(event.z).reshape(-1, 2))
+        expected = textbook.run(before, step)
+        x, P = State(ekf.x.copy(), ekf.P.copy(), np.array(ekf.landmark_ids)).in_order_of(
+            expected.ids
+        )
+        np.testing.assert_allclose(x, expected.x, rtol=1e-9, atol=1e-11)
+        np.testing.assert_allclose(P, expected.P, rtol=1e-9, atol=1e-11)
+
+
 @pytest.mark.skipif(not HAVE_KERNEL, reason="the compiled kernel was not built")
 @pytest.mark.parametrize(("n_landmarks", "seen"), [(6, 6), (30, 9)])
 def test_kernel_and_numpy_code_give_the_same_records(n_landmarks: int, seen: int) -> None:

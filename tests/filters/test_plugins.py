@@ -185,7 +185,14 @@ def independent_first_divergence(
 
 SEEDED = [
     # (class, log, event, kind, quantity, a word of the hint)
-    ("WrongJacobianSign", "classic", 1, EventKind.PREDICT, Quantity.POSE_LANDMARK, "wrong sign"),
+    (
+        "WrongJacobianSign",
+        "classic",
+        1,
+        EventKind.PREDICT,
+        Quantity.POSE_LANDMARK,
+        "the sign of its theta column flipped",
+    ),
     ("UnrotatedMotionNoise", "classic", 3, EventKind.PREDICT, Quantity.POSE_COVARIANCE, "rotated"),
     ("NoRInS", "classic", 2, EventKind.UPDATE, Quantity.LANDMARK_MEAN, "R is missing"),
     ("NoCrossCovariances", "classic", 0, EventKind.INIT, Quantity.LANDMARK_LANDMARK, "cross-cov"),

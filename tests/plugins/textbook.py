@@ -1,8 +1,11 @@
 """A dense textbook EKF-SLAM as a protocol filter, and copies of it with classic bugs.
 
 It shares no code with ekfviz (only numpy): full (3+2N)^2 products, selection matrices,
-``inv(S)``. ``Textbook`` is correct; each subclass switches on one bug that students make,
-for ``ekfviz check`` to find. Loaded by the tests as ``tests/plugins/textbook.py:Class``.
+``inv(S)``. The filter math of ekfviz is written once, in ``ekfviz/models``; this is kept
+on purpose as an independent dense derivation of it, to cross-check the built-in filter
+and ``check``'s reference against. ``Textbook`` is correct; each subclass switches on one
+bug that students make, for ``ekfviz check`` to find. Loaded by the tests as
+``tests/plugins/textbook.py:Class``.
 """
 
 from __future__ import annotations

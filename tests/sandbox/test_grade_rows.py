@@ -122,8 +122,9 @@ def test_a_submission_over_a_bound_or_not_its_own_is_an_error_row(
     elif shape == "link":
         (entry / "bob.py").symlink_to(tmp_path / "bob.py")
         (tmp_path / "bob.py").write_text("x = 1\n")
-    else:
-        os.link(SKELETON, entry / "copied.py")
+    else:  # (a link to a file of its own: never to the project's, whose count it would raise)
+        shutil.copy(SKELETON, tmp_path / "neighbour.py")
+        os.link(tmp_path / "neighbour.py", entry / "copied.py")
     row = grade_one(task(entry))
     assert row.status == "error", row
     said = {

@@ -79,7 +79,7 @@ def test_a_buggy_module_loses_the_part_its_mistake_is_in_and_is_told_why(
     tests = {test["name"]: test for test in results["tests"]}  # type: ignore[union-attr]
     prediction = tests["Prediction"]
     assert prediction["status"] == "failed" and prediction["score"] == 0
-    assert "Cause: transposed_motion_jacobian" in prediction["output"]
+    assert "Cause: motion_jacobian.transposed" in prediction["output"]
     assert "Hint: " in prediction["output"]
     assert tests["Landmark initialisation"]["status"] == "passed"
     assert results["score"] == sum(t["score"] for t in tests.values()) < 100
@@ -99,6 +99,20 @@ def test_the_sample_rubric_is_the_default_and_a_bad_one_is_one_line(tmp_path: Pa
     (line,) = result.output.strip().splitlines()
     assert "part 1 kind = 'everything': expected one of init, predict" in line
     assert not (tmp_path / "results.json").exists()
+
+
+def test_a_rubric_accepts_a_cause_by_either_name_and_refuses_one_check_never_names(
+    tmp_path: Path,
+) -> None:
+    from ekfviz.app.gradescope import RubricError
+
+    rubric = tmp_path / "rubric.toml"
+    part = '[[part]]\nname = "x"\nkind = "init"\npoints = 1\ntimeout = 5\nlog = "classic"\n'
+    rubric.write_text('[grade]\naccept = ["transposed_motion_jacobian"]\n' + part)
+    assert read_rubric(rubric).accept == ("motion_jacobian.transposed",)
+    rubric.write_text('[grade]\naccept = ["motion_jacobian.sideways"]\n' + part)
+    with pytest.raises(RubricError, match=r"accept: motion_jacobian\.sideways is not a cause"):
+        read_rubric(rubric)
 
 
 def test_each_part_has_its_own_time(tmp_path: Path) -> None:
