@@ -29,7 +29,7 @@ from ekfviz.evaluation.consistency import (
     reading,
 )
 from ekfviz.io.classic import read_classic
-from ekfviz.io.paths import OutputPathError, check_output_path, unused_path
+from ekfviz.io.files import OutputPathError, check_output_path, unused_path
 from ekfviz.runner.replay import replay
 
 ROOT = Path(__file__).parents[2]
