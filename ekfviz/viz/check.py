@@ -40,7 +40,7 @@ from ekfviz.viz.blueprint import (
     study_documents,
 )
 from ekfviz.viz.ellipses import ellipse_extent, ellipse_outlines
-from ekfviz.viz.run import Recording, finish_recorders
+from ekfviz.viz.recording import Recording, finish_recorders
 from ekfviz.viz.study import SUMMARY, log_runs
 
 if TYPE_CHECKING:

@@ -20,7 +20,7 @@ from ekfviz.viz import style
 from ekfviz.viz.blueprint import sweep_blueprint
 from ekfviz.viz.ellipses import ellipse_extent
 from ekfviz.viz.recorder import Recorder
-from ekfviz.viz.run import Recording, finish_recorders
+from ekfviz.viz.recording import Recording, finish_recorders
 
 SUMMARY = "run/summary"
 # matplotlib's tab10 (its grey swapped for navy: grey is the 95% bounds' colour) and a

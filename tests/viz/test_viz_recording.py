@@ -24,7 +24,7 @@ from ekfviz.filters.ekf import HAVE_KERNEL
 from ekfviz.io.classic import format_classic
 from ekfviz.runner.replay import replay
 from ekfviz.sim.simulate import CLASSIC_LANDMARKS_XY, classic_controls, simulate
-from ekfviz.viz import style
+from ekfviz.viz import provenance, style
 from ekfviz.viz.blueprint import map_view
 
 F32 = float(np.finfo(np.float32).eps)
@@ -395,7 +395,7 @@ def test_info_rejects_what_is_not_a_recording(tmp_path: Path, run: Run) -> None:
 def test_input_over_the_cap_is_not_embedded(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    monkeypatch.setattr(viz.run, "INPUT_TEXT_CAP", 100)
+    monkeypatch.setattr(provenance, "INPUT_TEXT_CAP", 100)
     sim = simulate(classic_controls()[:2], CLASSIC_LANDMARKS_XY, seed=1)
     rrd, _ = save_run(tmp_path, sim.events, None)
     found = readback.read_recording_info(rrd)
