@@ -196,7 +196,7 @@ def _recording_name(task: GradeTask, log: Path) -> str:
 
 def grade_one(task: GradeTask) -> GradeRow:
     """Check one submission on every log of ``task``; never raises for what it does."""
-    from ekfviz import app as pipeline
+    from ekfviz.app.check import check_log
     from ekfviz.core.errors import FilterError, InputError
     from ekfviz.filters.spec import FilterSpec, FilterSpecError
     from ekfviz.sandbox.host import WorkerOptions
@@ -230,8 +230,8 @@ def grade_one(task: GradeTask) -> GradeRow:
             if task.save_dir is not None:
                 save = task.save_dir / _recording_name(task, log)
             try:
-                result, _ = pipeline.check(log, truth, spec, params, tolerance=task.tolerance,
-                                           save=save, every=True)  # fmt: skip
+                result, _ = check_log(log, truth, spec, params, tolerance=task.tolerance,
+                                      save=save, every=True)  # fmt: skip
             except FilterSpecError as error:
                 status = _STATUS_OF_KIND.get(error.kind, "error")
                 detail = _one_line(str(error))

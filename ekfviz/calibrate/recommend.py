@@ -13,7 +13,7 @@ map against the truth), the standard consistency tests against ground truth
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -529,19 +529,7 @@ def recommend(
     """
     split = split_run(events, truth, fit_share)
     calibration = calibrate(split.fit, truth, window_s=window_s)
-    if calibration.odometry is not None and calibration.odometry.applied != NO_CORRECTION:
-        # the controls corrected once, not in every replay: the replays below are told
-        # no correction, the candidates keep theirs
-        k_d, k_alpha, bias = calibration.odometry.applied
-        corrected_events: list[LogEvent] = [
-            Control(e.line, k_d * e.d, k_alpha * e.alpha + bias * e.d, e.time, e.dt)
-            if isinstance(e, Control)
-            else e
-            for e in events
-        ]
-        corrected_fit = corrected_events[: len(split.fit)]
-    else:
-        corrected_events, corrected_fit = list(events), split.fit
+    corrected_events, corrected_fit = _corrected_once(events, split, calibration)
     if calibration.motion is None or calibration.sightings == 0:
         raise ValueError("no sightings or no controls with a true pose in the first part")
     heavy = not (calibration.bearing.gaussian and calibration.range.gaussian)
@@ -552,7 +540,53 @@ def recommend(
     before = judge(corrected_fit, truth, as_read)
     scaling = scale_apart(corrected_fit, truth, as_read, before=before)
     one = scale_apart(corrected_fit, truth, as_read, together=True, before=before)
-    settings: list[tuple[str, FilterParams, tuple[float, float] | None]] = [
+    settings = _settings(defaults, estimated, scaling, one)
+
+    def judged(params: FilterParams) -> RunStats:
+        """The whole run judged on the held-out part (the events corrected once)."""
+        if params.corrects_odometry and params.odometry_scale == estimated.odometry_scale:
+            run = replace(params, odometry_scale=(1.0, 1.0), odometry_bias=0.0)
+            return judge(corrected_events, truth, run, after=split.at)
+        return judge(events, truth, params, after=split.at)
+
+    candidates = _judged_candidates(settings, judged)
+    chosen = min(
+        range(len(candidates)),
+        key=lambda k: (not candidates[k].held_out.credible, candidates[k].held_out.error, k),
+    )
+    notes += _notes(calibration, scaling, candidates[chosen])
+    return Recommendation(
+        calibration, scaling, one, tuple(candidates), chosen, split.at, fit_share, tuple(notes)
+    )
+
+
+def _corrected_once(
+    events: Sequence[LogEvent], split: Split, calibration: Calibration
+) -> tuple[list[LogEvent], list[LogEvent]]:
+    """The run's events and those of its fitted part with the odometry correction found
+    applied to every control, once (the replays are then told no correction, the
+    candidates keep theirs); as read where none was found."""
+    if calibration.odometry is None or calibration.odometry.applied == NO_CORRECTION:
+        return list(events), list(split.fit)
+    k_d, k_alpha, bias = calibration.odometry.applied
+    corrected: list[LogEvent] = [
+        Control(e.line, k_d * e.d, k_alpha * e.alpha + bias * e.d, e.time, e.dt)
+        if isinstance(e, Control)
+        else e
+        for e in events
+    ]
+    return corrected, corrected[: len(split.fit)]
+
+
+Setting = tuple[str, FilterParams, tuple[float, float] | None]  # name, params, factors
+
+
+def _settings(
+    defaults: FilterParams, estimated: FilterParams, scaling: Scaling, one: Scaling
+) -> list[Setting]:
+    """The candidate settings (see :func:`recommend`), by name, with their scale factors
+    of the motion and measurement noise (None: the defaults, not scaled)."""
+    settings: list[Setting] = [
         ("defaults", defaults, None),
         ("estimated", estimated, (1.0, 1.0)),
         (
@@ -581,40 +615,32 @@ def recommend(
                     odometry_bias=estimated.odometry_bias),
             None,
         ))  # fmt: skip
+    return settings
 
-    def judged(params: FilterParams) -> RunStats:
-        """The whole run judged on the held-out part (the events corrected once)."""
-        if params.corrects_odometry and params.odometry_scale == estimated.odometry_scale:
-            run = replace(params, odometry_scale=(1.0, 1.0), odometry_bias=0.0)
-            return judge(corrected_events, truth, run, after=split.at)
-        return judge(events, truth, params, after=split.at)
 
+def _judged_candidates(
+    settings: list[Setting], judged: Callable[[FilterParams], RunStats]
+) -> list[Candidate]:
+    """Every setting judged once (two of the same parameters, once); where none has a
+    credible map, the most accurate widened until its map is (a map inside its ellipses
+    with a known error beats a tighter one that is not)."""
     candidates: list[Candidate] = []
     for name, params, factors in settings:
         if any(c.params == params for c in candidates):
             continue  # a factor of 1: the same setting as one judged already
         candidates.append(Candidate(name, params, judged(params), factors))
-    if not any(c.held_out.credible for c in candidates):
-        # none credible: the most accurate, widened until its map is (a map inside its
-        # ellipses with a known error beats a tighter one that is not)
-        closest = min(candidates, key=lambda c: c.held_out.error)
-        for widen in WIDENINGS:
-            motion, measurement = closest.factors or (1.0, 1.0)
-            params = scaled(closest.params, widen, widen)
-            stats = judged(params)
-            name = f"{closest.name}, {widen:g} times wider"
-            factors = (motion * widen, measurement * widen)
-            candidates.append(Candidate(name, params, stats, factors))
-            if stats.credible:
-                break
-    chosen = min(
-        range(len(candidates)),
-        key=lambda k: (not candidates[k].held_out.credible, candidates[k].held_out.error, k),
-    )
-    notes += _notes(calibration, scaling, candidates[chosen])
-    return Recommendation(
-        calibration, scaling, one, tuple(candidates), chosen, split.at, fit_share, tuple(notes)
-    )
+    if any(c.held_out.credible for c in candidates):
+        return candidates
+    closest = min(candidates, key=lambda c: c.held_out.error)
+    for widen in WIDENINGS:
+        motion, measurement = closest.factors or (1.0, 1.0)
+        params = scaled(closest.params, widen, widen)
+        stats = judged(params)
+        name = f"{closest.name}, {widen:g} times wider"
+        candidates.append(Candidate(name, params, stats, (motion * widen, measurement * widen)))
+        if stats.credible:
+            break
+    return candidates
 
 
 def _notes(calibration: Calibration, scaling: Scaling, best: Candidate) -> list[str]:
