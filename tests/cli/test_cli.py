@@ -219,7 +219,7 @@ def test_info_on_a_file_that_is_not_a_recording(tmp_path: Path) -> None:
 @pytest.fixture(scope="module")
 def long_enough_for_a_bar(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A log over the progress bar's threshold (1 MiB), replayed in about a second."""
-    from ekfviz.cli.replay_run import PROGRESS_MIN_BYTES
+    from ekfviz.app.replay import PROGRESS_MIN_BYTES
 
     log = tmp_path_factory.mktemp("bar") / "long.txt"
     made = runner.invoke(

@@ -247,7 +247,7 @@ def _reachable(host: str, port: int) -> bool:
 
 
 def test_serve_listens_on_loopback_only() -> None:
-    from ekfviz.viz.run import GRPC_PORT, WEB_PORT
+    from ekfviz.viz.viewer import GRPC_PORT, WEB_PORT
 
     outward = _outward_address()
     if outward is None:
@@ -385,7 +385,7 @@ def test_a_signal_in_the_final_flush_leaves_no_hidden_temporary_file(
     exception left the clean-up before the temporary file was moved or removed. A file not
     known to be whole is dropped; the one at the path is left as it was."""
     from ekfviz import signals, viz
-    from ekfviz.viz import run as viz_run
+    from ekfviz.viz import recording as viz_recording
 
     target = tmp_path / "run.rrd"
     target.write_bytes(b"the previous recording")
@@ -393,7 +393,7 @@ def test_a_signal_in_the_final_flush_leaves_no_hidden_temporary_file(
     def interrupted_flush(rec: object, timeout: float) -> None:
         raise signals.Interrupted
 
-    monkeypatch.setattr(viz_run, "flush_interruptibly", interrupted_flush)
+    monkeypatch.setattr(viz_recording, "flush_interruptibly", interrupted_flush)
     info = viz.run_info("run", "", {}, SAMPLE)
     sinks = viz.Sinks(save=target)
     with pytest.raises(signals.Interrupted), viz.open_recording(info, sinks) as rec:
@@ -410,7 +410,7 @@ def test_files_written_together_are_all_replaced_or_none_whatever_the_signal(
     TUM beside the old CSV, and said "nothing was written". Now a signal among the renames
     waits for the last, and the line says what was written."""
     from ekfviz import signals
-    from ekfviz.cli.common import write_files_atomic
+    from ekfviz.io.files import write_files_atomic
 
     first, second = tmp_path / "e.tum", tmp_path / "p.csv"
     first.write_text("OLD")
@@ -432,7 +432,7 @@ def test_files_written_together_are_all_replaced_or_none_whatever_the_signal(
         signal.signal(signal.SIGINT, before[0])
         signal.signal(signal.SIGTERM, before[1])
     assert (first.read_text(), second.read_text()) == ("NEW", "NEW")
-    assert stopped.value.written == (first, second)  # type: ignore[attr-defined]
+    assert stopped.value.written == (first, second)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["e.tum", "p.csv"]
 
 
@@ -442,7 +442,7 @@ def test_a_consistency_stopped_after_its_report_says_the_report_was_written(
     """It said "nothing was written; existing files are left as they were" with the new
     report in place."""
     from ekfviz import signals
-    from ekfviz.cli import consistency
+    from ekfviz.app import consistency
 
     def stopped_saving(*args: object) -> None:
         raise signals.Interrupted

@@ -383,15 +383,6 @@ def test_compare_of_the_builtin_with_itself_is_identical(tmp_path: Path) -> None
         assert len(entity_rows(save, f"/filters/{key}/world/robot")) == 59
 
 
-def test_compare_and_sweep_share_one_mechanism() -> None:
-    import ekfviz.cli.compare as compare_command
-    import ekfviz.cli.sweep as sweep_command
-    from ekfviz.cli import study
-
-    shared = study.run_study
-    assert vars(compare_command)["run_study"] is shared is vars(sweep_command)["run_study"]
-
-
 def test_sweep_takes_a_plugin(tmp_path: Path) -> None:
     report = tmp_path / "sweep.json"
     result = runner.invoke(
