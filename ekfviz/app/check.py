@@ -41,6 +41,7 @@ from ekfviz.sources import OwnTruth, SourceArgs, open_source
 if TYPE_CHECKING:
     from ekfviz.check.coverage import Item as CoverageItem
     from ekfviz.check.lockstep import CheckResult
+    from ekfviz.viz import Sinks
 
 __all__ = ["DEFAULT_TOLERANCE", "CheckRequest", "check", "check_log"]
 
@@ -231,14 +232,16 @@ def check_log(
     warn: WarningCallback | None = None,
     own_truth: OwnTruth | None = None,
     command: str | None = None,
+    sinks: Sinks | None = None,
 ) -> tuple[CheckResult, list[CoverageItem]]:
     """Check a protocol filter against the reference in lockstep over ``data``; with
-    ``save``, one recording of both side by side, the divergences marked. Also what the
-    log exercised (:func:`ekfviz.check.coverage.coverage`).
+    ``save`` (or ``sinks``), one recording of both side by side, the divergences marked.
+    Also what the log exercised (:func:`ekfviz.check.coverage.coverage`).
 
     :param every: look for the cause of every divergent event (``check --all``)
     :param own_truth: the source's own truth (a dataset's), where ``truth_path`` is None
     :param command: the command line, as the recording tells it (None: this process's)
+    :param sinks: where the recording goes instead of ``save`` (a viewer's URL)
     :raises InputError, FilterLineError, FilterSpecError, SinkError: one line each
     """
     from ekfviz.check.coverage import coverage
@@ -260,10 +263,12 @@ def check_log(
     finally:
         release(make_filter)
     exercised = coverage(events, result.reference, params)
-    if save is not None and result.records:
+    if (save is not None or sinks is not None) and result.records:
+        from ekfviz import viz
+
         said = command if command is not None else shlex.join(["ekfviz", *sys.argv[1:]])
         recorded = _Recorded(data, truth, truth_files, source.files, said)
-        _record_check(recorded, spec, params, result, save)
+        _record_check(recorded, spec, params, result, sinks or viz.Sinks(save=save))
     return result, exercised
 
 
@@ -281,7 +286,7 @@ class _Recorded:
 
 
 def _record_check(
-    recorded: _Recorded, spec: FilterSpec, params: FilterParams, result: CheckResult, save: Path
+    recorded: _Recorded, spec: FilterSpec, params: FilterParams, result: CheckResult, sinks: Sinks
 ) -> None:
     """The recording of a check: the filter and the reference side by side."""
     from ekfviz import viz
@@ -325,5 +330,5 @@ def _record_check(
     )
     verdict = json.dumps(result.to_json(), indent=2)
     summary = f"# Check of {utf8(spec.text)} against the reference\n\n```json\n{verdict}\n```\n"
-    with viz.open_recording(info, viz.Sinks(save=save)) as recording:
+    with viz.open_recording(info, sinks) as recording:
         record_check(recording, result, runs, truth, summary)

@@ -26,9 +26,7 @@ def test_a_correct_filter_matches_and_a_wrong_one_diverges_with_its_cause(
 ) -> None:
     log = DATA / "classic.txt"
     right = check(CheckRequest(f"{PLUGINS}:Textbook", data=log), Silent())
-    wrong = check(
-        CheckRequest(f"{PLUGINS}:NoRInS", data=log, report=tmp_path / "r.json"), Silent()
-    )
+    wrong = check(CheckRequest(f"{PLUGINS}:NoRInS", data=log, report=tmp_path / "r.json"), Silent())
     assert capfd.readouterr().out == ""
     assert not right.diverged and not right.failed and right.logs[0].result.first_divergence is None
     assert wrong.diverged and not wrong.failed
@@ -59,12 +57,20 @@ def test_the_battery_is_what_the_command_line_writes_for_the_samples(tmp_path: P
             assert path.read_bytes() == (DATA / path.name).read_bytes(), path.name
 
 
-def test_check_log_runs_again_and_again_in_one_process(tmp_path: Path) -> None:
+def test_check_log_runs_again_and_again_in_one_process_into_the_sinks_given(
+    tmp_path: Path,
+) -> None:
+    from ekfviz import viz
+    from ekfviz.readback import read_recording_info
+
     spec = FilterSpec(f"{PLUGINS}:WrongJacobianSign")
     verdicts = []
-    for _ in range(2):
+    for k in range(2):
         result, coverage = check_log(
-            DATA / "classic.txt", None, spec, FilterParams(), tolerance=1e-6, save=None
-        )
+            DATA / "classic.txt", None, spec, FilterParams(), tolerance=1e-6, save=None,
+            sinks=viz.Sinks(save=tmp_path / f"{k}.rrd"), command="a front end's own",
+        )  # fmt: skip
         verdicts.append((result.to_json(), [item.to_json() for item in coverage]))
+        info = read_recording_info(tmp_path / f"{k}.rrd")
+        assert (info.kind, info.command) == ("check", "a front end's own")
     assert verdicts[0] == verdicts[1] and verdicts[0][0]["match"] is False
