@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import signal
 from pathlib import Path
 
 import pytest
@@ -12,6 +14,7 @@ import pytest
 from ekfviz.core.errors import OutputError
 from ekfviz.io.files import (
     OutputPathError,
+    check_output_path,
     check_outputs,
     commit_recording,
     json_text,
@@ -19,6 +22,7 @@ from ekfviz.io.files import (
     refuse_overwrite,
     remove_stale_parts,
     temporary_beside,
+    unused_path,
     write_files_atomic,
 )
 
@@ -82,3 +86,57 @@ def test_an_incomplete_recording_is_dropped_and_a_dead_runs_parts_removed(tmp_pa
     mine = temporary_beside(target)  # removes the dead run's first
     mine.write_bytes(b"being written")
     assert not dead.exists() and remove_stale_parts(target) == [] and mine.exists()
+
+
+def test_check_output_path_accepts_a_new_or_existing_file_and_creates_nothing(
+    tmp_path: Path,
+) -> None:
+    (tmp_path / "old.rrd").write_text("x")
+    assert check_output_path(tmp_path / "new.rrd", "--save") == tmp_path / "new.rrd"
+    assert check_output_path(tmp_path / "old.rrd", "--save") == tmp_path / "old.rrd"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["old.rrd"]
+    with pytest.raises(
+        OutputPathError, match=r"^--report .*r.json: the folder .*missing does not exist$"
+    ):
+        check_output_path(tmp_path / "missing" / "r.json", "--report")
+    assert not (tmp_path / "missing").exists()
+
+
+def test_a_default_name_never_replaces_an_earlier_file(tmp_path: Path) -> None:
+    first = tmp_path / "run.rrd"
+    assert unused_path(first) == first
+    first.write_text("x")
+    (tmp_path / "run-2.rrd").write_text("x")
+    assert unused_path(first) == tmp_path / "run-3.rrd"
+
+
+def test_files_written_together_are_all_replaced_or_none_whatever_the_signal(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``export`` wrote its files one after another: a SIGINT among them left the new
+    TUM beside the old CSV, and said "nothing was written". Now a signal among the renames
+    waits for the last, and the line says what was written."""
+    from ekfviz import signals
+
+    first, second = tmp_path / "e.tum", tmp_path / "p.csv"
+    first.write_text("OLD")
+    second.write_text("OLD")
+    replace = os.replace
+
+    def replace_then_signal(source: str, target: Path) -> None:
+        replace(source, target)
+        if Path(target) == first:
+            os.kill(os.getpid(), signal.SIGINT)  # after the first rename, before the second
+
+    before = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
+    monkeypatch.setattr(os, "replace", replace_then_signal)
+    try:
+        signals.as_interrupts()
+        with pytest.raises(signals.Interrupted) as stopped:
+            write_files_atomic({first: b"NEW", second: b"NEW"})
+    finally:
+        signal.signal(signal.SIGINT, before[0])
+        signal.signal(signal.SIGTERM, before[1])
+    assert (first.read_text(), second.read_text()) == ("NEW", "NEW")
+    assert stopped.value.written == (first, second)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["e.tum", "p.csv"]
