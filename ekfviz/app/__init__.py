@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Protocol
 
 from ekfviz import signals
+from ekfviz.core.batch import EventBatch
 from ekfviz.core.errors import InputError
 from ekfviz.core.params import FilterParams
 from ekfviz.core.records import AnyEvent, EventKind, EventRecord, NeedsIds, with_ids
@@ -74,8 +75,8 @@ def source_events(
 class ScanHooks(Protocol):
     """What a replay adds to the filter (see :mod:`ekfviz.cli.scans`): the built-in
     filter with the models its source implies, the associator of id-less scans, a look
-    at every record (the source's reference) and the truth under the association's
-    pairing."""
+    at every batch of events (the association's tally, the source's reference) and the
+    truth under the association's pairing."""
 
     @property
     def slam(self) -> EkfSlam | None: ...
@@ -83,10 +84,7 @@ class ScanHooks(Protocol):
     @property
     def associator(self) -> Associator | None: ...
 
-    @property
-    def reads_predicts(self) -> bool: ...
-
-    def add(self, record: EventRecord) -> None: ...
+    def add(self, events: EventBatch) -> None: ...
 
     def truth_of(self, last: EventRecord) -> GroundTruth | None: ...
 
@@ -150,18 +148,16 @@ def replay_log(
     data: Path,
     truth: GroundTruth | None,
     logger: RunLogger,
-    on_record: Callable[[EventRecord], None] | None = None,
+    on_batch: Callable[[EventBatch], None] | None = None,
     scans: ScanHooks | None = None,
     file_of: Callable[[bool], Path | None] | None = None,
 ) -> Evaluation:
     """One replay: the events through the filter into the logger, judged at the end.
 
-    Every record goes to the logger (Rerun), the consistency count and ``on_record``;
-    the plain predicts and updates (by ids, no warning, no check) go to the logger as
-    columns, their NIS and NEES to the consistency count, and not to ``on_record`` (see
-    :class:`~ekfviz.core.records.EventRows`).
-    Bad input, a filter that cannot go on, Ctrl-C or SIGTERM stop the replay with the
-    recording of everything before it kept and its last log line saying why.
+    Every batch of events goes to the logger (Rerun), the consistency count,
+    ``on_batch`` and the hooks. Bad input, a filter that cannot go on, Ctrl-C or SIGTERM
+    stop the replay with the recording of everything before it kept and its last log
+    line saying why.
 
     :param scans: the built-in filter with its source's models and the associator of
         id-less scans; the evaluation then sees the truth under the association's pairing
@@ -170,30 +166,19 @@ def replay_log(
     consistency = Consistency(truth)
     last = _Last()
     consumers: list[Consumer] = [logger.log, consistency.add]
-    if on_record is not None:
-        consumers.append(on_record)
+    if on_batch is not None:
+        consumers.append(on_batch)
     consumers.append(last.add)
     if scans is not None:
         consumers.append(scans.add)
     slam = None if scans is None else scans.slam
     associator = None if scans is None else scans.associator
-    # the plain predicts go to the recorder as columns (no other consumer reads a
-    # predict's record) unless the hooks read them (a source's reference)
-    rows = logger.event_rows() if scans is None or not scans.reads_predicts else None
-    if rows is not None:
-        # its plain updates too: only the recorder and the consistency count read them.
-        # An update that the association decided (a scan) stays a record, for the
-        # association's tally and view; an update by ids beside an associator (an
-        # extended log that could have scans but has none here) is as plain as any
-        rows.takes_updates = True
-        rows.watch = consistency.add_rows
     try:
         run(events, params, consumers, make_filter=make_filter, name=name, slam=slam,
-            associator=associator, event_rows=rows)  # fmt: skip
+            associator=associator)  # fmt: skip
     except (InputError, FilterLineError, KeyboardInterrupt, signals.Terminated) as cause:
-        if rows is not None:  # where it stopped: maybe an event written as a row
-            last.record = rows.latest(last.record)
-            rows.settle()
+        # where it stopped: the newest event the logger has, whole or in part
+        last.record = logger.last or last.record
         if scans is not None and last.record is not None:
             truth = scans.truth_of(last.record)
         final = None if last.record is None else evaluate(last.record, truth, consistency)
@@ -206,24 +191,23 @@ def replay_log(
         if scans is not None:
             truth = scans.truth_of(last.record)
             scans.finish(logger)  # before the layout: the map frames what it draws
-        if rows is not None:  # the NIS and NEES of the rows not sent yet
-            rows.settle()
         evaluation = evaluate(last.record, truth, consistency)
         logger.finish(evaluation)
     return evaluation
 
 
 class _Last:
-    """The last record so far; a signal that came during start-up stops the run at the
-    initialisation, with its recording."""
+    """The last event so far; a signal that came during start-up stops the run at the
+    initialisation (a batch of its own), with its recording."""
 
     def __init__(self) -> None:
         self.record: EventRecord | None = None
 
-    def add(self, record: EventRecord) -> None:
-        self.record = record
-        if record.event == 0:
-            signals.raise_pending()
+    def add(self, events: EventBatch) -> None:
+        if len(events):
+            self.record = events.last
+            if self.record.event == 0:
+                signals.raise_pending()
 
 
 @dataclass(frozen=True, slots=True)
@@ -395,7 +379,7 @@ def _record_check(
     first = result.first_divergence
     if first is not None and not result.every:
         # without --all the recording ends at the first divergence, where it then opens
-        kept = sum(1 for record in result.records if record.event <= first.event)
+        kept = sum(1 for event in result.records.events.tolist() if event <= first.event)
         result = replace(
             result,
             records=result.records[:kept],
@@ -410,12 +394,11 @@ def _record_check(
         ("reference (ekf)", "reference", result.reference),
         (spec.label, spec.key if spec.key != "reference" else "checked", result.records),
     ):
-        if not records:
+        if not len(records):
             continue
         consistency = Consistency(truth)
-        for record in records:
-            consistency.add(record)
-        evaluation = evaluate(records[-1], truth, consistency)
+        consistency.add(records)
+        evaluation = evaluate(records.last, truth, consistency)
         runs.append(Run(RunSpec(label, key, params), records, evaluation, 0.0))
     info = viz.run_info(
         name=f"{data.stem}-check",

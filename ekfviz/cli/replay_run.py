@@ -46,9 +46,10 @@ from ekfviz.cli.options import (
 )
 from ekfviz.cli.scans import ReplaySetup, replay_setup
 from ekfviz.cli.sources import MotionNoiseChoice, OpenedLog, first_time, open_log, resolve
+from ekfviz.core.batch import EventBatch
 from ekfviz.core.errors import FilterError, InputError
 from ekfviz.core.params import FilterParams
-from ekfviz.core.records import AnyEvent, EventKind, EventRecord
+from ekfviz.core.records import AnyEvent
 from ekfviz.core.truth import GroundTruth
 from ekfviz.evaluation.errors import Evaluation
 from ekfviz.filters.ekf import EkfSlam
@@ -307,7 +308,7 @@ def _record(
             events = opened.log.events(progress)  # read from the start, with a bar
         evaluation = pipeline.replay_log(
             events, params, make_filter=make_filter, name=request.filter_spec,
-            data=request.data, truth=truth_xy, logger=run, on_record=warnings.add, scans=setup,
+            data=request.data, truth=truth_xy, logger=run, on_batch=warnings.add, scans=setup,
             file_of=file_of,
         )  # fmt: skip
         if progress is not None:
@@ -359,13 +360,15 @@ class FilterWarnings:
         self._file_of = file_of  # a dataset directory's file of the line (its source's)
         self.count = 0
 
-    def add(self, record: EventRecord) -> None:
-        for text in record.warnings:
-            self.count += 1
-            if self.count <= self.PRINTED:
-                path = self._file_of(record.kind is EventKind.PREDICT) or self._data
-                where = f"{path}:{record.line}" if record.line else str(self._data)
-                warn(escape(f"{where}: {text}"))
+    def add(self, events: EventBatch) -> None:
+        for row in sorted(events.extras):
+            for text in events.extras[row].warnings:
+                self.count += 1
+                if self.count <= self.PRINTED:
+                    path = self._file_of(bool(events.is_predict[row])) or self._data
+                    line = int(events.lines[row])
+                    where = f"{path}:{line}" if line else str(self._data)
+                    warn(escape(f"{where}: {text}"))
 
     def summarise(self) -> None:
         if self.count > self.PRINTED:

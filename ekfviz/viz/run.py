@@ -33,8 +33,9 @@ import rerun as rr
 from rerun.any_batch_value import ComponentValueLike
 
 from ekfviz import __version__, signals
+from ekfviz.core.batch import EventBatch
 from ekfviz.core.errors import InputError
-from ekfviz.core.records import EventRecord, EventRows
+from ekfviz.core.records import EventRecord
 from ekfviz.core.tables import utf8
 from ekfviz.core.truth import GroundTruth
 from ekfviz.evaluation.errors import Evaluation
@@ -598,7 +599,7 @@ class Recording:
 
 
 class RunLogger:
-    """Logs the records of one run; built by :func:`open_run`.
+    """Logs the events of one run; built by :func:`open_run`.
 
     :ivar url: the web viewer's address when serving, else None
     :ivar recorder: the :class:`Recorder` doing the logging
@@ -608,25 +609,24 @@ class RunLogger:
         self.recorder = recorder
         self.recording = recording
         self.url = recording.url
-        self.logged = 0  # records logged so far
-        self.last: EventRecord | None = None  # the last record logged
-        self._rows: EventRows | None = None  # the predicts logged as rows, if any
+        self.logged = 0  # events logged so far
+        self._last: EventBatch | None = None  # the last batch logged
 
     @property
     def finished(self) -> bool:
         return self.recording.complete
 
-    def log(self, record: EventRecord) -> None:
-        """Log one record of the core."""
-        self.recorder.log_record(record)
-        self.logged += 1
-        self.last = record
+    def log(self, events: EventBatch) -> None:
+        """Log a batch of the run's events."""
+        if len(events):
+            self._last = events  # first: the recorder holds them all before any send
+        self.recorder.log(events)
+        self.logged += len(events)
 
-    def event_rows(self) -> EventRows:
-        """Where a replay writes its plain events as columns, for the recorder to log
-        before the next record (see :class:`~ekfviz.viz.layers.pending.PendingEvents`)."""
-        self._rows = self.recorder.pending.event_rows()
-        return self._rows
+    @property
+    def last(self) -> EventRecord | None:
+        """The last event logged (or being logged), viewed as a record."""
+        return None if self._last is None else self._last.last
 
     def finish(self, evaluation: Evaluation | None) -> None:
         """Log the evaluation document and send the buffered series: the run is complete;
@@ -656,7 +656,7 @@ class RunLogger:
             return False
         self.recording.partial = True
         self.recorder.note(reason, level=rr.TextLogLevel.ERROR)
-        last = self.last if self._rows is None else self._rows.latest(self.last)
+        last = self.last
         finish_recorders(
             self.recording,
             [(self.recorder, evaluation)],
