@@ -77,7 +77,7 @@ def test_without_the_compiled_kernel_the_numpy_code_stands_in() -> None:
         "from ekfviz.filters.ekf import HAVE_KERNEL, EkfSlam\n"
         "from ekfviz.runner.replay import replay\n"
         "from ekfviz.sim.scenarios import classic\n"
-        "last = list(replay(classic().run(seed=2).events))[-1]\n"
+        "last = list(replay(classic().run(seed=2).events))[-1].last\n"
         "print(HAVE_KERNEL, EkfSlam()._compiled, repr(last.pose.tolist()))\n"
     )
 

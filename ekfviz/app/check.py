@@ -296,7 +296,7 @@ def _record_check(
     first = result.first_divergence
     if first is not None and not result.every:
         # without --all the recording ends at the first divergence, where it then opens
-        kept = sum(1 for record in result.records if record.event <= first.event)
+        kept = sum(1 for event in result.records.events.tolist() if event <= first.event)
         result = replace(
             result,
             records=result.records[:kept],
@@ -310,12 +310,11 @@ def _record_check(
         ("reference (ekf)", "reference", result.reference),
         (spec.label, spec.key if spec.key != "reference" else "checked", result.records),
     ):
-        if not records:
+        if not len(records):
             continue
         consistency = Consistency(truth)
-        for record in records:
-            consistency.add(record)
-        evaluation = evaluate(records[-1], truth, consistency)
+        consistency.add(records)
+        evaluation = evaluate(records.last, truth, consistency)
         runs.append(Run(RunSpec(label, key, params), records, evaluation, 0.0))
     info = viz.run_info(
         name=f"{recorded.data.stem}-check",

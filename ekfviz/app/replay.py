@@ -30,9 +30,10 @@ from ekfviz.app.settings import (
     Triple,
     filter_params,
 )
+from ekfviz.core.batch import EventBatch
 from ekfviz.core.errors import OutputError, UsageError
 from ekfviz.core.params import FilterParams
-from ekfviz.core.records import AnyEvent, EventKind, EventRecord
+from ekfviz.core.records import AnyEvent
 from ekfviz.core.tables import Cell, Styled, TextTable
 from ekfviz.core.truth import GroundTruth
 from ekfviz.evaluation.errors import Evaluation
@@ -289,7 +290,7 @@ def replay_into(opened: OpenedReplay, logger: RunLogger, reporter: Reporter) -> 
     with _reading(opened, reporter) as events:
         evaluation = replay_log(
             events, opened.params, make_filter=opened.make_filter, name=request.filter_spec,
-            data=request.data, truth=opened.log.truth, logger=logger, on_record=warnings.add,
+            data=request.data, truth=opened.log.truth, logger=logger, on_batch=warnings.add,
             scans=setup, file_of=opened.log.source.file_of,
         )  # fmt: skip
     warnings.summarise()
@@ -357,13 +358,15 @@ class FilterWarnings:
         self._warn = warn
         self.count = 0
 
-    def add(self, record: EventRecord) -> None:
-        for text in record.warnings:
-            self.count += 1
-            if self.count <= FILTER_WARNINGS_SAID:
-                path = self._file_of(record.kind is EventKind.PREDICT) or self._data
-                where = f"{path}:{record.line}" if record.line else str(self._data)
-                self._warn(f"{where}: {text}")
+    def add(self, events: EventBatch) -> None:
+        for row in sorted(events.extras):
+            for text in events.extras[row].warnings:
+                self.count += 1
+                if self.count <= FILTER_WARNINGS_SAID:
+                    path = self._file_of(bool(events.is_predict[row])) or self._data
+                    line = int(events.lines[row])
+                    where = f"{path}:{line}" if line else str(self._data)
+                    self._warn(f"{where}: {text}")
 
     def summarise(self) -> None:
         if self.count > FILTER_WARNINGS_SAID:

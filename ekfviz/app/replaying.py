@@ -3,8 +3,8 @@ consistency count, what the command watches (the filter's warnings) and the scan
 hooks (the association, the source's reference); and the line that says why and where
 a replay cut short stopped.
 
-:func:`consumers_of` is the one place that says which consumer takes what: every record,
-or the plain predicts and updates as columns (:class:`~ekfviz.core.records.EventRows`).
+:func:`consumers_of` is the one place that says who takes a replay's batches of events
+(:class:`~ekfviz.core.batch.EventBatch`).
 """
 
 from __future__ import annotations
@@ -15,9 +15,10 @@ from typing import TYPE_CHECKING, Protocol
 
 from ekfviz import signals
 from ekfviz.app.errors import RunStopped
+from ekfviz.core.batch import EventBatch
 from ekfviz.core.errors import InputError
 from ekfviz.core.params import FilterParams
-from ekfviz.core.records import AnyEvent, EventKind, EventRecord, EventRows
+from ekfviz.core.records import AnyEvent, EventKind, EventRecord
 from ekfviz.core.truth import GroundTruth
 from ekfviz.evaluation.consistency import Consistency
 from ekfviz.evaluation.errors import Evaluation, evaluate
@@ -34,8 +35,8 @@ if TYPE_CHECKING:
 class ScanHooks(Protocol):
     """What a replay adds to the filter (see :mod:`ekfviz.app.scans`): the built-in
     filter with the models its source implies, the associator of id-less scans, a look
-    at every record (the source's reference) and the truth under the association's
-    pairing."""
+    at every batch of events (the association's tally, the source's reference) and the
+    truth under the association's pairing."""
 
     @property
     def slam(self) -> EkfSlam | None: ...
@@ -43,10 +44,7 @@ class ScanHooks(Protocol):
     @property
     def associator(self) -> Associator | None: ...
 
-    @property
-    def reads_predicts(self) -> bool: ...
-
-    def add(self, record: EventRecord) -> None: ...
+    def add(self, events: EventBatch) -> None: ...
 
     def truth_of(self, last: EventRecord) -> GroundTruth | None: ...
 
@@ -90,31 +88,18 @@ def consumers_of(
     logger: RunLogger,
     consistency: Consistency,
     last: _Last,
-    on_record: Callable[[EventRecord], None] | None,
+    on_batch: Callable[[EventBatch], None] | None,
     scans: ScanHooks | None,
-) -> tuple[list[Consumer], EventRows | None]:
-    """Who takes what of a replay: every record goes to the logger (Rerun), the
-    consistency count, ``on_record``, the last record's keeper and the scans' hooks; the
-    plain predicts and updates (by ids, no warning, no check) go to the logger as
-    columns, their NIS and NEES to the consistency count (the returned rows), and not
-    to ``on_record``."""
+) -> list[Consumer]:
+    """Who takes a replay's batches of events, in this order: the logger (Rerun), the
+    consistency count, ``on_batch``, the last event's keeper and the scans' hooks."""
     consumers: list[Consumer] = [logger.log, consistency.add]
-    if on_record is not None:
-        consumers.append(on_record)
+    if on_batch is not None:
+        consumers.append(on_batch)
     consumers.append(last.add)
     if scans is not None:
         consumers.append(scans.add)
-    # the plain predicts go to the recorder as columns (no other consumer reads a
-    # predict's record) unless the hooks read them (a source's reference)
-    rows = logger.event_rows() if scans is None or not scans.reads_predicts else None
-    if rows is not None:
-        # its plain updates too: only the recorder and the consistency count read them.
-        # An update that the association decided (a scan) stays a record, for the
-        # association's tally and view; an update by ids beside an associator (an
-        # extended log that could have scans but has none here) is as plain as any
-        rows.takes_updates = True
-        rows.watch = consistency.add_rows
-    return consumers, rows
+    return consumers
 
 
 def replay_log(
@@ -126,7 +111,7 @@ def replay_log(
     data: Path,
     truth: GroundTruth | None,
     logger: RunLogger,
-    on_record: Callable[[EventRecord], None] | None = None,
+    on_batch: Callable[[EventBatch], None] | None = None,
     scans: ScanHooks | None = None,
     file_of: Callable[[bool], Path | None] | None = None,
 ) -> Evaluation:
@@ -142,16 +127,15 @@ def replay_log(
     """
     consistency = Consistency(truth)
     last = _Last()
-    consumers, rows = consumers_of(logger, consistency, last, on_record, scans)
+    consumers = consumers_of(logger, consistency, last, on_batch, scans)
     slam = None if scans is None else scans.slam
     associator = None if scans is None else scans.associator
     try:
         run(events, params, consumers, make_filter=make_filter, name=name, slam=slam,
-            associator=associator, event_rows=rows)  # fmt: skip
+            associator=associator)  # fmt: skip
     except (InputError, FilterLineError, KeyboardInterrupt, signals.Terminated) as cause:
-        if rows is not None:  # where it stopped: maybe an event written as a row
-            last.record = rows.latest(last.record)
-            rows.settle()
+        # where it stopped: the newest event the logger has, whole or in part
+        last.record = logger.last or last.record
         if scans is not None and last.record is not None:
             truth = scans.truth_of(last.record)
         final = None if last.record is None else evaluate(last.record, truth, consistency)
@@ -164,21 +148,20 @@ def replay_log(
         if scans is not None:
             truth = scans.truth_of(last.record)
             scans.finish(logger)  # before the layout: the map frames what it draws
-        if rows is not None:  # the NIS and NEES of the rows not sent yet
-            rows.settle()
         evaluation = evaluate(last.record, truth, consistency)
         logger.finish(evaluation)
     return evaluation
 
 
 class _Last:
-    """The last record so far; a signal that came during start-up stops the run at the
-    initialisation, with its recording."""
+    """The last event so far; a signal that came during start-up stops the run at the
+    initialisation (a batch of its own), with its recording."""
 
     def __init__(self) -> None:
         self.record: EventRecord | None = None
 
-    def add(self, record: EventRecord) -> None:
-        self.record = record
-        if record.event == 0:
-            signals.raise_pending()
+    def add(self, events: EventBatch) -> None:
+        if len(events):
+            self.record = events.last
+            if self.record.event == 0:
+                signals.raise_pending()

@@ -14,6 +14,7 @@ from ekfviz.app.inputs import OpenedLog
 from ekfviz.app.settings import Given
 from ekfviz.association import AssociationParams
 from ekfviz.association.evaluation import AssociationTally
+from ekfviz.core.batch import EventBatch
 from ekfviz.core.errors import InputError
 from ekfviz.core.params import FilterParams
 from ekfviz.core.records import EventRecord
@@ -37,33 +38,27 @@ class ReplaySetup:
     params: FilterParams
     truth: GroundTruth | None
     slam: EkfSlam | None
-    sensor: RangeBearing  # the sensor seen from the records' pose (the laser's, at Victoria Park)
+    sensor: RangeBearing  # the sensor seen from the events' pose (the laser's, at Victoria Park)
     associator: Associator | None
     reference: Reference | None
     parameters: dict[str, object]
     tally: AssociationTally
     warn: WarningCallback
     _scans: bool = False
-    _last: EventRecord | None = None
+    _last: EventBatch | None = None  # the last batch of the run's events
     # the summary lines of what finish() found (the reference's)
     summaries: list[str] = field(default_factory=list)
     # what finish() found (the association's counts, the reference's results), by key
     extra: dict[str, object] = field(default_factory=dict)
 
-    @property
-    def reads_predicts(self) -> bool:
-        """Whether :meth:`add` reads the predicts' records (the reference's: the tally
-        reads the association's updates alone); else a replay may give its predicts to
-        the recorder as columns."""
-        return self.reference is not None
-
-    def add(self, record: EventRecord) -> None:
-        self._last = record
-        if record.association is not None:
-            self._scans = True
-            self.tally.add(record)
+    def add(self, events: EventBatch) -> None:
+        if len(events):
+            self._last = events
+        scans = self.tally.scans
+        self.tally.add_batch(events)
+        self._scans |= self.tally.scans > scans
         if self.reference is not None:
-            self.reference.add(record)
+            self.reference.add(events)
 
     def truth_of(self, last: EventRecord) -> GroundTruth | None:
         """The truth under the estimate's ids (the association's pairing for scans)."""
@@ -73,16 +68,16 @@ class ReplaySetup:
 
     def truth_of_last(self) -> GroundTruth | None:
         """The truth as the evaluation of the last record saw it."""
-        return self.truth if self._last is None else self.truth_of(self._last)
+        return self.truth if self._last is None else self.truth_of(self._last.last)
 
     def finish(self, logger: RunLogger) -> dict[str, object]:
         """The association report and the source's reference, if any (logged too, before
         the recording's layout, which frames the reference in the map); kept in
         :attr:`extra`."""
         extra = self.extra
-        last = self._last
-        if last is None:
+        if self._last is None:
             return extra
+        last = self._last.last
         if self._scans:
             extra["association"] = self.tally.report(last.landmark_ids)
         if self.reference is not None:

@@ -20,12 +20,14 @@ import numpy as np
 
 from ekfviz.association.gating import gated
 from ekfviz.calibrate.fit import NO_CORRECTION, WINDOW_S, Calibration, calibrate
+from ekfviz.core.batch import UPDATE, BatchBuilder, EventBatch
 from ekfviz.core.errors import FilterError
 from ekfviz.core.params import FilterParams
-from ekfviz.core.records import Control, EventKind, EventRecord, LogEvent, Sighting
+from ekfviz.core.records import Control, LogEvent
+from ekfviz.core.steps import log_steps
 from ekfviz.core.truth import GroundTruth
 from ekfviz.core.types import FloatArray
-from ekfviz.evaluation.consistency import Consistency, chi2_bounds, pose_nees, update_nis
+from ekfviz.evaluation.consistency import Consistency, chi2_bounds, events_nis, poses_nees
 from ekfviz.evaluation.errors import Evaluation, MapSummary, evaluate
 from ekfviz.filters.ekf import EkfSlam
 from ekfviz.runner.run import run
@@ -121,20 +123,23 @@ class _HeldOut:
         self.nees: list[float] = []
         self.nis_total = self.dof_total = 0.0
 
-    def add(self, record: EventRecord) -> None:
+    def add(self, events: EventBatch) -> None:
+        """Count the events of a batch after the fitted part (the updates' NEES and NIS,
+        and the consistency counts)."""
         if self.after is not None:
-            when = record.time if record.time is not None else float(record.step)
-            if when <= self.after:
-                return
-        self.consistency.add(record)
-        if record.kind is EventKind.UPDATE:
-            value = pose_nees(record, self.truth)
-            if value is not None:
-                self.nees.append(value)
-            nis = update_nis(record)
-            if nis is not None:
-                self.nis_total += nis[0]
-                self.dof_total += nis[1]
+            when = np.where(np.isnan(events.times), events.steps, events.times)
+            events = events.take(np.flatnonzero(when > self.after))
+        self.consistency.add(events)
+        updates = np.flatnonzero(events.kinds == UPDATE)
+        true_poses, known = self.truth.poses_of(events.steps[updates], events.times[updates])
+        at = updates[known]
+        nees, defined = poses_nees(events.poses[at], events.pose_covs[at], true_poses[known])
+        self.nees += nees[defined].tolist()
+        rows, totals, dofs = events_nis(events.observed)
+        of_updates = events.kinds[rows] == UPDATE
+        for total in totals[of_updates].tolist():  # in order, as the updates come
+            self.nis_total += total
+        self.dof_total += int(dofs[of_updates].sum())
 
 
 def run_stats(
@@ -185,23 +190,18 @@ def judge(
     gate, R = params.gate, params.R
     correct = params.corrects_odometry
     step = 0
-    step_has_update = True
     time: float | None = None
     nees_bounds = chi2_bounds(3)
     try:
-        for k, event in enumerate(events):
+        numbers = log_steps(isinstance(event, Control) for event in events)
+        for k, (event, (_, step)) in enumerate(zip(events, numbers, strict=True)):
             time = event.time
             if isinstance(event, Control):
-                step += 1
-                step_has_update = False
                 d, alpha = (
                     params.corrected(event.d, event.alpha) if correct else (event.d, event.alpha)
                 )
                 ekf.predict(d, alpha, event.dt)
                 continue
-            if k and step_has_update:
-                step += 1
-            step_has_update = True
             sighting = event
             if gate is not None and k:
                 sighting, _ = gated(ekf.x, ekf.P, ekf.landmark_ids, event, R, gate)
@@ -226,7 +226,9 @@ def judge(
                 nees_values.append(value)
     except FilterError:
         return FAILED
-    last = ekf.record(event=len(events), step=step, kind=EventKind.UPDATE, time=time)
+    final = BatchBuilder()
+    final.add(ekf.state_parts(), event=len(events), step=step, kind=UPDATE, time=time)
+    last = final.build().last
     return RunStats.of(nees_values, nis_total, dof_total, consistency, evaluate(last, truth))
 
 
@@ -424,17 +426,8 @@ def split_run(events: Sequence[LogEvent], truth: GroundTruth, share: float = FIT
 def _steps(events: Sequence[LogEvent]) -> int:
     """The step the replay of ``events`` ends at (counted as
     :func:`~ekfviz.runner.replay.replay` counts)."""
-    step = 0
-    step_has_update = False
-    for k, event in enumerate(events):
-        if isinstance(event, Sighting):
-            if k and step_has_update:
-                step += 1
-            step_has_update = True
-        else:
-            step += 1
-            step_has_update = False
-    return step
+    steps = (step for _, step in log_steps(isinstance(event, Control) for event in events))
+    return max(steps, default=0)  # (steps never go back)
 
 
 @dataclass(frozen=True, slots=True)

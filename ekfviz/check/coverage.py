@@ -32,7 +32,7 @@ class Item:
 
 
 def coverage(
-    events: Iterable[LogEvent], records: Sequence[EventRecord], params: FilterParams
+    events: Iterable[LogEvent], records: Iterable[EventRecord], params: FilterParams
 ) -> list[Item]:
     """The branches the log's events (and the poses of ``records``) exercised."""
     near_pi = behind = crossing = several = mid_run = big_turn = backwards = False

@@ -32,9 +32,11 @@ from ekfviz.check.mistakes import (
     explain_predict,
     explain_update,
 )
+from ekfviz.core.batch import KIND_CODES, BatchBuilder, EventBatch
 from ekfviz.core.errors import FilterError
 from ekfviz.core.params import FilterParams
-from ekfviz.core.records import Control, EventKind, EventRecord, LogEvent, Sighting
+from ekfviz.core.records import Control, EventKind, LogEvent, Sighting
+from ekfviz.core.steps import StepCounter
 from ekfviz.core.tables import Cell, Styled, TextTable
 from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.filters.ekf import EkfSlam
@@ -172,8 +174,8 @@ class CheckResult:
     max_difference: float
     tolerance: float
     first_divergence: Divergence | None
-    records: tuple[EventRecord, ...]
-    reference: tuple[EventRecord, ...]
+    records: EventBatch
+    reference: EventBatch
     differences: tuple[float, ...]
     divergences: tuple[Divergence, ...] = ()
     every: bool = False
@@ -365,8 +367,8 @@ def lockstep(
     """
     slam = plugged(make_filter, params, name)
     params = reference_params(params, slam.slam)
-    records: list[EventRecord] = []
-    reference: list[EventRecord] = []
+    records = BatchBuilder()
+    reference = BatchBuilder()
     differences: list[float] = []
     divergences: list[Divergence] = []
     found: set[str] = set()
@@ -396,14 +398,14 @@ def lockstep(
                 ekf.predict(*control)
                 slam.predict(*control)
                 for target, source in ((reference, ekf), (records, slam)):
-                    target.append(source.record(event=event, step=step, kind=kind, line=line,
-                                                time=time, control=control))  # fmt: skip
+                    target.add(source.state_parts(), event=event, step=step, kind=KIND_CODES[kind],
+                               line=line, time=time, control=control)  # fmt: skip
             else:
                 expected = ekf.observe(log_event.ids, log_event.z)
                 got = slam.observe(log_event.ids, log_event.z)
                 for target, source, seen in ((reference, ekf, expected), (records, slam, got)):
-                    target.append(source.record(event=event, step=step, kind=kind, line=line,
-                                                time=time, observations=seen))  # fmt: skip
+                    target.add(source.state_parts(), event=event, step=step, kind=KIND_CODES[kind],
+                               line=line, time=time, observations=seen)  # fmt: skip
         except PluginError as failure:
             message = f"event {event} ({kind.value}): {failure}"
             stopped = (message, log_event.line, str(getattr(failure, "kind", "raised")))
@@ -450,8 +452,8 @@ def lockstep(
         max_difference=max(differences, default=0.0),
         tolerance=tolerance,
         first_divergence=divergences[0] if divergences else None,
-        records=tuple(records),
-        reference=tuple(reference),
+        records=records.build(),
+        reference=reference.build(),
         differences=tuple(differences),
         divergences=tuple(divergences),
         every=every,
@@ -471,21 +473,14 @@ def numbered(events: Iterable[LogEvent]) -> Iterator[tuple[int, int, EventKind, 
     starts a step; an observation is the update of its step, or starts a step of its own
     when the step already had one.
     """
-    step, event, step_has_update = 0, 0, True
+    counter = StepCounter()
     for index, log_event in enumerate(events):
         if index == 0 and isinstance(log_event, Sighting):
-            yield 0, 0, EventKind.INIT, log_event
-            continue
-        event += 1
-        if isinstance(log_event, Control):
-            step += 1
-            step_has_update = False
-            yield event, step, EventKind.PREDICT, log_event
+            yield (*counter.initialise(), EventKind.INIT, log_event)
+        elif isinstance(log_event, Control):
+            yield (*counter.predict(), EventKind.PREDICT, log_event)
         else:
-            if step_has_update:
-                step += 1
-            step_has_update = True
-            yield event, step, EventKind.UPDATE, log_event
+            yield (*counter.update(), EventKind.UPDATE, log_event)
 
 
 def compare(expected: State, got: State) -> Difference | None:

@@ -1,7 +1,7 @@
-"""One ``ekfviz replay`` run logged to its recording, record by record.
+"""One ``ekfviz replay`` run logged to its recording, batch by batch.
 
 :func:`open_run` opens the recording (see :mod:`ekfviz.viz.recording`) and hands out a
-:class:`RunLogger` built on :class:`~ekfviz.viz.recorder.Recorder`: the records as they
+:class:`RunLogger` built on :class:`~ekfviz.viz.recorder.Recorder`: the events as they
 come, the evaluation at the end or, for a run cut short, why and where it stopped.
 """
 
@@ -14,7 +14,8 @@ from typing import TYPE_CHECKING
 
 import rerun as rr
 
-from ekfviz.core.records import EventRecord, EventRows
+from ekfviz.core.batch import EventBatch
+from ekfviz.core.records import EventRecord
 from ekfviz.evaluation.errors import Evaluation
 from ekfviz.models.range_bearing import RangeBearing
 from ekfviz.viz.provenance import RunInfo
@@ -30,7 +31,7 @@ GPS_LABEL_ROOM = 0.12  # room beside a GPS jump for its label, as a share of the
 
 
 class RunLogger:
-    """Logs the records of one run; built by :func:`open_run`.
+    """Logs the events of one run; built by :func:`open_run`.
 
     :ivar recorder: the :class:`Recorder` doing the logging
     :ivar recording: the recording it logs to, with its sinks
@@ -39,25 +40,24 @@ class RunLogger:
     def __init__(self, recorder: Recorder, recording: Recording) -> None:
         self.recorder = recorder
         self.recording = recording
-        self.logged = 0  # records logged so far
-        self.last: EventRecord | None = None  # the last record logged
-        self._rows: EventRows | None = None  # the predicts logged as rows, if any
+        self.logged = 0  # events logged so far
+        self._last: EventBatch | None = None  # the last batch logged
 
     @property
     def finished(self) -> bool:
         return self.recording.complete
 
-    def log(self, record: EventRecord) -> None:
-        """Log one record of the core."""
-        self.recorder.log_record(record)
-        self.logged += 1
-        self.last = record
+    def log(self, events: EventBatch) -> None:
+        """Log a batch of the run's events."""
+        if len(events):
+            self._last = events  # first: the recorder holds them all before any send
+        self.recorder.log(events)
+        self.logged += len(events)
 
-    def event_rows(self) -> EventRows:
-        """Where a replay writes its plain events as columns, for the recorder to log
-        before the next record (see :class:`~ekfviz.viz.layers.pending.PendingEvents`)."""
-        self._rows = self.recorder.pending.event_rows()
-        return self._rows
+    @property
+    def last(self) -> EventRecord | None:
+        """The last event logged (or being logged), viewed as a record."""
+        return None if self._last is None else self._last.last
 
     def log_reference(self, fitted: FittedReference) -> None:
         """A source's reference fitted to the path (Victoria Park's GPS), in the map and
@@ -99,7 +99,7 @@ class RunLogger:
             return False
         self.recording.partial = True
         self.recorder.note(reason, level=rr.TextLogLevel.ERROR)
-        last = self.last if self._rows is None else self._rows.latest(self.last)
+        last = self.last
         finish_recorders(
             self.recording,
             [(self.recorder, evaluation)],

@@ -85,8 +85,8 @@ def recordings(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     rec = rr.RecordingStream("my_slam")
     rec.save(made["recorder"])
     recorder = Recorder(rec)
-    for record in replay(read_classic(SAMPLE)):
-        recorder.log_record(record)
+    for batch in replay(read_classic(SAMPLE)):
+        recorder.log(batch)
     recorder.finish()
     rec.disconnect()
     made["other"] = root / "other.rrd"
@@ -221,8 +221,8 @@ def test_a_truth_with_fewer_poses_than_steps_says_how_many_were_judged() -> None
     xy = np.array([landmarks[str(i)] for i in ids])
     poses = np.array(truth_file["poses"][:11])  # the start and 10 of 29 steps
     consistency = Consistency(GroundTruth(ids, xy, poses))
-    for record in replay(events):
-        consistency.add(record)
+    for batch in replay(events):
+        consistency.add(batch)
     assert consistency.nees.total == 11
     assert any(
         "only 11 of 30 corrected states have a true pose" in s for s in consistency.summary()
