@@ -46,7 +46,7 @@ def test_a_replay_returns_its_results_prints_nothing_and_writes_its_outputs(
     result = replay(_request(tmp_path), reporter)
     assert capfd.readouterr() == ("", "")
     # the same estimate as the filter run directly on the log's events
-    last = list(run_filter(read_log(SAMPLE), FilterParams()))[-1]
+    last = list(run_filter(read_log(SAMPLE), FilterParams()))[-1].last
     np.testing.assert_allclose(result.evaluation.pose, last.pose, atol=1e-12)
     assert result.saved_to == tmp_path / "run.rrd"
     assert len(entity_rows(tmp_path / "run.rrd", "/world/robot")) == 59  # every event
