@@ -49,7 +49,7 @@ class ScanHooks(Protocol):
     def truth_of(self, last: EventRecord) -> GroundTruth | None: ...
 
     def finish(self, logger: RunLogger) -> object:
-        """After the last record, before the recording's layout is made: what the run
+        """After the last batch, before the recording's layout is made: what the run
         adds to the recording (the source's reference, which the map then frames)."""
         ...
 

@@ -67,7 +67,7 @@ class ReplaySetup:
         return self.tally.relabelled_truth(last.landmark_ids)
 
     def truth_of_last(self) -> GroundTruth | None:
-        """The truth as the evaluation of the last record saw it."""
+        """The truth as the evaluation of the last event saw it."""
         return self.truth if self._last is None else self.truth_of(self._last.last)
 
     def finish(self, logger: RunLogger) -> dict[str, object]:

@@ -6,7 +6,7 @@
 - :mod:`ekfviz.viz.ellipses` -- the 3-sigma outline of a covariance;
 - :mod:`ekfviz.viz.style` -- entity paths and colours;
 - :mod:`ekfviz.viz.blueprint` -- the default viewer layout;
-- :mod:`ekfviz.viz.run` -- one ``ekfviz replay`` run, logged record by record;
+- :mod:`ekfviz.viz.run` -- one ``ekfviz replay`` run, logged batch by batch;
 - :mod:`ekfviz.viz.recording` -- a recording sent to its sinks, its file saved whole;
 - :mod:`ekfviz.viz.provenance` -- what describes a run, and its recording id;
 - :mod:`ekfviz.viz.viewer` -- the viewer: probed, spawned or served.
