@@ -1,11 +1,10 @@
-"""The compiled parts: the kernel of small maps, a replay's row copies, the number parser
-of the log readers and JCBB's search; everything else is in pyproject.toml.
+"""The compiled parts: the kernel of small maps, the number parser of the log readers and
+JCBB's search; everything else is in pyproject.toml.
 
 Every extension is optional: without a C compiler the install goes on, the filter uses
-its numpy code throughout (``ekfviz.filters.ekf.HAVE_KERNEL`` is then False), a replay
-copies its rows with numpy, the readers convert numbers with ``float()``
-(``ekfviz.io.text.HAVE_PARSER`` False) and JCBB searches in Python
-(``ekfviz.association.jcbb.HAVE_SEARCH`` False).
+its numpy code throughout (``ekfviz.filters.ekf.HAVE_KERNEL`` is then False), the readers
+convert numbers with ``float()`` (``ekfviz.io.text.HAVE_PARSER`` False) and JCBB searches
+in Python (``ekfviz.association.jcbb.HAVE_SEARCH`` False).
 """
 
 from setuptools import Extension, setup
@@ -15,12 +14,6 @@ setup(
         Extension(
             "ekfviz.filters._kernel",
             ["ekfviz/filters/_kernel.c"],
-            extra_compile_args=["-O2", "-std=c99", "-Wall", "-Wextra", "-Wno-unused-parameter"],
-            optional=True,
-        ),
-        Extension(
-            "ekfviz.core._rows",
-            ["ekfviz/core/_rows.c"],
             extra_compile_args=["-O2", "-std=c99", "-Wall", "-Wextra", "-Wno-unused-parameter"],
             optional=True,
         ),

@@ -13,7 +13,7 @@
    resident memory and ``.rrd`` size, for the classic sample, a simulated loop of 10,000
    steps among 300 landmarks, a classic-size log of 100,000 steps and the classic route
    among 200 landmarks; the dense filter's arithmetic on the same classic-format files.
-4. Where a long replay's time goes: reading, the filter, the records and checks, and
+4. Where a long replay's time goes: reading, the filter, the batches and checks, and
    the logging (in the main thread, and the CPU of Rerun's own threads with it).
 5. The interpreter plus ``import rerun, numpy, typer``, which every replay pays, and the
    import of the compiled kernel.
@@ -72,10 +72,12 @@ from pathlib import Path
 import numpy as np
 
 import ekfviz
+from ekfviz.core.batch import PREDICT, UPDATE, BatchBuilder
 from ekfviz.core.params import FilterParams, UpdateMode
-from ekfviz.core.records import Control, EventKind, LogEvent, Sighting
+from ekfviz.core.records import Control, LogEvent, Sighting
 from ekfviz.filters.ekf import HAVE_KERNEL, KERNEL_MAX_DIM, EkfSlam
 from ekfviz.io.classic import format_classic, read_classic
+from ekfviz.runner.batches import BATCH_EVENTS
 from ekfviz.sim.simulate import CLASSIC_LANDMARKS_XY, Noise, classic_controls, simulate
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -160,19 +162,27 @@ def make_world(n: int, seen: int | None, steps: int, seed: int = 1) -> World:
 def time_core(
     world: World, params: FilterParams, compiled: bool = True
 ) -> tuple[list[float], list[float]]:
-    """Seconds per step of predict + observe, and of the two records a replay makes."""
+    """Seconds per step of predict + observe, and of appending the state after each of
+    the two to a batch as a replay does (the batch built every ``BATCH_EVENTS`` events,
+    its share counted at every step)."""
     ekf = EkfSlam(params, compiled=compiled)
     ekf.observe(world.first.ids, world.first.z)
     filtering, recording = [], []
+    builder = BatchBuilder()
     for control, sighting in world.steps:
         start = time.perf_counter()
         ekf.predict(control.d, control.alpha)
-        observations = ekf.observe(sighting.ids, sighting.z)
         middle = time.perf_counter()
-        ekf.record(event=1, step=1, kind=EventKind.PREDICT, control=np.array([1.0, 0.0]))
-        ekf.record(event=2, step=1, kind=EventKind.UPDATE, observations=observations)
-        filtering.append(middle - start)
-        recording.append(time.perf_counter() - middle)
+        builder.add(ekf.state_parts(), event=1, step=1, kind=PREDICT, control=(control.d, 0.0))
+        after_predict = time.perf_counter()
+        observations = ekf.observe(sighting.ids, sighting.z)
+        after_update = time.perf_counter()
+        builder.add(ekf.state_parts(), event=2, step=1, kind=UPDATE, observations=observations)
+        if len(builder) >= BATCH_EVENTS:
+            builder.build()
+        end = time.perf_counter()
+        filtering.append((middle - start) + (after_update - after_predict))
+        recording.append((after_predict - middle) + (end - after_update))
     return filtering, recording
 
 
@@ -218,7 +228,7 @@ class CoreRow:
     n: int
     seen: int
     core_ms: float
-    records_ms: float
+    batch_ms: float
     dense_ms: float
     dense_basis: str
     bound_ms: float
@@ -259,7 +269,7 @@ def core_row(n: int, seen: int, quick: bool, mode: UpdateMode = UpdateMode.SEQUE
     # the classic: the whole route, many times over, for a stable median
     runs = [time_core(world, params) for _ in range(20 if n == 6 else 1)]
     core = statistics.median(statistics.median(filtering) for filtering, _ in runs)
-    records = statistics.median(statistics.median(recording) for _, recording in runs)
+    batched = statistics.median(statistics.median(recording) for _, recording in runs)
     numpy_ms = None
     if HAVE_KERNEL and 3 + 2 * n < KERNEL_MAX_DIM and mode is UpdateMode.SEQUENTIAL:
         numpy_runs = [time_core(world, params, False) for _ in range(20 if n == 6 else 1)]
@@ -288,7 +298,7 @@ def core_row(n: int, seen: int, quick: bool, mode: UpdateMode = UpdateMode.SEQUE
         n=n,
         seen=seen,
         core_ms=1e3 * core,
-        records_ms=1e3 * records,
+        batch_ms=1e3 * batched,
         dense_ms=1e3 * dense,
         dense_basis=basis,
         bound_ms=1e3 * bound,
@@ -451,7 +461,7 @@ class Memory:
 
     steps: int
     log_mb: float
-    core_mb: float  # reading, filter, records and consistency; no recording
+    core_mb: float  # reading, filter, batches and consistency; no recording
     end_to_end_mb: float  # `ekfviz replay --save`
     rrd_mb: float
 
@@ -463,8 +473,8 @@ from ekfviz.evaluation.consistency import Consistency
 from ekfviz.runner.replay import replay
 from ekfviz.io.extended import read_log
 consistency = Consistency()
-for record in replay(read_log(Path(sys.argv[1]))):
-    consistency.add(record)
+for batch in replay(read_log(Path(sys.argv[1]))):
+    consistency.add(batch)
 # VmHWM, not ru_maxrss: that counts what the process held before exec, as bench's fork
 print(next(int(line.split()[1]) / 1024.0 for line in open("/proc/self/status")
            if line.startswith("VmHWM")))
@@ -509,9 +519,9 @@ class Phases:
     name: str
     events: int
     read_s: float  # the log into events
-    filter_s: float  # predict and observe alone, no records
-    core_s: float  # the replay: filter, rows, records and covariance checks
-    logging_s: float  # Recorder.log_record, finish and the flush, in the main thread
+    filter_s: float  # predict and observe alone, no batches
+    core_s: float  # the replay: filter, batches and covariance checks
+    logging_s: float  # Recorder.log, finish and the flush, in the main thread
     rerun_cpu_s: float  # CPU of Rerun's own threads (encoding, writing) meanwhile
 
     @property
@@ -542,13 +552,11 @@ filtering = time.perf_counter() - start
 rec = rr.RecordingStream("ekfviz", recording_id="bench")
 rec.save(sys.argv[2])
 recorder = Recorder(rec)
-rows = recorder.pending.event_rows()  # the plain events as columns, as ekfviz replay has them
-rows.takes_updates = True
 logging = 0.0
 start, cpu, main_cpu = time.perf_counter(), time.process_time(), time.thread_time()
-for record in replay(events, event_rows=rows):
+for batch in replay(events):
     begin = time.perf_counter()
-    recorder.log_record(record)
+    recorder.log(batch)
     logging += time.perf_counter() - begin
 begin = time.perf_counter()
 recorder.finish()
@@ -562,7 +570,7 @@ print(json.dumps([len(events), read, filtering, total - logging, logging, rerun_
 
 
 def phase_rows(folder: Path, logs: Sequence[tuple[str, Path]]) -> list[Phases]:
-    """Reading, filter, records and logging of each log, timed apart in a child process."""
+    """Reading, filter, batches and logging of each log, timed apart in a child process."""
     env = dict(os.environ, CI="1", XDG_CONFIG_HOME=str(folder), XDG_DATA_HOME=str(folder))
     rows = []
     for name, log in logs:
@@ -668,14 +676,15 @@ def report(
         "## Core against the dense textbook filter",
         "",
         "Milliseconds per step (one predict and one observation line). *Core*: `EkfSlam`"
-        " (sequential updates unless said); *+ records*: what the two per-step records the"
-        " replay emits add; *without kernel*: the core with `compiled=False`, numpy"
-        " throughout, where the compiled kernel would run. *Dense*:"
+        " (sequential updates unless said); *+ batch*: what appending the state after each"
+        " of the two events to a batch adds, as the replay does; *without kernel*: the core"
+        " with `compiled=False`, numpy throughout, where the compiled kernel would run."
+        " *Dense*:"
         " `benchmarks/textbook_ekf.py`. *Bound*: one read-and-write pass over an array the"
         " size of P, this run; *per landmark / bound*: core time per step divided by the"
         " landmarks observed, over the bound.",
         "",
-        "| N | observed | core ms | + records ms | without kernel ms | dense ms | dense timed"
+        "| N | observed | core ms | + batch ms | without kernel ms | dense ms | dense timed"
         " | dense / core | bound ms | per landmark / bound |",
         "|---:|---:|---:|---:|---:|---:|---|---:|---:|---:|",
     ]
@@ -685,7 +694,7 @@ def report(
         ratio = f"{r.ratio:.1f}" if r.ratio < 10 else f"{r.ratio:,.0f}"
         numpy_ms = "" if r.numpy_ms is None else f"{r.numpy_ms:.3f}"
         lines.append(
-            f"| {r.n} | {r.seen}{mode} | {r.core_ms:.3f} | {r.records_ms:.3f} | {numpy_ms}"
+            f"| {r.n} | {r.seen}{mode} | {r.core_ms:.3f} | {r.batch_ms:.3f} | {numpy_ms}"
             f" | {dense} | {r.dense_basis} | {ratio}x | {r.bound_ms:.3f}"
             f" | {r.per_landmark_over_bound:.2f} |"
         )
@@ -736,16 +745,16 @@ def report(
             "## Where a long replay's time goes",
             "",
             "One child process per log: *read*: the log into events; *filter*: `predict` and"
-            " `observe` alone; *records and checks*: what `replay()` adds to them as"
-            " `ekfviz replay` runs it (the plain predicts and updates written as columns, the"
-            " records left, covariance checks); *logging*: `Recorder.log_record` (which holds"
-            " the columns and sends each batch), `finish` and the flush to"
+            " `observe` alone; *batches and checks*: what `replay()` adds to them as"
+            " `ekfviz replay` runs it (each event's state appended to its batch, the batches"
+            " built, the covariance checks); *logging*: `Recorder.log` (which holds the"
+            " events and sends them every few thousand), `finish` and the flush to"
             " the .rrd file in the main thread; *Rerun threads*: the CPU time Rerun's own"
             " threads (encoding, compression, writing) spent meanwhile, on the second core.",
             "",
-            "| log | events | read s | filter s | records and checks s | logging s"
+            "| log | events | read s | filter s | batches and checks s | logging s"
             " | Rerun threads CPU s | logging per event us | logging / filter"
-            " | logging / (filter + records) |",
+            " | logging / (filter + batches) |",
             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
         ]
         lines += [
@@ -771,10 +780,10 @@ def report(
     by = {(r.n, r.seen, r.mode): r for r in rows}
     targets: list[tuple[str, str, bool]] = []
     if (r6 := by.get((6, 6, "sequential"))) is not None:
-        both = r6.dense_ms / (r6.core_ms + r6.records_ms)
+        both = r6.dense_ms / (r6.core_ms + r6.batch_ms)
         targets.append(
             ("N = 6: >= 3x faster per step than dense",
-             f"{r6.ratio:.1f}x ({both:.1f}x with the records)", r6.ratio >= 3)
+             f"{r6.ratio:.1f}x ({both:.1f}x with the batches)", r6.ratio >= 3)
         )  # fmt: skip
     if (r1000 := by.get((1000, SEEN, "sequential"))) is not None:
         targets.append(
@@ -853,7 +862,7 @@ def report(
             "## Memory against the length of the log",
             "",
             "Peak resident memory replaying the classic-size log and its first tenth. *Core*:"
-            " reading, filter, records and the consistency count in a child process, no"
+            " reading, filter, batches and the consistency count in a child process, no"
             " recording. *End to end*: `ekfviz replay --save`. The core streams; what grows"
             " end to end is Rerun's .rrd writer, which keeps an index entry per chunk for the"
             " file's footer.",

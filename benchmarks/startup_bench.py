@@ -6,7 +6,7 @@ with the built-in filter's ``predict``, ``observe`` and ``drive`` wrapped so tha
 call appends its start and end times to a file, in whatever process it runs). *Start-up*
 is from the spawn to the first call's start (interpreter, imports, options, reading, the
 recording opened), *work* from there to the last call's end, *wrap-up* from there to
-the child's exit (the last records and layout sent, the recording flushed and closed,
+the child's exit (the last events and layout sent, the recording flushed and closed,
 reports and tables printed). Wall times are medians of ``REPEATS`` runs; *CPU* is the
 child's user + system time (its own and its children's), which the other load on the
 machine inflates less than the wall time.
@@ -181,7 +181,7 @@ def startup_section(folder: Path, repeats: int = REPEATS) -> str:
         f" (interleaved, median of {repeats}). *Start-up*: from the spawn to the built-in"
         " filter's first step (interpreter, imports, options, reading, the recording"
         " opened); *work*: from there to its last step; *wrap-up*: from there to the exit"
-        " (the last records and the layout sent, the recording flushed, reports and tables"
+        " (the last events and the layout sent, the recording flushed, reports and tables"
         " printed). *CPU*: user + system seconds of the child and its own children."
         " `check` runs `examples/my_filter.py:MyFilter` against the reference; `compare`"
         " the built-in filter and that one (`--workers 1`); `consistency` 10 runs of the"

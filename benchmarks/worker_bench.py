@@ -3,7 +3,7 @@ same filter imported into ekfviz's process, end to end through the runner.
 
 The filter is ``examples/my_filter.py:MyFilter`` (a dense protocol class, as users
 write them). Both ways run the same events through :func:`ekfviz.runner.replay.replay`
-(state checks, derived observations, records; no recording), timed from the first event
+(state checks, derived observations, batches; no recording), timed from the first event
 to the last (the worker's start and the module's import are reported apart).
 """
 
@@ -71,7 +71,7 @@ def worker_section(worlds: Sequence[tuple[int, int, list[LogEvent]]]) -> str:
         "## A user's filter in its worker",
         "",
         f"`{Path(FILTER).name}` through the runner (state checks, derived observations,"
-        " records; no recording): in ekfviz's process (imported) against its worker"
+        " batches; no recording): in ekfviz's process (imported) against its worker"
         " process (the state crossing as raw buffers every event). Seconds from the first"
         f" event to the last, median of {REPEATS}; the worker's start (an interpreter,"
         " numpy, the module's import) apart. Target: at most 1.2x at N = 300.",

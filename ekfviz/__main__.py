@@ -1,7 +1,9 @@
 """``ekfviz`` and ``python -m ekfviz``: the command line."""
 
+import contextlib
 import errno
 import os
+import sys
 
 from ekfviz import signals, startup
 
@@ -10,8 +12,6 @@ def main() -> None:
     """Defer SIGINT and SIGTERM before the slow imports (see ``ekfviz.signals``), keep
     pyarrow from importing pandas and numpy to one BLAS thread, Rerun's own log lines
     off, collect garbage less often (see ``ekfviz.startup``), then run."""
-    import sys
-
     signals.defer()
     startup.standard_streams()
     startup.one_blas_thread()
@@ -21,7 +21,7 @@ def main() -> None:
     import typer
 
     from ekfviz.cli import COMMANDS, command_of, load
-    from ekfviz.cli.common import prepare_argv
+    from ekfviz.cli.program import prepare_argv
 
     try:
         argv = prepare_argv(sys.argv[1:])
@@ -33,32 +33,8 @@ def main() -> None:
     try:
         try:
             app(args=argv, prog_name="ekfviz")
-        except signals.Interrupted as stop:  # a command that did not say more itself
-            from ekfviz.cli.common import interrupted, written_before
-
-            written = getattr(stop, "written", ())  # (files written whole just before it)
-            interrupted(
-                stop,
-                written_before(written, [])
-                if written
-                else "nothing was written; existing files are left as they were",
-            )
         except OSError as error:  # written past ekfviz's own output (typer's help)
-            from ekfviz.cli.common import DEBUG, fail
-
-            if DEBUG["traceback"]:
-                raise
-            if _stdout_refused(sys.stdout, error):
-                sys.stderr.write(_said(error))
-                raise SystemExit(2) from None
-            if not isinstance(error.filename, str | bytes) or error.errno not in _PATH_ERRNOS:
-                raise
-            # a path of the user's that the command's own checks did not name (a name
-            # too long for its file system, a folder that cannot be searched)
-            try:
-                fail(f"{os.fsdecode(error.filename)}: {error.strerror}")
-            except typer.Exit as stop:
-                raise SystemExit(stop.exit_code) from None
+            _say_os_error(error)
     except SystemExit as leaving:
         if signals.fired():
             # Stopped by a signal, with its line said and its clean-up done: leave now.
@@ -68,47 +44,64 @@ def main() -> None:
             sys.stderr.flush()
             os._exit(leaving.code if isinstance(leaving.code, int) else 1)
         if leaving.code is None or isinstance(leaving.code, int):
-            _leave_now(leaving.code or 0)
+            _leave(leaving.code or 0)
         raise
+
+
+def _say_os_error(error: OSError) -> None:
+    """One line for a system error no command's own checks named; exit 2."""
+    import typer
+
+    from ekfviz.cli.console import DEBUG, fail
+
+    if DEBUG["traceback"]:
+        raise error
+    if _stdout_refused(sys.stdout, error):
+        sys.stderr.write(_said(error))
+        raise SystemExit(2) from None
+    if not isinstance(error.filename, str | bytes) or error.errno not in _PATH_ERRNOS:
+        raise error
+    # a path of the user's that the command's own checks did not name (a name too long
+    # for its file system, a folder that cannot be searched)
+    try:
+        fail(f"{os.fsdecode(error.filename)}: {error.strerror}")
+    except typer.Exit as stop:  # outside the app: exit with the code it carries
+        raise SystemExit(stop.exit_code) from None
 
 
 # what the system says of a path itself, not of the command's work on it
 _PATH_ERRNOS = frozenset((errno.ENAMETOOLONG, errno.EACCES, errno.EPERM, errno.ELOOP))
 
 
-def _leave_now(code: int) -> None:
-    """Exit with ``code`` once the command is done, without the interpreter's teardown.
-
-    The command has written, committed and flushed all it writes. Tearing down the
-    interpreter (clearing a few thousand modules, freeing their objects) would only add
-    0.1-0.3 s to every command. The exit handlers still run (Rerun's flush of its
-    sinks, a worker's end, a process pool's), then stdout and stderr are flushed. While
-    a thread other than the main one is still running, Python's exit waits for it: so
-    does this, by leaving it to Python; so it does under a profiler or a tracer.
+def _leave(code: int) -> None:
+    """Exit with ``code`` once the command is done: what it printed flushed first, so that
+    a standard output that took nothing more is said (a full disk: exit 2) and a reader
+    that went away (``| head``) is not; Python's exit then flushes nothing more. The
+    objects made so far are set apart from the garbage collector first (see
+    :func:`ekfviz.startup.collect_no_more`).
     """
-    import atexit
-    import contextlib
-    import os
-    import sys
-    import threading
-
-    if any(not t.daemon and t is not threading.main_thread() for t in threading.enumerate()):
-        return
-    if sys.getprofile() is not None or sys.gettrace() is not None:
-        return  # a profiler or a coverage tool writes its results at the normal exit
-    atexit._run_exitfuncs()
     try:
         sys.stdout.flush()
-    except BrokenPipeError:  # its reader went away (``| head``): nothing to say
-        pass
+    except BrokenPipeError:  # its reader went away: nothing to say
+        _stdout_to_null()
     except (OSError, ValueError) as error:  # a full disk: what was printed is not whole
         if code == 0:
             with contextlib.suppress(OSError, ValueError):
                 sys.stderr.write(_said(error))
             code = 2
-    with contextlib.suppress(OSError, ValueError):
-        sys.stderr.flush()
-    os._exit(code)
+        _stdout_to_null()
+    startup.collect_no_more()
+    raise SystemExit(code)
+
+
+def _stdout_to_null() -> None:
+    """Point standard output at the null device, so that Python's flush of it at exit
+    (of what it could not write) does not fail again (as Python's documentation advises
+    for a closed pipe)."""
+    with contextlib.suppress(OSError, ValueError, AttributeError):
+        null = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(null, sys.stdout.fileno())
+        os.close(null)
 
 
 def _stdout_refused(stream: object, error: OSError) -> bool:
@@ -130,8 +123,8 @@ def _stdout_refused(stream: object, error: OSError) -> bool:
 
 def _said(error: BaseException) -> str:
     """The error line for standard output that took nothing more, as ekfviz's own output
-    says it (see ``ekfviz.cli.common``, imported by then)."""
-    from ekfviz.cli.common import refused
+    says it (see ``ekfviz.cli.console``, imported by then)."""
+    from ekfviz.cli.console import refused
 
     return f"error: {refused('standard output', error)}\n"
 

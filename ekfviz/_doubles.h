@@ -1,5 +1,5 @@
-/* How ekfviz's C modules (filters/_kernel.c, core/_rows.c, association/_search.c) take a
- * float64 array. */
+/* How ekfviz's C modules (filters/_kernel.c, association/_search.c) take a float64
+ * array. */
 #ifndef EKFVIZ_DOUBLES_H
 #define EKFVIZ_DOUBLES_H
 

@@ -22,6 +22,7 @@ import signal
 import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
+from pathlib import Path
 from types import FrameType
 
 _pending: list[int] = []
@@ -31,9 +32,16 @@ class Interrupted(BaseException):  # like KeyboardInterrupt: not caught by "exce
     """SIGINT (or, as :class:`Terminated`, SIGTERM) in a command: stop, clean up, say so.
 
     Not a KeyboardInterrupt, which typer would answer with "Aborted." and exit code 1.
+
+    :ivar kept: what the command kept, and where, as the line saying it stopped says it
+        (None: nothing was written, unless ``written``)
+    :ivar written: the files written whole just before it (a set of files replaced
+        together, the signal acted on after the last of them)
     """
 
     signum: int = signal.SIGINT
+    kept: str | None = None
+    written: tuple[Path, ...] = ()
 
     @property
     def name(self) -> str:

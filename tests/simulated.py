@@ -1,11 +1,12 @@
-"""Simulated classic runs for the tests of a replay's rows (tests/runner/test_predict_rows.py,
-tests/runner/test_update_rows.py), with what those tests vary in them."""
+"""Simulated classic runs with what the tests of a run's batches vary in them (a map that
+grows, a skipped observation, times, a stretch of predicts alone), and their truth."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from ekfviz.core.records import Control, LogEvent, Sighting
+from ekfviz.core.truth import GroundTruth
 from ekfviz.core.types import FloatArray
 from ekfviz.sim.simulate import CLASSIC_LANDMARKS_XY, classic_controls, simulate
 
@@ -49,3 +50,12 @@ def classic_run(
             z[1, 1] = 0.0
         out.append(Sighting(event.line, ids, z, 0.1 * step + 0.05 if timed else None))
     return out
+
+
+def classic_truth(steps: int, *, seed: int, cut: int | None = None) -> GroundTruth:
+    """The truth of :func:`classic_run` among the classic landmarks (its landmarks and
+    true poses), the poses after step ``cut`` left out."""
+    controls = np.tile(classic_controls(), (steps // 29 + 1, 1))[:steps]
+    sim = simulate(controls, CLASSIC_LANDMARKS_XY, seed=seed)
+    poses = sim.poses_xytheta if cut is None else sim.poses_xytheta[: cut + 1]
+    return GroundTruth(ids=sim.landmark_ids, landmarks_xy=sim.landmarks_xy, poses_xytheta=poses)

@@ -77,7 +77,7 @@ def test_without_the_compiled_kernel_the_numpy_code_stands_in() -> None:
         "from ekfviz.filters.ekf import HAVE_KERNEL, EkfSlam\n"
         "from ekfviz.runner.replay import replay\n"
         "from ekfviz.sim.scenarios import classic\n"
-        "last = list(replay(classic().run(seed=2).events))[-1]\n"
+        "last = list(replay(classic().run(seed=2).events))[-1].last\n"
         "print(HAVE_KERNEL, EkfSlam()._compiled, repr(last.pose.tolist()))\n"
     )
 
@@ -130,7 +130,7 @@ def _imports(package: Path, root: str) -> dict[str, set[str]]:
 # shared vocabulary (types, events and records, truth, statistics) is at the bottom; the
 # command line at the top. Where a module sits is said by the longest prefix that names it.
 LAYERS: tuple[tuple[str, ...], ...] = (
-    ("ekfviz.core", "ekfviz.signals", "ekfviz.startup", "ekfviz.io.paths"),
+    ("ekfviz.core", "ekfviz.signals", "ekfviz.startup"),
     ("ekfviz.models",),
     ("ekfviz.io",),
     ("ekfviz.sim",),
@@ -142,8 +142,8 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("ekfviz.check", "ekfviz.calibrate"),
     ("ekfviz.studies",),
     ("ekfviz.viz", "ekfviz.readback"),
-    ("ekfviz.app",),
-    ("ekfviz.cli", "ekfviz.samples", "ekfviz.__main__"),
+    ("ekfviz.app", "ekfviz.samples"),
+    ("ekfviz.cli", "ekfviz.__main__"),
 )
 
 
@@ -230,3 +230,64 @@ def test_the_recorder_is_in_parts_of_at_most_400_lines() -> None:
     for path in parts:
         lines = len(path.read_text().splitlines())
         assert lines <= 400, f"{path.name}: {lines} lines"
+
+
+# The command line parses, calls one use case and prints: of ekfviz it imports the use
+# cases (ekfviz.app) and its own program, consoles and option groups, nothing else
+CLI_OWN = frozenset((
+    "ekfviz.cli", "ekfviz.cli.program", "ekfviz.cli.console", "ekfviz.cli.options",
+    "ekfviz.cli.sources", "ekfviz.cli.study", "ekfviz.cli.help",
+))  # fmt: skip
+CLI_LIBRARIES = frozenset(("typer", "rich", "click"))
+# grade's command checks its inputs, writes its battery, runs its submissions on an
+# executor and writes its CSV itself (its use case, ekfviz.app.grade, grades one
+# submission): what that imports
+CLI_GRADE_ALSO = frozenset((
+    "ekfviz.core.params", "ekfviz.core.tables", "ekfviz.io.files", "ekfviz.samples",
+    "ekfviz.signals", "ekfviz.studies.executors",
+))  # fmt: skip
+
+
+def _cli_reach(package: Path, root: str) -> list[str]:
+    """Every import of a command-line module beyond what the command line may import."""
+    import ast
+
+    found = []
+    for path in sorted(package.rglob("*.py")):
+        name = ".".join((root, *path.relative_to(package).with_suffix("").parts))
+        name = name.removesuffix(".__init__")
+        imported: set[str] = set()
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                imported |= {
+                    f"{node.module}.{a.name}" if node.module == "ekfviz" else node.module
+                    for a in node.names
+                }
+            elif isinstance(node, ast.Import):
+                imported |= {alias.name for alias in node.names}
+        allowed = CLI_OWN | (CLI_GRADE_ALSO if name == "ekfviz.cli.grade" else frozenset())
+        for module in sorted(imported):
+            top = module.split(".")[0]
+            if top == "ekfviz":
+                if module in allowed or module == "ekfviz.app" or module.startswith("ekfviz.app."):
+                    continue
+            elif top in CLI_LIBRARIES or top in sys.stdlib_module_names:
+                continue
+            found.append(f"{name} imports {module}")
+    return found
+
+
+def test_the_command_line_imports_the_use_cases_its_options_and_consoles_only() -> None:
+    assert _cli_reach(PACKAGE / "cli", "ekfviz.cli") == []
+
+
+def test_the_command_line_import_check_can_fail(tmp_path: Path) -> None:
+    (tmp_path / "replay.py").write_text(
+        "import numpy\nfrom ekfviz.app.replay import replay\nfrom ekfviz.viz import Sinks\n"
+        "from ekfviz import signals\nfrom ekfviz.cli.console import out\nimport typer, shlex\n"
+    )
+    assert _cli_reach(tmp_path, "ekfviz.cli") == [
+        "ekfviz.cli.replay imports ekfviz.signals",
+        "ekfviz.cli.replay imports ekfviz.viz",
+        "ekfviz.cli.replay imports numpy",
+    ]

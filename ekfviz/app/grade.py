@@ -290,13 +290,13 @@ def _check_log(
     skip_unreadable: bool,
 ) -> bool:
     """Check on one log, adding to ``verdict``; whether the next log is to be checked."""
-    from ekfviz import app as pipeline
+    from ekfviz.app.check import check_log
     from ekfviz.core.errors import FilterError, InputError
     from ekfviz.filters.spec import FilterSpecError
 
     try:
-        result, _ = pipeline.check(log, truth, spec, params, tolerance=tolerance, save=save,
-                                   every=True, skip_unreadable=skip_unreadable)  # fmt: skip
+        result, _ = check_log(log, truth, spec, params, tolerance=tolerance, save=save,
+                              every=True, skip_unreadable=skip_unreadable)  # fmt: skip
     except FilterSpecError as error:  # (the row names the submission: not its --filter)
         reason = str(error).removeprefix(f"--filter {spec.text}: ")
         verdict.failed(_STATUS_OF_KIND.get(error.kind, "error"), reason)

@@ -279,7 +279,7 @@ def _graded(
     folder: Path,
 ) -> dict[str, object]:
     """One part: its run, with its own time limit, judged."""
-    from ekfviz import app as pipeline
+    from ekfviz.app.check import check_log
     from ekfviz.filters.spec import FilterSpec, FilterSpecError
     from ekfviz.sandbox.host import WorkerOptions
     from ekfviz.sandbox.submission import Submission
@@ -295,8 +295,8 @@ def _graded(
                             cwd=str(scratch) if not setting.sandbox else None)  # fmt: skip
     spec = FilterSpec(spec_of, "submission", options)
     try:
-        result, _ = pipeline.check(log, truth if part.kind != "init" else None, spec, params,
-                                   tolerance=rubric.tolerance, save=None, every=True)  # fmt: skip
+        result, _ = check_log(log, truth if part.kind != "init" else None, spec, params,
+                              tolerance=rubric.tolerance, save=None, every=True)  # fmt: skip
     except FilterSpecError as error:
         return _test(part, False, f"failed: {shown(str(error))}")
     except Exception as error:  # the submission's failure, whatever it was: this part's

@@ -19,9 +19,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ekfviz.core.records import EventRecord, Fate
+from ekfviz.core.batch import EventBatch
+from ekfviz.core.records import Fate, ScanAssociation
 from ekfviz.core.truth import GroundTruth
-from ekfviz.core.types import IntArray
+from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.models.range_bearing import RangeBearing
 
 NEAREST_TRUE_M = 2.0  # without scan_ids: a measurement farther from every true landmark is clutter
@@ -36,7 +37,7 @@ class ScanScore:
 
 @dataclass(slots=True)
 class AssociationTally:
-    """Scores the association scan by scan (feed it every record with an association)."""
+    """Scores the association scan by scan (feed it every batch of a run's events)."""
 
     truth: GroundTruth | None
     sensor: RangeBearing = field(default_factory=RangeBearing)
@@ -60,17 +61,15 @@ class AssociationTally:
             return None
         return votes.most_common(1)[0][0]
 
-    def true_ids(self, record: EventRecord) -> IntArray | None:
-        """The true landmark of each measurement of the record's scan, -1 for clutter."""
-        association = record.association
-        if association is None:
-            return None
+    def true_ids(self, association: ScanAssociation, pose: FloatArray) -> IntArray | None:
+        """The true landmark of each measurement of a scan (made from ``pose``), -1 for
+        clutter."""
         if association.truth is not None:
             return association.truth
         if self.truth is None or not len(self.truth.ids):
             return None
         z = association.z
-        points = np.array([self.sensor.inverse(record.pose, row) for row in z]).reshape(-1, 2)
+        points = np.array([self.sensor.inverse(pose, row) for row in z]).reshape(-1, 2)
         distance = np.hypot(
             points[:, None, 0] - self.truth.landmarks_xy[None, :, 0],
             points[:, None, 1] - self.truth.landmarks_xy[None, :, 1],
@@ -81,11 +80,15 @@ class AssociationTally:
         )
         return np.where(close, self.truth.ids[nearest], -1).astype(np.int64)
 
-    def add(self, record: EventRecord) -> ScanScore | None:
-        """Score one record's scan; None where there is no scan or no truth to judge by."""
-        association = record.association
-        if association is None:
-            return None
+    def add_batch(self, events: EventBatch) -> None:
+        """Score every scan of a batch of a run's events, in order."""
+        for row in sorted(events.extras):
+            association = events.extras[row].association
+            if association is not None:
+                self.add(association, events.poses[row])
+
+    def add(self, association: ScanAssociation, pose: FloatArray) -> ScanScore | None:
+        """Score one scan (made from ``pose``); None where there is no truth to judge by."""
         self.scans += 1
         # the three fates counted in one pass (Fate's values are 0, 1, 2)
         matched, new, rejected = np.bincount(association.fate, minlength=3)[:3].tolist()
@@ -97,7 +100,7 @@ class AssociationTally:
         self.hypotheses += association.hypotheses
         self.exhausted += int(association.exhausted)
         self.fallback_nn += int(association.fallback == "nearest neighbour")
-        true_ids = self.true_ids(record)
+        true_ids = self.true_ids(association, pose)
         if true_ids is None:
             return None
         mapped = {self.identity(i) for i in self._votes}

@@ -6,6 +6,8 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass
 
+from ekfviz.core.errors import UsageError
+
 DEFAULT_BUDGET = 10_000  # JCBB's hypotheses per scan
 # JCBB's units of work per scan, (2p + 2)^2 per hypothesis of p pairs: about 0.1-0.3 s of
 # numpy on a laptop core; a first, greedy descent through 150 measurements needs 18 million.
@@ -20,7 +22,7 @@ class Method(str, enum.Enum):
     JCBB = "jcbb"
 
 
-class AssociationError(ValueError):
+class AssociationError(UsageError):
     """The association cannot run as asked (a filter without landmark removal, ...)."""
 
 

@@ -32,6 +32,7 @@ import numpy as np
 
 from ekfviz.core.params import MotionNoise
 from ekfviz.core.records import Control, LogEvent, Sighting
+from ekfviz.core.steps import log_steps
 from ekfviz.core.truth import GroundTruth
 from ekfviz.core.types import FloatArray
 from ekfviz.models.angles import wrap_angles
@@ -226,25 +227,14 @@ def calibrate(
     bearings: list[FloatArray] = []
     ranges: list[FloatArray] = []
     timed = next((e.dt is not None for e in events if isinstance(e, Control)), False)
-    step = 0
-    step_has_update = False
-    first = True
-    for event in events:
+    numbers = log_steps(isinstance(event, Control) for event in events)
+    for event, (_, step) in zip(events, numbers, strict=True):
         if isinstance(event, Sighting):
-            if first:
-                step_has_update = True
-            elif step_has_update:
-                step += 1
-            step_has_update = True
             pose = truth.pose_of(step, event.time)
             if pose is not None:
                 b, r = _measurement_residuals(event, pose, truth)
                 bearings.append(b)
                 ranges.append(r)
-        else:
-            step += 1
-            step_has_update = False
-        first = False
     bearing = robust_stats("bearing", "rad", _joined(bearings))
     rng = robust_stats("range", "m", _joined(ranges))
     windows = _gather(events, truth, timed, window_s, NO_CORRECTION)
@@ -354,25 +344,14 @@ def _gather(
     """One pass of motion windows over the events, their controls corrected."""
     gathered = _Windows([], [], [])
     k_d, k_alpha, bias = correction
-    step = 0
-    step_has_update = False
     window: _Window | None = None
-    first = True
-    for event in events:
-        if isinstance(event, Sighting):
-            if first:
-                step_has_update = True
-            elif step_has_update:
-                step += 1
-            step_has_update = True
-        else:
-            step += 1
-            step_has_update = False
+    numbers = log_steps(isinstance(event, Control) for event in events)
+    for event, (_, step) in zip(events, numbers, strict=True):
+        if isinstance(event, Control):
             if correction != NO_CORRECTION:
                 d, alpha = k_d * event.d, k_alpha * event.alpha + bias * event.d
                 event = replace(event, d=d, alpha=alpha)
             window = _advance(window, event, step, truth, timed, window_s, gathered)
-        first = False
     return gathered
 
 

@@ -13,19 +13,21 @@ map against the truth), the standard consistency tests against ground truth
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ekfviz.association.gating import gated
 from ekfviz.calibrate.fit import NO_CORRECTION, WINDOW_S, Calibration, calibrate
+from ekfviz.core.batch import UPDATE, BatchBuilder, EventBatch
 from ekfviz.core.errors import FilterError
 from ekfviz.core.params import FilterParams
-from ekfviz.core.records import Control, EventKind, EventRecord, LogEvent, Sighting
+from ekfviz.core.records import Control, LogEvent
+from ekfviz.core.steps import log_steps
 from ekfviz.core.truth import GroundTruth
 from ekfviz.core.types import FloatArray
-from ekfviz.evaluation.consistency import Consistency, chi2_bounds, pose_nees, update_nis
+from ekfviz.evaluation.consistency import Consistency, chi2_bounds, events_nis, poses_nees
 from ekfviz.evaluation.errors import Evaluation, MapSummary, evaluate
 from ekfviz.filters.ekf import EkfSlam
 from ekfviz.runner.run import run
@@ -121,20 +123,23 @@ class _HeldOut:
         self.nees: list[float] = []
         self.nis_total = self.dof_total = 0.0
 
-    def add(self, record: EventRecord) -> None:
+    def add(self, events: EventBatch) -> None:
+        """Count the events of a batch after the fitted part (the updates' NEES and NIS,
+        and the consistency counts)."""
         if self.after is not None:
-            when = record.time if record.time is not None else float(record.step)
-            if when <= self.after:
-                return
-        self.consistency.add(record)
-        if record.kind is EventKind.UPDATE:
-            value = pose_nees(record, self.truth)
-            if value is not None:
-                self.nees.append(value)
-            nis = update_nis(record)
-            if nis is not None:
-                self.nis_total += nis[0]
-                self.dof_total += nis[1]
+            when = np.where(np.isnan(events.times), events.steps, events.times)
+            events = events.take(np.flatnonzero(when > self.after))
+        self.consistency.add(events)
+        updates = np.flatnonzero(events.kinds == UPDATE)
+        true_poses, known = self.truth.poses_of(events.steps[updates], events.times[updates])
+        at = updates[known]
+        nees, defined = poses_nees(events.poses[at], events.pose_covs[at], true_poses[known])
+        self.nees += nees[defined].tolist()
+        rows, totals, dofs = events_nis(events.observed)
+        of_updates = events.kinds[rows] == UPDATE
+        for total in totals[of_updates].tolist():  # in order, as the updates come
+            self.nis_total += total
+        self.dof_total += int(dofs[of_updates].sum())
 
 
 def run_stats(
@@ -185,23 +190,18 @@ def judge(
     gate, R = params.gate, params.R
     correct = params.corrects_odometry
     step = 0
-    step_has_update = True
     time: float | None = None
     nees_bounds = chi2_bounds(3)
     try:
-        for k, event in enumerate(events):
+        numbers = log_steps(isinstance(event, Control) for event in events)
+        for k, (event, (_, step)) in enumerate(zip(events, numbers, strict=True)):
             time = event.time
             if isinstance(event, Control):
-                step += 1
-                step_has_update = False
                 d, alpha = (
                     params.corrected(event.d, event.alpha) if correct else (event.d, event.alpha)
                 )
                 ekf.predict(d, alpha, event.dt)
                 continue
-            if k and step_has_update:
-                step += 1
-            step_has_update = True
             sighting = event
             if gate is not None and k:
                 sighting, _ = gated(ekf.x, ekf.P, ekf.landmark_ids, event, R, gate)
@@ -226,7 +226,9 @@ def judge(
                 nees_values.append(value)
     except FilterError:
         return FAILED
-    last = ekf.record(event=len(events), step=step, kind=EventKind.UPDATE, time=time)
+    final = BatchBuilder()
+    final.add(ekf.state_parts(), event=len(events), step=step, kind=UPDATE, time=time)
+    last = final.build().last
     return RunStats.of(nees_values, nis_total, dof_total, consistency, evaluate(last, truth))
 
 
@@ -424,17 +426,8 @@ def split_run(events: Sequence[LogEvent], truth: GroundTruth, share: float = FIT
 def _steps(events: Sequence[LogEvent]) -> int:
     """The step the replay of ``events`` ends at (counted as
     :func:`~ekfviz.runner.replay.replay` counts)."""
-    step = 0
-    step_has_update = False
-    for k, event in enumerate(events):
-        if isinstance(event, Sighting):
-            if k and step_has_update:
-                step += 1
-            step_has_update = True
-        else:
-            step += 1
-            step_has_update = False
-    return step
+    steps = (step for _, step in log_steps(isinstance(event, Control) for event in events))
+    return max(steps, default=0)  # (steps never go back)
 
 
 @dataclass(frozen=True, slots=True)
@@ -529,19 +522,7 @@ def recommend(
     """
     split = split_run(events, truth, fit_share)
     calibration = calibrate(split.fit, truth, window_s=window_s)
-    if calibration.odometry is not None and calibration.odometry.applied != NO_CORRECTION:
-        # the controls corrected once, not in every replay: the replays below are told
-        # no correction, the candidates keep theirs
-        k_d, k_alpha, bias = calibration.odometry.applied
-        corrected_events: list[LogEvent] = [
-            Control(e.line, k_d * e.d, k_alpha * e.alpha + bias * e.d, e.time, e.dt)
-            if isinstance(e, Control)
-            else e
-            for e in events
-        ]
-        corrected_fit = corrected_events[: len(split.fit)]
-    else:
-        corrected_events, corrected_fit = list(events), split.fit
+    corrected_events, corrected_fit = _corrected_once(events, split, calibration)
     if calibration.motion is None or calibration.sightings == 0:
         raise ValueError("no sightings or no controls with a true pose in the first part")
     heavy = not (calibration.bearing.gaussian and calibration.range.gaussian)
@@ -552,7 +533,53 @@ def recommend(
     before = judge(corrected_fit, truth, as_read)
     scaling = scale_apart(corrected_fit, truth, as_read, before=before)
     one = scale_apart(corrected_fit, truth, as_read, together=True, before=before)
-    settings: list[tuple[str, FilterParams, tuple[float, float] | None]] = [
+    settings = _settings(defaults, estimated, scaling, one)
+
+    def judged(params: FilterParams) -> RunStats:
+        """The whole run judged on the held-out part (the events corrected once)."""
+        if params.corrects_odometry and params.odometry_scale == estimated.odometry_scale:
+            run = replace(params, odometry_scale=(1.0, 1.0), odometry_bias=0.0)
+            return judge(corrected_events, truth, run, after=split.at)
+        return judge(events, truth, params, after=split.at)
+
+    candidates = _judged_candidates(settings, judged)
+    chosen = min(
+        range(len(candidates)),
+        key=lambda k: (not candidates[k].held_out.credible, candidates[k].held_out.error, k),
+    )
+    notes += _notes(calibration, scaling, candidates[chosen])
+    return Recommendation(
+        calibration, scaling, one, tuple(candidates), chosen, split.at, fit_share, tuple(notes)
+    )
+
+
+def _corrected_once(
+    events: Sequence[LogEvent], split: Split, calibration: Calibration
+) -> tuple[list[LogEvent], list[LogEvent]]:
+    """The run's events and those of its fitted part with the odometry correction found
+    applied to every control, once (the replays are then told no correction, the
+    candidates keep theirs); as read where none was found."""
+    if calibration.odometry is None or calibration.odometry.applied == NO_CORRECTION:
+        return list(events), list(split.fit)
+    k_d, k_alpha, bias = calibration.odometry.applied
+    corrected: list[LogEvent] = [
+        Control(e.line, k_d * e.d, k_alpha * e.alpha + bias * e.d, e.time, e.dt)
+        if isinstance(e, Control)
+        else e
+        for e in events
+    ]
+    return corrected, corrected[: len(split.fit)]
+
+
+Setting = tuple[str, FilterParams, tuple[float, float] | None]  # name, params, factors
+
+
+def _settings(
+    defaults: FilterParams, estimated: FilterParams, scaling: Scaling, one: Scaling
+) -> list[Setting]:
+    """The candidate settings (see :func:`recommend`), by name, with their scale factors
+    of the motion and measurement noise (None: the defaults, not scaled)."""
+    settings: list[Setting] = [
         ("defaults", defaults, None),
         ("estimated", estimated, (1.0, 1.0)),
         (
@@ -581,40 +608,32 @@ def recommend(
                     odometry_bias=estimated.odometry_bias),
             None,
         ))  # fmt: skip
+    return settings
 
-    def judged(params: FilterParams) -> RunStats:
-        """The whole run judged on the held-out part (the events corrected once)."""
-        if params.corrects_odometry and params.odometry_scale == estimated.odometry_scale:
-            run = replace(params, odometry_scale=(1.0, 1.0), odometry_bias=0.0)
-            return judge(corrected_events, truth, run, after=split.at)
-        return judge(events, truth, params, after=split.at)
 
+def _judged_candidates(
+    settings: list[Setting], judged: Callable[[FilterParams], RunStats]
+) -> list[Candidate]:
+    """Every setting judged once (two of the same parameters, once); where none has a
+    credible map, the most accurate widened until its map is (a map inside its ellipses
+    with a known error beats a tighter one that is not)."""
     candidates: list[Candidate] = []
     for name, params, factors in settings:
         if any(c.params == params for c in candidates):
             continue  # a factor of 1: the same setting as one judged already
         candidates.append(Candidate(name, params, judged(params), factors))
-    if not any(c.held_out.credible for c in candidates):
-        # none credible: the most accurate, widened until its map is (a map inside its
-        # ellipses with a known error beats a tighter one that is not)
-        closest = min(candidates, key=lambda c: c.held_out.error)
-        for widen in WIDENINGS:
-            motion, measurement = closest.factors or (1.0, 1.0)
-            params = scaled(closest.params, widen, widen)
-            stats = judged(params)
-            name = f"{closest.name}, {widen:g} times wider"
-            factors = (motion * widen, measurement * widen)
-            candidates.append(Candidate(name, params, stats, factors))
-            if stats.credible:
-                break
-    chosen = min(
-        range(len(candidates)),
-        key=lambda k: (not candidates[k].held_out.credible, candidates[k].held_out.error, k),
-    )
-    notes += _notes(calibration, scaling, candidates[chosen])
-    return Recommendation(
-        calibration, scaling, one, tuple(candidates), chosen, split.at, fit_share, tuple(notes)
-    )
+    if any(c.held_out.credible for c in candidates):
+        return candidates
+    closest = min(candidates, key=lambda c: c.held_out.error)
+    for widen in WIDENINGS:
+        motion, measurement = closest.factors or (1.0, 1.0)
+        params = scaled(closest.params, widen, widen)
+        stats = judged(params)
+        name = f"{closest.name}, {widen:g} times wider"
+        candidates.append(Candidate(name, params, stats, (motion * widen, measurement * widen)))
+        if stats.credible:
+            break
+    return candidates
 
 
 def _notes(calibration: Calibration, scaling: Scaling, best: Candidate) -> list[str]:

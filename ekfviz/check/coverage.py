@@ -39,7 +39,7 @@ class Item:
 
 def coverage(
     events: Iterable[LogEvent],
-    records: Sequence[EventRecord],
+    records: Iterable[EventRecord],
     params: FilterParams,
     *,
     operations: bool = False,
@@ -55,7 +55,7 @@ def coverage(
 
 
 def _branches(
-    events: Iterable[LogEvent], records: Sequence[EventRecord], params: FilterParams
+    events: Iterable[LogEvent], records: Iterable[EventRecord], params: FilterParams
 ) -> list[Item]:
     """The branches the log's events (and the poses of ``records``) exercised."""
     near_pi = behind = crossing = several = mid_run = big_turn = backwards = False

@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -33,9 +34,11 @@ from ekfviz.check.result import CheckResult, Difference, Divergence, Quantity
 from ekfviz.check.search import Diagnosis, Finding, Seen
 from ekfviz.check.source import Source
 from ekfviz.check.unknown import unexplained
+from ekfviz.core.batch import KIND_CODES, BatchBuilder
 from ekfviz.core.errors import FilterError
 from ekfviz.core.params import FilterParams, UpdateMode
-from ekfviz.core.records import Control, EventKind, EventRecord, LogEvent, Sighting
+from ekfviz.core.records import Control, EventKind, LogEvent, Sighting
+from ekfviz.core.steps import StepCounter
 from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.filters.ekf import EkfSlam
 from ekfviz.filters.plugged import FilterFactory, Plugged, PluginError
@@ -127,7 +130,8 @@ def course_cannot_read(events: Sequence[LogEvent]) -> str:
 
 def skipped(why: str, tolerance: float) -> CheckResult:
     """The result of a log the filter was not run on, and why."""
-    return CheckResult(0, 0.0, tolerance, None, (), (), (), skipped=why)
+    empty = BatchBuilder().build()
+    return CheckResult(0, 0.0, tolerance, None, empty, empty, (), skipped=why)
 
 
 def _source_of(make_filter: FilterFactory) -> str | None:
@@ -139,14 +143,15 @@ def _source_of(make_filter: FilterFactory) -> str | None:
 
 @dataclass(slots=True)
 class _Records:
-    """The records of both filters, event by event (what the recording of a check shows)."""
+    """The batches of both filters, event by event (what the recording of a check shows)."""
 
-    filter: list[EventRecord] = field(default_factory=list)
-    reference: list[EventRecord] = field(default_factory=list)
+    filter: BatchBuilder = field(default_factory=BatchBuilder)
+    reference: BatchBuilder = field(default_factory=BatchBuilder)
 
-    def add(self, ekf: EkfSlam, slam: Plugged, **what: object) -> None:
+    def add(self, ekf: EkfSlam, slam: Plugged, kind: EventKind, **what: Any) -> None:
+        """Both filters' states after one event (``what``: as :meth:`BatchBuilder.add`)."""
         for target, source in ((self.reference, ekf), (self.filter, slam)):
-            target.append(source.record(**what))  # type: ignore[arg-type]
+            target.add(source.state_parts(), kind=KIND_CODES[kind], **what)
 
 
 class _Lockstep:
@@ -227,19 +232,23 @@ class _Lockstep:
         """Run one event in both filters and compare; False where the run stops."""
         before = _state(self.slam)
         ekf = EkfSlam.from_state(self.params, before.x, before.P, before.ids, compiled=False)
-        what: dict[str, object] = dict(event=event, step=step, kind=kind, line=log_event.line,
-                                       time=log_event.time)  # fmt: skip
+        what: dict[str, Any] = dict(event=event, step=step, line=log_event.line,
+                                    time=log_event.time)  # fmt: skip
         try:
             if isinstance(log_event, Control):
                 control = (log_event.d, log_event.alpha)
                 ekf.predict(*control)
                 self.slam.predict(*control)
-                self.records.add(ekf, self.slam, control=control, **what)
+                self.records.add(ekf, self.slam, kind, control=control, **what)
             else:
                 expected_seen = ekf.observe(log_event.ids, log_event.z)
                 got_seen = self.slam.observe(log_event.ids, log_event.z)
-                self.records.reference.append(ekf.record(observations=expected_seen, **what))  # type: ignore[arg-type]
-                self.records.filter.append(self.slam.record(observations=got_seen, **what))  # type: ignore[arg-type]
+                for target, source, seen in (
+                    (self.records.reference, ekf, expected_seen),
+                    (self.records.filter, self.slam, got_seen),
+                ):
+                    target.add(source.state_parts(), kind=KIND_CODES[kind], observations=seen,
+                               **what)  # fmt: skip
         except PluginError as failure:
             message = f"event {event} ({kind.value}): {failure}"
             self.stopped = (message, log_event.line, str(getattr(failure, "kind", "raised")))
@@ -390,8 +399,8 @@ class _Lockstep:
             max_difference=max(self.differences, default=0.0),
             tolerance=self.tolerance,
             first_divergence=first,
-            records=tuple(self.records.filter),
-            reference=tuple(self.records.reference),
+            records=self.records.filter.build(),
+            reference=self.records.reference.build(),
             differences=tuple(self.differences),
             divergences=tuple(divergences),
             every=self.every,
@@ -443,21 +452,14 @@ def numbered(events: Iterable[LogEvent]) -> Iterator[tuple[int, int, EventKind, 
     starts a step; an observation is the update of its step, or starts a step of its own
     when the step already had one.
     """
-    step, event, step_has_update = 0, 0, True
+    counter = StepCounter()
     for index, log_event in enumerate(events):
         if index == 0 and isinstance(log_event, Sighting):
-            yield 0, 0, EventKind.INIT, log_event
-            continue
-        event += 1
-        if isinstance(log_event, Control):
-            step += 1
-            step_has_update = False
-            yield event, step, EventKind.PREDICT, log_event
+            yield (*counter.initialise(), EventKind.INIT, log_event)
+        elif isinstance(log_event, Control):
+            yield (*counter.predict(), EventKind.PREDICT, log_event)
         else:
-            if step_has_update:
-                step += 1
-            step_has_update = True
-            yield event, step, EventKind.UPDATE, log_event
+            yield (*counter.update(), EventKind.UPDATE, log_event)
 
 
 def compare(expected: State, got: State) -> Difference | None:

@@ -10,7 +10,8 @@ from ekfviz.check.hints import HANDOUT_NOTE, Named
 from ekfviz.check.mistakes import UNKNOWN
 from ekfviz.check.mutations import MUTATION
 from ekfviz.check.unknown import Unexplained
-from ekfviz.core.records import EventKind, EventRecord
+from ekfviz.core.batch import EventBatch
+from ekfviz.core.records import EventKind
 from ekfviz.core.tables import Cell, Styled, TextTable
 
 
@@ -165,8 +166,8 @@ class CheckResult:
     max_difference: float
     tolerance: float
     first_divergence: Divergence | None
-    records: tuple[EventRecord, ...]
-    reference: tuple[EventRecord, ...]
+    records: EventBatch
+    reference: EventBatch
     differences: tuple[float, ...]
     divergences: tuple[Divergence, ...] = ()
     every: bool = False

@@ -35,8 +35,8 @@ def load(names: Iterable[str] = COMMANDS) -> typer.Typer:
     """The app with (at least) the commands ``names`` registered and their help polished."""
     for name in names:
         importlib.import_module(f"ekfviz.cli.{name}")
-    from ekfviz.cli.common import app
     from ekfviz.cli.help import polish
+    from ekfviz.cli.program import app
 
     polish(app)
     return app

@@ -2,63 +2,39 @@
 
 from __future__ import annotations
 
-import tempfile
-from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import Annotated
 
 import typer
 
-from ekfviz import __version__
-from ekfviz.check.lockstep import DEFAULT_TOLERANCE
-from ekfviz.cli.common import (
+from ekfviz.app.check import DEFAULT_TOLERANCE, CheckedLog, CheckOutcome, CheckRequest, check
+from ekfviz.app.inputs import SourceArgs
+from ekfviz.app.text import Styled, one_line
+from ekfviz.cli.console import (
     DEBUG,
-    DEFAULT,
-    Triple,
-    _option,
-    app,
-    check_outputs,
+    TerminalReporter,
     err,
-    fail,
-    filter_module,
+    note,
     out,
-    piped_input,
     plain,
-    refuse_output_over_input,
     rendered,
     say,
-    say_saved,
     say_user_traceback,
     show,
-    warn,
-    write_json,
 )
 from ekfviz.cli.options import (
+    DEFAULT,
     FilterForm,
     FilterNoise,
     InitPoseSigma,
     TruthOption,
     UserFilter,
+    _option,
     expands_options,
+    piped_input,
 )
-from ekfviz.cli.sources import (
-    NO_SOURCE_ARGS,
-    InitPoseOption,
-    NoTruthOption,
-    study_input,
-    with_source_options,
-)
-from ekfviz.core.errors import FilterError, InputError
-from ekfviz.core.tables import Styled, one_line
-from ekfviz.filters.spec import FilterSpec, FilterSpecError
-from ekfviz.runner.replay import FilterLineError
-from ekfviz.samples import write_battery
-from ekfviz.sources import OwnTruth, SourceArgs
-
-if TYPE_CHECKING:
-    from ekfviz.check.coverage import Item
-    from ekfviz.check.lockstep import CheckResult
-
+from ekfviz.cli.program import app, command_line, given_options
+from ekfviz.cli.sources import NO_SOURCE_ARGS, InitPoseOption, NoTruthOption, with_source_options
 
 CheckLog = Annotated[
     Path | None,
@@ -102,31 +78,12 @@ CheckSave = Annotated[
 ]
 
 
-@dataclass(frozen=True, slots=True)
-class CheckRequest:
-    """A check as the command line asks for it."""
-
-    data: Path | None
-    filter_text: str
-    every: bool
-    truth: Path | None
-    tolerance: float
-    report: Path | None
-    save: Path | None
-    user: UserFilter
-    init_pose: tuple[float, float, float] | None
-    noise: FilterNoise
-    init_pose_sigma: Triple
-    form: FilterForm
-    source_args: SourceArgs = NO_SOURCE_ARGS
-    no_truth: bool = False
-
-
-@app.command()
+@app.command(name="check")
 @expands_options
 @with_source_options
-def check(
+def check_command(
     *,
+    ctx: typer.Context,
     data: CheckLog = None,
     source_args: SourceArgs = NO_SOURCE_ARGS,  # every format's options (--robot...)
     filter_text: CheckFilter = "",
@@ -151,109 +108,29 @@ def check(
     Exit status 0 when every event matches, 1 at a divergence, 2 for bad input or a
     filter that fails.
     """
-    run_check(
-        CheckRequest(
-            data=data, filter_text=filter_text, every=every, truth=truth, tolerance=tolerance,
-            report=report, save=save, user=user, init_pose=init_pose, noise=noise,
-            init_pose_sigma=init_pose_sigma, form=form, source_args=source_args,
-            no_truth=no_truth,
-        )
+    request = CheckRequest(
+        filter_text=filter_text, data=data, truth=truth, source_args=source_args,
+        no_truth=no_truth, every=every, tolerance=tolerance, report=report, save=save,
+        worker=user.worker() if filter_text else None, init_pose=init_pose,
+        filter=form.values(noise, init_pose_sigma), given=given_options(ctx),
+        command=command_line(),
     )  # fmt: skip
-
-
-def run_check(request: CheckRequest) -> None:
-    """Check the filter on the log (or the battery), print and write the verdicts; exit 1
-    at a divergence, 2 for a filter that fails."""
-    if not request.filter_text:
-        fail("give the filter to check: --filter PATH.py (or PATH.py:ClassName)")
-    data, save, every = request.data, request.save, request.every
-    module = filter_module(request.filter_text)
-    check_outputs(
-        ("--report", request.report), ("--save", save), inputs=[data, request.truth, module]
-    )
-    spec = FilterSpec.parse(request.filter_text, worker=request.user.worker())
-    with tempfile.TemporaryDirectory(prefix="ekfviz-battery-") as folder:
-        battery = write_battery(Path(folder)) if data is None else []
-        logs = [(data, request.truth, request.init_pose)] if data is not None else battery
-        if data is None and request.truth is not None:
-            fail("--truth needs a log (DATA); the battery brings its own truth")
-        results: list[dict[str, Any]] = []
-        diverged = failed = False
-        for log, log_truth, start in logs:
-            params = request.form.params(request.noise, request.init_pose_sigma, log=log)
-            if start is not None:
-                params = replace(params, init_pose=start)
-            # a dataset's own truth, and the start at its true pose (per-step noise kept: a
-            # course filter's predict takes no time span)
-            opened = study_input(params, log, request.source_args, log_truth, request.no_truth,
-                                 motion_noise=False, init_pose=start, pose_option=True)  # fmt: skip
-            params = opened.params
-            refuse_output_over_input(("--report", request.report), ("--save", save),
-                                     inputs=opened.files)  # fmt: skip
-            target = save if data is not None or save is None else _per_log(save, log)
-            result, exercised = _run(
-                log, log_truth, spec, params, request.tolerance, target, every,
-                request.source_args, opened.own_truth, battery=data is None,
-            )  # fmt: skip
-            for note in opened.notes:  # once the filter has loaded and run
-                out.print(plain(note), soft_wrap=True)
-            _print(log, result, exercised, every, battery=data is None)
-            diverged |= result.first_divergence is not None
-            failed |= result.error is not None
-            results.append({"log": str(log) if data is not None else log.stem,
-                            **result.to_json(),
-                            "coverage": [item.to_json() for item in exercised]})  # fmt: skip
-            if target is not None and not result.skipped:
-                say_saved(target)
-    if request.report is not None:
-        document: dict[str, Any] = {"ekfviz_version": __version__, "filter": spec.text,
-                                    "parameters": params.as_dict()}  # fmt: skip
-        document.update(results[0] if data is not None else _battery_report(results))
-        write_json(request.report, document)
-    if failed:
+    outcome = check(request, TerminalReporter())
+    for checked in outcome.logs:
+        _print(checked, outcome, every)
+    if outcome.failed:
         raise typer.Exit(2)
-    if diverged:
+    if outcome.diverged:
         raise typer.Exit(1)
 
 
-def _per_log(save: Path, log: Path) -> Path:
-    return save.with_name(f"{save.stem}-{log.stem}{save.suffix or '.rrd'}")
-
-
-def _run(
-    log: Path,
-    truth: Path | None,
-    spec: FilterSpec,
-    params: Any,
-    tolerance: float,
-    save: Path | None,
-    every: bool,
-    source_args: SourceArgs,
-    own_truth: OwnTruth | None,
-    *,
-    battery: bool = False,
-) -> tuple[CheckResult, list[Item]]:
-    from ekfviz import app as pipeline
-    from ekfviz import viz
-
-    try:
-        return pipeline.check(
-            log, truth, spec, params, tolerance=tolerance, save=save, every=every,
-            source_args=source_args, warn=warn, own_truth=own_truth, skip_unreadable=battery,
-        )  # fmt: skip
-    except FilterLineError as error:
-        fail(f"{log}:{error.line}: {error}" if error.line else f"{log}: {error}")
-    except (InputError, FilterError, FilterSpecError, viz.SinkError) as error:
-        fail(str(error))  # an InputError names its file and line itself
-
-
-def _print(
-    log: Path, result: CheckResult, exercised: list[Item], every: bool, *, battery: bool
-) -> None:
+def _print(checked: CheckedLog, outcome: CheckOutcome, every: bool) -> None:
     """The verdict on one log, as the report says it (no markup read in any name)."""
-    name = log.stem if battery else str(log)
-    if battery:
-        say([(Styled("log ", "bold"), Styled(name, "bold"), Styled(f" ({log.name})"))])
+    name, result = checked.name, checked.result
+    for text in checked.notes:  # what was chosen for the run (the start pose)
+        note(text)
+    if outcome.battery:
+        say([(Styled("log ", "bold"), Styled(name, "bold"), Styled(f" ({checked.log.name})"))])
     say(result.verdict_lines(name, every))
     if result.first_divergence is not None and every and result.divergences:
         show(result.groups_table())
@@ -264,27 +141,8 @@ def _print(
                   soft_wrap=True)  # fmt: skip
         if DEBUG["traceback"]:
             say_user_traceback(result.error_traceback)
-    missing = [item for item in exercised if not item.exercised]
-    if missing:
+    if checked.missing:
         say([Styled(f"  not exercised by {name}:")])
-        say([Styled(f"    - {item.untested}") for item in missing])
-
-
-def _battery_report(results: list[dict[str, Any]]) -> dict[str, Any]:
-    causes: dict[str, None] = {}
-    divergences = []
-    for entry in results:
-        for cause in entry["causes"]:
-            causes.setdefault(cause, None)
-        divergences += [{"log": entry["log"], **group} for group in entry["divergences"]]
-    coverage: dict[str, bool] = {}
-    for entry in results:
-        for item in entry["coverage"]:
-            coverage[item["id"]] = coverage.get(item["id"], False) or bool(item["exercised"])
-    return {
-        "match": all(entry["match"] for entry in results),
-        "logs": results,
-        "divergences": divergences,
-        "causes": list(causes),
-        "coverage": [{"id": k, "exercised": v} for k, v in coverage.items()],
-    }
+        say([Styled(f"    - {item.untested}") for item in checked.missing])
+    if checked.saved is not None:
+        out.print(plain(checked.saved))

@@ -3,12 +3,16 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import Annotated
 
 import typer
 
-from ekfviz.cli.common import DEFAULT, app, fail
+from ekfviz.app.compare import CompareRequest, compare
+from ekfviz.app.inputs import SourceArgs
+from ekfviz.app.study import StudyRequest
+from ekfviz.cli.console import TerminalReporter
 from ekfviz.cli.options import (
+    DEFAULT,
     Association,
     Execution,
     FilterForm,
@@ -21,17 +25,9 @@ from ekfviz.cli.options import (
     expands_options,
     study_save,
 )
-from ekfviz.cli.sources import NO_SOURCE_ARGS, NoTruthOption, study_input, with_source_options
-from ekfviz.cli.study import run_study
-from ekfviz.core.errors import InputError
-from ekfviz.filters.spec import FilterSpec
-from ekfviz.sources import SourceArgs
-
-if TYPE_CHECKING:
-    from ekfviz.association import AssociationParams
-    from ekfviz.core.params import FilterParams
-    from ekfviz.studies.runs import RunSpec
-
+from ekfviz.cli.program import app, command_line, given_options
+from ekfviz.cli.sources import NO_SOURCE_ARGS, NoTruthOption, with_source_options
+from ekfviz.cli.study import print_study
 
 FiltersOption = Annotated[
     list[str],
@@ -55,11 +51,12 @@ LabelsOption = Annotated[
 CompareSave = Annotated[Path | None, study_save("compare")]
 
 
-@app.command()
+@app.command(name="compare")
 @expands_options
 @with_source_options
-def compare(
+def compare_command(
     *,
+    ctx: typer.Context,
     data: StudyLogArgument,
     source_args: SourceArgs = NO_SOURCE_ARGS,  # every format's options (--robot...)
     filters: FiltersOption,
@@ -81,76 +78,11 @@ def compare(
     together; a grid of maps sits above overlaid NIS (and NEES, landmark error) plots,
     and a table compares them, the first filter being the baseline.
     """
-    given = form.params(noise, init_pose_sigma, log=data)
-    start = study_input(given, data, source_args, truth, no_truth)
-    params = start.params
-    try:
-        pairing = association.for_study(data)
-    except InputError as error:
-        fail(str(error))
-    run_study(
-        data, truth, _specs(filters, labels, user, params, pairing), target=save, report=report,
-        workers=execution.workers, root="filters",
-        parameters={"filters": filters, "parameters": params.as_dict()},
-        report_extra={"parameters": params.as_dict()}, executor=execution.make(),
-        keep_going=True, source_args=source_args, own_truth=start.own_truth, notes=start.notes,
-        inputs=start.files,
+    study = StudyRequest(
+        data=data, truth=truth, source_args=source_args, no_truth=no_truth, save=save,
+        report=report, filter=form.values(noise, init_pose_sigma),
+        execution=execution.values(), association=association.values(),
+        given=given_options(ctx), command=command_line(),
     )  # fmt: skip
-
-
-def _specs(
-    filters: list[str],
-    labels: list[str] | None,
-    user: UserFilter,
-    params: FilterParams,
-    pairing: AssociationParams | None,
-) -> list[RunSpec]:
-    """One run a filter, labelled (given labels first) and keyed apart (ekf, ekf-2)."""
-    from ekfviz.studies.runs import RunSpec
-
-    specs: list[RunSpec] = []
-    keys: set[str] = set()
-    given = list(labels or [])
-    if len(given) > len(filters):
-        fail(f"{len(given)} --label for {len(filters)} --filter: give at most one label a filter")
-    twice = next((label for k, label in enumerate(given) if label in given[:k]), None)
-    if twice is not None:  # two rows of one name: the table and the report could not tell
-        fail(f"--label {twice} given twice: give each filter a name of its own")
-    worker = user.worker()
-    parsed = [
-        FilterSpec.parse(text, given[index] if index < len(given) else None, worker)
-        for index, text in enumerate(filters)
-    ]
-    for spec in _by_folder(parsed):
-        key = spec.key
-        for count in range(2, len(filters) + 2):  # the same filter twice: ekf, ekf-2
-            if key not in keys:
-                break
-            key = f"{spec.key}-{count}"
-        keys.add(key)
-        label = spec.label if spec.name else key
-        specs.append(RunSpec(label=label, key=key, params=params, filter=spec, association=pairing))
-    if not specs:
-        fail("give at least one --filter")
-    return specs
-
-
-def _by_folder(specs: list[FilterSpec]) -> list[FilterSpec]:
-    """The specs, files of one name in several folders (every student's ``ekf_slam.py``)
-    labelled ``FOLDER/NAME`` unless given a label."""
-    from collections import Counter
-    from dataclasses import replace
-
-    counts = Counter(spec.label for spec in specs)
-    folders: dict[str, set[str]] = {}
-    for spec in specs:
-        folders.setdefault(spec.label, set()).add(str(Path(spec.text.partition(":")[0]).parent))
-    return [
-        replace(spec, name=f"{Path(spec.text.partition(':')[0]).parent.name}/{spec.label}")
-        if spec.name is None
-        and counts[spec.label] > 1
-        and len(folders[spec.label]) > 1
-        and not spec.in_process
-        else spec
-        for spec in specs
-    ]
+    request = CompareRequest(study, tuple(filters), tuple(labels or ()), user.worker())
+    print_study(compare(request, TerminalReporter()))

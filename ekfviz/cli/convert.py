@@ -7,21 +7,14 @@ from typing import Annotated
 
 import typer
 
-from ekfviz.cli.common import (
-    ForceOption,
-    app,
-    check_outputs,
-    fail,
-    out,
-    refuse_overwrite,
-    write_bytes_atomic,
-)
-from ekfviz.core.errors import InputError
-from ekfviz.io.paths import real_path, same_file
+from ekfviz.app.convert import ConvertRequest, convert
+from ekfviz.cli.console import out
+from ekfviz.cli.options import ForceOption
+from ekfviz.cli.program import app
 
 
-@app.command()
-def convert(
+@app.command(name="convert")
+def convert_command(
     source: Annotated[
         Path, typer.Argument(help="A log in the classic format.", show_default=False)
     ],
@@ -31,15 +24,5 @@ def convert(
     force: ForceOption = False,
 ) -> None:
     """Rewrite a classic log in the extended format, every number exactly as written."""
-    from ekfviz.io.convert import classic_to_extended
-
-    check_outputs(("TARGET", target))
-    if same_file(target, source) or real_path(target) == real_path(source):
-        fail(f"TARGET {target}: is the source itself: give another file")
-    refuse_overwrite(force, ("TARGET", target))
-    try:
-        text, events = classic_to_extended(source)
-    except InputError as error:
-        fail(str(error))
-    write_bytes_atomic(target, text.encode("utf-8"))
+    events = convert(ConvertRequest(source, target, force))
     out.print(f"Wrote {target} ({events} events)")

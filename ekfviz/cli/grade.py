@@ -12,36 +12,37 @@ import typer
 
 from ekfviz import signals
 from ekfviz.app.grade import Battery, GradeTask
-from ekfviz.cli.common import (
-    DEFAULT,
-    Triple,
-    _option,
-    app,
-    check_outputs,
+from ekfviz.cli.console import (
     fail,
-    given,
     human_output_to_stderr,
     interrupted,
-    json_text,
     out,
     plain,
     print_json,
-    refuse_output_over_input,
     show,
-    write_bytes_atomic,
 )
 from ekfviz.cli.options import (
+    DEFAULT,
     Execution,
     FilterForm,
     FilterNoise,
     InitPoseSigma,
     NoSandbox,
     PythonOption,
+    Triple,
+    _option,
     expands_options,
     worker_options,
 )
+from ekfviz.cli.program import app, given
 from ekfviz.core.tables import utf8
-from ekfviz.io.paths import real_path
+from ekfviz.io.files import (
+    check_outputs,
+    json_text,
+    real_path,
+    refuse_output_over_input,
+    write_bytes_atomic,
+)
 from ekfviz.studies.executors import ExecutorError
 
 if TYPE_CHECKING:

@@ -4,20 +4,18 @@ Typer keeps the line breaks of a docstring in its rich help (sentences broken wh
 source wraps), shows ``<bool>`` after every flag and ``{data}`` for a required argument.
 :func:`polish` reflows the commands' docstrings into paragraphs and, where the installed
 typer has the hooks (they are looked up, never assumed), drops the flag placeholder and
-writes arguments in capitals, and makes a usage error (an option's value out of range, an
-unknown option, a missing argument) one line on stderr, as every other error, instead of
-typer's boxed paragraph.
+writes arguments in capitals. :func:`one_line_usage_error` is how the commands' group
+(:class:`ekfviz.cli.program.Commands`) says a usage error.
 """
 
 from __future__ import annotations
 
 import inspect
 import re
+import sys
 from typing import Any
 
 import typer
-
-from ekfviz import startup
 
 
 def reflow(doc: str) -> str:
@@ -59,7 +57,7 @@ _POLISHED_TYPER: list[bool] = []  # typer's classes are patched once a process
 
 
 def _tidy_typer() -> None:
-    """No ``<bool>`` after a flag, arguments in capitals, usage errors in one line."""
+    """No ``<bool>`` after a flag, arguments in capitals."""
     try:
         from typer import core
     except ImportError:  # pragma: no cover - a typer without the module: keep its pages
@@ -91,9 +89,6 @@ def _tidy_typer() -> None:
             return _capitals(name) if usage else name
 
         argument.make_metavar = make_metavar
-    # typer imports its rich_utils (and rich's markdown and syntax highlighting with it,
-    # about 0.1 s) for a help page or an error only: patched when it comes, if it does
-    startup.after_import("typer.rich_utils", _one_line_errors)
 
 
 def _capitals(name: str) -> str:
@@ -103,18 +98,10 @@ def _capitals(name: str) -> str:
     return re.sub(r"\[([a-z_]+)\]", lambda m: f"[{m.group(1).upper()}]", name)
 
 
-def _one_line_errors(rich_utils: Any) -> None:
-    """typer's boxed usage errors as :func:`one_line_usage_error`."""
-    if hasattr(rich_utils, "rich_format_error"):
-        rich_utils.rich_format_error = one_line_usage_error
-
-
 def one_line_usage_error(error: Any) -> None:
     """A usage error as ``error: COMMAND: what is wrong (COMMAND --help)``, on stderr."""
     if type(error).__name__ == "NoArgsIsHelpError":  # the help page was printed
         return
-    import sys
-
     ctx = getattr(error, "ctx", None)
     command = getattr(ctx, "command_path", None) or "ekfviz"
     message = " ".join(str(error.format_message()).split())

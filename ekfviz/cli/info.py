@@ -9,20 +9,14 @@ import typer
 from rich.table import Table
 from rich.text import Text
 
-from ekfviz.cli.common import (
-    app,
-    check_outputs,
-    fail,
-    human_output_to_stderr,
-    out,
-    print_json,
-    write_bytes_atomic,
-)
-from ekfviz.core.tables import one_line, utf8
+from ekfviz.app.info import InfoRequest, info
+from ekfviz.app.text import one_line, utf8
+from ekfviz.cli.console import human_output_to_stderr, out, print_json
+from ekfviz.cli.program import app
 
 
-@app.command()
-def info(
+@app.command(name="info")
+def info_command(
     recording: Annotated[
         Path, typer.Argument(help="A recording written by ekfviz.", show_default=False)
     ],
@@ -38,18 +32,9 @@ def info(
     """Print what a recording is (replay, sweep, consistency study, your own filter's),
     how it was made (version, command, parameters, input), whether the run finished or
     stopped early (where and why), and its result."""
-    from ekfviz import readback
-
-    check_outputs(("--extract-input", extract_input), inputs=[recording])
     if as_json:
         human_output_to_stderr()
-    try:
-        found = readback.read_recording_info(recording)
-    except readback.NotARecordingError as error:
-        fail(str(error))
-    if extract_input is not None and found.input_text is None:
-        reason = "it was over the size cap" if found.has_input else "this kind has no input"
-        fail(f"{recording}: the input is not embedded ({reason})")
+    found = info(InfoRequest(recording, extract_input))
     if as_json:
         print_json(found.to_json())
     else:
@@ -66,6 +51,5 @@ def info(
 
             shown = "\n".join(one_line(line) for line in found.evaluation_markdown.split("\n"))
             out.print(Markdown(shown))
-    if extract_input is not None and found.input_text is not None:
-        write_bytes_atomic(extract_input, found.input_text.encode("utf-8"))
+    if extract_input is not None:
         out.print(f"Wrote the input to {extract_input}")

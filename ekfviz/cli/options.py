@@ -16,40 +16,85 @@ import math
 import shutil
 import typing
 from collections.abc import Callable
-from dataclasses import astuple, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, ClassVar
 
 import typer
 
-from ekfviz.association import AssociationParams
-from ekfviz.cli.common import (
-    DEFAULT,
-    DEFAULT_FILTER_TIMEOUT_S,
-    FILTER_NOISE,
-    FILTER_OPTIONS,
-    Triple,
-    _option,
-    fail,
-    given,
-    out,
-    piped_input,
+from ekfviz.app.errors import Interrupted, UsageError
+from ekfviz.app.inputs import read_piped
+from ekfviz.app.scenarios import (
+    MAX_CLUTTER,
+    MAX_LANDMARKS,
+    MAX_LAPS,
+    MAX_STEPS,
+    MAX_TRUE_SIGMA,
+    LoopSettings,
+    ScenarioName,
+    SensingSettings,
+    TrueNoiseSettings,
 )
-from ekfviz.cli.scans import (  # the association's options stay beside its set-up
+from ekfviz.app.settings import (
     DEFAULT_ASSOCIATION,
-    AssociationOption,
-    Confirm,
-    ConfirmWindow,
-    GateProbability,
-    association_params,
-    study_association,
+    DEFAULT_PARAMS,
+    AssociationSettings,
+    ExecutionSettings,
+    ExecutorName,
+    FilterSettings,
+    LandmarkInit,
+    Method,
+    UpdateMode,
+    WorkerOptions,
+    filter_params,
 )
-from ekfviz.core.errors import InputError
-from ekfviz.core.params import FilterParams, LandmarkInit, UpdateMode
-from ekfviz.io.text import MAX_MAGNITUDE, RANGE_TEXT
-from ekfviz.sim.scenarios import Scenario, ScenarioName
-from ekfviz.sim.simulate import Detection, Noise
-from ekfviz.studies.executors import Executor, ExecutorError, ExecutorName, make_executor
+from ekfviz.app.settings import Triple as Triple  # (the option groups' own type)
+from ekfviz.cli.console import fail, interrupted, note
+from ekfviz.cli.program import given
+
+DEFAULT = DEFAULT_PARAMS  # the classic defaults, stated once
+FILTER_NOISE = "Filter noise"
+FILTER_OPTIONS = "Filter options"
+ASSOCIATION_PANEL = "Association (id-less scans)"
+# as ekfviz.sandbox.host.DEFAULT_TIMEOUT_S (a test holds them equal; that module is
+# not imported at start-up)
+DEFAULT_FILTER_TIMEOUT_S = 60.0
+
+
+def _option(help: str, panel: str | None = None, **kwargs: Any) -> Any:
+    if "min" in kwargs or "max" in kwargs:  # a number's range: NaN is in none
+        kwargs.setdefault("callback", not_nan)
+    return typer.Option(help=help, rich_help_panel=panel, **kwargs)
+
+
+def not_nan(value: Any) -> Any:
+    """An option's value with no NaN in it: a range (``min=0``) lets NaN through, since
+    every comparison with it is false, and a NaN sigma, share or range ran without a word
+    (``consistency --true-sigma-x nan`` read "consistent")."""
+    values = value if isinstance(value, tuple | list) else (value,)
+    if any(isinstance(v, float) and math.isnan(v) for v in values):
+        raise typer.BadParameter("found nan, expected a number")
+    return value
+
+
+def piped_input(ctx: typer.Context, value: Path | None) -> Path | None:
+    """The callback of an input's argument or option (a log, its truth): one given
+    through a pipe (``-``, ``<(zcat log.gz)``) read ahead, so that it reads as a file (see
+    :func:`ekfviz.app.inputs.read_piped`); one line where it cannot be, exit 2 (130 or
+    143 on a signal while the pipe has not ended)."""
+    if value is None:
+        return None
+    given_path, meta = str(value), ctx.find_root().meta
+    try:
+        path = read_piped(given_path, stdin_taken=meta.get("ekfviz.stdin_taken", False))
+    except UsageError as error:
+        fail(str(error))
+    except Interrupted as stop:
+        interrupted(stop, "before the piped input had ended; nothing was written")
+    if given_path == "-":
+        meta["ekfviz.stdin_taken"] = True
+    return value if path == given_path else Path(path)
+
 
 # -- the declarations --------------------------------------------------------------------
 
@@ -214,21 +259,34 @@ SchedulerOption = Annotated[
 ]
 
 
-# bounds of what a simulation is asked for: beyond them the run is not a bigger study but
-# numbers that overflow (a sigma of 1e300), a Poisson draw numpy refuses, or memory
-MAX_TRUE_SIGMA = 1e6
-MAX_CLUTTER = 1000.0
-MAX_STEPS = 10_000_000
-MAX_LANDMARKS = 100_000
-MAX_LAPS = 10_000
-
-
-def refuse_too_long(steps: int, laps: int) -> None:
-    """Refuse (one line, exit 2) a simulated run of more than :data:`MAX_STEPS` controls:
-    ``--steps`` and ``--laps`` each within bounds multiply past them (memory)."""
-    if steps * laps > MAX_STEPS:
-        fail(f"--laps {laps} of {steps:,} controls make {steps * laps:,}, more than a simulated"
-             f" run takes ({MAX_STEPS:,})")  # fmt: skip
+AssociationOption = Annotated[
+    Method | None,
+    _option(
+        "known: the log's ids; nn or jcbb for id-less scans"
+        " [default: known for logs with ids, jcbb for logs with scans].",
+        ASSOCIATION_PANEL,
+        show_default=False,
+    ),
+]
+GateProbability = Annotated[
+    float,
+    _option(
+        "Probability of the chi-square gates (individual and joint).",
+        ASSOCIATION_PANEL,
+        min=0.5,
+        max=0.999999,
+    ),
+]
+Confirm = Annotated[
+    int,
+    _option(
+        "Sightings (the first included) that confirm a new landmark.", ASSOCIATION_PANEL, min=1
+    ),
+]
+ConfirmWindow = Annotated[
+    int,
+    _option("Scans from a new landmark's first in which to confirm it.", ASSOCIATION_PANEL, min=1),
+]
 
 
 def _true(what: str) -> Any:
@@ -326,6 +384,7 @@ def study_save(kind: str) -> Any:
 
 
 Seed = Annotated[int, _option("Seed of the first run; run k uses seed + k.", min=0)]
+ForceOption = Annotated[bool, typer.Option("--force", help="Replace an existing output file.")]
 
 
 # -- reading them ---------------------------------------------------------------------------
@@ -346,8 +405,6 @@ def worker_options(
     :param timeout_option: how the time limit was given, for the message of a bad one
     :param sandbox: in the sandbox (else ``--no-sandbox`` was given)
     """
-    from ekfviz.sandbox.host import WorkerOptions
-
     if math.isnan(timeout_s):
         fail(f"{timeout_option} {timeout_s}: expected a number of seconds (inf: no bound)")
     if python is not None:
@@ -362,119 +419,6 @@ def worker_options(
         echo=echo,
         sandbox=sandbox,
     )
-
-
-def study_executor(name: ExecutorName, scheduler: str | None, workers: int | None) -> Executor:
-    """The executor of ``--executor``/``--scheduler``/``--workers``, or a one-line error."""
-    try:
-        return make_executor(name, scheduler, workers)
-    except ExecutorError as error:
-        fail(str(error))
-
-
-def detection_of(unknown_ids: bool, clutter: float, probability: float) -> Detection:
-    """The simulated sensor's misses, false alarms and ids, refusing what cannot be."""
-    if not 0.0 <= probability <= 1.0:
-        fail(f"--detection-probability: {probability:g} is not between 0 and 1")
-    if clutter > 0 and not unknown_ids:
-        fail("--clutter: only with --unknown-ids (a log with ids names no false alarms)")
-    return Detection(unknown_ids, clutter, probability)
-
-
-def filter_params(
-    sigmas: tuple[float, float, float, float, float],
-    init_pose_sigma: Triple,
-    landmark_init: LandmarkInit,
-    update: UpdateMode,
-    log: Path | None = None,
-) -> FilterParams:
-    """The filter's parameters from the command line, refusing what cannot work.
-
-    :param log: the log replayed: the noise its source states (see
-        :meth:`ekfviz.sources.Source.stated_noise`) replaces the defaults of the options
-        not given on the command line, and a note says so (a log file: a directory's
-        source needs its own options to open)
-    """
-    names = ("--sigma-x", "--sigma-y", "--sigma-alpha", "--sigma-bearing", "--sigma-range")
-    for name, value in [
-        *zip(names, sigmas, strict=True),
-        ("--init-pose-sigma", max(init_pose_sigma)),
-    ]:
-        if not value <= MAX_MAGNITUDE:  # nan too
-            fail(f"{name} {value:g}: expected a sigma within {RANGE_TEXT}")
-    if log is not None and log.is_file():
-        sigmas, init_pose_sigma = _log_noise(log, sigmas, init_pose_sigma)
-    sigma_x, sigma_y, sigma_alpha, sigma_bearing, sigma_range = sigmas
-    if sigma_bearing <= 0 or sigma_range <= 0:
-        fail("--sigma-bearing and --sigma-range must be positive: R must be invertible")
-    if min(init_pose_sigma) < 0:
-        fail("--init-pose-sigma values must not be negative")
-    return FilterParams(
-        sigma_x=sigma_x,
-        sigma_y=sigma_y,
-        sigma_alpha=sigma_alpha,
-        sigma_bearing=sigma_bearing,
-        sigma_range=sigma_range,
-        init_pose_sigma=init_pose_sigma,
-        landmark_init=landmark_init,
-        update=update,
-    )
-
-
-def _log_noise(
-    log: Path, sigmas: tuple[float, float, float, float, float], init_pose_sigma: Triple
-) -> tuple[tuple[float, float, float, float, float], Triple]:
-    """The sigmas and prior with the log's stated noise where no option was given."""
-    from ekfviz.io.extended import NOISE_NAMES
-    from ekfviz.sources import open_source
-
-    try:
-        stated = open_source(log).stated_noise()
-    except InputError as error:
-        fail(str(error))
-    values = dict(zip(NOISE_NAMES, sigmas, strict=True))
-    used = []
-    for name in NOISE_NAMES:
-        value = stated.get(name)
-        if isinstance(value, float) and not given(name):
-            values[name] = value
-            used.append(f"--{name.replace('_', '-')} {value:g}")
-    prior = stated.get("init_pose_sigma")
-    if isinstance(prior, tuple) and not given("init_pose_sigma"):
-        init_pose_sigma = prior
-        used.append("--init-pose-sigma " + " ".join(f"{v:g}" for v in prior))
-    if used:
-        out.print(f"{log}: the noise its header states: {' '.join(used)}", soft_wrap=True)
-    sigma_x, sigma_y, sigma_alpha, sigma_bearing, sigma_range = (values[n] for n in NOISE_NAMES)
-    return (sigma_x, sigma_y, sigma_alpha, sigma_bearing, sigma_range), init_pose_sigma
-
-
-def scenario_world(
-    scenario: ScenarioName,
-    seed: int,
-    steps: int | None,
-    landmarks: int | None,
-    max_range: float | None,
-    fov: float | None,
-) -> Scenario:
-    """The scenario asked for; the loop options are refused for the classic one."""
-    from ekfviz.sim import scenarios
-
-    options: dict[str, Any] = {
-        "steps": steps, "landmarks": landmarks, "max_range": max_range, "fov_deg": fov
-    }  # fmt: skip
-    given = {name: value for name, value in options.items() if value is not None}
-    if scenario in (ScenarioName.CLASSIC, ScenarioName.EDGE):
-        if given:
-            flags = (f"--{name.removesuffix('_deg').replace('_', '-')}" for name in given)
-            fail(f"{', '.join(flags)}: only for --scenario loop")
-        return scenarios.classic() if scenario is ScenarioName.CLASSIC else scenarios.edge()
-    return scenarios.loop(seed=seed, **given)
-
-
-def true_noise(world: Scenario, *given: float | None) -> Noise:
-    """The scenario's own noise, with the values given on the command line instead."""
-    return Noise(*(d if g is None else g for g, d in zip(given, astuple(world.noise), strict=True)))
 
 
 # -- the groups ----------------------------------------------------------------------------
@@ -568,13 +512,20 @@ class FilterForm(OptionGroup):
     landmark_init: LandmarkInitOption = DEFAULT.landmark_init
     update: UpdateOption = DEFAULT.update
 
-    def params(
-        self, noise: FilterNoise, init_pose_sigma: Triple, log: Path | None = None
-    ) -> FilterParams:
-        """The filter's parameters (see :func:`filter_params`)."""
-        return filter_params(
-            noise.sigmas, init_pose_sigma, self.landmark_init, self.update, log=log
-        )
+    def values(self, noise: FilterNoise, init_pose_sigma: Triple) -> FilterSettings:
+        """The filter's settings with its noise and prior, as the use cases take them."""
+        return FilterSettings(noise.sigmas, init_pose_sigma, self.landmark_init, self.update)
+
+    def params(self, noise: FilterNoise, init_pose_sigma: Triple, log: Path | None = None) -> Any:
+        """The filter's :class:`~ekfviz.core.params.FilterParams` (see
+        :func:`ekfviz.app.settings.filter_params`), a note said where ``log`` states its
+        noise; one line for what cannot work."""
+        try:
+            return filter_params(
+                self.values(noise, init_pose_sigma), log=log, given=given, note=note
+            )
+        except UsageError as error:
+            fail(str(error))
 
 
 @dataclass(frozen=True, slots=True)
@@ -586,10 +537,12 @@ class UserFilter(OptionGroup):
     filter_memory: FilterMemory = None
     no_sandbox: NoSandbox = False
 
-    def worker(self) -> Any:
+    def worker(self) -> WorkerOptions:
         """The :class:`~ekfviz.sandbox.host.WorkerOptions`, the interpreter checked."""
-        return worker_options(self.python, self.filter_timeout, self.filter_memory,
-                              sandbox=not self.no_sandbox)  # fmt: skip
+        options: WorkerOptions = worker_options(
+            self.python, self.filter_timeout, self.filter_memory, sandbox=not self.no_sandbox
+        )
+        return options
 
 
 @dataclass(frozen=True, slots=True)
@@ -601,19 +554,9 @@ class Association(OptionGroup):
     confirm: Confirm = DEFAULT_ASSOCIATION.confirm
     confirm_window: ConfirmWindow = DEFAULT_ASSOCIATION.confirm_window
 
-    def params(self) -> AssociationParams | None:
-        """None for ``known``, else the method (jcbb by default) with its settings."""
-        return association_params(
+    def values(self) -> AssociationSettings:
+        return AssociationSettings(
             self.association, self.gate_probability, self.confirm, self.confirm_window
-        )
-
-    def for_study(self, data: Path) -> AssociationParams | None:
-        """As :meth:`params`, for the runs of a study of ``data`` (Victoria Park refused).
-
-        :raises ekfviz.core.errors.InputError: for the Victoria Park directory
-        """
-        return study_association(
-            data, self.association, self.gate_probability, self.confirm, self.confirm_window
         )
 
 
@@ -625,9 +568,12 @@ class Execution(OptionGroup):
     executor: ExecutorOption = ExecutorName.LOCAL
     scheduler: SchedulerOption = None
 
-    def make(self) -> Executor:
-        """The executor asked for, or a one-line error."""
-        return study_executor(self.executor, self.scheduler, self.workers)
+    def values(self) -> ExecutionSettings:
+        return ExecutionSettings(self.workers, self.executor, self.scheduler)
+
+    def make(self) -> Any:
+        """The :class:`~ekfviz.studies.executors.Executor` asked for."""
+        return self.values().make()
 
 
 @dataclass(frozen=True, slots=True)
@@ -640,16 +586,11 @@ class TrueNoise(OptionGroup):
     true_sigma_bearing: TrueSigmaBearing = None
     true_sigma_range: TrueSigmaRange = None
 
-    @property
-    def given(self) -> tuple[float | None, float | None, float | None, float | None, float | None]:
-        return (
+    def values(self) -> TrueNoiseSettings:
+        return TrueNoiseSettings(
             self.true_sigma_x, self.true_sigma_y, self.true_sigma_alpha,
             self.true_sigma_bearing, self.true_sigma_range,
         )  # fmt: skip
-
-    def of(self, world: Scenario) -> Noise:
-        """The scenario's noise with the values given instead."""
-        return true_noise(world, *self.given)
 
 
 @dataclass(frozen=True, slots=True)
@@ -661,9 +602,8 @@ class LoopShape(OptionGroup):
     max_range: MaxRange = None
     fov: Fov = None
 
-    def world(self, scenario: ScenarioName, seed: int) -> Scenario:
-        """The scenario asked for (the loop options refused for the others)."""
-        return scenario_world(scenario, seed, self.steps, self.landmarks, self.max_range, self.fov)
+    def values(self) -> LoopSettings:
+        return LoopSettings(self.steps, self.landmarks, self.max_range, self.fov)
 
 
 @dataclass(frozen=True, slots=True)
@@ -674,6 +614,5 @@ class Sensing(OptionGroup):
     clutter: Clutter = 0.0
     detection_probability: DetectionProbability = 1.0
 
-    def detection(self) -> Detection:
-        """The detection asked for, refusing what cannot be."""
-        return detection_of(self.unknown_ids, self.clutter, self.detection_probability)
+    def values(self) -> SensingSettings:
+        return SensingSettings(self.unknown_ids, self.clutter, self.detection_probability)

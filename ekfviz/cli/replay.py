@@ -2,24 +2,41 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
-from ekfviz.cli.common import DEFAULT, app
+from ekfviz.app.inputs import SourceArgs
+from ekfviz.app.replay import RecordingOutput, ReplayRequest, ReplayResult, replay
+from ekfviz.app.settings import BUILTIN
+from ekfviz.cli.console import (
+    TerminalReporter,
+    fail,
+    human_output_to_stderr,
+    out,
+    print_json,
+    release_held,
+    say,
+    show,
+)
 from ekfviz.cli.options import (
+    DEFAULT,
     Association,
     FilterForm,
     FilterNoise,
     FilterOption,
     InitPoseSigma,
     LogArgument,
+    OdometryBias,
+    OdometryScale,
+    OptionGroup,
     TruthOption,
     UserFilter,
     expands_options,
 )
-from ekfviz.cli.replay_run import Odometry, ReplayRequest, RerunOutput, run_replay
+from ekfviz.cli.program import app, command_line, given_options
 from ekfviz.cli.sources import (
     NO_SOURCE_ARGS,
     GateOption,
@@ -29,8 +46,8 @@ from ekfviz.cli.sources import (
     NoTruthOption,
     with_source_options,
 )
-from ekfviz.filters.spec import BUILTIN
-from ekfviz.sources import SourceArgs
+
+RERUN = "Rerun output"
 
 ReportOption = Annotated[
     Path | None, typer.Option(help="Write the evaluation as JSON here.", show_default=False)
@@ -43,10 +60,85 @@ JsonOption = Annotated[
 ]
 
 
-@app.command()
+@dataclass(frozen=True, slots=True)
+class Odometry(OptionGroup):
+    """The systematic odometry errors taken out of every control."""
+
+    odometry_scale: OdometryScale = DEFAULT.odometry_scale
+    odometry_bias: OdometryBias = DEFAULT.odometry_bias
+
+
+@dataclass(frozen=True, slots=True)
+class RerunOutput(OptionGroup):
+    """Where the recording goes and how much of it is logged."""
+
+    save: Annotated[
+        Path | None,
+        typer.Option(
+            help="Write the recording to this .rrd file.",
+            show_default=False,
+            rich_help_panel=RERUN,
+        ),
+    ] = None
+    spawn: Annotated[
+        bool, typer.Option("--spawn", help="Open the native Rerun viewer.", rich_help_panel=RERUN)
+    ] = False
+    serve: Annotated[
+        bool,
+        typer.Option(
+            "--serve",
+            help="Serve the web viewer on localhost (see --bind) until Ctrl-C.",
+            rich_help_panel=RERUN,
+        ),
+    ] = False
+    bind: Annotated[
+        str | None,
+        typer.Option(
+            help="With --serve: the IP address to listen on \\[default: 127.0.0.1, this"
+            " machine only]; 0.0.0.0 serves the recording to the whole network.",
+            show_default=False,
+            metavar="ADDRESS",
+            rich_help_panel=RERUN,
+        ),
+    ] = None
+    connect: Annotated[
+        str | None,
+        typer.Option(
+            help="Stream to a running viewer at this gRPC URL.",
+            show_default=False,
+            rich_help_panel=RERUN,
+        ),
+    ] = None
+    detail: Annotated[
+        bool,
+        typer.Option(
+            "--detail",
+            help="Log every landmark's ellipse at every update, even in a large map"
+            " (by default a map of over 32 landmarks is logged whole every 25 steps).",
+            rich_help_panel=RERUN,
+        ),
+    ] = False
+    history: Annotated[
+        bool,
+        typer.Option(
+            "--history",
+            help="The classic figure: the map keeps every predicted (magenta) and updated"
+            " (blue) robot ellipse up to the time cursor.",
+            rich_help_panel=RERUN,
+        ),
+    ] = False
+
+    def values(self) -> RecordingOutput:
+        return RecordingOutput(
+            save=self.save, spawn=self.spawn, serve=self.serve, bind=self.bind,
+            connect=self.connect, detail=self.detail, history=self.history,
+        )  # fmt: skip
+
+
+@app.command(name="replay")
 @expands_options
 @with_source_options
-def replay(
+def replay_command(
     *,
     ctx: typer.Context,
     data: LogArgument,
@@ -72,12 +164,41 @@ def replay(
     With no Rerun output option, the native viewer opens where a display exists;
     otherwise the recording is saved to recordings/<input name>.rrd.
     """
-    run_replay(
-        ReplayRequest(
-            ctx=ctx, data=data, truth=truth, source_args=source_args, no_truth=no_truth,
-            report=report, as_json=as_json, noise=noise, odometry=odometry,
-            motion_noise=motion_noise, init_pose=init_pose, gate=gate,
-            init_pose_sigma=init_pose_sigma, form=form, filter_spec=filter_spec, user=user,
-            output=output, association=association,
-        )
+    if as_json:  # stdout for the document; what is printed for people goes to stderr
+        human_output_to_stderr()
+    request = ReplayRequest(
+        data=data, truth=truth, source_args=source_args, no_truth=no_truth, report=report,
+        filter=form.values(noise, init_pose_sigma), odometry_scale=odometry.odometry_scale,
+        odometry_bias=odometry.odometry_bias, motion_noise=motion_noise, init_pose=init_pose,
+        gate=gate, filter_spec=filter_spec, worker=user.worker(), output=output.values(),
+        association=association.values(), given=given_options(ctx), command=command_line(),
     )  # fmt: skip
+    result = replay(request, TerminalReporter())
+    try:
+        _print(result, as_json)
+        if result.served is not None:
+            result.served.wait_until_interrupted()
+    except KeyboardInterrupt:  # while the results were printed: the recording is whole
+        kept = "nothing was written; existing files are left as they were"
+        if result.saved_to is not None:
+            kept = f"the finished recording is saved in {result.saved_to}"
+        fail(f"{data}: interrupted (SIGINT): {kept}", code=130)
+    finally:
+        if result.served is not None:
+            result.served.close()
+    if result.sink_error is not None:
+        fail(result.sink_error)
+
+
+def _print(result: ReplayResult, as_json: bool) -> None:
+    """The evaluation, the summaries and notes; the report with ``--json``."""
+    release_held()  # the log is read whole: its warnings, before the results
+    show(result.table)
+    say(result.lines)
+    for line in result.summaries:
+        out.print(line, soft_wrap=True, markup=False)
+    if as_json:
+        print_json(result.report)
+    say(result.notes)
+    if result.served is not None:
+        out.print(f"Serving the web viewer at [bold]{result.served.url}[/] (Ctrl-C to stop)")

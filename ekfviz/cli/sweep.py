@@ -2,15 +2,18 @@
 
 from __future__ import annotations
 
-import enum
-from dataclasses import replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import Annotated
 
 import typer
 
-from ekfviz.cli.common import DEFAULT, _option, app, fail
+from ekfviz.app.inputs import SourceArgs
+from ekfviz.app.settings import BUILTIN
+from ekfviz.app.study import StudyRequest
+from ekfviz.app.sweep import Preset, SweepRequest, sweep
+from ekfviz.cli.console import TerminalReporter
 from ekfviz.cli.options import (
+    DEFAULT,
     Association,
     Execution,
     FilterForm,
@@ -21,23 +24,13 @@ from ekfviz.cli.options import (
     SummaryReport,
     TruthOption,
     UserFilter,
+    _option,
     expands_options,
     study_save,
 )
-from ekfviz.cli.sources import NO_SOURCE_ARGS, NoTruthOption, study_input, with_source_options
-from ekfviz.cli.study import run_study
-from ekfviz.core.errors import InputError
-from ekfviz.filters.spec import BUILTIN, FilterSpec
-from ekfviz.sources import SourceArgs
-
-if TYPE_CHECKING:
-    from ekfviz.core.params import FilterParams
-    from ekfviz.studies.runs import RunSpec
-
-
-class Preset(str, enum.Enum):
-    TUNING = "tuning"
-
+from ekfviz.cli.program import app, command_line, given_options
+from ekfviz.cli.sources import NO_SOURCE_ARGS, NoTruthOption, with_source_options
+from ekfviz.cli.study import print_study
 
 SweepSave = Annotated[Path | None, study_save("sweep")]
 VaryOption = Annotated[
@@ -64,11 +57,12 @@ PresetOption = Annotated[
 ]
 
 
-@app.command()
+@app.command(name="sweep")
 @expands_options
 @with_source_options
-def sweep(
+def sweep_command(
     *,
+    ctx: typer.Context,
     data: StudyLogArgument,
     source_args: SourceArgs = NO_SOURCE_ARGS,  # every format's options (--robot...)
     truth: TruthOption = None,
@@ -91,44 +85,14 @@ def sweep(
     Every variant lands in one recording under variants/<name>/ on shared timelines, so
     that scrubbing moves them all together; a table compares them.
     """
-    start = study_input(form.params(noise, init_pose_sigma, log=data), data, source_args, truth,
-                        no_truth)  # fmt: skip
-    baseline = start.params
-    try:
-        pairing = association.for_study(data)
-    except InputError as error:
-        fail(str(error))
-    variants = _variants(baseline, vary, one_at_a_time=one_at_a_time, preset=preset)
-    spec = FilterSpec(filter_spec, worker=user.worker())
-    variants = [replace(variant, filter=spec, association=pairing) for variant in variants]
-    run_study(
-        data, truth, variants, target=save, report=report, workers=execution.workers,
-        root="variants",
-        parameters={
-            "baseline": baseline.as_dict(), "filter": filter_spec,
-            "variants": [variant.label for variant in variants],
-        },
-        report_extra={"baseline": baseline.as_dict()}, executor=execution.make(),
-        source_args=source_args, own_truth=start.own_truth, notes=start.notes,
-        inputs=start.files,
+    study = StudyRequest(
+        data=data, truth=truth, source_args=source_args, no_truth=no_truth, save=save,
+        report=report, filter=form.values(noise, init_pose_sigma),
+        execution=execution.values(), association=association.values(),
+        given=given_options(ctx), command=command_line(),
     )  # fmt: skip
-
-
-def _variants(
-    baseline: FilterParams, vary: list[str] | None, *, one_at_a_time: bool, preset: Preset | None
-) -> list[RunSpec]:
-    """The variants asked for by --preset or --vary, or a one-line error."""
-    from ekfviz.studies.sweep import SweepError, build_variants, parse_vary, tuning_preset
-
-    try:
-        if preset is Preset.TUNING:
-            if vary:
-                raise SweepError("--preset tuning and --vary: give one or the other")
-            return tuning_preset(baseline)
-        if vary:
-            return build_variants(
-                baseline, [parse_vary(text) for text in vary], one_at_a_time=one_at_a_time
-            )
-        raise SweepError("nothing to vary: give --vary NAME=VALUES or --preset tuning")
-    except SweepError as error:
-        fail(str(error))
+    request = SweepRequest(
+        study, vary=tuple(vary or ()), one_at_a_time=one_at_a_time, preset=preset,
+        filter_spec=filter_spec, worker=user.worker(),
+    )  # fmt: skip
+    print_study(sweep(request, TerminalReporter()))

@@ -1,5 +1,6 @@
-"""ekfviz's own errors, one family: bad input, an output that cannot be written, a filter
-that cannot go on. The command line maps each to its exit code; nothing below it exits."""
+"""ekfviz's own errors, one family: bad input (in a file, or in what was asked), an output
+that cannot be written, a filter that cannot go on. The command line maps each to its
+exit code; nothing below it exits."""
 
 from __future__ import annotations
 
@@ -35,6 +36,12 @@ class InputError(EkfvizError, ValueError):
 
 class OutputError(EkfvizError, ValueError):
     """An output path that cannot be written as asked (a folder, a link loop, a full disk)."""
+
+
+class UsageError(EkfvizError):
+    """What a command was asked cannot be done, said whole in one line where no file's line
+    is at fault: an option's value, options that exclude each other, a path that is not
+    what the command reads (``--bind 1.2.3: expected an IP address``)."""
 
 
 class FilterError(EkfvizError, ValueError):

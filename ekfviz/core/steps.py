@@ -9,6 +9,7 @@ controls and observations).
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 
 
@@ -54,3 +55,13 @@ class StepCounter:
     def count(self, is_predict: bool) -> tuple[int, int]:
         """:meth:`predict` or :meth:`update`, as ``is_predict`` says."""
         return self.predict() if is_predict else self.update()
+
+
+def log_steps(is_predict: Iterable[bool]) -> Iterator[tuple[int, int]]:
+    """The (event, step) of each event of a log read from its start, as a replay numbers
+    them: its first, when an observation, is the initialisation (event 0, step 0); every
+    other is counted by :meth:`StepCounter.count` (``is_predict``: whether each event is
+    a control)."""
+    counter = StepCounter()
+    for k, predict in enumerate(is_predict):
+        yield counter.initialise() if k == 0 and not predict else counter.count(predict)

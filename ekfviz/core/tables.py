@@ -1,6 +1,6 @@
 """Tables and lines for people, as plain data: what a result prints is written beside the
 result (``Evaluation.table()``, ``MonteCarlo.table()``), and the command line renders it
-(:func:`ekfviz.cli.common.show`), so that the layers below it need no terminal library."""
+(:func:`ekfviz.cli.console.show`), so that the layers below it need no terminal library."""
 
 from __future__ import annotations
 

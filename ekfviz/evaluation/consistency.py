@@ -15,10 +15,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ekfviz.core.records import EventKind, EventRecord, Observations, UpdatesWatched
+from ekfviz.core.batch import EventBatch, ObservationTable
+from ekfviz.core.records import EventRecord, Observations
 from ekfviz.core.stats import chi2_quantile
 from ekfviz.core.truth import GroundTruth
-from ekfviz.core.types import BoolArray, FloatArray
+from ekfviz.core.types import BoolArray, FloatArray, IntArray
 from ekfviz.models.angles import wrap_angle
 
 CONFIDENCE = 0.95
@@ -101,6 +102,35 @@ def observations_nis(observations: Observations) -> tuple[float, int] | None:
     if not used:
         return None
     return sum(used), 2 * len(used)
+
+
+def events_nis(table: ObservationTable) -> tuple[IntArray, FloatArray, IntArray]:
+    """:func:`update_nis` of every event of ``table`` that used landmarks, the events of
+    one length at once: their rows, the sums (k,) and their degrees of freedom (k,)."""
+    rows = np.flatnonzero(table.present)
+    counts = table.counts[rows]
+    found: list[tuple[IntArray, FloatArray, IntArray]] = []
+    for m in np.unique(counts).tolist():
+        if not m:
+            continue
+        at = rows[counts == m]
+        values = table.nis[table.starts[at][:, None] + np.arange(m)]
+        used = np.isfinite(values)
+        # summed in order, as update_nis sums a line (the last of the running sums); an
+        # observation not used adds 0, which changes no sum
+        totals = np.cumsum(np.where(used, values, 0.0), axis=1)[:, -1]
+        dofs = 2 * used.sum(axis=1)
+        some = dofs > 0
+        found.append((at[some], totals[some], dofs[some]))
+    if not found:
+        return np.zeros(0, np.int64), np.zeros(0), np.zeros(0, np.int64)
+    joined_rows = np.concatenate([f[0] for f in found])
+    order = np.argsort(joined_rows, kind="stable")
+    return (
+        joined_rows[order],
+        np.concatenate([f[1] for f in found])[order],
+        np.concatenate([f[2] for f in found]).astype(np.int64)[order],
+    )
 
 
 class Verdict(str, enum.Enum):
@@ -194,58 +224,30 @@ class Consistency:
             return 0
         return max(0, len(poses) - (self.last_step + 1))
 
-    def add(self, record: EventRecord) -> None:
-        """Count a record: its NIS if an update used landmarks, its NEES if it ends a step."""
-        if record.step > self.last_step:
-            self.last_step = record.step
-        nis = update_nis(record)
-        if nis is not None:
-            self.nis.add(nis[0], chi2_bounds(nis[1]))
-        if self.truth is not None and record.kind is not EventKind.PREDICT:
-            nees = pose_nees(record, self.truth)
-            if nees is not None:
-                self.nees.add(nees, chi2_bounds(3))
-            elif self.truth.pose_of(record.step, record.time) is None:
-                if self.truth.poses_xytheta is not None:
-                    self.without_true_pose += 1
-            else:
-                self.singular_pose += 1
-
-    def add_rows(self, rows: UpdatesWatched) -> None:
-        """Count updates given without their records (rows of a replay, see
-        :class:`~ekfviz.core.records.EventRows`) as :meth:`add` counts theirs: their
-        NIS, and with true poses their NEES."""
-        self.add_observations(rows.observations)
-        if len(rows.steps):
-            self.last_step = max(self.last_step, int(rows.steps.max()))
-        truth = self.truth
-        if truth is None or not truth.has_poses:
+    def add(self, events: EventBatch) -> None:
+        """Count a batch of a run's events: the NIS of every update that used
+        landmarks, and the NEES of every event that ends a step (not a predict)."""
+        if not len(events):
             return
-        true_poses, known = truth.poses_of(rows.steps, rows.times)
-        nees, defined = poses_nees(rows.poses[known], rows.pose_covs[known], true_poses[known])
+        self.last_step = max(self.last_step, int(events.steps.max()))
+        self._add_nis(events.observed)
+        truth = self.truth
+        if truth is None:
+            return
+        corrected = events.corrected
+        true_poses, known = truth.poses_of(events.steps[corrected], events.times[corrected])
+        at = corrected[known]
+        nees, defined = poses_nees(events.poses[at], events.pose_covs[at], true_poses[known])
         self.nees.add_many(nees[defined], chi2_bounds(3))
         self.singular_pose += int(np.count_nonzero(~defined))
-        if truth.poses_xytheta is not None:
+        if truth.poses_xytheta is not None:  # (a track's times may lie outside it: no step)
             self.without_true_pose += int(np.count_nonzero(~known))
 
-    def add_observations(self, found: list[Observations]) -> None:
-        """Count the NIS of updates given without their records, as :meth:`add` counts
-        theirs, the lines of one length at once."""
-        by_length: dict[int, list[Observations]] = {}
-        for observations in found:
-            by_length.setdefault(len(observations), []).append(observations)
-        for m, each in by_length.items():
-            if not m:
-                continue
-            nis = np.concatenate([observations.nis for observations in each]).reshape(-1, m)
-            # summed in order, as update_nis sums a line (the last of the running sums)
-            totals = np.cumsum(nis, axis=1)[:, -1]
-            whole = np.isfinite(totals)
-            self.nis.add_many(totals[whole], chi2_bounds(2 * m))
-            for k in np.flatnonzero(~whole).tolist():  # some observation not used
-                found_nis = observations_nis(each[k])
-                if found_nis is not None:
-                    self.nis.add(found_nis[0], chi2_bounds(found_nis[1]))
+    def _add_nis(self, table: ObservationTable) -> None:
+        """Count the NIS of every event of ``table`` that used landmarks."""
+        _, totals, dofs = events_nis(table)
+        for dof in np.unique(dofs).tolist():
+            self.nis.add_many(totals[dofs == dof], chi2_bounds(dof))
 
     def combined(self) -> tuple[Verdict, str] | None:
         """One verdict from NEES and NIS together, and why; None with neither.

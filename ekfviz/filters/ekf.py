@@ -22,9 +22,9 @@ P exactly symmetric (:mod:`ekfviz.filters.ekf_pending`).
 U outlives the observation line: it is kept across predicts, new landmarks and removals
 (each a linear change of P, which carries over to U exactly: see
 :meth:`~ekfviz.filters.ekf_pending.PendingCovariance._fold`) and folded into P only once it
-is full, or when a reader asks for the whole P (:attr:`P`, :attr:`buffers`, a record with
+is full, or when a reader asks for the whole P (:attr:`P`, :attr:`buffers`, state parts with
 the full covariance, the joint or compiled update). The readers of a few entries correct
-what they read in O(rank n): the update's rows of P, the records' pose block and
+what they read in O(rank n): the update's rows of P, the state parts' pose block and
 marginals, and the association's gating (:meth:`EkfSlam.deferred_covariance`). A scan
 of Victoria Park sees a handful of landmarks: one pass over P every few scans, not one
 per scan. The updates of a line are in :mod:`ekfviz.filters.ekf_update`.
@@ -38,19 +38,11 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from ekfviz.core.batch import MapParts, StateParts
 from ekfviz.core.errors import FilterError
-from ekfviz.core.health import CovarianceCheck
 from ekfviz.core.memory import available_memory
 from ekfviz.core.params import FilterParams, LandmarkInit, MotionNoise, UpdateMode, noise_scale
-from ekfviz.core.records import (
-    EventKind,
-    EventRecord,
-    Observations,
-    ScanAssociation,
-    frozen,
-    kept_observations,
-    kept_record,
-)
+from ekfviz.core.records import Observations, frozen
 from ekfviz.core.types import BoolArray, FloatArray, IntArray
 from ekfviz.filters.ekf_pending import DEFER_MIN_DIM, DEFER_ROWS
 from ekfviz.filters.ekf_update import NAN_ROW, LineUpdates, nan_table, no_flags
@@ -156,6 +148,11 @@ class EkfSlam(LineUpdates):
         # the view of the landmarks' marginals in P (see _marginals_view), for the buffer
         # P and dimension it was made for
         self._marginals: tuple[FloatArray, int, FloatArray] | None = None
+        # the views of the pose and its block of P in the buffers they were made for, and
+        # the map as batches keep it (see pose_block, map_parts)
+        self._pose_views: tuple[FloatArray, FloatArray, tuple[FloatArray, FloatArray]] | None
+        self._pose_views = None
+        self._map_parts: MapParts | None = None
         self._status = np.zeros(0, dtype=np.int8)  # the kernel's per-observation status
         # the pending rank-2 changes of P: the current covariance is
         # P[:n, :n] - U[:rank, :n]^T U[:rank, :n] (see the module); U (DEFER_ROWS x the
@@ -215,8 +212,7 @@ class EkfSlam(LineUpdates):
     def buffers(self) -> tuple[FloatArray, FloatArray]:
         """The state's own buffers x and P, the state in their leading 3+2N rows (and
         columns): for a reader that copies from them at once, without a view made per
-        read (a replay's rows of its plain events); not to be written. The pending changes of P are
-        folded in first."""
+        read; not to be written. The pending changes of P are folded in first."""
         if self._rank:
             self._flush()
         return self._x, self._P
@@ -247,53 +243,47 @@ class EkfSlam(LineUpdates):
         """Why observations of the last :meth:`observe` were skipped, one sentence each."""
         return tuple(self._warnings)
 
-    def record(
-        self,
-        *,
-        event: int,
-        step: int,
-        kind: EventKind,
-        line: int = 0,
-        control: FloatArray | tuple[float, float] | None = None,
-        observations: Observations | None = None,
-        full_cov: bool = False,
-        time: float | None = None,
-        warnings: tuple[str, ...] = (),
-        covariance: CovarianceCheck | None = None,
-        association: ScanAssociation | None = None,
-    ) -> EventRecord:
-        """Snapshot the current state as an immutable record, as
-        :func:`~ekfviz.core.records.snapshot` makes it, with the landmark ids, means and
-        marginals kept between records while they do not change (a predict moves the
-        pose alone): a record then copies the pose and its covariance, and is put
-        together by :func:`~ekfviz.core.records.kept_record` without further checks.
-        """
-        n = self._n
+    def state_parts(self, full_cov: bool = False) -> StateParts:
+        """The current state as a batch takes it (:class:`~ekfviz.core.batch.StateParts`):
+        :meth:`pose_block`, :meth:`map_parts` and, where ``full_cov``, a copy of P."""
         if full_cov and self._rank:
             self._flush()
-        x, P = self._x, self._P
-        pose_cov = P[:3, :3].copy()
-        pose = frozen(x[:3].copy())
-        if self._rank:
-            pose_cov -= self._pending_pose_gram()
-        pose_cov = frozen(pose_cov)
-        return kept_record(
-            event, step, kind, line, pose, pose_cov,
-            self.landmark_ids_array(), self._landmark_means(), self.landmark_marginals(),
-            None if control is None else frozen(np.array(control, dtype=np.float64)),
-            observations, frozen(P[:n, :n].copy()) if full_cov else None,
-            time, warnings, covariance, association,
-        )  # fmt: skip
+        pose, pose_cov = self.pose_block()
+        n = self._n
+        whole = self._P[:n, :n].copy() if full_cov else None
+        return StateParts(pose, pose_cov, *self.map_parts(), whole)
 
-    def settled_ids(self) -> IntArray | None:
-        """The landmark ids as records hold them (:meth:`landmark_ids_array`), or None
-        where changes of P are pending (a large map's update): a row of an update
-        (:class:`~ekfviz.core.records.EventRows`) copies the map's means and marginals
-        from the buffers, which holds only while nothing is pending."""
-        return None if self._rank else self.landmark_ids_array()
+    def pose_block(self) -> tuple[FloatArray, FloatArray]:
+        """The pose (3,) and its covariance (3, 3) as a batch takes them: views of the
+        buffers, valid until the filter next changes (a batch copies them at once), the
+        pending changes of P taken off."""
+        x, P = self._x, self._P
+        views = self._pose_views
+        if views is None or views[0] is not x or views[1] is not P:  # (a buffer grew)
+            views = self._pose_views = (x, P, (x[:3], P[:3, :3]))
+        if self._rank:
+            pose, pose_cov = views[2]
+            return pose, pose_cov - self._pending_pose_gram()
+        return views[2]
+
+    def map_parts(self) -> MapParts:
+        """The map as a batch keeps it: landmark ids, means (N, 2) and marginals (N, 2, 2),
+        read-only, in one tuple kept while the map does not change (a predict moves the
+        pose alone), so that a batch stores it once."""
+        kept = self._map_parts
+        if (  # the arrays kept while the map is unchanged: still the same ones
+            kept is not None
+            and kept[0] is self._ids_array
+            and kept[1] is self._landmarks_xy
+            and kept[2] is self._landmark_covs
+        ):
+            return kept
+        ids, xy = self.landmark_ids_array(), self._landmark_means()
+        kept = self._map_parts = (ids, xy, self.landmark_marginals())
+        return kept
 
     def _landmark_means(self) -> FloatArray:
-        """The landmarks' means (N, 2) as records hold them: read-only, one copy kept
+        """The landmarks' means (N, 2) as batches keep them: read-only, one copy kept
         until the map changes (a predict moves the pose alone)."""
         if self._landmarks_xy is None:
             n = self._n
@@ -429,15 +419,15 @@ class EkfSlam(LineUpdates):
             values = values.reshape(m, 9)
         frozen(values)  # its views below are read-only too
         flags_none = no_flags(m)  # where nothing was skipped, shared
-        return kept_observations(  # Observations(...) without its per-field checks
-            ids_arr,
-            frozen(z),
-            values[:, 0:2],
-            values[:, 2:4],
-            values[:, 4:8].reshape(m, 2, 2),
-            values[:, 8],
-            frozen(np.array(new, dtype=bool)) if any_new else no_flags(m),
-            skipped if skipped is flags_none else frozen(np.asarray(skipped, dtype=bool)),
+        return Observations(
+            ids=ids_arr,
+            z=frozen(z),
+            z_pred=values[:, 0:2],
+            innovation=values[:, 2:4],
+            S=values[:, 4:8].reshape(m, 2, 2),
+            nis=values[:, 8],
+            initialised=frozen(np.array(new, dtype=bool)) if any_new else no_flags(m),
+            skipped=skipped if skipped is flags_none else frozen(np.asarray(skipped, dtype=bool)),
         )
 
     def _observe_line(

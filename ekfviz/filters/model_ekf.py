@@ -20,16 +20,14 @@ so its path is the laser's, and so are the robot's pose and ellipses in the reco
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Sequence
-from typing import Any
 
 import numpy as np
 
+from ekfviz.core.batch import StateParts
 from ekfviz.core.errors import FilterError
 from ekfviz.core.params import FilterParams
-from ekfviz.core.records import EventRecord, kept_record
 from ekfviz.core.types import FloatArray
 from ekfviz.filters.ekf import EkfSlam
 from ekfviz.filters.ekf_update import (
@@ -66,7 +64,7 @@ class ModelEkfSlam(EkfSlam):
     :param vehicle: drives :meth:`drive`; ``None``: only the classic :meth:`predict`
     :param sensor: the measurement model
     :param reported_point: (ahead, left) in metres: the point of the vehicle whose pose
-        the records report (the state keeps the origin's); (0, 0) by default
+        the batches report (the state keeps the origin's); (0, 0) by default
     :param compiled: run the sequential update of a large map (where its changes of P are
         deferred) in the compiled kernel, where it was built (see :meth:`_update_sequential`)
     """
@@ -88,48 +86,45 @@ class ModelEkfSlam(EkfSlam):
         self.sensor = sensor if sensor is not None else RangeBearing()
         self.reported_point = reported_point
 
-    def record(self, **kwargs: Any) -> EventRecord:
-        """The built-in's record, its pose moved to :attr:`reported_point`.
+    def pose_block(self) -> tuple[FloatArray, FloatArray]:
+        """The built-in's pose block, moved to :attr:`reported_point`.
 
         The point p = (x, y) + R(theta) (a, b) and its covariance J P J^T, with J the
-        identity but for the column of theta, (-a s - b c, a c - b s); the full
-        covariance, where recorded, likewise (only the rows and columns of x and y).
+        identity but for the column of theta, (-a s - b c, a c - b s).
         """
-        record = super().record(**kwargs)
+        pose, pose_cov = super().pose_block()
         a, b = self.reported_point
         if a == 0.0 and b == 0.0:
-            return record
-        x, y, theta = record.pose.tolist()
+            return pose, pose_cov
+        x, y, theta = pose.tolist()
         c, s = math.cos(theta), math.sin(theta)
         j0, j1 = -a * s - b * c, a * c - b * s  # J's column of theta
-        pose = np.array((x + a * c - b * s, y + a * s + b * c, theta))
+        moved = np.array((x + a * c - b * s, y + a * s + b * c, theta))
         # J P J^T in floats (J the identity but for J[0, 2], J[1, 2]), exactly symmetric
-        (p00, p01, p02), (_, p11, p12), (_, _, p22) = record.pose_cov.tolist()
+        (p00, p01, p02), (_, p11, p12), (_, _, p22) = pose_cov.tolist()
         r02, r12 = p02 + j0 * p22, p12 + j1 * p22
         m00 = (p00 + j0 * p02) + j0 * r02
         m01 = (p01 + j0 * p12) + j1 * r02
         m11 = (p11 + j1 * p12) + j1 * r12
-        pose_cov = np.array(((m00, m01, r02), (m01, m11, r12), (r02, r12, p22)))
-        full_cov = record.full_cov
-        if full_cov is not None:
-            J = np.eye(3)
-            J[0, 2], J[1, 2] = j0, j1
-            T = np.eye(len(full_cov))
-            T[:3, :3] = J
-            full_cov = T @ full_cov @ T.T
-            full_cov[:3, :3] = pose_cov  # the same floats as the record's pose block
-        for array in (pose, pose_cov, full_cov):
-            if array is not None:
-                array.setflags(write=False)
-        if record.correlation is not None or record.path_xytheta is not None:
-            return dataclasses.replace(record, pose=pose, pose_cov=pose_cov, full_cov=full_cov)
-        # the record with its pose moved, by kept_record: replace() costs three times as much
-        return kept_record(
-            record.event, record.step, record.kind, record.line, pose, pose_cov,
-            record.landmark_ids, record.landmarks_xy, record.landmark_covs, record.control,
-            record.observations, full_cov, record.time, record.warnings, record.covariance,
-            record.association,
-        )  # fmt: skip
+        return moved, np.array(((m00, m01, r02), (m01, m11, r12), (r02, r12, p22)))
+
+    def state_parts(self, full_cov: bool = False) -> StateParts:
+        """The built-in's state parts, the pose moved (:meth:`pose_block`); the full
+        covariance, where asked for, likewise (only the rows and columns of x and y)."""
+        parts = super().state_parts(full_cov)
+        a, b = self.reported_point
+        whole = parts.full_cov
+        if whole is None or (a == 0.0 and b == 0.0):
+            return parts
+        theta = float(self._x[2])
+        c, s = math.cos(theta), math.sin(theta)
+        J = np.eye(3)
+        J[0, 2], J[1, 2] = -a * s - b * c, a * c - b * s
+        T = np.eye(len(whole))
+        T[:3, :3] = J
+        whole = T @ whole @ T.T
+        whole[:3, :3] = parts.pose_cov  # the same floats as the pose block
+        return parts._replace(full_cov=whole)
 
     def drive(self, segments: FloatArray) -> None:
         """Drive the vehicle through (speed, steering, dt) spans in one predict; O(N).

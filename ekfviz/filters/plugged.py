@@ -17,17 +17,10 @@ from dataclasses import replace
 
 import numpy as np
 
+from ekfviz.core.batch import MapParts, StateParts
 from ekfviz.core.errors import FilterError
-from ekfviz.core.health import CovarianceCheck
 from ekfviz.core.params import FilterParams
-from ekfviz.core.records import (
-    EventKind,
-    EventRecord,
-    Observations,
-    ScanAssociation,
-    frozen,
-    snapshot,
-)
+from ekfviz.core.records import Observations, frozen
 from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.filters.ekf import EkfSlam
 from ekfviz.filters.protocol import DeclaresCapabilities, SlamFilter, state_of
@@ -74,6 +67,7 @@ class Plugged:
             self._offline = callable(getattr(slam, "finish", None))
         self._params, self.own_noise = _with_own_noise(slam, name, params)
         self._x, self._P, self._ids = self._state("construction")
+        self._last_map: MapParts | None = None  # the map state_parts gave last
 
     # -- what the runner reads ----------------------------------------------------------
 
@@ -92,6 +86,10 @@ class Plugged:
     @property
     def landmark_ids(self) -> list[int]:
         return [int(i) for i in self._ids]
+
+    def landmark_ids_array(self) -> IntArray:
+        """The landmark ids in state order, as the filter showed them last (checked)."""
+        return self._ids
 
     @property
     def warnings(self) -> tuple[str, ...]:
@@ -210,29 +208,33 @@ class Plugged:
             raise PluginError(f"{where} does not end on the pose of x")
         return frozen(path)
 
-    def record(
-        self,
-        *,
-        event: int,
-        step: int,
-        kind: EventKind,
-        line: int = 0,
-        control: FloatArray | tuple[float, float] | None = None,
-        observations: Observations | None = None,
-        full_cov: bool = False,
-        time: float | None = None,
-        warnings: tuple[str, ...] = (),
-        covariance: CovarianceCheck | None = None,
-        association: ScanAssociation | None = None,
-    ) -> EventRecord:
-        """Snapshot the filter's state as an immutable record (see
-        :func:`~ekfviz.core.records.snapshot`, the one way records are made)."""
-        return snapshot(
-            self._x, self._P, event=event, step=step, kind=kind, line=line,
-            landmark_ids=self._ids, control=control, observations=observations,
-            full_cov=full_cov, time=time, warnings=warnings, covariance=covariance,
-            association=association,
-        )  # fmt: skip
+    def state_parts(self, full_cov: bool = False) -> StateParts:
+        """The filter's state as a batch keeps it (:class:`~ekfviz.core.batch.StateParts`),
+        copied; its map as the last call's arrays where it is the same to the bit (a
+        predict), so that a batch stores it once."""
+        parts = StateParts.of(self._x, self._P, self._ids, full_cov)
+        last = self._last_map
+        if last is not None and all(
+            new.tobytes() == old.tobytes() and new.shape == old.shape
+            for new, old in zip(parts[2:5], last, strict=True)
+        ):
+            parts = parts._replace(
+                landmark_ids=last[0], landmarks_xy=last[1], landmark_covs=last[2]
+            )
+        else:
+            self._last_map = (parts.landmark_ids, parts.landmarks_xy, parts.landmark_covs)
+        return parts
+
+    def pose_block(self) -> tuple[FloatArray, FloatArray]:
+        """The pose (3,) and its covariance (3, 3), as the filter showed them last."""
+        return self._x[:3], self._P[:3, :3]
+
+    def map_parts(self) -> MapParts:
+        """The map as a batch keeps it (see :meth:`state_parts`): one tuple while it is
+        the same to the bit."""
+        self.state_parts()
+        assert self._last_map is not None  # (set there)
+        return self._last_map
 
     # -- checks -------------------------------------------------------------------------
 

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ekfviz.core.errors import InputError
-from ekfviz.core.records import Control, LogEvent, frozen, read_control, read_sighting
+from ekfviz.core.records import Control, LogEvent, Sighting, frozen
 from ekfviz.core.types import IntArray
 from ekfviz.io.text import (
     BearingWrapper,
@@ -110,13 +110,13 @@ def _block_events(
     for j, (line, count) in enumerate(zip(lines[:end], counts[:end].tolist(), strict=True)):
         if count == 2:
             d, alpha = controls[j]
-            yield read_control(line, d, alpha)
+            yield Control(line, d, alpha)
         else:
             z = z_all[row]
             if outside[row]:
                 z[:, 0] = wrap(line, z[:, 0])
             row += 1
-            yield read_sighting(line, ids, z)
+            yield Sighting(line, ids, z)
     if fault is not None:
         raise fault
 

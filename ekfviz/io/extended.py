@@ -42,8 +42,6 @@ from ekfviz.core.records import (
     Drive,
     Scan,
     Sighting,
-    read_control,
-    read_sighting,
 )
 from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.io.classic import read_classic
@@ -203,7 +201,7 @@ def _line_events(
             d, alpha = (parse_number(path, line, token) for token in values)
             # a timed control spans the time since the previous timestamp, when there is one
             dt = None if time is None or read.previous is None else time - read.previous
-            yield read_control(line, d, alpha, time, dt)
+            yield Control(line, d, alpha, time, dt)
         elif keyword == "observe":
             sighting = _observation(path, line, values, time, wrap)
             if len(sighting.ids):
@@ -423,14 +421,14 @@ def _made(
         kind = kinds[j]
         if kind == _CONTROL:
             d, alpha = next(each_control)
-            yield read_control(line, d, alpha, times[j], spans[j])
+            yield Control(line, d, alpha, times[j], spans[j])
             continue
         start, end = items[j]
         measured = z[start:end] if kind == _OBSERVE else z_scans[start:end]
         if outside[j]:
             measured[:, 0] = wrap(line, measured[:, 0])
         if kind == _OBSERVE:
-            yield read_sighting(line, ids[start:end], measured, times[j])
+            yield Sighting(line, ids[start:end], measured, times[j])
         else:
             yield Scan(line=line, z=measured, time=times[j])
 
@@ -442,7 +440,7 @@ def _observation(
     if plain is not None:
         ids_array, z = plain
         z[:, 0] = wrap(line, z[:, 0])
-        return read_sighting(line, ids_array, z, time)
+        return Sighting(line, ids_array, z, time)
     # token by token, to name what is wrong
     if len(values) % 3:
         raise InputError(

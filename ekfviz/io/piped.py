@@ -26,6 +26,7 @@ import sys
 import tempfile
 
 from ekfviz import signals
+from ekfviz.core.errors import UsageError
 
 STDIN = "-"  # the argument that means standard input
 STDIN_PATH = "/dev/stdin"  # what it is replaced with: the path the readers open
@@ -34,7 +35,7 @@ _BLOCK = 1 << 20
 _DESCRIPTOR_PATH = re.compile(r"/(?:dev|proc/self)/fd/([0-9]+)")
 
 
-class PipedInputError(ValueError):
+class PipedInputError(UsageError):
     """A piped input that cannot be read ahead: the message names it as given."""
 
 

@@ -32,10 +32,12 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TypeVar
 
+from ekfviz.core.errors import UsageError
+
 T = TypeVar("T")
 
 
-class NotARecordingError(Exception):
+class NotARecordingError(UsageError):
     """A file that is not an ekfviz recording, with a one-line reason."""
 
 

@@ -3,11 +3,11 @@
 Every command that replays is a configuration of :func:`run`:
 
 ============  ==========================================================================
-command       consumers of the records
+command       consumers of the batches
 ============  ==========================================================================
 replay        the recorder (Rerun), the consistency counts, the association's tally or
               the GPS reference fit of a source that has one; the evaluation at the end
-compare,      per filter: the records kept (for the study's recording), the
+compare,      per filter: the batches kept (for the study's recording), the
 sweep         consistency counts, the association's tally; the evaluation at the end
 consistency   per trial: the NEES and NIS of every step (:mod:`ekfviz.studies.montecarlo`)
 calibrate     per candidate: NEES and NIS after the fitted time, the consistency counts
@@ -15,12 +15,12 @@ check, grade  not a run: the checked filter event by event, the reference re-run
               its state before each (:mod:`ekfviz.check.lockstep`)
 ============  ==========================================================================
 
-A consumer is a function called with every record, in event order: a bound ``add`` of
+A consumer is a function called with every batch (:class:`~ekfviz.core.batch.EventBatch`),
+in event order: a bound ``add`` of
 :class:`~ekfviz.evaluation.consistency.Consistency` or
 :class:`~ekfviz.association.evaluation.AssociationTally`, a list's ``append``, the
-recorder's ``log`` (no wrapper between them and the loop: a long log has 200,000
-records). The filter is the built-in unless ``make_filter`` names another (see
-:func:`~ekfviz.runner.replay.replay` for how a protocol filter is driven).
+recorder's ``log``. The filter is the built-in unless ``make_filter`` names another
+(see :func:`~ekfviz.runner.replay.replay` for how a protocol filter is driven).
 """
 
 from __future__ import annotations
@@ -28,7 +28,8 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable, Sequence
 from typing import TYPE_CHECKING
 
-from ekfviz.core.records import AnyEvent, EventRecord, EventRows
+from ekfviz.core.batch import EventBatch
+from ekfviz.core.records import AnyEvent, EventRecord
 from ekfviz.runner.replay import replay
 
 if TYPE_CHECKING:
@@ -38,8 +39,8 @@ if TYPE_CHECKING:
     from ekfviz.filters.plugged import FilterFactory
 
 
-# what takes a run's records, one at a time (what it returns is its own business)
-Consumer = Callable[[EventRecord], object]
+# what takes a run's batches, one at a time (what it returns is its own business)
+Consumer = Callable[[EventBatch], object]
 
 
 def run(
@@ -51,30 +52,27 @@ def run(
     name: str = "ekf",
     slam: EkfSlam | None = None,
     associator: Associator | None = None,
-    event_rows: EventRows | None = None,
 ) -> EventRecord | None:
-    """Replay ``events`` and call each consumer with every record, in turn.
+    """Replay ``events`` and call each consumer with every batch, in turn.
 
     :param slam: the built-in filter made with other models (Victoria Park's vehicle and
         laser), instead of one made from ``params``
     :param associator: pairs id-less scans with landmarks; None: the log's ids
-    :param event_rows: the plain predicts (and updates, where the rows take them) go
-        there as columns, not to the consumers (see :func:`~ekfviz.runner.replay.replay`)
-    :returns: the last record (None only if the replay yielded nothing)
+    :returns: the view of the last event (None only if the replay yielded nothing)
     :raises FilterLineError: the filter cannot go on at a line of the log; the consumers
-        have every record before it
+        have every batch before it
     """
     last = None
-    for record in replay(
-        events,
-        params,
-        make_filter=make_filter,
-        name=name,
-        slam=slam,
-        associator=associator,
-        event_rows=event_rows,
+    for batch in replay(
+        events, params, make_filter=make_filter, name=name, slam=slam, associator=associator
     ):
         for consumer in consumers:
-            consumer(record)
-        last = record
-    return last
+            consumer(batch)
+        last = batch
+    return None if last is None else last.last
+
+
+def every_event(batches: Iterable[EventBatch]) -> list[EventRecord]:
+    """Every event of ``batches`` viewed as a record, in order: for a reader of a few
+    events one at a time (a test, a short log)."""
+    return [record for batch in batches for record in batch]

@@ -17,9 +17,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import ClassVar, Protocol, TypeVar
 
+from ekfviz.core.batch import EventBatch
 from ekfviz.core.errors import InputError
 from ekfviz.core.params import FilterParams, MotionNoise
-from ekfviz.core.records import AnyEvent, EventRecord
+from ekfviz.core.records import AnyEvent
 from ekfviz.core.truth import GroundTruth
 from ekfviz.core.types import FloatArray
 from ekfviz.evaluation.reference import ReferenceFit
@@ -99,13 +100,13 @@ class Models:
 
 class Reference(Protocol):
     """An independent reference of the path (Victoria Park's GPS): it watches every
-    record and is fitted to the estimated path at the end.
+    batch of a run's events and is fitted to the estimated path at the end.
 
     ``key`` names its results in the report (``gps``)."""
 
     key: str
 
-    def add(self, record: EventRecord) -> None: ...
+    def add(self, events: EventBatch) -> None: ...
 
     def fit(self, warn: WarningCallback) -> FittedReference | None: ...
 

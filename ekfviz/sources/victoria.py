@@ -18,9 +18,11 @@ from typing import Any
 
 import numpy as np
 
+from ekfviz.core.batch import EventBatch
 from ekfviz.core.errors import InputError
 from ekfviz.core.params import FilterParams
-from ekfviz.core.records import AnyEvent, EventRecord, Scan
+from ekfviz.core.records import AnyEvent, Scan
+from ekfviz.core.types import FloatArray
 from ekfviz.evaluation.reference import JUMP_M, fit_reference
 from ekfviz.filters.model_ekf import ModelEkfSlam
 from ekfviz.io import victoria
@@ -184,12 +186,13 @@ class GpsReference:
 
     path: Path
     key: str = "gps"
-    _track: list[tuple[float, int, float, float]] = field(default_factory=list)
+    _track: list[FloatArray] = field(default_factory=list)  # (k, 4): t, step, x, y
 
-    def add(self, record: EventRecord) -> None:
-        if record.time is not None:
+    def add(self, events: EventBatch) -> None:
+        timed = np.flatnonzero(~np.isnan(events.times))
+        if len(timed):
             self._track.append(
-                (record.time, record.step, float(record.pose[0]), float(record.pose[1]))
+                np.column_stack([events.times[timed], events.steps[timed], events.poses[timed, :2]])
             )
 
     def fit(self, warn: WarningCallback) -> FittedReference | None:
@@ -199,9 +202,9 @@ class GpsReference:
         except InputError as error:
             warn(f"no GPS reference: {error}")
             return None
-        if len(self._track) < 2:
+        track = np.concatenate([np.zeros((0, 4)), *self._track])
+        if len(track) < 2:
             return None
-        track = np.array(self._track)
         try:
             fit = fit_reference(track[:, 0], track[:, 2:4], gps_t, gps_xy)
         except ValueError as error:

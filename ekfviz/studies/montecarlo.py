@@ -16,8 +16,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ekfviz.association import AssociationParams, Associator
+from ekfviz.core.batch import EventBatch
 from ekfviz.core.params import FilterParams
-from ekfviz.core.records import EventKind, EventRecord
 from ekfviz.core.stats import chi2_quantile
 from ekfviz.core.tables import Styled, TextTable
 from ekfviz.core.truth import GroundTruth
@@ -26,8 +26,8 @@ from ekfviz.evaluation.consistency import (
     CONFIDENCE,
     BoundCount,
     Verdict,
-    pose_nees,
-    update_nis,
+    events_nis,
+    poses_nees,
 )
 from ekfviz.filters.spec import BUILTIN, load_filter
 from ekfviz.models.range_bearing import RangeBearing
@@ -71,15 +71,16 @@ class _Trial:
         self.nis = np.full(steps, np.nan)
         self.nis_dof = np.zeros(steps, dtype=np.int64)
 
-    def add(self, record: EventRecord) -> None:
-        if record.kind is EventKind.PREDICT:
-            return
-        value = pose_nees(record, self.truth)
-        if value is not None:
-            self.nees[record.step] = value
-        found = update_nis(record)
-        if found is not None:
-            self.nis[record.step], self.nis_dof[record.step] = found
+    def add(self, events: EventBatch) -> None:
+        """The NEES and NIS of the events of a batch that end a step."""
+        corrected = events.corrected
+        steps = events.steps[corrected]
+        true_poses, known = self.truth.poses_of(steps, events.times[corrected])
+        at = corrected[known]
+        nees, defined = poses_nees(events.poses[at], events.pose_covs[at], true_poses[known])
+        self.nees[steps[known][defined]] = nees[defined]
+        rows, totals, dofs = events_nis(events.observed)
+        self.nis[events.steps[rows]], self.nis_dof[events.steps[rows]] = totals, dofs
 
 
 def run_trial(trials: Trials, seed: int) -> TrialResult:

@@ -19,8 +19,8 @@ import numpy as np
 
 from ekfviz.association import AssociationParams, Associator
 from ekfviz.association.evaluation import AssociationTally
+from ekfviz.core.batch import EventBatch
 from ekfviz.core.params import FilterParams
-from ekfviz.core.records import EventRecord
 from ekfviz.core.tables import TextTable
 from ekfviz.core.truth import GroundTruth
 from ekfviz.evaluation.consistency import Consistency, reading
@@ -56,11 +56,11 @@ class RunSpec:
 
 @dataclass(frozen=True, slots=True)
 class Run:
-    """One pipeline replayed: every record, the final evaluation with consistency, and
+    """One pipeline replayed: every event, the final evaluation with consistency, and
     the wall time of the filter and evaluation (reading the log included)."""
 
     spec: RunSpec
-    records: tuple[EventRecord, ...]
+    events: EventBatch
     evaluation: Evaluation
     seconds: float
     # why the run stopped before the end of the log (a filter that failed), if it did
@@ -70,7 +70,7 @@ class Run:
 
     @property
     def steps(self) -> int:
-        return self.records[-1].step if self.records else 0
+        return int(self.events.steps[-1]) if len(self.events) else 0
 
 
 @dataclass(frozen=True, slots=True)
@@ -123,15 +123,15 @@ def run_spec(
     make_filter = loaded if spec.filter.in_process else _Timed(loaded)
     started = time.perf_counter()
     consistency = Consistency(truth)
-    records: list[EventRecord] = []
-    consumers: list[Consumer] = [consistency.add, records.append]
+    batches: list[EventBatch] = []
+    consumers: list[Consumer] = [consistency.add, batches.append]
     associator, tally = None, None
     if spec.association is not None:  # a run of its own: its own tentative landmarks
         sensor = RangeBearing()
         scan_truth = None if truth is None else truth.scan_ids
         associator = Associator(spec.association, sensor, spec.params.R, scan_truth=scan_truth)
         tally = AssociationTally(truth, sensor)
-        consumers.append(tally.add)
+        consumers.append(tally.add_batch)
     failure = None
     try:
         events = open_source(path, source_args).events()
@@ -141,7 +141,7 @@ def run_spec(
         if not keep_going or not isinstance(error.__cause__, PluginError):
             raise  # not the filter's own failure: the input's, for every filter alike
         failure = f"{path}:{error.line}: {error}" if error.line else f"{path}: {error}"
-        if not records:
+        if not batches:
             return RunFailure(spec, failure)
     finally:
         release(loaded)
@@ -150,11 +150,13 @@ def run_spec(
     if isinstance(make_filter, _Timed):
         seconds -= make_filter.seconds
         own_noise = getattr(make_filter.made, "measurement_noise", None) is not None
+    joined = EventBatch.joined(batches)
+    last = joined.last
     if tally is not None and truth is not None and tally.scans:
         # the map's ids are the association's: the truth under its pairing
-        truth = tally.relabelled_truth(records[-1].landmark_ids)
-    evaluation = evaluate(records[-1], truth, consistency)
-    return Run(spec, tuple(records), evaluation, seconds, failure, own_noise)
+        truth = tally.relabelled_truth(last.landmark_ids)
+    evaluation = evaluate(last, truth, consistency)
+    return Run(spec, joined, evaluation, seconds, failure, own_noise)
 
 
 def run_specs(
@@ -211,11 +213,7 @@ def summarise(run: Run, baseline: Run) -> Summary:
     evaluation = run.evaluation
     errors = [r.euclidean for r in evaluation.landmarks if r.euclidean is not None]
     distances = [r.mahalanobis for r in evaluation.landmarks if r.mahalanobis is not None]
-    nis = [
-        float(r.observations.nis[np.isfinite(r.observations.nis)].sum())
-        for r in run.records
-        if r.observations is not None and np.isfinite(r.observations.nis).any()
-    ]
+    nis = updates_nis(run.events)
     consistency = evaluation.consistency
     count = consistency.nis if consistency is not None else None
     inside = sum(bool(r.inside_3sigma) for r in evaluation.landmarks) if distances else None
@@ -241,6 +239,17 @@ def summarise(run: Run, baseline: Run) -> Summary:
         aligned_mean_error=None if summary is None else summary.aligned_mean_error,
         aligned_max_error=None if summary is None else summary.aligned_worst_error,
     )
+
+
+def updates_nis(events: EventBatch) -> list[float]:
+    """The NIS of every update that used landmarks, summed over them in order."""
+    table = events.observed
+    owner = np.repeat(np.arange(len(events)), table.counts)
+    used = np.isfinite(table.nis)
+    rows = np.unique(owner[used])
+    sums = np.bincount(owner[used], weights=table.nis[used], minlength=len(events))
+    found: list[float] = sums[rows].tolist()
+    return found
 
 
 def study_table(

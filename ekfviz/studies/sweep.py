@@ -20,6 +20,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
+from ekfviz.core.errors import UsageError
 from ekfviz.core.params import FilterParams
 from ekfviz.io.text import MAX_MAGNITUDE
 from ekfviz.studies.runs import VARIABLE, RunSpec
@@ -29,7 +30,7 @@ MAX_VARIANTS = 1000  # variants a sweep runs: each is a whole replay
 _VALUE = re.compile(r"(?P<op>[x*/]?)(?P<number>(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)")
 
 
-class SweepError(ValueError):
+class SweepError(UsageError):
     """A ``--vary`` or preset that cannot be used, with a one-line reason."""
 
 

@@ -6,7 +6,10 @@
 - :mod:`ekfviz.viz.ellipses` -- the 3-sigma outline of a covariance;
 - :mod:`ekfviz.viz.style` -- entity paths and colours;
 - :mod:`ekfviz.viz.blueprint` -- the default viewer layout;
-- :mod:`ekfviz.viz.run` -- one ``ekfviz replay`` run: properties, sinks, atomic save.
+- :mod:`ekfviz.viz.run` -- one ``ekfviz replay`` run, logged batch by batch;
+- :mod:`ekfviz.viz.recording` -- a recording sent to its sinks, its file saved whole;
+- :mod:`ekfviz.viz.provenance` -- what describes a run, and its recording id;
+- :mod:`ekfviz.viz.viewer` -- the viewer: probed, spawned or served.
 
 Reading a recording back is :mod:`ekfviz.readback`'s.
 
@@ -30,20 +33,11 @@ See ``examples/byof_minimal.py`` for a complete, runnable loop.
 from __future__ import annotations
 
 from ekfviz.viz.ellipses import ellipse_outlines
+from ekfviz.viz.provenance import RunInfo, run_info
 from ekfviz.viz.recorder import Recorder
-from ekfviz.viz.run import (
-    LOOPBACK,
-    Recording,
-    RunInfo,
-    RunLogger,
-    SinkError,
-    Sinks,
-    check_bind,
-    open_recording,
-    open_run,
-    resolve_default_sinks,
-    run_info,
-)
+from ekfviz.viz.recording import Recording, Sinks, open_recording, resolve_default_sinks
+from ekfviz.viz.run import RunLogger, open_run
+from ekfviz.viz.viewer import LOOPBACK, ServedViewer, SinkError, check_bind
 
 __all__ = [
     "LOOPBACK",
@@ -51,6 +45,7 @@ __all__ = [
     "Recording",
     "RunInfo",
     "RunLogger",
+    "ServedViewer",
     "SinkError",
     "Sinks",
     "check_bind",

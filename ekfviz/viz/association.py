@@ -27,6 +27,7 @@ import pyarrow as pa  # type: ignore[import-untyped]
 import rerun as rr
 
 from ekfviz.association.evaluation import AssociationTally, ScanScore
+from ekfviz.core.batch import EventBatch, ranges
 from ekfviz.core.records import EventRecord, Fate
 from ekfviz.core.truth import GroundTruth
 from ekfviz.core.types import FloatArray, IntArray
@@ -36,7 +37,6 @@ from ekfviz.viz import style
 from ekfviz.viz.ellipses import N_POINTS, ellipse_outlines
 from ekfviz.viz.layers import arrow
 from ekfviz.viz.layers.arrow import time_is_epoch  # the recorder's choice of the time's type
-from ekfviz.viz.layers.map_rows import ranges
 
 RAYS = "world/association/rays"
 LINKS = "world/association/links"
@@ -63,7 +63,7 @@ SCANS_EVERY = 256
 
 
 class AssociationView:
-    """Logs each scan's association; the recorder calls :meth:`log` per record.
+    """Logs each scan's association; the recorder calls :meth:`log` with its events.
 
     A scan is only held at :meth:`log` (and scored: the tally reads every scan in
     order); its rays, links, gates, tentative landmarks, sizes, series and text line are
@@ -95,17 +95,22 @@ class AssociationView:
         rec.log(path(RAYS), rr.LineStrips2D([], radii=rr.Radius.ui_points(0.75)), static=True)
         rec.log(path(TENTATIVE), rr.Points2D([], colors=[TENTATIVE_COLOR]), static=True)
 
-    def log(self, record: EventRecord) -> None:
-        """Hold one scan's association; sent every ``SCANS_EVERY`` scans and at
-        :meth:`flush`."""
-        if record.association is None:
-            return
+    def log(self, events: EventBatch) -> None:
+        """Hold the association of each scan of ``events``; sent every ``SCANS_EVERY``
+        scans and at :meth:`flush`."""
+        for row in sorted(events.extras):
+            if events.extras[row].association is not None:
+                self._hold(events.event(row))
+
+    def _hold(self, record: EventRecord) -> None:
+        """Hold one scan's association (its event's view)."""
+        assert record.association is not None
         time = math.nan if record.time is None else record.time
         if self._held and math.isnan(self._times[-1]) != (record.time is None):
             self._send_scans()  # a batch's rows all have a time or none has
         self._held.append(record)
         self._times.append(time)
-        self._scores.append(self.tally.add(record))
+        self._scores.append(self.tally.add(record.association, record.pose))
         if len(self._held) >= SCANS_EVERY:
             self._send_scans()
 

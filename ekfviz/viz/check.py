@@ -27,6 +27,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from ekfviz.core.batch import EventBatch
 from ekfviz.core.records import EventRecord
 from ekfviz.core.truth import GroundTruth
 from ekfviz.core.types import FloatArray
@@ -40,7 +41,7 @@ from ekfviz.viz.blueprint import (
     study_documents,
 )
 from ekfviz.viz.ellipses import ellipse_extent, ellipse_outlines
-from ekfviz.viz.run import Recording, finish_recorders
+from ekfviz.viz.recording import Recording, finish_recorders
 from ekfviz.viz.study import SUMMARY, log_runs
 
 if TYPE_CHECKING:
@@ -162,8 +163,10 @@ def record_check(
     )
 
 
-def _record_at(records: Sequence[EventRecord], event: int) -> EventRecord | None:
-    return next((record for record in records if record.event == event), None)
+def _record_at(events: EventBatch, event: int) -> EventRecord | None:
+    """The view of event number ``event`` of ``events``, if it has one."""
+    row = int(np.searchsorted(events.events, event))
+    return events.event(row) if row < len(events) and events.events[row] == event else None
 
 
 def _log_differences(
@@ -175,7 +178,7 @@ def _log_differences(
     if not len(differences):
         return
     events = np.arange(len(differences))
-    steps_of = {record.event: record.step for record in result.records}
+    steps_of = dict(zip(result.records.events.tolist(), result.records.steps.tolist(), strict=True))
     steps = np.array([steps_of.get(int(e), 0) for e in events])
     with np.errstate(divide="ignore"):
         logged = np.maximum(np.log10(differences), LOG10_FLOOR)

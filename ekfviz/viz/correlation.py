@@ -146,7 +146,7 @@ def log_correlation_styling(rec: _Logger) -> None:
 
 
 class CorrelationLayer:
-    """The correlation matrices of a run's records: the images sent in columns with the
+    """The correlation matrices of a run's events: the images sent in columns with the
     batch they belong to (a ``log`` call each cost more than the filter's step), their
     blocks and description logged where they change."""
 
@@ -158,11 +158,10 @@ class CorrelationLayer:
         log_correlation_styling(self._canvas.entities)
 
     def send(self, batch: Batch) -> None:
-        records = batch.records  # None at a predict of a segment: no correlation there
-        at = [k for k, r in enumerate(records) if r is not None and r.correlation is not None]
+        at = sorted(k for k, extra in batch.extras.items() if extra.correlation is not None)
         if not at:
             return
-        correlations = [record.correlation for k in at if (record := records[k]) is not None]
+        correlations = [batch.extras[k].correlation for k in at]
         matrices = [c.matrix for c in correlations]  # type: ignore[union-attr]
         # the colours of all matrices in one call (each pixel's its own): a call each cost
         # more than the rest of their logging
@@ -204,9 +203,10 @@ class CorrelationLayer:
                 )
             ):
                 continue
-            record = records[k]
-            assert record is not None  # it has a correlation
-            self._canvas.set_times(record.step, record.event, record.time)
+            time = float(batch.times[k])
+            self._canvas.set_times(
+                int(batch.rows.steps[k]), int(batch.rows.events[k]), None if time != time else time
+            )
             mins, sizes_xy, labels = block_outlines(correlation)
             entities = self._canvas.entities
             entities.log(

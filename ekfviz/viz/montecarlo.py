@@ -2,11 +2,9 @@
 
 from __future__ import annotations
 
-import contextlib
 import json
-import os
 import uuid
-from collections.abc import Iterator, Mapping
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -14,26 +12,12 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from ekfviz import __version__
-from ekfviz.io.paths import real_path
+from ekfviz.io.files import replaced_whole
 from ekfviz.studies.montecarlo import MonteCarlo
 from ekfviz.viz import style
-from ekfviz.viz.run import temporary_beside
+from ekfviz.viz.recording import any_values
 
 REPORT = "run/consistency"
-
-
-@contextlib.contextmanager
-def atomic_rrd(path: Path) -> Iterator[Path]:
-    """A temporary path beside ``path`` to write a recording to, moved over ``path`` only
-    when the block completes; removed otherwise, leaving an existing file untouched (a
-    symbolic link's target is written, the link kept)."""
-    path = real_path(path)
-    temporary = temporary_beside(path)
-    try:
-        yield temporary
-        os.replace(temporary, path)
-    finally:
-        temporary.unlink(missing_ok=True)
 
 
 def save_monte_carlo(
@@ -71,19 +55,17 @@ def save_monte_carlo(
         rrb.TimePanel(timeline=style.STEP, state="collapsed"),
         collapse_panels=True,
     )
-    with atomic_rrd(path) as temporary:
+    with replaced_whole(path) as temporary:
         rec = rr.RecordingStream("ekfviz", recording_id=str(uuid.uuid4()), send_properties=False)
         rec.set_log_time_enabled(False)
         rec.save(temporary, default_blueprint=blueprint)
         rec.send_recording_name(name)
-        properties = rr.AnyValues()
-        for key, value in (
-            ("version", __version__),
-            ("kind", "consistency"),
-            ("command", command),
-            ("parameters", json.dumps(dict(settings or {}))),
-        ):
-            properties.with_component_from_data(key, value)
+        properties = any_values({
+            "version": __version__,
+            "kind": "consistency",
+            "command": command,
+            "parameters": json.dumps(dict(settings or {})),
+        })  # fmt: skip
         rec.send_property("ekfviz", properties)
         rec.log(REPORT, rr.TextDocument(markdown, media_type=rr.MediaType.MARKDOWN), static=True)
         steps = np.arange(len(result.mean_nees))

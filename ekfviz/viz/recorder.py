@@ -1,7 +1,7 @@
-"""Log EKF-SLAM records, or the plain arrays of any filter, to a Rerun recording stream.
+"""Log EKF-SLAM runs, or the plain arrays of any filter, to a Rerun recording stream.
 
 ``Recorder`` is the one code path from a filter state to Rerun: ``ekfviz replay`` feeds
-it the core's records (``log_record``), and a user with a filter of their own feeds it
+it the run's batches of events (``log``), and a user with a filter of their own feeds it
 numpy arrays in the classic layout x = [x, y, theta, l1x, l1y, ...] (``initialise``,
 ``predict``, ``update``)::
 
@@ -17,11 +17,11 @@ numpy arrays in the classic layout x = [x, y, theta, l1x, l1y, ...] (``initialis
     recorder.finish()
 
 The parts of the picture live in :mod:`ekfviz.viz.layers`, one module each over one
-shared batch of records; this facade buffers the records and hands each batch to them,
-every ``FLUSH_EVERY`` events and at ``finish``, sent in columns (a ``rec.log`` per entity
-and event would cost more than the filter). Every call sets both timelines: ``step`` (0
-at the initialisation, +1 per predict, or per update when the step had one) and
-``event`` (+1 per call). Styling is logged once as static data.
+shared batch of events; this facade holds the events and hands them to the parts every
+``FLUSH_EVERY`` events and at ``finish``, sent in columns (a ``rec.log`` per entity and
+event would cost more than the filter). Every event sets both timelines: ``step`` (0 at
+the initialisation, +1 per predict, or per update when the step had one) and ``event``
+(+1 per event). Styling is logged once as static data.
 
 What is logged when, by default: the robot and its ellipses at every event, a log line
 a step, the observation rays at the updates with some, the map as
@@ -39,7 +39,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from ekfviz import __version__
-from ekfviz.core.records import EventKind, EventRecord
+from ekfviz.core.batch import INIT, PREDICT, UPDATE, EventBatch
 from ekfviz.core.truth import GroundTruth
 from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.evaluation.errors import Evaluation
@@ -49,6 +49,7 @@ from ekfviz.viz.blueprint import ASSOCIATION_SERIES, REFERENCE_SERIES, default_b
 from ekfviz.viz.correlation import CorrelationLayer
 from ekfviz.viz.layers.arrays import CHECK_ALL_DIM, ArrayInput
 from ekfviz.viz.layers.arrow import EPOCH_MIN_S, MIN_AXIS, frame_id, time_is_epoch
+from ekfviz.viz.layers.batch import Batch
 from ekfviz.viz.layers.canvas import MAX_CLASS_ID, SHAPES_EVERY, Canvas
 from ekfviz.viz.layers.history import HistoryLayer
 from ekfviz.viz.layers.labels import LABEL_HEIGHT, LABEL_WIDTH, LabelsLayer, unclutter
@@ -151,9 +152,7 @@ class Recorder:
         self._text = TextLayer(canvas)
         self._correlation = CorrelationLayer(canvas)
         self.pending = PendingEvents()
-        self._last_record: EventRecord | None = None  # the last record logged
-        self._event = self._step = 0
-        self._step_has_update = True  # the initialisation counts as step 0's update
+        self._event = self._step = 0  # of the last event logged (where a note goes)
         self._blueprint = blueprint
         self._run_documents = run_documents
         if blueprint and live_layout:
@@ -189,10 +188,9 @@ class Recorder:
         :param landmark_ids: (m,) ids of the landmarks initialised from ``z``
         :param z: (m, 2) their measured (bearing, range)
         """
-        self._event = self._step = 0
-        self._arrays.checked_step = None
         observations = self._arrays.observations(landmark_ids, z, None, None)
-        self.log_record(self._arrays.record(x, P, 0, 0, EventKind.INIT, line, observations))
+        self._arrays.add(x, P, INIT, line, observations)
+        self._log_arrays()
 
     def predict(
         self,
@@ -208,10 +206,9 @@ class Recorder:
         :param P: (3+2N, 3+2N) state covariance
         :param control: (2,) the (d, alpha) applied, for the text log
         """
-        step = self._step + 1
         control = None if control is None else np.asarray(control, dtype=np.float64)
-        event, kind = self._event + 1, EventKind.PREDICT
-        self.log_record(self._arrays.record(x, P, event, step, kind, line, control=control))
+        self._arrays.add(x, P, PREDICT, line, control=control)
+        self._log_arrays()
 
     def update(
         self,
@@ -234,16 +231,20 @@ class Recorder:
         :param S: (m, 2, 2) innovation covariances, for the NIS
         """
         observations = self._arrays.observations(landmark_ids, z, z_pred, S)
-        step = self._step + 1 if self._step_has_update else self._step
-        kind = EventKind.UPDATE
-        self.log_record(self._arrays.record(x, P, self._event + 1, step, kind, line, observations))
+        self._arrays.add(x, P, UPDATE, line, observations)
+        self._log_arrays()
+
+    def _log_arrays(self, everything: bool = False) -> None:
+        """Log the states handed in through the array API, once a send's worth is in
+        (or ``everything``)."""
+        builder = self._arrays.builder
+        if len(builder) >= FLUSH_EVERY or (everything and len(builder)):
+            self.log(builder.build())
 
     def finish(self, evaluation: Evaluation | None = None) -> None:
         """Send the buffered data, the whole map at the last update, the evaluation document
         if given, the layout framing the whole run, and flush."""
-        self._log_rows()
-        for record in self._thinning.drain():
-            self._log_record(record)
+        self._log_held()
         self._map.mark_final()  # its map exactly, in the same send if pending
         self._send_pending()
         self._labels.finish()
@@ -268,9 +269,7 @@ class Recorder:
 
     def note(self, text: str, level: str | rr.TextLogLevel = rr.TextLogLevel.WARN) -> None:
         """A line in the text log at the latest event: a warning, or why a run stopped."""
-        self._log_rows()
-        for record in self._thinning.drain():
-            self._log_record(record)
+        self._log_held()
         self._send_pending()
         self._text.note(self._step, self._event, text, level)
 
@@ -299,7 +298,7 @@ class Recorder:
         """Whether the run is an offline filter's (its series drawn as points)."""
         return self._rec.points
 
-    # -- records -------------------------------------------------------------------------
+    # -- events --------------------------------------------------------------------------
 
     @property
     def entities_with_data(self) -> frozenset[str]:
@@ -321,47 +320,46 @@ class Recorder:
         """Whether the ``time`` timeline is a timestamp (else a duration)."""
         return bool(self._canvas.clock.epoch)
 
-    def log_record(self, record: EventRecord) -> None:
-        """Log one record of the core: the map, the metrics and a line of text (the
-        predicts of a timestamped log thinned, see :mod:`ekfviz.viz.thinning`)."""
-        self._log_rows()
-        self._last_record = record
-        if self._thinning.passes(record):
-            self._log_record(record)
+    def log(self, events: EventBatch) -> None:
+        """Log a batch of the run's events: the map, the metrics and a line of text a
+        step (the predicts of a timestamped log thinned, see :mod:`ekfviz.viz.thinning`)."""
+        self._log_admitted(self._thinning.admit(events))
+
+    def _log_held(self) -> None:
+        """Log what is held back: the array API's states, the predict the thinning holds
+        (the run ended, or a note follows)."""
+        self._log_arrays(everything=True)
+        held = self._thinning.drain()
+        if held is not None:
+            self._log_admitted(held)
+
+    def _log_admitted(self, events: EventBatch) -> None:
+        if not len(events):
             return
-        for admitted in self._thinning.admit(record):
-            self._log_record(admitted)
-
-    def _log_rows(self) -> None:
-        """Hold the rows written since the last record (see PendingEvents)."""
-        hold = self._last_record, self._thinning.held, self.log_record, self._map.admit_rows
-        try:
-            self.pending.hold_rows(*hold, self._send_pending)
-        finally:  # where the rows got to, though a signal raised in a send among them
-            if self.pending.newest_held is not None:
-                self._event, self._step, self._step_has_update = self.pending.newest_held
-                self.pending.newest_held = None
-
-    def _log_record(self, record: EventRecord) -> None:
-        if record.kind is EventKind.UPDATE and record.observations is None:
+        kinds = events.kinds
+        if ((kinds == UPDATE) & ~events.observed.present).any():
             self._rec.series_as_points()  # an offline filter's optimum, after finish()
-        self._event, self._step = record.event, record.step
-        self._step_has_update = corrects = record.kind is not EventKind.PREDICT
-        whole_map = corrects and self._map.admit(record)
-        if record.association is not None:
+        whole = self._map.admit(events)
+        if any(extra.association is not None for extra in events.extras.values()):
             if self.association is None:  # association ids are not the truth's ids
                 from ekfviz.viz.association import AssociationView as View
 
                 self.association = View(self._rec.rec, self._rec.path, self._sensor, self._truth)
-            self.association.log(record)
-        if self.pending.add(record, whole_map):
-            self._send_pending(series=True)
+            self.association.log(events)
+        # where the events got to, though a signal raises in a send below
+        self._event, self._step = int(events.events[-1]), int(events.steps[-1])
+        self.pending.add(events, whole)
+        while (due := self.pending.take_due(self._canvas.clock)) is not None:
+            self._send(due, series=True)
 
     def _send_pending(self, series: bool = False) -> None:
         """Send the events held as one batch drawn by every part (then the series too)."""
-        if not self.pending:
-            return
-        batch = self.pending.batch(self._canvas.clock)
+        batch = self.pending.take(self._canvas.clock)
+        if batch is not None:
+            self._send(batch, series)
+
+    def _send(self, batch: Batch, series: bool = False) -> None:
+        """Send a batch, drawn by every part (then the series too)."""
         self._robot.send(batch)
         self._truth_layer.send(batch)
         for path, picked in (

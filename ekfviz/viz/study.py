@@ -10,17 +10,16 @@ from __future__ import annotations
 import numpy as np
 import rerun as rr
 
-from ekfviz.core.records import EventKind
 from ekfviz.core.truth import GroundTruth
 from ekfviz.core.types import FloatArray
-from ekfviz.evaluation.consistency import chi2_bounds, update_nis
+from ekfviz.evaluation.consistency import chi2_bounds, events_nis
 from ekfviz.evaluation.errors import Evaluation, landmark_errors
 from ekfviz.studies.runs import Run
 from ekfviz.viz import style
 from ekfviz.viz.blueprint import sweep_blueprint
 from ekfviz.viz.ellipses import ellipse_extent
 from ekfviz.viz.recorder import Recorder
-from ekfviz.viz.run import Recording, finish_recorders
+from ekfviz.viz.recording import Recording, finish_recorders
 
 SUMMARY = "run/summary"
 # matplotlib's tab10 (its grey swapped for navy: grey is the 95% bounds' colour) and a
@@ -74,7 +73,7 @@ def record_study(
 def log_runs(
     rec: rr.RecordingStream, runs: list[Run], truth: GroundTruth | None, root: str
 ) -> tuple[list[tuple[Recorder, Evaluation]], FloatArray]:
-    """Log every run's records under ``<root>/<key>``, one colour per run in the plots.
+    """Log every run's events under ``<root>/<key>``, one colour per run in the plots.
 
     :return: the recorders to finish with their evaluations, and the (2, 2) world box
         of every pose and landmark's 3-sigma ellipse, with a margin
@@ -89,13 +88,12 @@ def log_runs(
         marks = _series_style(run, runs[0], colour)
         for series in (style.NIS, style.NEES):  # one colour and name per run, overlaid
             rec.log(f"{prefix}/{series}", marks, static=True)
-        for record in run.records:
-            recorder.log_record(record)
+        recorder.log(run.events)
         if truth is not None:
             _log_mean_error(rec, prefix, run, truth, marks)
         recorders.append((recorder, run.evaluation))
-        bounds.append(np.array([record.pose[:2] for record in run.records]))
-        last = run.records[-1]  # the final map's ellipses in the frame, not only its points
+        bounds.append(run.events.poses[:, :2])
+        last = run.events.last  # the final map's ellipses in the frame, not only its points
         if last.n_landmarks:
             bounds.append(ellipse_extent(last.landmarks_xy, last.landmark_covs))
     points = np.concatenate(bounds)
@@ -107,27 +105,24 @@ def log_runs(
 def nis_axis(baseline: Run) -> tuple[float, float] | None:
     """The NIS axis of a sweep: from 0 to three times the baseline's largest 95% upper
     bound, or to its largest NIS if that is higher (None without an update)."""
-    uppers, values = [], []
-    for record in baseline.records:
-        found = update_nis(record)
-        if found is not None:
-            values.append(found[0])
-            uppers.append(chi2_bounds(found[1])[1])
-    if not uppers:
+    _, values, dofs = events_nis(baseline.events.observed)
+    if not len(values):
         return None
-    return 0.0, max(3.0 * max(uppers), max(values))
+    uppers = [chi2_bounds(dof)[1] for dof in np.unique(dofs).tolist()]
+    return 0.0, max(3.0 * max(uppers), float(values.max()))
 
 
 def is_offline(run: Run, baseline: Run) -> bool:
-    """Whether a run is an offline filter's (it has ``finish()``): its records are the
+    """Whether a run is an offline filter's (it has ``finish()``): its events are the
     initialisation and the optimum at the end, with the whole path in the last."""
-    last = run.records[-1]
-    return last.path_xytheta is not None or (len(run.records) <= 2 < len(baseline.records))
+    events = run.events
+    last_path = events.extra(len(events) - 1).path_xytheta
+    return last_path is not None or (len(events) <= 2 < len(baseline.events))
 
 
 def _series_style(run: Run, baseline: Run, colour: style.Rgb) -> rr.AsComponents:
     """An online run's series as lines; an offline run's as points: a line between its
-    two records would look like a value at every step."""
+    two events would look like a value at every step."""
     if is_offline(run, baseline):
         return rr.SeriesPoints(
             colors=colour, names=f"{run.spec.label} (offline: start, end)", marker_sizes=5.0
@@ -140,8 +135,10 @@ def _log_mean_error(
 ) -> None:
     """The mean Euclidean landmark error after every update, as one column send."""
     steps, events, means = [], [], []
-    for record in run.records:
-        if record.kind is EventKind.PREDICT or not record.n_landmarks:
+    found = run.events
+    for row in found.corrected.tolist():
+        record = found.event(row)
+        if not record.n_landmarks:
             continue
         euclidean, _ = landmark_errors(
             record.landmarks_xy, record.landmark_covs, truth.lookup(record.landmark_ids)

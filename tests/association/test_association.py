@@ -24,6 +24,7 @@ from ekfviz.io.victoria import read_victoria
 from ekfviz.models.ackermann import Ackermann
 from ekfviz.models.range_bearing import RangeBearing
 from ekfviz.runner.replay import replay
+from ekfviz.runner.run import every_event
 from ekfviz.sim.scenarios import Scenario, loop
 from ekfviz.sim.simulate import Detection
 
@@ -157,7 +158,6 @@ def test_records_report_the_laser_point_with_its_covariance() -> None:
     """Victoria Park's records report the laser's pose (where the GPS antenna is): the
     point R(theta) (a, b) off the state's origin, its covariance through the point's
     Jacobian (checked against finite differences), the state itself untouched."""
-    from ekfviz.core.records import EventKind
     from ekfviz.filters.model_ekf import ModelEkfSlam
 
     sensor = RangeBearing(3.78, 0.5)
@@ -169,9 +169,7 @@ def test_records_report_the_laser_point_with_its_covariance() -> None:
         ekf.observe([1, 2], np.array([[0.3, 12.0], [-0.2, 9.0]]))
         ekf.drive(np.array([[3.0, 0.2, 0.5], [3.0, 0.1, 0.5]]))
         ekf.observe([1, 2], np.array([[0.4, 11.0], [-0.3, 7.5]]))
-    origin, laser = (
-        f.record(event=3, step=1, kind=EventKind.UPDATE, full_cov=True) for f in filters
-    )
+    origin, laser = (f.state_parts(full_cov=True) for f in filters)
     assert np.array_equal(filters[0].x, filters[1].x) and np.array_equal(filters[0].P, filters[1].P)
 
     def point(pose: FloatArray) -> FloatArray:
@@ -229,9 +227,9 @@ def test_association_without_clutter_equals_known() -> None:
         RangeBearing(),
         params.R,
     )
-    a = list(replay(known.events, params))
+    a = every_event(replay(known.events, params))
     assert unknown.scan_events is not None
-    b = list(replay(unknown.scan_events, params, associator=associator))
+    b = every_event(replay(unknown.scan_events, params, associator=associator))
     assert len(a) == len(b)
     for ra, rb in zip(a, b, strict=True):
         assert np.array_equal(ra.pose, rb.pose)
@@ -248,7 +246,7 @@ def test_tentative_landmarks_are_removed_unless_confirmed() -> None:
         Scan(line=2, z=np.array([[0.0, 5.0], [1.0, 8.0]])),  # 1 confirmed, 2 new
         Scan(line=3, z=np.array([[0.0, 5.0]])),  # 2 not seen again in its window: removed
     ]
-    records = list(replay(events, params, associator=associator))
+    records = every_event(replay(events, params, associator=associator))
     assert records[1].association is not None
     assert records[1].association.confirmed.tolist() == [1]
     assert records[2].association is not None

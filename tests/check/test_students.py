@@ -402,7 +402,7 @@ def test_bad_input_of_grade_and_check_is_one_line(
 
 
 def test_the_command_line_default_timeout_is_the_workers() -> None:
-    from ekfviz.cli.common import DEFAULT_FILTER_TIMEOUT_S
+    from ekfviz.cli.options import DEFAULT_FILTER_TIMEOUT_S
     from ekfviz.sandbox.host import DEFAULT_TIMEOUT_S
 
     assert DEFAULT_FILTER_TIMEOUT_S == DEFAULT_TIMEOUT_S

@@ -20,7 +20,7 @@ from typer.testing import CliRunner
 from ekfviz.cli import app
 from ekfviz.core.errors import InputError
 from ekfviz.io.extended import read_extended
-from ekfviz.io.paths import OutputPathError, check_output_path, distinct_paths
+from ekfviz.io.files import OutputPathError, check_output_path, distinct_paths
 from ekfviz.io.text import numeric_blocks, numeric_lines, open_input
 
 runner = CliRunner()

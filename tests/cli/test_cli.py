@@ -17,6 +17,7 @@ from ekfviz.cli import app
 from ekfviz.filters.ekf import HAVE_KERNEL
 from ekfviz.io.classic import read_classic
 from ekfviz.runner.replay import replay
+from ekfviz.runner.run import every_event
 
 DATA = Path(__file__).parents[2] / "data"
 SAMPLE, TRUTH = DATA / "classic.txt", DATA / "classic_truth.json"
@@ -62,7 +63,7 @@ def test_replay_saves_reports_and_prints_the_table(tmp_path: Path) -> None:
     assert result.exit_code == 0, result.output
     assert rrd.stat().st_size > 0
     document = json.loads(report.read_text())
-    last = list(replay(read_classic(SAMPLE)))[-1]
+    last = every_event(replay(read_classic(SAMPLE)))[-1]
     np.testing.assert_allclose(document["final_pose"], last.pose, atol=1e-12)
     assert -math.pi < document["final_pose"][2] <= math.pi
     np.testing.assert_allclose(document["final_pose_cov"], last.pose_cov, atol=1e-15)
@@ -219,7 +220,7 @@ def test_info_on_a_file_that_is_not_a_recording(tmp_path: Path) -> None:
 @pytest.fixture(scope="module")
 def long_enough_for_a_bar(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A log over the progress bar's threshold (1 MiB), replayed in about a second."""
-    from ekfviz.cli.replay_run import PROGRESS_MIN_BYTES
+    from ekfviz.app.replay import PROGRESS_MIN_BYTES
 
     log = tmp_path_factory.mktemp("bar") / "long.txt"
     made = runner.invoke(

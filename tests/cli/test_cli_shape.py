@@ -229,15 +229,15 @@ def test_a_table_on_a_narrow_terminal_folds_its_numbers_and_never_cuts_them(
 
     from rich.console import Console
 
-    from ekfviz.cli import common
+    from ekfviz.cli import console
     from ekfviz.core.tables import TextTable
 
     values = [f"{v:.4f}" for v in np.linspace(-58.7021, 74.2133, 9)]
     columns = ("id", "x", "y", "σ x", "σ y", "error (m)", "aligned (m)", "Mahalanobis", "in 3σ")
     table = TextTable("Landmarks", columns, tuple((str(k), *values[:8]) for k in range(3)))
     buffer = io.StringIO()
-    monkeypatch.setattr(common, "out", Console(file=buffer, width=width, color_system=None))
-    common.show(table)
+    monkeypatch.setattr(console, "out", Console(file=buffer, width=width, color_system=None))
+    console.show(table)
     text = buffer.getvalue()
     assert "…" not in text and max(len(line) for line in text.splitlines()) <= width, text
     # no character of a cell is lost, folded or not (the digits: the cells' and the "3"

@@ -29,7 +29,6 @@ from ekfviz.evaluation.consistency import (
     reading,
 )
 from ekfviz.io.classic import read_classic
-from ekfviz.io.paths import OutputPathError, check_output_path, unused_path
 from ekfviz.runner.replay import replay
 
 ROOT = Path(__file__).parents[2]
@@ -46,28 +45,6 @@ def ekfviz(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[s
 
 
 # -- output paths ------------------------------------------------------------------------
-
-
-def test_check_output_path_accepts_a_new_or_existing_file_and_creates_nothing(
-    tmp_path: Path,
-) -> None:
-    (tmp_path / "old.rrd").write_text("x")
-    assert check_output_path(tmp_path / "new.rrd", "--save") == tmp_path / "new.rrd"
-    assert check_output_path(tmp_path / "old.rrd", "--save") == tmp_path / "old.rrd"
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["old.rrd"]
-    with pytest.raises(
-        OutputPathError, match=r"^--report .*r.json: the folder .*missing does not exist$"
-    ):
-        check_output_path(tmp_path / "missing" / "r.json", "--report")
-    assert not (tmp_path / "missing").exists()
-
-
-def test_a_default_name_never_replaces_an_earlier_file(tmp_path: Path) -> None:
-    first = tmp_path / "run.rrd"
-    assert unused_path(first) == first
-    first.write_text("x")
-    (tmp_path / "run-2.rrd").write_text("x")
-    assert unused_path(first) == tmp_path / "run-3.rrd"
 
 
 def test_replay_without_an_output_option_keeps_the_earlier_recording(
@@ -108,8 +85,8 @@ def recordings(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     rec = rr.RecordingStream("my_slam")
     rec.save(made["recorder"])
     recorder = Recorder(rec)
-    for record in replay(read_classic(SAMPLE)):
-        recorder.log_record(record)
+    for batch in replay(read_classic(SAMPLE)):
+        recorder.log(batch)
     recorder.finish()
     rec.disconnect()
     made["other"] = root / "other.rrd"
@@ -244,8 +221,8 @@ def test_a_truth_with_fewer_poses_than_steps_says_how_many_were_judged() -> None
     xy = np.array([landmarks[str(i)] for i in ids])
     poses = np.array(truth_file["poses"][:11])  # the start and 10 of 29 steps
     consistency = Consistency(GroundTruth(ids, xy, poses))
-    for record in replay(events):
-        consistency.add(record)
+    for batch in replay(events):
+        consistency.add(batch)
     assert consistency.nees.total == 11
     assert any(
         "only 11 of 30 corrected states have a true pose" in s for s in consistency.summary()

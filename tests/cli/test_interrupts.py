@@ -247,7 +247,7 @@ def _reachable(host: str, port: int) -> bool:
 
 
 def test_serve_listens_on_loopback_only() -> None:
-    from ekfviz.viz.run import GRPC_PORT, WEB_PORT
+    from ekfviz.viz.viewer import GRPC_PORT, WEB_PORT
 
     outward = _outward_address()
     if outward is None:
@@ -377,72 +377,13 @@ def test_a_failed_replay_names_the_recording_it_kept_as_it_was_given(tmp_path: P
     )
 
 
-def test_a_signal_in_the_final_flush_leaves_no_hidden_temporary_file(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    """SIGINT while the recording's last chunks were flushed (its file about whole) left
-    the hidden ``.RUN.rrd.<pid>.<hex>.part`` behind, for replay, sweep and compare: the
-    exception left the clean-up before the temporary file was moved or removed. A file not
-    known to be whole is dropped; the one at the path is left as it was."""
-    from ekfviz import signals, viz
-    from ekfviz.viz import run as viz_run
-
-    target = tmp_path / "run.rrd"
-    target.write_bytes(b"the previous recording")
-
-    def interrupted_flush(rec: object, timeout: float) -> None:
-        raise signals.Interrupted
-
-    monkeypatch.setattr(viz_run, "flush_interruptibly", interrupted_flush)
-    info = viz.run_info("run", "", {}, SAMPLE)
-    sinks = viz.Sinks(save=target)
-    with pytest.raises(signals.Interrupted), viz.open_recording(info, sinks) as rec:
-        rec.complete = True  # the run finished; the signal comes in the flush after it
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["run.rrd"]
-    assert target.read_bytes() == b"the previous recording"
-    assert rec.saved_to is None
-
-
-def test_files_written_together_are_all_replaced_or_none_whatever_the_signal(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    """``export`` wrote its files one after another: a SIGINT among them left the new
-    TUM beside the old CSV, and said "nothing was written". Now a signal among the renames
-    waits for the last, and the line says what was written."""
-    from ekfviz import signals
-    from ekfviz.cli.common import write_files_atomic
-
-    first, second = tmp_path / "e.tum", tmp_path / "p.csv"
-    first.write_text("OLD")
-    second.write_text("OLD")
-    replace = os.replace
-
-    def replace_then_signal(source: str, target: Path) -> None:
-        replace(source, target)
-        if Path(target) == first:
-            os.kill(os.getpid(), signal.SIGINT)  # after the first rename, before the second
-
-    before = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
-    monkeypatch.setattr(os, "replace", replace_then_signal)
-    try:
-        signals.as_interrupts()
-        with pytest.raises(signals.Interrupted) as stopped:
-            write_files_atomic({first: b"NEW", second: b"NEW"})
-    finally:
-        signal.signal(signal.SIGINT, before[0])
-        signal.signal(signal.SIGTERM, before[1])
-    assert (first.read_text(), second.read_text()) == ("NEW", "NEW")
-    assert stopped.value.written == (first, second)  # type: ignore[attr-defined]
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["e.tum", "p.csv"]
-
-
 def test_a_consistency_stopped_after_its_report_says_the_report_was_written(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """It said "nothing was written; existing files are left as they were" with the new
     report in place."""
     from ekfviz import signals
-    from ekfviz.cli import consistency
+    from ekfviz.app import consistency
 
     def stopped_saving(*args: object) -> None:
         raise signals.Interrupted

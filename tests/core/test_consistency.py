@@ -8,9 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import entity_rows
+from simulated import classic_run, classic_truth
 
 from ekfviz import viz
 from ekfviz.core.params import FilterParams
+from ekfviz.core.records import EventKind, EventRecord
 from ekfviz.core.stats import chi2_cdf, chi2_quantile
 from ekfviz.core.truth import GroundTruth
 from ekfviz.evaluation.consistency import (
@@ -19,11 +21,13 @@ from ekfviz.evaluation.consistency import (
     Verdict,
     chi2_bounds,
     pose_nees,
+    update_nis,
 )
 from ekfviz.evaluation.errors import evaluate
 from ekfviz.io.classic import format_classic
 from ekfviz.io.truth import truth_json
 from ekfviz.runner.replay import replay
+from ekfviz.runner.run import every_event
 from ekfviz.sim.scenarios import classic
 from ekfviz.sim.simulate import Noise
 from ekfviz.viz import style
@@ -85,8 +89,8 @@ def run_nees_fraction(filter_scale: float, seed: int) -> float:
         init_pose_sigma=prior,
     )
     consistency = Consistency(GroundTruth(run.landmark_ids, run.landmarks_xy, run.poses_xytheta))
-    for record in replay(run.events, params):
-        consistency.add(record)
+    for batch in replay(run.events, params):
+        consistency.add(batch)
     assert consistency.nees.total == 30 and consistency.nis.total == 29
     return consistency.nees.fraction_inside
 
@@ -104,11 +108,12 @@ def test_nees_and_nis_with_bounds_are_in_the_recording(tmp_path: Path) -> None:
     truth = GroundTruth(run.landmark_ids, run.landmarks_xy, run.poses_xytheta)
     log = tmp_path / "run.txt"
     log.write_text(format_classic(run.events))
-    records = list(replay(run.events))
+    batches = list(replay(run.events))
+    records = every_event(batches)
     rrd = tmp_path / "run.rrd"
     with viz.open_run(viz.run_info("run", "", {}, log, truth=truth), viz.Sinks(save=rrd)) as out:
-        for record in records:
-            out.log(record)
+        for batch in batches:
+            out.log(batch)
         out.finish(evaluate(records[-1], truth))
     nees = entity_rows(rrd, f"/{style.NEES}")
     expected = [(r.event, pose_nees(r, truth)) for r in records if r.kind.value != "predict"]
@@ -216,3 +221,83 @@ def test_a_start_known_exactly_leaves_the_first_nees_undefined(tmp_path: Path) -
     assert [row["step"] for row in entity_rows(rrd, f"/{style.NEES}")] == list(
         range(1, len(run.poses_xytheta))
     )
+
+
+def one_event_at_a_time(records: list[EventRecord], truth: GroundTruth) -> Consistency:
+    """The run's NEES and NIS counted event by event, by the definitions of one event
+    (:func:`pose_nees`, :func:`update_nis`)."""
+    counted = Consistency(truth)
+    for record in records:
+        counted.last_step = max(counted.last_step, record.step)
+        nis = update_nis(record)
+        if nis is not None:
+            counted.nis.add(nis[0], chi2_bounds(nis[1]))
+        if record.kind is EventKind.PREDICT:
+            continue
+        nees = pose_nees(record, truth)
+        if nees is not None:
+            counted.nees.add(nees, chi2_bounds(3))
+        elif truth.pose_of(record.step, record.time) is None:
+            counted.without_true_pose += truth.poses_xytheta is not None
+        else:
+            counted.singular_pose += 1
+    return counted
+
+
+@pytest.mark.parametrize(
+    ("cut", "truth_steps"),
+    [(None, 200), (150, 200), (None, 260)],
+    ids=["every-pose", "poses-end-early", "poses-past-the-end"],
+)
+def test_the_counts_see_every_update_in_batches_of_any_size(
+    cut: int | None, truth_steps: int
+) -> None:
+    """The NIS and NEES counts of a run's batches are those of its events one at a time,
+    whatever the batches; the updates past the truth's last pose are counted as such,
+    and so are the true poses past the run's last step (a truth of a longer run: its
+    NEES is said to be suspect)."""
+    log = classic_run(200, seed=5, zero_range_at=50)
+    truth = classic_truth(truth_steps, seed=5, cut=cut)
+    expected = one_event_at_a_time(every_event(replay(log, FilterParams())), truth)
+    for size in (1, 7, 4096):
+        counted = Consistency(truth)
+        for batch in replay(log, FilterParams(), batch_events=size):
+            counted.add(batch)
+        assert counted.to_json() == expected.to_json(), size
+        assert counted.summary() == expected.summary(), size
+    assert counted.nis.total == 200
+    assert counted.nees.total == (201 if cut is None else 151)
+    assert counted.without_true_pose == (0 if cut is None else 50)
+    assert counted.unused_true_poses == truth_steps - 200
+    said = [line for line in counted.summary() if "past the run's last step (200)" in line]
+    assert len(said) == (truth_steps > 200)
+
+
+@pytest.mark.parametrize("extended", [False, True], ids=["classic", "extended"])
+def test_the_command_reports_the_nis_of_every_update(tmp_path: Path, extended: bool) -> None:
+    """``ekfviz replay`` of a log without truth reports the NIS of every update, as the
+    events counted one at a time give it. An extended log could hold scans, so the
+    replay sets up the association for it: its updates by ids count all the same."""
+    from typer.testing import CliRunner
+
+    from ekfviz.cli import app
+    from ekfviz.io.extended import format_extended, read_log
+
+    log = classic_run(300, seed=5)
+    path = tmp_path / "run.txt"
+    path.write_text(format_extended(log, None) if extended else format_classic(log, None))
+    alone = Consistency()
+    for record in every_event(replay(read_log(path), FilterParams())):
+        nis = update_nis(record)
+        if nis is not None:
+            alone.nis.add(nis[0], chi2_bounds(nis[1]))
+    report = tmp_path / "report.json"
+    result = CliRunner().invoke(
+        app, ["replay", str(path), "--save", str(tmp_path / "run.rrd"), "--report", str(report)]
+    )
+    assert result.exit_code == 0, result.output
+    nis = json.loads(report.read_text())["consistency"]["nis"]
+    assert (nis["count"], nis["below"], nis["inside"], nis["above"]) == (
+        alone.nis.total, alone.nis.below, alone.nis.inside, alone.nis.above,
+    )  # fmt: skip
+    assert alone.nis.total == 300

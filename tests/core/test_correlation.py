@@ -25,6 +25,7 @@ from ekfviz.core.params import FilterParams
 from ekfviz.core.records import EventKind
 from ekfviz.io.extended import read_log
 from ekfviz.runner.replay import replay
+from ekfviz.runner.run import every_event
 from ekfviz.sim.simulate import CLASSIC_LANDMARKS_XY, classic_controls, simulate
 from ekfviz.viz import style
 from ekfviz.viz.blueprint import map_view
@@ -66,7 +67,7 @@ def test_the_image_of_a_6_landmark_run_is_p_correlated_by_hand(
     """At update event 14, read back from the .rrd: the colours of P's correlations
     computed entry by entry, and at every update of the small map an image."""
     log, rrd = classic_rrd
-    records = list(replay(read_log(log), FilterParams(), full_cov=True))
+    records = every_event(replay(read_log(log), FilterParams(), full_cov=True))
     updates = [r for r in records if r.kind is not EventKind.PREDICT]
     assert all(r.correlation is not None for r in updates)
     rows = entity_rows(rrd, f"/{style.CORRELATION_MATRIX}")

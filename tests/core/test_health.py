@@ -1,4 +1,4 @@
-"""Numerical health figures read off records."""
+"""Numerical health figures read off a run's states."""
 
 from __future__ import annotations
 
@@ -9,17 +9,19 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from ekfviz.core.batch import StateParts
 from ekfviz.core.errors import FilterError
 from ekfviz.core.health import CHECK_EVERY_STEPS, check_covariance, health
 from ekfviz.core.params import FilterParams, LandmarkInit, UpdateMode
-from ekfviz.core.records import Control, EventKind, EventRecord, LogEvent, Sighting, snapshot
+from ekfviz.core.records import Control, EventRecord, LogEvent, Sighting
 from ekfviz.filters.ekf import EkfSlam
 from ekfviz.runner.replay import FilterLineError, replay
+from ekfviz.runner.run import every_event
 from ekfviz.sim.scenarios import classic, loop
 
 
 def test_a_healthy_run_has_no_problem() -> None:
-    for record in replay(classic().run(seed=1).events):
+    for record in every_event(replay(classic().run(seed=1).events)):
         figures = health(record.pose_cov, record.landmark_covs)
         assert figures.problems() == []
         assert figures.pose_min_eigenvalue > 0 and figures.pose_asymmetry == 0.0
@@ -31,8 +33,8 @@ def test_each_fault_is_named() -> None:
     P[3:, 3:] = [[1.0, 2.0], [2.0, 1.0]]  # eigenvalues 3 and -1
     P[0, 1] = 0.5  # not symmetric
     P[2, 2] = -0.1
-    record = snapshot(x, P, event=0, step=0, kind=EventKind.INIT)
-    figures = health(record.pose_cov, record.landmark_covs)
+    parts = StateParts.of(x, P)
+    figures = health(parts.pose_cov, parts.landmark_covs)
     assert figures.landmark_min_eigenvalue == -1.0
     assert figures.pose_asymmetry == 0.5
     assert figures.pose_min_eigenvalue < 0
@@ -43,8 +45,8 @@ def test_each_fault_is_named() -> None:
 
 def test_round_off_below_zero_is_not_a_fault() -> None:
     P = np.diag([1.0, 1.0, 1.0, 1.0, -1e-12])
-    record = snapshot(np.zeros(5), P, event=0, step=0, kind=EventKind.INIT)
-    figures = health(record.pose_cov, record.landmark_covs)
+    parts = StateParts.of(np.zeros(5), P)
+    figures = health(parts.pose_cov, parts.landmark_covs)
     assert figures.landmark_min_eigenvalue == 0.0 and figures.problems() == []
 
 
@@ -116,7 +118,8 @@ def test_an_overflow_stops_the_replay_at_its_line() -> None:
     ]
     records: list[EventRecord] = []
     with pytest.raises(FilterLineError, match="non-finite") as caught:
-        records.extend(replay(events))
+        for batch in replay(events):
+            records.extend(batch)
     assert caught.value.line == 3
     assert [record.line for record in records] == [1, 2]  # everything before it
     assert all(np.isfinite(record.pose).all() for record in records)
@@ -142,7 +145,7 @@ def test_a_replay_checks_its_covariance_and_keeps_it_exactly_symmetric(
 ) -> None:
     events = loop(steps=300, landmarks=40).run(seed=3).events
     params = FilterParams(update=mode, landmark_init=init)
-    records = list(replay(events, params))
+    records = every_event(replay(events, params))
     checked = [record for record in records if record.covariance is not None]
     assert checked[0] is records[0] and checked[-1] is records[-1]
     steps = [record.step for record in checked]

@@ -19,7 +19,6 @@ import pytest
 from ekfviz.association.associator import _joint_covariance, state_rows
 from ekfviz.association.gating import predict_landmarks, predict_landmarks_of
 from ekfviz.core.params import FilterParams, LandmarkInit
-from ekfviz.core.records import EventKind
 from ekfviz.core.types import FloatArray
 from ekfviz.filters.ekf import DEFER_MIN_DIM, DEFER_ROWS, HAVE_KERNEL, EkfSlam
 from ekfviz.filters.model_ekf import ModelEkfSlam
@@ -117,10 +116,8 @@ def _run(deferred: EkfSlam, eager: EkfSlam, *, drive: bool, seed: int, steps: in
         _close(deferred.x, eager.x)
         _close(P, eager.P)
         assert deferred.landmark_ids == eager.landmark_ids
-        # the records correct their pose block and marginals without folding
-        kind = EventKind.UPDATE
-        got = deferred.record(event=step, step=step, kind=kind)
-        expected = eager.record(event=step, step=step, kind=kind)
+        # the state parts correct their pose block and marginals without folding
+        got, expected = deferred.state_parts(), eager.state_parts()
         _close(got.pose_cov, expected.pose_cov)
         _close(got.landmark_covs, expected.landmark_covs)
         assert np.array_equal(got.pose_cov, got.pose_cov.T)
@@ -221,7 +218,7 @@ def test_the_gating_and_joint_covariance_read_the_current_p() -> None:
         1e-12,
     )
     # the whole-P readers fold first: the same current P
-    full = slam.record(event=0, step=0, kind=EventKind.UPDATE, full_cov=True).full_cov
+    full = slam.state_parts(full_cov=True).full_cov
     assert full is not None
     _close(full, P, 1e-12)
     assert slam.deferred_covariance()[1] is None

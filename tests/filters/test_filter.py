@@ -16,6 +16,7 @@ from ekfviz.filters.ekf import HAVE_KERNEL, KERNEL_MAX_DIM, EkfSlam
 from ekfviz.models.angles import wrap_angle
 from ekfviz.models.classic import measure, measurement_jacobians
 from ekfviz.runner.replay import replay
+from ekfviz.runner.run import every_event
 from ekfviz.sim.scenarios import classic
 from ekfviz.sim.simulate import CLASSIC_LANDMARKS_XY, Noise, classic_controls, simulate
 
@@ -102,7 +103,7 @@ def test_sparse_filter_equals_dense_filter_with_partial_observations(
 
 def test_known_answer_on_bundled_sample() -> None:
     """Pinned values of the bundled sample (seed 2), guarding against silent changes."""
-    last = list(replay(classic().run(seed=2).events))[-1]
+    last = every_event(replay(classic().run(seed=2).events))[-1]
     np.testing.assert_allclose(last.pose, [4.10656991, -3.85389548, -1.13451898], atol=1e-6)
     np.testing.assert_allclose(last.landmarks_xy[0], [2.7044278, 6.15974949], atol=1e-6)
     assert last.step == 29 and last.event == 58
@@ -121,7 +122,7 @@ def test_covariance_stays_exactly_symmetric_and_psd_over_a_long_run() -> None:
 def test_noise_free_run_recovers_the_true_landmarks() -> None:
     run = simulate(classic_controls(), CLASSIC_LANDMARKS_XY, Noise.none(), seed=0)
     for update in UpdateMode:
-        last = list(replay(run.events, FilterParams(update=update)))[-1]
+        last = every_event(replay(run.events, FilterParams(update=update)))[-1]
         np.testing.assert_allclose(last.landmarks_xy, CLASSIC_LANDMARKS_XY, atol=1e-9)
         np.testing.assert_allclose(last.pose, run.poses_xytheta[-1], atol=1e-9)
 
@@ -199,7 +200,7 @@ def test_state_grows_when_landmarks_are_first_seen_mid_run() -> None:
             events.append(Sighting(event.line, event.ids[:seen][::-1], event.z[:seen][::-1]))
         else:
             events.append(event)
-    records = list(replay(events))
+    records = every_event(replay(events))
     assert [r.n_landmarks for r in records if r.kind is not EventKind.PREDICT] == [
         2,
         4,
@@ -224,7 +225,7 @@ def test_steps_and_events_do_not_rely_on_alternation() -> None:
     run = classic().run(seed=2)
     c1, s1 = run.events[1], run.events[2]
     events = [run.events[0], c1, c1, s1, s1, c1, s1]
-    records = list(replay(events))
+    records = every_event(replay(events))
     assert [(r.event, r.step, r.kind.value) for r in records] == [
         (0, 0, "init"),
         (1, 1, "predict"),
@@ -238,25 +239,25 @@ def test_steps_and_events_do_not_rely_on_alternation() -> None:
 
 def test_a_log_that_starts_with_a_control_starts_from_the_prior() -> None:
     run = classic().run(seed=2)
-    records = list(replay(run.events[1:3]))
+    records = every_event(replay(run.events[1:3]))
     assert records[0].kind is EventKind.INIT and records[0].n_landmarks == 0
     assert records[1].kind is EventKind.PREDICT and records[2].n_landmarks == 6
 
 
 def test_records_are_immutable_and_hold_no_full_covariance_by_default() -> None:
-    records = list(replay(classic().run(seed=2).events[:3]))
+    records = every_event(replay(classic().run(seed=2).events[:3]))
     record: EventRecord = records[-1]
     assert record.full_cov is None
     with pytest.raises(ValueError):
         record.pose[0] = 1.0
-    full = list(replay(classic().run(seed=2).events[:3], full_cov=True))[-1]
+    full = every_event(replay(classic().run(seed=2).events[:3], full_cov=True))[-1]
     assert full.full_cov is not None and full.full_cov.shape == (15, 15)
     np.testing.assert_array_equal(full.full_cov[:3, :3], record.pose_cov)
     np.testing.assert_array_equal(full.full_cov[5:7, 5:7], record.landmark_covs[1])
 
 
 def test_update_records_carry_predictions_innovations_and_nis() -> None:
-    records = list(replay(classic().run(seed=2).events[:3]))
+    records = every_event(replay(classic().run(seed=2).events[:3]))
     obs = records[2].observations
     assert obs is not None and len(obs) == 6 and not obs.initialised.any()
     np.testing.assert_allclose(obs.innovation[:, 1], obs.z[:, 1] - obs.z_pred[:, 1])

@@ -22,6 +22,7 @@ from ekfviz.core.records import Control, EventKind, LogEvent, with_ids
 from ekfviz.filters.spec import FilterSpecError, load_filter, load_in_process
 from ekfviz.io.extended import read_log
 from ekfviz.runner.replay import replay
+from ekfviz.runner.run import every_event
 from ekfviz.viz import style
 
 ROOT = Path(__file__).parents[2]
@@ -59,9 +60,11 @@ def test_a_dense_textbook_plugin_ends_on_the_builtin_pose(
     # the whole classic log, and the first 150 steps of the loop (landmarks enter and
     # leave view, the map grows to dozens): the dense filter is O(n^3) per event
     log = CLASSIC if lines is None else head(LOOP, lines, tmp_path)
-    builtin = list(replay(read_log(log), FilterParams()))
+    builtin = every_event(replay(read_log(log), FilterParams()))
     plugged = list(
-        replay(read_log(log), FilterParams(), make_filter=load_in_process(plugin("Textbook")))
+        every_event(
+            replay(read_log(log), FilterParams(), make_filter=load_in_process(plugin("Textbook")))
+        )
     )
     assert len(plugged) == len(builtin)
     assert [r.kind for r in plugged] == [r.kind for r in builtin]
@@ -78,9 +81,9 @@ def test_a_correct_plugin_gets_the_builtin_observations(mode: UpdateMode) -> Non
     # what a protocol filter saw is ekfviz's own update from its prior state: a correct
     # filter gets the very predictions, S and NIS the built-in reports
     params = FilterParams(update=mode)
-    builtin = list(replay(read_log(CLASSIC), params))
+    builtin = every_event(replay(read_log(CLASSIC), params))
     plugin_cls = load_in_process(plugin("Textbook" if mode is UpdateMode.SEQUENTIAL else "Joint"))
-    plugged = list(replay(read_log(CLASSIC), params, make_filter=plugin_cls))
+    plugged = every_event(replay(read_log(CLASSIC), params, make_filter=plugin_cls))
     updates = 0
     for a, b in zip(builtin, plugged, strict=True):
         if a.kind is EventKind.UPDATE:
@@ -106,10 +109,18 @@ def test_replay_with_a_plugin_makes_the_same_recording_entities(tmp_path: Path) 
 
 def test_an_offline_filter_is_recorded_after_finish() -> None:
     online = list(
-        replay(read_log(CLASSIC), FilterParams(), make_filter=load_in_process(plugin("Textbook")))
+        every_event(
+            replay(
+                read_log(CLASSIC), FilterParams(), make_filter=load_in_process(plugin("Textbook"))
+            )
+        )
     )
     offline = list(
-        replay(read_log(CLASSIC), FilterParams(), make_filter=load_in_process(plugin("Offline")))
+        every_event(
+            replay(
+                read_log(CLASSIC), FilterParams(), make_filter=load_in_process(plugin("Offline"))
+            )
+        )
     )
     assert [r.kind for r in offline] == [EventKind.INIT, EventKind.UPDATE]
     assert offline[-1].step == online[-1].step and offline[-1].event == online[-1].event + 1
@@ -122,7 +133,11 @@ def test_an_offline_filters_path_is_drawn_whole(tmp_path: Path) -> None:
     """poses_xytheta after finish(): the final record holds it and the map draws it as
     the trajectory (not a straight line from the start), the true path likewise."""
     online = list(
-        replay(read_log(CLASSIC), FilterParams(), make_filter=load_in_process(plugin("Textbook")))
+        every_event(
+            replay(
+                read_log(CLASSIC), FilterParams(), make_filter=load_in_process(plugin("Textbook"))
+            )
+        )
     )
     save = tmp_path / "offline.rrd"
     done = runner.invoke(
@@ -392,15 +407,6 @@ def test_compare_of_the_builtin_with_itself_is_identical(tmp_path: Path) -> None
     assert {"landmarks", "final_pose", "consistency"} <= set(filters[0])
     for key in ("ekf", "ekf-2", "Textbook"):
         assert len(entity_rows(save, f"/filters/{key}/world/robot")) == 59
-
-
-def test_compare_and_sweep_share_one_mechanism() -> None:
-    import ekfviz.cli.compare as compare_command
-    import ekfviz.cli.sweep as sweep_command
-    from ekfviz.cli import study
-
-    shared = study.run_study
-    assert vars(compare_command)["run_study"] is shared is vars(sweep_command)["run_study"]
 
 
 def test_sweep_takes_a_plugin(tmp_path: Path) -> None:

@@ -15,6 +15,7 @@ from ekfviz.core.records import Control, EventKind, Scan, Sighting
 from ekfviz.io.classic import format_classic
 from ekfviz.io.extended import format_extended, is_extended, read_extended, read_log
 from ekfviz.runner.replay import replay
+from ekfviz.runner.run import every_event
 from ekfviz.sim.scenarios import classic
 
 LOG = """# a log
@@ -73,7 +74,7 @@ def test_writer_round_trips_both_formats(tmp_path: Path) -> None:
 
 
 def test_filter_grows_on_sparse_ids_and_skips_empty_steps(tmp_path: Path) -> None:
-    records = list(replay(read_extended(write(tmp_path, LOG))))
+    records = every_event(replay(read_extended(write(tmp_path, LOG))))
     assert [r.kind for r in records] == [
         EventKind.INIT,
         EventKind.PREDICT,

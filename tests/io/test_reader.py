@@ -323,28 +323,6 @@ def test_compiled_parser_refuses_what_is_not_a_number_as_a_whole(bad: bytes) -> 
     assert text_io._converted(bad, lines) is None
 
 
-def test_events_made_by_the_readers_are_the_dataclasses_events() -> None:
-    """read_control and read_sighting skip the frozen dataclass's __init__, nothing else:
-    the same fields, equal events, still frozen."""
-    import dataclasses
-
-    from ekfviz.core.records import read_control, read_sighting
-
-    made = read_control(7, 0.5, -0.25, 12.5, 0.1)
-    assert made == Control(7, 0.5, -0.25, 12.5, 0.1) and hash(made) == hash(
-        Control(7, 0.5, -0.25, 12.5, 0.1)
-    )
-    assert read_control(3, 1.0, 0.0) == Control(3, 1.0, 0.0)
-    ids, z = np.array([4, 2]), np.array([[0.1, 5.0], [-0.2, 3.0]])
-    sighting = read_sighting(9, ids, z, 1.5)
-    assert [getattr(sighting, f.name) is getattr(Sighting(9, ids, z, 1.5), f.name) or
-            getattr(sighting, f.name) == getattr(Sighting(9, ids, z, 1.5), f.name)
-            for f in dataclasses.fields(Sighting)] == [True] * 4  # fmt: skip
-    for event in (made, sighting):
-        with pytest.raises(dataclasses.FrozenInstanceError):
-            event.line = 1  # type: ignore[misc]
-
-
 @pytest.mark.parametrize("bad", [None, b"0x10", b"1e400", b"nan", b"1.2.3", b"1_000", b"4 5"])
 def test_table_blocks_read_the_same_with_either_parser(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, bad: bytes | None

@@ -22,6 +22,7 @@ from ekfviz.core.records import EventKind, EventRecord
 from ekfviz.io.extended import read_log
 from ekfviz.io.truth import read_truth
 from ekfviz.runner.replay import replay
+from ekfviz.runner.run import every_event
 from ekfviz.viz import style
 
 runner = CliRunner()
@@ -65,7 +66,7 @@ def replayed(run: Exported) -> list[EventRecord]:
     """The records of the replay, with the parameters it was recorded with."""
     document = json.loads(run.truth.read_text())
     params = FilterParams(**document["noise"], init_pose_sigma=tuple(document["init_pose_sigma"]))
-    return list(replay(read_log(run.log), params))
+    return every_event(replay(read_log(run.log), params))
 
 
 def read_tum(path: Path) -> np.ndarray:

@@ -1,6 +1,6 @@
-"""The work on a large P done beside the filter (ekfviz.runner.beside): the records are
+"""The work on a large P done beside the filter (ekfviz.runner.beside): the events are
 those made at once, in the same order, and a fault or an error of the input still comes
-after every record before it."""
+after every event before it."""
 
 from __future__ import annotations
 
@@ -15,9 +15,10 @@ import numpy as np
 import pytest
 
 import ekfviz.runner.beside as beside
-from ekfviz.core.records import AnyEvent, Control, EventKind, EventRecord, EventRows
+from ekfviz.core.records import AnyEvent, Control, EventKind, EventRecord
 from ekfviz.filters.ekf import EkfSlam
 from ekfviz.runner.replay import FilterLineError, replay
+from ekfviz.runner.run import every_event
 from ekfviz.sim.scenarios import loop
 
 
@@ -35,13 +36,13 @@ def at_once(monkeypatch: pytest.MonkeyPatch) -> None:
 def counted(monkeypatch: pytest.MonkeyPatch) -> list[int]:
     """The dimensions of the P given to the thread."""
     dims: list[int] = []
-    work = beside._work
+    work = beside.whole_covariance_work
 
     def spied(P: np.ndarray, check: bool, ids: Any) -> Any:
         dims.append(P.shape[0])
         return work(P, check, ids)
 
-    monkeypatch.setattr(beside, "_work", spied)
+    monkeypatch.setattr(beside, "whole_covariance_work", spied)
     return dims
 
 
@@ -62,18 +63,18 @@ def no_thread_left() -> bool:
     return not any(t.name.startswith("ekfviz-whole-P") for t in threading.enumerate())
 
 
-def test_the_records_are_those_made_at_once_in_the_same_order(
+def test_the_events_are_those_made_at_once_in_the_same_order(
     large: list[AnyEvent], monkeypatch: pytest.MonkeyPatch
 ) -> None:
     dims = counted(monkeypatch)
-    ours = list(replay(large))
+    ours = every_event(replay(large))
     assert dims and min(dims) >= beside.BESIDE_MIN_DIM  # the thread did the large ones
     assert no_thread_left()
     checked = [r for r in ours if r.covariance is not None and r.covariance.dim >= 128]
     correlated = [r for r in ours if r.correlation is not None and r.correlation.dim >= 128]
     assert len(checked) >= 4 and len(correlated) >= 4
     at_once(monkeypatch)
-    assert_same(ours, list(replay(large)))
+    assert_same(ours, every_event(replay(large)))
 
 
 class Faulty(EkfSlam):
@@ -94,7 +95,7 @@ class Faulty(EkfSlam):
 def checked_predict(events: list[AnyEvent]) -> tuple[int, int]:
     """The line of the second predict whose P is checked beside the filter, and how many
     predicts come up to it."""
-    records = list(replay(events))
+    records = every_event(replay(events))
     record = [
         r
         for r in records
@@ -104,20 +105,21 @@ def checked_predict(events: list[AnyEvent]) -> tuple[int, int]:
     return record.line, predicts
 
 
-def test_a_p_not_finite_stops_the_run_at_its_line_after_every_record_before_it(
+def test_a_p_not_finite_stops_the_run_at_its_line_after_every_event_before_it(
     large: list[AnyEvent],
 ) -> None:
     line, predicts = checked_predict(large)
     records: list[EventRecord] = []
     with pytest.raises(FilterLineError, match="NaN or infinity") as caught:
-        records.extend(replay(large, slam=Faulty(predicts, np.nan)))
+        for batch in replay(large, slam=Faulty(predicts, np.nan)):
+            records.extend(batch)
     assert caught.value.line == line
     assert [r.line for r in records] == [e.line for e in large if e.line < line]
     assert any(r.covariance is not None and r.covariance.dim >= 128 for r in records)
     assert no_thread_left()
 
 
-def test_an_indefinite_p_is_named_in_the_warnings_of_its_record(
+def test_an_indefinite_p_is_named_in_the_warnings_of_its_event(
     large: list[AnyEvent], monkeypatch: pytest.MonkeyPatch
 ) -> None:
     line, predicts = checked_predict(large)
@@ -126,7 +128,8 @@ def test_an_indefinite_p_is_named_in_the_warnings_of_its_record(
         records: list[EventRecord] = []
         # a FilterLineError, if any, the same wherever the P is done: compared below
         with contextlib.suppress(FilterLineError):
-            records.extend(replay(large, slam=Faulty(predicts, -50.0)))
+            for batch in replay(large, slam=Faulty(predicts, -50.0)):
+                records.extend(batch)
         return records
 
     dims = counted(monkeypatch)
@@ -149,13 +152,14 @@ def cut(events: list[AnyEvent], after: int) -> Iterator[AnyEvent]:
     raise Broken("line after: not a number")
 
 
-def test_an_error_of_the_input_comes_after_the_held_records(large: list[AnyEvent]) -> None:
+def test_an_error_of_the_input_comes_after_the_held_events(large: list[AnyEvent]) -> None:
     """The event before the error is the last one: its P is checked (beside the filter)
-    and its record handed on, checked, before the error."""
+    and it is handed on, checked, before the error."""
     after = len(large) // 2
     records: list[EventRecord] = []
     with pytest.raises(Broken):
-        records.extend(replay(cut(large, after)))
+        for batch in replay(cut(large, after)):
+            records.extend(batch)
     assert [r.line for r in records] == [e.line for e in large[:after]]
     assert records[-1].covariance is not None and records[-1].covariance.dim >= 128
     assert records[-1].correlation is not None
@@ -163,46 +167,35 @@ def test_an_error_of_the_input_comes_after_the_held_records(large: list[AnyEvent
 
 
 def test_a_consumer_that_stops_early_leaves_no_thread(large: list[AnyEvent]) -> None:
-    stream = replay(large)
+    stream = replay(large, batch_events=32)
     assert isinstance(stream, Generator)
-    taken = [next(stream) for _ in range(len(large) // 2)]
+    taken = every_event(next(stream) for _ in range(len(large) // 64))
     assert any(r.covariance is not None and r.covariance.dim >= 128 for r in taken)
     stream.close()
     assert no_thread_left()
 
 
 def states(events: list[AnyEvent]) -> tuple[dict[int, bytes], EventRecord]:
-    """Each event's pose and pose covariance (the records' and the predict rows') as
-    bytes, and the last record."""
-    rows = EventRows()
-    records = list(replay(events, event_rows=rows))
-    poses = {r.event: r.pose.tobytes() + r.pose_cov.tobytes() for r in records}
-    for k in range(len(rows)):
-        poses[rows.events[k]] = rows.poses[k].tobytes() + rows.pose_covs[k].tobytes()
-    kinds = sum(r.kind is EventKind.PREDICT for r in records)
-    poses[-1] = kinds.to_bytes(8, "little")  # how many predicts came as records
-    return poses, records[-1]
+    """Each event's pose and pose covariance as bytes, and the last event."""
+    records = every_event(replay(events))
+    return {r.event: r.pose.tobytes() + r.pose_cov.tobytes() for r in records}, records[-1]
 
 
 def test_the_filters_floats_do_not_depend_on_when_the_thread_is_done(
     large: list[AnyEvent], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """While records are held, a plain predict makes a record, not a row: P's pending
-    changes must be folded in all the same, or the floats would follow the thread's
-    timing."""
+    """Batches wait for a slow thread: what the filter computes meanwhile is the same."""
     at_once(monkeypatch)
     expected, last_expected = states(large)
     monkeypatch.undo()
-    work = beside._work
+    work = beside.whole_covariance_work
 
     def slow(P: np.ndarray, check: bool, ids: Any) -> Any:
-        time.sleep(0.05)  # records held over many events
+        time.sleep(0.05)  # batches held over many events
         return work(P, check, ids)
 
-    monkeypatch.setattr(beside, "_work", slow)
+    monkeypatch.setattr(beside, "whole_covariance_work", slow)
     got, last = states(large)
-    held_predicts = int.from_bytes(got.pop(-1), "little")
-    assert held_predicts > int.from_bytes(expected.pop(-1), "little")  # the path was taken
     assert got == expected
     assert np.array_equal(last.landmarks_xy, last_expected.landmarks_xy)
     assert np.array_equal(last.landmark_covs, last_expected.landmark_covs)
@@ -226,14 +219,14 @@ def test_one_copy_of_p_at_a_time_however_fast_the_work_is_asked_for(
             weakref.finalize(copy, lambda: alive.__setitem__(0, alive[0] - 1))
             return copy
 
-    work = beside._work
+    work = beside.whole_covariance_work
 
     def slow(P: np.ndarray, check: bool, ids: Any) -> Any:
         time.sleep(0.02)
         return work(P, check, ids)
 
     monkeypatch.setattr(beside, "np", Counting())
-    monkeypatch.setattr(beside, "_work", slow)
-    records = list(replay(large))
+    monkeypatch.setattr(beside, "whole_covariance_work", slow)
+    records = every_event(replay(large))
     assert sum(r.correlation is not None and r.correlation.dim >= 128 for r in records) >= 4
     assert alive[1] <= 2  # the one the thread reads, and the next one's

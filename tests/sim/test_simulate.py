@@ -17,6 +17,7 @@ from ekfviz.io.classic import read_classic
 from ekfviz.io.extended import read_extended, read_log
 from ekfviz.io.truth import read_truth
 from ekfviz.runner.replay import replay
+from ekfviz.runner.run import every_event
 from ekfviz.sim.scenarios import classic, loop
 from ekfviz.sim.simulate import Noise
 
@@ -76,7 +77,7 @@ def test_loop_closes_and_landmarks_come_and_go() -> None:
 
 def test_noise_free_loop_with_partial_observations_recovers_the_map() -> None:
     run = loop(steps=300, landmarks=60).run(Noise.none(), init_pose_sigma=(0.0, 0.0, 0.0))
-    last = list(replay(run.events))[-1]
+    last = every_event(replay(run.events))[-1]
     truth = dict(zip(run.landmark_ids.tolist(), run.landmarks_xy, strict=True))
     for landmark_id, xy in zip(last.landmark_ids.tolist(), last.landmarks_xy, strict=True):
         np.testing.assert_allclose(xy, truth[landmark_id], atol=1e-9)
@@ -136,8 +137,8 @@ def test_convert_keeps_every_number_exactly(tmp_path: Path) -> None:
         if isinstance(a, Sighting) and isinstance(b, Sighting):
             np.testing.assert_array_equal(a.z, b.z)
             np.testing.assert_array_equal(a.ids, b.ids)
-    assert [r.pose.tolist() for r in replay(read_log(log))] == [
-        r.pose.tolist() for r in replay(read_log(target))
+    assert [r.pose.tolist() for r in every_event(replay(read_log(log)))] == [
+        r.pose.tolist() for r in every_event(replay(read_log(target)))
     ]
 
 

@@ -17,9 +17,10 @@ from typer.testing import CliRunner
 
 from ekfviz.calibrate.fit import calibrate
 from ekfviz.cli import app
+from ekfviz.core.batch import EventBatch
 from ekfviz.core.errors import InputError
 from ekfviz.core.params import MotionNoise
-from ekfviz.core.records import Control, EventKind, EventRecord, Sighting
+from ekfviz.core.records import Control, EventKind, Sighting
 from ekfviz.core.truth import GroundTruth
 from ekfviz.io.mrclam import open_dataset, read_mrclam, read_truth
 from ekfviz.sim.mrclam import MrclamNoise, MrclamWorld, simulate_mrclam
@@ -347,22 +348,28 @@ def test_calibrate_needs_true_poses(tmp_path: Path) -> None:
 def test_the_gate_rejects_an_outlier_with_a_warning(tmp_path: Path) -> None:
     from ekfviz.core.params import FilterParams
     from ekfviz.runner.replay import replay
+    from ekfviz.runner.run import every_event
 
     near = Sighting(line=1, ids=np.array([1]), z=np.array([[0.0, 5.0]]))
     events: list[Control | Sighting] = [near, Control(line=2, d=0.0, alpha=0.0), Sighting(
         line=3, ids=np.array([1]), z=np.array([[1.5, 5.0]])
     )]  # fmt: skip
-    gated = list(replay(events, FilterParams(gate=13.8)))[-1]
+    gated = every_event(replay(events, FilterParams(gate=13.8)))[-1]
     assert gated.warnings and "NIS" in gated.warnings[0] and "rejected" in gated.warnings[0]
     assert gated.observations is not None and len(gated.observations) == 0
-    used = list(replay(events, FilterParams()))[-1]
+    used = every_event(replay(events, FilterParams()))[-1]
     assert used.observations is not None and len(used.observations) == 1
 
 
-def record(kind: EventKind, event: int, time: float | None) -> EventRecord:
-    from ekfviz.core.records import snapshot
+def record(kind: EventKind, event: int, time: float | None) -> EventBatch:
+    """One event with the prior's state, of ``kind`` at ``time``."""
+    from ekfviz.core.batch import KIND_CODES, BatchBuilder
 
-    return snapshot(np.zeros(3), np.eye(3), event=event, step=event, kind=kind, time=time)
+    builder = BatchBuilder()
+    builder.add_state(
+        np.zeros(3), np.eye(3), event=event, step=event, kind=KIND_CODES[kind], time=time
+    )
+    return builder.build()
 
 
 def test_thinning_keeps_updates_the_predict_before_them_and_the_last() -> None:
@@ -372,13 +379,26 @@ def test_thinning_keeps_updates_the_predict_before_them_and_the_last() -> None:
         EventKind.PREDICT
     ] * 5  # fmt: skip
     for k, kind in enumerate(kinds):
-        logged += [r.event for r in thinning.admit(record(kind, k, 0.1 * k))]
-    logged += [r.event for r in thinning.drain()]
+        logged += thinning.admit(record(kind, k, 0.1 * k)).events.tolist()
+    held = thinning.drain()
+    logged += [] if held is None else held.events.tolist()
     # init; predicts 5, 10, 15, 20 (0.5 s apart); 20 is also right before the update 21;
     # 26 the last
     assert logged == [0, 5, 10, 15, 20, 21, 26]
     untimed = PredictThinning(0.5)
-    assert [r.event for r in untimed.admit(record(EventKind.PREDICT, 1, None))] == [1]
+    assert untimed.admit(record(EventKind.PREDICT, 1, None)).events.tolist() == [1]
+    # in batches of any size: the same events logged
+    for size in (2, 3, 7, 27):
+        thinning = PredictThinning(0.5)
+        events = [record(kind, k, 0.1 * k) for k, kind in enumerate(kinds)]
+        joined = EventBatch.joined(
+            [EventBatch.joined(events[k : k + size]) for k in range(0, len(events), size)]
+        )
+        again = [joined[k : k + size] for k in range(0, len(joined), size)]
+        logged_now = [thinning.admit(part).events.tolist() for part in again]
+        held = thinning.drain()
+        flat = [e for part in logged_now for e in part] + ([] if held is None else [26])
+        assert flat == [0, 5, 10, 15, 20, 21, 26], size
 
 
 def test_an_extended_log_with_times_gets_a_duration_timeline(tmp_path: Path) -> None:

@@ -29,6 +29,7 @@ from ekfviz.io.extended import format_extended, read_extended
 from ekfviz.io.truth import truth_json
 from ekfviz.models.classic import motion
 from ekfviz.runner.replay import replay
+from ekfviz.runner.run import every_event
 from ekfviz.sim.scenarios import classic, loop
 from ekfviz.sim.simulate import Detection, Simulation
 from ekfviz.sources import SourceArgs, open_source
@@ -190,7 +191,7 @@ def write_log(path: Path, run: Simulation) -> Path:
 
 
 def final(events: Iterator[AnyEvent], params: FilterParams) -> EventRecord:
-    return list(replay(events, params))[-1]
+    return every_event(replay(events, params))[-1]
 
 
 @pytest.fixture(scope="module")

@@ -18,6 +18,7 @@ from ekfviz.core.records import AnyEvent, Control, Sighting
 from ekfviz.io.extended import format_extended, read_extended
 from ekfviz.io.text import ProgressCallback, WarningCallback
 from ekfviz.runner.replay import replay
+from ekfviz.runner.run import every_event
 from ekfviz.sim.scenarios import classic
 from ekfviz.sources import SimulatedSource, SourceArgs, formats, open_source, read_log, register
 from ekfviz.sources import base as registry
@@ -70,8 +71,8 @@ def test_a_simulated_run_replays_as_its_extended_log(tmp_path: Path) -> None:
     own = source.own_truth(print)
     assert own is not None and own.truth.poses_xytheta is not None
     assert source.files == [] and source.motion_noise is MotionNoise.PER_STEP
-    last = list(replay(source.events(), FilterParams()))[-1]
-    expected = list(replay(read_extended(log), FilterParams()))[-1]
+    last = every_event(replay(source.events(), FilterParams()))[-1]
+    expected = every_event(replay(read_extended(log), FilterParams()))[-1]
     np.testing.assert_array_equal(last.pose, expected.pose)
     np.testing.assert_array_equal(last.landmarks_xy, expected.landmarks_xy)
 

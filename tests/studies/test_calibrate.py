@@ -22,6 +22,7 @@ from ekfviz.core.truth import GroundTruth
 from ekfviz.evaluation.consistency import Consistency, Verdict, reading
 from ekfviz.evaluation.errors import evaluate, rigid_alignment, semi_major_3sigma, summarise_map
 from ekfviz.runner.replay import replay
+from ekfviz.runner.run import every_event
 from ekfviz.sim.mrclam import MrclamNoise, MrclamWorld, simulate_mrclam
 from ekfviz.sources import open_source
 
@@ -108,7 +109,7 @@ def test_replay_takes_the_odometry_errors_out(skewed: Path) -> None:
     corrected = replace(base, odometry_scale=(0.92, 1.12), odometry_bias=0.05)
     errors = {}
     for name, params in (("raw", base), ("corrected", corrected)):
-        last = list(replay(events, params))[-1]
+        last = every_event(replay(events, params))[-1]
         summary = evaluate(last, truth).summary
         assert summary is not None
         errors[name] = summary.mean_error
@@ -209,9 +210,9 @@ def test_an_inflated_covariance_reads_too_cautious(skewed: Path) -> None:
     for name, params in (("honest", honest), ("inflated", inflated)):
         consistency = Consistency(truth)
         last = None
-        for record in replay(events, params):
-            consistency.add(record)
-            last = record
+        for batch in replay(events, params):
+            consistency.add(batch)
+            last = batch.last
         assert last is not None
         evaluation = evaluate(last, truth, consistency)
         summary = evaluation.summary

@@ -23,8 +23,9 @@ from ekfviz.evaluation.errors import evaluate
 from ekfviz.filters.ekf import HAVE_KERNEL
 from ekfviz.io.classic import format_classic
 from ekfviz.runner.replay import replay
+from ekfviz.runner.run import every_event
 from ekfviz.sim.simulate import CLASSIC_LANDMARKS_XY, classic_controls, simulate
-from ekfviz.viz import style
+from ekfviz.viz import provenance, style
 from ekfviz.viz.blueprint import map_view
 
 F32 = float(np.finfo(np.float32).eps)
@@ -52,10 +53,11 @@ def save_run(
     params = FilterParams()
     info = viz.run_info(name, f"ekfviz replay {log}", params.as_dict(), log, truth=truth)
     rrd = folder / f"{name}.rrd"
-    records = tuple(replay(events, params))
+    batches = list(replay(events, params))
+    records = tuple(every_event(batches))
     with viz.open_run(info, viz.Sinks(save=rrd)) as logger:
-        for record in records:
-            logger.log(record)
+        for batch in batches:
+            logger.log(batch)
         logger.finish(evaluate(records[-1], truth))
     return rrd, records
 
@@ -395,7 +397,7 @@ def test_info_rejects_what_is_not_a_recording(tmp_path: Path, run: Run) -> None:
 def test_input_over_the_cap_is_not_embedded(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    monkeypatch.setattr(viz.run, "INPUT_TEXT_CAP", 100)
+    monkeypatch.setattr(provenance, "INPUT_TEXT_CAP", 100)
     sim = simulate(classic_controls()[:2], CLASSIC_LANDMARKS_XY, seed=1)
     rrd, _ = save_run(tmp_path, sim.events, None)
     found = readback.read_recording_info(rrd)
@@ -430,9 +432,9 @@ def test_save_is_atomic_when_logging_fails_midway(tmp_path: Path) -> None:
         pytest.raises(RuntimeError, match="midway"),
         viz.open_run(info, viz.Sinks(save=target)) as logger,
     ):
-        for record in replay(sim.events):
-            logger.log(record)
-            if record.event == 3:
+        for batch in replay(sim.events):
+            logger.log(batch)
+            if 3 in batch.events:
                 raise RuntimeError("midway")
     assert target.read_bytes() == b"the previous recording"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["in.txt", "out.rrd"]
@@ -491,12 +493,13 @@ def test_200_landmarks_are_one_batch(tmp_path: Path) -> None:
     rng = np.random.default_rng(200)
     landmarks = rng.uniform([-4.0, -4.0], [16.0, 20.0], size=(200, 2))
     sim = simulate(classic_controls(), landmarks, seed=200)
-    records = tuple(replay(sim.events))
+    batches = list(replay(sim.events))
+    records = every_event(batches)
     log = write_log(tmp_path / "in.txt", sim.events)
     info = viz.run_info("in", "", {}, log, truth=GroundTruth(np.arange(1, 201), landmarks))
     with viz.open_run(info, viz.Sinks(save=tmp_path / "out.rrd")) as logger:
-        for record in records:
-            logger.log(record)
+        for batch in batches:
+            logger.log(batch)
         logger.finish(evaluate(records[-1], info.truth))
     (row,) = entity_rows(tmp_path / "out.rrd", f"/{style.LANDMARKS}")[-1:]
     assert len(points(row, "Points2D:positions")) == 200
@@ -515,14 +518,15 @@ def large_map_run(
             pick = (5 * k + np.arange(5)) % 40
             event = Sighting(event.line, event.ids[pick], event.z[pick])
         events.append(event)
-    records = tuple(replay(events))
+    batches = list(replay(events))
+    records = tuple(every_event(batches))
     truth = GroundTruth(np.arange(1, 41), landmarks)
     log = write_log(tmp_path / "large.txt", sim.events)  # the input document only
     info = viz.run_info("large", "", {}, log, truth=truth)
     rrd = tmp_path / f"large_{detail}.rrd"
     with viz.open_run(info, viz.Sinks(save=rrd), detail=detail) as logger:
-        for record in records:
-            logger.log(record)
+        for batch in batches:
+            logger.log(batch)
         logger.finish(evaluate(records[-1], truth))
     return rrd, records
 

@@ -1,17 +1,18 @@
 """The bookkeeping of the recorder's array API: a filter of the user's own hands in x,
-P and what it observed; this turns them into the records a replay would make."""
+P and what it observed; this turns them into the batches a replay would make, numbered
+as a replay numbers its events (:class:`~ekfviz.core.steps.StepCounter`)."""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import replace
-from typing import Any
 
 import numpy as np
 
-from ekfviz.core.correlation import CorrelationCadence, correlation_of
-from ekfviz.core.health import check_covariance, check_interval
-from ekfviz.core.records import EventKind, EventRecord, Observations, snapshot
+from ekfviz.core.batch import INIT, PREDICT, BatchBuilder, Extras
+from ekfviz.core.correlation import Correlation, CorrelationCadence, correlation_of
+from ekfviz.core.health import CovarianceCheck, check_covariance, check_interval
+from ekfviz.core.records import Observations
+from ekfviz.core.steps import StepCounter
 from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.models.angles import wrap_angles
 
@@ -56,9 +57,11 @@ class ArrayInput:
         self.order: list[int] = [] if landmark_ids is None else [int(i) for i in landmark_ids]
         self._in_order: set[int] = set(self.order)
         self._seen: set[int] = set()  # ids observed so far through the array API
-        self._correlation = CorrelationCadence()  # (a replay's records own theirs)
+        self._correlation = CorrelationCadence()  # (a replay's batches own theirs)
         self.checked_step: int | None = None  # of the last covariance check
         self._round_off_said = False  # a round-off asymmetry of P is a warning once a run
+        self.counter = StepCounter()
+        self.builder = BatchBuilder()  # the states handed in, not logged yet
 
     def state_ids(self, x: FloatArray) -> IntArray:
         """The ids of the landmarks of ``x``, in state order."""
@@ -69,18 +72,17 @@ class ArrayInput:
             self._in_order.update(self.order)
         return np.asarray(self.order[:n], dtype=np.int64)
 
-    def record(
+    def add(
         self,
-        x: FloatArray,
-        P: FloatArray,
-        event: int,
-        step: int,
-        kind: EventKind,
+        x: object,
+        P: object,
+        kind: int,
         line: int,
         observations: Observations | None = None,
         control: FloatArray | None = None,
-    ) -> EventRecord:
-        """The record of a state handed in, its covariance checked as a replay checks its
+    ) -> None:
+        """Append a state handed in to :attr:`builder`, numbered as the next event of
+        ``kind`` (``INIT`` starts over), its covariance checked as a replay checks its
         own, with the correlation matrix where due (at an initialisation or update).
 
         :raises ValueError: ``x`` or ``P`` of the wrong shape or not finite, a control that
@@ -89,21 +91,29 @@ class ArrayInput:
         x, P = state_arrays(x, P)
         if control is not None and control.shape != (2,):
             raise ValueError(f"control has shape {control.shape}, expected (2,): (d, alpha)")
-        record = snapshot(
-            x, P, event=event, step=step, kind=kind, line=line, landmark_ids=self.state_ids(x),
-            control=control, observations=observations, **self.check(P, step),
+        if kind == INIT:
+            self.checked_step = None
+            event, step = self.counter.initialise()
+        else:
+            event, step = self.counter.count(kind == PREDICT)
+        ids = self.state_ids(x)
+        covariance, warnings = self.check(P, step)
+        correlation: Correlation | None = None
+        if kind != PREDICT and self._correlation.due(step, len(ids), last=False):
+            correlation = correlation_of(P, ids)
+        extras = None
+        if warnings or covariance is not None or correlation is not None:
+            extras = Extras(warnings, covariance, correlation)
+        self.builder.add_state(
+            x, P, landmark_ids=ids, event=event, step=step, kind=kind, line=line,
+            control=None if control is None else (float(control[0]), float(control[1])),
+            observations=observations, extras=extras,
         )  # fmt: skip
-        return record if kind is EventKind.PREDICT else self.correlated(record, P)
 
-    def correlated(self, record: EventRecord, P: FloatArray) -> EventRecord:
-        """The record with the correlation matrix of ``P`` where it is due."""
-        if self._correlation.due(record.step, record.n_landmarks, last=False):
-            return replace(record, correlation=correlation_of(P, record.landmark_ids))
-        return record
-
-    def check(self, P: FloatArray, step: int) -> dict[str, Any]:
-        """The check of a whole covariance handed in through the array API: at every call
-        while it is small (``CHECK_ALL_DIM``), else as often as a replay checks its own."""
+    def check(self, P: FloatArray, step: int) -> tuple[CovarianceCheck | None, tuple[str, ...]]:
+        """The check of a whole covariance handed in through the array API and the
+        problems it found: at every call while it is small (``CHECK_ALL_DIM``), else as
+        often as a replay checks its own."""
         P = np.asarray(P, dtype=np.float64)
         dim = P.shape[0]
         if (
@@ -111,12 +121,12 @@ class ArrayInput:
             and self.checked_step is not None
             and step - self.checked_step < check_interval(dim)
         ):
-            return {}
+            return None, ()
         self.checked_step = step
         check = check_covariance(P)
         problems = check.problems(round_off=not self._round_off_said)
         self._round_off_said |= check.round_off_asymmetry
-        return {"covariance": check, "warnings": tuple(problems)}
+        return check, tuple(problems)
 
     def observations(
         self,

@@ -48,7 +48,6 @@ class FirstSightings:
         :param joined_ids: the landmark id of each row of the joined maps
         :param tables: the id lookups of the batch's maps (see :func:`joined_rows`)
         """
-        records = maps.records
         picks = np.array(
             [i for i in np.flatnonzero(new_counts).tolist() if maps.association(i) is not None],
             dtype=np.int64,
@@ -65,12 +64,8 @@ class FirstSightings:
         means: list[FloatArray] = []
         covs: list[FloatArray] = []
         ids: list[list[int]] = []
-        for u, (k, record) in enumerate(zip(corrected.tolist(), records, strict=True)):
-            if record is None:  # an update given as a row: no association
-                continue
-            association = record.association
-            if association is None:
-                continue
+        for u in sorted(maps.associations):
+            k, association = int(corrected[u]), maps.associations[u]
             for row in new_of.get(u, ()):
                 self._held[int(landmark_ids[row])] = (
                     maps.xy[row].copy(),

@@ -19,7 +19,8 @@ from __future__ import annotations
 import numpy as np
 import rerun as rr
 
-from ekfviz.core.records import EventKind, EventRecord
+from ekfviz.core.batch import EventBatch, ranges
+from ekfviz.core.records import EventRecord
 from ekfviz.core.types import BoolArray, FloatArray, IntArray
 from ekfviz.viz import style
 from ekfviz.viz.ellipses import ellipse_extent, ellipse_outlines, outline_points
@@ -35,7 +36,6 @@ from ekfviz.viz.layers.map_rows import (
     JoinedIds,
     joined_rows,
     map_changes,
-    ranges,
 )
 
 SMALL_MAP = 32  # up to this many landmarks, every ellipse at every update
@@ -93,37 +93,49 @@ class MapLayer:
             ),
         )
 
-    def sparse(self, record: EventRecord) -> bool:
-        """Whether an update logs the whole map's ellipses only now and then (and the
-        observed landmarks' at every update): beyond ``SMALL_MAP`` landmarks, and in a
-        timestamped log whose predicts are thinned (see :mod:`ekfviz.viz.thinning`)."""
-        return not self._detail and (
-            len(record.landmark_ids) > SMALL_MAP or (self._thinned and record.time is not None)
-        )
+    def admit(self, events: EventBatch) -> BoolArray:
+        """Take note of the maps of a batch's updates (and initialisation); whether each
+        event logs the whole map's ellipses (never a predict).
 
-    def admit(self, record: EventRecord) -> bool:
-        """Take note of a record's map; whether it logs the whole map's ellipses."""
-        if record.kind is EventKind.PREDICT:
-            return False
-        ids = record.landmark_ids
-        # the core's records share one ids array until the map grows
-        if ids is not self._last_ids and (
-            self._last_ids is None or not np.array_equal(ids, self._last_ids)
-        ):
-            self._labels.annotate(ids)
-            self._last_ids = ids
-            self.seen_ids.update(ids.tolist())
-        whole_map = self._logs_whole_map(self.sparse(record), record.step, record.time)
-        self.last_update = (record, whole_map)
-        return whole_map
-
-    def admit_rows(self, steps: list[int], n_landmarks: int, newest: EventRecord) -> list[bool]:
-        """:meth:`admit` of updates given as rows (:class:`~ekfviz.core.records.EventRows`)
-        at ``steps``, untimed, in the map of the last record admitted (``n_landmarks``),
-        ``newest`` the last of them as a record; whether each logs the whole map."""
-        sparse = not self._detail and n_landmarks > SMALL_MAP
-        whole = [self._logs_whole_map(sparse, step, None) for step in steps]
-        self.last_update = (newest, whole[-1])
+        An update logs its whole map beyond ``SMALL_MAP`` landmarks, or in a timestamped
+        log whose predicts are thinned (see :mod:`ekfviz.viz.thinning`), only now and then
+        (its map is sparse); every update of a small map logs it.
+        """
+        whole = np.zeros(len(events), dtype=bool)
+        corrected = events.corrected
+        if not len(corrected):
+            return whole
+        table = events.maps
+        at = events.map_of[corrected]
+        sets = table.id_set[at]
+        for k in np.flatnonzero(np.r_[True, sets[1:] != sets[:-1]]).tolist():
+            ids = table.id_sets[int(sets[k])]
+            # a map's ids are one array until the map grows
+            if ids is not self._last_ids and (
+                self._last_ids is None or not np.array_equal(ids, self._last_ids)
+            ):
+                self._labels.annotate(ids)
+                self._last_ids = ids
+                self.seen_ids.update(ids.tolist())
+        times = events.times[corrected]
+        sparse = np.zeros(len(corrected), dtype=bool)
+        if not self._detail:
+            sparse = table.counts[at] > SMALL_MAP
+            if self._thinned:
+                sparse |= ~np.isnan(times)
+        steps = events.steps[corrected]
+        if not sparse.any():  # every update logs its map: the last is the latest to
+            whole[corrected] = True
+            self._map_step = int(steps[-1])
+            self._map_time = None if np.isnan(times[-1]) else float(times[-1])
+        else:
+            whole[corrected] = [
+                self._logs_whole_map(is_sparse, step, None if time != time else time)
+                for is_sparse, step, time in zip(
+                    sparse.tolist(), steps.tolist(), times.tolist(), strict=True
+                )
+            ]
+        self.last_update = (events.event(int(corrected[-1])), bool(whole[corrected[-1]]))
         return whole
 
     def _logs_whole_map(self, sparse: bool, step: int, time: float | None) -> bool:
@@ -149,7 +161,6 @@ class MapLayer:
         if not batch.corrected.size:
             return
         rows, corrected, maps = batch.rows, batch.corrected, batch.maps
-        records = maps.records
         whole = batch.whole[corrected]
         sparse = self._sparse_maps(batch)
         shown = self._map_changes(batch, sparse).tolist()
@@ -193,33 +204,30 @@ class MapLayer:
             counts,
             joined_ids,
         )
-        with_new = np.flatnonzero(batch.observed.new[corrected]).tolist()
-        self._send_ellipses(
-            style.LANDMARK_INITIAL,
-            rows,
-            [
-                (int(corrected[i]), record, landmark_rows(record, "initialised"))
-                for i in with_new
-                # a record: an update given as a row keeps its map (initialises none)
-                if (record := records[i]) is not None and record.association is None
-            ],
-            INITIAL_POINTS,
-        )
+        # the first sightings of a log with ids, at once (a scan's: see FirstSightings)
+        with_new = np.array(
+            [i for i in np.flatnonzero(batch.observed.new[corrected]).tolist()
+             if maps.association(i) is None],
+            dtype=np.int64,
+        )  # fmt: skip
+        new_rows, new_counts = joined_rows(maps, with_new, "initialised", tables)
+        self._send_joined_ellipses(
+            style.LANDMARK_INITIAL, rows, corrected[with_new], maps, new_rows, new_counts,
+            joined_ids, INITIAL_POINTS,
+        )  # fmt: skip
         self._first_sightings.send(
             rows, corrected, maps, batch.observed.new[corrected], joined_ids, tables
         )
 
     def _sparse_maps(self, batch: Batch) -> BoolArray:
-        """:meth:`sparse` of each of the batch's updates, in a few numpy calls."""
+        """Whether each of the batch's updates logs its whole map only now and then (see
+        :meth:`admit`)."""
         maps = batch.maps
         if self._detail:
             return np.zeros(len(maps.ids), dtype=bool)
-        large = maps.counts > SMALL_MAP
-        if self._thinned:  # an update given as a row has no time
-            large |= np.array(
-                [record is not None and record.time is not None for record in maps.records],
-                dtype=bool,
-            )
+        large: BoolArray = maps.counts > SMALL_MAP
+        if self._thinned:
+            large |= ~np.isnan(maps.times)
         return large
 
     def mark_final(self) -> None:
@@ -344,6 +352,7 @@ class MapLayer:
         joined_rows: IntArray,
         counts: IntArray,
         joined_ids: JoinedIds,
+        points: int = MAP_POINTS,
     ) -> None:
         """:meth:`_send_ellipses` of landmarks given by their rows in a batch's joined
         maps: ``counts[i]`` of ``joined_rows`` at the row ``at[i]`` of ``rows``.
@@ -352,6 +361,6 @@ class MapLayer:
         """
         if not len(at):
             return
-        n_points = min(MAP_POINTS, outline_points(int(counts.max())))
+        n_points = min(points, outline_points(int(counts.max())))
         outlines = ellipse_outlines(maps.xy[joined_rows], maps.covs[joined_rows], n_points=n_points)
         self._canvas.send_strips(entity, rows, at, outlines, counts, joined_ids.of(joined_rows))

@@ -13,6 +13,7 @@ import math
 
 import numpy as np
 
+from ekfviz.core.batch import ranges
 from ekfviz.core.types import BoolArray, FloatArray, IntArray
 from ekfviz.viz.ellipses import ellipse_shape_columns
 from ekfviz.viz.layers.batch import Maps, map_rows_of
@@ -121,15 +122,6 @@ class JoinedIds:
         return ids
 
 
-def ranges(starts: IntArray, ends: IntArray) -> IntArray:
-    """The integers of the ranges [starts[i], ends[i]), range after range."""
-    lengths = ends - starts
-    # the k-th integer overall is k plus its range's start less where that range begins
-    offsets = np.repeat(starts - (np.cumsum(lengths) - lengths), lengths)
-    ranges: IntArray = np.arange(len(offsets), dtype=np.int64) + offsets
-    return ranges
-
-
 def joined_rows(
     maps: Maps, picks: IntArray, which: str, tables: dict[int, IdRows | None]
 ) -> tuple[IntArray, IntArray]:
@@ -152,23 +144,17 @@ def joined_rows(
     if not len(picks):
         return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
     runs = np.array(maps.runs(), dtype=np.int64)
-    pick_list = picks.tolist()
     found: list[IntArray] = [np.zeros(0, dtype=np.int64)]
-    observations = [maps.observations[i] for i in pick_list]
     # an update without observations: all of its landmarks
-    found += [
-        np.arange(starts[i], starts[i + 1])
-        for i, seen in zip(pick_list, observations, strict=True)
-        if seen is None
-    ]
-    observed = [seen for seen in observations if seen is not None]
-    owners = picks[np.array([seen is not None for seen in observations], dtype=bool)]
-    ids_each = [seen.ids for seen in observed]
-    lengths = np.fromiter(map(len, ids_each), np.int64, len(ids_each))
-    wanted = np.concatenate([np.zeros(0, dtype=np.int64), *ids_each]).astype(np.int64)
-    owner = np.repeat(owners, lengths)  # the update of each id wanted
+    without = picks[~maps.has_observations[picks]]
+    found += [np.arange(starts[i], starts[i + 1]) for i in without.tolist()]
+    owners = picks[maps.has_observations[picks]]
+    first, end = maps.observed_starts[owners], maps.observed_starts[owners + 1]
+    flat = ranges(first, end)
+    wanted = maps.observed_ids[flat]
+    owner = np.repeat(owners, end - first)  # the update of each id wanted
     if which != "observed":  # the initialised ones, picked all at once
-        new = np.concatenate([np.zeros(0, dtype=bool), *(seen.initialised for seen in observed)])
+        new = maps.observed_new[flat]
         wanted, owner = wanted[new], owner[new]
     owner_run = np.searchsorted(runs, owner, side="right") - 1
     rows = np.full(len(wanted), -1, dtype=np.int64)
@@ -193,7 +179,8 @@ def joined_rows(
             continue
         # ids not distinct: the definition, update by update
         for i in np.unique(owner[in_run]).tolist():
-            found.append(starts[i] + map_rows_of(maps.ids[i], maps.observations[i], which))
+            observed_ids, initialised = maps.observed_of(i)
+            found.append(starts[i] + map_rows_of(maps.ids[i], observed_ids, which, initialised))
     if dense:
         tables_joined = np.concatenate(dense)
         inside = (wanted >= 0) & (wanted < width[owner_run])

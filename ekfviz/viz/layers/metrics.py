@@ -87,7 +87,7 @@ class MetricsLayer:
 
     def send_health(self, batch: Batch) -> None:
         """The numerical health series (see ``ekfviz.core.health``)."""
-        records, rows, corrected = batch.records, batch.rows, batch.corrected
+        rows, corrected = batch.rows, batch.corrected
         send = self._canvas.send
         if corrected.size:  # a predict adds Q: only an update can lose definiteness
             send(
@@ -109,8 +109,8 @@ class MetricsLayer:
             send(style.HEALTH_SKIPPED, rows.pick(observed.rows[ends]), scalars(skipped[ends]))
         checked = [
             (k, check)
-            for k, record in enumerate(records)
-            if record is not None and (check := record.covariance) is not None
+            for k, extra in sorted(batch.extras.items())
+            if (check := extra.covariance) is not None
         ]
         if checked:
             self._send_checks(rows, checked)

@@ -83,9 +83,9 @@ class RobotLayer:
         rows, poses = batch.rows, batch.poses
         self._canvas.send(style.ROBOT, rows.all, [positions(poses), *robot_frame(poses)])
         paths = {
-            k: r.path_xytheta
-            for k, r in enumerate(batch.records)
-            if r is not None and r.path_xytheta is not None
+            k: extra.path_xytheta
+            for k, extra in batch.extras.items()
+            if extra.path_xytheta is not None
         }
         self._send_trajectory(rows, poses[:, :2], batch.corrected, paths)
 

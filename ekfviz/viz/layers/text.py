@@ -101,9 +101,7 @@ class TextLayer:
         level = [INFO] * len(text)
         line_of: IntArray | list[int] = at
         warned = [
-            (k, record.warnings)
-            for k, record in enumerate(batch.records)
-            if record is not None and record.warnings
+            (k, extra.warnings) for k, extra in sorted(batch.extras.items()) if extra.warnings
         ]
         if warned:  # (a warning may name a file whose name is not UTF-8)
             text, level, line_of = self._with_warnings(batch, held, at, text, warned)

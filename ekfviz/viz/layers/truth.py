@@ -8,6 +8,7 @@ import math
 import numpy as np
 import rerun as rr
 
+from ekfviz.core.batch import ranges
 from ekfviz.core.records import EventRecord
 from ekfviz.core.truth import GroundTruth
 from ekfviz.core.types import BoolArray, FloatArray, IntArray
@@ -17,7 +18,7 @@ from ekfviz.viz import style
 from ekfviz.viz.layers.arrow import in_parent_frame, positions, radius, robot_frame
 from ekfviz.viz.layers.batch import Batch, landmark_rows
 from ekfviz.viz.layers.canvas import Canvas, has_class_ids
-from ekfviz.viz.layers.map_rows import JoinedIds, joined_rows, ranges
+from ekfviz.viz.layers.map_rows import JoinedIds, joined_rows
 
 
 class TruthLayer:
@@ -89,7 +90,7 @@ class TruthLayer:
         self.send_landmark_errors(batch)
         if not truth.has_poses:
             return
-        records, rows, corrected = batch.records, batch.rows, batch.corrected
+        rows, corrected = batch.rows, batch.corrected
         true_poses, known = truth.poses_of(rows.steps[corrected], batch.times[corrected])
         if not known.any():
             return
@@ -104,9 +105,7 @@ class TruthLayer:
         spans = {
             i: k
             for i, k in enumerate(at.tolist())
-            if (record := records[k]) is not None
-            and record.path_xytheta is not None
-            and truth.poses_xytheta is not None
+            if batch.events.extra(k).path_xytheta is not None and truth.poses_xytheta is not None
         }
         plain = np.array([i not in spans for i in range(len(at))], dtype=bool)
         self._canvas.send_strips(style.TRUTH_TRAJECTORY, rows, at[plain], segments[plain])
@@ -144,9 +143,10 @@ class TruthLayer:
         truth, maps = self._canvas.truth, batch.maps
         if truth is None or not batch.corrected.size:
             return
-        scans = [record is not None and record.association is not None for record in maps.records]
-        if self._associated or True in scans:
-            associated = np.logical_or.accumulate(np.array(scans)) | self._associated
+        scans = np.zeros(len(maps.ids), dtype=bool)
+        scans[list(maps.associations)] = True
+        if self._associated or scans.any():
+            associated = np.logical_or.accumulate(scans) | self._associated
             self._associated = bool(associated[-1])
             picks = np.flatnonzero(~associated)
         else:
