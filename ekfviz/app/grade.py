@@ -395,3 +395,19 @@ def submissions(folder: Path) -> list[Path]:
             ):  # fmt: skip
                 found.append(Path(entry.path))
     return sorted(found)
+
+
+def sandbox_said(python: str | None, no_sandbox: bool) -> str:
+    """How submissions run, for the header, the CSV and the JSON.
+
+    :raises UsageError: the sandbox cannot start and ``no_sandbox`` is False (one line)
+    """
+    from ekfviz.core.errors import UsageError
+    from ekfviz.sandbox import bwrap
+
+    if no_sandbox:
+        return "none (--no-sandbox): submissions run as you, with your files and network"
+    try:
+        return f"{bwrap.check(python)}: no network, a private copy of the submission only"
+    except bwrap.SandboxUnavailable as error:
+        raise UsageError(str(error)) from None

@@ -204,6 +204,31 @@ class Setting:
 Log = tuple[Path, Path | None, tuple[float, float, float] | None]
 
 
+def gradescope_setting(python: str | None, no_sandbox: bool) -> Setting:
+    """How a submission runs in Gradescope's container: in ekfviz's sandbox where it can
+    start there (a container may lack user namespaces), else without it, said so."""
+    from ekfviz.sandbox import bwrap
+
+    if no_sandbox:
+        return Setting(python, False, "The submission ran without ekfviz's sandbox (--no-sandbox).")
+    try:
+        said = f"The submission ran in ekfviz's sandbox ({bwrap.check(python)})."
+    except bwrap.SandboxUnavailable as error:
+        return Setting(python, False, f"ekfviz's sandbox could not start here ({error}); the"
+                       " submission ran without it, in Gradescope's container only.")  # fmt: skip
+    return Setting(python, True, said)
+
+
+def grade_on_the_battery(folder: Path, rubric: Rubric, setting: Setting) -> dict[str, Any]:
+    """:func:`grade_submission` on check's battery, written to a scratch folder for it."""
+    from ekfviz.samples import write_battery
+
+    with tempfile.TemporaryDirectory(prefix="ekfviz-battery-") as scratch:
+        battery = {log.stem: (log, truth, start)
+                   for log, truth, start in write_battery(Path(scratch))}  # fmt: skip
+        return grade_submission(folder, rubric, setting, battery)
+
+
 def grade_submission(
     folder: Path, rubric: Rubric, setting: Setting, battery: Mapping[str, Log]
 ) -> dict[str, object]:
@@ -379,8 +404,7 @@ def _consistency(part: Part, result: Any, truth: Path | None) -> dict[str, objec
     if truth is None:
         return _test(part, False, "not graded: the part's log has no truth (LOG_truth.json)")
     consistency = Consistency(read_truth(truth))
-    for record in result.records:
-        consistency.add(record)
+    consistency.add(result.records)
     combined = consistency.combined()
     if combined is None:
         return _test(part, False, "failed: no NEES or NIS to judge")

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from ekfviz import signals
-from ekfviz.app.grade import Battery, GradeTask
+from ekfviz.app.grade import Battery, GradeTask, sandbox_said
 from ekfviz.cli.console import (
     fail,
     human_output_to_stderr,
@@ -227,19 +227,6 @@ def _refuse_class_options(zip_only: bool) -> None:
              " time and memory")  # fmt: skip
 
 
-def sandbox_said(python: str | None, no_sandbox: bool) -> str:
-    """How submissions run, for the header, the CSV and the JSON; a one-line refusal where
-    the sandbox cannot start and --no-sandbox was not given."""
-    if no_sandbox:
-        return "none (--no-sandbox): submissions run as you, with your files and network"
-    from ekfviz.sandbox import bwrap
-
-    try:
-        return f"{bwrap.check(python)}: no network, a private copy of the submission only"
-    except bwrap.SandboxUnavailable as error:
-        fail(str(error))
-
-
 def run_grade(request: GradeRequest) -> None:
     """Grade every submission, print the table, write the CSV and JSON asked for."""
     from ekfviz.app.grade import grade_class, recording_key, submissions
@@ -408,12 +395,11 @@ def run_gradescope(
     without it, and the results' output says so."""
     from ekfviz.app.gradescope import (
         RubricError,
-        Setting,
         autograder_root,
-        grade_submission,
+        grade_on_the_battery,
+        gradescope_setting,
         read_rubric,
     )
-    from ekfviz.sandbox import bwrap
 
     root = autograder_root()
     folder = submission if submission is not None else root / "submission"
@@ -426,23 +412,9 @@ def run_gradescope(
     except RubricError as error:
         fail(str(error))
     python_text = worker_options(python, 60.0, None).python
-    said = "The submission ran without ekfviz's sandbox (--no-sandbox)."
-    sandbox = not no_sandbox
-    if sandbox:
-        try:
-            said = f"The submission ran in ekfviz's sandbox ({bwrap.check(python_text)})."
-        except bwrap.SandboxUnavailable as error:
-            sandbox = False
-            said = (f"ekfviz's sandbox could not start here ({error}); the submission ran"
-                    " without it, in Gradescope's container only.")  # fmt: skip
-    from ekfviz.samples import write_battery
-
+    setting = gradescope_setting(python_text, no_sandbox)
     try:
-        with tempfile.TemporaryDirectory(prefix="ekfviz-battery-") as scratch:
-            battery = {log.stem: (log, truth, start)
-                       for log, truth, start in write_battery(Path(scratch))}  # fmt: skip
-            setting = Setting(python_text, sandbox, said)
-            document = grade_submission(folder, rubric, setting, battery)
+        document = grade_on_the_battery(folder, rubric, setting)
     except RubricError as error:
         fail(str(error))
     write_bytes_atomic(target, json_text(document).encode("utf-8"))

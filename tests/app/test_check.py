@@ -32,14 +32,15 @@ def test_a_correct_filter_matches_and_a_wrong_one_diverges_with_its_cause(
     assert wrong.diverged and not wrong.failed
     report = json.loads((tmp_path / "r.json").read_text())
     assert report == json.loads(json.dumps(wrong.report))
-    assert report["match"] is False and "missing_measurement_noise" in report["causes"]
+    assert report["match"] is False and "innovation_covariance.noise_missing" in report["causes"]
     assert wrong.logs[0].name == str(log)
 
 
-def test_the_battery_is_the_bundled_classic_and_edge_logs(tmp_path: Path) -> None:
+def test_the_battery_is_the_bundled_classic_edge_and_midrun_logs(tmp_path: Path) -> None:
     outcome = check(CheckRequest(f"{PLUGINS}:Textbook", save=tmp_path / "b.rrd"), Silent())
     assert outcome.battery and [log.name for log in outcome.logs] == list(BATTERY)
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["b-classic.rrd", "b-edge.rrd"]
+    saved = sorted(p.name for p in tmp_path.iterdir())
+    assert saved == ["b-classic.rrd", "b-edge.rrd", "b-midrun.rrd"]
     assert all(log.saved is not None and log.saved.startswith("Saved ") for log in outcome.logs)
     with pytest.raises(UsageError, match="the battery brings its own truth"):
         check(CheckRequest(f"{PLUGINS}:Textbook", truth=DATA / "classic_truth.json"), Silent())
