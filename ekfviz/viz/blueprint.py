@@ -8,8 +8,8 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from ekfviz.core.types import FloatArray
-from ekfviz.evaluation.consistency import chi2_bounds
 from ekfviz.viz import style
+from ekfviz.viz.axes import FittedAxis
 
 # The x axis of a plot on the ``time`` timeline spans the whole run. Without it a plot of
 # a timestamped log (MRCLAM's Unix times) opens zoomed to an instant and looks empty;
@@ -179,7 +179,7 @@ def run_plots(
     prefix: str = "",
     axis: rrb.archetypes.TimeAxis | None = None,
     landmark_ids: Sequence[int] = (),
-    value_ranges: Mapping[str, tuple[float, float]] | None = None,
+    value_axes: Mapping[str, FittedAxis] | None = None,
     offline: bool = False,
 ) -> list[rrb.View | rrb.Container]:
     """The plots of one run, each only where its series have data (a plot of styling
@@ -187,9 +187,8 @@ def run_plots(
 
     :param has: the entity paths (without the prefix) that were given data
     :param offline: an offline filter's run, whose series are points
-    :param value_ranges: the y range of the NIS and NEES plots by entity path: all the
-        data, and the 95% bounds inside the frame (a fit to the data alone put them on
-        its edges)
+    :param value_axes: the y range of the NIS and NEES plots by entity path, fitted to
+        their data and bounds (see :mod:`ekfviz.viz.axes`); its note goes in the title
     """
     root = root_of(prefix)
     lengths, angle = (
@@ -201,13 +200,12 @@ def run_plots(
         (style.NEES, "NEES (blue) and 95% bounds"),
     ):
         if path in has:
+            fitted = value_axes.get(path) if value_axes else None
             plots.append(
                 rrb.TimeSeriesView(
                     axis_x=axis,
-                    axis_y=rrb.ScalarAxis(range=value_ranges[path])
-                    if value_ranges and path in value_ranges
-                    else None,
-                    name=name,
+                    axis_y=None if fitted is None else rrb.ScalarAxis(range=fitted.range),
+                    name=f"{name} ({fitted.note})" if fitted is not None and fitted.note else name,
                     origin=f"{root}{path}",
                     plot_legend=NO_LEGEND,
                 )
@@ -306,7 +304,7 @@ def default_blueprint(
     history: bool = False,
     landmark_ids: Sequence[int] = (),
     has: Collection[str] | None = None,
-    value_ranges: Mapping[str, tuple[float, float]] | None = None,
+    value_axes: Mapping[str, FittedAxis] | None = None,
     offline: bool = False,
 ) -> rrb.Blueprint:
     """The layout: the map on the left, plots above and documents below on the right.
@@ -321,7 +319,7 @@ def default_blueprint(
         the mean and the worst landmark)
     :param has: the entity paths given data; a plot is laid out only where its series
         have some (None: those a run of this kind has, before any data)
-    :param value_ranges: the NIS and NEES plots' y ranges, see :func:`run_plots`
+    :param value_axes: the NIS and NEES plots' y ranges, see :func:`run_plots`
     :param offline: an offline filter's run, see :func:`run_plots`
     """
     axis = WHOLE_RUN if has_time else None  # the default fits a sequence timeline already
@@ -333,7 +331,7 @@ def default_blueprint(
         if has_truth:
             has.add(f"{style.LANDMARK_ERROR_SUMMARY}/{style.MEAN}")
     plots = run_plots(
-        has, axis=axis, landmark_ids=landmark_ids, value_ranges=value_ranges, offline=offline
+        has, axis=axis, landmark_ids=landmark_ids, value_axes=value_axes, offline=offline
     )
     texts: list[rrb.Container | rrb.View] = [log_view()]
     if style.CORRELATION_MATRIX in has or not final:
@@ -439,59 +437,82 @@ def sweep_blueprint(
     bounds_xy: FloatArray | None = None,
     what: str = "variant",
     has_poses: bool = False,
-    nis_range: tuple[float, float] | None = None,
+    value_axes: Mapping[str, FittedAxis] | None = None,
     has: Mapping[str, Collection[str]] | None = None,
     summary: str | None = None,
     offline: Collection[str] = (),
+    colours: Sequence[str] = (),
+    identical: str = "",
 ) -> rrb.Blueprint:
-    """A grid of maps, one per run (baseline first), beside overlaid metric plots tall
-    enough for a legend entry per run, the study's documents and a tab per run.
+    """A grid of maps, one per run (baseline first) and titled with its colour, beside
+    overlaid metric plots without legends (they would cover the lines), the study's
+    documents and a tab per run.
 
     :param variants: (label, prefix) of every run, in order
     :param what: what a run is called in the plot titles (``variant``, ``filter``)
     :param has_poses: the truth has poses: a NEES plot too
-    :param nis_range: the NIS axis to show (a few times the first run's 95% bounds): the
-        few wild runs would otherwise flatten every sensible one
+    :param value_axes: the NIS and NEES axes, fitted to every run's values (see
+        :func:`ekfviz.viz.study.study_axes`): the few wild runs would otherwise flatten
+        every sensible one; their notes go in the titles
     :param has: per prefix, the entity paths given data (see :func:`run_plots`); None
         leaves out the tabs of the runs
     :param summary: the entity of the study's summary document
     :param offline: the prefixes of offline filters' runs (see :func:`run_plots`)
+    :param colours: the name of each run's colour in the plots, for the maps' titles
+    :param identical: a note naming the runs whose lines coincide, for the plots' titles
     """
-    maps = [map_view(bounds_xy, prefix=prefix, name=label) for label, prefix in variants]
+    maps = [
+        map_view(
+            bounds_xy,
+            prefix=prefix,
+            name=f"{label} ({colours[k]})" if k < len(colours) else label,
+        )
+        for k, (label, prefix) in enumerate(variants)
+    ]
     first = variants[0][1]
-    # a legend in every plot of a few runs; of many, in the first only (it would cover them)
-    legend = SMALL_LEGEND if len(variants) <= 4 else NO_LEGEND
+    axes = value_axes or {}
+
+    def titled(title: str, path: str | None = None) -> str:
+        notes = [axes[path].note] if path is not None and path in axes and axes[path].note else []
+        return (
+            f"{title} ({'; '.join([*notes, identical] if identical else notes)})"
+            if (notes or identical)
+            else title
+        )
+
+    def overlaid(path: str) -> list[str]:
+        return [
+            *(f"/{prefix}/{path}" for _, prefix in variants),
+            f"/{first}/{path}/{style.LOWER}",
+            f"/{first}/{path}/{style.UPPER}",
+        ]
+
+    def y_axis(path: str) -> rrb.ScalarAxis | None:
+        return rrb.ScalarAxis(range=axes[path].range) if path in axes else None
+
     plots: list[rrb.View] = [
         rrb.TimeSeriesView(
-            name=f"NIS per {what} (grey: {variants[0][0]}'s 95% bounds)",
-            contents=[
-                *(f"/{prefix}/{style.NIS}" for _, prefix in variants),
-                f"/{first}/{style.NIS}/{style.LOWER}",
-                f"/{first}/{style.NIS}/{style.UPPER}",
-            ],
-            axis_y=None if nis_range is None else rrb.ScalarAxis(range=nis_range),
-            plot_legend=SMALL_LEGEND,
+            name=titled(f"NIS per {what}; grey: {variants[0][0]}'s 95% bounds", style.NIS),
+            contents=overlaid(style.NIS),
+            axis_y=y_axis(style.NIS),
+            plot_legend=NO_LEGEND if colours else SMALL_LEGEND,
         )
     ]
     if has_poses:
         plots.append(
             rrb.TimeSeriesView(
-                name=f"Pose NEES per {what} (colours as above)",
-                contents=[
-                    *(f"/{prefix}/{style.NEES}" for _, prefix in variants),
-                    f"/{first}/{style.NEES}/{style.LOWER}",
-                    f"/{first}/{style.NEES}/{style.UPPER}",
-                ],
-                axis_y=rrb.ScalarAxis(range=(0.0, 3.0 * chi2_bounds(3)[1])),
-                plot_legend=legend,
+                name=titled(f"Pose NEES per {what}", style.NEES),
+                contents=overlaid(style.NEES),
+                axis_y=y_axis(style.NEES),
+                plot_legend=NO_LEGEND,
             )
         )
     if has_truth:
         plots.append(
             rrb.TimeSeriesView(
-                name=f"Mean landmark error [m] per {what} (colours as above)",
+                name=titled(f"Mean landmark error [m] per {what}"),
                 contents=[f"/{prefix}/{style.MEAN_LANDMARK_ERROR}" for _, prefix in variants],
-                plot_legend=legend,
+                plot_legend=NO_LEGEND,
             )
         )
     prefixes = [prefix for _, prefix in variants]
@@ -507,9 +528,10 @@ def sweep_blueprint(
             rrb.Vertical(
                 *plots,
                 rrb.Tabs(*tabs),
-                row_shares=[2] + [1] * (len(plots) - 1) + [2],  # room for the legend
+                row_shares=[1] * len(plots) + [2],
             ),
-            column_shares=[5, 3],
+            # the summary's table as wide as it needs at 1600 px (at 5:3 it was cut)
+            column_shares=[3, 2],
         ),
         rrb.TimePanel(timeline=style.STEP, play_state="following", state="collapsed"),
         collapse_panels=True,

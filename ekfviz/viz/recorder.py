@@ -31,7 +31,7 @@ a step, the observation rays at the updates with some, the map as
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -45,6 +45,7 @@ from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.evaluation.errors import Evaluation
 from ekfviz.models.range_bearing import RangeBearing
 from ekfviz.viz import style
+from ekfviz.viz.axes import SeriesExtent, fitted_axis
 from ekfviz.viz.blueprint import ASSOCIATION_SERIES, REFERENCE_SERIES, default_blueprint
 from ekfviz.viz.correlation import CorrelationLayer
 from ekfviz.viz.layers.arrays import CHECK_ALL_DIM, ArrayInput
@@ -279,9 +280,10 @@ class Recorder:
             bounds_xy = bounds_xy + np.array([[-margin], [margin]])
         return default_blueprint(
             has=self.entities_with_data if final else None,
-            value_ranges={
-                path: (0.0, 1.08 * max(1.15 * bound, top))
-                for path, (top, bound) in self._canvas.extents.items()
+            value_axes={
+                path: axis
+                for path, extent in self._canvas.extents.items()
+                if (axis := fitted_axis(extent.values, extent.lowers, extent.uppers)) is not None
             },
             landmark_ids=sorted(self._map.seen_ids) if self._truth is not None else (),
             has_truth=self._truth is not None,
@@ -292,6 +294,11 @@ class Recorder:
             history=self._history,
             offline=self.offline,
         )
+
+    @property
+    def value_extents(self) -> Mapping[str, SeriesExtent]:
+        """The NIS and NEES values logged and their 95% bounds, by entity path."""
+        return self._canvas.extents
 
     @property
     def offline(self) -> bool:
