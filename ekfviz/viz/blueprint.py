@@ -37,6 +37,34 @@ def accumulated_range() -> rrb.VisibleTimeRanges:
     )
 
 
+# On real data (a timestamped log) a first-sighting outline is drawn this long after the
+# sighting: metres wide, the latest one stayed on the map for the rest of the run
+FIRST_SIGHTING_S = 10.0
+FIRST_SIGHTING_EVENTS = 600  # the same on the sequence timelines (MRCLAM: 67 Hz odometry)
+
+
+def recent_range() -> rrb.VisibleTimeRanges:
+    """Show an entity for ``FIRST_SIGHTING_S`` of log time (``FIRST_SIGHTING_EVENTS``
+    steps or events) after it was logged."""
+    return rrb.VisibleTimeRanges(
+        [
+            rrb.VisibleTimeRange(
+                style.TIME,
+                start=rrb.TimeRangeBoundary.cursor_relative(seconds=-FIRST_SIGHTING_S),
+                end=rrb.TimeRangeBoundary.cursor_relative(),
+            ),
+            *(
+                rrb.VisibleTimeRange(
+                    timeline,
+                    start=rrb.TimeRangeBoundary.cursor_relative(seq=-FIRST_SIGHTING_EVENTS),
+                    end=rrb.TimeRangeBoundary.cursor_relative(),
+                )
+                for timeline in (style.STEP, style.EVENT)
+            ),
+        ]
+    )
+
+
 def at_cursor() -> rrb.VisibleTimeRanges:
     """Show an entity only where it was logged at the time cursor's own step or event (on
     the ``time`` timeline the latest, as by default)."""
@@ -70,8 +98,8 @@ def map_view(
         time cursor (``--history``: the classic figure)
     :param exclude: entities under the world (without the prefix) this map leaves out
     :param all_first_sightings: accumulate every landmark's first-sighting ellipse up to
-        the cursor; else only the latest is drawn (on real data they are metres wide and
-        a run's worth of them covers the map)
+        the cursor; else each is drawn for a few seconds after its sighting (on real data
+        they are metres wide and a run's worth of them covers the map)
     """
     root = f"/{prefix.strip('/')}/" if prefix.strip("/") else "/"
     visual_bounds = None
@@ -90,8 +118,9 @@ def map_view(
         overrides={
             **{
                 f"{root}{path}": accumulated_range()
-                for path in style.ACCUMULATED + (style.HISTORY if history else ())
                 if all_first_sightings or path != style.LANDMARK_INITIAL
+                else recent_range()
+                for path in style.ACCUMULATED + (style.HISTORY if history else ())
             },
             f"{root}{style.OBSERVATIONS}": at_cursor(),  # see Recorder._send_rays
         },
@@ -344,8 +373,11 @@ def default_blueprint(
         ]
     return rrb.Blueprint(
         rrb.Horizontal(
-            # a timestamped log is real data: its first sightings accumulate with --history
-            map_view(bounds_xy, history=history, all_first_sightings=history or not has_time),
+            with_legend(
+                # a timestamped log is real data: its first sightings accumulate with --history
+                map_view(bounds_xy, history=history, all_first_sightings=history or not has_time),
+                style.RUN_LEGEND in has,
+            ),
             rrb.Vertical(
                 tiles(plots) if plots else rrb.Vertical(),
                 rrb.Tabs(*texts),
@@ -361,6 +393,16 @@ def default_blueprint(
             state="collapsed",
         ),
         collapse_panels=True,
+    )
+
+
+def with_legend(view: rrb.View | rrb.Container, legend: bool) -> rrb.View | rrb.Container:
+    """A map (or grid of maps) above a strip with the legend of its colours and marks
+    (``run/legend``, see :mod:`ekfviz.viz.legend`), where there is one."""
+    if not legend:
+        return view
+    return rrb.Vertical(
+        view, rrb.TextDocumentView(name="Legend", origin=style.RUN_LEGEND), row_shares=[8, 1]
     )
 
 
@@ -443,6 +485,7 @@ def sweep_blueprint(
     offline: Collection[str] = (),
     colours: Sequence[str] = (),
     identical: str = "",
+    legend: bool = True,
 ) -> rrb.Blueprint:
     """A grid of maps, one per run (baseline first) and titled with its colour, beside
     overlaid metric plots without legends (they would cover the lines), the study's
@@ -460,6 +503,7 @@ def sweep_blueprint(
     :param offline: the prefixes of offline filters' runs (see :func:`run_plots`)
     :param colours: the name of each run's colour in the plots, for the maps' titles
     :param identical: a note naming the runs whose lines coincide, for the plots' titles
+    :param legend: the maps' legend (``run/legend``) is logged: shown beneath them
     """
     maps = [
         map_view(
@@ -524,7 +568,7 @@ def sweep_blueprint(
         ]
     return rrb.Blueprint(
         rrb.Horizontal(
-            map_tiles(maps),
+            with_legend(map_tiles(maps), legend),
             rrb.Vertical(
                 *plots,
                 rrb.Tabs(*tabs),

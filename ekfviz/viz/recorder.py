@@ -68,6 +68,7 @@ from ekfviz.viz.layers.pending import FLUSH_EVERY, FLUSH_LANDMARKS, PendingEvent
 from ekfviz.viz.layers.robot import HEADING_LENGTH, RobotLayer
 from ekfviz.viz.layers.text import TextLayer
 from ekfviz.viz.layers.truth import TruthLayer
+from ekfviz.viz.legend import legend_markdown
 from ekfviz.viz.thinning import PREDICT_INTERVAL_S, PredictThinning
 
 if TYPE_CHECKING:  # made at a run's first scan: a log with ids never loads it
@@ -260,6 +261,10 @@ class Recorder:
             self._rec.log(style.RUN_EVALUATION, document, static=True)
         self._rec.send_styles()
         if self._blueprint:
+            legend = legend_markdown(self.entities_with_data)
+            if legend:
+                document = rr.TextDocument(legend, media_type=rr.MediaType.MARKDOWN)
+                self._rec.log(style.RUN_LEGEND, document, static=True)
             self._rec.send_blueprint(self._layout(self._canvas.bounds_xy, final=True))
         self._rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
 

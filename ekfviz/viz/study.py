@@ -21,6 +21,7 @@ from ekfviz.viz import style
 from ekfviz.viz.axes import FittedAxis, fitted_axis
 from ekfviz.viz.blueprint import sweep_blueprint
 from ekfviz.viz.ellipses import ellipse_extent
+from ekfviz.viz.legend import legend_markdown
 from ekfviz.viz.recorder import Recorder
 from ekfviz.viz.run import Recording, finish_recorders
 
@@ -66,6 +67,7 @@ def record_study(
                 rec.log(f"{prefix}/{style.MEAN_LANDMARK_ERROR}", marks, static=True)
     rec.log(SUMMARY, rr.TextDocument(summary, media_type=rr.MediaType.MARKDOWN), static=True)
     finish_recorders(recording, recorders)
+    log_legend(rec, [recorder for recorder, _ in recorders])
     # after the runs are finished: the layout shows what they logged, no empty plot
     rec.send_blueprint(
         sweep_blueprint(
@@ -121,6 +123,16 @@ def log_runs(
     box = np.stack([points.min(axis=0), points.max(axis=0)])
     margin = 0.05 * max(float(np.max(box[1] - box[0])), 1.0)
     return recorders, box + np.array([[-margin], [margin]])
+
+
+def log_legend(rec: rr.RecordingStream, recorders: Sequence[Recorder], *extra: str) -> None:
+    """The legend of the maps of a study's runs (``run/legend``), from what any of them
+    drew and the ``extra`` entity paths (see :mod:`ekfviz.viz.legend`)."""
+    drawn = {path for recorder in recorders for path in recorder.entities_with_data}
+    legend = legend_markdown(drawn | set(extra))
+    if legend:
+        document = rr.TextDocument(legend, media_type=rr.MediaType.MARKDOWN)
+        rec.log(style.RUN_LEGEND, document, static=True)
 
 
 def study_axes(recorders: Sequence[Recorder]) -> dict[str, FittedAxis]:

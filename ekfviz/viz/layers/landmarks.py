@@ -172,7 +172,6 @@ class MapLayer:
                 np.concatenate([maps.ids[i] for i in shown]),
                 maps.xy[joined],
                 maps.counts[picked],
-                maps.covs[joined, 1, 1],
             )
         # the ellipses of every update below by their rows in the batch's joined maps
         # (maps.xy, maps.covs), found for all updates at once (see joined_rows)
@@ -250,7 +249,6 @@ class MapLayer:
                     record.landmark_ids,
                     record.landmarks_xy,
                     np.array([record.n_landmarks]),
-                    record.landmark_covs[:, 1, 1],
                 )
                 self._map_shown_event = record.event
             if not whole:
@@ -294,11 +292,10 @@ class MapLayer:
         ids: IntArray,
         positions: FloatArray,
         counts: IntArray,
-        variances_y: FloatArray,
     ) -> None:
         """All landmark estimates of some updates, one row each (``counts[i]`` of the
         joined ``ids`` and ``positions``), class id = landmark id; their labels beside
-        (see :mod:`.labels`), below each by 3 sigma in y (``variances_y``)."""
+        (see :mod:`.labels`), hanging from each."""
         if len(positions):
             self._canvas.grow_bounds(positions)
         self._canvas.send(
@@ -309,7 +306,7 @@ class MapLayer:
                 self._canvas.identify(rr.Points2D, ids, counts),
             ],
         )
-        self._labels.send(times, ids, positions, counts, variances_y)
+        self._labels.send(times, ids, positions, counts)
 
     def _send_ellipses(
         self,
