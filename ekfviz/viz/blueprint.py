@@ -396,13 +396,18 @@ def default_blueprint(
     )
 
 
-def with_legend(view: rrb.View | rrb.Container, legend: bool) -> rrb.View | rrb.Container:
+def with_legend(
+    view: rrb.View | rrb.Container, legend: bool, share: float = 8.0
+) -> rrb.View | rrb.Container:
     """A map (or grid of maps) above a strip with the legend of its colours and marks
-    (``run/legend``, see :mod:`ekfviz.viz.legend`), where there is one."""
+    (``run/legend``, see :mod:`ekfviz.viz.legend`), where there is one.
+
+    :param share: the maps' height over the legend's (4 lines at 8 in a 1000 px window)
+    """
     if not legend:
         return view
     return rrb.Vertical(
-        view, rrb.TextDocumentView(name="Legend", origin=style.RUN_LEGEND), row_shares=[8, 1]
+        view, rrb.TextDocumentView(name="Legend", origin=style.RUN_LEGEND), row_shares=[share, 1]
     )
 
 

@@ -21,10 +21,10 @@ ENTRIES: tuple[tuple[tuple[str, ...], str], ...] = (
     ((style.POSE_PREDICTED,), "**magenta ellipse**: the pose's 3σ after the predict"),
     (
         (style.LANDMARKS,),
-        "**green dots and ellipses**: the landmarks' estimates and their 3σ now (L<id>)",
+        "**green dots and ellipses**: the landmarks and their 3σ now (L<id>)",
     ),
     ((style.LANDMARK_INITIAL,), "**red ellipse**: a landmark's 3σ when it was first seen"),
-    ((style.OBSERVATIONS,), "**orange rays**: the measurements of the update at the cursor"),
+    ((style.OBSERVATIONS,), "**orange rays**: the measurements at the cursor"),
     (
         ("world/association/rays",),
         "**rays** green: matched, orange: new, red: rejected; **orange dots**: tentative",
@@ -33,6 +33,10 @@ ENTRIES: tuple[tuple[tuple[str, ...], str], ...] = (
     ((style.TRUTH_TRAJECTORY, style.TRUTH_ROBOT), "**grey line and dot**: the true path"),
     (("world/reference/gps",), "**purple**: the GPS track"),
     (("world/divergence",), "**red marks**: where the checked filter diverged"),
+    (
+        ("world/divergence/expected",),
+        "**grey, red outlines** (up close): the reference's and the checked filter's 3σ there",
+    ),
 )
 
 
