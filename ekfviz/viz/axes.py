@@ -4,7 +4,8 @@ A fit to the largest value lets one outlier (or one wild filter of a comparison)
 every other line at zero; a fit to three times the 95% upper bound of many landmarks
 (chi-square of 12 or more dof) does the same to a filter whose values are small. The
 range here takes the 99th percentile of the values and the typical lower bound, and the
-upper bound where it is near them; what lies above is named in the plot's title.
+upper bound and the largest value where they are near; what lies above is named in the
+plot's title.
 """
 
 from __future__ import annotations
@@ -51,8 +52,9 @@ def fitted_axis(
     :param values: arrays of the statistic (NaN and inf ignored), one per run or batch
     :param lowers: arrays of its 95% lower bounds, likewise; ``uppers`` the upper ones
     :return: the range to ``HEADROOM`` x max(99th percentile, median lower bound, and the
-        median upper bound if within ``UPPER_REACH`` of those), and a note naming the
-        values clipped and an upper bound left above; None without a finite value
+        median upper bound and the largest value where within ``UPPER_REACH`` of those),
+        and a note naming the values clipped and an upper bound left above; None without
+        a finite value
     """
     finite = _finite(values)
     if not finite.size:
@@ -62,9 +64,11 @@ def fitted_axis(
     top = max(float(np.percentile(finite, 99.0)), lower)
     if upper <= UPPER_REACH * top or top <= 0.0:
         top = max(top, upper)
+    largest = float(finite.max())
+    if largest <= UPPER_REACH * top:  # a tail, not an outlier: shown whole
+        top = max(top, largest)
     top = HEADROOM * top if top > 0.0 else 1.0
     notes = []
-    largest = float(finite.max())
     if largest > top:
         notes.append(f"clipped at {top:.3g}, largest {largest:.3g}")
     if upper > top:
