@@ -113,6 +113,7 @@ def runs(work: Path, options: argparse.Namespace) -> list[tuple[str, list[str], 
     """(picture name, ekfviz arguments, exit statuses that are fine) of every layout."""
     classic, truth = str(DATA / "classic.txt"), str(DATA / "classic_truth.json")
     scans_truth = str(DATA / "scans_truth.json")
+    compared = [classic, "--truth", truth, "--workers", "1"]
     filters = ["--filter", "ekf", "--filter", f"{PLUGINS}:Textbook", "--filter", "isam2",
                "--filter", "batch"]  # fmt: skip
     return [
@@ -122,8 +123,10 @@ def runs(work: Path, options: argparse.Namespace) -> list[tuple[str, list[str], 
         ("mrclam", ["replay", str(options.mrclam), "--robot", "1"], (0,)),
         ("victoria", ["replay", str(options.victoria)], (0,)),
         ("rosbag", ["replay", str(work / "run_bag")], (0,)),
-        ("compare", ["compare", classic, "--truth", truth, *filters[:4], "--workers", "1"], (0,)),
-        ("compare4", ["compare", classic, "--truth", truth, *filters, "--workers", "1"], (0,)),
+        # the README's: the EKF, iSAM2 and the batch optimum
+        ("compare", ["compare", *compared, *filters[:2], *filters[4:]], (0,)),
+        ("compare-identical", ["compare", *compared, *filters[:4]], (0,)),
+        ("compare4", ["compare", *compared, *filters], (0,)),
         ("sweep", ["sweep", classic, "--truth", truth, "--preset", "tuning"], (0,)),
         ("check", ["check", classic, "--filter", f"{PLUGINS}:NoRInS"], (1,)),
         ("consistency", ["consistency", "--runs", "5"], (0,)),
