@@ -76,6 +76,39 @@ def fitted_axis(
     return FittedAxis((0.0, top), "; ".join(notes))
 
 
+WILD_RUN = 5.0  # a study's run whose own fitted top is this times the median run's: clipped
+
+
+def study_axis(runs: Sequence[tuple[str, SeriesExtent]]) -> FittedAxis | None:
+    """The y range of a study's overlaid runs: fitted to the runs that are not wild, a
+    run being wild where its own fitted top is ``WILD_RUN`` times the median run's (a
+    percentile of all values does not clip a run that explodes at every update).
+
+    :param runs: (label, extent) of every run with values
+    :return: the range (see :func:`fitted_axis`), its note naming the wild runs clipped
+    """
+    own = [
+        (label, extent, axis)
+        for label, extent in runs
+        if (axis := fitted_axis(extent.values, extent.lowers, extent.uppers)) is not None
+    ]
+    if not own:
+        return None
+    middle = float(np.median([axis.range[1] for _, _, axis in own]))
+    wild = [label for label, _, axis in own if axis.range[1] > WILD_RUN * middle]
+    tame = [extent for label, extent, _ in own if label not in wild]
+    fitted = fitted_axis(
+        [v for e in tame for v in e.values],
+        [v for e in tame for v in e.lowers],
+        [v for e in tame for v in e.uppers],
+    )
+    if fitted is None or not wild:
+        return fitted
+    named = ", ".join(wild[:2]) + (f" and {len(wild) - 2} more" if len(wild) > 2 else "")
+    notes = [note for note in (fitted.note, f"{named} above, clipped") if note]
+    return FittedAxis(fitted.range, "; ".join(notes))
+
+
 def _median(arrays: Sequence[FloatArray]) -> float:
     """The median of the finite values of some arrays, 0 without one."""
     finite = _finite(arrays)

@@ -579,8 +579,9 @@ def sweep_blueprint(
                 rrb.Tabs(*tabs),
                 row_shares=[1] * len(plots) + [2],
             ),
-            # the summary's table as wide as it needs at 1600 px (at 5:3 it was cut)
-            column_shares=[3, 2],
+            # the summary's table as wide as it needs at 1600 px (at 5:3 it was cut; a
+            # sweep's has more columns)
+            column_shares=[3, 2] if what == "filter" else [1, 1],
         ),
         rrb.TimePanel(timeline=style.STEP, play_state="following", state="collapsed"),
         collapse_panels=True,

@@ -18,7 +18,7 @@ from ekfviz.evaluation.consistency import events_nis
 from ekfviz.evaluation.errors import Evaluation, landmark_errors
 from ekfviz.studies.runs import Run
 from ekfviz.viz import style
-from ekfviz.viz.axes import FittedAxis, fitted_axis
+from ekfviz.viz.axes import FittedAxis, study_axis
 from ekfviz.viz.blueprint import sweep_blueprint
 from ekfviz.viz.ellipses import ellipse_extent
 from ekfviz.viz.legend import legend_markdown
@@ -67,7 +67,12 @@ def record_study(
                 rec.log(f"{prefix}/{style.MEAN_LANDMARK_ERROR}", marks, static=True)
     rec.log(SUMMARY, rr.TextDocument(summary, media_type=rr.MediaType.MARKDOWN), static=True)
     finish_recorders(recording, recorders)
-    log_legend(rec, [recorder for recorder, _ in recorders])
+    colours = [PALETTE_NAMES[k % len(PALETTE)] for k in range(len(runs))]
+    # the plots' colours here too: a narrow map's title cuts its colour off
+    key = "**plot colours**: " + ", ".join(
+        f"{run.spec.label} {colour}" for run, colour in zip(runs, colours, strict=True)
+    )
+    log_legend(rec, [recorder for recorder, _ in recorders], key=key)
     # after the runs are finished: the layout shows what they logged, no empty plot
     rec.send_blueprint(
         sweep_blueprint(
@@ -76,9 +81,9 @@ def record_study(
             bounds_xy=box,
             what="variant" if root == "variants" else "filter",
             has_poses=truth is not None and truth.has_poses,
-            value_axes=study_axes([recorder for recorder, _ in recorders]),
+            value_axes=study_axes(runs, [recorder for recorder, _ in recorders]),
             identical=identical_note(runs, twins),
-            colours=[PALETTE_NAMES[k % len(PALETTE)] for k in range(len(runs))],
+            colours=colours,
             has={
                 f"{root}/{run.spec.key}": recorder.entities_with_data
                 for run, (recorder, _) in zip(runs, recorders, strict=True)
@@ -125,27 +130,30 @@ def log_runs(
     return recorders, box + np.array([[-margin], [margin]])
 
 
-def log_legend(rec: rr.RecordingStream, recorders: Sequence[Recorder], *extra: str) -> None:
+def log_legend(
+    rec: rr.RecordingStream, recorders: Sequence[Recorder], *extra: str, key: str = ""
+) -> None:
     """The legend of the maps of a study's runs (``run/legend``), from what any of them
-    drew and the ``extra`` entity paths (see :mod:`ekfviz.viz.legend`)."""
+    drew and the ``extra`` entity paths (see :mod:`ekfviz.viz.legend`), then ``key``."""
     drawn = {path for recorder in recorders for path in recorder.entities_with_data}
-    legend = legend_markdown(drawn | set(extra))
+    legend = " · ".join(part for part in (legend_markdown(drawn | set(extra)), key) if part)
     if legend:
         document = rr.TextDocument(legend, media_type=rr.MediaType.MARKDOWN)
         rec.log(style.RUN_LEGEND, document, static=True)
 
 
-def study_axes(recorders: Sequence[Recorder]) -> dict[str, FittedAxis]:
-    """The NIS and NEES axes of a study, fitted to every run's values and bounds together
-    (see :mod:`ekfviz.viz.axes`): one wild run is clipped, with a note, not the rest
-    flattened."""
+def study_axes(runs: Sequence[Run], recorders: Sequence[Recorder]) -> dict[str, FittedAxis]:
+    """The NIS and NEES axes of a study, fitted to its runs that are not wild (see
+    :func:`ekfviz.viz.axes.study_axis`): a wild run is clipped, with a note, not the
+    rest flattened."""
     axes: dict[str, FittedAxis] = {}
     for path in (style.NIS, style.NEES):
-        extents = [r.value_extents[path] for r in recorders if path in r.value_extents]
-        fitted = fitted_axis(
-            [v for e in extents for v in e.values],
-            [v for e in extents for v in e.lowers],
-            [v for e in extents for v in e.uppers],
+        fitted = study_axis(
+            [
+                (run.spec.label, recorder.value_extents[path])
+                for run, recorder in zip(runs, recorders, strict=True)
+                if path in recorder.value_extents
+            ]
         )
         if fitted is not None:
             axes[path] = fitted

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from ekfviz.evaluation.consistency import chi2_bounds
-from ekfviz.viz.axes import HEADROOM, SeriesExtent, fitted_axis
+from ekfviz.viz.axes import HEADROOM, SeriesExtent, fitted_axis, study_axis
 
 
 def test_a_cautious_filter_is_framed_on_its_values_and_the_lower_bound() -> None:
@@ -53,3 +53,24 @@ def test_an_extent_gathers_batches_and_scalar_bounds() -> None:
     assert [v.tolist() for v in extent.lowers] == [[0.5], [0.4]]
     axis = fitted_axis(extent.values, extent.lowers, extent.uppers)
     assert axis is not None and axis.range[1] == pytest.approx(HEADROOM * 8.5)
+
+
+def test_a_study_clips_the_runs_that_explode_at_every_update_and_names_them() -> None:
+    # a sweep's variant with R a hundred times too small: its NIS is wild at every update,
+    # a tenth of all values, beyond any percentile's reach
+    low, high = chi2_bounds(2)
+    rng = np.random.default_rng(3)
+
+    def run(scale: float) -> SeriesExtent:
+        extent = SeriesExtent()
+        extent.add(scale * rng.chisquare(2, 100), low, high)
+        return extent
+
+    runs = [(f"variant {k}", run(1.0 + 0.1 * k)) for k in range(9)]
+    runs.append(("sigma_range /10", run(100.0)))
+    axis = study_axis(runs)
+    assert axis is not None
+    assert axis.range[1] < 30.0  # the nine sane runs fill the frame (the wild one: 1000s)
+    assert axis.note.endswith("sigma_range /10 above, clipped")
+    tame = study_axis(runs[:9])
+    assert tame is not None and "clipped" not in tame.note
