@@ -573,15 +573,16 @@ def sweep_blueprint(
         ]
     return rrb.Blueprint(
         rrb.Horizontal(
-            with_legend(map_tiles(maps), legend),
+            # the legend lists every run's colour too: more lines for many runs
+            with_legend(map_tiles(maps), legend, share=8.0 if len(variants) <= 4 else 4.0),
             rrb.Vertical(
                 *plots,
                 rrb.Tabs(*tabs),
                 row_shares=[1] * len(plots) + [2],
             ),
-            # the summary's table as wide as it needs at 1600 px (at 5:3 it was cut; a
-            # sweep's has more columns)
-            column_shares=[3, 2] if what == "filter" else [1, 1],
+            # the summary's table as wide as a comparison's needs at 1600 px (at 5:3 it
+            # was cut; a sweep's wider one can be maximised: narrower maps cut their titles)
+            column_shares=[3, 2],
         ),
         rrb.TimePanel(timeline=style.STEP, play_state="following", state="collapsed"),
         collapse_panels=True,

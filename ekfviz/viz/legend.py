@@ -11,9 +11,12 @@ from collections.abc import Collection
 
 from ekfviz.viz import style
 
+# The association's and the GPS reference's map entities (spelled out: their module,
+# ekfviz.viz.association, imports the recorder, which imports this one)
+ASSOCIATION_RAYS = "world/association/rays"
+GPS_TRACK = "world/reference/gps"
+
 # The entity paths (the first with data decides) and what they draw, in the legend's order.
-# (The association's and the GPS reference's paths are spelled out: their module imports
-# the recorder, which imports this one.)
 ENTRIES: tuple[tuple[tuple[str, ...], str], ...] = (
     ((style.ROBOT,), "**black dot and line**: the robot and its heading"),
     ((style.TRAJECTORY,), "**blue line**: the estimated path"),
@@ -26,12 +29,12 @@ ENTRIES: tuple[tuple[tuple[str, ...], str], ...] = (
     ((style.LANDMARK_INITIAL,), "**red ellipse**: a landmark's 3σ when it was first seen"),
     ((style.OBSERVATIONS,), "**orange rays**: the measurements at the cursor"),
     (
-        ("world/association/rays",),
+        (ASSOCIATION_RAYS,),
         "**rays** green: matched, orange: new, red: rejected; **orange dots**: tentative",
     ),
     ((style.TRUTH_LANDMARKS,), "**black dots**: the true landmarks"),
     ((style.TRUTH_TRAJECTORY, style.TRUTH_ROBOT), "**grey line and dot**: the true path"),
-    (("world/reference/gps",), "**purple**: the GPS track"),
+    ((GPS_TRACK,), "**purple**: the GPS track"),
     (("world/divergence",), "**red marks**: where the checked filter diverged"),
     (
         ("world/divergence/expected",),

@@ -68,7 +68,7 @@ from ekfviz.viz.layers.pending import FLUSH_EVERY, FLUSH_LANDMARKS, PendingEvent
 from ekfviz.viz.layers.robot import HEADING_LENGTH, RobotLayer
 from ekfviz.viz.layers.text import TextLayer
 from ekfviz.viz.layers.truth import TruthLayer
-from ekfviz.viz.legend import legend_markdown
+from ekfviz.viz.legend import ASSOCIATION_RAYS, GPS_TRACK, legend_markdown
 from ekfviz.viz.thinning import PREDICT_INTERVAL_S, PredictThinning
 
 if TYPE_CHECKING:  # made at a run's first scan: a log with ids never loads it
@@ -317,9 +317,10 @@ class Recorder:
         """The entities (no prefix) given data so far, and a GPS reference's to come."""
         has = set(self._rec.sent)
         if self.association is not None:  # it logs through the stream itself
-            has |= {f"{ASSOCIATION_SERIES}/matched", style.LOG}
+            has |= {f"{ASSOCIATION_SERIES}/matched", style.LOG, ASSOCIATION_RAYS}
         if self._gps_reference:
             has |= {f"{REFERENCE_SERIES}/gps_error", f"{REFERENCE_SERIES}/gps_rmse"}
+            has.add(GPS_TRACK)
         return frozenset(has)
 
     @property

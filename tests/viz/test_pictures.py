@@ -55,6 +55,8 @@ def test_the_map_has_a_legend_of_the_marks_it_draws(classic: Path, tmp_path: Pat
     untruthful = saved(["replay", str(CLASSIC)], tmp_path / "plain.rrd")
     text = legend_text(untruthful)
     assert "blue line" in text and "true landmarks" not in text and "grey line" not in text
+    scans = saved(["replay", str(DATA / "scans.txt"), "--association", "nn"], tmp_path / "s.rrd")
+    assert "green: matched, orange: new, red: rejected" in legend_text(scans)
 
 
 def test_labels_hang_just_below_their_landmarks_inside_the_frame(classic: Path) -> None:
