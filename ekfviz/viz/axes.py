@@ -10,7 +10,7 @@ plot's title.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -74,6 +74,15 @@ def fitted_axis(
     if upper > top:
         notes.append(f"upper bound {upper:.3g} above")
     return FittedAxis((0.0, top), "; ".join(notes))
+
+
+def fitted_axes(extents: Mapping[str, SeriesExtent]) -> dict[str, FittedAxis]:
+    """:func:`fitted_axis` of every series with a finite value, by entity path."""
+    return {
+        path: axis
+        for path, extent in extents.items()
+        if (axis := fitted_axis(extent.values, extent.lowers, extent.uppers)) is not None
+    }
 
 
 WILD_RUN = 5.0  # a study's run whose own fitted top is this times the median run's: clipped

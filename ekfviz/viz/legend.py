@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from collections.abc import Collection
 
+import rerun as rr
+
 from ekfviz.viz import style
 
 # The association's and the GPS reference's map entities (spelled out: their module,
@@ -48,3 +50,8 @@ def legend_markdown(has: Collection[str]) -> str:
     line of " · "-separated entries; empty when none is drawn."""
     shown = [text for paths, text in ENTRIES if any(path in has for path in paths)]
     return " · ".join(shown)
+
+
+def markdown_document(text: str) -> rr.TextDocument:
+    """A markdown text document (the legend, a study's summary)."""
+    return rr.TextDocument(text, media_type=rr.MediaType.MARKDOWN)

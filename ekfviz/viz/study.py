@@ -21,7 +21,7 @@ from ekfviz.viz import style
 from ekfviz.viz.axes import FittedAxis, study_axis
 from ekfviz.viz.blueprint import sweep_blueprint
 from ekfviz.viz.ellipses import ellipse_extent
-from ekfviz.viz.legend import legend_markdown
+from ekfviz.viz.legend import legend_markdown, markdown_document
 from ekfviz.viz.recorder import Recorder
 from ekfviz.viz.run import Recording, finish_recorders
 
@@ -138,8 +138,7 @@ def log_legend(
     drawn = {path for recorder in recorders for path in recorder.entities_with_data}
     legend = " · ".join(part for part in (legend_markdown(drawn | set(extra)), key) if part)
     if legend:
-        document = rr.TextDocument(legend, media_type=rr.MediaType.MARKDOWN)
-        rec.log(style.RUN_LEGEND, document, static=True)
+        rec.log(style.RUN_LEGEND, markdown_document(legend), static=True)
 
 
 def study_axes(runs: Sequence[Run], recorders: Sequence[Recorder]) -> dict[str, FittedAxis]:
