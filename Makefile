@@ -72,9 +72,11 @@ clean:
 bench: $(VENV)/.installed-dev $(VENV)/.compiled
 	$(BIN)/python benchmarks/bench.py $(BENCH_ARGS)
 
-# The documentation's screenshots from the current layouts, in the real viewer off screen (not
-# part of make test; needs Xvfb without a display). With the datasets: make screenshots
-# MRCLAM=PATH/MRCLAM_Dataset6 VICTORIA=PATH/VictoriaPark (else a simulated MRCLAM run).
+# The documentation's screenshots (docs/*.png, 1600x1000) of every default layout, from
+# generated data, in the real viewer run headless once each recording has loaded (not part
+# of make test; needs a GPU or Mesa's lavapipe: apt-get install mesa-vulkan-drivers). With
+# the datasets: make screenshots MRCLAM=PATH/MRCLAM_Dataset6 VICTORIA=PATH/VictoriaPark
+# (else a simulated MRCLAM directory and a generated Victoria Park run).
 screenshots: $(VENV)/.installed-dev $(VENV)/.compiled
 	$(BIN)/python docs/screenshots.py $(if $(MRCLAM),--mrclam $(MRCLAM)) $(if $(VICTORIA),--victoria $(VICTORIA))
 

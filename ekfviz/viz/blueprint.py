@@ -8,8 +8,8 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from ekfviz.core.types import FloatArray
-from ekfviz.evaluation.consistency import chi2_bounds
 from ekfviz.viz import style
+from ekfviz.viz.axes import FittedAxis
 
 # The x axis of a plot on the ``time`` timeline spans the whole run. Without it a plot of
 # a timestamped log (MRCLAM's Unix times) opens zoomed to an instant and looks empty;
@@ -33,6 +33,34 @@ def accumulated_range() -> rrb.VisibleTimeRanges:
                 end=rrb.TimeRangeBoundary.cursor_relative(),
             )
             for timeline in (style.STEP, style.EVENT, style.TIME)
+        ]
+    )
+
+
+# On real data (a timestamped log) a first-sighting outline is drawn this long after the
+# sighting: metres wide, the latest one stayed on the map for the rest of the run
+FIRST_SIGHTING_S = 10.0
+FIRST_SIGHTING_EVENTS = 600  # the same on the sequence timelines (MRCLAM: 67 Hz odometry)
+
+
+def recent_range() -> rrb.VisibleTimeRanges:
+    """Show an entity for ``FIRST_SIGHTING_S`` of log time (``FIRST_SIGHTING_EVENTS``
+    steps or events) after it was logged."""
+    return rrb.VisibleTimeRanges(
+        [
+            rrb.VisibleTimeRange(
+                style.TIME,
+                start=rrb.TimeRangeBoundary.cursor_relative(seconds=-FIRST_SIGHTING_S),
+                end=rrb.TimeRangeBoundary.cursor_relative(),
+            ),
+            *(
+                rrb.VisibleTimeRange(
+                    timeline,
+                    start=rrb.TimeRangeBoundary.cursor_relative(seq=-FIRST_SIGHTING_EVENTS),
+                    end=rrb.TimeRangeBoundary.cursor_relative(),
+                )
+                for timeline in (style.STEP, style.EVENT)
+            ),
         ]
     )
 
@@ -70,8 +98,8 @@ def map_view(
         time cursor (``--history``: the classic figure)
     :param exclude: entities under the world (without the prefix) this map leaves out
     :param all_first_sightings: accumulate every landmark's first-sighting ellipse up to
-        the cursor; else only the latest is drawn (on real data they are metres wide and
-        a run's worth of them covers the map)
+        the cursor; else each is drawn for a few seconds after its sighting (on real data
+        they are metres wide and a run's worth of them covers the map)
     """
     root = f"/{prefix.strip('/')}/" if prefix.strip("/") else "/"
     visual_bounds = None
@@ -90,8 +118,9 @@ def map_view(
         overrides={
             **{
                 f"{root}{path}": accumulated_range()
-                for path in style.ACCUMULATED + (style.HISTORY if history else ())
                 if all_first_sightings or path != style.LANDMARK_INITIAL
+                else recent_range()
+                for path in style.ACCUMULATED + (style.HISTORY if history else ())
             },
             f"{root}{style.OBSERVATIONS}": at_cursor(),  # see Recorder._send_rays
         },
@@ -179,7 +208,7 @@ def run_plots(
     prefix: str = "",
     axis: rrb.archetypes.TimeAxis | None = None,
     landmark_ids: Sequence[int] = (),
-    value_ranges: Mapping[str, tuple[float, float]] | None = None,
+    value_axes: Mapping[str, FittedAxis] | None = None,
     offline: bool = False,
 ) -> list[rrb.View | rrb.Container]:
     """The plots of one run, each only where its series have data (a plot of styling
@@ -187,9 +216,8 @@ def run_plots(
 
     :param has: the entity paths (without the prefix) that were given data
     :param offline: an offline filter's run, whose series are points
-    :param value_ranges: the y range of the NIS and NEES plots by entity path: all the
-        data, and the 95% bounds inside the frame (a fit to the data alone put them on
-        its edges)
+    :param value_axes: the y range of the NIS and NEES plots by entity path, fitted to
+        their data and bounds (see :mod:`ekfviz.viz.axes`); its note goes in the title
     """
     root = root_of(prefix)
     lengths, angle = (
@@ -201,13 +229,12 @@ def run_plots(
         (style.NEES, "NEES (blue) and 95% bounds"),
     ):
         if path in has:
+            fitted = value_axes.get(path) if value_axes else None
             plots.append(
                 rrb.TimeSeriesView(
                     axis_x=axis,
-                    axis_y=rrb.ScalarAxis(range=value_ranges[path])
-                    if value_ranges and path in value_ranges
-                    else None,
-                    name=name,
+                    axis_y=None if fitted is None else rrb.ScalarAxis(range=fitted.range),
+                    name=f"{name} ({fitted.note})" if fitted is not None and fitted.note else name,
                     origin=f"{root}{path}",
                     plot_legend=NO_LEGEND,
                 )
@@ -306,7 +333,7 @@ def default_blueprint(
     history: bool = False,
     landmark_ids: Sequence[int] = (),
     has: Collection[str] | None = None,
-    value_ranges: Mapping[str, tuple[float, float]] | None = None,
+    value_axes: Mapping[str, FittedAxis] | None = None,
     offline: bool = False,
 ) -> rrb.Blueprint:
     """The layout: the map on the left, plots above and documents below on the right.
@@ -321,7 +348,7 @@ def default_blueprint(
         the mean and the worst landmark)
     :param has: the entity paths given data; a plot is laid out only where its series
         have some (None: those a run of this kind has, before any data)
-    :param value_ranges: the NIS and NEES plots' y ranges, see :func:`run_plots`
+    :param value_axes: the NIS and NEES plots' y ranges, see :func:`run_plots`
     :param offline: an offline filter's run, see :func:`run_plots`
     """
     axis = WHOLE_RUN if has_time else None  # the default fits a sequence timeline already
@@ -333,7 +360,7 @@ def default_blueprint(
         if has_truth:
             has.add(f"{style.LANDMARK_ERROR_SUMMARY}/{style.MEAN}")
     plots = run_plots(
-        has, axis=axis, landmark_ids=landmark_ids, value_ranges=value_ranges, offline=offline
+        has, axis=axis, landmark_ids=landmark_ids, value_axes=value_axes, offline=offline
     )
     texts: list[rrb.Container | rrb.View] = [log_view()]
     if style.CORRELATION_MATRIX in has or not final:
@@ -346,8 +373,11 @@ def default_blueprint(
         ]
     return rrb.Blueprint(
         rrb.Horizontal(
-            # a timestamped log is real data: its first sightings accumulate with --history
-            map_view(bounds_xy, history=history, all_first_sightings=history or not has_time),
+            with_legend(
+                # a timestamped log is real data: its first sightings accumulate with --history
+                map_view(bounds_xy, history=history, all_first_sightings=history or not has_time),
+                style.RUN_LEGEND in has,
+            ),
             rrb.Vertical(
                 tiles(plots) if plots else rrb.Vertical(),
                 rrb.Tabs(*texts),
@@ -363,6 +393,21 @@ def default_blueprint(
             state="collapsed",
         ),
         collapse_panels=True,
+    )
+
+
+def with_legend(
+    view: rrb.View | rrb.Container, legend: bool, share: float = 8.0
+) -> rrb.View | rrb.Container:
+    """A map (or grid of maps) above a strip with the legend of its colours and marks
+    (``run/legend``, see :mod:`ekfviz.viz.legend`), where there is one.
+
+    :param share: the maps' height over the legend's (4 lines at 8 in a 1000 px window)
+    """
+    if not legend:
+        return view
+    return rrb.Vertical(
+        view, rrb.TextDocumentView(name="Legend", origin=style.RUN_LEGEND), row_shares=[share, 1]
     )
 
 
@@ -439,59 +484,84 @@ def sweep_blueprint(
     bounds_xy: FloatArray | None = None,
     what: str = "variant",
     has_poses: bool = False,
-    nis_range: tuple[float, float] | None = None,
+    value_axes: Mapping[str, FittedAxis] | None = None,
     has: Mapping[str, Collection[str]] | None = None,
     summary: str | None = None,
     offline: Collection[str] = (),
+    colours: Sequence[str] = (),
+    identical: str = "",
+    legend: bool = True,
 ) -> rrb.Blueprint:
-    """A grid of maps, one per run (baseline first), beside overlaid metric plots tall
-    enough for a legend entry per run, the study's documents and a tab per run.
+    """A grid of maps, one per run (baseline first) and titled with its colour, beside
+    overlaid metric plots without legends (they would cover the lines), the study's
+    documents and a tab per run.
 
     :param variants: (label, prefix) of every run, in order
     :param what: what a run is called in the plot titles (``variant``, ``filter``)
     :param has_poses: the truth has poses: a NEES plot too
-    :param nis_range: the NIS axis to show (a few times the first run's 95% bounds): the
-        few wild runs would otherwise flatten every sensible one
+    :param value_axes: the NIS and NEES axes, fitted to every run's values (see
+        :func:`ekfviz.viz.study.study_axes`): the few wild runs would otherwise flatten
+        every sensible one; their notes go in the titles
     :param has: per prefix, the entity paths given data (see :func:`run_plots`); None
         leaves out the tabs of the runs
     :param summary: the entity of the study's summary document
     :param offline: the prefixes of offline filters' runs (see :func:`run_plots`)
+    :param colours: the name of each run's colour in the plots, for the maps' titles
+    :param identical: a note naming the runs whose lines coincide, for the plots' titles
+    :param legend: the maps' legend (``run/legend``) is logged: shown beneath them
     """
-    maps = [map_view(bounds_xy, prefix=prefix, name=label) for label, prefix in variants]
+    maps = [
+        map_view(
+            bounds_xy,
+            prefix=prefix,
+            name=f"{label} ({colours[k]})" if k < len(colours) else label,
+        )
+        for k, (label, prefix) in enumerate(variants)
+    ]
     first = variants[0][1]
-    # a legend in every plot of a few runs; of many, in the first only (it would cover them)
-    legend = SMALL_LEGEND if len(variants) <= 4 else NO_LEGEND
+    axes = value_axes or {}
+
+    def titled(title: str, path: str | None = None) -> str:
+        notes = [axes[path].note] if path is not None and path in axes and axes[path].note else []
+        return (
+            f"{title} ({'; '.join([*notes, identical] if identical else notes)})"
+            if (notes or identical)
+            else title
+        )
+
+    def overlaid(path: str) -> list[str]:
+        return [
+            *(f"/{prefix}/{path}" for _, prefix in variants),
+            f"/{first}/{path}/{style.LOWER}",
+            f"/{first}/{path}/{style.UPPER}",
+        ]
+
+    def y_axis(path: str) -> rrb.ScalarAxis | None:
+        return rrb.ScalarAxis(range=axes[path].range) if path in axes else None
+
     plots: list[rrb.View] = [
         rrb.TimeSeriesView(
-            name=f"NIS per {what} (grey: {variants[0][0]}'s 95% bounds)",
-            contents=[
-                *(f"/{prefix}/{style.NIS}" for _, prefix in variants),
-                f"/{first}/{style.NIS}/{style.LOWER}",
-                f"/{first}/{style.NIS}/{style.UPPER}",
-            ],
-            axis_y=None if nis_range is None else rrb.ScalarAxis(range=nis_range),
-            plot_legend=SMALL_LEGEND,
+            name=titled(f"NIS per {what}; grey: {variants[0][0]}'s 95% bounds", style.NIS),
+            contents=overlaid(style.NIS),
+            axis_y=y_axis(style.NIS),
+            plot_legend=NO_LEGEND if colours else SMALL_LEGEND,
         )
     ]
     if has_poses:
         plots.append(
             rrb.TimeSeriesView(
-                name=f"Pose NEES per {what} (colours as above)",
-                contents=[
-                    *(f"/{prefix}/{style.NEES}" for _, prefix in variants),
-                    f"/{first}/{style.NEES}/{style.LOWER}",
-                    f"/{first}/{style.NEES}/{style.UPPER}",
-                ],
-                axis_y=rrb.ScalarAxis(range=(0.0, 3.0 * chi2_bounds(3)[1])),
-                plot_legend=legend,
+                name=titled(f"Pose NEES per {what}", style.NEES),
+                contents=overlaid(style.NEES),
+                axis_y=y_axis(style.NEES),
+                plot_legend=NO_LEGEND,
             )
         )
     if has_truth:
         plots.append(
             rrb.TimeSeriesView(
-                name=f"Mean landmark error [m] per {what} (colours as above)",
+                name=titled(f"Mean landmark error [m] per {what}"),
                 contents=[f"/{prefix}/{style.MEAN_LANDMARK_ERROR}" for _, prefix in variants],
-                plot_legend=legend,
+                plot_legend=NO_LEGEND,
             )
         )
     prefixes = [prefix for _, prefix in variants]
@@ -503,13 +573,16 @@ def sweep_blueprint(
         ]
     return rrb.Blueprint(
         rrb.Horizontal(
-            map_tiles(maps),
+            # the legend lists every run's colour too: more lines for many runs
+            with_legend(map_tiles(maps), legend, share=8.0 if len(variants) <= 4 else 4.0),
             rrb.Vertical(
                 *plots,
                 rrb.Tabs(*tabs),
-                row_shares=[2] + [1] * (len(plots) - 1) + [2],  # room for the legend
+                row_shares=[1] * len(plots) + [2],
             ),
-            column_shares=[5, 3],
+            # the summary's table as wide as a comparison's needs at 1600 px (at 5:3 it
+            # was cut; a sweep's wider one can be maximised: narrower maps cut their titles)
+            column_shares=[3, 2],
         ),
         rrb.TimePanel(timeline=style.STEP, play_state="following", state="collapsed"),
         collapse_panels=True,

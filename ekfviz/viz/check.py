@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -39,10 +40,11 @@ from ekfviz.viz.blueprint import (
     map_view,
     run_details,
     study_documents,
+    with_legend,
 )
 from ekfviz.viz.ellipses import ellipse_extent, ellipse_outlines
 from ekfviz.viz.recording import Recording, finish_recorders
-from ekfviz.viz.study import SUMMARY, log_runs
+from ekfviz.viz.study import SUMMARY, log_legend, log_runs
 
 if TYPE_CHECKING:
     from ekfviz.check.lockstep import CheckResult, Divergence
@@ -107,6 +109,7 @@ def record_check(
     """
     rec = recording.rec
     root = "filters"
+    runs = own_reference(runs, result)
     recorders, box = log_runs(rec, runs, truth, root)
     prefixes = [f"{root}/{run.spec.key}" for run in runs]
     divergences = divergences_of(result)
@@ -123,20 +126,29 @@ def record_check(
             for divergence in divergences
             if (found := _record_at(result.records, divergence.event)) is not None
         ]
-        for prefix in prefixes:
-            if marks:
+        for k, prefix in enumerate(prefixes):
+            # the reference's own map marks the first divergence only: its states after
+            # it are not the reference's (see own_reference)
+            shown = marks[:1] if k < len(prefixes) - 1 else marks
+            if shown:
                 rec.log(
                     f"{prefix}/{DIVERGENCE}",
                     rr.Points2D(
-                        np.array(marks),
+                        np.array(shown),
                         colors=[MARK_COLOR],
                         radii=rr.Radius.ui_points(7.0),
-                        labels=[f"event {first.event}: {first.worst.entry} differs"]
-                        + [""] * (len(marks) - 1),
+                        # short: the entry is in the log, the table and the zoomed title
+                        labels=[f"event {first.event}"] + [""] * (len(shown) - 1),
                         show_labels=True,
                     ),
                     static=True,
                 )
+        if marks:  # the frame takes the mark's label in (it hangs below, centred)
+            span = max(float(np.max(box[1] - box[0])), 1e-9)
+            room = np.array([[0.15 * span, 0.08 * span]])
+            at = np.array(marks[:1])
+            low, high = np.minimum(box[0], (at - room)[0]), np.maximum(box[1], (at + room)[0])
+            box = np.stack([low, high])
         zoom = _log_side_by_side(rec, checked, first, expected, got)
         for k, divergence in enumerate(divergences):
             rec.set_time(style.STEP, sequence=divergence.step)
@@ -149,6 +161,8 @@ def record_check(
             TABLE, rr.TextDocument(_table(divergences), media_type="text/markdown"), static=True
         )
     finish_recorders(recording, recorders)
+    divergence_marks = (DIVERGENCE, EXPECTED) if first is not None else ()
+    log_legend(rec, [recorder for recorder, _ in recorders], *divergence_marks)
     rec.send_blueprint(
         check_blueprint(
             [(run.spec.label, f"{root}/{run.spec.key}") for run in runs],
@@ -161,6 +175,25 @@ def record_check(
             first=first,
         )
     )
+
+
+def own_reference(runs: list[Run], result: CheckResult) -> list[Run]:
+    """The runs with the reference's cut at the first divergence where the check went on
+    past it (``--all``, grade): each reference record starts from the checked filter's
+    state, so after a divergence it is the checked filter's state stepped once, not the
+    reference's own; up to the first divergence the two are one."""
+    first = result.first_divergence
+    if first is None or len(runs) < 2:
+        return runs
+    reference = runs[0]
+    kept = int(np.searchsorted(reference.events.events, first.event, side="right"))
+    if kept >= len(reference.events):
+        return runs
+    label = f"{reference.spec.label} to event {first.event}"
+    cut = replace(
+        reference, spec=replace(reference.spec, label=label), events=reference.events[:kept]
+    )
+    return [cut, *runs[1:]]
 
 
 def _record_at(events: EventBatch, event: int) -> EventRecord | None:
@@ -182,14 +215,22 @@ def _log_differences(
     steps = np.array([steps_of.get(int(e), 0) for e in events])
     with np.errstate(divide="ignore"):
         logged = np.maximum(np.log10(differences), LOG10_FLOOR)
+    # one event (a divergence at the first) draws no line: points then
+    one = len(differences) == 1
     rec.log(
         DIFFERENCE,
-        rr.SeriesLines(colors=style.STATISTIC_COLOR, names="largest difference (log10)"),
+        rr.SeriesPoints(
+            colors=style.STATISTIC_COLOR, names="largest difference (log10)", marker_sizes=4.0
+        )
+        if one
+        else rr.SeriesLines(colors=style.STATISTIC_COLOR, names="largest difference (log10)"),
         static=True,
     )
     rec.log(
         TOLERANCE,
-        rr.SeriesLines(colors=style.BOUND_COLOR, names="tolerance (log10)", widths=1.0),
+        rr.SeriesPoints(colors=style.BOUND_COLOR, names="tolerance (log10)", marker_sizes=4.0)
+        if one
+        else rr.SeriesLines(colors=style.BOUND_COLOR, names="tolerance (log10)", widths=1.0),
         static=True,
     )
     indexes = [
@@ -328,7 +369,7 @@ def check_blueprint(
             map_view(
                 zoom_xy,
                 prefix=prefix,
-                name=f"Event {first.event}: expected (grey), got (red)",
+                name=f"At event {first.event}",
             )
         )
     difference = rrb.TimeSeriesView(
@@ -355,9 +396,10 @@ def check_blueprint(
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Vertical(
-                rrb.Horizontal(*maps),
+                # the legend of a check is longer and its maps narrower: more lines
+                with_legend(rrb.Horizontal(*maps), True, share=4.0),
                 difference,
-                row_shares=[3, 1],
+                row_shares=[4, 1],
             ),
             rrb.Vertical(
                 *(logs or [log_view()]),

@@ -45,6 +45,7 @@ from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.evaluation.errors import Evaluation
 from ekfviz.models.range_bearing import RangeBearing
 from ekfviz.viz import style
+from ekfviz.viz.axes import fitted_axes
 from ekfviz.viz.blueprint import ASSOCIATION_SERIES, REFERENCE_SERIES, default_blueprint
 from ekfviz.viz.correlation import CorrelationLayer
 from ekfviz.viz.layers.arrays import CHECK_ALL_DIM, ArrayInput
@@ -67,6 +68,7 @@ from ekfviz.viz.layers.pending import FLUSH_EVERY, FLUSH_LANDMARKS, PendingEvent
 from ekfviz.viz.layers.robot import HEADING_LENGTH, RobotLayer
 from ekfviz.viz.layers.text import TextLayer
 from ekfviz.viz.layers.truth import TruthLayer
+from ekfviz.viz.legend import ASSOCIATION_RAYS, GPS_TRACK, legend_markdown, markdown_document
 from ekfviz.viz.thinning import PREDICT_INTERVAL_S, PredictThinning
 
 if TYPE_CHECKING:  # made at a run's first scan: a log with ids never loads it
@@ -131,6 +133,7 @@ class Recorder:
         offline: bool = False,
     ) -> None:
         self._canvas = canvas = Canvas(rec, prefix, truth, detail, points=offline)
+        self.value_extents = canvas.extents  # NIS and NEES values and bounds, see viz.axes
         self._rec = canvas.entities  # the stream under the prefix (log_reference uses it)
         self._gps_reference = gps_reference
         self._sensor = sensor if sensor is not None else RangeBearing()
@@ -255,10 +258,12 @@ class Recorder:
         if self.association is not None:
             self.association.flush()
         if evaluation is not None:
-            document = rr.TextDocument(evaluation.to_markdown(), media_type=rr.MediaType.MARKDOWN)
+            document = markdown_document(evaluation.to_markdown())
             self._rec.log(style.RUN_EVALUATION, document, static=True)
         self._rec.send_styles()
         if self._blueprint:
+            if legend := legend_markdown(self.entities_with_data):
+                self._rec.log(style.RUN_LEGEND, markdown_document(legend), static=True)
             self._rec.send_blueprint(self._layout(self._canvas.bounds_xy, final=True))
         self._rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
 
@@ -279,10 +284,7 @@ class Recorder:
             bounds_xy = bounds_xy + np.array([[-margin], [margin]])
         return default_blueprint(
             has=self.entities_with_data if final else None,
-            value_ranges={
-                path: (0.0, 1.08 * max(1.15 * bound, top))
-                for path, (top, bound) in self._canvas.extents.items()
-            },
+            value_axes=fitted_axes(self._canvas.extents),
             landmark_ids=sorted(self._map.seen_ids) if self._truth is not None else (),
             has_truth=self._truth is not None,
             has_true_poses=self._truth is not None and self._truth.has_poses,
@@ -305,9 +307,9 @@ class Recorder:
         """The entities (no prefix) given data so far, and a GPS reference's to come."""
         has = set(self._rec.sent)
         if self.association is not None:  # it logs through the stream itself
-            has |= {f"{ASSOCIATION_SERIES}/matched", style.LOG}
+            has |= {f"{ASSOCIATION_SERIES}/matched", style.LOG, ASSOCIATION_RAYS}
         if self._gps_reference:
-            has |= {f"{REFERENCE_SERIES}/gps_error", f"{REFERENCE_SERIES}/gps_rmse"}
+            has |= {f"{REFERENCE_SERIES}/gps_error", f"{REFERENCE_SERIES}/gps_rmse", GPS_TRACK}
         return frozenset(has)
 
     @property

@@ -7,17 +7,21 @@ recording and its ``step`` and ``event`` timelines: scrubbing moves them all tog
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
+
 import numpy as np
 import rerun as rr
 
 from ekfviz.core.truth import GroundTruth
 from ekfviz.core.types import FloatArray
-from ekfviz.evaluation.consistency import chi2_bounds, events_nis
+from ekfviz.evaluation.consistency import events_nis
 from ekfviz.evaluation.errors import Evaluation, landmark_errors
 from ekfviz.studies.runs import Run
 from ekfviz.viz import style
+from ekfviz.viz.axes import FittedAxis, study_axis
 from ekfviz.viz.blueprint import sweep_blueprint
 from ekfviz.viz.ellipses import ellipse_extent
+from ekfviz.viz.legend import legend_markdown, markdown_document
 from ekfviz.viz.recorder import Recorder
 from ekfviz.viz.recording import Recording, finish_recorders
 
@@ -28,6 +32,11 @@ PALETTE: tuple[style.Rgb, ...] = (
     (31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
     (140, 86, 75), (227, 119, 194), (0, 0, 128), (188, 189, 34), (23, 190, 207),
     (255, 215, 0), (174, 199, 232), (255, 187, 120), (152, 223, 138),
+)  # fmt: skip
+# their names, for the maps' titles (the plots have no legend: it covered the lines)
+PALETTE_NAMES: tuple[str, ...] = (
+    "blue", "orange", "green", "red", "purple", "brown", "pink", "navy", "olive", "cyan",
+    "gold", "light blue", "light orange", "light green",
 )  # fmt: skip
 
 
@@ -45,8 +54,25 @@ def record_study(
     """
     rec = recording.rec
     recorders, box = log_runs(rec, runs, truth, root)
+    twins = identical_runs(runs)
+    for k, run in enumerate(runs):
+        if k in twins:  # drawn apart: the earlier wide beneath, the later narrow on top
+            prefix = f"{root}/{run.spec.key}"
+            marks = _series_style(
+                run, runs[0], PALETTE[k % len(PALETTE)], width=twins[k][0], same=twins[k][1]
+            )
+            for series in (style.NIS, style.NEES):
+                rec.log(f"{prefix}/{series}", marks, static=True)
+            if truth is not None:
+                rec.log(f"{prefix}/{style.MEAN_LANDMARK_ERROR}", marks, static=True)
     rec.log(SUMMARY, rr.TextDocument(summary, media_type=rr.MediaType.MARKDOWN), static=True)
     finish_recorders(recording, recorders)
+    colours = [PALETTE_NAMES[k % len(PALETTE)] for k in range(len(runs))]
+    # the plots' colours here too: a narrow map's title cuts its colour off
+    key = "**plot colours**: " + ", ".join(
+        f"{run.spec.label} {colour}" for run, colour in zip(runs, colours, strict=True)
+    )
+    log_legend(rec, [recorder for recorder, _ in recorders], key=key)
     # after the runs are finished: the layout shows what they logged, no empty plot
     rec.send_blueprint(
         sweep_blueprint(
@@ -55,7 +81,9 @@ def record_study(
             bounds_xy=box,
             what="variant" if root == "variants" else "filter",
             has_poses=truth is not None and truth.has_poses,
-            nis_range=nis_axis(runs[0]),
+            value_axes=study_axes(runs, [recorder for recorder, _ in recorders]),
+            identical=identical_note(runs, twins),
+            colours=colours,
             has={
                 f"{root}/{run.spec.key}": recorder.entities_with_data
                 for run, (recorder, _) in zip(runs, recorders, strict=True)
@@ -102,14 +130,81 @@ def log_runs(
     return recorders, box + np.array([[-margin], [margin]])
 
 
-def nis_axis(baseline: Run) -> tuple[float, float] | None:
-    """The NIS axis of a sweep: from 0 to three times the baseline's largest 95% upper
-    bound, or to its largest NIS if that is higher (None without an update)."""
-    _, values, dofs = events_nis(baseline.events.observed)
-    if not len(values):
-        return None
-    uppers = [chi2_bounds(dof)[1] for dof in np.unique(dofs).tolist()]
-    return 0.0, max(3.0 * max(uppers), float(values.max()))
+def log_legend(
+    rec: rr.RecordingStream, recorders: Sequence[Recorder], *extra: str, key: str = ""
+) -> None:
+    """The legend of the maps of a study's runs (``run/legend``), from what any of them
+    drew and the ``extra`` entity paths (see :mod:`ekfviz.viz.legend`), then ``key``."""
+    drawn = {path for recorder in recorders for path in recorder.entities_with_data}
+    legend = " · ".join(part for part in (legend_markdown(drawn | set(extra)), key) if part)
+    if legend:
+        rec.log(style.RUN_LEGEND, markdown_document(legend), static=True)
+
+
+def study_axes(runs: Sequence[Run], recorders: Sequence[Recorder]) -> dict[str, FittedAxis]:
+    """The NIS and NEES axes of a study, fitted to its runs that are not wild (see
+    :func:`ekfviz.viz.axes.study_axis`): a wild run is clipped, with a note, not the
+    rest flattened."""
+    axes: dict[str, FittedAxis] = {}
+    for path in (style.NIS, style.NEES):
+        fitted = study_axis(
+            [
+                (run.spec.label, recorder.value_extents[path])
+                for run, recorder in zip(runs, recorders, strict=True)
+                if path in recorder.value_extents
+            ]
+        )
+        if fitted is not None:
+            axes[path] = fitted
+    return axes
+
+
+def identical_runs(runs: Sequence[Run]) -> dict[int, tuple[float, str]]:
+    """The runs whose poses and NIS equal another's, drawn apart: by index, the line
+    width and the labels of the other runs it equals.
+
+    :return: {index: (width, "ekf, Textbook")}, the first of a group widest
+    """
+    groups: list[list[int]] = []
+    for k, run in enumerate(runs):
+        for group in groups:
+            if _same_run(runs[group[0]], run):
+                group.append(k)
+                break
+        else:
+            groups.append([k])
+    twins: dict[int, tuple[float, str]] = {}
+    for group in groups:
+        if len(group) < 2:
+            continue
+        for rank, k in enumerate(group):
+            others = ", ".join(runs[j].spec.label for j in group if j != k)
+            twins[k] = (max(1.5, 6.0 - 2.0 * rank), others)
+    return twins
+
+
+def identical_note(runs: Sequence[Run], twins: Mapping[int, tuple[float, str]]) -> str:
+    """The plots' note on identical runs: "ekf = Textbook (identical)", or empty."""
+    groups: list[str] = []
+    seen: set[int] = set()
+    for k in sorted(twins):
+        if k in seen:
+            continue
+        group = [k, *(j for j in sorted(twins) if j != k and runs[j].spec.label in
+                      twins[k][1].split(", "))]  # fmt: skip
+        seen.update(group)
+        groups.append(" = ".join(runs[j].spec.label for j in group))
+    return f"{'; '.join(groups)} identical" if groups else ""
+
+
+def _same_run(first: Run, second: Run) -> bool:
+    """Whether two runs have the same poses and NIS at every event, to a part in 10^6
+    (two implementations of one filter differ in round-off only)."""
+    a, b = first.events, second.events
+    if len(a) != len(b) or not np.allclose(a.poses, b.poses, rtol=1e-6, atol=1e-9):
+        return False
+    nis_a, nis_b = events_nis(a.observed)[1], events_nis(b.observed)[1]
+    return nis_a.shape == nis_b.shape and bool(np.allclose(nis_a, nis_b, rtol=1e-6, atol=1e-9))
 
 
 def is_offline(run: Run, baseline: Run) -> bool:
@@ -120,14 +215,23 @@ def is_offline(run: Run, baseline: Run) -> bool:
     return last_path is not None or (len(events) <= 2 < len(baseline.events))
 
 
-def _series_style(run: Run, baseline: Run, colour: style.Rgb) -> rr.AsComponents:
+def _series_style(
+    run: Run, baseline: Run, colour: style.Rgb, *, width: float | None = None, same: str = ""
+) -> rr.AsComponents:
     """An online run's series as lines; an offline run's as points: a line between its
-    two events would look like a value at every step."""
+    two events would look like a value at every step.
+
+    :param width: the line's width (a marker's size) where it is drawn apart from runs
+        identical to it, named in ``same``
+    """
+    name = run.spec.label + (f" (= {same})" if same else "")
     if is_offline(run, baseline):
         return rr.SeriesPoints(
-            colors=colour, names=f"{run.spec.label} (offline: start, end)", marker_sizes=5.0
+            colors=colour,
+            names=f"{name} (offline: start, end)",
+            marker_sizes=5.0 if width is None else width + 3.0,
         )
-    return rr.SeriesLines(colors=colour, names=run.spec.label)
+    return rr.SeriesLines(colors=colour, names=name, widths=width)
 
 
 def _log_mean_error(

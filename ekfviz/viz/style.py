@@ -27,7 +27,7 @@ POSE_PREDICTED = "world/robot/frame/ellipse/predicted"  # at every predict
 POSE_UPDATED = "world/robot/frame/ellipse/updated"  # at every update and the init
 TRAJECTORY = "world/trajectory"  # LineStrips2D, the path of each step, at its update
 LANDMARKS = "world/landmarks"  # Points2D, class id = landmark id
-LANDMARK_LABELS = "world/landmarks/labels"  # Points2D: "L<id>" just below each 3-sigma outline
+LANDMARK_LABELS = "world/landmarks/labels"  # Points2D: "L<id>" hanging from each landmark
 LANDMARK_ELLIPSES = "world/landmarks/ellipses"  # LineStrips2D, the whole map (see recorder)
 LANDMARK_ELLIPSES_OBSERVED = "world/landmarks/ellipses/observed"  # LineStrips2D, large maps
 LANDMARK_INITIAL = "world/landmarks/initial"  # LineStrips2D, at first sighting only
@@ -73,6 +73,7 @@ LOG_WIDTH = 80
 RUN_INFO = "run/info"  # TextDocument (markdown), static
 RUN_INPUT = "run/input"  # TextDocument (the input log itself), static
 RUN_EVALUATION = "run/evaluation"  # TextDocument (markdown), static, at the end
+RUN_LEGEND = "run/legend"  # TextDocument (markdown), static: the map's colours and marks
 
 # Entities drawn from the infinite past up to the time cursor instead of latest-at.
 ACCUMULATED = (TRAJECTORY, LANDMARK_INITIAL, TRUTH_TRAJECTORY)

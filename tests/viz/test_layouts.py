@@ -14,6 +14,7 @@ from typer.testing import CliRunner
 from ekfviz.cli import app
 from ekfviz.viz import check as check_viz
 from ekfviz.viz import style
+from ekfviz.viz.blueprint import FIRST_SIGHTING_EVENTS, FIRST_SIGHTING_S
 
 DATA = Path(__file__).resolve().parents[2] / "data"
 CLASSIC, TRUTH = DATA / "classic.txt", DATA / "classic_truth.json"
@@ -70,6 +71,9 @@ KINDS = {
     "sweep": ["sweep", str(CLASSIC), "--truth", str(TRUTH), "--preset", "tuning",
               "--workers", "1"],
     "check-match": ["check", str(CLASSIC), "--filter", plugin("Textbook")],
+    "check-all": ["check", str(CLASSIC), "--filter", plugin("NoRInS"), "--all"],
+    "check-at-init": ["check", str(CLASSIC), "--filter", plugin("NoCrossCovariances")],
+    "rosbag": ["replay", "BAG"],
     "consistency": ["consistency", "--runs", "3", "--workers", "1"],
 }  # fmt: skip
 
@@ -87,15 +91,27 @@ def short_loop(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return log
 
 
+@pytest.fixture(scope="module")
+def bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A ROS 2 bag of a simulated run of the classic scenario (as the bag reader's tests
+    write one)."""
+    from sources.test_rosbag import write_bag
+
+    from ekfviz.sim.scenarios import classic
+
+    return write_bag(tmp_path_factory.mktemp("bag") / "run_bag", classic().run(seed=4))
+
+
 @pytest.mark.parametrize("kind", list(KINDS))
 def test_every_entity_with_data_is_in_a_view_and_no_view_is_empty(
     kind: str, tmp_path: Path, request: pytest.FixtureRequest
 ) -> None:
     args = KINDS[kind]
-    if "SHORT_LOOP" in args:
-        short = str(request.getfixturevalue("short_loop"))
-        args = [short if arg == "SHORT_LOOP" else arg for arg in args]
-    layout = made(args, tmp_path / f"{kind}.rrd")
+    for stand_in, fixture in (("SHORT_LOOP", "short_loop"), ("BAG", "bag")):
+        if stand_in in args:
+            found = str(request.getfixturevalue(fixture))
+            args = [found if arg == stand_in else arg for arg in args]
+    layout = made(args, tmp_path / f"{kind}.rrd", code=1 if kind.startswith("check-a") else 0)
     assert layout.views and layout.data
     assert layout.unshown() == []
     assert layout.empty() == []
@@ -199,15 +215,19 @@ def test_gps_dropouts_are_gaps_not_chords() -> None:
     assert len(gps_pieces(xy[:4], times[:4])) == 1  # a steady track stays one piece
 
 
-def test_real_data_maps_draw_only_the_latest_first_sighting(tmp_path: Path, mrclam: Path) -> None:
+def test_real_data_maps_draw_first_sightings_for_a_while(tmp_path: Path, mrclam: Path) -> None:
+    def first_sightings(layout: Layout) -> dict[str, dict[str, int | None]]:
+        (world,) = [view for view in layout.views if view.name == "Map"]
+        key = f"ViewContents/overrides/{style.LANDMARK_INITIAL}/visualizers"
+        ranges = world.properties[key]["VisibleTimeRanges:ranges"]
+        return {r["timeline"]: r["range"] for r in ranges}
+
     layout = made(["replay", str(mrclam), "--robot", "1"], tmp_path / "run.rrd")
-    (world,) = [view for view in layout.views if view.name == "Map"]
-    ranged = {key for key in world.properties if key.endswith("/visualizers")}
-    assert not any(style.LANDMARK_INITIAL in key for key in ranged)
-    assert any(style.TRAJECTORY in key for key in ranged)
+    recent = first_sightings(layout)
+    assert recent["time"] == {"start": -int(FIRST_SIGHTING_S * 1e9), "end": 0}
+    assert recent["event"] == {"start": -FIRST_SIGHTING_EVENTS, "end": 0}
     history = made(["replay", str(mrclam), "--robot", "1", "--history"], tmp_path / "h.rrd")
-    (world,) = [view for view in history.views if view.name == "Map"]
-    assert any(style.LANDMARK_INITIAL in key for key in world.properties)
+    assert first_sightings(history)["time"]["start"] is None  # from the start: accumulated
 
 
 def test_info_shows_a_runs_results_and_only_the_parameters_that_applied(tmp_path: Path) -> None:
@@ -272,3 +292,22 @@ def test_labels_too_far_out_to_be_stacked_are_left_and_the_loop_ends() -> None:
     anchors = np.array([[0.0, 3e20], [0.1, 3e20], [0.2, 3e20 + 1e5]])
     placed = unclutter(anchors, 1.0, 0.6)  # returns (it did not)
     assert np.isfinite(placed).all() and (placed[:, 0] == anchors[:, 0]).all()
+
+
+def test_grade_recordings_show_everything_and_the_reference_its_own(tmp_path: Path) -> None:
+    import students
+
+    students.write(tmp_path / "class" / "bob", "transposed_and_missing_pose_term")
+    result = runner.invoke(
+        app, ["grade", str(tmp_path / "class"), "--save-dir", str(tmp_path / "rec"),
+              "--workers", "1", "--log", str(CLASSIC)],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    (rrd,) = sorted((tmp_path / "rec").glob("*.rrd"))
+    layout = read_layout(rrd)
+    assert layout.unshown() == [] and layout.empty() == []
+    maps = [view.name for view in layout.views if view.kind == "2D" and view.name != "Correlation"]
+    # the student diverges at the initialisation: the reference's map is its own there
+    assert maps[0] == "reference (ekf) to event 0" and maps[-1] == "At event 0"
+    reference = entity_rows(rrd, "/filters/reference/world/robot")
+    assert [row["event"] for row in reference] == [0]

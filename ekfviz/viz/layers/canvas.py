@@ -18,6 +18,7 @@ from ekfviz.core.records import EventRecord
 from ekfviz.core.truth import GroundTruth
 from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.viz import style
+from ekfviz.viz.axes import SeriesExtent
 from ekfviz.viz.flush import flush_interruptibly
 from ekfviz.viz.layers.arrow import (
     column,
@@ -262,8 +263,8 @@ class Canvas:
         self.truth = truth
         self.detail = detail
         self.bounds_xy: FloatArray | None = None  # [[x_min, y_min], [x_max, y_max]] so far
-        # NIS, NEES: (largest value, largest 95% upper bound) so far, to fit their axes
-        self.extents: dict[str, tuple[float, float]] = {}
+        # NIS, NEES: their values and 95% bounds so far, to fit their axes (see axes)
+        self.extents: dict[str, SeriesExtent] = {}
 
     def send(
         self,
@@ -315,12 +316,11 @@ class Canvas:
             )
         self.bounds_xy = box
 
-    def extent(self, path: str, value: float, upper: float) -> None:
-        """Grow the largest value and 95% upper bound of a NIS or NEES series so far."""
-        top, bound = self.extents.get(path, (0.0, 0.0))
-        if math.isfinite(value):
-            top = max(top, value)
-        self.extents[path] = (top, max(bound, upper))
+    def extent(
+        self, path: str, values: FloatArray, lower: FloatArray | float, upper: FloatArray | float
+    ) -> None:
+        """Take note of values of a NIS or NEES series and their 95% bounds."""
+        self.extents.setdefault(path, SeriesExtent()).add(values, lower, upper)
 
     def identify(
         self, archetype: type[rr.Points2D] | type[rr.LineStrips2D], ids: IntArray, counts: IntArray

@@ -1,4 +1,4 @@
-"""The landmarks' labels: "L<id>" just below each 3-sigma outline in a small map
+"""The landmarks' labels: "L<id>" hanging from each landmark's point in a small map
 (``world/landmarks/labels``), and the classes of ``world`` that name every landmark id."""
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ from ekfviz.viz.layers.canvas import MAX_CLASS_ID, Canvas
 # (about "L12" at 14 px on a 700 px map): closer labels are stacked (see unclutter)
 LABEL_WIDTH = 0.05
 LABEL_HEIGHT = 0.03
+LABEL_DROP = 0.8  # a label's anchor below its landmark, in label heights: the dot stays clear
 
 
 def unclutter(anchors_xy: FloatArray, width: float, height: float) -> FloatArray:
@@ -88,11 +89,10 @@ class LabelsLayer:
         ids: IntArray,
         positions: FloatArray,
         counts: IntArray,
-        variances_y: FloatArray,
     ) -> None:
         """The labels of some maps (their ``ids`` and ``positions`` joined, ``counts`` a
-        map), each below its landmark by 3 sigma in y (``variances_y``), or empty rows
-        from the first map too large for them."""
+        map), each hanging from its landmark (close ones stacked, see :func:`unclutter`),
+        or empty rows from the first map too large for them."""
         send = self._canvas.send
         if self._labels_off or int(counts.max()) > self._small_map:
             if not self._labels_off:  # empty rows from here on: the labels are gone
@@ -104,14 +104,17 @@ class LabelsLayer:
                     [column(rr.Points2D.descriptor_positions(), xy(np.zeros((0, 2))), empty)],
                 )
             return
-        sigma_y = np.sqrt(variances_y)
-        below = positions - np.column_stack([np.zeros(len(positions)), 3.0 * sigma_y])
+        # a label hangs just below its landmark's own point (the viewer centres it on its
+        # anchor): hung below the 3-sigma outline it floated metres off on real data,
+        # beside another landmark's ellipse
+        below = positions.copy()
         bounds_xy = self._canvas.bounds_xy
+        span = 0.0 if bounds_xy is None else max(float(np.max(bounds_xy[1] - bounds_xy[0])), 1e-9)
+        below[:, 1] -= LABEL_DROP * LABEL_HEIGHT * span
         if bounds_xy is not None and counts[-1] > 1:
             # labels of close landmarks stacked, not overprinted: the offsets that clear the
             # batch's last map, by landmark id, for all its rows (a map moves little within
             # a batch, and one pass per update would cost seconds on a long run)
-            span = max(float(np.max(bounds_xy[1] - bounds_xy[0])), 1e-9)
             last = slice(len(below) - int(counts[-1]), len(below))
             offsets = unclutter(below[last], LABEL_WIDTH * span, LABEL_HEIGHT * span) - below[last]
             if offsets.any():
@@ -120,6 +123,9 @@ class LabelsLayer:
                 at = np.clip(np.searchsorted(last_ids[order], ids), 0, len(order) - 1)
                 same = last_ids[order][at] == ids
                 below[same] += offsets[order][at[same]]
+            # the frame takes in the last map's labels whole: none is cut at its edge
+            box = np.array([[0.5 * LABEL_WIDTH * span, 0.5 * LABEL_HEIGHT * span]])
+            self._canvas.grow_bounds(np.concatenate([below[last] - box, below[last] + box]))
         send(
             style.LANDMARK_LABELS,
             times,

@@ -9,7 +9,8 @@ that, at every update only those of the landmarks observed
 (``world/landmarks/ellipses/observed``) and the whole map every ``MAP_EVERY_STEPS``
 steps and at the end (the viewer shows the latest of each, so every landmark keeps an
 ellipse at any time). A timestamped log (high-rate odometry) logs its map like a large
-one, the whole map every ``MAP_EVERY_S`` seconds of log time. With truth, the error
+one, the whole map every ``MAP_EVERY_S`` seconds of log time and wherever a map of up to
+``GROWN_MAP_WHOLE`` landmarks grew. With truth, the error
 series of a landmark get a value whenever its ellipse is logged; ``detail=True`` logs
 every ellipse and error at every update.
 """
@@ -42,6 +43,9 @@ SMALL_MAP = 32  # up to this many landmarks, every ellipse at every update
 MAP_EVERY_STEPS = 25  # beyond: the whole map every this many steps
 MAP_POINTS = 16  # points of a landmark outline: within 2 % of its radius, as MAP_TOLERANCE
 MAP_EVERY_S = 5.0  # ... and in a thinned timestamped log, every this many seconds of log time
+# ... and where a map of up to this many landmarks grew (MRCLAM's 15): beyond, a log of
+# hundreds of growths (Victoria Park) would log its whole map at each
+GROWN_MAP_WHOLE = 128
 
 
 class MapLayer:
@@ -60,6 +64,7 @@ class MapLayer:
         self._last_ids: IntArray | None = None  # landmark ids of the last update, annotated
         self._map_step: int | None = None  # step of the last update that logged the whole map
         self._map_time: float | None = None  # and its time
+        self._map_count = 0  # the most landmarks a map has had: a larger one is logged whole
         self.last_update: tuple[EventRecord, bool] | None = None
         # the small map as last logged: its ids and shapes rows, and at which event
         self._map_shown: tuple[IntArray, FloatArray] | None = None
@@ -130,21 +135,30 @@ class MapLayer:
             self._map_time = None if np.isnan(times[-1]) else float(times[-1])
         else:
             whole[corrected] = [
-                self._logs_whole_map(is_sparse, step, None if time != time else time)
-                for is_sparse, step, time in zip(
-                    sparse.tolist(), steps.tolist(), times.tolist(), strict=True
+                self._logs_whole_map(is_sparse, step, None if time != time else time, count)
+                for is_sparse, step, time, count in zip(
+                    sparse.tolist(),
+                    steps.tolist(),
+                    times.tolist(),
+                    table.counts[at].tolist(),
+                    strict=True,
                 )
             ]
         self.last_update = (events.event(int(corrected[-1])), bool(whole[corrected[-1]]))
         return whole
 
-    def _logs_whole_map(self, sparse: bool, step: int, time: float | None) -> bool:
-        """Whether an update at ``step`` (and ``time``) logs the whole map's ellipses,
-        noted as the last that did if so: every update of a map that is not ``sparse``,
-        else the first and then every ``MAP_EVERY_S`` of log time (``MAP_EVERY_STEPS``
-        steps without times)."""
+    def _logs_whole_map(self, sparse: bool, step: int, time: float | None, count: int) -> bool:
+        """Whether an update at ``step`` (and ``time``) of a map of ``count`` landmarks logs
+        the whole map's ellipses, noted as the last that did if so: every update of a map
+        that is not ``sparse``, else the first, every one where a map of at most
+        ``GROWN_MAP_WHOLE`` landmarks grew (a new landmark's ellipse would go with the
+        next update's observed ones, for up to ``MAP_EVERY_S``) and then every
+        ``MAP_EVERY_S`` of log time (``MAP_EVERY_STEPS`` steps without times)."""
+        grew = self._map_count < count <= GROWN_MAP_WHOLE
+        self._map_count = max(self._map_count, count)
         whole = (
             not sparse
+            or grew
             or self._map_step is None
             or (
                 time - self._map_time >= MAP_EVERY_S
@@ -172,7 +186,6 @@ class MapLayer:
                 np.concatenate([maps.ids[i] for i in shown]),
                 maps.xy[joined],
                 maps.counts[picked],
-                maps.covs[joined, 1, 1],
             )
         # the ellipses of every update below by their rows in the batch's joined maps
         # (maps.xy, maps.covs), found for all updates at once (see joined_rows)
@@ -250,7 +263,6 @@ class MapLayer:
                     record.landmark_ids,
                     record.landmarks_xy,
                     np.array([record.n_landmarks]),
-                    record.landmark_covs[:, 1, 1],
                 )
                 self._map_shown_event = record.event
             if not whole:
@@ -294,11 +306,10 @@ class MapLayer:
         ids: IntArray,
         positions: FloatArray,
         counts: IntArray,
-        variances_y: FloatArray,
     ) -> None:
         """All landmark estimates of some updates, one row each (``counts[i]`` of the
         joined ``ids`` and ``positions``), class id = landmark id; their labels beside
-        (see :mod:`.labels`), below each by 3 sigma in y (``variances_y``)."""
+        (see :mod:`.labels`), hanging from each."""
         if len(positions):
             self._canvas.grow_bounds(positions)
         self._canvas.send(
@@ -309,7 +320,7 @@ class MapLayer:
                 self._canvas.identify(rr.Points2D, ids, counts),
             ],
         )
-        self._labels.send(times, ids, positions, counts, variances_y)
+        self._labels.send(times, ids, positions, counts)
 
     def _send_ellipses(
         self,

@@ -74,9 +74,7 @@ class MetricsLayer:
             used, which = np.unique(observed.nis_used[with_nis], return_inverse=True)
             bounds = np.array([chi2_bounds(2 * int(n)) for n in used])[which]
             send(style.NIS, rows.pick(with_nis), scalars(observed.nis_sum[with_nis]))
-            self._canvas.extent(
-                style.NIS, float(observed.nis_sum[with_nis].max()), float(bounds[:, 1].max())
-            )
+            self._canvas.extent(style.NIS, observed.nis_sum[with_nis], bounds[:, 0], bounds[:, 1])
             ends = run_ends(bounds[:, 0])
             at = rows.pick(with_nis[ends])
             for path, values in (

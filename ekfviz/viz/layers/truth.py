@@ -127,8 +127,7 @@ class TruthLayer:
             return
         at, nees = at[defined], nees[defined]
         low, high = chi2_bounds(3)
-        finite = nees[np.isfinite(nees)]
-        self._canvas.extent(style.NEES, float(finite.max()) if finite.size else math.nan, high)
+        self._canvas.extent(style.NEES, nees, low, high)
         when = (batch.rows.steps[at].tolist(), batch.rows.events[at].tolist())
         times = batch.times[at].tolist()
         series = self._canvas.series
