@@ -40,7 +40,8 @@ __all__ = ["FIT_SHARE", "WINDOW_S", "CalibrateRequest", "Calibrated", "calibrate
 class CalibrateRequest:
     """A calibration as asked: the log (``source_args``: its format's options) and its
     truth (None: the dataset's own), the seconds of odometry per motion window, the
-    share of the run the noise is fitted on, the report."""
+    share of the run the noise is fitted on, the report, and whether every warning of
+    the fit is said (else one line counts them)."""
 
     data: Path
     truth: Path | None = None
@@ -48,6 +49,7 @@ class CalibrateRequest:
     window: float = WINDOW_S
     fit_share: float = FIT_SHARE
     report: Path | None = None
+    verbose: bool = False
 
 
 @dataclass(frozen=True, slots=True)
@@ -85,12 +87,21 @@ def calibrate(request: CalibrateRequest, reporter: Reporter) -> Calibrated:
         estimates_table(result.calibration), method_lines(result.calibration),
         scaling_lines(result), candidates_table(result), choice_lines(result),
     ]  # fmt: skip
-    for text in [*tail_warnings(result.calibration), *result.notes]:
-        reporter.warn(text)
-    command = _replay_line(result.best, data, replay_options, request.truth)
+    _warn(reporter, [*tail_warnings(result.calibration), *result.notes], request.verbose)
+    best = result.best
+    command = [] if best is None else _replay_line(best, data, replay_options, request.truth)
     if request.report is not None:
         write_json(request.report, calibration_json(result, data, command))
-    return Calibrated(shown, result.best.name, command, command_hint("ekfviz"))
+    return Calibrated(shown, "" if best is None else best.name, command, command_hint("ekfviz"))
+
+
+def _warn(reporter: Reporter, texts: list[str], verbose: bool) -> None:
+    """The fit's warnings: each with ``verbose``, else one line that counts them."""
+    if verbose:
+        for text in texts:
+            reporter.warn(text)
+    elif texts:
+        reporter.warn(f"{len(texts)} note(s) on the estimates and the choice: --verbose shows them")
 
 
 def _recommend(

@@ -39,6 +39,8 @@ SCALE_ROUNDS = 6  # replays of a scale's search at most, before its bisection
 SCALE_RESOLUTION = 1.15  # the factor is found to within this ratio
 MAX_SCALE = 12.0  # no factor beyond this: the search stops there and says so
 LARGE_SCALE = 5.0  # a factor over this: the model misses errors of the log
+# the held-out readings (NEES and NIS together) a recommended setting may have
+TRUSTED_READINGS = ("consistent", "borderline", "too cautious")
 MAP_CREDIBLE = 0.8  # a held-out map with this share of landmarks inside 3 sigma is credible
 WIDENINGS = (2.0, 4.0)  # where no candidate is credible, the closest one widened so
 LEFT_OUT_WARNING = 0.05  # more windows left out than this: said (a Gaussian: 0.1 %)
@@ -438,7 +440,8 @@ class Recommendation:
     :param scaling: the factors found on the first part, motion and measurement apart
     :param together: the one factor on all sigmas found there
     :param candidates: every setting judged on the held-out part
-    :param chosen: the index of the recommended one
+    :param chosen: the index of the recommended one (None: no candidate's held-out reading
+        is consistent, borderline or too cautious, so none is recommended)
     :param split: where the run was cut
     :param notes: what a user must know (limits hit, windows left out, large factors)
     """
@@ -447,14 +450,15 @@ class Recommendation:
     scaling: Scaling
     together: Scaling
     candidates: tuple[Candidate, ...]
-    chosen: int
+    chosen: int | None
     split_at: float
     fit_share: float
     notes: tuple[str, ...]
 
     @property
-    def best(self) -> Candidate:
-        return self.candidates[self.chosen]
+    def best(self) -> Candidate | None:
+        """The recommended candidate, if any is."""
+        return None if self.chosen is None else self.candidates[self.chosen]
 
 
 def estimated_params(
@@ -543,11 +547,15 @@ def recommend(
         return judge(events, truth, params, after=split.at)
 
     candidates = _judged_candidates(settings, judged)
+    # only a setting its own held-out reading does not call over-confident (nor unread)
+    trusted = [k for k, c in enumerate(candidates) if c.held_out.verdict in TRUSTED_READINGS]
     chosen = min(
-        range(len(candidates)),
+        trusted,
         key=lambda k: (not candidates[k].held_out.credible, candidates[k].held_out.error, k),
+        default=None,
     )
-    notes += _notes(calibration, scaling, candidates[chosen])
+    if chosen is not None:
+        notes += _notes(calibration, scaling, candidates[chosen])
     return Recommendation(
         calibration, scaling, one, tuple(candidates), chosen, split.at, fit_share, tuple(notes)
     )

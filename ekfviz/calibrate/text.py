@@ -141,13 +141,24 @@ def candidates_table(result: Recommendation) -> TextTable:
 
 
 def choice_lines(result: Recommendation) -> list[Cell]:
-    """Which candidate is recommended and why; a warning of a large factor."""
+    """Which candidate is recommended and why, or why none is; a warning of a large factor."""
     best = result.best
+    if best is None:
+        readings = ", ".join(f"{c.name} {c.held_out.verdict}" for c in result.candidates)
+        return [
+            Styled(
+                "No setting is recommended: every candidate's held-out reading is over-confident"
+                f" or unread ({readings}). A replay with any of them would claim more certainty"
+                " than its errors bear out: the model misses errors of this run (look at the"
+                " estimates' tails and the odometry), so inflate the noise by hand or model them.",
+                wrap=False,
+            )
+        ]
     lines: list[Cell] = [
         Styled(
-            f"Recommended: {best.name}, the lowest held-out mean landmark error among the maps"
-            f" with at least {MAP_CREDIBLE:.0%} of their landmarks inside 3σ (the defaults are a"
-            " candidate: nothing worse than them is recommended). Expected: NEES 3, NIS per"
+            f"Recommended: {best.name}, the lowest held-out mean landmark error among the"
+            " settings its held-out reading does not call over-confident, maps with at least"
+            f" {MAP_CREDIBLE:.0%} of their landmarks inside 3σ first. Expected: NEES 3, NIS per"
             " dof 1.",
             wrap=False,
         )
@@ -201,9 +212,9 @@ def calibration_json(result: Recommendation, data: Path, command: list[str]) -> 
         },
         "scaling": {"apart": result.scaling.to_json(), "together": result.together.to_json()},
         "candidates": [c.to_json() for c in result.candidates],
-        "recommended": result.best.name,
+        "recommended": None if result.best is None else result.best.name,
         "notes": list(result.notes),
-        "command": shlex.join(command),
+        "command": shlex.join(command) if command else None,
     }
 
 

@@ -58,6 +58,9 @@ def calibrate_command(
     window: Window = WINDOW_S,
     fit_share: FitShare = FIT_SHARE,
     report: CalibrationReport = None,
+    verbose: Annotated[
+        bool, typer.Option("--verbose", help="Say every warning of the fit, not a count of them.")
+    ] = False,
 ) -> None:
     """Estimate the measurement noise, the motion noise and the systematic odometry errors
     from ground truth on the first part of the run, judge the candidates (the defaults, the
@@ -65,9 +68,11 @@ def calibrate_command(
 
     The truth is --truth (with true poses: a JSON file with "poses") or a dataset's own.
     """
-    request = CalibrateRequest(data, truth, source_args, window, fit_share, report)
+    request = CalibrateRequest(data, truth, source_args, window, fit_share, report, verbose)
     calibrated = calibrate(request, TerminalReporter())
     show_blocks(calibrated.shown)
+    if not calibrated.command:  # (the lines above say why no setting is recommended)
+        return
     out.print(f"Replay with the recommended setting ({calibrated.best}):")
     if calibrated.program != "ekfviz":
         out.print(f"(ekfviz is not on your PATH: run it as {calibrated.program})", markup=False)

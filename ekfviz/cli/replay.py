@@ -9,6 +9,7 @@ from typing import Annotated
 import typer
 
 from ekfviz.app.inputs import SourceArgs
+from ekfviz.app.outputs import saved_line
 from ekfviz.app.replay import RecordingOutput, ReplayRequest, ReplayResult, replay
 from ekfviz.app.settings import BUILTIN
 from ekfviz.cli.console import (
@@ -200,5 +201,7 @@ def _print(result: ReplayResult, as_json: bool) -> None:
     if as_json:
         print_json(result.report)
     say(result.notes)
+    if result.saved_to is not None:
+        out.print(saved_line(result.saved_to), soft_wrap=True, markup=False, highlight=False)
     if result.served is not None:
         out.print(f"Serving the web viewer at [bold]{result.served.url}[/] (Ctrl-C to stop)")

@@ -234,6 +234,11 @@ def check_outputs(*outputs: tuple[str, Path | None], inputs: Iterable[Path | Non
     clash = distinct_paths(dict(outputs)) or output_over_input(dict(outputs), inputs)
     if clash is not None:
         raise OutputPathError(clash)
+    for option, path in outputs:
+        if option == "--save" and path is not None and path.suffix.lower() != ".rrd":
+            instead = path.with_suffix(".rrd").name
+            raise OutputPathError(f"--save {path}: a recording is a .rrd file (expected a name"
+                                  f" ending in .rrd, such as {instead})")  # fmt: skip
 
 
 def refuse_output_over_input(

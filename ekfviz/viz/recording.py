@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import contextlib
 import numbers
-import shlex
 import threading
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
@@ -53,7 +52,6 @@ from ekfviz.viz.viewer import (
     display_problem,
     no_viewer,
     rerun_executable,
-    rerun_hint,
     viewer_answers,
 )
 
@@ -109,10 +107,7 @@ def resolve_default_sinks(
             " name the file with --save"
         ) from None
     no_display = "no display" if problem.endswith("not set") else f"no display ({problem})"
-    return Sinks(save=path), (
-        f"No Rerun output option and {no_display}: saved the recording to {path}"
-        f" (open it with: {shlex.quote(rerun_hint())} {shlex.quote(str(path))})"
-    )
+    return Sinks(save=path), f"No Rerun output option and {no_display}: the recording is saved"
 
 
 class Recording:

@@ -60,7 +60,7 @@ def test_replay_without_an_output_option_keeps_the_earlier_recording(
         "classic-2.rrd",
         "classic.rrd",
     ]
-    assert "saved the recording to recordings/classic-2.rrd" in result.stdout
+    assert "Saved recordings/classic-2.rrd; open it with: " in result.stdout
 
 
 # -- info: every kind of recording, and how a run ended ------------------------------------

@@ -307,8 +307,9 @@ def test_an_output_path_that_is_a_symbolic_link_writes_its_target_and_keeps_the_
     if command.startswith("info"):
         made = runner.invoke(app, ["replay", str(SAMPLE), "--save", str(place / "made.rrd")])
         assert made.exit_code == 0, made.output
-    elsewhere = place / "folder" / "out.file"
-    link = place / "link.file"
+    suffix = ".rrd" if command.endswith("--save") else ".file"  # (a recording is a .rrd)
+    elsewhere = place / "folder" / f"out{suffix}"
+    link = place / f"link{suffix}"
     link.symlink_to(elsewhere)  # dangling: convert and simulate write no existing file
     result = runner.invoke(app, _command(command, str(link), place))
     assert result.exit_code == 0, result.output
@@ -442,3 +443,26 @@ def test_an_output_that_is_a_loop_of_symbolic_links_is_refused(tmp_path: Path) -
     assert done.returncode == 2
     assert done.stderr == "error: --save lp1: a loop of symbolic links\n"
     assert (tmp_path / "lp1").is_symlink() and os.readlink(tmp_path / "lp1") == "lp2"
+
+
+@pytest.mark.parametrize("command", [["replay"], ["sweep", "--vary", "sigma_x=x2"]])
+def test_a_recording_saved_under_another_suffix_is_refused(
+    tmp_path: Path, command: list[str]
+) -> None:
+    """``--save out.png`` wrote a recording named ``.png``: one line, nothing written."""
+    target = tmp_path / "out.png"
+    result = runner.invoke(app, [*command, str(DATA / "classic.txt"), "--save", str(target)])
+    assert result.exit_code == 2, result.output
+    assert result.output.strip().splitlines() == [
+        f"error: --save {target}: a recording is a .rrd file (expected a name ending in .rrd,"
+        " such as out.rrd)"
+    ]
+    assert not target.exists()
+
+
+def test_replay_says_where_it_saved_and_how_to_open_it(tmp_path: Path) -> None:
+    target = tmp_path / "run.rrd"
+    result = runner.invoke(app, ["replay", str(DATA / "classic.txt"), "--save", str(target)])
+    assert result.exit_code == 0, result.output
+    last = result.output.strip().splitlines()[-1]
+    assert last.startswith(f"Saved {target}; open it with: ") and last.endswith(str(target))

@@ -258,5 +258,6 @@ def test_the_commands_it_prints_are_quoted_for_the_shell(
     command = shlex.split(said.strip().splitlines()[-1])
     assert command[1:5] == ["replay", "sim space.txt", "--truth", "tru'th.json"], said
     said = run("replay", "sim space.txt")
-    opened = said.strip().splitlines()[-1].split("open it with: ", 1)[1].removesuffix(")")
+    line = next(line for line in said.splitlines() if "open it with: " in line)
+    opened = line.split("open it with: ", 1)[1]
     assert shlex.split(opened)[1] == "recordings/sim space.rrd", said

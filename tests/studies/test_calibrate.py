@@ -14,7 +14,13 @@ import pytest
 from typer.testing import CliRunner
 
 from ekfviz.calibrate.fit import _fit_motion, calibrate, fit_odometry
-from ekfviz.calibrate.recommend import estimated_params, judge, recommend, run_stats
+from ekfviz.calibrate.recommend import (
+    TRUSTED_READINGS,
+    estimated_params,
+    judge,
+    recommend,
+    run_stats,
+)
 from ekfviz.cli import app
 from ekfviz.core.params import FilterParams, MotionNoise
 from ekfviz.core.records import Control, LogEvent, with_ids
@@ -139,8 +145,9 @@ def test_calibrate_line_applies_the_correction_and_the_report_holds_the_candidat
     assert document["command"] == line
     chosen = next(c for c in document["candidates"] if c["name"] == document["recommended"])
     defaults = document["candidates"][0]
-    # never worse than the defaults on the held-out judgement
-    if defaults["credible"]:
+    assert chosen["held_out"]["verdict"] in TRUSTED_READINGS
+    # never worse than the defaults on the held-out judgement, where they are trusted too
+    if defaults["credible"] and defaults["held_out"]["verdict"] in TRUSTED_READINGS:
         assert chosen["credible"]
         assert chosen["held_out"]["map"]["mean_error"] <= defaults["held_out"]["map"]["mean_error"]
     assert document["estimates"]["odometry"]["scale_distance"] == pytest.approx(0.92, abs=0.01)
@@ -185,9 +192,11 @@ def test_the_held_out_judgement_never_prefers_a_setting_worse_than_the_defaults(
     events, truth = events_and_truth(skewed)
     defaults = FilterParams(motion_noise=MotionNoise.PER_SQRT_SECOND, init_pose=start_of(truth))
     result = recommend(events, truth, defaults, defaults)
-    assert result.candidates[0].name == "defaults"
+    assert result.candidates[0].name == "defaults" and result.best is not None
     best, plain = result.best.held_out, result.candidates[0].held_out
-    assert (not best.credible, best.error) <= (not plain.credible, plain.error)
+    assert best.verdict in TRUSTED_READINGS  # never a setting its own reading distrusts
+    if plain.verdict in TRUSTED_READINGS:
+        assert (not best.credible, best.error) <= (not plain.credible, plain.error)
 
 
 def test_an_inflated_covariance_reads_too_cautious(skewed: Path) -> None:
@@ -291,4 +300,27 @@ def test_where_no_candidate_is_credible_the_closest_is_widened(
     assert [c.name.rsplit(", ", 1)[1] for c in wider] == ["2 times wider", "4 times wider"]
     closest = min(result.candidates[: -len(wider)], key=lambda c: c.held_out.error)
     assert wider[0].params.sigma_range == pytest.approx(2 * closest.params.sigma_range)
-    assert result.best.held_out.error == min(c.held_out.error for c in result.candidates)
+    trusted = [c for c in result.candidates if c.held_out.verdict in calibration.TRUSTED_READINGS]
+    assert result.best is not None
+    assert result.best.held_out.error == min(c.held_out.error for c in trusted)
+
+
+def test_no_setting_is_recommended_where_every_reading_is_distrusted(
+    skewed: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Where no candidate's held-out reading is consistent, borderline or too cautious,
+    calibrate says so plainly and prints no replay line; its warnings are one line."""
+    import ekfviz.calibrate.recommend as calibration
+
+    monkeypatch.setattr(calibration, "TRUSTED_READINGS", ())
+    report = tmp_path / "calibration.json"
+    result = runner.invoke(
+        app, ["calibrate", str(skewed), "--report", str(report)], env={"COLUMNS": "200"}
+    )
+    assert result.exit_code == 0, result.output
+    assert "No setting is recommended: every candidate's held-out reading" in result.output
+    assert not any(x.startswith("ekfviz replay ") for x in result.output.splitlines())
+    document = json.loads(report.read_text())
+    assert document["recommended"] is None and document["command"] is None
+    fit = [x for x in result.output.splitlines() if "on the estimates and the choice" in x]
+    assert len(fit) <= 1 and all(x.endswith("--verbose shows them") for x in fit)
