@@ -539,11 +539,19 @@ class Target:
 class LoadedWorker:
     """A worker with the user's module imported, not yet constructed.
 
+    :param process: a worker already started (its interpreter and numpy loaded, waiting
+        for a module), or None to start one
     :raises WorkerFault: the module cannot be imported, or lacks what it needs
     """
 
-    def __init__(self, target: Target, options: WorkerOptions, label: str) -> None:
-        self.process = WorkerProcess(options, label)
+    def __init__(
+        self,
+        target: Target,
+        options: WorkerOptions,
+        label: str,
+        process: WorkerProcess | None = None,
+    ) -> None:
+        self.process = process if process is not None else WorkerProcess(options, label)
         self.target = target
         sys_path = [str(Path(target.path).resolve().parent)] if target.path else [os.getcwd()]
         header = {"op": "load", "path": target.path, "module": target.module,
@@ -635,13 +643,22 @@ class WorkerFactory:
 
     The first worker is started (and the module imported) at once, so that a module that
     cannot load fails before any work; the first construction takes it.
+
+    :param process: a worker already started to import the module into first (see
+        :class:`LoadedWorker`); later ones are started here
     """
 
-    def __init__(self, target: Target, options: WorkerOptions, label: str) -> None:
+    def __init__(
+        self,
+        target: Target,
+        options: WorkerOptions,
+        label: str,
+        process: WorkerProcess | None = None,
+    ) -> None:
         self.target = target
         self.options = options
         self.label = label
-        self._spare: LoadedWorker | None = LoadedWorker(target, options, label)
+        self._spare: LoadedWorker | None = LoadedWorker(target, options, label, process)
         self.style = self._spare.style
         self._made: list[LoadedWorker] = []  # the workers of the filters made, to end them
 
