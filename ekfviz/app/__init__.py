@@ -38,9 +38,10 @@ if TYPE_CHECKING:  # the studies' modules: imported by the functions that run th
     from ekfviz.check.coverage import Item as CoverageItem
     from ekfviz.check.lockstep import CheckResult
     from ekfviz.filters.ekf import EkfSlam
+    from ekfviz.sandbox.host import WorkerProcess
     from ekfviz.studies.executors import Executor
     from ekfviz.studies.runs import Run, RunFailure, RunSpec, Summary
-    from ekfviz.viz.run import RunLogger
+    from ekfviz.viz.run import RunInfo, RunLogger
 
 
 def log_events(
@@ -342,6 +343,7 @@ def check(
     source_args: SourceArgs | None = None,
     warn: WarningCallback | None = None,
     own_truth: OwnTruth | None = None,
+    process: WorkerProcess | None = None,
 ) -> tuple[CheckResult, list[CoverageItem]]:
     """Check a protocol filter against the reference in lockstep over ``data``; with
     ``save``, one recording of both side by side, the divergences marked. Also what the
@@ -349,12 +351,14 @@ def check(
 
     :param every: look for the cause of every divergent event (``check --all``)
     :param own_truth: the source's own truth (a dataset's), where ``truth_path`` is None
+    :param process: a worker already started for a user's filter (see
+        :func:`ekfviz.filters.spec.load_filter`)
     :raises InputError, FilterLineError, FilterSpecError, SinkError: one line each
     """
     from ekfviz.check.coverage import coverage
     from ekfviz.check.lockstep import lockstep
 
-    make_filter = spec.load()
+    make_filter = spec.load(process)
     truth, truth_files = study_truth(truth_path, own_truth)
     source = open_source(data, source_args)
     try:
@@ -387,10 +391,43 @@ def _record_check(
 ) -> None:
     """The recording of a check (``input_files``: what a dataset directory is read from;
     ``truth_files``: what its truth is)."""
+    from ekfviz import viz
+    from ekfviz.viz.check import record_check
+
+    shown = check_recording(data, truth, truth_files, spec, params, result, input_files)
+    with viz.open_recording(shown.info, viz.Sinks(save=save)) as recording:
+        record_check(recording, shown.result, shown.runs, truth, shown.summary)
+
+
+@dataclass(frozen=True, slots=True)
+class CheckRecording:
+    """What the recording of a check shows: the result as recorded (to its first
+    divergence unless every event was checked), both runs, the run information and the
+    verdict as markdown."""
+
+    result: CheckResult
+    runs: list[Run]
+    info: RunInfo
+    summary: str
+
+
+def check_recording(
+    data: Path,
+    truth: GroundTruth | None,
+    truth_files: list[Path],
+    spec: FilterSpec,
+    params: FilterParams,
+    result: CheckResult,
+    input_files: Sequence[Path],
+) -> CheckRecording:
+    """What the recording of a check of ``spec`` on ``data`` shows (see
+    :func:`_record_check`); the input is read for its digest.
+
+    :raises InputError: the input or truth file cannot be read
+    """
     from dataclasses import replace
 
     from ekfviz import viz
-    from ekfviz.viz.check import record_check
 
     first = result.first_divergence
     if first is not None and not result.every:
@@ -430,5 +467,4 @@ def _record_check(
     )
     verdict = json.dumps(result.to_json(), indent=2)
     summary = f"# Check of {utf8(spec.text)} against the reference\n\n```json\n{verdict}\n```\n"
-    with viz.open_recording(info, viz.Sinks(save=save)) as recording:
-        record_check(recording, result, runs, truth, summary)
+    return CheckRecording(result, runs, info, summary)
