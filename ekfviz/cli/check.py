@@ -39,12 +39,14 @@ from ekfviz.cli.options import (
     InitPoseSigma,
     TruthOption,
     UserFilter,
+    WatchOption,
     expands_options,
 )
 from ekfviz.cli.sources import (
     NO_SOURCE_ARGS,
     InitPoseOption,
     NoTruthOption,
+    StudyInput,
     study_input,
     with_source_options,
 )
@@ -140,6 +142,7 @@ def check(
     noise: FilterNoise,
     init_pose_sigma: InitPoseSigma = DEFAULT.init_pose_sigma,
     form: FilterForm,
+    watch: WatchOption = False,
 ) -> None:
     """Check a filter against the built-in reference, event by event.
 
@@ -150,14 +153,17 @@ def check(
     Exit status 0 when every event matches, 1 at a divergence, 2 for bad input or a
     filter that fails.
     """
-    run_check(
-        CheckRequest(
-            data=data, filter_text=filter_text, every=every, truth=truth, tolerance=tolerance,
-            report=report, save=save, user=user, init_pose=init_pose, noise=noise,
-            init_pose_sigma=init_pose_sigma, form=form, source_args=source_args,
-            no_truth=no_truth,
-        )
+    request = CheckRequest(
+        data=data, filter_text=filter_text, every=every, truth=truth, tolerance=tolerance,
+        report=report, save=save, user=user, init_pose=init_pose, noise=noise,
+        init_pose_sigma=init_pose_sigma, form=form, source_args=source_args, no_truth=no_truth,
     )  # fmt: skip
+    if watch:
+        from ekfviz.cli.watch import run_watch
+
+        run_watch(request)
+    else:
+        run_check(request)
 
 
 def run_check(request: CheckRequest) -> None:
@@ -179,44 +185,75 @@ def run_check(request: CheckRequest) -> None:
         results: list[dict[str, Any]] = []
         diverged = failed = False
         for log, log_truth, start in logs:
-            params = request.form.params(request.noise, request.init_pose_sigma, log=log)
-            if start is not None:
-                params = replace(params, init_pose=start)
-            # a dataset's own truth, and the start at its true pose (per-step noise kept: a
-            # course filter's predict takes no time span)
-            opened = study_input(params, log, request.source_args, log_truth, request.no_truth,
-                                 motion_noise=False, init_pose=start, pose_option=True)  # fmt: skip
+            opened = prepared_input(request, log, log_truth, start)
             params = opened.params
-            refuse_output_over_input(("--report", request.report), ("--save", save),
-                                     inputs=opened.files)  # fmt: skip
-            target = save if data is not None or save is None else _per_log(save, log)
+            target = save if data is not None or save is None else per_log_path(save, log)
             result, exercised = _run(
                 log, log_truth, spec, params, request.tolerance, target, every,
                 request.source_args, opened.own_truth,
             )  # fmt: skip
             for note in opened.notes:  # once the filter has loaded and run
                 out.print(plain(note), soft_wrap=True)
-            _print(log, result, exercised, every, battery=data is None)
+            print_verdict(log, result, exercised, every, battery=data is None)
             diverged |= result.first_divergence is not None
             failed |= result.error is not None
-            results.append({"log": str(log) if data is not None else log.stem,
-                            **result.to_json(),
-                            "coverage": [item.to_json() for item in exercised]})  # fmt: skip
+            results.append(log_entry(log, result, exercised, battery=data is None))
             if target is not None:
                 say_saved(target)
     if request.report is not None:
-        document: dict[str, Any] = {"ekfviz_version": __version__, "filter": spec.text,
-                                    "parameters": params.as_dict()}  # fmt: skip
-        document.update(results[0] if data is not None else _battery_report(results))
-        write_json(request.report, document)
+        write_json(request.report, report_document(spec, params, results, battery=data is None))
     if failed:
         raise typer.Exit(2)
     if diverged:
         raise typer.Exit(1)
 
 
-def _per_log(save: Path, log: Path) -> Path:
+def prepared_input(
+    request: CheckRequest,
+    log: Path,
+    log_truth: Path | None,
+    start: tuple[float, float, float] | None,
+) -> StudyInput:
+    """The filter's parameters for ``log`` (the noise its header states, the start pose)
+    with its source's own truth, its outputs refused where they are one of its files.
+
+    :param start: the start pose a battery log brings, or ``--init-pose``
+    """
+    params = request.form.params(request.noise, request.init_pose_sigma, log=log)
+    if start is not None:
+        params = replace(params, init_pose=start)
+    # a dataset's own truth, and the start at its true pose (per-step noise kept: a
+    # course filter's predict takes no time span)
+    opened = study_input(params, log, request.source_args, log_truth, request.no_truth,
+                         motion_noise=False, init_pose=start, pose_option=True)  # fmt: skip
+    refuse_output_over_input(("--report", request.report), ("--save", request.save),
+                             inputs=opened.files)  # fmt: skip
+    return opened
+
+
+def per_log_path(save: Path, log: Path) -> Path:
+    """Where the recording of the battery's ``log`` goes, for ``--save NAME.rrd``:
+    ``NAME-classic.rrd`` beside it."""
     return save.with_name(f"{save.stem}-{log.stem}{save.suffix or '.rrd'}")
+
+
+def log_entry(
+    log: Path, result: CheckResult, exercised: list[Item], *, battery: bool
+) -> dict[str, Any]:
+    """The report's entry of one log: its name, the verdict and what the log exercised."""
+    return {"log": log.stem if battery else str(log), **result.to_json(),
+            "coverage": [item.to_json() for item in exercised]}  # fmt: skip
+
+
+def report_document(
+    spec: FilterSpec, params: Any, entries: list[dict[str, Any]], *, battery: bool
+) -> dict[str, Any]:
+    """The report of a check: the filter and its parameters, the log's entry (or the
+    battery's, each log's and all of them together)."""
+    document: dict[str, Any] = {"ekfviz_version": __version__, "filter": spec.text,
+                                "parameters": params.as_dict()}  # fmt: skip
+    document.update(_battery_report(entries) if battery else entries[0])
+    return document
 
 
 def _run(
@@ -244,10 +281,17 @@ def _run(
         fail(str(error))  # an InputError names its file and line itself
 
 
-def _print(
-    log: Path, result: CheckResult, exercised: list[Item], every: bool, *, battery: bool
+def print_verdict(
+    log: Path,
+    result: CheckResult,
+    exercised: list[Item],
+    every: bool,
+    *,
+    battery: bool,
+    coverage: bool = True,
 ) -> None:
-    """The verdict on one log, as the report says it (no markup read in any name)."""
+    """The verdict on one log, as the report says it (no markup read in any name); with
+    ``coverage``, what the log did not exercise."""
     name = log.stem if battery else str(log)
     if battery:
         say([(Styled("log ", "bold"), Styled(name, "bold"), Styled(f" ({log.name})"))])
@@ -262,7 +306,7 @@ def _print(
         if DEBUG["traceback"]:
             say_user_traceback(result.error_traceback)
     missing = [item for item in exercised if not item.exercised]
-    if missing:
+    if missing and coverage:
         say([Styled(f"  not exercised by {name}:")])
         say([Styled(f"    - {item.untested}") for item in missing])
 

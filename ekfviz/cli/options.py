@@ -59,6 +59,15 @@ SENSOR = "Detection"
 USER_FILTERS = "User filters"
 STUDY = "Where the runs execute"
 
+WatchOption = Annotated[
+    bool,
+    typer.Option(
+        "--watch",
+        help="Check again on every save of the filter's files (the module and the files"
+        " beside it that it imports) or of the log, each run a new recording in the viewer"
+        " that stays open (as ekfviz watch does), until Ctrl-C.",
+    ),
+]
 SigmaX = Annotated[
     float, _option("Motion noise sigma along the heading (m).", FILTER_NOISE, min=0.0)
 ]

@@ -72,8 +72,8 @@ class Odometry(OptionGroup):
 
 
 @dataclass(frozen=True, slots=True)
-class RerunOutput(OptionGroup):
-    """Where the recording goes and how much of it is logged."""
+class RerunSinks(OptionGroup):
+    """Where the recording goes."""
 
     save: Annotated[
         Path | None,
@@ -112,6 +112,24 @@ class RerunOutput(OptionGroup):
             rich_help_panel=RERUN,
         ),
     ] = None
+
+    def check(self) -> None:
+        """Refuse a --bind without --serve or a bad address, before any work."""
+        from ekfviz import viz
+
+        if self.bind is not None:
+            if not self.serve:
+                fail("--bind is the address of --serve: add --serve")
+            try:
+                viz.check_bind(self.bind)
+            except viz.SinkError as error:
+                fail(str(error))
+
+
+@dataclass(frozen=True, slots=True)
+class RerunOutput(RerunSinks):
+    """Where the recording goes and how much of it is logged."""
+
     detail: Annotated[
         bool,
         typer.Option(
@@ -130,18 +148,6 @@ class RerunOutput(OptionGroup):
             rich_help_panel=RERUN,
         ),
     ] = False
-
-    def check(self) -> None:
-        """Refuse a --bind without --serve or a bad address, before any work."""
-        from ekfviz import viz
-
-        if self.bind is not None:
-            if not self.serve:
-                fail("--bind is the address of --serve: add --serve")
-            try:
-                viz.check_bind(self.bind)
-            except viz.SinkError as error:
-                fail(str(error))
 
 
 @dataclass(frozen=True, slots=True)
