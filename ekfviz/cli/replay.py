@@ -17,6 +17,7 @@ from ekfviz.cli.options import (
     LogArgument,
     TruthOption,
     UserFilter,
+    WatchOption,
     expands_options,
 )
 from ekfviz.cli.replay_run import Odometry, ReplayRequest, RerunOutput, run_replay
@@ -66,18 +67,25 @@ def replay(
     user: UserFilter,
     output: RerunOutput,
     association: Association,
+    watch: WatchOption = False,
 ) -> None:
     """Replay a log through EKF-SLAM, record it for Rerun and print the evaluation.
 
     With no Rerun output option, the native viewer opens where a display exists;
-    otherwise the recording is saved to recordings/<input name>.rrd.
+    otherwise the recording is saved to recordings/<input name>.rrd. With --filter
+    PATH.py --watch, the filter is checked against the reference on every save instead
+    (as ekfviz watch does).
     """
-    run_replay(
-        ReplayRequest(
-            ctx=ctx, data=data, truth=truth, source_args=source_args, no_truth=no_truth,
-            report=report, as_json=as_json, noise=noise, odometry=odometry,
-            motion_noise=motion_noise, init_pose=init_pose, gate=gate,
-            init_pose_sigma=init_pose_sigma, form=form, filter_spec=filter_spec, user=user,
-            output=output, association=association,
-        )
+    request = ReplayRequest(
+        ctx=ctx, data=data, truth=truth, source_args=source_args, no_truth=no_truth,
+        report=report, as_json=as_json, noise=noise, odometry=odometry,
+        motion_noise=motion_noise, init_pose=init_pose, gate=gate,
+        init_pose_sigma=init_pose_sigma, form=form, filter_spec=filter_spec, user=user,
+        output=output, association=association,
     )  # fmt: skip
+    if watch:
+        from ekfviz.cli.watch import watch_replay
+
+        watch_replay(request)
+    else:
+        run_replay(request)
