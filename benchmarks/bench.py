@@ -37,6 +37,9 @@
 11. Targets (``targets_bench.py``): issue 26's three speed targets measured together in
    one run (the classic sample against the imports, a 102,000-step log, Victoria Park);
    ``--targets-only`` runs just this.
+12. Watch (``watch_bench.py``): ``ekfviz watch`` of the course skeleton, from a save to
+   its run complete in the viewer (the median of 10 saves, target 1 s), and from Ctrl-C
+   to its end; ``--watch-only`` runs just this.
 
 It prints the tables and writes them, with the machine, the date and the command, to
 ``benchmarks/RESULTS.md``. Timings are medians (bounds: best) of repeated runs; where
@@ -82,6 +85,7 @@ from scaling_bench import scaling_section
 from smoother_bench import smoother_section
 from startup_bench import startup_section
 from textbook_ekf import TextbookEkfSlam
+from watch_bench import watch_section
 from worker_bench import worker_section
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -908,6 +912,9 @@ def main(argv: Sequence[str] | None = None) -> None:
         action="store_true",
         help="only the association section (Victoria Park, simulated clutter) of RESULTS.md",
     )
+    parser.add_argument(
+        "--watch-only", action="store_true", help="only the watch section of RESULTS.md"
+    )
     args = parser.parse_args(argv)
     started = time.perf_counter()
     if args.worker_only:
@@ -932,9 +939,12 @@ def main(argv: Sequence[str] | None = None) -> None:
         or args.association_only
         or args.startup_only
         or args.scaling_only
+        or args.watch_only
     ):
         with tempfile.TemporaryDirectory() as tmp:
-            if args.startup_only:
+            if args.watch_only:
+                section = watch_section(Path(tmp))
+            elif args.startup_only:
                 section = startup_section(Path(tmp))
             elif args.scaling_only:
                 section = scaling_section(Path(tmp), args.quick, args.out.parent)
@@ -974,6 +984,8 @@ def main(argv: Sequence[str] | None = None) -> None:
         from targets_bench import targets_section
 
         targets = targets_section(Path(tmp), find_dataset())
+        print("watch: a save to its run in the viewer", flush=True)
+        watch = watch_section(Path(tmp))
         scaling = scaling_section(Path(tmp), args.quick, args.out.parent)
     print("core against dense (one BLAS thread)", flush=True)
     rows = core_rows(args.quick)
@@ -986,7 +998,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     print("a user's filter in its worker", flush=True)
     workers = worker_section(worker_worlds(args.quick))
     text = splice(splice(splice(splice(text, mrclam), smoothers), association), workers)
-    text = splice(splice(splice(text, startups), scaling), targets)
+    text = splice(splice(splice(splice(text, startups), scaling), targets), watch)
     args.out.write_text(text)
     print()
     print(text)

@@ -12,7 +12,7 @@ import typer
 
 from ekfviz import signals
 from ekfviz.check.lockstep import DEFAULT_TOLERANCE
-from ekfviz.cli.check import (
+from ekfviz.cli.check_run import (
     CheckLog,
     CheckRequest,
     EveryOption,

@@ -399,7 +399,11 @@ def test_a_save_during_a_run_cancels_it_and_the_viewer_gets_complete_runs_only(
         report = watching.run(2)  # the slow run took no number: it never completed
         assert report["causes"] == ["unrotated_motion_noise"]
         assert not _alive(slow_worker)  # its worker was ended
-        watching.stop()
+        (folder / "started").unlink()
+        module.write_text(correct + SLOW_PREDICT)
+        watching.wait_for(lambda: (folder / "started").exists(), "the slow run's start")
+        code, took, _ = watching.stop()  # Ctrl-C during a run: it ends too, and its worker
+        assert code == 130 and took < EXIT_BOUND_S
     finally:
         watching.kill()
         os.killpg(server.pid, signal.SIGTERM)

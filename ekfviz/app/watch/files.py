@@ -25,8 +25,9 @@ from pathlib import Path
 # an editor's save in several steps (write, rename, change the mode) is one change: the
 # changes are handed over once no event came for this long, or at the latest after
 # MAX_WAIT_MS of a stream of events. (Part of the time from a save to its run: the
-# steps of a save are microseconds apart.)
-QUIET_MS = 50
+# steps of a save are microseconds apart; a burst split by a longer pause still gives
+# one run, the first change's run being cancelled by the next.)
+QUIET_MS = 30
 MAX_WAIT_MS = 1000
 
 
