@@ -136,9 +136,9 @@ def run_watch(request: CheckRequest, output: RerunSinks | None = None) -> None:
         inputs, files = _inputs(request, Path(folder), save)
         release_held()  # said as they come from now on: the watch runs until Ctrl-C
         printer = _Printer(request, spec)
-        listed = ", ".join(str(path) for path in [module, *files])
-        out.print(plain(f"Watching {listed} and the modules beside it that it imports;"
-                        " Ctrl-C ends the watch."), soft_wrap=True)  # fmt: skip
+        logs = ", ".join(str(path) for path in files) or "the battery"
+        out.print(plain(f"Watching {module} (and the modules beside it that it imports) on"
+                        f" {logs}; Ctrl-C ends the watch."), soft_wrap=True)  # fmt: skip
         try:
             watch_runs(
                 WatchRequest(spec, module, inputs, files, request.tolerance, request.every,
@@ -196,6 +196,9 @@ def _filter(request: CheckRequest, output: RerunSinks | None) -> tuple[FilterSpe
         ("--report", request.report), ("--save", request.save),
         inputs=[request.data, request.truth, module],
     )  # fmt: skip
+    for given_path in (request.data, request.truth):  # (one deleted later is waited for)
+        if given_path is not None and not given_path.exists():
+            fail(f"{given_path}: no such file or folder")
     if output is not None:
         output.check()
     spec = FilterSpec.parse(request.filter_text, worker=request.user.worker())
@@ -275,6 +278,7 @@ class _Printer:
         self.saved = list(dict.fromkeys([*self.saved, *run.saved]))
         clock = time.strftime("%H:%M:%S", time.localtime(run.started))
         changed = ", ".join(path.name for path in run.changed)
+        out.print()  # a blank line between two runs' blocks
         say([(Styled(f"run {run.number}", "bold"), Styled(f" at {clock}"),
               Styled(f": {changed} changed" if changed else ""))])  # fmt: skip
         battery = self.request.data is None

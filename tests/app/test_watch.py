@@ -456,6 +456,7 @@ def test_check_watch_runs_the_battery_under_the_interpreter_given(tmp_path: Path
     [
         (["watch", "ekf"], "watch follows a filter's file"),
         (["watch", "nowhere.py"], "nowhere.py: no such file"),
+        (["watch", str(SKELETON), "nowhere.txt"], "nowhere.txt"),
         (["replay", str(CLASSIC), "--watch"], "--watch checks a filter of yours"),
         (
             ["replay", str(CLASSIC), "--filter", str(SKELETON), "--watch", "--association", "nn"],

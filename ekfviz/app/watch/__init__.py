@@ -88,10 +88,6 @@ class WatchedRun:
     saved: tuple[Path, ...] = ()
     problems: tuple[str, ...] = ()
 
-    @property
-    def failed(self) -> bool:
-        return any(outcome.failure is not None for outcome in self.outcomes)
-
 
 @dataclass(frozen=True, slots=True)
 class WatchHooks:
@@ -149,8 +145,8 @@ class _Changes:
     def running(self) -> Iterator[Cancel]:
         """A run's cancellation, set by any change from now until the run ends."""
         self.cancel = Cancel()
-        if not self._queue.empty():  # a save came before the run began: not this run's
-            self.cancel.cancel()
+        if not self._queue.empty():  # a save queued already: this run would check the
+            self.cancel.cancel()  # files it replaced
         try:
             yield self.cancel
         finally:

@@ -11,6 +11,8 @@ then sent to the viewer and the ``--save`` file.
 from __future__ import annotations
 
 import re
+import shlex
+import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -231,7 +233,8 @@ def record_once(
         shown = check_recording(item.log, truth, truth_files, spec, item.params, result, files)
         info = replace(shown.info, name=who.name)
     else:
-        info = viz.run_info(name=who.name, kind="check", command="ekfviz watch",
+        info = viz.run_info(name=who.name, kind="check",
+                            command=shlex.join(["ekfviz", *sys.argv[1:]]),
                             parameters={"filter": spec.text, **item.params.as_dict()},
                             input_path=item.log, truth=truth, input_files=files,
                             truth_files=truth_files)  # fmt: skip
