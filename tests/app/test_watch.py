@@ -22,7 +22,7 @@ from pathlib import Path
 
 import pytest
 import students
-from conftest import entity_rows
+from conftest import entity_rows, rrd_verify
 from typer.testing import CliRunner
 
 from ekfviz.app.watch.checking import placed
@@ -204,6 +204,7 @@ def test_a_mistake_a_syntax_error_and_the_fix_each_show_in_the_newest_run(
         # the ghost is the last run that drew a map: run 3 drew none
         assert _labels(entity_rows(latest, GHOST, static=True)) == [["run 2"]]
         assert "match: all" in _log_text(latest)
+        rrd_verify(latest)  # whole, its footer written
 
         code, took, printed = watching.stop()
     finally:
@@ -472,3 +473,14 @@ def test_a_watch_that_cannot_start_says_why_in_one_line(args: list[str], said: s
     result = runner.invoke(app, args)
     assert result.exit_code == 2, result.output
     assert said in result.output and "Traceback" not in result.output
+
+
+def test_watchfiles_is_imported_only_once_a_watch_starts() -> None:
+    code = (
+        "import sys\nimport ekfviz.app.watch, ekfviz.cli.watch, ekfviz.cli.check\n"
+        "from ekfviz.cli import app\nprint('watchfiles' in sys.modules)\n"
+        "from ekfviz.app.watch.files import Watcher\n"
+        "Watcher([], lambda paths: None).close()\nprint('watchfiles' in sys.modules)\n"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert result.stdout.split() == ["False", "True"], result.stderr
