@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
@@ -29,12 +29,17 @@ from ekfviz.cli.options import (
     InitPoseSigma,
     TruthOption,
     UserFilter,
+    WatchOption,
     _option,
     expands_options,
     piped_input,
 )
 from ekfviz.cli.program import app, command_line, given_options
 from ekfviz.cli.sources import NO_SOURCE_ARGS, InitPoseOption, NoTruthOption, with_source_options
+
+if TYPE_CHECKING:
+    from ekfviz.check.coverage import Item as CoverageItem
+    from ekfviz.check.lockstep import CheckResult
 
 CheckLog = Annotated[
     Path | None,
@@ -98,6 +103,7 @@ def check_command(
     noise: FilterNoise,
     init_pose_sigma: InitPoseSigma = DEFAULT.init_pose_sigma,
     form: FilterForm,
+    watch: WatchOption = False,
 ) -> None:
     """Check a filter against the built-in reference, event by event.
 
@@ -115,6 +121,11 @@ def check_command(
         filter=form.values(noise, init_pose_sigma), given=given_options(ctx),
         command=command_line(),
     )  # fmt: skip
+    if watch:
+        from ekfviz.cli.watch import run_watch
+
+        run_watch(request)
+        return
     outcome = check(request, TerminalReporter())
     for checked in outcome.logs:
         _print(checked, outcome, every)
@@ -125,12 +136,29 @@ def check_command(
 
 
 def _print(checked: CheckedLog, outcome: CheckOutcome, every: bool) -> None:
-    """The verdict on one log, as the report says it (no markup read in any name)."""
-    name, result = checked.name, checked.result
+    """The verdict on one log, its notes before and where it was saved after."""
     for text in checked.notes:  # what was chosen for the run (the start pose)
         note(text)
-    if outcome.battery:
-        say([(Styled("log ", "bold"), Styled(name, "bold"), Styled(f" ({checked.log.name})"))])
+    print_verdict(
+        checked.log, checked.name, checked.result, checked.missing, every, battery=outcome.battery
+    )
+    if checked.saved is not None:
+        out.print(plain(checked.saved))
+
+
+def print_verdict(
+    log: Path,
+    name: str,
+    result: CheckResult,
+    missing: list[CoverageItem],
+    every: bool,
+    *,
+    battery: bool,
+) -> None:
+    """The verdict on one log, as the report says it (no markup read in any name), and
+    what the log did not exercise (``missing``)."""
+    if battery:
+        say([(Styled("log ", "bold"), Styled(name, "bold"), Styled(f" ({log.name})"))])
     say(result.verdict_lines(name, every))
     if result.first_divergence is not None and every and result.divergences:
         show(result.groups_table())
@@ -141,8 +169,6 @@ def _print(checked: CheckedLog, outcome: CheckOutcome, every: bool) -> None:
                   soft_wrap=True)  # fmt: skip
         if DEBUG["traceback"]:
             say_user_traceback(result.error_traceback)
-    if checked.missing:
+    if missing:
         say([Styled(f"  not exercised by {name}:")])
-        say([Styled(f"    - {item.untested}") for item in checked.missing])
-    if checked.saved is not None:
-        out.print(plain(checked.saved))
+        say([Styled(f"    - {item.untested}") for item in missing])
