@@ -237,7 +237,7 @@ def test_the_recorder_is_in_parts_of_at_most_400_lines() -> None:
 # cases (ekfviz.app) and its own program, consoles and option groups, nothing else
 CLI_OWN = frozenset((
     "ekfviz.cli", "ekfviz.cli.program", "ekfviz.cli.console", "ekfviz.cli.options",
-    "ekfviz.cli.sources", "ekfviz.cli.study", "ekfviz.cli.help",
+    "ekfviz.cli.sources", "ekfviz.cli.study", "ekfviz.cli.help", "ekfviz.cli.checking",
 ))  # fmt: skip
 CLI_LIBRARIES = frozenset(("typer", "rich", "click"))
 # grade's command checks its inputs, writes its battery, runs its submissions on an

@@ -42,10 +42,17 @@ if TYPE_CHECKING:
     from ekfviz.check.coverage import Item as CoverageItem
     from ekfviz.check.lockstep import CheckResult
     from ekfviz.sandbox.remote import StartedWorker
-    from ekfviz.viz import RunInfo, Sinks
     from ekfviz.studies.runs import Run
+    from ekfviz.viz import RunInfo, Sinks
 
-__all__ = ["DEFAULT_TOLERANCE", "CheckRequest", "check", "check_log"]
+__all__ = [
+    "DEFAULT_TOLERANCE",
+    "CheckRequest",
+    "CheckResult",
+    "CoverageItem",
+    "check",
+    "check_log",
+]
 
 
 @dataclass(frozen=True, slots=True)

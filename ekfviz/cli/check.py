@@ -9,18 +9,12 @@ import typer
 
 from ekfviz.app.check import DEFAULT_TOLERANCE, CheckedLog, CheckOutcome, CheckRequest, check
 from ekfviz.app.inputs import SourceArgs
-from ekfviz.app.text import Styled, one_line
+from ekfviz.cli.checking import CheckLog, EveryOption, Tolerance, print_verdict
 from ekfviz.cli.console import (
-    DEBUG,
     TerminalReporter,
-    err,
     note,
     out,
     plain,
-    rendered,
-    say,
-    say_user_traceback,
-    show,
 )
 from ekfviz.cli.options import (
     DEFAULT,
@@ -32,26 +26,13 @@ from ekfviz.cli.options import (
     WatchOption,
     _option,
     expands_options,
-    piped_input,
 )
 from ekfviz.cli.program import app, command_line, given_options
 from ekfviz.cli.sources import NO_SOURCE_ARGS, InitPoseOption, NoTruthOption, with_source_options
 
 if TYPE_CHECKING:
-    from ekfviz.check.coverage import Item as CoverageItem
-    from ekfviz.check.lockstep import CheckResult
+    pass
 
-CheckLog = Annotated[
-    Path | None,
-    typer.Argument(
-        help="A log in the classic or the extended format ('-': from standard input), or an"
-        " MRCLAM dataset directory (with --robot) [default: the bundled battery: the classic"
-        " sample, the edge log and the mid-run log]; the Victoria Park directory is for"
-        " replay only.",
-        show_default=False,
-        callback=piped_input,
-    ),
-]
 CheckFilter = Annotated[
     str,
     typer.Option(
@@ -60,17 +41,6 @@ CheckFilter = Annotated[
         " update), PATH.py:ClassName or package.module:ClassName.",
         show_default=False,
     ),
-]
-EveryOption = Annotated[
-    bool,
-    typer.Option(
-        "--all",
-        help="Go on after a divergence: find the cause of every divergent event and"
-        " report them grouped.",
-    ),
-]
-Tolerance = Annotated[
-    float, _option("Largest difference allowed, |got - expected| / max(1, |expected|).", min=0.0)
 ]
 CheckReport = Annotated[Path | None, _option("Write the result as JSON here.", show_default=False)]
 CheckSave = Annotated[
@@ -122,7 +92,7 @@ def check_command(
         command=command_line(),
     )  # fmt: skip
     if watch:
-        from ekfviz.cli.watch import run_watch
+        from ekfviz.cli.checking import run_watch
 
         run_watch(request)
         return
@@ -144,31 +114,3 @@ def _print(checked: CheckedLog, outcome: CheckOutcome, every: bool) -> None:
     )
     if checked.saved is not None:
         out.print(plain(checked.saved))
-
-
-def print_verdict(
-    log: Path,
-    name: str,
-    result: CheckResult,
-    missing: list[CoverageItem],
-    every: bool,
-    *,
-    battery: bool,
-) -> None:
-    """The verdict on one log, as the report says it (no markup read in any name), and
-    what the log did not exercise (``missing``)."""
-    if battery:
-        say([(Styled("log ", "bold"), Styled(name, "bold"), Styled(f" ({log.name})"))])
-    say(result.verdict_lines(name, every))
-    if result.first_divergence is not None and every and result.divergences:
-        show(result.groups_table())
-        say(result.group_lines())
-    if result.error is not None:
-        err.print(rendered((Styled("error: ", "bold red"),
-                            Styled(one_line(f"{name}:{result.error_line}: {result.error}")))),
-                  soft_wrap=True)  # fmt: skip
-        if DEBUG["traceback"]:
-            say_user_traceback(result.error_traceback)
-    if missing:
-        say([Styled(f"  not exercised by {name}:")])
-        say([Styled(f"    - {item.untested}") for item in missing])

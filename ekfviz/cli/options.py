@@ -641,7 +641,8 @@ class RerunSinks(OptionGroup):
         ),
     ] = None
     spawn: Annotated[
-        bool, typer.Option("--spawn", help="Open the native Rerun viewer.", rich_help_panel=RERUN_OUTPUT)
+        bool,
+        typer.Option("--spawn", help="Open the native Rerun viewer.", rich_help_panel=RERUN_OUTPUT),
     ] = False
     serve: Annotated[
         bool,

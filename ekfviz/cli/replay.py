@@ -23,6 +23,7 @@ from ekfviz.cli.console import (
 )
 from ekfviz.cli.options import (
     DEFAULT,
+    RERUN_OUTPUT,
     Association,
     FilterForm,
     FilterNoise,
@@ -32,7 +33,6 @@ from ekfviz.cli.options import (
     OdometryBias,
     OdometryScale,
     OptionGroup,
-    RERUN_OUTPUT,
     RerunSinks,
     Triple,
     TruthOption,
@@ -193,7 +193,7 @@ def _watch(
     """``replay --filter PATH.py --watch``: the watch of that filter on the replay's log,
     its recordings where the replay's would go."""
     from ekfviz.app.check import CheckRequest
-    from ekfviz.cli.watch import refuse_replay_only, run_watch
+    from ekfviz.cli.checking import refuse_replay_only, run_watch
 
     if filter_spec == BUILTIN:
         fail("--watch checks a filter of yours on every save: add --filter PATH.py")

@@ -3,18 +3,14 @@
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
 import typer
 
 from ekfviz.app.check import DEFAULT_TOLERANCE, CheckRequest
-from ekfviz.app.errors import Interrupted, UsageError
 from ekfviz.app.inputs import SourceArgs
-from ekfviz.app.text import Styled, one_line
-from ekfviz.cli.check import CheckLog, EveryOption, Tolerance, print_verdict
-from ekfviz.cli.console import TerminalReporter, err, out, plain, release_held, rendered, say, warn
+from ekfviz.cli.checking import CheckLog, EveryOption, Tolerance, run_watch
 from ekfviz.cli.options import (
     DEFAULT,
     FilterForm,
@@ -30,7 +26,7 @@ from ekfviz.cli.program import app, command_line, given_options
 from ekfviz.cli.sources import NO_SOURCE_ARGS, InitPoseOption, NoTruthOption, with_source_options
 
 if TYPE_CHECKING:
-    from ekfviz.app.watch import CheckOutcome, WatchedRun
+    pass
 
 WatchFilter = Annotated[
     str,
@@ -89,81 +85,3 @@ def watch_command(
         given=given_options(ctx), command=command_line(),
     )  # fmt: skip
     run_watch(request, output)
-
-
-def run_watch(request: CheckRequest, output: RerunSinks | None = None) -> None:
-    """Watch as asked, each run printed, until Ctrl-C (exit 130, or 143 for SIGTERM).
-
-    :param output: the viewer asked for (None: ``check``'s ``--save`` only, beside the
-        viewer opened where a display exists)
-    """
-    from ekfviz.app.watch.start import Viewer, watch_check
-
-    viewer = Viewer()
-    if output is not None:
-        viewer = Viewer(output.spawn, output.serve, output.connect, output.bind)
-    release_held()  # said as they come: the watch runs until Ctrl-C
-    printer = _Printer(battery=request.data is None, every=request.every)
-    try:
-        watch_check(request, viewer, TerminalReporter(), printer.run)
-    except Interrupted as stop:
-        kept = [str(path) for path in printer.saved if path.exists()]
-        out.print(plain(
-            f"Stopped ({stop.name}) after {printer.runs} run(s)"
-            + (f"; the newest complete recording is in {', '.join(kept)}" if kept else "")
-        ))  # fmt: skip
-        raise SystemExit(stop.exit_code) from None
-
-
-# replay's options that a watch (a check) does not take, by parameter name
-REPLAY_ONLY = ("as_json", "odometry_scale", "odometry_bias", "motion_noise", "gate",
-               "association", "gate_probability", "confirm", "confirm_window", "detail",
-               "history")  # fmt: skip
-
-
-def refuse_replay_only(given: frozenset[str]) -> None:
-    """``replay --watch`` checks the filter: replay's own options are refused, in one line.
-
-    :raises UsageError: one of them was given
-    """
-    refused = [f"--{name.replace('_', '-')}" for name in REPLAY_ONLY if name in given]
-    if refused:
-        raise UsageError(
-            f"{', '.join(refused).replace('--as-json', '--json')}: replay's own; --watch"
-            " checks the filter against the reference on every save, without them"
-        )
-
-
-class _Printer:
-    """What the terminal shows of each run: one short block."""
-
-    def __init__(self, *, battery: bool, every: bool) -> None:
-        self.battery = battery
-        self.every = every
-        self.runs = 0
-        self.saved: list[Path] = []
-
-    def run(self, run: WatchedRun) -> None:
-        self.runs = run.number
-        self.saved = list(dict.fromkeys([*self.saved, *run.saved]))
-        clock = time.strftime("%H:%M:%S", time.localtime(run.started))
-        changed = ", ".join(path.name for path in run.changed)
-        out.print()  # a blank line between two runs' blocks
-        say([(Styled(f"run {run.number}", "bold"), Styled(f" at {clock}"),
-              Styled(f": {changed} changed" if changed else ""))])  # fmt: skip
-        for outcome in run.outcomes:
-            self._outcome(outcome)
-        for problem in run.problems:
-            warn(problem)
-
-    def _outcome(self, outcome: CheckOutcome) -> None:
-        item, result, failure = outcome.input, outcome.result, outcome.failure
-        if result is not None:
-            print_verdict(item.log, item.name, result, [], self.every, battery=self.battery)
-        elif self.battery:
-            say([(Styled("log ", "bold"), Styled(item.name, "bold"))])
-        if failure is not None and (result is None or not result.error):  # (else said)
-            kept = f" ({item.save} is left as it was)" if item.save and item.save.exists() else ""
-            line = f"{failure.where}: {failure.message}{kept}"
-            err.print(rendered((Styled("error: ", "bold red"), Styled(one_line(line)))),
-                      soft_wrap=True)  # fmt: skip

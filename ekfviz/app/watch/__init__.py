@@ -41,8 +41,8 @@ from ekfviz.filters.spec import FilterSpec
 from ekfviz.io.text import WarningCallback
 
 if TYPE_CHECKING:
-    from ekfviz.viz.ghost import Ghost
     from ekfviz.viz import Sinks
+    from ekfviz.viz.ghost import Ghost
 
 __all__ = ["CheckFailure", "CheckInput", "CheckOutcome", "WatchRequest", "WatchedRun", "watch"]
 
@@ -293,14 +293,14 @@ def _run(
     with changes.running() as cancel:
         warm.refresh()  # what the workers import: the files as this run found them
         for item in request.inputs:
-            started = warm.take()
-            cancel.guard(started.process)
+            worker = warm.take()
+            cancel.guard(worker.process)
             try:
                 outcome = check_once(request.spec, item, tolerance=request.tolerance,
-                                     every=request.every, started=started, followed=followed,
+                                     every=request.every, started=worker, followed=followed,
                                      warn=hooks.warn)  # fmt: skip
             finally:
-                started.process.close()  # (the check closed it, unless it never got to it)
+                worker.process.close()  # (the check closed it, unless it never got to it)
             if cancel.is_set:
                 return None
             outcomes.append(outcome)

@@ -31,8 +31,8 @@ from ekfviz.sources import OwnTruth, SourceArgs
 if TYPE_CHECKING:
     from ekfviz.check.coverage import Item
     from ekfviz.check.lockstep import CheckResult
-    from ekfviz.viz.ghost import Ghost
     from ekfviz.viz import Sinks
+    from ekfviz.viz.ghost import Ghost
 
 SHAPES_LINE = "course module, shapes detected"  # (how CheckResult.verdict_lines starts it)
 # a frame of a Python traceback: its file and line
