@@ -118,6 +118,10 @@ class Watching:
     def printed(self, text: str) -> None:
         self.wait_for(lambda: text in self.out.read_text(), repr(text))
 
+    def echoed(self, text: str, count: int = 1) -> None:
+        """Wait until the filter's output echoed on stderr holds ``text`` ``count`` times."""
+        self.wait_for(lambda: self.err.read_text().count(text) >= count, repr(text))
+
     def stop(self) -> tuple[int, float, str]:
         """Ctrl-C (to the process group, as a terminal sends it): the exit code, how long
         the exit took, what it printed; every process it started is gone."""
@@ -180,10 +184,10 @@ def test_a_mistake_a_syntax_error_and_the_fix_each_show_in_the_newest_run(
 
         _edit(module, ROTATED, UNROTATED)  # a real mistake: Q added unrotated
         mistake = watching.run(2)
-        assert mistake["match"] is False and mistake["causes"] == ["unrotated_motion_noise"]
+        assert mistake["match"] is False and mistake["causes"] == ["noise_jacobian.missing"]
         assert mistake["files"] == [str(absolute(module))]
         assert _labels(entity_rows(latest, GHOST, static=True)) == [["run 1"]]
-        assert "cause: unrotated_motion_noise" in _log_text(latest)
+        assert "cause: noise_jacobian.missing" in _log_text(latest)
         assert entity_rows(latest, "/filters/ekf_slam/world/divergence", static=True)
         kept = _digest(latest)
 
@@ -369,14 +373,13 @@ def _viewer_server(folder: Path) -> tuple[subprocess.Popen[bytes], str, Path]:
 
 
 SLOW_PREDICT = """
-import os as _os, time as _time
+import sys as _sys, time as _time
 _predict = predict
+_said = []
 def predict(X, P, control, control_cov, k):
-    started = _os.path.join(_os.path.dirname(__file__), "started")
-    if not _os.path.exists(started):
-        with open(started + ".tmp", "w") as handle:
-            handle.write(str(_os.getpid()))
-        _os.replace(started + ".tmp", started)
+    if not _said:  # the handshake: the worker's output is echoed on the watch's stderr
+        print("slow run started", flush=True)
+        _said.append(1)
     _time.sleep(0.5)
     return _predict(X, P, control, control_cov, k)
 """
@@ -394,15 +397,14 @@ def test_a_save_during_a_run_cancels_it_and_the_viewer_gets_complete_runs_only(
         watching.run(1)
         correct = module.read_text()
         module.write_text(correct + SLOW_PREDICT)  # 29 predicts of half a second each
-        watching.wait_for(lambda: (folder / "started").exists(), "the slow run's start")
-        slow_worker = int((folder / "started").read_text())
+        watching.echoed("slow run started")
+        slow_workers = _descendants(watching.process.pid)  # (the slow run's, sandboxed)
         module.write_text(correct.replace(ROTATED, UNROTATED))  # a save during that run
         report = watching.run(2)  # the slow run took no number: it never completed
-        assert report["causes"] == ["unrotated_motion_noise"]
-        assert not _alive(slow_worker)  # its worker was ended
-        (folder / "started").unlink()
+        assert report["causes"] == ["noise_jacobian.missing"]
+        assert slow_workers and not [pid for pid in slow_workers if _alive(pid)]  # ended
         module.write_text(correct + SLOW_PREDICT)
-        watching.wait_for(lambda: (folder / "started").exists(), "the slow run's start")
+        watching.echoed("slow run started", 2)
         code, took, _ = watching.stop()  # Ctrl-C during a run: it ends too, and its worker
         assert code == 130 and took < EXIT_BOUND_S
     finally:
@@ -429,8 +431,8 @@ def test_a_save_during_a_run_cancels_it_and_the_viewer_gets_complete_runs_only(
 
 
 def test_check_watch_runs_the_battery_under_the_interpreter_given(tmp_path: Path) -> None:
-    """``check --watch`` without a log: both logs of the battery at every run, a numpy-1
-    module under its own interpreter (--python), a recording of each kept."""
+    """``check --watch`` without a log: every log of the battery at every run, a numpy-1
+    module under its own interpreter (--python), a recording of each it can read kept."""
     assert NUMPY1.is_file(), f"{NUMPY1}: make test builds it"
     version = subprocess.run([str(NUMPY1), "-c", "import numpy; print(numpy.__version__)"],
                              capture_output=True, text=True, check=True).stdout  # fmt: skip
@@ -443,10 +445,16 @@ def test_check_watch_runs_the_battery_under_the_interpreter_given(tmp_path: Path
     try:
         report = watching.run(1)
         logs = report["logs"]
-        assert isinstance(logs, list) and [entry["log"] for entry in logs] == ["classic", "edge"]
+        assert isinstance(logs, list) and [entry["log"] for entry in logs] == [
+            "classic",
+            "edge",
+            "midrun",
+        ]
         assert all(entry["error"] is None for entry in logs), logs
         for name in ("latest-classic.rrd", "latest-edge.rrd"):
             assert (module.parent / name).is_file()
+        # a course module cannot read the mid-run log: skipped, as check does, unsaved
+        assert logs[2]["events_checked"] == 0 and not (module.parent / "latest-midrun.rrd").exists()
         watching.stop()
     finally:
         watching.kill()

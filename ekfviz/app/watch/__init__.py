@@ -333,6 +333,8 @@ def _record(
     clock = time.strftime("%H:%M:%S", time.localtime(started))
     for outcome in outcomes:
         item = outcome.input
+        if outcome.result is not None and outcome.result.skipped:
+            continue  # a battery log the filter cannot read: nothing ran, nothing to show
         good = outcome.failure is None and outcome.result is not None
         sinks = replace(request.sinks, save=item.save if good else None)
         if not sinks.any:

@@ -186,7 +186,9 @@ def placed(user_traceback: str, followed: Sequence[Path], module: Path) -> tuple
     """The innermost frame of a filter's traceback that is in one of its own files (a
     syntax error's place is the last frame Python lists), else the module and line 0."""
     mine = {absolute(path) for path in followed}
-    for name, line in reversed(_FRAME.findall(user_traceback)):
+    # the sandbox hands a traceback over printable: its line breaks escaped
+    text = user_traceback.replace("\\n", "\n")
+    for name, line in reversed(_FRAME.findall(text)):
         if absolute(Path(name)) in mine:
             return absolute(Path(name)), int(line)
     return module, 0
