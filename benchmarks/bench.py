@@ -40,6 +40,9 @@
 12. The sandbox (``sandbox_bench.py``): a submission's worker started in its sandbox
    against without it, and ``grade`` of 30 submissions with and without the sandbox;
    ``--sandbox-only`` runs just this.
+13. Watch (``watch_bench.py``): ``ekfviz watch`` of the course skeleton, from a save to
+   its run complete in the viewer (the median of 10 saves, target 1 s), and from Ctrl-C
+   to its end; ``--watch-only`` runs just this.
 
 It prints the tables and writes them, with the machine, the date and the command, to
 ``benchmarks/RESULTS.md``. Timings are medians (bounds: best) of repeated runs; where
@@ -88,6 +91,7 @@ from scaling_bench import scaling_section
 from smoother_bench import smoother_section
 from startup_bench import startup_section
 from textbook_ekf import TextbookEkfSlam
+from watch_bench import watch_section
 from worker_bench import worker_section
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -934,6 +938,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument(
         "--sandbox-only", action="store_true", help="only the sandbox section of RESULTS.md"
     )
+    parser.add_argument(
+        "--watch-only", action="store_true", help="only the watch section of RESULTS.md"
+    )
     args = parser.parse_args(argv)
     started = time.perf_counter()
     if args.worker_only:
@@ -968,9 +975,12 @@ def main(argv: Sequence[str] | None = None) -> None:
         or args.startup_only
         or args.scaling_only
         or args.sandbox_only
+        or args.watch_only
     ):
         with tempfile.TemporaryDirectory() as tmp:
-            if args.sandbox_only:
+            if args.watch_only:
+                section = watch_section(Path(tmp))
+            elif args.sandbox_only:
                 section = sandbox_section(Path(tmp), args.quick)
             elif args.startup_only:
                 section = startup_section(Path(tmp))
@@ -1015,6 +1025,8 @@ def main(argv: Sequence[str] | None = None) -> None:
         scaling = scaling_section(Path(tmp), args.quick, args.out.parent)
         print("the sandbox of user code", flush=True)
         sandbox = sandbox_section(Path(tmp), args.quick)
+        print("watch: a save to its run in the viewer", flush=True)
+        watch = watch_section(Path(tmp))
         print("check --all", flush=True)
         from check_bench import check_section
 
@@ -1031,7 +1043,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     workers = worker_section(worker_worlds(args.quick))
     text = splice(splice(splice(splice(text, mrclam), smoothers), association), workers)
     text = splice(splice(splice(splice(text, startups), scaling), targets), sandbox)
-    text = splice(text, checks)
+    text = splice(splice(text, checks), watch)
     args.out.write_text(text)
     print()
     print(text)

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 from ekfviz import __version__
 from ekfviz.app.errors import in_family
-from ekfviz.app.inputs import source_events, study_input
+from ekfviz.app.inputs import StudyInput, source_events, study_input
 from ekfviz.app.outputs import filter_module, saved_line
 from ekfviz.app.reporting import Reporter
 from ekfviz.app.settings import FilterSettings, Triple, WorkerOptions, filter_params
@@ -41,9 +41,18 @@ from ekfviz.sources import OwnTruth, SourceArgs, open_source
 if TYPE_CHECKING:
     from ekfviz.check.coverage import Item as CoverageItem
     from ekfviz.check.lockstep import CheckResult
-    from ekfviz.viz import Sinks
+    from ekfviz.sandbox.remote import StartedWorker
+    from ekfviz.studies.runs import Run
+    from ekfviz.viz import RunInfo, Sinks
 
-__all__ = ["DEFAULT_TOLERANCE", "CheckRequest", "check", "check_log"]
+__all__ = [
+    "DEFAULT_TOLERANCE",
+    "CheckRequest",
+    "CheckResult",
+    "CoverageItem",
+    "check",
+    "check_log",
+]
 
 
 @dataclass(frozen=True, slots=True)
@@ -130,23 +139,42 @@ def check(request: CheckRequest, reporter: Reporter) -> CheckOutcome:
     checked: list[CheckedLog] = []
     results: list[dict[str, Any]] = []
     with tempfile.TemporaryDirectory(prefix="ekfviz-battery-") as folder:
-        logs = _logs(request, Path(folder))
+        logs = battery_logs(request, Path(folder))
         for log, log_truth, start in logs:
             one, params = _check_one(request, spec, log, log_truth, start, reporter)
             checked.append(one)
-            results.append({"log": str(log) if data is not None else log.stem,
-                            **one.result.to_json(),
-                            "coverage": [item.to_json() for item in one.coverage]})  # fmt: skip
-    document: dict[str, Any] = {"ekfviz_version": __version__, "filter": spec.text,
-                                "parameters": params.as_dict()}  # fmt: skip
-    document.update(results[0] if data is not None else _battery_report(results))
+            results.append(log_entry(one.name, one.result, one.coverage))
+    document = report_document(spec, params, results, battery=data is None)
     if request.report is not None:
         write_json(request.report, document)
     return CheckOutcome(checked, data is None, document)
 
 
-def _logs(request: CheckRequest, folder: Path) -> Sequence[tuple[Path, Path | None, Triple | None]]:
-    """The logs to check: the one asked for, else the battery written into ``folder``."""
+def log_entry(name: str, result: CheckResult, exercised: list[CoverageItem]) -> dict[str, Any]:
+    """The report's entry of one log: its name, the verdict and what the log exercised."""
+    return {"log": name, **result.to_json(),
+            "coverage": [item.to_json() for item in exercised]}  # fmt: skip
+
+
+def report_document(
+    spec: FilterSpec, params: FilterParams, entries: list[dict[str, Any]], *, battery: bool
+) -> dict[str, Any]:
+    """The report of a check: the filter and its parameters, the log's entry (or the
+    battery's: each log's, and all of them together)."""
+    document: dict[str, Any] = {"ekfviz_version": __version__, "filter": spec.text,
+                                "parameters": params.as_dict()}  # fmt: skip
+    document.update(_battery_report(entries) if battery else entries[0])
+    return document
+
+
+def battery_logs(
+    request: CheckRequest, folder: Path
+) -> Sequence[tuple[Path, Path | None, Triple | None]]:
+    """The logs to check, each with its truth and start pose: the one asked for, else
+    the battery written into ``folder``.
+
+    :raises UsageError: ``--truth`` without a log
+    """
     if request.data is not None:
         return [(request.data, request.truth, request.init_pose)]
     from ekfviz.samples import write_battery
@@ -167,17 +195,9 @@ def _check_one(
 ) -> tuple[CheckedLog, FilterParams]:
     """Check the filter on one log, with that log's defaults; its parameters too."""
     battery = request.data is None
-    params = filter_params(request.filter, log=log, given=request.was_given, note=reporter.note)
-    if start is not None:
-        params = replace(params, init_pose=start)
-    # a dataset's own truth, and the start at its true pose (per-step noise kept: a
-    # course filter's predict takes no time span)
-    opened = study_input(params, log, request.source_args, truth, request.no_truth,
-                         motion_noise=False, init_pose=start, pose_option=True,
-                         warn=reporter.warn)  # fmt: skip
+    opened = prepared_input(request, log, truth, start, reporter)
     save = request.save
-    refuse_output_over_input(("--report", request.report), ("--save", save), inputs=opened.files)
-    target = save if not battery or save is None else _per_log(save, log)
+    target = save if not battery or save is None else per_log_path(save, log)
     try:
         with in_family():
             result, exercised = check_log(
@@ -195,7 +215,36 @@ def _check_one(
     ), opened.params  # fmt: skip
 
 
-def _per_log(save: Path, log: Path) -> Path:
+def prepared_input(
+    request: CheckRequest,
+    log: Path,
+    truth: Path | None,
+    start: Triple | None,
+    reporter: Reporter,
+) -> StudyInput:
+    """The filter's parameters for ``log`` (the noise its header states, the start pose)
+    with its source's own truth; the outputs refused where they are one of its files.
+
+    :param start: the start pose a battery log brings, or ``--init-pose``
+    :raises InputError, OutputError: one line each
+    """
+    params = filter_params(request.filter, log=log, given=request.was_given, note=reporter.note)
+    if start is not None:
+        params = replace(params, init_pose=start)
+    # a dataset's own truth, and the start at its true pose (per-step noise kept: a
+    # course filter's predict takes no time span)
+    opened = study_input(params, log, request.source_args, truth, request.no_truth,
+                         motion_noise=False, init_pose=start, pose_option=True,
+                         warn=reporter.warn)  # fmt: skip
+    refuse_output_over_input(
+        ("--report", request.report), ("--save", request.save), inputs=opened.files
+    )
+    return opened
+
+
+def per_log_path(save: Path, log: Path) -> Path:
+    """Where the recording of the battery's ``log`` goes, for ``--save NAME.rrd``:
+    ``NAME-classic.rrd`` beside it."""
     return save.with_name(f"{save.stem}-{log.stem}{save.suffix or '.rrd'}")
 
 
@@ -234,6 +283,7 @@ def check_log(
     command: str | None = None,
     sinks: Sinks | None = None,
     skip_unreadable: bool = False,
+    started: StartedWorker | None = None,
 ) -> tuple[CheckResult, list[CoverageItem]]:
     """Check a protocol filter against the reference in lockstep over ``data``; with
     ``save`` (or ``sinks``), one recording of both side by side, the divergences marked.
@@ -245,12 +295,14 @@ def check_log(
     :param sinks: where the recording goes instead of ``save`` (a viewer's URL)
     :param skip_unreadable: a course module and a log it cannot read (landmarks first seen
         after the first line): a result that says so, the module not run (the battery)
+    :param started: a worker already started for a user's filter, its module not yet
+        imported (``ekfviz watch``'s)
     :raises InputError, FilterLineError, FilterSpecError, SinkError: one line each
     """
     from ekfviz.check.coverage import coverage
     from ekfviz.check.lockstep import course_cannot_read, lockstep, skipped
 
-    make_filter = spec.load()
+    make_filter = spec.load(started)
     truth, truth_files = study_truth(truth_path, own_truth)
     source = open_source(data, source_args)
     try:
@@ -273,13 +325,13 @@ def check_log(
         from ekfviz import viz
 
         said = command if command is not None else shlex.join(["ekfviz", *sys.argv[1:]])
-        recorded = _Recorded(data, truth, truth_files, source.files, said)
+        recorded = Recorded(data, truth, truth_files, source.files, said)
         _record_check(recorded, spec, params, result, sinks or viz.Sinks(save=save))
     return result, exercised
 
 
 @dataclass(frozen=True, slots=True)
-class _Recorded:
+class Recorded:
     """What a check's recording says of its input: the log (``input_files``: what a
     dataset directory is read from), its truth (``truth_files``: what it was read from)
     and the command line."""
@@ -292,12 +344,35 @@ class _Recorded:
 
 
 def _record_check(
-    recorded: _Recorded, spec: FilterSpec, params: FilterParams, result: CheckResult, sinks: Sinks
+    recorded: Recorded, spec: FilterSpec, params: FilterParams, result: CheckResult, sinks: Sinks
 ) -> None:
     """The recording of a check: the filter and the reference side by side."""
     from ekfviz import viz
-    from ekfviz.studies.runs import Run, RunSpec
     from ekfviz.viz.check import record_check
+
+    shown = check_recording(recorded, spec, params, result)
+    with viz.open_recording(shown.info, sinks) as recording:
+        record_check(recording, shown.result, shown.runs, recorded.truth, shown.summary)
+
+
+@dataclass(frozen=True, slots=True)
+class CheckRecording:
+    """What the recording of a check shows: the result as recorded (to its first
+    divergence unless every event was checked), both runs, the run's description and the
+    verdict as markdown."""
+
+    result: CheckResult
+    runs: list[Run]
+    info: RunInfo
+    summary: str
+
+
+def check_recording(
+    recorded: Recorded, spec: FilterSpec, params: FilterParams, result: CheckResult
+) -> CheckRecording:
+    """What the recording of a check of ``spec`` shows (see :func:`_record_check`)."""
+    from ekfviz import viz
+    from ekfviz.studies.runs import Run, RunSpec
 
     first = result.first_divergence
     if first is not None and not result.every:
@@ -335,5 +410,4 @@ def _record_check(
     )
     verdict = json.dumps(result.to_json(), indent=2)
     summary = f"# Check of {utf8(spec.text)} against the reference\n\n```json\n{verdict}\n```\n"
-    with viz.open_recording(info, sinks) as recording:
-        record_check(recording, result, runs, truth, summary)
+    return CheckRecording(result, runs, info, summary)

@@ -28,6 +28,7 @@ COMMANDS = (
     "replay",
     "simulate",
     "sweep",
+    "watch",
 )
 
 

@@ -3,24 +3,18 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
 from ekfviz.app.check import DEFAULT_TOLERANCE, CheckedLog, CheckOutcome, CheckRequest, check
 from ekfviz.app.inputs import SourceArgs
-from ekfviz.app.text import Styled, one_line
+from ekfviz.cli.checking import CheckLog, EveryOption, Tolerance, print_verdict
 from ekfviz.cli.console import (
-    DEBUG,
     TerminalReporter,
-    err,
     note,
     out,
     plain,
-    rendered,
-    say,
-    say_user_traceback,
-    show,
 )
 from ekfviz.cli.options import (
     DEFAULT,
@@ -29,24 +23,16 @@ from ekfviz.cli.options import (
     InitPoseSigma,
     TruthOption,
     UserFilter,
+    WatchOption,
     _option,
     expands_options,
-    piped_input,
 )
 from ekfviz.cli.program import app, command_line, given_options
 from ekfviz.cli.sources import NO_SOURCE_ARGS, InitPoseOption, NoTruthOption, with_source_options
 
-CheckLog = Annotated[
-    Path | None,
-    typer.Argument(
-        help="A log in the classic or the extended format ('-': from standard input), or an"
-        " MRCLAM dataset directory (with --robot) [default: the bundled battery: the classic"
-        " sample, the edge log and the mid-run log]; the Victoria Park directory is for"
-        " replay only.",
-        show_default=False,
-        callback=piped_input,
-    ),
-]
+if TYPE_CHECKING:
+    pass
+
 CheckFilter = Annotated[
     str,
     typer.Option(
@@ -55,17 +41,6 @@ CheckFilter = Annotated[
         " update), PATH.py:ClassName or package.module:ClassName.",
         show_default=False,
     ),
-]
-EveryOption = Annotated[
-    bool,
-    typer.Option(
-        "--all",
-        help="Go on after a divergence: find the cause of every divergent event and"
-        " report them grouped.",
-    ),
-]
-Tolerance = Annotated[
-    float, _option("Largest difference allowed, |got - expected| / max(1, |expected|).", min=0.0)
 ]
 CheckReport = Annotated[Path | None, _option("Write the result as JSON here.", show_default=False)]
 CheckSave = Annotated[
@@ -98,6 +73,7 @@ def check_command(
     noise: FilterNoise,
     init_pose_sigma: InitPoseSigma = DEFAULT.init_pose_sigma,
     form: FilterForm,
+    watch: WatchOption = False,
 ) -> None:
     """Check a filter against the built-in reference, event by event.
 
@@ -115,6 +91,11 @@ def check_command(
         filter=form.values(noise, init_pose_sigma), given=given_options(ctx),
         command=command_line(),
     )  # fmt: skip
+    if watch:
+        from ekfviz.cli.checking import run_watch
+
+        run_watch(request)
+        return
     outcome = check(request, TerminalReporter())
     for checked in outcome.logs:
         _print(checked, outcome, every)
@@ -125,24 +106,11 @@ def check_command(
 
 
 def _print(checked: CheckedLog, outcome: CheckOutcome, every: bool) -> None:
-    """The verdict on one log, as the report says it (no markup read in any name)."""
-    name, result = checked.name, checked.result
+    """The verdict on one log, its notes before and where it was saved after."""
     for text in checked.notes:  # what was chosen for the run (the start pose)
         note(text)
-    if outcome.battery:
-        say([(Styled("log ", "bold"), Styled(name, "bold"), Styled(f" ({checked.log.name})"))])
-    say(result.verdict_lines(name, every))
-    if result.first_divergence is not None and every and result.divergences:
-        show(result.groups_table())
-        say(result.group_lines())
-    if result.error is not None:
-        err.print(rendered((Styled("error: ", "bold red"),
-                            Styled(one_line(f"{name}:{result.error_line}: {result.error}")))),
-                  soft_wrap=True)  # fmt: skip
-        if DEBUG["traceback"]:
-            say_user_traceback(result.error_traceback)
-    if checked.missing:
-        say([Styled(f"  not exercised by {name}:")])
-        say([Styled(f"    - {item.untested}") for item in checked.missing])
+    print_verdict(
+        checked.log, checked.name, checked.result, checked.missing, every, battery=outcome.battery
+    )
     if checked.saved is not None:
         out.print(plain(checked.saved))

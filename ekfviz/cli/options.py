@@ -103,7 +103,17 @@ LOOP = "Loop scenario"
 SENSOR = "Detection"
 USER_FILTERS = "User filters"
 STUDY = "Where the runs execute"
+RERUN_OUTPUT = "Rerun output"
 
+WatchOption = Annotated[
+    bool,
+    typer.Option(
+        "--watch",
+        help="Check again on every save of the filter's files (the module and the files"
+        " beside it that it imports) or of the log, each run a new recording in the viewer"
+        " that stays open (as ekfviz watch does), until Ctrl-C.",
+    ),
+]
 SigmaX = Annotated[
     float, _option("Motion noise sigma along the heading (m).", FILTER_NOISE, min=0.0)
 ]
@@ -616,3 +626,47 @@ class Sensing(OptionGroup):
 
     def values(self) -> SensingSettings:
         return SensingSettings(self.unknown_ids, self.clutter, self.detection_probability)
+
+
+@dataclass(frozen=True, slots=True)
+class RerunSinks(OptionGroup):
+    """Where a recording goes: a file, a viewer spawned, served or connected to."""
+
+    save: Annotated[
+        Path | None,
+        typer.Option(
+            help="Write the recording to this .rrd file.",
+            show_default=False,
+            rich_help_panel=RERUN_OUTPUT,
+        ),
+    ] = None
+    spawn: Annotated[
+        bool,
+        typer.Option("--spawn", help="Open the native Rerun viewer.", rich_help_panel=RERUN_OUTPUT),
+    ] = False
+    serve: Annotated[
+        bool,
+        typer.Option(
+            "--serve",
+            help="Serve the web viewer on localhost (see --bind) until Ctrl-C.",
+            rich_help_panel=RERUN_OUTPUT,
+        ),
+    ] = False
+    bind: Annotated[
+        str | None,
+        typer.Option(
+            help="With --serve: the IP address to listen on \\[default: 127.0.0.1, this"
+            " machine only]; 0.0.0.0 serves the recording to the whole network.",
+            show_default=False,
+            metavar="ADDRESS",
+            rich_help_panel=RERUN_OUTPUT,
+        ),
+    ] = None
+    connect: Annotated[
+        str | None,
+        typer.Option(
+            help="Stream to a running viewer at this gRPC URL.",
+            show_default=False,
+            rich_help_panel=RERUN_OUTPUT,
+        ),
+    ] = None

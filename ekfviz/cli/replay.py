@@ -24,6 +24,7 @@ from ekfviz.cli.console import (
 )
 from ekfviz.cli.options import (
     DEFAULT,
+    RERUN_OUTPUT,
     Association,
     FilterForm,
     FilterNoise,
@@ -33,8 +34,11 @@ from ekfviz.cli.options import (
     OdometryBias,
     OdometryScale,
     OptionGroup,
+    RerunSinks,
+    Triple,
     TruthOption,
     UserFilter,
+    WatchOption,
     expands_options,
 )
 from ekfviz.cli.program import app, command_line, given_options
@@ -47,8 +51,6 @@ from ekfviz.cli.sources import (
     NoTruthOption,
     with_source_options,
 )
-
-RERUN = "Rerun output"
 
 ReportOption = Annotated[
     Path | None, typer.Option(help="Write the evaluation as JSON here.", show_default=False)
@@ -70,53 +72,16 @@ class Odometry(OptionGroup):
 
 
 @dataclass(frozen=True, slots=True)
-class RerunOutput(OptionGroup):
+class RerunOutput(RerunSinks):
     """Where the recording goes and how much of it is logged."""
 
-    save: Annotated[
-        Path | None,
-        typer.Option(
-            help="Write the recording to this .rrd file.",
-            show_default=False,
-            rich_help_panel=RERUN,
-        ),
-    ] = None
-    spawn: Annotated[
-        bool, typer.Option("--spawn", help="Open the native Rerun viewer.", rich_help_panel=RERUN)
-    ] = False
-    serve: Annotated[
-        bool,
-        typer.Option(
-            "--serve",
-            help="Serve the web viewer on localhost (see --bind) until Ctrl-C.",
-            rich_help_panel=RERUN,
-        ),
-    ] = False
-    bind: Annotated[
-        str | None,
-        typer.Option(
-            help="With --serve: the IP address to listen on \\[default: 127.0.0.1, this"
-            " machine only]; 0.0.0.0 serves the recording to the whole network.",
-            show_default=False,
-            metavar="ADDRESS",
-            rich_help_panel=RERUN,
-        ),
-    ] = None
-    connect: Annotated[
-        str | None,
-        typer.Option(
-            help="Stream to a running viewer at this gRPC URL.",
-            show_default=False,
-            rich_help_panel=RERUN,
-        ),
-    ] = None
     detail: Annotated[
         bool,
         typer.Option(
             "--detail",
             help="Log every landmark's ellipse at every update, even in a large map"
             " (by default a map of over 32 landmarks is logged whole every 25 steps).",
-            rich_help_panel=RERUN,
+            rich_help_panel=RERUN_OUTPUT,
         ),
     ] = False
     history: Annotated[
@@ -125,7 +90,7 @@ class RerunOutput(OptionGroup):
             "--history",
             help="The classic figure: the map keeps every predicted (magenta) and updated"
             " (blue) robot ellipse up to the time cursor.",
-            rich_help_panel=RERUN,
+            rich_help_panel=RERUN_OUTPUT,
         ),
     ] = False
 
@@ -159,12 +124,18 @@ def replay_command(
     user: UserFilter,
     output: RerunOutput,
     association: Association,
+    watch: WatchOption = False,
 ) -> None:
     """Replay a log through EKF-SLAM, record it for Rerun and print the evaluation.
 
     With no Rerun output option, the native viewer opens where a display exists;
-    otherwise the recording is saved to recordings/<input name>.rrd.
+    otherwise the recording is saved to recordings/<input name>.rrd. With --watch and
+    --filter PATH.py: the filter checked again on every save (see ekfviz watch).
     """
+    if watch:
+        _watch(ctx, data, truth, source_args, no_truth, report, noise, init_pose,
+               init_pose_sigma, form, filter_spec, user, output)  # fmt: skip
+        return
     if as_json:  # stdout for the document; what is printed for people goes to stderr
         human_output_to_stderr()
     request = ReplayRequest(
@@ -205,3 +176,36 @@ def _print(result: ReplayResult, as_json: bool) -> None:
         out.print(saved_line(result.saved_to), soft_wrap=True, markup=False, highlight=False)
     if result.served is not None:
         out.print(f"Serving the web viewer at [bold]{result.served.url}[/] (Ctrl-C to stop)")
+
+
+def _watch(
+    ctx: typer.Context,
+    data: Path,
+    truth: Path | None,
+    source_args: SourceArgs,
+    no_truth: bool,
+    report: Path | None,
+    noise: FilterNoise,
+    init_pose: Triple | None,
+    init_pose_sigma: Triple,
+    form: FilterForm,
+    filter_spec: str,
+    user: UserFilter,
+    output: RerunOutput,
+) -> None:
+    """``replay --filter PATH.py --watch``: the watch of that filter on the replay's log,
+    its recordings where the replay's would go."""
+    from ekfviz.app.check import CheckRequest
+    from ekfviz.cli.checking import refuse_replay_only, run_watch
+
+    if filter_spec == BUILTIN:
+        fail("--watch checks a filter of yours on every save: add --filter PATH.py")
+    given = given_options(ctx)
+    refuse_replay_only(given)
+    request = CheckRequest(
+        filter_text=filter_spec, data=data, truth=truth, source_args=source_args,
+        no_truth=no_truth, report=report, save=output.save, worker=user.worker(),
+        init_pose=init_pose, filter=form.values(noise, init_pose_sigma), given=given,
+        command=command_line(),
+    )  # fmt: skip
+    run_watch(request, output)

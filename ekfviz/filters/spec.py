@@ -35,7 +35,7 @@ from pathlib import Path
 from ekfviz.core.tables import utf8
 from ekfviz.filters.plugged import FilterFactory
 from ekfviz.sandbox.host import WorkerFault, WorkerOptions
-from ekfviz.sandbox.remote import Target, WorkerFactory
+from ekfviz.sandbox.remote import StartedWorker, Target, WorkerFactory
 from ekfviz.sandbox.submission import Submission
 
 BUILTIN = "ekf"
@@ -115,12 +115,13 @@ class FilterSpec:
         """The label, safe in an entity path."""
         return re.sub(r"[^A-Za-z0-9_.-]+", "_", self.label)
 
-    def load(self) -> FilterFactory:
+    def load(self, started: StartedWorker | None = None) -> FilterFactory:
         """The filter class, or for a user's code a factory of workers running it.
 
+        :param started: see :func:`load_filter`
         :raises FilterSpecError: the file, module or class cannot be had; one line
         """
-        return load_filter(self.text, self.worker)
+        return load_filter(self.text, self.worker, started)
 
 
 def release(make_filter: object) -> None:
@@ -187,10 +188,14 @@ def _python_file(path: Path, text: str) -> str:
     return str(path.resolve())
 
 
-def load_filter(text: str, worker: WorkerOptions | None = None) -> FilterFactory:
+def load_filter(
+    text: str, worker: WorkerOptions | None = None, started: StartedWorker | None = None
+) -> FilterFactory:
     """The filter class that ``--filter text`` names, or a factory of workers running a
     user's code (see the module docstring).
 
+    :param started: for a user's code, a worker already started to import it into (one
+        kept waiting, so that a run does not wait for an interpreter to start)
     :raises FilterSpecError: one line naming what is wrong and what was expected
     """
     if text in REGISTRY:
@@ -206,12 +211,18 @@ def load_filter(text: str, worker: WorkerOptions | None = None) -> FilterFactory
             ) from error
     user = target_of(text)
     options = worker if worker is not None else WorkerOptions()
-    label = f"filter {Path(user.path).name if user.path else user.describe()}"
+    label = worker_label(user)
     try:
-        return WorkerFactory(user, options, label)
+        return WorkerFactory(user, options, label, started)
     except WorkerFault as fault:
         message = f"--filter {text}: {fault}"
         raise FilterSpecError(message, fault.kind, fault.user_traceback) from None
+
+
+def worker_label(target: Target) -> str:
+    """How messages and the echo of its output name a user's filter: ``filter
+    ekf_slam.py`` (a file's name), ``filter package.module:Class``."""
+    return f"filter {Path(target.path).name if target.path else target.describe()}"
 
 
 def _import(module: str) -> object:

@@ -10,6 +10,7 @@ and owns the private copy they see. Numpy only.
 from __future__ import annotations
 
 import os
+import tempfile
 import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -66,6 +67,8 @@ class Target:
 class LoadedWorker:
     """A worker with the user's module imported, not yet constructed.
 
+    :param process: a worker already started with ``mounts`` (its interpreter and numpy
+        loaded, waiting for a module), or None to start one
     :raises WorkerFault: the module cannot be imported, or lacks what it needs
     """
 
@@ -75,8 +78,9 @@ class LoadedWorker:
         options: WorkerOptions,
         label: str,
         mounts: Sequence[bwrap.Mount] = (),
+        process: WorkerProcess | None = None,
     ) -> None:
-        self.process = WorkerProcess(options, label, mounts)
+        self.process = process if process is not None else WorkerProcess(options, label, mounts)
         self.target = target
         sys_path = [target.import_folder]
         header = {"op": "load", "path": target.path, "module": target.module,
@@ -173,22 +177,44 @@ class RemoteFilter:
         self._worker.close()
 
 
+@dataclass(frozen=True, slots=True)
+class StartedWorker:
+    """A worker started ahead of the module it is to import, and the private copy of the
+    submission it is shown (:class:`PrivateCopy`'s, refreshed by its owner)."""
+
+    process: WorkerProcess
+    mounts: tuple[bwrap.Mount, ...]
+
+
 class WorkerFactory:
     """``make_filter(params)`` for a user's filter: a :class:`RemoteFilter` in a new worker.
 
     The first worker is started (and the module imported) at once, so that a module that
     cannot load fails before any work; the first construction takes it.
+
+    :param started: a worker already started to import the module into first; the
+        later ones are shown its private copy too (its owner's to remove)
     """
 
-    def __init__(self, target: Target, options: WorkerOptions, label: str) -> None:
+    def __init__(
+        self,
+        target: Target,
+        options: WorkerOptions,
+        label: str,
+        started: StartedWorker | None = None,
+    ) -> None:
         self.target = target
         self.options = options
         self.label = label
-        self.mounts = _private_copy(target, options)
-        self._removal = weakref.finalize(self, _remove_copies, self.mounts)
+        self.mounts = _private_copy(target, options) if started is None else started.mounts
+        owned = self.mounts if started is None else ()
+        self._removal = weakref.finalize(self, _remove_copies, owned)
         self._made: list[LoadedWorker] = []  # the workers of the filters made, to end them
+        process = None if started is None else started.process
         try:
-            self._spare: LoadedWorker | None = LoadedWorker(target, options, label, self.mounts)
+            self._spare: LoadedWorker | None = LoadedWorker(
+                target, options, label, self.mounts, process
+            )
         except BaseException:
             self._removal()
             raise
@@ -225,6 +251,39 @@ def submission_of(target: Target, options: WorkerOptions) -> Submission | None:
     if target.path is not None:
         return Submission(os.path.dirname(os.path.abspath(target.path)), python_only=True)
     return None
+
+
+class PrivateCopy:
+    """A submission's private copy kept at one folder and made again before each run:
+    what workers started ahead of their run are shown (``ekfviz watch``, where the
+    submission changes between runs). Nothing without the sandbox.
+    """
+
+    def __init__(self, target: Target, options: WorkerOptions) -> None:
+        self._submission = submission_of(target, options) if options.sandbox else None
+        self.mounts: tuple[bwrap.Mount, ...] = ()
+        if self._submission is not None:
+            folder = tempfile.mkdtemp(prefix="ekfviz-submission-")
+            self.mounts = (bwrap.Mount(folder, self._submission.root),)
+        self._removal = weakref.finalize(self, _remove_copies, self.mounts)
+
+    def refresh(self) -> None:
+        """Copy the submission again, as it is now, into the same folder.
+
+        :raises WorkerFault: the submission is not copied (kind ``refused``)
+        """
+        if self._submission is None:
+            return
+        try:
+            copy(self._submission, survey(self._submission), into=self.mounts[0].source)
+        except SubmissionRefused as error:
+            raise WorkerFault(printable(str(error)), "refused") from None
+        except OSError as error:  # (ekfviz's side: its temporary folder)
+            raise WorkerFault(f"the submission could not be copied: {error}", "start") from None
+
+    def close(self) -> None:
+        """Remove the copy."""
+        self._removal()
 
 
 def _private_copy(target: Target, options: WorkerOptions) -> tuple[bwrap.Mount, ...]:

@@ -167,13 +167,17 @@ def _kind(root: Path, relative: str, said: str) -> tuple[str, str]:
     return "file", real
 
 
-def copy(submission: Submission, found: Survey) -> str:
+def copy(submission: Submission, found: Survey, into: str | None = None) -> str:
     """A private folder (mode 0700) holding ``found``'s files as ``submission`` has them,
     read-only; the caller removes it (:func:`remove`).
 
+    :param into: a private folder made before to hold the copy, emptied first (it keeps
+        its path: a sandbox that shows it already shows the new copy)
     :raises SubmissionRefused: a file changed under the copy (grew past the bound)
     """
-    folder = tempfile.mkdtemp(prefix="ekfviz-submission-")
+    folder = into if into is not None else tempfile.mkdtemp(prefix="ekfviz-submission-")
+    if into is not None:
+        _empty(into)
     try:
         for relative in found.folders:
             os.makedirs(os.path.join(folder, relative), exist_ok=True)
@@ -200,6 +204,17 @@ def _copy_file(source: str, target: str, left: int) -> int:
             raise SubmissionRefused(f"{source}: grew past {MAX_BYTES >> 20} MiB while copied")
         writing.write(data)
     return len(data)
+
+
+def _empty(folder: str) -> None:
+    """Remove what a private copy holds, the folder itself kept (made writable)."""
+    for current, _, _ in os.walk(folder):
+        os.chmod(current, 0o700)
+    for entry in os.scandir(folder):
+        if entry.is_dir(follow_symlinks=False):
+            shutil.rmtree(entry.path)
+        else:
+            os.unlink(entry.path)
 
 
 def remove(folder: str) -> None:

@@ -100,12 +100,15 @@ def record_check(
     runs: list[Run],
     truth: GroundTruth | None,
     summary: str,
+    map_note: str = "",
 ) -> None:
     """Log a check: both runs, the divergences, the difference per event, the layout.
 
     :param runs: the reference's run first, then the checked filter's (either may be
         missing when it has no record)
     :param summary: the verdict as markdown
+    :param map_note: said after the checked filter's name in its map's title (what else
+        the map shows, e.g. an earlier run in grey)
     """
     rec = recording.rec
     root = "filters"
@@ -173,6 +176,7 @@ def record_check(
             bounds_xy=box,
             zoom_xy=zoom,
             first=first,
+            map_note=map_note,
         )
     )
 
@@ -351,16 +355,24 @@ def check_blueprint(
     bounds_xy: FloatArray | None,
     zoom_xy: FloatArray | None,
     first: Divergence | None,
+    map_note: str = "",
 ) -> rrb.Blueprint:
     """The check's layout: both maps (the divergence marked), the checked map zoomed on
     the first divergence, the difference per event, the log with its ERROR lines, the
     divergences' table, and a tab per filter with its own plots.
 
     :param variants: (label, prefix) of the reference's run then the checked filter's
+    :param map_note: see :func:`record_check`
     """
+    checked = variants[-1][1]
     # the outlines at the divergence in the zoomed view only: they would cover the map
     maps: list[rrb.View] = [
-        map_view(bounds_xy, prefix=prefix, name=label, exclude=(EXPECTED, GOT))
+        map_view(
+            bounds_xy,
+            prefix=prefix,
+            name=f"{label}{map_note}" if prefix == checked else label,
+            exclude=(EXPECTED, GOT),
+        )
         for label, prefix in variants
     ]
     if first is not None:
@@ -370,6 +382,7 @@ def check_blueprint(
                 zoom_xy,
                 prefix=prefix,
                 name=f"At event {first.event}",
+                exclude=(style.PREVIOUS,),  # grey too: only this event's outlines here
             )
         )
     difference = rrb.TimeSeriesView(

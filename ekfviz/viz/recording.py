@@ -183,7 +183,9 @@ def finish_recorders(
 
 
 @contextmanager
-def open_recording(info: RunInfo, sinks: Sinks) -> Iterator[Recording]:
+def open_recording(
+    info: RunInfo, sinks: Sinks, *, recording_id: str | None = None, deferred: bool = False
+) -> Iterator[Recording]:
     """A self-describing recording sent to ``sinks``, closed when the block ends.
 
     A ``--save`` file is written beside its path under a temporary name and moved over
@@ -193,11 +195,18 @@ def open_recording(info: RunInfo, sinks: Sinks) -> Iterator[Recording]:
     :func:`~ekfviz.io.files.partial_path` instead (``saved_to`` says where). Temporary
     files that runs killed outright (``kill -9``) left beside the path are removed first.
 
+    :param recording_id: the recording's id (default: ``info.recording_id``, fixed by
+        what made the run; one of its own for each of several runs of the same input)
+    :param deferred: hold what is logged in memory and send it to the sinks only once
+        the block ends with the recording complete: a viewer then never shows, and no
+        file holds, a recording that was given up half-way
     :raises SinkError: when a sink cannot be used (no display for ``spawn``, ...)
     """
     if not sinks.any:
         raise SinkError("no Rerun output: use --save PATH, --spawn, --serve or --connect URL")
-    rec = rr.RecordingStream(APPLICATION_ID, recording_id=info.recording_id, send_properties=False)
+    rec = rr.RecordingStream(
+        APPLICATION_ID, recording_id=recording_id or info.recording_id, send_properties=False
+    )
     rec.set_log_time_enabled(False)  # only step and event: the same run gives the same data
     unreachable: str | None = None
     if sinks.connect is not None and viewer_answers(sinks.connect) is False:
@@ -209,14 +218,20 @@ def open_recording(info: RunInfo, sinks: Sinks) -> Iterator[Recording]:
     recording: Recording | None = None
     ended = False  # the block ran to its end
     try:
-        rec.set_sinks(*_attach(rec, sinks, attached))
+        log_sinks = _attach(rec, sinks, attached)
+        if not deferred:
+            rec.set_sinks(*log_sinks)
         _describe(rec, info)
-        note_writer(rec)  # (its thread is running by now: the description took a while)
+        if not deferred:
+            note_writer(rec)  # (its thread is running by now: the description took a while)
         recording = Recording(rec, attached.served, unreachable)
         recording.save_path = sinks.save
         yield recording
         ended = True
     finally:
+        if deferred and recording is not None and recording.complete:
+            rec.set_sinks(*log_sinks)  # what was held goes to every sink now
+            note_writer(rec)
         _close(rec, recording, attached, sinks.save, keep_serving=ended and unreachable is None)
     if unreachable is not None:
         kept = f"; the recording is saved in {sinks.save}" if sinks.save is not None else ""

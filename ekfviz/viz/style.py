@@ -39,6 +39,8 @@ TRUTH_LANDMARKS = "world/truth/landmarks"  # Points2D, static
 TRUTH_ROBOT = "world/truth/robot"
 TRUTH_ROBOT_FRAME = "world/truth/robot/frame"
 TRUTH_TRAJECTORY = "world/truth/trajectory"  # LineStrips2D
+# ``ekfviz watch``: the run before this one, static and grey (see ekfviz.viz.ghost)
+PREVIOUS = "world/previous"
 
 METRICS = "metrics"
 NIS = "metrics/nis"  # with /lower_95 and /upper_95: the chi-square bounds of each update

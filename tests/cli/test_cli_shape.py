@@ -40,9 +40,9 @@ MAX_COMMAND_LINES = 60
 # which commands take which group: a group dropped from a command (or a command that
 # declares the options again by hand) fails here
 TAKES: dict[type[OptionGroup], set[str]] = {
-    FilterNoise: {"replay", "check", "compare", "sweep", "consistency", "grade"},
-    FilterForm: {"replay", "check", "compare", "sweep", "consistency", "grade"},
-    UserFilter: {"replay", "check", "compare", "sweep"},
+    FilterNoise: {"replay", "check", "compare", "sweep", "consistency", "grade", "watch"},
+    FilterForm: {"replay", "check", "compare", "sweep", "consistency", "grade", "watch"},
+    UserFilter: {"replay", "check", "compare", "sweep", "watch"},
     Association: {"replay", "compare", "sweep", "consistency"},
     Execution: {"compare", "sweep", "consistency", "grade"},
     TrueNoise: {"consistency", "simulate"},
