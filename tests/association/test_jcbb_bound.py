@@ -1,4 +1,4 @@
-"""JCBB bounded in time per scan (issue 22): the work of a scan is capped by construction,
+"""JCBB bounded in time per scan: the work of a scan is capped by construction,
 a scan cut short falls back (best complete pairing, else nearest neighbour), and the
 fallback is counted in the report and logged in the recording."""
 
@@ -102,7 +102,7 @@ def test_jcbb_finds_the_pairing_exhaustive_search_finds(seed: int) -> None:
 
 
 def _two_bearing_scan(m: int, k: int) -> tuple[FloatArray, FloatArray, np.ndarray, FloatArray]:
-    """The hang of issue 22: every measurement of a scan on two rays, every one in the
+    """The hang that bound prevents: every measurement of a scan on two rays, every one in the
     gate of every candidate, all strongly correlated through the pose."""
     rng = np.random.default_rng(7)
     pose_part = np.tile(np.array([[0.0, 0.0, 0.4], [0.05, 0.0, 0.0]]), (k, 1))

@@ -1,5 +1,5 @@
 """Students' filters as handed in: course modules run in workers, every mistake named,
-a class graded, comparisons of other people's code (issue: real students' filters)."""
+a class graded, comparisons of other people's code (filters written the way students write them)."""
 
 from __future__ import annotations
 
@@ -408,7 +408,7 @@ def test_the_command_line_default_timeout_is_the_workers() -> None:
     assert DEFAULT_FILTER_TIMEOUT_S == DEFAULT_TIMEOUT_S
 
 
-# -- students of the wild (issue: real students' hand-ins get generic hints) ------------------
+# -- students of the wild (hand-ins in styles no handout shows) ------------------
 
 
 def test_without_all_the_students_own_mistake_follows_the_handouts(tmp_path: Path) -> None:

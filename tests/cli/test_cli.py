@@ -149,7 +149,7 @@ def test_without_truth_the_table_shows_estimates_and_sigmas(tmp_path: Path) -> N
         ("1 2 3\n", "log.txt:1: found 3 numbers on the first line", False),
         ("0.1 5 0.2 6\n3 0\n1 2 3\n", "log.txt:3: found 3 numbers, expected 2", True),
         ("0.1 5 0.2 6\n3 nan\n", "log.txt:2: found 'nan', expected a finite number", True),
-        # a number no filter arithmetic survives is refused where it is read (issue 22)
+        # a number no filter arithmetic survives is refused where it is read
         ("0.1 5 0.2 6\n1e308 0\n", "log.txt:2: found '1e308', expected a number within", True),
     ],
 )

@@ -1,4 +1,4 @@
-"""What a new user trips over (issue 16): honest ``info`` for every recording, readings
+"""What a new user trips over: honest ``info`` for every recording, readings
 that do not flip, quiet textbook filters, piped output, help pages, convert, stale refs."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Interrupts, saved recordings and exposure (issue 22): Ctrl-C and SIGTERM stop every
+"""Interrupts, saved recordings and exposure: Ctrl-C and SIGTERM stop every
 command at once with one line; a failed run never replaces a recording; ``--serve``
 listens on loopback only; the recorded truth digest is the file's sha256."""
 

@@ -204,7 +204,7 @@ def test_connect_where_no_viewer_answers_is_one_line_and_exit_2(
     port = _free_port() if kind == "closed" else request.getfixturevalue("deaf_listener")
     url = f"rerun+http://127.0.0.1:{port}/proxy"
     process = _ekfviz("replay", str(SAMPLE), "--connect", url, cwd=tmp_path)
-    _, stderr = process.communicate(timeout=15)  # the limit; it takes a few seconds
+    _, stderr = process.communicate(timeout=15)  # a generous bound; it takes a few seconds
     assert process.returncode == 2
     assert stderr.strip().splitlines() == [
         f"error: no Rerun viewer at {url} (start one with: rerun; or use --save PATH)"

@@ -1,4 +1,4 @@
-"""Issue 22 (part A): a corpus of bad, odd and valid inputs for every reader and for
+"""A corpus of bad, odd and valid inputs for every reader and for
 recordings read back, each run through the command line: one line naming the file (and
 line), exit 2, no traceback, no Python or Rerun warning; odd but valid input accepted."""
 

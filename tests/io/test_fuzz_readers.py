@@ -1,4 +1,4 @@
-"""Issue 22, point 4: random mutations of a valid input, per reader, never give a
+"""Random mutations of a valid input, per reader, never give a
 traceback (an exception other than the reader's one-line error), a hang or a silent
 success with input lost.
 

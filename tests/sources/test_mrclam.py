@@ -304,7 +304,7 @@ def test_calibrate_recovers_the_simulated_noise_within_ten_percent(tmp_path: Pat
     )
     result = runner.invoke(app, ["calibrate", str(directory)], env={"COLUMNS": "200"})
     assert result.exit_code == 0, result.output
-    # the contract: a line of its own that starts with "ekfviz replay"
+    # the printed contract: a line of its own that starts with "ekfviz replay"
     line = next(x for x in result.output.splitlines() if x.startswith("ekfviz replay "))
     words = shlex.split(line)
     found = {words[k][2:]: words[k + 1] for k in range(len(words) - 1) if words[k][:2] == "--"}

@@ -163,7 +163,7 @@ def test_calibrate_line_applies_the_correction_and_the_report_holds_the_candidat
 
 
 def test_a_sigma_at_its_fit_limit_is_said_and_never_printed(skewed: Path) -> None:
-    """A fit that finds 0 for a sigma (the issue's robot 4: 1e-9 sideways): the replay
+    """A fit that finds 0 for a sigma (MRCLAM's robot 4: 1e-9 sideways): the replay
     is told a tenth of the default instead, with a note, never the degenerate value."""
     events, truth = events_and_truth(skewed)
     fitted = calibrate(events[: len(events) // 4], truth)

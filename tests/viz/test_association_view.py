@@ -1,4 +1,4 @@
-"""The association view sends its scans in batches (issue 26.3): the recording holds the
+"""The association view sends its scans in batches: the recording holds the
 same rows, at the same times, whatever the batch size, one per scan."""
 
 from __future__ import annotations
