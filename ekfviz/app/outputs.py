@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 from ekfviz.core.errors import OutputError
+from ekfviz.core.tables import utf8
 from ekfviz.io.files import unused_path
 
 RECORDINGS_DIR = Path("recordings")
@@ -32,8 +33,9 @@ def default_output(name: str, folder: Path = RECORDINGS_DIR) -> Path:
 def saved_line(path: Path) -> str:
     """That a recording was saved at ``path``, with the command that opens it in the
     viewer, quoted for the user's shell (a name with a space, a quote or a line break)."""
-    opens = f"{shlex.quote(command_hint('rerun'))} {shlex.quote(str(path))}"
-    return f"Saved {path}; open it with: {opens}"
+    name = utf8(str(path))  # (a name that is not UTF-8: its other bytes as U+FFFD)
+    opens = f"{shlex.quote(command_hint('rerun'))} {shlex.quote(name)}"
+    return f"Saved {name}; open it with: {opens}"
 
 
 def command_hint(program: str) -> str:

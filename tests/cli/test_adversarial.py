@@ -90,8 +90,10 @@ def test_a_dataset_directorys_file_is_not_written_over(tmp_path: Path) -> None:
     before = odometry.read_bytes()
     result = runner.invoke(app, ["replay", str(tmp_path), "--save", str(odometry)])
     assert result.exit_code == 2
-    assert f"--save {odometry}: is the input" in result.output
+    assert f"--save {odometry}: " in result.output  # (refused: not a .rrd, and the input)
     assert odometry.read_bytes() == before
+    ran = runner.invoke(app, ["replay", str(tmp_path), "--save", str(tmp_path / "x.rrd")])
+    assert ran.exit_code == 0, ran.output  # the same directory, saved elsewhere
 
 
 def test_info_and_export_do_not_write_over_the_recording(tmp_path: Path) -> None:
