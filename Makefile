@@ -6,7 +6,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 RECORDING := recordings/classic.rrd
 
-.PHONY: demo test bench sample clean screenshots docs
+.PHONY: test-all demo test bench sample clean screenshots docs
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -55,6 +55,11 @@ test: $(VENV)/.installed-dev $(VENV)/.compiled $(NUMPY1)
 	$(BIN)/mypy
 	$(BIN)/pytest
 	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --quiet --site-dir site
+
+# The tests marked slow, which make test leaves out (the corpora of hostile submissions and of
+# students' modules, the mutation search over every operation): CI runs them after make test.
+test-all: test
+	$(BIN)/pytest -m slow
 
 # Regenerate the bundled sample (a test checks data/ matches this).
 sample: $(VENV)/.installed $(VENV)/.compiled
