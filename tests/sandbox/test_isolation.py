@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import os
 import socket
+import sys
 import textwrap
 from pathlib import Path
 
@@ -71,9 +72,11 @@ def test_it_sees_no_file_of_the_caller_s_but_its_copy_the_interpreter_and_numpy(
     assert seen["here"] == ["helper.py", "probe.py"]  # a private copy: its Python files
     assert seen["parent"] == ["mine"]  # no neighbour
     assert seen["home"] is False and seen["ekfviz"] is False
-    # its own /tmp: empty but for the way to its copy, where that is under the caller's /tmp
-    on_the_way = [folder.parts[2]] if folder.parts[1] == "tmp" else []
-    assert seen["cwd"] == "/tmp" and seen["tmp"] == on_the_way
+    # its own /tmp: empty but for the way to its copy and to the interpreter (a clone's
+    # virtual environment), where those are under the caller's /tmp
+    shown = (folder, Path(sys.prefix).resolve())
+    on_the_way = sorted({p.parts[2] for p in shown if len(p.parts) > 2 and p.parts[1] == "tmp"})
+    assert seen["cwd"] == "/tmp" and sorted(seen["tmp"]) == on_the_way
     assert seen["helper"] == 42 and seen["numpy"]
     assert "work" not in seen["root"] or str(ROOT).startswith("/work")  # (ekfviz's own path)
 
