@@ -18,6 +18,7 @@ no layout of an earlier recording, notification or first-run banner is in it. Wi
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import signal
 import socket
@@ -50,9 +51,9 @@ def free_port() -> int:
         return port
 
 
-def shoot(rrd: Path, png: Path, env: dict[str, str]) -> None:
-    """Open ``rrd`` in a headless viewer of its own, wait until it has loaded, and save
-    its window as ``png``."""
+def shoot(rrd: Path | list[Path], png: Path, env: dict[str, str]) -> None:
+    """Open ``rrd`` (or several, in turn: the last one is shown) in a headless viewer of
+    its own, wait until it has loaded, and save its window as ``png``."""
     from rerun.experimental import ViewerClient
 
     port = free_port()
@@ -72,11 +73,12 @@ def shoot(rrd: Path, png: Path, env: dict[str, str]) -> None:
                 if time.monotonic() > deadline or viewer.poll() is not None:
                     raise
                 time.sleep(0.3)
-        client.open(str(rrd))
-        while client.get_state().loading:
-            if time.monotonic() > deadline:
-                sys.exit(f"the viewer did not finish loading {rrd} in {LOAD_TIMEOUT_S:.0f} s")
-            time.sleep(0.3)
+        for one in rrd if isinstance(rrd, list) else [rrd]:
+            client.open(str(one))
+            while client.get_state().loading:
+                if time.monotonic() > deadline:
+                    sys.exit(f"the viewer did not finish loading {one} in {LOAD_TIMEOUT_S:.0f} s")
+                time.sleep(0.3)
         time.sleep(SETTLE_S)
         client.save_screenshot(str(png))
     finally:
@@ -133,6 +135,38 @@ def runs(work: Path, options: argparse.Namespace) -> list[tuple[str, list[str], 
     ]
 
 
+def watched_runs(work: Path, env: dict[str, str]) -> list[Path]:
+    """Three runs of ``ekfviz watch`` on the bundled sample, the course skeleton edited
+    between them (correct; R left out of S; R ten times too large), each run's recording
+    kept: the second and third show the run before as a ghost."""
+    folder = work / "watched"
+    folder.mkdir()
+    module = folder / "ekf_slam.py"
+    original = (ROOT / "examples" / "course_skeleton" / "ekf_slam.py").read_text()
+    module.write_text(original)
+    report, latest = folder / "latest.json", folder / "latest.rrd"
+    command = [str(BIN / "ekfviz"), "watch", str(module), str(DATA / "classic.txt"),
+               "--save", str(latest), "--report", str(report)]  # fmt: skip
+    watch = subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL, start_new_session=True)
+    kept = []
+    edits = ["S = H @ P @ H.T", "S = H @ P @ H.T + 10 * measure_cov"]
+    try:
+        for run in (1, 2, 3):
+            deadline = time.monotonic() + LOAD_TIMEOUT_S
+            while not report.exists() or json.loads(report.read_text()).get("run") != run:
+                if time.monotonic() > deadline or watch.poll() is not None:
+                    sys.exit(f"ekfviz watch did not report its run {run}")
+                time.sleep(0.2)
+            kept.append(folder / f"run{run}.rrd")
+            kept[-1].write_bytes(latest.read_bytes())
+            if run < 3:
+                module.write_text(original.replace("S = H @ P @ H.T + measure_cov", edits[run - 1]))
+    finally:
+        os.killpg(watch.pid, signal.SIGINT)
+        watch.wait()
+    return kept
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--mrclam", type=Path, help="an MRCLAM dataset directory (robot 1)")
@@ -153,6 +187,10 @@ def main() -> None:
             own = {"XDG_CONFIG_HOME": str(work / name / "config"),
                    "XDG_DATA_HOME": str(work / name / "data")}  # fmt: skip
             shoot(rrd, options.out / f"{name}.png", {**env, **own})
+        if not options.only or "watch" in options.only:
+            own = {"XDG_CONFIG_HOME": str(work / "watch" / "config"),
+                   "XDG_DATA_HOME": str(work / "watch" / "data")}  # fmt: skip
+            shoot(watched_runs(work, env), options.out / "watch.png", {**env, **own})
 
 
 if __name__ == "__main__":
