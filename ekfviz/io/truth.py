@@ -16,8 +16,10 @@ from pathlib import Path
 import numpy as np
 
 from ekfviz.core.errors import InputError
-from ekfviz.core.records import AnyEvent, Scan, Sighting
+from ekfviz.core.records import AnyEvent, Control, Scan, Sighting
+from ekfviz.core.steps import StepCounter
 from ekfviz.core.truth import GroundTruth
+from ekfviz.core.types import FloatArray
 from ekfviz.io.jsontext import load_json
 from ekfviz.io.text import MAX_MAGNITUDE, RANGE_TEXT, numeric_lines, open_input
 
@@ -259,7 +261,16 @@ def checked_against(
     first = True
     scans = 0
     scan_ids = truth.scan_ids
-    for event in events:
+    steps = StepCounter()
+    driven = 0.0  # the log's path length: the sum of |d| of its controls
+    for index, event in enumerate(events):
+        if isinstance(event, Control):
+            steps.predict()
+            driven += abs(event.d)
+        elif index == 0 and isinstance(event, Sighting):
+            steps.initialise()
+        else:
+            steps.update()
         if isinstance(event, Sighting):
             ids = set(event.ids.tolist())
             if first and every_id and ids != known:
@@ -289,6 +300,31 @@ def checked_against(
             f'has {len(scan_ids)} lists in "scan_ids", expected one per scan line of the log'
             f" ({scans})",
         )
+    if truth.poses_xytheta is not None:
+        _check_poses(truth_path, truth.poses_xytheta, steps.step, driven)
+
+
+# a truth's path this many times longer or shorter than the log's controls drive is of
+# another run (odometry errs by percents, not by factors)
+PATH_RATIO_LIMIT = 3.0
+
+
+def _check_poses(truth_path: Path, poses: FloatArray, steps: int, driven: float) -> None:
+    """Refuse true poses that do not fit the log: one for the start and each step of the
+    log (``steps``; more are a longer run's, of which the log is the beginning), along a
+    path about as long as the controls drive (``driven`` metres).
+
+    :raises InputError: naming the truth file and both numbers
+    """
+    if len(poses) < steps + 1:
+        expected = steps + 1
+        raise InputError(truth_path, 0, f'has {len(poses)} "poses", expected one per step of the'
+                         f" log and the start ({expected}): another run's")  # fmt: skip
+    walked = float(np.sum(np.hypot(*np.diff(poses[: steps + 1, :2], axis=0).T)))
+    longest, shortest = max(walked, driven), min(walked, driven)
+    if longest > 1.0 and longest > PATH_RATIO_LIMIT * shortest:
+        raise InputError(truth_path, 0, f"its poses walk {walked:.3g} m where the log's controls"
+                         f" drive {driven:.3g} m: its poses belong to another run")  # fmt: skip
 
 
 def _check_scan(

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from unittest import mock
 
@@ -355,3 +356,48 @@ def test_table_blocks_read_the_same_with_either_parser(
     assert read() == compiled
     # "1_000" is float()'s, no log's: refused as the line-by-line reader refuses it
     assert sum(len(lines) for lines, _ in compiled[0]) == (30000 if bad is None else 23456)
+
+
+def _with_poses(tmp_path: Path, poses: np.ndarray) -> tuple[list[Control | Sighting], Path]:
+    """The classic sample's events and a truth file of its landmarks with ``poses``."""
+    import json
+
+    root = Path(__file__).resolve().parents[2] / "data"
+    events = list(read_classic(root / "classic.txt"))
+    document = json.loads((root / "classic_truth.json").read_text())
+    document["poses"] = poses.tolist()
+    path = tmp_path / "truth.json"
+    path.write_text(json.dumps(document))
+    return events, path
+
+
+@pytest.mark.parametrize("fault", ["fewer", "longer", "shorter"])
+def test_true_poses_of_another_run_are_refused_with_the_numbers(tmp_path: Path, fault: str) -> None:
+    """Poses that cannot be this log's (too few for its steps, a path three times longer or
+    shorter than its controls drive) are one line naming the truth file and both numbers;
+    the poses of the run itself, or of a longer run it begins, pass."""
+    from ekfviz.io.truth import checked_against
+
+    events, _ = _with_poses(tmp_path, np.zeros((1, 3)))
+    steps = sum(isinstance(e, Control) for e in events)
+    driven = sum(abs(e.d) for e in events if isinstance(e, Control))
+    x = np.concatenate([[0.0], np.cumsum([e.d for e in events if isinstance(e, Control)])])
+    own = np.column_stack([x, np.zeros_like(x), np.zeros_like(x)])  # (steps + 1, 3)
+    longer_run = np.vstack([own, own[-1] + [[1.0, 0.0, 0.0]]])
+    for fine in (own, longer_run):
+        _, path = _with_poses(tmp_path, fine)
+        assert len(list(checked_against(events, read_truth(path), path, every_id=True))) == len(
+            events
+        )
+    bad = {"fewer": own[:-2], "longer": own * [4.0, 1.0, 1.0], "shorter": own * [0.2, 1.0, 1.0]}
+    _, path = _with_poses(tmp_path, bad[fault])
+    said = {
+        "fewer": f'has {steps - 1} "poses", expected one per step of the log and the start'
+        f" ({steps + 1})",
+        "longer": f"its poses walk {4 * driven:.3g} m where the log's controls drive"
+        f" {driven:.3g} m",
+        "shorter": f"its poses walk {0.2 * driven:.3g} m where the log's controls drive"
+        f" {driven:.3g} m",
+    }[fault]
+    with pytest.raises(InputError, match=re.escape(said)):
+        list(checked_against(events, read_truth(path), path, every_id=True))
