@@ -267,7 +267,7 @@ def checked_against(
         if isinstance(event, Control):
             steps.predict()
             driven += abs(event.d)
-        elif index == 0 and isinstance(event, Sighting):
+        elif index == 0:  # an observation first (a sighting or a scan): the initialisation
             steps.initialise()
         else:
             steps.update()
