@@ -8,10 +8,9 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from ekfviz.app.errors import in_family
-from ekfviz.app.inputs import study_input
 from ekfviz.app.reporting import Reporter
-from ekfviz.app.settings import WorkerOptions, filter_params
-from ekfviz.app.study import StudyOutcome, StudyPlan, StudyRequest, run_study
+from ekfviz.app.settings import WorkerOptions
+from ekfviz.app.study import StudyOutcome, StudyPlan, StudyRequest, opened_study, run_study
 from ekfviz.association import AssociationParams
 from ekfviz.core.errors import UsageError
 from ekfviz.core.params import FilterParams
@@ -37,11 +36,8 @@ def compare(request: CompareRequest, reporter: Reporter) -> StudyOutcome:
     :raises InputError, UsageError, OutputError, FilterError: one line each
     """
     study = request.study
-    given = filter_params(study.filter, log=study.data, given=study.was_given, note=reporter.note)
-    start = study_input(given, study.data, study.source_args, study.truth, study.no_truth,
-                        warn=reporter.warn)  # fmt: skip
+    start, pairing = opened_study(study, reporter)
     params = start.params
-    pairing = study.association.for_study(study.data)
     specs = _specs(request, params, pairing)
     plan = StudyPlan(
         specs=specs, root="filters",

@@ -15,10 +15,15 @@ from typing import TYPE_CHECKING
 
 from ekfviz import __version__, signals
 from ekfviz.app.errors import in_family, stopped_study
-from ekfviz.app.inputs import source_events
+from ekfviz.app.inputs import StudyInput, source_events, study_input
 from ekfviz.app.outputs import default_output, filter_module, saved_line
 from ekfviz.app.reporting import Reporter
-from ekfviz.app.settings import AssociationSettings, ExecutionSettings, FilterSettings
+from ekfviz.app.settings import (
+    AssociationSettings,
+    ExecutionSettings,
+    FilterSettings,
+    filter_params,
+)
 from ekfviz.core.errors import FilterError
 from ekfviz.core.tables import TextTable
 from ekfviz.core.truth import GroundTruth
@@ -31,6 +36,7 @@ from ekfviz.sources import OwnTruth, SourceArgs, open_source
 from ekfviz.studies.runs import RunSpec, study_markdown, study_table
 
 if TYPE_CHECKING:
+    from ekfviz.association import AssociationParams
     from ekfviz.studies.executors import Executor
     from ekfviz.studies.runs import Run, RunFailure, Summary
 
@@ -115,6 +121,17 @@ class StudyPlan:
     @property
     def what(self) -> str:
         return "variant" if self.root == "variants" else "filter"
+
+
+def opened_study(
+    study: StudyRequest, reporter: Reporter
+) -> tuple[StudyInput, AssociationParams | None]:
+    """A study's input opened with its filter's parameters (the log's defaults, the
+    options given), and the pairing of its id-less scans (None: the log has ids)."""
+    given = filter_params(study.filter, log=study.data, given=study.was_given, note=reporter.note)
+    start = study_input(given, study.data, study.source_args, study.truth, study.no_truth,
+                        warn=reporter.warn)  # fmt: skip
+    return start, study.association.for_study(study.data)
 
 
 def run_study(request: StudyRequest, plan: StudyPlan, reporter: Reporter) -> StudyOutcome:

@@ -6,10 +6,9 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass, replace
 
-from ekfviz.app.inputs import study_input
 from ekfviz.app.reporting import Reporter
-from ekfviz.app.settings import WorkerOptions, filter_params
-from ekfviz.app.study import StudyOutcome, StudyPlan, StudyRequest, run_study
+from ekfviz.app.settings import WorkerOptions
+from ekfviz.app.study import StudyOutcome, StudyPlan, StudyRequest, opened_study, run_study
 from ekfviz.core.params import FilterParams
 from ekfviz.filters.spec import BUILTIN, FilterSpec
 from ekfviz.studies.runs import RunSpec
@@ -42,11 +41,8 @@ def sweep(request: SweepRequest, reporter: Reporter) -> StudyOutcome:
     :raises InputError, UsageError, OutputError, FilterError: one line each
     """
     study = request.study
-    given = filter_params(study.filter, log=study.data, given=study.was_given, note=reporter.note)
-    start = study_input(given, study.data, study.source_args, study.truth, study.no_truth,
-                        warn=reporter.warn)  # fmt: skip
+    start, pairing = opened_study(study, reporter)
     baseline = start.params
-    pairing = study.association.for_study(study.data)
     spec = FilterSpec(request.filter_spec, worker=request.worker or WorkerOptions())
     variants = [
         replace(variant, filter=spec, association=pairing)
