@@ -5,8 +5,10 @@ from __future__ import annotations
 import subprocess
 import sys
 import time
+from collections import defaultdict
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -83,10 +85,24 @@ def entity_rows(path: Path, entity: str, *, static: bool = False) -> list[dict[s
     """
     from rerun.chunk import RrdReader
 
+    chunks = RrdReader(path).stream().filter(content=entity, is_static=static)
+    return _rows([chunk for chunk in chunks if chunk.entity_path == entity], static)
+
+
+def every_entity_rows(path: Path, *, static: bool = False) -> dict[str, list[dict[str, object]]]:
+    """:func:`entity_rows` of every entity of an .rrd, the file read once."""
+    from rerun.chunk import RrdReader
+
+    chunks: dict[str, list[Any]] = defaultdict(list)
+    for chunk in RrdReader(path).stream().filter(is_static=static):
+        chunks[chunk.entity_path].append(chunk)
+    return {entity: _rows(found, static) for entity, found in chunks.items()}
+
+
+def _rows(chunks: list[Any], static: bool) -> list[dict[str, object]]:
+    """The rows of ``chunks`` as {column name: value}; temporal ones by event."""
     rows: list[dict[str, object]] = []
-    for chunk in RrdReader(path).stream().filter(content=entity, is_static=static):
-        if chunk.entity_path != entity:
-            continue
+    for chunk in chunks:
         batch = chunk.to_record_batch()
         table = {
             name: column.to_pylist()

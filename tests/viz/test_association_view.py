@@ -264,7 +264,9 @@ def reference_scans(records: list[EventRecord]) -> list[dict[str, Any]]:
     return out
 
 
-@pytest.mark.parametrize("seed", range(8))
+@pytest.mark.parametrize(
+    "seed", [0, 1, *(pytest.param(seed, marks=pytest.mark.slow) for seed in range(2, 8))]
+)
 def test_the_held_scans_joined_are_each_scans_own(seed: int) -> None:
     """Links, tentative landmarks and the smoothed sizes of batches of scans, found for
     each batch at once, against each scan's own (sizes carried from batch to batch)."""

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import rerun as rr
-from conftest import entity_rows
+from conftest import entity_rows, every_entity_rows
 from simulated import classic_run, classic_truth
 
 from ekfviz.core.params import FilterParams
@@ -90,12 +90,10 @@ def every_entity(path: Path) -> dict[str, list[dict[str, object]]]:
     """Every entity's rows, temporal and static (not the recording's start time), each
     without its empty columns (a chunk has a column for a component some other row of
     it holds: how the rows fell into chunks is not what they hold)."""
-    from rerun.chunk import RrdReader
-
-    entities = {chunk.entity_path for chunk in RrdReader(path).stream()} - {"/__properties"}
+    temporal, static = every_entity_rows(path), every_entity_rows(path, static=True)
     found: dict[str, list[dict[str, object]]] = defaultdict(list)
-    for entity in sorted(entities):
-        rows = entity_rows(path, entity) + entity_rows(path, entity, static=True)
+    for entity in sorted((temporal.keys() | static.keys()) - {"/__properties"}):
+        rows = temporal.get(entity, []) + static.get(entity, [])
         found[entity] = [{k: v for k, v in row.items() if v is not None} for row in rows]
     return found
 
