@@ -408,11 +408,9 @@ def _consistency(part: Part, result: Any, truth: Path | None) -> dict[str, objec
     combined = consistency.combined()
     if combined is None:
         return _test(part, False, "failed: no NEES or NIS to judge")
-    verdict, why = combined
-    passed = verdict in (Verdict.CONSISTENT, Verdict.BORDERLINE)
-    said = " ".join(consistency.summary()[:2])  # (NEES and NIS; the third repeats them)
-    return _test(part, passed, f"{'passed' if passed else 'failed'}: {verdict.value} ({why}):"
-                               f" {said}")  # fmt: skip
+    passed = combined[0] in (Verdict.CONSISTENT, Verdict.BORDERLINE)
+    said = " ".join(consistency.summary())  # the counts, then the verdict once
+    return _test(part, passed, f"{'passed' if passed else 'failed'}: {said}")
 
 
 def autograder_root() -> Path:

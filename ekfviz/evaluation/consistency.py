@@ -250,7 +250,8 @@ class Consistency:
             self.nis.add_many(totals[dofs == dof], chi2_bounds(dof))
 
     def combined(self) -> tuple[Verdict, str] | None:
-        """One verdict from NEES and NIS together, and why; None with neither.
+        """One verdict from NEES and NIS together, and why where the two counts do not
+        show it ("" where they do); None with neither.
 
         The NEES sees the pose error against the pose covariance only, and a covariance
         inflated until it holds the errors passes it. The NIS sees the measurements
@@ -260,12 +261,9 @@ class Consistency:
         reads "over-confident"; both consistent reads "consistent".
         """
         nees, nis = self.nees.verdict, self.nis.verdict
-        if nees is None and nis is None:
-            return None
         if nees is None or nis is None:
             only = nees if nees is not None else nis
-            assert only is not None
-            return only, f"from the {'NEES' if nees is not None else 'NIS'} alone"
+            return None if only is None else (only, "")
         if Verdict.OVER_CONFIDENT in (nees, nis):
             which = "NEES" if nees is Verdict.OVER_CONFIDENT else "NIS"
             return Verdict.OVER_CONFIDENT, f"its {which} lies above the bounds"
@@ -277,28 +275,39 @@ class Consistency:
                 )
             return Verdict.TOO_CAUTIOUS, "its NEES lies below the bounds"
         if Verdict.BORDERLINE in (nees, nis):
-            return Verdict.BORDERLINE, "NEES and NIS together"
-        return Verdict.CONSISTENT, "NEES and NIS together"
+            return Verdict.BORDERLINE, ""
+        return Verdict.CONSISTENT, ""
+
+    def verdict_line(self) -> str | None:
+        """The verdict, said once: what it rests on, what it is, and why where the counts
+        do not show it; None with neither statistic."""
+        both = self.combined()
+        if both is None:
+            return None
+        verdict, why = both
+        basis = " and ".join(n for n, c in (("NEES", self.nees), ("NIS", self.nis)) if c.total)
+        alone = "" if self.nees.total and self.nis.total else " alone"
+        looks = (
+            "consistent only just (borderline)" if verdict is Verdict.BORDERLINE else verdict.value
+        )
+        return f"Verdict from the {basis}{alone}: the filter looks {looks}" + (
+            f": {why}" if why else ""
+        )
 
     def summary(self) -> list[str]:
-        """One sentence per statistic, for the terminal and the evaluation document."""
+        """One sentence per statistic, then the verdict once, for the terminal and the
+        evaluation document."""
         lines = []
         for name, count, what in (
             ("NEES", self.nees, "steps"),
             ("NIS", self.nis, "updates"),
         ):
-            verdict = count.verdict
-            if verdict is None:
+            if count.verdict is None:
                 continue
-            looks = (
-                "the filter looks consistent only just (borderline)"
-                if verdict is Verdict.BORDERLINE
-                else f"the filter looks {verdict.value}"
-            )
             lines.append(
                 f"{name}: {count.inside} of {count.total} {what} ({count.fraction_inside:.1%})"
                 f" inside the {CONFIDENCE:.0%} chi-square bounds, {count.above} above,"
-                f" {count.below} below: {looks}"
+                f" {count.below} below"
             )
             if name == "NEES" and self.without_true_pose:
                 judged = count.total + self.without_true_pose
@@ -317,9 +326,9 @@ class Consistency:
                     f"NEES: {self.singular_pose} corrected state(s) with a singular pose"
                     " covariance (a start known exactly) are not judged"
                 )
-        both = self.combined()
-        if both is not None and self.nees.total and self.nis.total:
-            lines.append(f"NEES and NIS together: the filter looks {both[0].value} ({both[1]})")
+        verdict = self.verdict_line()
+        if verdict is not None:
+            lines.append(verdict)
         return lines
 
     def to_json(self) -> dict[str, object]:

@@ -74,6 +74,43 @@ def test_verdicts() -> None:
     assert BoundCount().verdict is None
 
 
+# values against the bounds (1, 2) that read as each verdict, and as none
+READINGS = {
+    None: [],
+    Verdict.CONSISTENT: [1.5] * 20,
+    Verdict.BORDERLINE: [1.5] * 17 + [3.0] * 3,
+    Verdict.OVER_CONFIDENT: [1.5] * 5 + [3.0] * 5,
+    Verdict.TOO_CAUTIOUS: [1.5] * 5 + [0.5] * 5,
+}
+
+
+@pytest.mark.parametrize("nees", list(READINGS), ids=str)
+@pytest.mark.parametrize("nis", list(READINGS), ids=str)
+def test_the_verdict_is_said_once_and_the_counts_without_it(
+    nees: Verdict | None, nis: Verdict | None
+) -> None:
+    """Whatever the NEES and the NIS read, the summary says the combined verdict in one
+    line naming what it rests on, and no other line says a verdict."""
+    consistency = Consistency()
+    for count, reading in ((consistency.nees, nees), (consistency.nis, nis)):
+        for value in READINGS[reading]:
+            count.add(value, (1.0, 2.0))
+        assert count.verdict is reading
+    lines = consistency.summary()
+    words = [v.value for v in Verdict] + ["looks"]
+    said = [line for line in lines if any(word in line for word in words)]
+    if nees is None and nis is None:
+        assert lines == [] and consistency.verdict_line() is None
+        return
+    (line,) = said
+    combined = consistency.combined()
+    assert combined is not None and line == lines[-1] == consistency.verdict_line()
+    basis = {(True, True): "NEES and NIS", (True, False): "NEES alone", (False, True): "NIS alone"}
+    assert line.startswith(f"Verdict from the {basis[(nees is not None, nis is not None)]}: ")
+    assert line.count(combined[0].value) == 1 or combined[0].value in combined[1]
+    assert len(lines) == (nees is not None) + (nis is not None) + 1
+
+
 def run_nees_fraction(filter_scale: float, seed: int) -> float:
     """The share of steps whose NEES is inside its bounds, with tight prior and a filter
     told ``filter_scale`` times the true noise."""
