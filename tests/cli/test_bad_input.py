@@ -455,8 +455,9 @@ def test_a_bad_input_is_one_line_exit_2_no_traceback_no_warning(
 
 @pytest.mark.parametrize(
     "name",
-    ["ranges of 1e300", "export of a truncated recording", "info of a truncated recording",
-     "mrclam speed of 1e300", "truth nested 100,000 deep"],
+    ["ranges of 1e300", pytest.param("export of a truncated recording", marks=pytest.mark.slow),
+     pytest.param("info of a truncated recording", marks=pytest.mark.slow),
+     pytest.param("mrclam speed of 1e300", marks=pytest.mark.slow), "truth nested 100,000 deep"],
 )  # fmt: skip
 def test_a_real_process_prints_no_warning_before_the_error(
     made: dict[str, Path], tmp_path: Path, name: str

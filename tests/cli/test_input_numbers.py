@@ -83,7 +83,15 @@ def test_a_nonzero_number_that_reads_as_zero_is_refused(
 # -- times ---------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("time", ["1e10", "-9.3e9", "2e11", "1e18"])
+@pytest.mark.parametrize(
+    "time",
+    [
+        "1e10",
+        pytest.param("-9.3e9", marks=pytest.mark.slow),
+        pytest.param("2e11", marks=pytest.mark.slow),
+        "1e18",
+    ],
+)
 def test_a_time_a_recording_cannot_hold_is_refused_on_its_line(tmp_path: Path, time: str) -> None:
     """Rerun's timeline counts nanoseconds in 64 bits: such a time overflowed (a
     traceback) once the run was recorded."""

@@ -119,9 +119,9 @@ def _handles(signum: int) -> Callable[[int], bool]:
     ("command", "signum", "group"),
     [
         ("sweep", signal.SIGINT, True),
-        ("consistency", signal.SIGINT, True),
-        ("compare", signal.SIGINT, True),
-        ("sweep", signal.SIGTERM, False),
+        pytest.param("consistency", signal.SIGINT, True, marks=pytest.mark.slow),
+        pytest.param("compare", signal.SIGINT, True, marks=pytest.mark.slow),
+        pytest.param("sweep", signal.SIGTERM, False, marks=pytest.mark.slow),
         ("compare", signal.SIGTERM, False),
     ],
 )

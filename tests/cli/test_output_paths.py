@@ -87,9 +87,19 @@ COMMANDS = [
     "compare --save", "check --report", "check --save",
     "simulate -o", "simulate --truth-out",
 ]  # fmt: skip
+# the commands tried by default (one of each way of writing: a recording, a report, a
+# converted log, an extracted input, a dataset); every one under -m slow
+COMMANDS_BY_DEFAULT = {"replay --save", "sweep --report", "convert", "info --extract-input",
+                       "simulate --truth-out"}  # fmt: skip
+LINKS_BY_DEFAULT = {"replay --save", "consistency --report", "convert", "simulate -o"}
 
 
-@pytest.mark.parametrize("command", COMMANDS)
+def _by_default(kept: set[str]) -> list[object]:
+    """Every command, those not in ``kept`` marked slow."""
+    return [c if c in kept else pytest.param(c, marks=pytest.mark.slow) for c in COMMANDS]
+
+
+@pytest.mark.parametrize("command", _by_default(COMMANDS_BY_DEFAULT))
 def test_every_unusable_output_path_is_one_line_before_any_work(
     place: Path, command: str, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -249,7 +259,7 @@ def test_ctrl_c_while_connecting_to_a_deaf_port_ends_the_run_with_130(
 # -- standard output itself -------------------------------------------------------------
 
 
-@pytest.mark.parametrize("command", COMMANDS)
+@pytest.mark.parametrize("command", _by_default(LINKS_BY_DEFAULT))
 def test_an_output_path_that_is_a_symbolic_link_writes_its_target_and_keeps_the_link(
     place: Path, command: str, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -32,9 +32,11 @@ runner = CliRunner()
     "args",
     [
         ["replay", str(SAMPLE), "--save", "run.rrd"],
-        ["replay", str(SAMPLE), "--save", "run.rrd", "--json"],
+        pytest.param(
+            ["replay", str(SAMPLE), "--save", "run.rrd", "--json"], marks=pytest.mark.slow
+        ),
         ["replay", "--help"],
-        ["--version"],
+        pytest.param(["--version"], marks=pytest.mark.slow),
     ],
     ids=["replay", "replay --json", "help", "version"],
 )
@@ -95,7 +97,7 @@ def test_help_to_a_standard_output_that_cannot_be_written_is_one_line(tmp_path: 
     )
 
 
-@pytest.mark.parametrize("encoding", ["ascii", "latin-1"])
+@pytest.mark.parametrize("encoding", ["ascii", pytest.param("latin-1", marks=pytest.mark.slow)])
 def test_a_terminal_that_cannot_show_unicode_gets_the_results_not_a_traceback(
     tmp_path: Path, encoding: str
 ) -> None:
