@@ -24,12 +24,12 @@ def run_ekfviz(
     *args: object,
     cwd: Path | str | None = None,
     input: str | None = None,
-    env: Mapping[str, str] | None = None,
+    env: Mapping[str, str | None] | None = None,
 ) -> subprocess.CompletedProcess[str]:
     """Run ``ekfviz *args`` as ``main()`` does (``--debug`` hoisted, the numbers of
     multi-value options checked) and return its exit code, standard output and standard
     error; an exception the command let out is written to standard error as a traceback,
-    as Python would, with exit code 1."""
+    as Python would, with exit code 1. ``env`` sets variables for the run (None: unset)."""
     from ekfviz.cli import app
     from ekfviz.cli.program import prepare_argv
 
@@ -66,6 +66,15 @@ def run_ekfviz_process(
         timeout=timeout,
         **options,  # type: ignore[call-overload]
     )
+
+
+def one_error_line(output: str, expected: str) -> str:
+    """The only line of ``output``, an error holding ``expected``."""
+    lines = [line for line in output.splitlines() if line.strip()]
+    assert len(lines) == 1, output
+    assert lines[0].startswith("error: ") and expected in lines[0], lines[0]
+    assert "Traceback" not in output
+    return lines[0]
 
 
 @contextmanager

@@ -69,13 +69,26 @@ def slow_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return log
 
 
-def recording_started(folder: Path, name: str, timeout: float = 60.0) -> None:
+def recording_started(folder: Path, name: str, timeout: float = 60.0, *, holding: int = 0) -> None:
     """Wait until a run saving ``folder/name`` has opened its recording (its temporary
-    file is there); a loaded machine takes seconds to import."""
+    file is there) and written more than ``holding`` bytes to it; a loaded machine takes
+    seconds to import."""
     deadline = time.monotonic() + timeout
-    while not list(folder.glob(f".{name}.*.part")):
+    while not recording_holds(folder, name, holding):
         assert time.monotonic() < deadline, f"no recording of {name} started in {timeout} s"
         time.sleep(0.02)
+
+
+def recording_holds(folder: Path, name: str, size: int = 0) -> bool:
+    """Whether the temporary file of a run saving ``folder/name`` holds more than
+    ``size`` bytes."""
+    for part in folder.glob(f".{name}.*.part"):
+        try:
+            if part.stat().st_size > size:
+                return True
+        except FileNotFoundError:  # renamed into place meanwhile
+            continue
+    return False
 
 
 def entity_rows(path: Path, entity: str, *, static: bool = False) -> list[dict[str, object]]:

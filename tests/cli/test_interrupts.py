@@ -1,12 +1,17 @@
 """Interrupts, saved recordings and exposure: Ctrl-C and SIGTERM stop every
-command at once with one line; a failed run never replaces a recording; ``--serve``
-listens on loopback only; the recorded truth digest is the file's sha256."""
+command at once with one line, and a signalled replay keeps a whole recording of what it
+did; a failed run never replaces a recording; ``--serve`` listens on loopback only; the
+recorded truth digest is the file's sha256.
+
+Each signal is sent once the process is where it should find it: its handler in place,
+its workers started, or events in its recording."""
 
 from __future__ import annotations
 
 import hashlib
 import json
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -16,19 +21,21 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
+from commands import run_ekfviz
+from conftest import catches_signal, recording_holds, recording_started
 from typer.testing import CliRunner
 
 from ekfviz.cli import app
 
 ROOT = Path(__file__).parents[2]
+OBS = "0.1 5.0 0.2 6.0"
 DATA = ROOT / "data"
 SAMPLE, TRUTH = DATA / "classic.txt", DATA / "classic_truth.json"
 EXIT_BOUND_S = 10.0  # generous for a loaded machine; measured well under 2 s when idle
+# the bytes of a replay's temporary recording once events are in it (its header and the
+# static data that comes first take some 15 KB): the replay is under way
+RECORDED = 100_000
 runner = CliRunner()
-
-
-def ekfviz(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "ekfviz", *args], capture_output=True, text=True)
 
 
 @pytest.fixture(scope="module")
@@ -37,7 +44,7 @@ def long_log(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     replay of it does: a signalled replay takes ``slow_log``)."""
     folder = tmp_path_factory.mktemp("long")
     log, truth = folder / "long.txt", folder / "long.json"
-    made = ekfviz(
+    made = run_ekfviz(
         "simulate", "--scenario", "loop", "--steps", "12000", "--landmarks", "40",
         "-o", str(log), "--truth-out", str(truth),
     )  # fmt: skip
@@ -46,15 +53,11 @@ def long_log(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
 
 
 def _interrupt(
-    args: list[str],
-    signum: int,
-    group: bool,
-    after: float = 3.0,
-    ready: Callable[[], bool] | None = None,
+    args: list[str], signum: int, group: bool, ready: Callable[[int], bool]
 ) -> tuple[int, str, float]:
-    """Run ekfviz, send ``signum`` (to its whole process group, as a terminal's Ctrl-C
-    does, or to it alone, as ``kill`` does), and return its exit code, its stderr and how
-    long it took to exit."""
+    """Run ekfviz, wait until ``ready(pid)`` (where the signal is to find it), send
+    ``signum`` (to its whole process group, as a terminal's Ctrl-C does, or to it alone, as
+    ``kill`` does), and return its exit code, its stderr and how long it took to exit."""
     process = subprocess.Popen(
         [sys.executable, "-m", "ekfviz", *args],
         stdout=subprocess.PIPE,
@@ -62,10 +65,11 @@ def _interrupt(
         text=True,
         start_new_session=True,
     )
-    deadline = time.monotonic() + 60.0
-    while ready is not None and not ready() and time.monotonic() < deadline:
-        time.sleep(0.05)  # started up (a loaded machine takes seconds to import)
-    time.sleep(after)
+    deadline = time.monotonic() + 60.0  # a loaded machine takes seconds to import
+    while not ready(process.pid):
+        assert process.poll() is None, "the command ended before the signal: make it longer"
+        assert time.monotonic() < deadline, "the command never got where the signal should be"
+        time.sleep(0.02)
     assert process.poll() is None, "the command ended before the signal: make it longer"
     sent = time.monotonic()
     if group:
@@ -74,19 +78,50 @@ def _interrupt(
         process.send_signal(signum)
     _, stderr = process.communicate(timeout=60)
     took = time.monotonic() - sent
-    time.sleep(0.5)
+    _until_group_gone(process.pid, timeout=EXIT_BOUND_S)
     with pytest.raises(ProcessLookupError):  # no worker is left running
         os.killpg(process.pid, 0)
     return process.returncode, stderr, took
+
+
+def _group(pgid: int) -> list[int]:
+    """The processes of process group ``pgid`` (Linux: /proc)."""
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rpartition(")")[2].split()
+        except OSError:  # ended meanwhile
+            continue
+        if int(fields[2]) == pgid:
+            found.append(int(stat.parent.name))
+    return found
+
+
+def _workers_started(pid: int) -> bool:
+    """Whether the command started as a session of its own has started a worker."""
+    return any(other != pid for other in _group(pid))
+
+
+def _until_group_gone(pgid: int, timeout: float) -> None:
+    """Wait (at most ``timeout`` s) for the last process of a group to end."""
+    deadline = time.monotonic() + timeout
+    while _group(pgid) and time.monotonic() < deadline:
+        time.sleep(0.02)
+
+
+def _handles(signum: int) -> Callable[[int], bool]:
+    """Whether a process has its handler of ``signum`` in place (a signal before the
+    command starts is held and acted on as it starts, with the same line)."""
+    return lambda pid: catches_signal(pid, signum)
 
 
 @pytest.mark.parametrize(
     ("command", "signum", "group"),
     [
         ("sweep", signal.SIGINT, True),
-        ("consistency", signal.SIGINT, True),
-        ("compare", signal.SIGINT, True),
-        ("sweep", signal.SIGTERM, False),
+        pytest.param("consistency", signal.SIGINT, True, marks=pytest.mark.slow),
+        pytest.param("compare", signal.SIGINT, True, marks=pytest.mark.slow),
+        pytest.param("sweep", signal.SIGTERM, False, marks=pytest.mark.slow),
         ("compare", signal.SIGTERM, False),
     ],
 )
@@ -107,7 +142,7 @@ def test_a_study_stops_at_once_with_one_line(
         # (four replays of the long log end within 7 s here: a replay is fast now)
         "compare": ["compare", str(slow_log), *["--filter", "ekf"] * 4, "--workers", "2"],
     }[command] + ["--save", str(save)]
-    code, stderr, took = _interrupt(args, signum, group)
+    code, stderr, took = _interrupt(args, signum, group, ready=_workers_started)
     name = signal.Signals(signum).name
     assert code == 128 + signum, stderr
     assert stderr.count("\n") == 1, stderr  # one line, no worker traceback
@@ -127,7 +162,7 @@ def test_a_command_without_a_message_of_its_own_still_says_one_line(tmp_path: Pa
     code, stderr, took = _interrupt(
         ["simulate", "--scenario", "loop", "--steps", "200000", "--landmarks", "400",
          "-o", str(out), "--truth-out", str(tmp_path / "big.json")],
-        signal.SIGTERM, group=False, after=2.0,
+        signal.SIGTERM, group=False, ready=_handles(signal.SIGTERM),
     )  # fmt: skip
     assert code == 143 and stderr == (
         "error: interrupted (SIGTERM): nothing was written; existing files are left as they were\n"
@@ -149,7 +184,7 @@ def test_a_failed_replay_leaves_an_existing_recording_byte_for_byte(tmp_path: Pa
     keep = tmp_path / "keep.rrd"
     assert runner.invoke(app, ["replay", str(SAMPLE), "--save", str(keep)]).exit_code == 0
     before = keep.read_bytes()
-    result = ekfviz("replay", str(_typo(tmp_path)), "--save", str(keep))
+    result = run_ekfviz("replay", str(_typo(tmp_path)), "--save", str(keep))
     assert result.returncode == 2
     assert keep.read_bytes() == before
     partial = tmp_path / "keep.partial.rrd"
@@ -157,11 +192,11 @@ def test_a_failed_replay_leaves_an_existing_recording_byte_for_byte(tmp_path: Pa
     assert result.stderr.count("\n") == 1, result.stderr
     assert "typo.txt:20:" in result.stderr
     assert f"saved in {partial} ({keep} is left as it was)" in result.stderr
-    info = json.loads(ekfviz("info", str(partial), "--json").stdout)
+    info = json.loads(run_ekfviz("info", str(partial), "--json").stdout)
     assert info["status"]["state"] == "stopped"
     # with nothing at the path, the partial recording goes there, as before
     fresh = tmp_path / "fresh.rrd"
-    result = ekfviz("replay", str(_typo(tmp_path)), "--save", str(fresh))
+    result = run_ekfviz("replay", str(_typo(tmp_path)), "--save", str(fresh))
     assert result.returncode == 2 and fresh.is_file()
     assert f"saved in {fresh}" in result.stderr and "left as it was" not in result.stderr
 
@@ -173,8 +208,7 @@ def test_an_interrupted_replay_leaves_an_existing_recording(slow_log: Path, tmp_
         ["replay", str(slow_log), "--save", str(keep)],
         signal.SIGINT,
         group=True,
-        after=0.5,
-        ready=lambda: any(tmp_path.glob(".run.rrd.*.part")),  # recording
+        ready=lambda pid: recording_holds(tmp_path, keep.name, RECORDED),
     )
     assert code == 130 and stderr.count("\n") == 1, (code, stderr)
     assert keep.read_bytes() == b"a finished recording"
@@ -208,12 +242,12 @@ def test_convert_and_simulate_refuse_to_overwrite_without_force(
         if command == "convert"
         else ["simulate", "-o", str(target), "--truth-out", str(truth_out)]
     )
-    refused = ekfviz(*args)
+    refused = run_ekfviz(*args)
     assert refused.returncode == 2
     assert refused.stderr == f"error: {'TARGET' if command == 'convert' else '--output'}" \
         f" {target}: exists; add --force to replace it\n"  # fmt: skip
     assert target.read_text() == "keep me\n" and not truth_out.exists()
-    forced = ekfviz(*args, "--force")
+    forced = run_ekfviz(*args, "--force")
     assert forced.returncode == 0, forced.stderr
     assert target.read_text() != "keep me\n"
 
@@ -222,7 +256,7 @@ def test_the_recorded_truth_digest_is_the_files_sha256(tmp_path: Path) -> None:
     rrd = tmp_path / "run.rrd"
     result = runner.invoke(app, ["replay", str(SAMPLE), "--truth", str(TRUTH), "--save", str(rrd)])
     assert result.exit_code == 0, result.output
-    info = json.loads(ekfviz("info", str(rrd), "--json").stdout)
+    info = json.loads(run_ekfviz("info", str(rrd), "--json").stdout)
     assert info["truth"]["sha256"] == hashlib.sha256(TRUTH.read_bytes()).hexdigest()
     assert info["input"]["sha256"] == hashlib.sha256(SAMPLE.read_bytes()).hexdigest()
 
@@ -274,15 +308,17 @@ def test_serve_listens_on_loopback_only() -> None:
         process.send_signal(signal.SIGINT)
         _, stderr = process.communicate(timeout=30)
     assert process.returncode in (0, 130) and "Traceback" not in stderr  # Ctrl-C ends serving
-    time.sleep(0.5)
+    deadline = time.monotonic() + EXIT_BOUND_S
+    while _reachable("127.0.0.1", WEB_PORT) and time.monotonic() < deadline:
+        time.sleep(0.05)
     assert not _reachable("127.0.0.1", WEB_PORT)  # the viewer program ended with it
 
 
 def test_bind_says_what_it_expects() -> None:
-    result = ekfviz("replay", str(SAMPLE), "--serve", "--bind", "everywhere")
+    result = run_ekfviz("replay", str(SAMPLE), "--serve", "--bind", "everywhere")
     assert result.returncode == 2 and result.stderr.count("\n") == 1
     assert "--bind everywhere: expected an IP address" in result.stderr
-    alone = ekfviz("replay", str(SAMPLE), "--bind", "0.0.0.0")
+    alone = run_ekfviz("replay", str(SAMPLE), "--bind", "0.0.0.0")
     assert alone.returncode == 2 and "add --serve" in alone.stderr
 
 
@@ -363,10 +399,7 @@ def test_a_failed_replay_names_the_recording_it_kept_as_it_was_given(tmp_path: P
     typo = _typo(tmp_path)
 
     def replay() -> str:
-        result = subprocess.run(
-            [sys.executable, "-m", "ekfviz", "replay", typo.name, "--save", "run.rrd"],
-            capture_output=True, text=True, cwd=tmp_path,
-        )  # fmt: skip
+        result = run_ekfviz("replay", typo.name, "--save", "run.rrd", cwd=tmp_path)
         assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
         return result.stderr
 
@@ -419,3 +452,88 @@ def test_a_grade_stopped_says_what_it_kept_and_removes_its_workers_temporary_fil
     said = _stopped(request, [task])
     assert said == f"the recordings of the submissions checked before it are in {saved}"
     assert sorted(p.name for p in saved.iterdir()) == [".mine.part", "s1.py-classic.rrd"]
+
+
+# -- a signalled replay keeps its recording ------------------------------------------------
+
+
+@pytest.mark.parametrize(("signum", "code", "word"), [(2, 130, "SIGINT"), (15, 143, "SIGTERM")])
+def test_a_signal_leaves_a_complete_recording(
+    tmp_path: Path, slow_log: Path, signum: int, code: int, word: str
+) -> None:
+    from conftest import entity_rows, rrd_verify
+
+    rrd = tmp_path / "run.rrd"
+    process = subprocess.Popen(
+        [sys.executable, "-m", "ekfviz", "replay", str(slow_log), "--save", str(rrd)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    recording_started(tmp_path, rrd.name, holding=RECORDED)  # into the replay, before its end
+    os.kill(process.pid, signum)
+    _, stderr = process.communicate(timeout=60)
+    assert process.returncode == code, stderr
+    assert f"interrupted ({word})" in stderr or f"terminated ({word})" in stderr
+    assert "Traceback" not in stderr
+    rrd_verify(rrd)
+    last = entity_rows(rrd, "/log")[-1]
+    assert word in str(last["TextLog:text"]) and "after input line" in str(last["TextLog:text"])
+    assert not list(tmp_path.glob("*.part"))
+
+
+@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="reads /proc")
+@pytest.mark.parametrize(("signum", "code", "word"), [(2, 130, "SIGINT"), (15, 143, "SIGTERM")])
+def test_a_signal_during_start_up_still_leaves_a_recording(
+    tmp_path: Path, signum: int, code: int, word: str
+) -> None:
+    """Even while rerun is still being imported, and with SIGINT ignored by the parent
+    (as ``ekfviz ... &`` in a script has it)."""
+    import os
+    import signal
+    import time
+
+    from conftest import catches_signal, entity_rows, rrd_verify
+
+    log = tmp_path / "log.txt"
+    log.write_text(f"{OBS}\n" + "1 0.1\n0.1 5 0.2 6\n" * 50)
+    rrd = tmp_path / "run.rrd"
+    process = subprocess.Popen(
+        [sys.executable, "-m", "ekfviz", "replay", str(log), "--save", str(rrd)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN),
+    )
+    deadline = time.monotonic() + 30
+    while not catches_signal(process.pid, signum) and time.monotonic() < deadline:
+        time.sleep(0.005)
+    os.kill(process.pid, signum)
+    _, stderr = process.communicate(timeout=60)
+    assert process.returncode == code, stderr
+    assert f"({word}) after input line 1;" in stderr and "Traceback" not in stderr
+    rrd_verify(rrd)
+    assert word in str(entity_rows(rrd, "/log")[-1]["TextLog:text"])
+
+
+def test_info_says_a_run_cut_by_sigterm_stopped_early_and_where(
+    tmp_path: Path, slow_log: Path
+) -> None:
+    rrd = tmp_path / "cut.rrd"
+    process = subprocess.Popen(
+        [sys.executable, "-m", "ekfviz", "replay", str(slow_log), "--save", str(rrd)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    recording_started(tmp_path, rrd.name, holding=RECORDED)  # into the replay, before its end
+    process.send_signal(signal.SIGTERM)
+    _, stderr = process.communicate(timeout=60)
+    assert process.returncode == 143, stderr
+    document = json.loads(run_ekfviz("info", str(rrd), "--json").stdout)
+    status = document["status"]
+    assert status["state"] == "stopped" and status["stopped_early"] is True
+    assert "terminated (SIGTERM)" in status["reason"]
+    assert status["event"] >= 0 and status["line"] >= 1
+    text = run_ekfviz("info", str(rrd)).stdout
+    assert re.search(r"^status +stopped early after event \d+, step \d+, input line", text, re.M)

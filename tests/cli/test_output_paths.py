@@ -1,9 +1,11 @@
-"""Every way a user can give an unusable output path, for every command that writes one,
-and a ``--connect`` to where no viewer answers: one line, exit 2, nothing left behind.
+"""Every way a user can give an unusable output path, for every command that writes one
+(an output that is an input among them), and a ``--connect`` to where no viewer answers:
+one line, exit 2, nothing left behind, nothing of the user's replaced.
 
 Script-style: the matrix below is tried in turn. Paths are checked in-process (they are
 refused before any work, so a real process would show nothing more); the ``--connect``
-cases and one path case run ``python -m ekfviz`` in a process of its own, as a user does.
+cases run ``python -m ekfviz`` in a process of its own, whose timeout tells a run that
+waits for ever.
 """
 
 from __future__ import annotations
@@ -19,12 +21,16 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
+from commands import one_error_line, run_ekfviz, run_ekfviz_process
 from typer.testing import CliRunner
 
 from ekfviz.cli import app
+from ekfviz.io.files import OutputPathError, check_output_path, distinct_paths
 
 DATA = Path(__file__).parents[2] / "data"
 SAMPLE = DATA / "classic.txt"
+OBS = "0.1 5.0 0.2 6.0"
+CLASSIC = f"{OBS}\n3 0\n{OBS}\n3 0\n{OBS}\n"
 runner = CliRunner()
 
 
@@ -81,9 +87,19 @@ COMMANDS = [
     "compare --save", "check --report", "check --save",
     "simulate -o", "simulate --truth-out",
 ]  # fmt: skip
+# the commands tried by default (one of each way of writing: a recording, a report, a
+# converted log, an extracted input, a dataset); every one under -m slow
+COMMANDS_BY_DEFAULT = {"replay --save", "sweep --report", "convert", "info --extract-input",
+                       "simulate --truth-out"}  # fmt: skip
+LINKS_BY_DEFAULT = {"replay --save", "consistency --report", "convert", "simulate -o"}
 
 
-@pytest.mark.parametrize("command", COMMANDS)
+def _by_default(kept: set[str]) -> list[object]:
+    """Every command, those not in ``kept`` marked slow."""
+    return [c if c in kept else pytest.param(c, marks=pytest.mark.slow) for c in COMMANDS]
+
+
+@pytest.mark.parametrize("command", _by_default(COMMANDS_BY_DEFAULT))
 def test_every_unusable_output_path_is_one_line_before_any_work(
     place: Path, command: str, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -109,15 +125,10 @@ def test_every_unusable_output_path_is_one_line_before_any_work(
     assert not [p for p in Path("/proc").iterdir() if p.name.endswith((".part", ".probe"))]
 
 
-def test_an_output_path_refused_in_a_process_of_its_own(place: Path) -> None:
+def test_an_output_path_is_refused_before_the_replay_runs(place: Path) -> None:
     """As the user sees it: the whole replay is not run first, no .part is left."""
     started = time.monotonic()
-    result = subprocess.run(
-        [sys.executable, "-m", "ekfviz", "replay", str(SAMPLE), "--save", str(place / "folder")],
-        capture_output=True,
-        text=True,
-        cwd=place,
-    )
+    result = run_ekfviz("replay", SAMPLE, "--save", place / "folder", cwd=place)
     assert result.returncode == 2
     assert (
         result.stderr.strip()
@@ -187,6 +198,7 @@ def deaf_listener() -> Iterator[DeafPort]:
 
 
 def _ekfviz(*args: str, cwd: Path) -> subprocess.Popen[str]:
+    """``python -m ekfviz ARGS`` started in a process of its own, its output piped."""
     return subprocess.Popen(
         [sys.executable, "-m", "ekfviz", *args],
         stdout=subprocess.PIPE,
@@ -247,55 +259,7 @@ def test_ctrl_c_while_connecting_to_a_deaf_port_ends_the_run_with_130(
 # -- standard output itself -------------------------------------------------------------
 
 
-@pytest.mark.skipif(not Path("/dev/full").exists(), reason="no /dev/full here")
-@pytest.mark.parametrize(
-    "args",
-    [
-        ["replay", str(SAMPLE), "--save", "run.rrd"],
-        ["replay", str(SAMPLE), "--save", "run.rrd", "--json"],
-        ["replay", "--help"],
-        ["--version"],
-    ],
-    ids=["replay", "replay --json", "help", "version"],
-)
-def test_standard_output_on_a_full_disk_is_one_line_and_exit_2(
-    tmp_path: Path, args: list[str]
-) -> None:
-    """``> /dev/full``: every write to it fails with "No space left on device"."""
-    with open("/dev/full", "w") as full:
-        result = subprocess.run(
-            [sys.executable, "-m", "ekfviz", *args],
-            stdout=full, stderr=subprocess.PIPE, text=True, cwd=tmp_path,
-        )  # fmt: skip
-    assert result.returncode == 2, result.stderr
-    last = result.stderr.splitlines()[-1]
-    assert last == (
-        "error: standard output: No space left on device: what the command prints was not"
-        " written whole"
-    )
-    assert "Traceback" not in result.stderr
-    if "--json" not in args:  # (--json puts the tables on stderr)
-        assert result.stderr.count("\n") == 1
-
-
-def test_a_closed_standard_output_is_the_null_device_not_the_recording(tmp_path: Path) -> None:
-    """``ekfviz replay ... >&-``: the recording would get descriptor 1, and standard
-    output would be written into it."""
-    from conftest import rrd_verify
-
-    from ekfviz import readback
-
-    result = subprocess.run(
-        [sys.executable, "-m", "ekfviz", "replay", str(SAMPLE), "--save", "run.rrd"],
-        stderr=subprocess.PIPE, text=True, cwd=tmp_path, preexec_fn=lambda: os.close(1),
-    )  # fmt: skip
-    assert result.returncode == 0 and result.stderr == ""
-    rrd_verify(tmp_path / "run.rrd")
-    info = readback.read_recording_info(tmp_path / "run.rrd")
-    assert info is not None and info.status is not None and info.status.state == "finished"
-
-
-@pytest.mark.parametrize("command", COMMANDS)
+@pytest.mark.parametrize("command", _by_default(LINKS_BY_DEFAULT))
 def test_an_output_path_that_is_a_symbolic_link_writes_its_target_and_keeps_the_link(
     place: Path, command: str, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -368,6 +332,11 @@ def test_a_study_s_output_never_replaces_its_input(
     assert (tmp_path / input_name).read_bytes() == before
 
 
+def _cli(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
+    """``ekfviz ARGS`` in ``cwd`` without a display (a replay without --save saves)."""
+    return run_ekfviz(*args, cwd=cwd, env={"DISPLAY": None, "WAYLAND_DISPLAY": None})
+
+
 def _env(cwd: Path) -> dict[str, str]:
     env = {**os.environ, "XDG_CONFIG_HOME": str(cwd), "XDG_DATA_HOME": str(cwd), "CI": "1"}
     env.pop("DISPLAY", None)
@@ -375,42 +344,25 @@ def _env(cwd: Path) -> dict[str, str]:
     return env
 
 
-def _cli(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "ekfviz", *args], capture_output=True, text=True, cwd=cwd,
-        env=_env(cwd), timeout=120,
-    )  # fmt: skip
-
-
 def test_a_path_too_long_for_its_file_system_is_one_line(tmp_path: Path) -> None:
     """A log name of 256 bytes was a traceback (OSError: File name too long, from a check
-    of the path); so was the default recording's name of a 251-byte log's second run."""
+    of the path); so was the default recording's name of a 251-byte log's second run.
+
+    In a process of its own: such an error reaches the command line's last resort, in
+    ``main()``, for a path no command's own checks named."""
     log = "a" * 256 + ".txt"
-    done = _cli("replay", log, cwd=tmp_path)
+    done = run_ekfviz_process("replay", log, cwd=tmp_path, env=_env(tmp_path), timeout=120)
     assert done.returncode == 2 and "Traceback" not in done.stderr
     (line,) = done.stderr.strip().splitlines()
     assert line.startswith("error: aaa") and line.endswith("File name too long"), line
     stem = "b" * 251  # the log's name is 255 bytes, its recording's 255, then 257
     (tmp_path / f"{stem}.txt").write_text((DATA / "classic.txt").read_text())
-    first = _cli("replay", f"{stem}.txt", cwd=tmp_path)
+    first = _cli("replay", f"{stem}.txt", cwd=tmp_path)  # (its recording: the first name)
     assert first.returncode == 0, first.stderr
-    second = _cli("replay", f"{stem}.txt", cwd=tmp_path)
+    second = run_ekfviz_process("replay", f"{stem}.txt", cwd=tmp_path, env=_env(tmp_path))
     assert second.returncode == 2 and "Traceback" not in second.stderr
     (line,) = second.stderr.strip().splitlines()
     assert "cannot save the recording as recordings/bbb" in line and "--save" in line, line
-
-
-def test_help_to_a_standard_output_that_cannot_be_written_is_one_line(tmp_path: Path) -> None:
-    with open(os.devnull) as read_only:  # stdout open for reading: EBADF at the write
-        done = subprocess.run(
-            [sys.executable, "-m", "ekfviz", "--help"], stdout=read_only,
-            stderr=subprocess.PIPE, text=True, cwd=tmp_path, env=_env(tmp_path), timeout=120,
-        )  # fmt: skip
-    assert done.returncode == 2
-    assert done.stderr == (
-        "error: standard output: Bad file descriptor: what the command prints was not written"
-        " whole\n"
-    )
 
 
 @pytest.mark.parametrize(
@@ -466,3 +418,188 @@ def test_replay_says_where_it_saved_and_how_to_open_it(tmp_path: Path) -> None:
     assert result.exit_code == 0, result.output
     last = result.output.strip().splitlines()[-1]
     assert last.startswith(f"Saved {target}; open it with: ") and last.endswith(str(target))
+
+
+# -- an output that is an input ------------------------------------------------------------
+
+
+def test_replay_without_an_output_option_keeps_the_earlier_recording(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    for _ in range(2):
+        result = runner.invoke(app, ["replay", str(SAMPLE)])
+        assert result.exit_code == 0, result.output
+    assert sorted(p.name for p in (tmp_path / "recordings").iterdir()) == [
+        "classic-2.rrd",
+        "classic.rrd",
+    ]
+    assert "Saved recordings/classic-2.rrd; open it with: " in result.stdout
+
+
+def test_save_over_the_input_log_is_refused_and_the_log_kept(tmp_path: Path) -> None:
+    log = tmp_path / "log.txt"
+    log.write_text(CLASSIC)
+    result = runner.invoke(app, ["replay", str(log), "--save", str(log)])
+    assert result.exit_code == 2
+    one_error_line(result.output, f"--save {log}: is the input {log}")
+    assert log.read_text() == CLASSIC
+
+
+def test_a_hard_link_or_a_symbolic_link_to_the_input_is_the_input(tmp_path: Path) -> None:
+    log = tmp_path / "log.txt"
+    log.write_text(CLASSIC)
+    hard, soft = tmp_path / "hard.rrd", tmp_path / "soft.rrd"
+    os.link(log, hard)
+    soft.symlink_to(log)
+    for output in (hard, soft):
+        result = runner.invoke(app, ["replay", str(log), "--save", str(output)])
+        assert result.exit_code == 2
+        one_error_line(result.output, "is the input")
+    assert log.read_text() == CLASSIC
+
+
+def test_report_over_the_truth_or_the_log_is_refused(tmp_path: Path) -> None:
+    log, truth = tmp_path / "log.txt", tmp_path / "truth.txt"
+    log.write_text(CLASSIC)
+    truth.write_text("3 6\n3 12\n")
+    for report in (log, truth):
+        result = runner.invoke(app, ["replay", str(log), "--truth", str(truth), "--save",
+                                     str(tmp_path / "r.rrd"), "--report", str(report)])  # fmt: skip
+        assert result.exit_code == 2
+        one_error_line(result.output, f"--report {report}: is the input")
+    assert log.read_text() == CLASSIC and truth.read_text() == "3 6\n3 12\n"
+
+
+def test_a_dataset_directorys_file_is_not_written_over(tmp_path: Path) -> None:
+    from ekfviz.sim.mrclam import MrclamWorld, simulate_mrclam
+
+    for name, text in simulate_mrclam(world=MrclamWorld(duration_s=3.0)).items():
+        (tmp_path / name).write_text(text)
+    odometry = tmp_path / "Robot1_Odometry.dat"
+    before = odometry.read_bytes()
+    result = runner.invoke(app, ["replay", str(tmp_path), "--save", str(odometry)])
+    assert result.exit_code == 2
+    assert f"--save {odometry}: " in result.output  # (refused: not a .rrd, and the input)
+    assert odometry.read_bytes() == before
+    ran = runner.invoke(app, ["replay", str(tmp_path), "--save", str(tmp_path / "x.rrd")])
+    assert ran.exit_code == 0, ran.output  # the same directory, saved elsewhere
+
+
+def test_info_and_export_do_not_write_over_the_recording(tmp_path: Path) -> None:
+    rrd = tmp_path / "run.rrd"
+    log = tmp_path / "log.txt"
+    log.write_text(CLASSIC)
+    assert runner.invoke(app, ["replay", str(log), "--save", str(rrd)]).exit_code == 0
+    before = rrd.read_bytes()
+    for args in (["info", str(rrd), "--extract-input", str(rrd)],
+                 ["export", str(rrd), "--tum", str(rrd)]):  # fmt: skip
+        result = runner.invoke(app, args)
+        assert result.exit_code == 2
+        one_error_line(result.output, f"{rrd}: is the input {rrd}")
+    assert rrd.read_bytes() == before
+
+
+def test_export_refuses_a_device_and_two_options_naming_one_file(tmp_path: Path) -> None:
+    """/dev/full is refused before anything is written (a root user's export would
+    otherwise have replaced the device with a regular file)."""
+    rrd = tmp_path / "run.rrd"
+    log = tmp_path / "log.txt"
+    log.write_text(CLASSIC)
+    assert runner.invoke(app, ["replay", str(log), "--save", str(rrd)]).exit_code == 0
+    result = runner.invoke(app, ["export", str(rrd), "--tum", "/dev/full"])
+    assert result.exit_code == 2
+    one_error_line(result.output, "--tum /dev/full: exists and is not a regular file")
+    twice = tmp_path / "t.txt"
+    result = runner.invoke(app, ["export", str(rrd), "--tum", str(twice), "--csv", str(twice)])
+    assert result.exit_code == 2
+    one_error_line(result.output, "--tum and --csv are the same file")
+    assert not twice.exists()
+
+
+def test_check_does_not_write_over_its_log_or_the_filters_module(tmp_path: Path) -> None:
+    log = tmp_path / "log.txt"
+    log.write_text(CLASSIC)
+    module = tmp_path / "mine.py"
+    module.write_text("x = 1\n")
+    for option, path in (("--report", log), ("--save", module)):
+        result = runner.invoke(app, ["check", "--filter", str(module), str(log), option, str(path)])
+        assert result.exit_code == 2
+        one_error_line(result.output, f"{option} {path}: is the input")
+    assert log.read_text() == CLASSIC and module.read_text() == "x = 1\n"
+
+
+def test_grade_does_not_write_its_report_over_a_submission(tmp_path: Path) -> None:
+    folder = tmp_path / "class"
+    folder.mkdir()
+    submission = folder / "alice.py"
+    submission.write_text("x = 1\n")
+    (folder / "loop.py").symlink_to("loop.py")  # a loop of links: a row, not a traceback
+    result = runner.invoke(app, ["grade", str(folder), "--report", str(submission)])
+    assert result.exit_code == 2
+    one_error_line(result.output, f"--report {submission}: is the input")
+    assert submission.read_text() == "x = 1\n"
+    result = runner.invoke(app, ["grade", str(folder), "--timeout", "nan"])
+    assert result.exit_code == 2  # (a ranged option refuses NaN as every one does)
+    one_error_line(result.output, "'--timeout': found nan, expected a number")
+
+
+# -- output paths the file system refuses --------------------------------------------------
+
+
+def test_a_file_name_too_long_is_one_line_before_any_work(tmp_path: Path) -> None:
+    too_long = tmp_path / ("a" * 300 + ".rrd")
+    with pytest.raises(OutputPathError, match="the file name is 304 bytes long, expected at most"):
+        check_output_path(too_long, "--save")
+    deep = tmp_path.joinpath(*["d" * 200] * 30, "x.rrd")  # past PATH_MAX
+    with pytest.raises(OutputPathError, match="--save"):
+        check_output_path(deep, "--save")
+    log = tmp_path / "log.txt"
+    log.write_text(CLASSIC)
+    result = runner.invoke(app, ["replay", str(log), "--save", str(too_long)])
+    assert result.exit_code == 2
+    one_error_line(result.output, "bytes long")
+
+
+def test_a_name_near_the_limit_is_saved_whole(tmp_path: Path) -> None:
+    """Its temporary file beside it (its name and more) must fit too."""
+    log = tmp_path / "log.txt"
+    log.write_text(CLASSIC)
+    target = tmp_path / ("b" * 250 + ".rrd")
+    result = runner.invoke(app, ["replay", str(log), "--save", str(target), "--report",
+                                 str(tmp_path / ("c" * 250 + ".json"))])  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert target.stat().st_size > 0 and (tmp_path / ("c" * 250 + ".json")).is_file()
+    assert sorted(p.name[:1] for p in tmp_path.iterdir()) == ["b", "c", "l"]  # no leftovers
+
+
+def test_a_loop_of_links_as_an_output_or_a_source_is_no_traceback(tmp_path: Path) -> None:
+    loop = tmp_path / "loop.rrd"
+    loop.symlink_to(loop.name)
+    assert distinct_paths({"--save": loop, "--report": tmp_path / "r.json"}) is None
+    result = runner.invoke(app, ["convert", str(loop), str(tmp_path / "x.txt")])
+    assert result.exit_code == 2
+    one_error_line(result.output, f"{loop}: cannot be read")
+    log = tmp_path / "log.txt"
+    log.write_text(CLASSIC)
+    report = tmp_path / "report.json"
+    report.symlink_to(report.name)  # refused, as the same loop as an input is: the link kept
+    args = ["replay", str(log), "--save", str(tmp_path / "r.rrd"), "--report", str(report)]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 2
+    one_error_line(result.output, f"--report {report}: a loop of symbolic links")
+    assert report.is_symlink() and not (tmp_path / "r.rrd").exists()
+
+
+def test_a_name_that_is_not_utf8_is_saved_without_a_warning(tmp_path: Path) -> None:
+    log = tmp_path / "log.txt"
+    log.write_text(CLASSIC)
+    target = os.fsdecode(os.fsencode(tmp_path) + b"/\xff\xfe.rrd")
+    # Rerun's own log lines go to the standard error of the process, which only a process
+    # of its own shows
+    result = run_ekfviz_process("replay", log, "--save", target, timeout=60)
+    assert result.returncode == 0, result.stderr
+    assert result.stderr == ""  # Rerun warned twice on the command line it was given
+    assert Path(target).stat().st_size > 0
