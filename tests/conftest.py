@@ -48,8 +48,9 @@ def _quiet_rerun(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
 
 @pytest.fixture(scope="session")
 def slow_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A log whose replay is still running seconds after its recording started: 20,000
-    steps among 300 landmarks (about 13 s here; its map, not its length, makes it slow).
+    """A log whose replay is still running seconds after its recording started: 5,000
+    steps among 300 landmarks (about 3 s on a quiet machine; its map, not its length,
+    makes it slow; the tests signal it once its recording holds its first events).
 
     A test that signals a replay must not race its end: a 12,000-step log of 40
     landmarks is replayed within 0.7 s of its recording's start now, and a signal that
@@ -62,7 +63,7 @@ def slow_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
     folder = tmp_path_factory.mktemp("slow")
     log = folder / "slow.txt"
     result = CliRunner().invoke(
-        app, ["simulate", "--scenario", "loop", "--steps", "20000", "--landmarks", "300",
+        app, ["simulate", "--scenario", "loop", "--steps", "5000", "--landmarks", "300",
               "-o", str(log), "--truth-out", str(folder / "slow.json")],
     )  # fmt: skip
     assert result.exit_code == 0, result.output
