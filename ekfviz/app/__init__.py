@@ -10,7 +10,9 @@ what it chose and warns of as it goes, and ends with one of ekfviz's own errors
 
 - :mod:`.replay` -- a log through a filter into a recording (its run: :mod:`.replaying`,
   the filter's set-up for its source: :mod:`.scans`);
-- :mod:`.check` -- a filter in lockstep with the reference (``grade``: :mod:`.grade`);
+- :mod:`.check` -- a filter in lockstep with the reference;
+- :mod:`.class_grade` -- a class's submissions graded (one submission: :mod:`.grade`; in
+  Gradescope's layout: :mod:`.gradescope`);
 - :mod:`.compare`, :mod:`.sweep` -- studies of several runs (:mod:`.study`);
 - :mod:`.consistency` -- Monte-Carlo consistency on a simulated scenario;
 - :mod:`.calibrate` -- a log's noise estimated from its truth;

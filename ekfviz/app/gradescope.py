@@ -16,8 +16,9 @@ its own with its own time limit, so one slow part never zeroes the others (predi
 update still start from the landmarks' initialisation). A part's events pass when every
 divergence among them is of a cause the rubric accepts (``accept``: by default the
 handout's block-diagonal P, ``landmark_cross_covariance.skipped``; a cause's short name
-is taken too). :func:`autograder_files`
-makes the zip Gradescope asks for. Numpy only.
+is taken too). :func:`grade_in_gradescope` is the use case: the submission graded and its
+``results.json`` written; :func:`write_autograder_zip` writes the zip Gradescope asks for
+(:func:`autograder_files`). Numpy only.
 """
 
 from __future__ import annotations
@@ -32,7 +33,10 @@ from pathlib import Path
 from typing import Any
 
 from ekfviz.app.grade_rows import shown
+from ekfviz.app.settings import worker_options
+from ekfviz.core.errors import UsageError
 from ekfviz.core.params import FilterParams
+from ekfviz.io.files import check_outputs, json_text, write_bytes_atomic
 
 ROOT_VARIABLE = "EKFVIZ_AUTOGRADER_ROOT"
 KINDS = ("init", "predict", "update", "log", "consistency")
@@ -89,7 +93,7 @@ log = "classic"
 """
 
 
-class RubricError(Exception):
+class RubricError(UsageError):
     """A rubric that cannot be used; one line naming the file and what was expected."""
 
 
@@ -202,6 +206,78 @@ class Setting:
 
 
 Log = tuple[Path, Path | None, tuple[float, float, float] | None]
+
+
+@dataclass(frozen=True, slots=True)
+class GradescopeRequest:
+    """One submission's grading in Gradescope's layout, as asked.
+
+    :param submission: the submission's folder (None: ``ROOT/submission``)
+    :param results: where ``results.json`` goes (None: ``ROOT/results/results.json``)
+    :param rubric: the rubric's file (None: :data:`DEFAULT_RUBRIC`)
+    :param python: the interpreter the submission runs in (None: ekfviz's)
+    """
+
+    submission: Path | None = None
+    results: Path | None = None
+    rubric: Path | None = None
+    python: Path | None = None
+    no_sandbox: bool = False
+
+
+@dataclass(frozen=True, slots=True)
+class GradescopeResults:
+    """A submission graded: what its results say of it (``output``), and where they went."""
+
+    output: str
+    written: Path
+
+
+def grade_in_gradescope(request: GradescopeRequest) -> GradescopeResults:
+    """Grade one submission in Gradescope's layout and write its ``results.json``. Where
+    the sandbox cannot start (a container without user namespaces), the submission runs
+    without it, and the results' output says so.
+
+    :raises UsageError: no submission folder, a rubric that cannot be used, an
+        interpreter not found (:class:`RubricError` for the rubric)
+    :raises OutputError: results that cannot be written there
+    """
+    root = autograder_root()
+    folder = request.submission if request.submission is not None else root / "submission"
+    target = request.results if request.results is not None else root / "results" / "results.json"
+    if not folder.is_dir():
+        raise UsageError(f"--submission {folder}: no such directory (Gradescope's submission"
+                         " folder)")  # fmt: skip
+    check_outputs(("--results", target))
+    rubric = read_rubric(request.rubric)
+    python = worker_options(request.python, 60.0, None).python
+    setting = gradescope_setting(python, request.no_sandbox)
+    document = grade_on_the_battery(folder, rubric, setting)
+    write_bytes_atomic(target, json_text(document).encode("utf-8"))
+    return GradescopeResults(str(document["output"]), target)
+
+
+def write_autograder_zip(target: Path, rubric_path: Path | None) -> None:
+    """Write the zip Gradescope asks for (see :func:`autograder_files`), whole or not at all.
+
+    :raises RubricError: a rubric that cannot be used, or ekfviz not installed from source
+    :raises OutputError: a zip that cannot be written there
+    """
+    import io
+    import zipfile
+
+    from ekfviz.samples import BATTERY
+
+    check_outputs(("--gradescope-zip", target))
+    files = autograder_files(rubric_path, read_rubric(rubric_path), BATTERY)
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as archive:
+        for name, (content, mode) in files.items():
+            info = zipfile.ZipInfo(name, date_time=(2020, 1, 1, 0, 0, 0))
+            info.external_attr = (0o100000 | mode) << 16  # a regular file, its mode
+            info.compress_type = zipfile.ZIP_DEFLATED
+            archive.writestr(info, content)
+    write_bytes_atomic(target, buffer.getvalue())
 
 
 def gradescope_setting(python: str | None, no_sandbox: bool) -> Setting:

@@ -4,6 +4,7 @@ floating-point warnings off, SIGINT and SIGTERM turned into exceptions, the vers
 from __future__ import annotations
 
 from collections.abc import Callable
+from contextlib import AbstractContextManager
 
 from ekfviz import __version__, signals
 
@@ -38,3 +39,10 @@ def version_line() -> str:
 
     kernel = "compiled" if HAVE_KERNEL else "numpy (the compiled kernel was not built)"
     return f"ekfviz {__version__}, filter kernel for small maps: {kernel}"
+
+
+def printing_held() -> AbstractContextManager[None]:
+    """A block in which a first SIGINT or SIGTERM waits for the block's end (see
+    :func:`ekfviz.signals.held`): the results of a command already stopped by a signal,
+    printed whole."""
+    return signals.held()

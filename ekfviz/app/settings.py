@@ -10,6 +10,8 @@ header, a dataset's models).
 from __future__ import annotations
 
 import enum
+import math
+import shutil
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -38,6 +40,7 @@ __all__ = [
     "UpdateMode",
     "WorkerOptions",
     "filter_params",
+    "worker_options",
 ]
 
 Triple = tuple[float, float, float]
@@ -207,3 +210,38 @@ class ExecutionSettings:
 
         with in_family():
             return make_executor(self.executor, self.scheduler, self.workers)
+
+
+def worker_options(
+    python: Path | None,
+    timeout_s: float,
+    memory_mb: int | None,
+    echo: bool = True,
+    *,
+    timeout_option: str = "--filter-timeout",
+    sandbox: bool = True,
+) -> WorkerOptions:
+    """How a user's filter runs, the interpreter looked up first.
+
+    :param timeout_option: how the time limit was given, for the message of a bad one
+    :param sandbox: in the sandbox (else ``--no-sandbox`` was given)
+    :raises UsageError: a time limit that is not a number, an interpreter not found
+    """
+    if math.isnan(timeout_s):
+        raise UsageError(
+            f"{timeout_option} {timeout_s}: expected a number of seconds (inf: no bound)"
+        )
+    if python is not None:
+        found = shutil.which(str(python))
+        if found is None or not Path(found).is_file():
+            raise UsageError(
+                f"--python {python}: no such interpreter (expected a Python executable)"
+            )
+        python = Path(found)
+    return WorkerOptions(
+        python=None if python is None else str(python),
+        timeout_s=None if math.isinf(timeout_s) else timeout_s,
+        memory_mb=memory_mb,
+        echo=echo,
+        sandbox=sandbox,
+    )

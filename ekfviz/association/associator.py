@@ -66,6 +66,29 @@ _NO_S = frozen(np.zeros((0, 2, 2)))
 _MATCHED, _NEW, _REJECTED = int(Fate.MATCHED), int(Fate.NEW), int(Fate.REJECTED)
 
 
+class _Pairing:
+    """What gating and pairing made of one scan: per measurement its candidate (a column
+    of the gate) in the pairing (-1: none) and whether it lies in some landmark's gate at
+    ``new_probability``; the gate's landmarks, predicted measurements and S; what JCBB
+    said of its search. Python lists, a scan being a few measurements: a loop over them
+    costs less than the numpy calls it replaces."""
+
+    __slots__ = ("S", "columns", "exhausted", "fallback", "gate_ids", "hypotheses",
+                 "joint_d2", "near", "z_pred")  # fmt: skip
+
+    def __init__(
+        self,
+        m: int,
+        gate_ids: IntArray = _EMPTY_IDS,
+        z_pred: FloatArray = _NO_Z,
+        S: FloatArray = _NO_S,
+    ) -> None:
+        self.columns: list[int] = [-1] * m
+        self.near: list[bool] = [False] * m
+        self.gate_ids, self.z_pred, self.S = gate_ids, z_pred, S
+        self.hypotheses, self.joint_d2, self.exhausted, self.fallback = 0, 0.0, False, ""
+
+
 class Associator:
     """Associates the scans of one run, keeping the tentative landmarks between them.
 
@@ -128,75 +151,13 @@ class Associator:
             if isinstance(slam, EkfSlam)
             else np.asarray(slam.landmark_ids, dtype=np.int64)
         )
-        n_landmarks = state_ids.shape[0]
-        hypotheses, joint_d2, exhausted, fallback = 0, 0.0, False, ""
-        gate_ids = _EMPTY_IDS
-        z_pred: FloatArray = _NO_Z
-        S: FloatArray = _NO_S
-        # per measurement: its candidate (of the gate) in the pairing, and whether it lies
-        # in some landmark's gate at new_probability; Python lists, a scan being a few
-        # measurements: a loop over them costs less than the numpy calls it replaces
-        columns: list[int] = [-1] * m
-        near: list[bool] = [False] * m
-        if m and n_landmarks:
-            x = np.asarray(slam.x)
-            U: FloatArray | None
-            if isinstance(slam, EkfSlam):
-                # the built-in filter's covariance with its pending low-rank changes: the
-                # gating reads the pose's rows and the marginals (the records' own) without
-                # folding them into P (a pass over all of it) once per scan
-                P, U = slam.deferred_covariance()
-                pose_rows, covs = slam.pose_rows(), slam.landmark_marginals()
-            else:
-                P, U = np.asarray(slam.P), None
-                pose_rows, covs = P[:3], marginals_of(P)
-            gate = gate_scan(x, pose_rows, covs, self._sensor, self._R, z, self._gate,
-                             self._new_gate)  # fmt: skip
-            gate_rows, z_pred, S = gate.rows, gate.z_pred, gate.S
-            gate_ids = state_ids[gate_rows]
-            if gate_rows.size:
-                if self._method is Method.NN:
-                    columns = nearest_neighbour(gate.d2, gate.compatible).tolist()
-                else:
-                    result = jcbb(
-                        gate.nu,
-                        gate.d2,
-                        gate.compatible,
-                        _joint_covariance(P, gate.H, state_rows(gate_rows), U),
-                        self._R,
-                        self.params.gate_probability,
-                        self.params.budget,
-                        self.params.work_budget,
-                    )
-                    hypotheses, joint_d2, exhausted, fallback = (
-                        result.hypotheses, result.joint_d2, result.exhausted, result.fallback
-                    )  # fmt: skip
-                    columns = self._without_a_lone_wide_pair(result.pairing.tolist(), gate)
-            near = gate.near.tolist()
-        candidate_ids: list[int] = gate_ids.tolist()
-        fates: list[int] = []
-        landmarks: list[int] = []  # the id paired or started, -1 where rejected
-        new_ids: list[int] = []
-        matched_ids: list[int] = []
-        rejected = False
-        for column, is_near in zip(columns, near, strict=True):
-            if column >= 0:
-                landmark_id = candidate_ids[column]
-                fates.append(_MATCHED)
-                matched_ids.append(landmark_id)
-            elif is_near:  # in a gate, but left out of the best pairing: clutter
-                landmark_id = -1
-                fates.append(_REJECTED)
-                rejected = True
-            else:
-                landmark_id = self._next_id
-                self._next_id += 1
-                fates.append(_NEW)
-                new_ids.append(landmark_id)
-            landmarks.append(landmark_id)
+        pairing = _Pairing(m)
+        if m and state_ids.shape[0]:
+            pairing = self._paired(slam, state_ids, z)
+        fates, landmarks, new_ids, matched_ids = self._fates(pairing)
         fate = np.array(fates, dtype=np.int8)
         landmark = np.array(landmarks, dtype=np.int64)
-        if rejected:
+        if _REJECTED in fates:
             used = fate != _REJECTED
             observations = slam.observe(landmark[used], z[used])
         else:
@@ -204,34 +165,97 @@ class Associator:
         confirmed, removed = self._book.settle(matched_ids, new_ids)
         if removed:
             slam.remove_landmarks(removed)
-        truth = None
-        if self._scan_truth is not None and self._scans <= len(self._scan_truth):
-            truth = frozen(
-                np.array(
-                    [-1 if t is None else int(t) for t in self._scan_truth[self._scans - 1]],
-                    dtype=np.int64,
-                )
-            )
+        truth = self._truth_of_scan()
         association = ScanAssociation(
             method=self._method_name,
             z=frozen(z.copy()),
             fate=frozen(fate),
             landmark=frozen(landmark),
-            gate_ids=frozen(gate_ids),
-            gate_z=frozen(np.array(z_pred)),
-            gate_S=frozen(np.array(S)),
+            gate_ids=frozen(pairing.gate_ids),
+            gate_z=frozen(np.array(pairing.z_pred)),
+            gate_S=frozen(np.array(pairing.S)),
             gate_threshold=self._gate,
-            hypotheses=hypotheses,
-            joint_nis=joint_d2,
-            exhausted=exhausted,
+            hypotheses=pairing.hypotheses,
+            joint_nis=pairing.joint_d2,
+            exhausted=pairing.exhausted,
             tentative=frozen(np.array(self._book.tentative, dtype=np.int64)),
             confirmed=frozen(np.array(confirmed, dtype=np.int64)),
             removed=frozen(np.array(removed, dtype=np.int64)),
             diameters=None if scan.diameters is None else frozen(np.array(scan.diameters)),
             truth=truth if truth is not None and truth.shape[0] == m else None,
-            fallback=fallback,
+            fallback=pairing.fallback,
         )
         return observations, association
+
+    def _paired(self, slam: ScanFilter, state_ids: IntArray, z: FloatArray) -> _Pairing:
+        """The scan ``z`` gated against the landmarks of ``slam`` and paired (nearest
+        neighbour or JCBB)."""
+        x = np.asarray(slam.x)
+        U: FloatArray | None
+        if isinstance(slam, EkfSlam):
+            # the built-in filter's covariance with its pending low-rank changes: the
+            # gating reads the pose's rows and the marginals (the records' own) without
+            # folding them into P (a pass over all of it) once per scan
+            P, U = slam.deferred_covariance()
+            pose_rows, covs = slam.pose_rows(), slam.landmark_marginals()
+        else:
+            P, U = np.asarray(slam.P), None
+            pose_rows, covs = P[:3], marginals_of(P)
+        gate = gate_scan(x, pose_rows, covs, self._sensor, self._R, z, self._gate,
+                         self._new_gate)  # fmt: skip
+        pairing = _Pairing(z.shape[0], state_ids[gate.rows], gate.z_pred, gate.S)
+        pairing.near = gate.near.tolist()
+        if not gate.rows.size:
+            return pairing
+        if self._method is Method.NN:
+            pairing.columns = nearest_neighbour(gate.d2, gate.compatible).tolist()
+            return pairing
+        result = jcbb(
+            gate.nu,
+            gate.d2,
+            gate.compatible,
+            _joint_covariance(P, gate.H, state_rows(gate.rows), U),
+            self._R,
+            self.params.gate_probability,
+            self.params.budget,
+            self.params.work_budget,
+        )
+        pairing.hypotheses, pairing.joint_d2 = result.hypotheses, result.joint_d2
+        pairing.exhausted, pairing.fallback = result.exhausted, result.fallback
+        pairing.columns = self._without_a_lone_wide_pair(result.pairing.tolist(), gate)
+        return pairing
+
+    def _fates(self, pairing: _Pairing) -> tuple[list[int], list[int], list[int], list[int]]:
+        """Each measurement's fate and landmark (the id paired or started, -1 where
+        rejected), new ids given in order; and the ids started and those matched."""
+        candidate_ids: list[int] = pairing.gate_ids.tolist()
+        fates: list[int] = []
+        landmarks: list[int] = []
+        new_ids: list[int] = []
+        matched_ids: list[int] = []
+        for column, is_near in zip(pairing.columns, pairing.near, strict=True):
+            if column >= 0:
+                landmark_id = candidate_ids[column]
+                fates.append(_MATCHED)
+                matched_ids.append(landmark_id)
+            elif is_near:  # in a gate, but left out of the best pairing: clutter
+                landmark_id = -1
+                fates.append(_REJECTED)
+            else:
+                landmark_id = self._next_id
+                self._next_id += 1
+                fates.append(_NEW)
+                new_ids.append(landmark_id)
+            landmarks.append(landmark_id)
+        return fates, landmarks, new_ids, matched_ids
+
+    def _truth_of_scan(self) -> IntArray | None:
+        """The true landmark id of each measurement of the scan just counted (-1 for
+        clutter), where the run has them."""
+        if self._scan_truth is None or self._scans > len(self._scan_truth):
+            return None
+        ids = [-1 if t is None else int(t) for t in self._scan_truth[self._scans - 1]]
+        return frozen(np.array(ids, dtype=np.int64))
 
     def _without_a_lone_wide_pair(self, columns: list[int], gate: ScanGate) -> list[int]:
         """The pairing without its pairs with a wide gate, when it has fewer than

@@ -118,69 +118,98 @@ def jcbb(
         return JcbbResult(
             nearest_neighbour(d2, compatible), 0, 0.0, exhausted=True, fallback=FALLBACK_NN
         )
-    # each measurement's compatible candidates, nearest first (ties in column order): a
-    # stable sort of the rows with the incompatible as NaN, which sorts after any number
-    nearest = np.argsort(np.where(compatible, d2, np.nan), axis=1, kind="stable")
-    counts = np.count_nonzero(compatible, axis=1).tolist()
-    candidates = [nearest[i, : counts[i]].tolist() for i in order]
-    depth_total = len(order)
-    r00, r01, r11 = float(R[0, 0]), float(R[0, 1]), float(R[1, 1])
-    # per candidate k, its own block of C plus R, and each measurement's innovations, as
-    # floats: a hypothesis's work is then float arithmetic but for the products with L^-1
-    diagonal, above = np.diagonal(C), np.diagonal(C, 1)
-    own = list(
-        zip(
-            (diagonal[0::2] + r00).tolist(),
-            (above[0::2] + r01).tolist(),
-            (diagonal[1::2] + r11).tolist(),
-            strict=True,
-        )
-    )
-    nu_of = nu[order].tolist()  # nu_of[depth][k] = [bearing, range]
-    thresholds: dict[int, float] = {}
-    best_pairs = 0
-    best_d2 = 0.0
-    best: list[tuple[int, int]] = []
-    complete = False  # a whole hypothesis (every measurement decided) was reached
-    nodes = 0
-    work = 0
-    exhausted = False
-    chosen: list[tuple[int, int]] = []
-    used: set[int] = set()
+    found = _Search(nu, d2, compatible, C, R, order, probability, budget, work_budget)
+    found.search(0, np.zeros((0, 0)), np.zeros(0), 0.0)
+    return _result(d2, compatible, found.best, found.best_d2, found.nodes, found.work,
+                   found.exhausted, found.complete)  # fmt: skip
 
-    def search(depth: int, L_inv: FloatArray, w: FloatArray, dist2: float) -> None:
+
+class _Search:
+    """The branch and bound of :func:`jcbb` in Python: what it searches (the
+    measurements in some gate, their candidates nearest first, each candidate's own block
+    of C plus R, as floats) and where it stands (the best hypothesis, the nodes and work
+    spent, the hypothesis being grown)."""
+
+    def __init__(
+        self,
+        nu: FloatArray,
+        d2: FloatArray,
+        compatible: BoolArray,
+        C: FloatArray,
+        R: FloatArray,
+        order: list[int],
+        probability: float,
+        budget: int,
+        work_budget: int,
+    ) -> None:
+        # each measurement's compatible candidates, nearest first (ties in column order):
+        # a stable sort of the rows with the incompatible as NaN, which sorts after any number
+        nearest = np.argsort(np.where(compatible, d2, np.nan), axis=1, kind="stable")
+        counts = np.count_nonzero(compatible, axis=1).tolist()
+        self.order = order
+        self.candidates = [nearest[i, : counts[i]].tolist() for i in order]
+        self.depth_total = len(order)
+        self.C, self.probability = C, probability
+        self.budget, self.work_budget = budget, work_budget
+        r00, r01, r11 = float(R[0, 0]), float(R[0, 1]), float(R[1, 1])
+        # per candidate k, its own block of C plus R, and each measurement's innovations,
+        # as floats: a hypothesis's work is then float arithmetic but for the products
+        # with L^-1
+        diagonal, above = np.diagonal(C), np.diagonal(C, 1)
+        self.own = list(
+            zip(
+                (diagonal[0::2] + r00).tolist(),
+                (above[0::2] + r01).tolist(),
+                (diagonal[1::2] + r11).tolist(),
+                strict=True,
+            )
+        )
+        self.nu_of = nu[order].tolist()  # nu_of[depth][k] = [bearing, range]
+        self.thresholds: dict[int, float] = {}
+        self.best_pairs = 0
+        self.best_d2 = 0.0
+        self.best: list[tuple[int, int]] = []
+        self.complete = False  # a whole hypothesis (every measurement decided) was reached
+        self.nodes = 0
+        self.work = 0
+        self.exhausted = False
+        self.chosen: list[tuple[int, int]] = []
+        self.used: set[int] = set()
+
+    def search(self, depth: int, L_inv: FloatArray, w: FloatArray, dist2: float) -> None:
         """One level: L_inv is the inverse of the hypothesis's Cholesky factor L."""
-        nonlocal best_pairs, best_d2, best, complete, nodes, work, exhausted
-        pairs = len(chosen)
-        if depth == depth_total:
-            complete = True
-            if pairs > best_pairs or (pairs == best_pairs and pairs and dist2 < best_d2):
-                best_pairs, best_d2, best = pairs, dist2, list(chosen)
+        pairs = len(self.chosen)
+        if depth == self.depth_total:
+            self.complete = True
+            if pairs > self.best_pairs or (
+                pairs == self.best_pairs and pairs and dist2 < self.best_d2
+            ):
+                self.best_pairs, self.best_d2, self.best = pairs, dist2, list(self.chosen)
             return
-        reachable = pairs + depth_total - depth
-        if reachable < best_pairs or (reachable == best_pairs and best_pairs and dist2 >= best_d2):
+        reachable = pairs + self.depth_total - depth
+        if reachable < self.best_pairs or (
+            reachable == self.best_pairs and self.best_pairs and dist2 >= self.best_d2
+        ):
             return  # the bound: no completion of this branch can beat the best
-        i = order[depth]
-        nu_i = nu_of[depth]
+        i = self.order[depth]
+        nu_i = self.nu_of[depth]
         cost = (2 * pairs + 2) ** 2
-        threshold = thresholds.get(pairs)
-        if threshold is None:
-            threshold = thresholds[pairs] = joint_threshold(probability, 2 * (pairs + 1))
+        threshold = self._threshold(pairs)
         M: FloatArray | None = None  # L^-1 times the rows of the chosen pairs in C, once
-        for k in candidates[depth]:
-            if k in used:
+        for k in self.candidates[depth]:
+            if k in self.used:
                 continue
-            if nodes >= budget or work + cost > work_budget:
-                exhausted = True
+            if self.nodes >= self.budget or self.work + cost > self.work_budget:
+                self.exhausted = True
                 return
-            nodes += 1
-            work += cost
-            a00, a01, a11 = own[k]
+            self.nodes += 1
+            self.work += cost
+            a00, a01, a11 = self.own[k]
             nu0, nu1 = nu_i[k]
             if pairs:
                 if M is None:
-                    cols = [2 * kk + t for _, kk in chosen for t in (0, 1)]
-                    M = L_inv @ C[cols]  # (2p, 2K): column 2k + t is L^-1 S_cross^T's
+                    cols = [2 * kk + t for _, kk in self.chosen for t in (0, 1)]
+                    M = L_inv @ self.C[cols]  # (2p, 2K): column 2k + t is L^-1 S_cross^T's
                     squares = np.einsum("ij,ij->j", M, M).tolist()
                     crosses = np.einsum("ij,ij->j", M[:, 0::2], M[:, 1::2]).tolist()
                     shifts = (w @ M).tolist()
@@ -190,43 +219,72 @@ def jcbb(
                 a11 -= squares[2 * k + 1]
                 nu0 -= shifts[2 * k]
                 nu1 -= shifts[2 * k + 1]
-            # 2x2 Cholesky of the Schur complement, in floats
-            if not a00 > 0.0:
+            grown = _grown((a00, a01, a11), (nu0, nu1), dist2, threshold)
+            if grown is None:
                 continue
-            l00 = math.sqrt(a00)
-            l10 = a01 / l00
-            d11 = a11 - l10 * l10
-            if not d11 > 0.0:
-                continue
-            l11 = math.sqrt(d11)
-            w0 = nu0 / l00
-            w1 = (nu1 - l10 * w0) / l11
-            grown = dist2 + w0 * w0 + w1 * w1
-            if not grown < threshold:
-                continue
-            # [[L, 0], [B, L22]]^-1 = [[L^-1, 0], [-L22^-1 B L^-1, L22^-1]]
-            size = 2 * pairs
-            L22_inv = np.array(((1.0 / l00, 0.0), (-l10 / (l00 * l11), 1.0 / l11)))
-            inv_new = np.zeros((size + 2, size + 2))
-            if M is not None:
-                inv_new[:size, :size] = L_inv
-                inv_new[size:, :size] = -(L22_inv @ M[:, 2 * k : 2 * k + 2].T) @ L_inv
-            inv_new[size:, size:] = L22_inv
-            chosen.append((i, k))
-            used.add(k)
-            search(depth + 1, inv_new, np.concatenate([w, (w0, w1)]), grown)
-            chosen.pop()
-            used.discard(k)
-            if exhausted:
+            L22_inv, w_new, grown_d2 = grown
+            self.chosen.append((i, k))
+            self.used.add(k)
+            B = None if M is None else M[:, 2 * k : 2 * k + 2]
+            self.search(depth + 1, _inverse_grown(L_inv, B, L22_inv),
+                        np.concatenate([w, w_new]), grown_d2)  # fmt: skip
+            self.chosen.pop()
+            self.used.discard(k)
+            if self.exhausted:
                 return
-        if nodes >= budget:  # a hypothesis too: every call counts, so calls are bounded
-            exhausted = True
+        if self.nodes >= self.budget:  # a hypothesis too: every call counts, so bounded
+            self.exhausted = True
             return
-        nodes += 1
-        search(depth + 1, L_inv, w, dist2)  # this measurement paired with nothing
+        self.nodes += 1
+        self.search(depth + 1, L_inv, w, dist2)  # this measurement paired with nothing
 
-    search(0, np.zeros((0, 0)), np.zeros(0), 0.0)
-    return _result(d2, compatible, best, best_d2, nodes, work, exhausted, complete)
+    def _threshold(self, pairs: int) -> float:
+        """The joint gate of a hypothesis of ``pairs`` + 1 pairs."""
+        threshold = self.thresholds.get(pairs)
+        if threshold is None:
+            threshold = self.thresholds[pairs] = joint_threshold(self.probability, 2 * (pairs + 1))
+        return threshold
+
+
+def _grown(
+    schur: tuple[float, float, float],
+    nu_new: tuple[float, float],
+    dist2: float,
+    threshold: float,
+) -> tuple[FloatArray, tuple[float, float], float] | None:
+    """A pair added to a hypothesis, from the 2x2 Schur complement S_new - B B^T (its
+    entries a00, a01, a11) and nu_new - B w: L22^-1, w_2 = L22^-1 (nu_new - B w) and the
+    joint distance grown by |w_2|^2; None where the complement is not positive definite
+    or the distance leaves the gate. The 2x2 Cholesky is done in floats."""
+    a00, a01, a11 = schur
+    if not a00 > 0.0:
+        return None
+    l00 = math.sqrt(a00)
+    l10 = a01 / l00
+    d11 = a11 - l10 * l10
+    if not d11 > 0.0:
+        return None
+    l11 = math.sqrt(d11)
+    w0 = nu_new[0] / l00
+    w1 = (nu_new[1] - l10 * w0) / l11
+    grown = dist2 + w0 * w0 + w1 * w1
+    if not grown < threshold:
+        return None
+    L22_inv = np.array(((1.0 / l00, 0.0), (-l10 / (l00 * l11), 1.0 / l11)))
+    return L22_inv, (w0, w1), grown
+
+
+def _inverse_grown(L_inv: FloatArray, B: FloatArray | None, L22_inv: FloatArray) -> FloatArray:
+    """The inverse of the grown factor: [[L, 0], [B, L22]]^-1 = [[L^-1, 0],
+    [-L22^-1 B L^-1, L22^-1]], with ``B`` given as L^-1 S_cross^T's two columns (None
+    for the first pair)."""
+    size = L_inv.shape[0]
+    inv_new = np.zeros((size + 2, size + 2))
+    if B is not None:
+        inv_new[:size, :size] = L_inv
+        inv_new[size:, :size] = -(L22_inv @ B.T) @ L_inv
+    inv_new[size:, size:] = L22_inv
+    return inv_new
 
 
 def _result(

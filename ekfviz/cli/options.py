@@ -13,7 +13,6 @@ import dataclasses
 import functools
 import inspect
 import math
-import shutil
 import typing
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -47,6 +46,7 @@ from ekfviz.app.settings import (
     UpdateMode,
     WorkerOptions,
     filter_params,
+    worker_options,
 )
 from ekfviz.app.settings import Triple as Triple  # (the option groups' own type)
 from ekfviz.cli.console import fail, interrupted, note
@@ -400,37 +400,6 @@ ForceOption = Annotated[bool, typer.Option("--force", help="Replace an existing 
 # -- reading them ---------------------------------------------------------------------------
 
 
-def worker_options(
-    python: Path | None,
-    timeout_s: float,
-    memory_mb: int | None,
-    echo: bool = True,
-    *,
-    timeout_option: str = "--filter-timeout",
-    sandbox: bool = True,
-) -> Any:
-    """How a user's filter runs (:class:`~ekfviz.sandbox.host.WorkerOptions`), the
-    interpreter checked first.
-
-    :param timeout_option: how the time limit was given, for the message of a bad one
-    :param sandbox: in the sandbox (else ``--no-sandbox`` was given)
-    """
-    if math.isnan(timeout_s):
-        fail(f"{timeout_option} {timeout_s}: expected a number of seconds (inf: no bound)")
-    if python is not None:
-        found = shutil.which(str(python))
-        if found is None or not Path(found).is_file():
-            fail(f"--python {python}: no such interpreter (expected a Python executable)")
-        python = Path(found)
-    return WorkerOptions(
-        python=None if python is None else str(python),
-        timeout_s=None if math.isinf(timeout_s) else timeout_s,
-        memory_mb=memory_mb,
-        echo=echo,
-        sandbox=sandbox,
-    )
-
-
 # -- the groups ----------------------------------------------------------------------------
 
 
@@ -549,10 +518,9 @@ class UserFilter(OptionGroup):
 
     def worker(self) -> WorkerOptions:
         """The :class:`~ekfviz.sandbox.host.WorkerOptions`, the interpreter checked."""
-        options: WorkerOptions = worker_options(
+        return worker_options(
             self.python, self.filter_timeout, self.filter_memory, sandbox=not self.no_sandbox
         )
-        return options
 
 
 @dataclass(frozen=True, slots=True)

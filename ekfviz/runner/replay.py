@@ -84,7 +84,6 @@ def replay(
     out = Events(ekf, full_cov, batch_events)
     observer = Observer(ekf, params, associator)
     counter = StepCounter()
-    offline = isinstance(ekf, Plugged) and ekf.offline  # events only after finish()
     try:
         stream = with_last(events)
         first, last = next(stream, (None, True))
@@ -92,31 +91,9 @@ def replay(
         counter.initialise()
         yield from out.stream.ready()  # the initialisation: a batch of its own
         for log_event, last in chain(pending, stream):
-            line, time = log_event.line, log_event.time
-            try:
-                if isinstance(log_event, Control | Drive):
-                    event, step = counter.predict()
-                    control = move(ekf, log_event)
-                    if last:
-                        observer.finish()
-                    full = not offline and out.add(
-                        PREDICT, event, step, line, time, control, None, None, (), last
-                    )
-                else:
-                    event, step = counter.update()
-                    observations, association, warnings = observer.observe(log_event, last)
-                    full = not offline and out.add(
-                        UPDATE, event, step, line, time, None, observations, association,
-                        warnings, last,
-                    )  # fmt: skip
-            except FilterError as error:
-                found = line_error(error, log_event, event)
-                if found is error:
-                    raise
-                raise found from error
-            if full:
+            if out.step(log_event, last, counter, observer):
                 yield from out.stream.ready()
-        if offline:
+        if out.offline:
             assert isinstance(ekf, Plugged)
             out.finish_offline(ekf, counter.event + 1, counter.step)
         yield from out.stream.rest()
@@ -146,6 +123,37 @@ class Events:
         self._builder = builder = self.stream.builder
         self._append = builder.append
         self._last_row = batch_events - 1  # a batch is sealed once it has its last row
+        self.offline = isinstance(ekf, Plugged) and ekf.offline  # events only after finish()
+
+    def step(
+        self, log_event: AnyEvent, last: bool, counter: StepCounter, observer: Observer
+    ) -> bool:
+        """Move or correct the filter by ``log_event`` and append its state (see
+        :meth:`add`; an offline filter's, none); whether the batch is due to be sealed.
+
+        :raises FilterLineError: the filter cannot go on at the event's line
+        """
+        line, time = log_event.line, log_event.time
+        try:
+            if isinstance(log_event, Control | Drive):
+                event, step = counter.predict()
+                control = move(self._ekf, log_event)
+                if last:
+                    observer.finish()
+                return not self.offline and self.add(
+                    PREDICT, event, step, line, time, control, None, None, (), last
+                )
+            event, step = counter.update()
+            observations, association, warnings = observer.observe(log_event, last)
+            return not self.offline and self.add(
+                UPDATE, event, step, line, time, None, observations, association, warnings,
+                last,
+            )  # fmt: skip
+        except FilterError as error:
+            found = line_error(error, log_event, event)
+            if found is error:
+                raise
+            raise found from error
 
     def add(
         self,

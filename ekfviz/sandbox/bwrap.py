@@ -9,7 +9,7 @@ caller's to see or signal, no capability, and a file system of only
   (:func:`interpreter_view`): its executable, its standard library, the folders of the
   shared libraries it maps, and numpy (of ``--python``: its whole ``sys.path``), read-only;
   every ``site-packages`` of ekfviz's own environment shown empty, ekfviz's package never;
-- the worker's own file (``child.py``), read-only;
+- the worker's own files (``child.py`` and the folder of its modules), read-only;
 - the submission's private copy (:mod:`.submission`) at the submission's own path,
   read-only;
 - a private tmpfs of :data:`TMP_BYTES` as ``/tmp``, which is also its working directory,
@@ -40,6 +40,8 @@ from pathlib import Path
 
 CHILD = Path(__file__).with_name("child.py")
 WORKER_PATH = "/run/ekfviz/child.py"  # where the worker's file is seen in the sandbox
+WORKER_MODULES = Path(__file__).with_name("worker")  # its modules, beside it there too
+WORKER_MODULES_PATH = "/run/ekfviz/worker"
 SANDBOX_ID = 65534  # the uid and gid inside (nobody)
 TMP_BYTES = 64 << 20  # the private /tmp, the worker's working directory
 HIDDEN_BYTES = 4096  # an emptied site-packages (read-only)
@@ -332,7 +334,8 @@ def command(view: InterpreterView, mounts: Sequence[Mount], settings: str) -> li
     for target, path in view.links:
         if not _inside_any(path, view.binds):  # (a link inside a bound folder is there)
             line += ["--symlink", target, path]
-    line += ["--ro-bind", str(CHILD), WORKER_PATH, "--dev", "/dev", "--proc", "/proc"]
+    line += ["--ro-bind", str(CHILD), WORKER_PATH, "--ro-bind", str(WORKER_MODULES),
+             WORKER_MODULES_PATH, "--dev", "/dev", "--proc", "/proc"]  # fmt: skip
     for path in view.hidden:
         line += ["--remount-ro", path]
     line += ["--remount-ro", "/dev", "--remount-ro", "/", "--chdir", "/tmp"]

@@ -8,7 +8,7 @@ the caller's but a private copy of the submission, :mod:`.submission`) unless
 ``WorkerOptions.sandbox`` is off; this module is the only place that starts one. What it
 prints is captured (never on ekfviz's stdout) and shown escaped (:mod:`.text`); one call
 is bounded by ``timeout_s``; its address space by ``memory_mb``. Its state crosses as raw
-float64 buffers with their shapes (see ``child.py``), never as numpy pickles.
+float64 buffers with their shapes (see ``worker/framing.py``), never as numpy pickles.
 
 The filter protocol on this side is :mod:`.remote`'s. Numpy only.
 """

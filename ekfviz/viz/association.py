@@ -1,4 +1,5 @@
-"""The association of id-less scans on the timeline, and a reference trajectory (GPS).
+"""The association of id-less scans on the timeline (a reference trajectory, GPS, is
+:mod:`ekfviz.viz.reference`'s).
 
 At every scan (logged on ``step``, ``event`` and, where the log has times, ``time``):
 
@@ -31,7 +32,6 @@ from ekfviz.core.batch import EventBatch, ranges
 from ekfviz.core.records import EventRecord, Fate
 from ekfviz.core.truth import GroundTruth
 from ekfviz.core.types import FloatArray, IntArray
-from ekfviz.evaluation.reference import ReferenceFit
 from ekfviz.models.range_bearing import RangeBearing
 from ekfviz.viz import style
 from ekfviz.viz.ellipses import N_POINTS, ellipse_outlines
@@ -44,16 +44,11 @@ GATES = "world/association/gates"
 TENTATIVE = "world/landmarks/tentative"
 SIZES = "world/landmarks/sizes"
 SERIES = "metrics/association"
-REFERENCE = "world/reference/gps"
-REFERENCE_JUMPS = "world/reference/gps_jumps"  # fixes far off their neighbours' line
-REFERENCE_ERROR = "metrics/reference/gps_error"
-REFERENCE_RMSE = "metrics/reference/gps_rmse"
 
 FATE_COLORS = np.array([(0, 160, 0), (255, 140, 0), (220, 0, 0)], dtype=np.uint8)
 LINK_COLOR = (0, 160, 0)
 GATE_COLOR = (120, 120, 220)
 TENTATIVE_COLOR = (255, 140, 0)
-REFERENCE_COLOR = (128, 0, 128)
 _SERIES_FLUSH = 1024
 _MATCHED, _REJECTED = int(Fate.MATCHED), int(Fate.REJECTED)
 # the scans' shapes and texts are sent every this many scans: one send per entity instead of
@@ -134,50 +129,16 @@ class AssociationView:
         self._held, self._times, self._scores = [], [], []
         if not records:
             return
-        # the stream's clock at the last scan, as a log per scan left it, for whatever
-        # is logged next without setting it
-        rec = self._rec
-        rec.set_time(style.STEP, sequence=records[-1].step)
-        rec.set_time(style.EVENT, sequence=records[-1].event)
-        last_time = times_held[-1]
-        if not math.isnan(last_time):
-            if time_is_epoch(last_time):
-                rec.set_time(style.TIME, timestamp=last_time)
-            else:
-                rec.set_time(style.TIME, duration=last_time)
+        self._set_clock(records[-1], times_held[-1])
         scans = self._scans(records)
         steps = np.array([record.step for record in records], dtype=np.int64)
         events = np.array([record.event for record in records], dtype=np.int64)
         times = np.array(times_held, dtype=np.float64)
+        send = _ScanSender(self._rec, self._path, steps, events, times)
         everything = np.arange(len(steps))
-
-        def send(entity: str, at: IntArray, columns: list[rr.ComponentColumn]) -> None:
-            indexes = [
-                rr.TimeColumn(style.STEP, sequence=steps[at]),
-                rr.TimeColumn(style.EVENT, sequence=events[at]),
-            ]
-            if np.isfinite(times).all():  # all or none (see log)
-                indexes.append(_rounded_time_column(times[at]))
-            self._rec.send_columns(self._path(entity), indexes=indexes, columns=columns)
-
         ones = np.ones(len(steps), dtype=np.int64)
         geometry = _geometry(self._sensor, scans)
-        send(
-            RAYS,
-            everything,
-            [
-                arrow.column(
-                    rr.LineStrips2D.descriptor_strips(),
-                    _strips(geometry.rays),
-                    geometry.rays_per_scan,
-                ),
-                arrow.column(
-                    rr.LineStrips2D.descriptor_colors(),
-                    _colors(FATE_COLORS[scans.fate]),
-                    geometry.rays_per_scan,
-                ),
-            ],
-        )
+        send(RAYS, everything, _ray_columns(geometry, scans))
         send(
             LINKS,
             everything,
@@ -189,65 +150,29 @@ class AssociationView:
             _one_colour_strips(geometry.gates, geometry.gates_per_scan, GATE_COLOR, ones),
         )
         tentative_rows, tentative_counts = self._tentative(records, scans)
-        send(
-            TENTATIVE,
-            everything,
-            [
-                arrow.column(
-                    rr.Points2D.descriptor_positions(),
-                    arrow.xy(scans.landmarks_xy[tentative_rows].reshape(-1, 2)),
-                    tentative_counts,
-                ),
-                arrow.column(
-                    rr.Points2D.descriptor_radii(),
-                    pa.array(np.full(len(steps), -6.0, dtype=np.float32)),
-                    ones,
-                ),
-                arrow.column(
-                    rr.Points2D.descriptor_colors(),
-                    _colors(np.repeat([TENTATIVE_COLOR], len(steps), axis=0)),
-                    ones,
-                ),
-                arrow.column(
-                    rr.Points2D.descriptor_labels(),
-                    pa.array(
-                        [f"L{i} (tentative)" for i in scans.landmark_ids[tentative_rows].tolist()],
-                        type=pa.utf8(),
-                    ),
-                    tentative_counts,
-                ),
-            ],
-        )
+        send(TENTATIVE, everything, _tentative_columns(scans, tentative_rows, tentative_counts))
         sized = [k for k, record in enumerate(records) if record.association.diameters is not None]  # type: ignore[union-attr]
         if sized:
             at = np.array(sized, dtype=np.int64)
             size_rows, radii, counts = self._sizes(records, scans, at)
-            send(
-                SIZES,
-                at,
-                [
-                    arrow.column(
-                        rr.Points2D.descriptor_positions(),
-                        arrow.xy(scans.landmarks_xy[size_rows].reshape(-1, 2)),
-                        counts,
-                    ),
-                    arrow.column(
-                        rr.Points2D.descriptor_radii(),
-                        pa.array(radii.astype(np.float32)),
-                        counts,
-                    ),
-                    arrow.column(
-                        rr.Points2D.descriptor_colors(),
-                        _colors(np.repeat([style.LANDMARK_COLOR], len(at), axis=0)),
-                        np.ones(len(at), dtype=np.int64),
-                    ),
-                ],
-            )
+            send(SIZES, at, _size_columns(scans, size_rows, radii, counts))
         values = _scan_values(records, scans, scores)
         texts, levels = _texts(records, scans, values)
         send(style.LOG, everything, list(rr.TextLog.columns(text=texts, level=levels)))
         self._series.add(steps, events, times, values, scores)
         self._send_series(everything=False)
+
+    def _set_clock(self, last: EventRecord, last_time: float) -> None:
+        """The stream's clock at the last scan, as a log per scan left it, for whatever
+        is logged next without setting it."""
+        rec = self._rec
+        rec.set_time(style.STEP, sequence=last.step)
+        rec.set_time(style.EVENT, sequence=last.event)
+        if not math.isnan(last_time):
+            if time_is_epoch(last_time):
+                rec.set_time(style.TIME, timestamp=last_time)
+            else:
+                rec.set_time(style.TIME, duration=last_time)
 
     def _scans(self, records: list[EventRecord]) -> _Scans:
         """The held scans' measurements and maps joined, and their links."""
@@ -456,12 +381,85 @@ class AssociationView:
                     rr.TimeColumn(style.EVENT, sequence=events),
                 ]
                 if np.isfinite(times).all():
-                    indexes.append(_time_column(times))
+                    indexes.append(arrow.time_column(times))
                 self._rec.send_columns(
                     self._path(f"{SERIES}/{name}"),
                     indexes=indexes,
                     columns=rr.Scalars.columns(scalars=values),
                 )
+
+
+class _ScanSender:
+    """Sends the columns of an entity for some of the scans held, on their step, event
+    and (where the log has times: all or none, see :meth:`AssociationView._hold`) time."""
+
+    def __init__(
+        self,
+        rec: rr.RecordingStream,
+        path: Callable[[str], str],
+        steps: IntArray,
+        events: IntArray,
+        times: FloatArray,
+    ) -> None:
+        self._rec, self._path = rec, path
+        self._steps, self._events, self._times = steps, events, times
+        self._timed = bool(np.isfinite(times).all())
+
+    def __call__(self, entity: str, at: IntArray, columns: list[rr.ComponentColumn]) -> None:
+        """``columns`` of ``entity`` at the scans ``at`` (indexes of the scans held)."""
+        indexes = [
+            rr.TimeColumn(style.STEP, sequence=self._steps[at]),
+            rr.TimeColumn(style.EVENT, sequence=self._events[at]),
+        ]
+        if self._timed:
+            indexes.append(arrow.rounded_time_column(self._times[at]))
+        self._rec.send_columns(self._path(entity), indexes=indexes, columns=columns)
+
+
+def _ray_columns(geometry: _Geometry, scans: _Scans) -> list[rr.ComponentColumn]:
+    """Each scan's rays, sensor to measurement, coloured by the measurement's fate."""
+    return [
+        arrow.column(
+            rr.LineStrips2D.descriptor_strips(), _strips(geometry.rays), geometry.rays_per_scan
+        ),
+        arrow.column(
+            rr.LineStrips2D.descriptor_colors(),
+            _colors(FATE_COLORS[scans.fate]),
+            geometry.rays_per_scan,
+        ),
+    ]
+
+
+def _tentative_columns(scans: _Scans, rows: IntArray, counts: IntArray) -> list[rr.ComponentColumn]:
+    """Each scan's tentative landmarks (``rows`` of the scans' maps, ``counts`` a scan) as
+    labelled orange crosses."""
+    n = len(counts)
+    ones = np.ones(n, dtype=np.int64)
+    labels = [f"L{i} (tentative)" for i in scans.landmark_ids[rows].tolist()]
+    return [
+        arrow.column(rr.Points2D.descriptor_positions(),
+                     arrow.xy(scans.landmarks_xy[rows].reshape(-1, 2)), counts),
+        arrow.column(rr.Points2D.descriptor_radii(),
+                     pa.array(np.full(n, -6.0, dtype=np.float32)), ones),
+        arrow.column(rr.Points2D.descriptor_colors(),
+                     _colors(np.repeat([TENTATIVE_COLOR], n, axis=0)), ones),
+        arrow.column(rr.Points2D.descriptor_labels(), pa.array(labels, type=pa.utf8()), counts),
+    ]  # fmt: skip
+
+
+def _size_columns(
+    scans: _Scans, rows: IntArray, radii: FloatArray, counts: IntArray
+) -> list[rr.ComponentColumn]:
+    """The landmarks of the scans with sizes (``rows`` of the scans' maps, ``counts`` a
+    scan) drawn at their objects' radii."""
+    return [
+        arrow.column(rr.Points2D.descriptor_positions(),
+                     arrow.xy(scans.landmarks_xy[rows].reshape(-1, 2)), counts),
+        arrow.column(rr.Points2D.descriptor_radii(), pa.array(radii.astype(np.float32)), counts),
+        arrow.column(rr.Points2D.descriptor_colors(),
+                     _colors(np.repeat([style.LANDMARK_COLOR], len(counts), axis=0)),
+                     np.ones(len(counts), dtype=np.int64)),
+    ]  # fmt: skip
 
 
 @dataclass(frozen=True, slots=True)
@@ -711,22 +709,6 @@ def _colors(rgb: npt.NDArray[np.integer]) -> pa.Array:
     return rr.components.ColorBatch(np.asarray(rgb, dtype=np.uint8)).as_arrow_array()
 
 
-def _time_column(times: FloatArray) -> rr.TimeColumn:
-    """The ``time`` timeline of some rows, of the type the recorder chose for the log."""
-    if len(times) and time_is_epoch(float(times[0])):
-        return rr.TimeColumn(style.TIME, timestamp=times)
-    return rr.TimeColumn(style.TIME, duration=times)
-
-
-def _rounded_time_column(times: FloatArray) -> rr.TimeColumn:
-    """:func:`_time_column` rounded to the nanosecond as ``set_time`` rounds (the SDK's
-    columns truncate: 8.543 s would become 8.542999999 s), for rows once logged one by one."""
-    nanos = np.round(times * 1e9).astype(np.int64)
-    if len(times) and time_is_epoch(float(times[0])):
-        return rr.TimeColumn(style.TIME, timestamp=nanos.astype("datetime64[ns]"))
-    return rr.TimeColumn(style.TIME, duration=nanos.astype("timedelta64[ns]"))
-
-
 def _inverse_at(
     origins: FloatArray, headings: FloatArray, z: FloatArray
 ) -> tuple[FloatArray, FloatArray]:
@@ -772,73 +754,3 @@ def _rows_of(ids: IntArray, wanted: IntArray) -> IntArray:
     found = ordered[at] == wanted
     rows = at if order is None else order[at]
     return np.where(found, rows, -1).astype(np.int64)
-
-
-# A GPS dropout: a gap between fixes this many times their median interval (and at least
-# GAP_MIN_S); at 1 Hz with a few missed fixes the track stays one piece
-GAP_FACTOR = 5.0
-GAP_MIN_S = 3.0
-
-
-def gps_pieces(xy: FloatArray, times: FloatArray) -> list[FloatArray]:
-    """A GPS track cut into pieces at its dropouts (see ``GAP_FACTOR``).
-
-    :param xy: (K, 2) fixes in time order
-    :param times: (K,) their times in seconds
-    :return: the pieces, each (k, 2) with k >= 1 (a lone fix is a piece of one point)
-    """
-    if len(xy) < 2:
-        return [xy]
-    gaps = np.diff(times)
-    limit = max(GAP_FACTOR * float(np.median(gaps)), GAP_MIN_S)
-    cuts = np.flatnonzero(gaps > limit) + 1
-    return [piece for piece in np.split(xy, cuts) if len(piece)]
-
-
-def log_reference(
-    rec: rr.RecordingStream, path: Callable[[str], str], fit: ReferenceFit, steps: FloatArray
-) -> None:
-    """The reference fitted to the estimate (static, in the map) and its error over time.
-
-    :param steps: (K,) the step at each reference time (for the step timeline)
-    """
-    # the track without its jumps (a fix far off for a moment), which are points apart,
-    # broken where the GPS had no fix for a while: a dropout is no straight chord
-    kept = fit.reference_xy[~fit.jumps]
-    rec.log(
-        path(REFERENCE),
-        rr.LineStrips2D(
-            gps_pieces(kept, fit.times[~fit.jumps]),
-            colors=[REFERENCE_COLOR],
-            radii=rr.Radius.ui_points(1.0),
-        ),
-        static=True,
-    )
-    if fit.jumps.any():
-        rec.log(
-            path(REFERENCE_JUMPS),
-            rr.Points2D(
-                fit.reference_xy[fit.jumps],
-                colors=[REFERENCE_COLOR],
-                radii=rr.Radius.ui_points(4.0),
-                labels=[f"GPS jump t={t:.2f} s" for t in fit.times[fit.jumps]],
-            ),
-            static=True,
-        )
-    rec.send_columns(
-        path(REFERENCE_ERROR),
-        indexes=[
-            _time_column(fit.times),
-            rr.TimeColumn(style.STEP, sequence=steps.astype(np.int64)),
-        ],
-        columns=rr.Scalars.columns(scalars=fit.errors),
-    )
-    rmse = np.sqrt(np.cumsum(fit.errors**2) / np.arange(1, len(fit.errors) + 1))
-    rec.send_columns(
-        path(REFERENCE_RMSE),
-        indexes=[
-            _time_column(fit.times),
-            rr.TimeColumn(style.STEP, sequence=steps.astype(np.int64)),
-        ],
-        columns=rr.Scalars.columns(scalars=rmse),
-    )

@@ -139,8 +139,8 @@ ANGLE_ONLY = rr.SeriesLines.from_fields(visible_series=[False, False, True])
 # the same for an offline filter's run, whose series are points (see Entities.style)
 LENGTHS_ONLY_POINTS = rr.SeriesPoints.from_fields(visible_series=[True, True, False])
 ANGLE_ONLY_POINTS = rr.SeriesPoints.from_fields(visible_series=[False, False, True])
-# Series of the association of id-less scans and of a GPS reference (ekfviz.viz.association
-# owns them; named here so that the layout needs no import of that module)
+# Series of the association of id-less scans and of a GPS reference (ekfviz.viz.association,
+# ekfviz.viz.reference own them; named here so that the layout needs no import of them)
 ASSOCIATION_SERIES = "metrics/association"
 REFERENCE_SERIES = "metrics/reference"
 
@@ -477,49 +477,20 @@ def map_tiles(maps: Sequence[rrb.View]) -> rrb.Container:
     return tiles(maps, columns=columns)
 
 
-def sweep_blueprint(
+def _overlaid_plots(
     variants: list[tuple[str, str]],
+    what: str,
     *,
     has_truth: bool,
-    bounds_xy: FloatArray | None = None,
-    what: str = "variant",
-    has_poses: bool = False,
-    value_axes: Mapping[str, FittedAxis] | None = None,
-    has: Mapping[str, Collection[str]] | None = None,
-    summary: str | None = None,
-    offline: Collection[str] = (),
-    colours: Sequence[str] = (),
-    identical: str = "",
-    legend: bool = True,
-) -> rrb.Blueprint:
-    """A grid of maps, one per run (baseline first) and titled with its colour, beside
-    overlaid metric plots without legends (they would cover the lines), the study's
-    documents and a tab per run.
-
-    :param variants: (label, prefix) of every run, in order
-    :param what: what a run is called in the plot titles (``variant``, ``filter``)
-    :param has_poses: the truth has poses: a NEES plot too
-    :param value_axes: the NIS and NEES axes, fitted to every run's values (see
-        :func:`ekfviz.viz.study.study_axes`): the few wild runs would otherwise flatten
-        every sensible one; their notes go in the titles
-    :param has: per prefix, the entity paths given data (see :func:`run_plots`); None
-        leaves out the tabs of the runs
-    :param summary: the entity of the study's summary document
-    :param offline: the prefixes of offline filters' runs (see :func:`run_plots`)
-    :param colours: the name of each run's colour in the plots, for the maps' titles
-    :param identical: a note naming the runs whose lines coincide, for the plots' titles
-    :param legend: the maps' legend (``run/legend``) is logged: shown beneath them
-    """
-    maps = [
-        map_view(
-            bounds_xy,
-            prefix=prefix,
-            name=f"{label} ({colours[k]})" if k < len(colours) else label,
-        )
-        for k, (label, prefix) in enumerate(variants)
-    ]
+    has_poses: bool,
+    axes: Mapping[str, FittedAxis],
+    identical: str,
+    colours: Sequence[str],
+) -> list[rrb.View]:
+    """A study's plots of every run overlaid: NIS (with the baseline's 95% bounds), the
+    pose NEES where the truth has poses, the mean landmark error where there is truth
+    (see :func:`sweep_blueprint` for the arguments)."""
     first = variants[0][1]
-    axes = value_axes or {}
 
     def titled(title: str, path: str | None = None) -> str:
         notes = [axes[path].note] if path is not None and path in axes and axes[path].note else []
@@ -564,6 +535,54 @@ def sweep_blueprint(
                 plot_legend=NO_LEGEND,
             )
         )
+    return plots
+
+
+def sweep_blueprint(
+    variants: list[tuple[str, str]],
+    *,
+    has_truth: bool,
+    bounds_xy: FloatArray | None = None,
+    what: str = "variant",
+    has_poses: bool = False,
+    value_axes: Mapping[str, FittedAxis] | None = None,
+    has: Mapping[str, Collection[str]] | None = None,
+    summary: str | None = None,
+    offline: Collection[str] = (),
+    colours: Sequence[str] = (),
+    identical: str = "",
+    legend: bool = True,
+) -> rrb.Blueprint:
+    """A grid of maps, one per run (baseline first) and titled with its colour, beside
+    overlaid metric plots without legends (they would cover the lines), the study's
+    documents and a tab per run.
+
+    :param variants: (label, prefix) of every run, in order
+    :param what: what a run is called in the plot titles (``variant``, ``filter``)
+    :param has_poses: the truth has poses: a NEES plot too
+    :param value_axes: the NIS and NEES axes, fitted to every run's values (see
+        :func:`ekfviz.viz.study.study_axes`): the few wild runs would otherwise flatten
+        every sensible one; their notes go in the titles
+    :param has: per prefix, the entity paths given data (see :func:`run_plots`); None
+        leaves out the tabs of the runs
+    :param summary: the entity of the study's summary document
+    :param offline: the prefixes of offline filters' runs (see :func:`run_plots`)
+    :param colours: the name of each run's colour in the plots, for the maps' titles
+    :param identical: a note naming the runs whose lines coincide, for the plots' titles
+    :param legend: the maps' legend (``run/legend``) is logged: shown beneath them
+    """
+    maps = [
+        map_view(
+            bounds_xy,
+            prefix=prefix,
+            name=f"{label} ({colours[k]})" if k < len(colours) else label,
+        )
+        for k, (label, prefix) in enumerate(variants)
+    ]
+    plots = _overlaid_plots(
+        variants, what, has_truth=has_truth, has_poses=has_poses, axes=value_axes or {},
+        identical=identical, colours=colours,
+    )  # fmt: skip
     prefixes = [prefix for _, prefix in variants]
     tabs: list[rrb.View | rrb.Container] = [*study_documents(prefixes, summary)]
     if has is not None:

@@ -110,7 +110,7 @@ class Recorder:
         log (see :mod:`ekfviz.viz.thinning`); None logs every predict
     :param sensor: the measurement model, to draw id-less scans from the sensor's position
     :param gps_reference: a GPS reference will be logged after ``finish`` (Victoria Park,
-        see :func:`ekfviz.viz.association.log_reference`): the layout has its plot
+        see :func:`ekfviz.viz.reference.log_reference`): the layout has its plot
     :param offline: an offline filter's run (its start and its optimum): series as points
     """
 

@@ -63,7 +63,7 @@ class RunLogger:
         """A source's reference fitted to the path (Victoria Park's GPS), in the map and
         over time; the map frames it, with room for a jump's label beside it. Before
         :meth:`finish`, whose layout frames what the map draws."""
-        from ekfviz.viz.association import log_reference  # (a run without one never loads it)
+        from ekfviz.viz.reference import log_reference  # (a run without one never loads it)
 
         fit = fitted.fit
         # a replay's recorder logs under no prefix: the entity paths are the reference's own

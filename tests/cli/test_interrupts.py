@@ -436,8 +436,8 @@ def test_a_consistency_stopped_after_its_report_says_the_report_was_written(
 def test_a_grade_stopped_says_what_it_kept_and_removes_its_workers_temporary_files(
     tmp_path: Path,
 ) -> None:
+    from ekfviz.app.class_grade import GradeRequest, _stopped
     from ekfviz.app.grade import GradeTask
-    from ekfviz.cli.grade import GradeRequest, _stopped
     from ekfviz.core.params import FilterParams
 
     task = GradeTask(name="s1.py", path=tmp_path / "s1.py", logs=((SAMPLE, None, None, None),),

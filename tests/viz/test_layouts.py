@@ -205,7 +205,7 @@ def test_a_check_recording_opens_on_the_divergence(tmp_path: Path) -> None:
 def test_gps_dropouts_are_gaps_not_chords() -> None:
     import numpy as np
 
-    from ekfviz.viz.association import gps_pieces
+    from ekfviz.viz.reference import gps_pieces
 
     times = np.array([0.0, 1.0, 2.0, 3.0, 30.0, 31.0, 32.5, 33.0])
     xy = np.column_stack([times, np.zeros(8)])

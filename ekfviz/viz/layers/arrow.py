@@ -196,6 +196,22 @@ def time_is_epoch(first_time: float) -> bool:
     return first_time >= EPOCH_MIN_S
 
 
+def time_column(times: FloatArray) -> rr.TimeColumn:
+    """The ``time`` timeline of some rows, of the type the recorder chose for the log."""
+    if len(times) and time_is_epoch(float(times[0])):
+        return rr.TimeColumn(style.TIME, timestamp=times)
+    return rr.TimeColumn(style.TIME, duration=times)
+
+
+def rounded_time_column(times: FloatArray) -> rr.TimeColumn:
+    """:func:`time_column` rounded to the nanosecond as ``set_time`` rounds (the SDK's
+    columns truncate: 8.543 s would become 8.542999999 s), for rows once logged one by one."""
+    nanos = np.round(times * 1e9).astype(np.int64)
+    if len(times) and time_is_epoch(float(times[0])):
+        return rr.TimeColumn(style.TIME, timestamp=nanos.astype("datetime64[ns]"))
+    return rr.TimeColumn(style.TIME, duration=nanos.astype("timedelta64[ns]"))
+
+
 def rows_of(indexes: Sequence[rr.TimeColumnLike]) -> int:
     return len(indexes[0].as_arrow_array()) if indexes else 0
 
