@@ -240,13 +240,6 @@ CLI_OWN = frozenset((
     "ekfviz.cli.sources", "ekfviz.cli.study", "ekfviz.cli.help", "ekfviz.cli.checking",
 ))  # fmt: skip
 CLI_LIBRARIES = frozenset(("typer", "rich", "click"))
-# grade's command checks its inputs, writes its battery, runs its submissions on an
-# executor and writes its CSV itself (its use case, ekfviz.app.grade, grades one
-# submission): what that imports
-CLI_GRADE_ALSO = frozenset((
-    "ekfviz.core.params", "ekfviz.core.tables", "ekfviz.io.files", "ekfviz.samples",
-    "ekfviz.signals", "ekfviz.studies.executors",
-))  # fmt: skip
 
 
 def _cli_reach(package: Path, root: str) -> list[str]:
@@ -266,11 +259,10 @@ def _cli_reach(package: Path, root: str) -> list[str]:
                 }
             elif isinstance(node, ast.Import):
                 imported |= {alias.name for alias in node.names}
-        allowed = CLI_OWN | (CLI_GRADE_ALSO if name == "ekfviz.cli.grade" else frozenset())
         for module in sorted(imported):
             top = module.split(".")[0]
             if top == "ekfviz":
-                if module in allowed or module == "ekfviz.app" or module.startswith("ekfviz.app."):
+                if module in CLI_OWN or module == "ekfviz.app" or module.startswith("ekfviz.app."):
                     continue
             elif top in CLI_LIBRARIES or top in sys.stdlib_module_names:
                 continue
