@@ -941,6 +941,11 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument(
         "--watch-only", action="store_true", help="only the watch section of RESULTS.md"
     )
+    parser.add_argument(
+        "--extensions-only",
+        action="store_true",
+        help="only the section of what each compiled extension buys",
+    )
     args = parser.parse_args(argv)
     started = time.perf_counter()
     if args.worker_only:
@@ -954,6 +959,16 @@ def main(argv: Sequence[str] | None = None) -> None:
 
         with tempfile.TemporaryDirectory() as tmp:
             section = check_section(Path(tmp), args.before)
+        old = args.out.read_text() if args.out.exists() else ""
+        args.out.write_text(splice(old, section))
+        print(section)
+        return
+    if args.extensions_only:
+        from association_bench import find_dataset
+        from extensions_bench import extensions_section
+
+        with tempfile.TemporaryDirectory() as tmp:
+            section = extensions_section(Path(tmp), find_dataset())
         old = args.out.read_text() if args.out.exists() else ""
         args.out.write_text(splice(old, section))
         print(section)
@@ -1031,6 +1046,10 @@ def main(argv: Sequence[str] | None = None) -> None:
         from check_bench import check_section
 
         checks = check_section(Path(tmp), args.before)
+        print("what each compiled extension buys", flush=True)
+        from extensions_bench import extensions_section
+
+        extensions = extensions_section(Path(tmp), find_dataset())
     print("core against dense (one BLAS thread)", flush=True)
     rows = core_rows(args.quick)
     flops = dgemm_flops()
@@ -1043,7 +1062,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     workers = worker_section(worker_worlds(args.quick))
     text = splice(splice(splice(splice(text, mrclam), smoothers), association), workers)
     text = splice(splice(splice(splice(text, startups), scaling), targets), sandbox)
-    text = splice(splice(text, checks), watch)
+    text = splice(splice(splice(text, checks), watch), extensions)
     args.out.write_text(text)
     print()
     print(text)
