@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -104,15 +103,15 @@ def record_check(
 ) -> None:
     """Log a check: both runs, the divergences, the difference per event, the layout.
 
-    :param runs: the reference's run first, then the checked filter's (either may be
-        missing when it has no record)
+    :param runs: the reference's own run first (the built-in filter alone, not the
+        lockstep's, which starts it from the checked filter's state), then the checked
+        filter's (either may be missing when it has no record)
     :param summary: the verdict as markdown
     :param map_note: said after the checked filter's name in its map's title (what else
         the map shows, e.g. an earlier run in grey)
     """
     rec = recording.rec
     root = "filters"
-    runs = own_reference(runs, result)
     recorders, box = log_runs(rec, runs, truth, root)
     prefixes = [f"{root}/{run.spec.key}" for run in runs]
     divergences = divergences_of(result)
@@ -130,8 +129,8 @@ def record_check(
             if (found := _record_at(result.records, divergence.event)) is not None
         ]
         for k, prefix in enumerate(prefixes):
-            # the reference's own map marks the first divergence only: its states after
-            # it are not the reference's (see own_reference)
+            # the reference's own map marks the first divergence only: the marks are the
+            # checked filter's poses, which after it are off the reference's path
             shown = marks[:1] if k < len(prefixes) - 1 else marks
             if shown:
                 rec.log(
@@ -179,25 +178,6 @@ def record_check(
             map_note=map_note,
         )
     )
-
-
-def own_reference(runs: list[Run], result: CheckResult) -> list[Run]:
-    """The runs with the reference's cut at the first divergence where the check went on
-    past it (``--all``, grade): each reference record starts from the checked filter's
-    state, so after a divergence it is the checked filter's state stepped once, not the
-    reference's own; up to the first divergence the two are one."""
-    first = result.first_divergence
-    if first is None or len(runs) < 2:
-        return runs
-    reference = runs[0]
-    kept = int(np.searchsorted(reference.events.events, first.event, side="right"))
-    if kept >= len(reference.events):
-        return runs
-    label = f"{reference.spec.label} to event {first.event}"
-    cut = replace(
-        reference, spec=replace(reference.spec, label=label), events=reference.events[:kept]
-    )
-    return [cut, *runs[1:]]
 
 
 def _record_at(events: EventBatch, event: int) -> EventRecord | None:

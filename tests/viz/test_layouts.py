@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 from blueprints import Layout, read_layout
 from conftest import entity_rows
@@ -307,7 +308,20 @@ def test_grade_recordings_show_everything_and_the_reference_its_own(tmp_path: Pa
     layout = read_layout(rrd)
     assert layout.unshown() == [] and layout.empty() == []
     maps = [view.name for view in layout.views if view.kind == "2D" and view.name != "Correlation"]
-    # the student diverges at the initialisation: the reference's map is its own there
-    assert maps[0] == "reference (ekf) to event 0" and maps[-1] == "At event 0"
-    reference = entity_rows(rrd, "/filters/reference/world/robot")
-    assert [row["event"] for row in reference] == [0]
+    # the student diverges at the initialisation: the reference's map is still its own,
+    # the built-in filter alone over the whole log (as ``replay`` draws it)
+    assert maps[0] == "reference (ekf)" and maps[-1] == "At event 0"
+    alone = tmp_path / "alone.rrd"
+    assert runner.invoke(app, ["replay", str(CLASSIC), "--save", str(alone)]).exit_code == 0
+    for entity in ("world/robot", "world/landmarks"):
+        drawn = entity_rows(rrd, f"/filters/reference/{entity}")
+        replayed = entity_rows(alone, f"/{entity}")
+        assert len(drawn) == len(replayed) > 1
+        for got, expected in zip(drawn, replayed, strict=True):
+            assert got["event"] == expected["event"]
+            np.testing.assert_allclose(
+                np.asarray(got["Points2D:positions"]),
+                np.asarray(expected["Points2D:positions"]),
+                rtol=0.0,
+                atol=1e-9,
+            )
