@@ -40,6 +40,7 @@ from ekfviz.viz.blueprint import (
     run_details,
     study_documents,
     with_legend,
+    with_panels,
 )
 from ekfviz.viz.ellipses import ellipse_extent, ellipse_outlines
 from ekfviz.viz.recording import Recording, finish_recorders
@@ -100,6 +101,7 @@ def record_check(
     truth: GroundTruth | None,
     summary: str,
     map_note: str = "",
+    runs_list: bool = False,
 ) -> None:
     """Log a check: both runs, the divergences, the difference per event, the layout.
 
@@ -109,6 +111,8 @@ def record_check(
     :param summary: the verdict as markdown
     :param map_note: said after the checked filter's name in its map's title (what else
         the map shows, e.g. an earlier run in grey)
+    :param runs_list: show the list of recordings (each run of ``ekfviz watch`` is one),
+        see :func:`ekfviz.viz.blueprint.with_panels`
     """
     rec = recording.rec
     root = "filters"
@@ -176,6 +180,7 @@ def record_check(
             zoom_xy=zoom,
             first=first,
             map_note=map_note,
+            runs_list=runs_list,
         )
     )
 
@@ -336,6 +341,7 @@ def check_blueprint(
     zoom_xy: FloatArray | None,
     first: Divergence | None,
     map_note: str = "",
+    runs_list: bool = False,
 ) -> rrb.Blueprint:
     """The check's layout: both maps (the divergence marked), the checked map zoomed on
     the first divergence, the difference per event, the log with its ERROR lines, the
@@ -343,6 +349,7 @@ def check_blueprint(
 
     :param variants: (label, prefix) of the reference's run then the checked filter's
     :param map_note: see :func:`record_check`
+    :param runs_list: show the list of recordings, see :func:`with_panels`
     """
     checked = variants[-1][1]
     # the outlines at the divergence in the zoomed view only: they would cover the map
@@ -386,7 +393,7 @@ def check_blueprint(
         run_details(label, prefix, has[prefix], log=k < len(variants) - 1)
         for k, (label, prefix) in enumerate(variants)
     ]
-    return rrb.Blueprint(
+    return with_panels(
         rrb.Horizontal(
             rrb.Vertical(
                 # the legend of a check is longer and its maps narrower: more lines
@@ -403,5 +410,5 @@ def check_blueprint(
         ),
         # the checked run ends at its first divergence: following puts the cursor there
         rrb.TimePanel(timeline=style.EVENT, play_state="following", state="collapsed"),
-        collapse_panels=True,
+        runs_list=runs_list,
     )

@@ -325,3 +325,44 @@ def test_grade_recordings_show_everything_and_the_reference_its_own(tmp_path: Pa
                 rtol=0.0,
                 atol=1e-9,
             )
+
+
+EXPANDED, COLLAPSED = 3, 2  # Rerun's panel states
+
+
+def panel_states(layout: Layout) -> dict[str, int]:
+    return {name: fields["PanelBlueprint:state"][0] for name, fields in layout.panels.items()}
+
+
+def test_a_watch_run_shows_the_list_of_runs_and_a_check_keeps_its_panels_collapsed(
+    tmp_path: Path,
+) -> None:
+    from ekfviz import viz
+    from ekfviz.app.check import Recorded, check_log, check_recording
+    from ekfviz.core.params import FilterParams
+    from ekfviz.filters.spec import FilterSpec
+    from ekfviz.viz.check import record_check
+    from ekfviz.viz.ghost import record_failure
+
+    spec = FilterSpec(plugin("NoRInS"))
+    params = FilterParams()
+    checked = tmp_path / "check.rrd"
+    result, _ = check_log(CLASSIC, None, spec, params, tolerance=1e-6, save=checked)
+    assert panel_states(read_layout(checked)) == {
+        "blueprint_panel": COLLAPSED, "selection_panel": COLLAPSED,
+    }  # fmt: skip
+    # a run of ``ekfviz watch`` is drawn as the watch draws it: a recording of its own
+    shown = check_recording(Recorded(CLASSIC, None, [], [CLASSIC], "ekfviz watch"), spec,
+                            params, result)  # fmt: skip
+    watched = tmp_path / "watched.rrd"
+    with viz.open_recording(shown.info, viz.Sinks(save=watched)) as recording:
+        record_check(recording, shown.result, shown.runs, None, shown.summary, runs_list=True)
+    failed = tmp_path / "failed.rrd"
+    with viz.open_recording(shown.info, viz.Sinks(save=failed)) as recording:
+        record_failure(recording, "filters/NoRInS", spec.label, None, ["it failed"])
+    for rrd in (watched, failed):
+        layout = read_layout(rrd)
+        assert panel_states(layout) == {
+            "blueprint_panel": EXPANDED, "selection_panel": COLLAPSED,
+        }, rrd  # fmt: skip
+        assert layout.time_panel["TimePanelBlueprint:state"] == [COLLAPSED]

@@ -262,7 +262,7 @@ def record_once(
                 log_ghost(rec, prefix, ghost)
             log_lines(rec, lines, level)
             record_check(recording, shown.result, shown.runs, truth, shown.summary,
-                         map_note=map_note(ghost))  # fmt: skip
+                         map_note=map_note(ghost), runs_list=True)  # fmt: skip
         if given_up():  # a newer save came: this run is never shown nor saved
             recording.complete = False
     return recording.saved_to
