@@ -67,6 +67,9 @@ class Layout:
     views: list[View]
     data: dict[str, set[str]]  # entity path -> the view classes that can draw it
     time_panel: dict[str, Any]
+    # the side panels' blueprint fields: "PanelBlueprint:state" 1 hidden, 2 collapsed,
+    # 3 expanded, by panel ("blueprint_panel": the recordings and the views' tree)
+    panels: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     def unshown(self) -> list[str]:
         """The entities with data that no view shows."""
@@ -155,4 +158,5 @@ def read_layout(path: Path) -> Layout:
                 data.setdefault(chunk.entity_path, set()).update(DATA_COMPONENTS[name])
     for view in views:
         view.shown = {e for e, kinds in data.items() if view.kind in kinds and view.takes(e)}
-    return Layout(views, data, fields.get("/time_panel", {}))
+    panels = {name: fields.get(f"/{name}", {}) for name in ("blueprint_panel", "selection_panel")}
+    return Layout(views, data, fields.get("/time_panel", {}), panels)

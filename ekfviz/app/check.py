@@ -13,6 +13,7 @@ import shlex
 import sys
 import tempfile
 from collections.abc import Sequence
+from contextlib import suppress
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -27,7 +28,7 @@ from ekfviz.app.study import study_truth
 from ekfviz.check.lockstep import DEFAULT_TOLERANCE
 from ekfviz.core.errors import FilterError, InputError, UsageError
 from ekfviz.core.params import FilterParams
-from ekfviz.core.records import NeedsIds, with_ids
+from ekfviz.core.records import LogEvent, NeedsIds, with_ids
 from ekfviz.core.tables import utf8
 from ekfviz.core.truth import GroundTruth
 from ekfviz.evaluation.consistency import Consistency
@@ -41,6 +42,7 @@ from ekfviz.sources import OwnTruth, SourceArgs, open_source
 if TYPE_CHECKING:
     from ekfviz.check.coverage import Item as CoverageItem
     from ekfviz.check.lockstep import CheckResult
+    from ekfviz.core.batch import EventBatch
     from ekfviz.sandbox.remote import StartedWorker
     from ekfviz.studies.runs import Run
     from ekfviz.viz import RunInfo, Sinks
@@ -325,7 +327,7 @@ def check_log(
         from ekfviz import viz
 
         said = command if command is not None else shlex.join(["ekfviz", *sys.argv[1:]])
-        recorded = Recorded(data, truth, truth_files, source.files, said)
+        recorded = Recorded(data, truth, truth_files, source.files, said, events)
         _record_check(recorded, spec, params, result, sinks or viz.Sinks(save=save))
     return result, exercised
 
@@ -333,14 +335,32 @@ def check_log(
 @dataclass(frozen=True, slots=True)
 class Recorded:
     """What a check's recording says of its input: the log (``input_files``: what a
-    dataset directory is read from), its truth (``truth_files``: what it was read from)
-    and the command line."""
+    dataset directory is read from), its truth (``truth_files``: what it was read from),
+    the command line, and the log's events (the reference's own run is replayed from
+    them where the check went on past a divergence)."""
 
     data: Path
     truth: GroundTruth | None
     truth_files: list[Path]
     input_files: Sequence[Path]
     command: str
+    events: Sequence[LogEvent] = ()
+
+
+def reference_alone(events: Sequence[LogEvent], params: FilterParams) -> EventBatch:
+    """The reference's own run over ``events``: the built-in filter alone, where the
+    lockstep starts it from the checked filter's state before every event (after a
+    divergence that is the checked filter's state stepped once, not the reference's).
+
+    :return: its records, up to the line it cannot go on at, if any
+    """
+    from ekfviz.core.batch import EventBatch
+    from ekfviz.runner.replay import replay
+
+    batches: list[EventBatch] = []
+    with suppress(FilterLineError):  # its records up to that line are still its own
+        batches.extend(replay(events, params))
+    return EventBatch.joined(batches)
 
 
 def _record_check(
@@ -386,9 +406,12 @@ def check_recording(
             divergences=(first,),
         )
     truth = recorded.truth
+    reference = result.reference
+    if first is not None and result.every and recorded.events:
+        reference = reference_alone(recorded.events, params)
     runs = []
     for label, key, records in (
-        ("reference (ekf)", "reference", result.reference),
+        ("reference (ekf)", "reference", reference),
         (spec.label, spec.key if spec.key != "reference" else "checked", result.records),
     ):
         if not len(records):

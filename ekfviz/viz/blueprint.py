@@ -606,3 +606,20 @@ def sweep_blueprint(
         rrb.TimePanel(timeline=style.STEP, play_state="following", state="collapsed"),
         collapse_panels=True,
     )
+
+
+def with_panels(
+    root: rrb.Container, time_panel: rrb.TimePanel, *, runs_list: bool = False
+) -> rrb.Blueprint:
+    """A layout with Rerun's side panels collapsed, or with ``runs_list`` the left one
+    (the recordings, above the views' tree) shown and only the selection panel collapsed:
+    where each run is a recording of its own (``ekfviz watch``), that list is how a user
+    goes back to an earlier run."""
+    if not runs_list:
+        return rrb.Blueprint(root, time_panel, collapse_panels=True)
+    return rrb.Blueprint(
+        root,
+        rrb.BlueprintPanel(state="expanded"),
+        rrb.SelectionPanel(state="collapsed"),
+        time_panel,
+    )

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -41,6 +40,7 @@ from ekfviz.viz.blueprint import (
     run_details,
     study_documents,
     with_legend,
+    with_panels,
 )
 from ekfviz.viz.ellipses import ellipse_extent, ellipse_outlines
 from ekfviz.viz.recording import Recording, finish_recorders
@@ -101,18 +101,21 @@ def record_check(
     truth: GroundTruth | None,
     summary: str,
     map_note: str = "",
+    runs_list: bool = False,
 ) -> None:
     """Log a check: both runs, the divergences, the difference per event, the layout.
 
-    :param runs: the reference's run first, then the checked filter's (either may be
-        missing when it has no record)
+    :param runs: the reference's own run first (the built-in filter alone, not the
+        lockstep's, which starts it from the checked filter's state), then the checked
+        filter's (either may be missing when it has no record)
     :param summary: the verdict as markdown
     :param map_note: said after the checked filter's name in its map's title (what else
         the map shows, e.g. an earlier run in grey)
+    :param runs_list: show the list of recordings (each run of ``ekfviz watch`` is one),
+        see :func:`ekfviz.viz.blueprint.with_panels`
     """
     rec = recording.rec
     root = "filters"
-    runs = own_reference(runs, result)
     recorders, box = log_runs(rec, runs, truth, root)
     prefixes = [f"{root}/{run.spec.key}" for run in runs]
     divergences = divergences_of(result)
@@ -130,8 +133,8 @@ def record_check(
             if (found := _record_at(result.records, divergence.event)) is not None
         ]
         for k, prefix in enumerate(prefixes):
-            # the reference's own map marks the first divergence only: its states after
-            # it are not the reference's (see own_reference)
+            # the reference's own map marks the first divergence only: the marks are the
+            # checked filter's poses, which after it are off the reference's path
             shown = marks[:1] if k < len(prefixes) - 1 else marks
             if shown:
                 rec.log(
@@ -177,27 +180,9 @@ def record_check(
             zoom_xy=zoom,
             first=first,
             map_note=map_note,
+            runs_list=runs_list,
         )
     )
-
-
-def own_reference(runs: list[Run], result: CheckResult) -> list[Run]:
-    """The runs with the reference's cut at the first divergence where the check went on
-    past it (``--all``, grade): each reference record starts from the checked filter's
-    state, so after a divergence it is the checked filter's state stepped once, not the
-    reference's own; up to the first divergence the two are one."""
-    first = result.first_divergence
-    if first is None or len(runs) < 2:
-        return runs
-    reference = runs[0]
-    kept = int(np.searchsorted(reference.events.events, first.event, side="right"))
-    if kept >= len(reference.events):
-        return runs
-    label = f"{reference.spec.label} to event {first.event}"
-    cut = replace(
-        reference, spec=replace(reference.spec, label=label), events=reference.events[:kept]
-    )
-    return [cut, *runs[1:]]
 
 
 def _record_at(events: EventBatch, event: int) -> EventRecord | None:
@@ -356,6 +341,7 @@ def check_blueprint(
     zoom_xy: FloatArray | None,
     first: Divergence | None,
     map_note: str = "",
+    runs_list: bool = False,
 ) -> rrb.Blueprint:
     """The check's layout: both maps (the divergence marked), the checked map zoomed on
     the first divergence, the difference per event, the log with its ERROR lines, the
@@ -363,6 +349,7 @@ def check_blueprint(
 
     :param variants: (label, prefix) of the reference's run then the checked filter's
     :param map_note: see :func:`record_check`
+    :param runs_list: show the list of recordings, see :func:`with_panels`
     """
     checked = variants[-1][1]
     # the outlines at the divergence in the zoomed view only: they would cover the map
@@ -406,7 +393,7 @@ def check_blueprint(
         run_details(label, prefix, has[prefix], log=k < len(variants) - 1)
         for k, (label, prefix) in enumerate(variants)
     ]
-    return rrb.Blueprint(
+    return with_panels(
         rrb.Horizontal(
             rrb.Vertical(
                 # the legend of a check is longer and its maps narrower: more lines
@@ -423,5 +410,5 @@ def check_blueprint(
         ),
         # the checked run ends at its first divergence: following puts the cursor there
         rrb.TimePanel(timeline=style.EVENT, play_state="following", state="collapsed"),
-        collapse_panels=True,
+        runs_list=runs_list,
     )

@@ -26,7 +26,7 @@ import rerun.blueprint as rrb
 from ekfviz.core.batch import EventBatch
 from ekfviz.core.types import FloatArray
 from ekfviz.viz import style
-from ekfviz.viz.blueprint import log_view, map_view
+from ekfviz.viz.blueprint import log_view, map_view, with_panels
 from ekfviz.viz.ellipses import ellipse_outlines
 from ekfviz.viz.recording import Recording, finish_recorders
 
@@ -141,7 +141,7 @@ def record_failure(
     log_lines(rec, lines, "ERROR")
     finish_recorders(recording, [])
     rec.send_blueprint(
-        rrb.Blueprint(
+        with_panels(  # a run of ``ekfviz watch``: the list of runs shown
             rrb.Horizontal(
                 map_view(prefix=prefix, name=f"{label}{map_note(ghost)}"),
                 rrb.Vertical(
@@ -152,6 +152,6 @@ def record_failure(
                 column_shares=[3, 2],
             ),
             rrb.TimePanel(timeline=style.EVENT, state="collapsed"),
-            collapse_panels=True,
+            runs_list=True,
         )
     )

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 from blueprints import Layout, read_layout
 from conftest import entity_rows
@@ -307,7 +308,61 @@ def test_grade_recordings_show_everything_and_the_reference_its_own(tmp_path: Pa
     layout = read_layout(rrd)
     assert layout.unshown() == [] and layout.empty() == []
     maps = [view.name for view in layout.views if view.kind == "2D" and view.name != "Correlation"]
-    # the student diverges at the initialisation: the reference's map is its own there
-    assert maps[0] == "reference (ekf) to event 0" and maps[-1] == "At event 0"
-    reference = entity_rows(rrd, "/filters/reference/world/robot")
-    assert [row["event"] for row in reference] == [0]
+    # the student diverges at the initialisation: the reference's map is still its own,
+    # the built-in filter alone over the whole log (as ``replay`` draws it)
+    assert maps[0] == "reference (ekf)" and maps[-1] == "At event 0"
+    alone = tmp_path / "alone.rrd"
+    assert runner.invoke(app, ["replay", str(CLASSIC), "--save", str(alone)]).exit_code == 0
+    for entity in ("world/robot", "world/landmarks"):
+        drawn = entity_rows(rrd, f"/filters/reference/{entity}")
+        replayed = entity_rows(alone, f"/{entity}")
+        assert len(drawn) == len(replayed) > 1
+        for got, expected in zip(drawn, replayed, strict=True):
+            assert got["event"] == expected["event"]
+            np.testing.assert_allclose(
+                np.asarray(got["Points2D:positions"]),
+                np.asarray(expected["Points2D:positions"]),
+                rtol=0.0,
+                atol=1e-9,
+            )
+
+
+EXPANDED, COLLAPSED = 3, 2  # Rerun's panel states
+
+
+def panel_states(layout: Layout) -> dict[str, int]:
+    return {name: fields["PanelBlueprint:state"][0] for name, fields in layout.panels.items()}
+
+
+def test_a_watch_run_shows_the_list_of_runs_and_a_check_keeps_its_panels_collapsed(
+    tmp_path: Path,
+) -> None:
+    from ekfviz import viz
+    from ekfviz.app.check import Recorded, check_log, check_recording
+    from ekfviz.core.params import FilterParams
+    from ekfviz.filters.spec import FilterSpec
+    from ekfviz.viz.check import record_check
+    from ekfviz.viz.ghost import record_failure
+
+    spec = FilterSpec(plugin("NoRInS"))
+    params = FilterParams()
+    checked = tmp_path / "check.rrd"
+    result, _ = check_log(CLASSIC, None, spec, params, tolerance=1e-6, save=checked)
+    assert panel_states(read_layout(checked)) == {
+        "blueprint_panel": COLLAPSED, "selection_panel": COLLAPSED,
+    }  # fmt: skip
+    # a run of ``ekfviz watch`` is drawn as the watch draws it: a recording of its own
+    shown = check_recording(Recorded(CLASSIC, None, [], [CLASSIC], "ekfviz watch"), spec,
+                            params, result)  # fmt: skip
+    watched = tmp_path / "watched.rrd"
+    with viz.open_recording(shown.info, viz.Sinks(save=watched)) as recording:
+        record_check(recording, shown.result, shown.runs, None, shown.summary, runs_list=True)
+    failed = tmp_path / "failed.rrd"
+    with viz.open_recording(shown.info, viz.Sinks(save=failed)) as recording:
+        record_failure(recording, "filters/NoRInS", spec.label, None, ["it failed"])
+    for rrd in (watched, failed):
+        layout = read_layout(rrd)
+        assert panel_states(layout) == {
+            "blueprint_panel": EXPANDED, "selection_panel": COLLAPSED,
+        }, rrd  # fmt: skip
+        assert layout.time_panel["TimePanelBlueprint:state"] == [COLLAPSED]

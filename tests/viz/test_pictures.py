@@ -1,6 +1,7 @@
 """What a user sees, read back from the recording: a legend of the map's marks, labels at
 their landmarks inside the frame, every landmark's current ellipse, comparisons whose
-identical runs are told apart, and check recordings whose reference is its own."""
+identical runs are told apart, and check recordings whose reference is its own over the
+whole run."""
 
 from __future__ import annotations
 
@@ -155,16 +156,29 @@ def test_identical_filters_of_a_comparison_are_told_apart(tmp_path: Path) -> Non
     assert top < 3.0 * upper / 2  # the old frame, to three times the bound, is halved
 
 
-def test_a_check_that_goes_on_keeps_the_reference_its_own(tmp_path: Path) -> None:
+def test_a_check_that_goes_on_draws_the_reference_alone_over_the_whole_run(
+    tmp_path: Path,
+) -> None:
     rrd = saved(["check", str(CLASSIC), "--filter", f"{PLUGINS}:NoRInS", "--all"],
                 tmp_path / "all.rrd", code=1)  # fmt: skip
     layout = read_layout(rrd)
     assert layout.unshown() == [] and layout.empty() == []
     names = [view.name for view in layout.views if view.kind == "2D"]
-    assert "reference (ekf) to event 2" in names and "At event 2" in names
-    reference = entity_rows(rrd, "/filters/reference/world/robot")
+    assert "reference (ekf)" in names and "At event 2" in names
+    alone = saved(["replay", str(CLASSIC)], tmp_path / "alone.rrd")  # the reference alone
+    for entity in ("world/robot", "world/landmarks"):
+        drawn = entity_rows(rrd, f"/filters/reference/{entity}")
+        replayed = entity_rows(alone, f"/{entity}")
+        assert [row["event"] for row in drawn] == [row["event"] for row in replayed]
+        for got, expected in zip(drawn, replayed, strict=True):
+            np.testing.assert_allclose(
+                np.asarray(got["Points2D:positions"]),
+                np.asarray(expected["Points2D:positions"]),
+                rtol=0.0,
+                atol=1e-9,
+            )
     checked = entity_rows(rrd, "/filters/NoRInS/world/robot")
-    assert reference[-1]["event"] == 2 < checked[-1]["event"]
+    assert drawn[-1]["event"] == checked[-1]["event"] > 2  # both to the end of the log
     marks = {
         key: entity_rows(rrd, f"/filters/{key}/{check_viz.DIVERGENCE}", static=True)[0]
         for key in ("reference", "NoRInS")

@@ -225,7 +225,9 @@ def record_once(
     """
     from ekfviz import viz
     from ekfviz.app.check import Recorded, check_recording
+    from ekfviz.app.inputs import source_events
     from ekfviz.app.study import study_truth
+    from ekfviz.core.records import LogEvent, with_ids
     from ekfviz.sources import open_source
     from ekfviz.viz.check import record_check
     from ekfviz.viz.ghost import log_ghost, log_lines, map_note, record_failure
@@ -237,7 +239,11 @@ def record_once(
     command = shlex.join(["ekfviz", *sys.argv[1:]])
     shown = None
     if result is not None and len(result.records):
-        recorded = Recorded(item.log, truth, truth_files, files, command)
+        events: list[LogEvent] = []
+        if result.every and result.first_divergence is not None:  # the reference's own run
+            source = open_source(item.log, item.source_args)
+            events = list(with_ids(source_events(source, truth, item.truth_path)))
+        recorded = Recorded(item.log, truth, truth_files, files, command, events)
         shown = check_recording(recorded, spec, item.params, result)
         info = replace(shown.info, name=who.name)
     else:
@@ -256,7 +262,7 @@ def record_once(
                 log_ghost(rec, prefix, ghost)
             log_lines(rec, lines, level)
             record_check(recording, shown.result, shown.runs, truth, shown.summary,
-                         map_note=map_note(ghost))  # fmt: skip
+                         map_note=map_note(ghost), runs_list=True)  # fmt: skip
         if given_up():  # a newer save came: this run is never shown nor saved
             recording.complete = False
     return recording.saved_to
