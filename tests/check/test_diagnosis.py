@@ -16,8 +16,9 @@ import students
 from ekfviz.check.mistakes import catalogue, table, table_in
 from ekfviz.check.mutations import ALIASES, MUTATION, MUTATIONS, resolve
 from ekfviz.check.operations import OPERATION
+from ekfviz.check.probes import acts_on, fingerprint, is_inert
 from ekfviz.check.rerun import RERUN_ERRORS, Form, Noise, Rerun, State, Step
-from ekfviz.check.search import Diagnosis, acts_on, fingerprint, is_inert, scaled_distance
+from ekfviz.check.search import Diagnosis, scaled_distance
 from ekfviz.check.source import Source
 from ekfviz.core.params import FilterParams
 
