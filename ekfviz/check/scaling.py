@@ -43,9 +43,14 @@ def fit_scale(
     r = None if state is None else residual(state, target)
     if state is None or r is None:
         return None
+    polished = False
     for _ in range(MAX_STEPS):
         if float(np.max(np.abs(r), initial=0.0)) <= close:
-            return None if abs(u) < SAME else (math.exp(u), state)
+            if abs(u) < SAME:
+                return None
+            if polished:  # (one step more, for a factor to more digits than close's)
+                return math.exp(u), state
+            polished = True
         moved = run(math.exp(u + STEP))
         r_moved = None if moved is None else residual(moved, target)
         if r_moved is None:
@@ -57,9 +62,9 @@ def fit_scale(
         step = float(np.clip(-(slope @ r) / curvature, -LARGEST_STEP, LARGEST_STEP))
         taken = _step(run, target, u, step, float(np.linalg.norm(r)))
         if taken is None:
-            return None
+            return (math.exp(u), state) if polished else None
         u, state, r = taken
-    return None
+    return (math.exp(u), state) if polished else None
 
 
 def _step(

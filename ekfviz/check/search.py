@@ -338,6 +338,8 @@ class Diagnosis:
         options = sorted(distinct.values() if distinct else sets,
                          key=lambda s: (len(s), [m.id for m in s]))  # fmt: skip
         smallest = [s for s in options if len(s) == len(options[0])]
+        for option in smallest:  # (their factors, for the events that may refute them)
+            self.scales.update(trial.scales_of(option))
         smallest = self._unrefuted(smallest, history)
         specific = [s for s in smallest if not any(m.family in FITTED for m in s)]
         smallest = _broadest_first(specific or smallest)
@@ -368,13 +370,18 @@ class Diagnosis:
         """The ``options`` no event of ``history`` refutes (all of them where it refutes
         every one): an option is refuted by an event it acts on that, re-run with what
         explained it (nothing: the filter matched) and the option, is no longer
-        reproduced."""
+        reproduced. The events one of the options explained are where they tie: none of
+        them refutes another there."""
         if len(options) < 2:
             return options
+        tied = {frozenset(m.id for m in option) for option in options}
+        telling = [s for s in history if frozenset(s.explained_by) - _FORM_IDS not in tied]
         kept = [
             option
             for option in options
-            if not any(_refutes(self.noise, option, seen, self.tolerance) for seen in history)
+            if not any(
+                _refutes(self.noise, option, seen, self.tolerance, self.scales) for seen in telling
+            )
         ]
         return kept or options
 
@@ -490,6 +497,8 @@ class _Trial:
         step: Step,
         close: float,
         starts: dict[str, float] | None = None,
+        *,
+        fit: bool = True,
     ):
         self.noise, self.before, self.after, self.step, self.close = (
             noise,
@@ -499,8 +508,9 @@ class _Trial:
             close,
         )
         self._modes_differ: bool | None = None
-        # a scaled noise's factor: where its fit starts, and what it found for each set
-        self.starts = starts or {}
+        # a scaled noise's factor: where its fit starts (or, not fitted, the one it takes),
+        # and what it found for each set
+        self.starts, self.fit = starts or {}, fit
         self.scales: dict[tuple[str, ...], float] = {}
         self._runs: dict[tuple[tuple[str, ...], Form], State | None] = {}
 
@@ -516,6 +526,8 @@ class _Trial:
         if len(scaled) > 1:
             return None
         start = self.starts.get(scaled[0].id, 1.0)
+        if not self.fit:
+            return self._run(mutations, form, start)
         fitted = fit_scale(lambda k: self._run(mutations, form, k), self.after, self.close, start)
         if fitted is None:
             return None
@@ -605,6 +617,7 @@ class _Trial:
         return self._modes_differ
 
 
+_FORM_IDS = frozenset(m.id for m in MUTATIONS if m.family == "form")
 # each operation's scaled noise: what a quantity of that operation read off a filter reaches
 SCALED_OF: dict[str, Mutation] = {m.operation: m for m in MUTATIONS if m.family == "scale"}
 
@@ -680,9 +693,16 @@ def _minimal(trial: _Trial, base: Sequence[Mutation], form: Form) -> list[Mutati
     return kept
 
 
-def _refutes(noise: Noise, option: Sequence[Mutation], seen: Seen, tolerance: float) -> bool:
+def _refutes(
+    noise: Noise,
+    option: Sequence[Mutation],
+    seen: Seen,
+    tolerance: float,
+    scales: dict[str, float],
+) -> bool:
     """Whether ``option`` breaks the explanation of an earlier event (see
-    :meth:`Diagnosis._unrefuted`)."""
+    :meth:`Diagnosis._unrefuted`); a scaled noise at the factor ``scales`` found for it
+    (one factor a run: the code scales its noise alike at every event)."""
     acting = [m for m in option if acts_on(m, seen.step, seen.before)]
     if not acting or any(m.id in seen.explained_by for m in acting):
         return False
@@ -690,7 +710,8 @@ def _refutes(noise: Noise, option: Sequence[Mutation], seen: Seen, tolerance: fl
     operations = {m.operation for m in acting}
     mutations = [m for m in explained if m.operation not in operations] + acting
     joint = any(c == "update_loop.joint" for c in seen.explained_by)
-    trial = _Trial(noise, seen.before, seen.after, seen.step, max(tolerance * 10, 1e-8))
+    trial = _Trial(noise, seen.before, seen.after, seen.step, max(tolerance * 10, 1e-8), scales,
+                   fit=False)  # fmt: skip
     forms = [Form(joint, covariance) for covariance in ("ikh", "sks", "joseph")]
     return trial.best(mutations, forms).form is None
 
