@@ -370,17 +370,17 @@ class Diagnosis:
         """The ``options`` no event of ``history`` refutes (all of them where it refutes
         every one): an option is refuted by an event it acts on that, re-run with what
         explained it (nothing: the filter matched) and the option, is no longer
-        reproduced. The events one of the options explained are where they tie: none of
-        them refutes another there."""
+        reproduced (an option re-run in place of its rivals where one of them explained
+        it)."""
         if len(options) < 2:
             return options
-        tied = {frozenset(m.id for m in option) for option in options}
-        telling = [s for s in history if frozenset(s.explained_by) - _FORM_IDS not in tied]
+        rivals = {m.id for option in options for m in option}
         kept = [
             option
             for option in options
             if not any(
-                _refutes(self.noise, option, seen, self.tolerance, self.scales) for seen in telling
+                _refutes(self.noise, option, seen, self.tolerance, self.scales, rivals)
+                for seen in history
             )
         ]
         return kept or options
@@ -617,7 +617,6 @@ class _Trial:
         return self._modes_differ
 
 
-_FORM_IDS = frozenset(m.id for m in MUTATIONS if m.family == "form")
 # each operation's scaled noise: what a quantity of that operation read off a filter reaches
 SCALED_OF: dict[str, Mutation] = {m.operation: m for m in MUTATIONS if m.family == "scale"}
 
@@ -699,6 +698,7 @@ def _refutes(
     seen: Seen,
     tolerance: float,
     scales: dict[str, float],
+    rivals: set[str],
 ) -> bool:
     """Whether ``option`` breaks the explanation of an earlier event (see
     :meth:`Diagnosis._unrefuted`); a scaled noise at the factor ``scales`` found for it
@@ -708,7 +708,8 @@ def _refutes(
         return False
     explained = [MUTATION_BY_ID[c] for c in seen.explained_by if c in MUTATION_BY_ID]
     operations = {m.operation for m in acting}
-    mutations = [m for m in explained if m.operation not in operations] + acting
+    kept = [m for m in explained if m.operation not in operations and m.id not in rivals]
+    mutations = kept + acting
     joint = any(c == "update_loop.joint" for c in seen.explained_by)
     trial = _Trial(noise, seen.before, seen.after, seen.step, max(tolerance * 10, 1e-8), scales,
                    fit=False)  # fmt: skip
