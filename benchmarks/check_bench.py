@@ -5,9 +5,9 @@ diagnosis searched mutations (``--before DIR``: the clone, with its own ``.venv`
 The modules are the course skeleton (``examples/course_skeleton/ekf_slam.py``, which
 matches) and copies of it with one mistake each: G transposed (every predict diverges),
 R missing from S (every update), S inverted elementwise (its P grows until the state is
-invalid), and R tripled (a mistake outside the catalogue: every update is searched in
-vain). Each command is run as a child process, wall and CPU seconds, the median of
-:data:`REPEATS`; target: at most twice the time of before.
+invalid), and R tripled (a scaled noise: its factor is fitted at every update). Each
+command is run as a child process, wall and CPU seconds, the median of :data:`REPEATS`;
+target: at most twice the time of before.
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ MODULES: dict[str, tuple[tuple[str, str], ...]] = {
     "G transposed": (("P = G @ P @ G.T", "P = G.T @ P @ G"),),
     "R missing from S": (("S = H @ P @ H.T + measure_cov", "S = H @ P @ H.T"),),
     "S inverted elementwise": (("K = np.linalg.solve(S, H @ P).T", "K = P @ H.T @ S**-1"),),
-    "R tripled (not in the catalogue)": (
+    "R tripled (a scaled noise)": (
         ("S = H @ P @ H.T + measure_cov", "S = H @ P @ H.T + 3 * measure_cov"),
     ),
 }

@@ -124,7 +124,8 @@ def untellable(events: Sequence[LogEvent], params: FilterParams) -> list[Item]:
     own state before it, until one changes the result by more than round-off)."""
     from ekfviz.check.mutations import FAMILIES, INERT, MUTATIONS
     from ekfviz.check.operations import OPERATION
-    from ekfviz.check.search import acts_on, scaled_distance
+    from ekfviz.check.probes import acts_on
+    from ekfviz.check.search import scaled_distance
 
     noise = Noise(params.Q, params.R)
     joint = Form(params.update is UpdateMode.JOINT)

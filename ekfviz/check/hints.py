@@ -63,16 +63,24 @@ class Named:
         }
 
 
-def named(causes: tuple[str, ...], source: Source | None) -> tuple[Named, ...]:
-    """The causes of a finding, each with its line in ``source`` where found."""
+def named(
+    causes: tuple[str, ...], source: Source | None, scales: tuple[tuple[str, float], ...] = ()
+) -> tuple[Named, ...]:
+    """The causes of a finding, each with its line in ``source`` where found; a scaled
+    noise's sentence with the factor of ``scales`` (cause id, k) read off the filter."""
     from ekfviz.check.mutations import MUTATION
 
+    factors = dict(scales)
     found = []
     for cause_id in causes:
         entry = cause(cause_id)
-        quoted = None if source is None else source.quote(MUTATION[entry.id])
+        mutation = MUTATION[entry.id]
+        quoted = None if source is None else source.quote(mutation)
+        sentence = entry.wrong
+        if mutation.says is not None and entry.id in factors:
+            sentence = mutation.says(factors[entry.id])
         found.append(Named(entry.id, entry.operation, entry.mutation, entry.family,
-                           entry.wrong, entry.fix, entry.aliases, quoted))  # fmt: skip
+                           sentence, entry.fix, entry.aliases, quoted))  # fmt: skip
     return tuple(found)
 
 

@@ -205,10 +205,16 @@ class _Lockstep:
     def _declared(self, declared: FloatArray, run: FloatArray, what: str) -> None:
         """A declared noise other than the run's: named as a cause, kept for the search."""
         operation = f"{what}_noise"
+        scales: tuple[tuple[str, float], ...] = ()
+        k = float(np.sum(declared * run) / np.sum(run * run))  # (a multiple of it, if any)
         if np.allclose(declared, np.sqrt(run), rtol=1e-9, atol=0.0):
             mutation = MUTATION[f"{operation}.sigmas"]
         elif np.allclose(declared, np.square(run), rtol=1e-9, atol=0.0):
             mutation = MUTATION[f"{operation}.squared"]
+        elif k > 0.0 and np.allclose(declared, k * run, rtol=1e-9, atol=0.0):
+            mutation = MUTATION[f"{operation}.scaled"]
+            scales = ((mutation.id, k),)
+            self.diagnosis.scales[mutation.id] = k
         else:
             mutation = MUTATION[f"{operation}.declared"]
         self.diagnosis.found[mutation.id] = mutation
@@ -222,8 +228,8 @@ class _Lockstep:
         expected, got = float(run[r, c]), float(declared[r, c])
         worst = Difference(Quantity.DECLARED_NOISE, None, f"{attribute}[{r}, {c}]", expected,
                            got, abs(got - expected) / max(1.0, abs(expected)))  # fmt: skip
-        finding = Finding((mutation.id,))
-        causes = named(finding.causes, self.source)
+        finding = Finding((mutation.id,), scales=scales)
+        causes = named(finding.causes, self.source, scales)
         text = hint(finding, causes, None, self._file(), "")
         self._add(Divergence(0, 0, 0, EventKind.INIT, worst, text, finding.causes, (), causes),
                   finding)  # fmt: skip
@@ -330,7 +336,7 @@ class _Lockstep:
         rerun_step: Step,
     ) -> Divergence:
         """The divergent event with its causes, their lines, and its hint."""
-        causes = named(finding.causes, self.source) if finding.known else ()
+        causes = named(finding.causes, self.source, finding.scales) if finding.known else ()
         numbers = None
         if (
             not finding.causes
@@ -419,7 +425,7 @@ class _Lockstep:
         if finding is None or not finding.indistinct:
             return divergence
         resolved = self.diagnosis.resolve(finding, self.seen)
-        causes = named(resolved.causes, self.source) if resolved.known else ()
+        causes = named(resolved.causes, self.source, resolved.scales) if resolved.known else ()
         text = hint(resolved, causes, divergence.unexplained, self._file(), divergence.hint)
         return Divergence(divergence.event, divergence.step, divergence.line, divergence.kind,
                           divergence.worst, text, resolved.causes, resolved.alternatives,

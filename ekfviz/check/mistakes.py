@@ -3,7 +3,7 @@ reveal, generated from :mod:`ekfviz.check.mutations`.
 
 A cause's id is ``operation.mutation``; the mutations no event tells apart are one cause
 (the first of them in the catalogue stands for the others), and those that change no
-event at all are none (:func:`~ekfviz.check.search.classes`). The documentation's table of
+event at all are none (:func:`~ekfviz.check.probes.classes`). The documentation's table of
 causes is :func:`table` (``python -m ekfviz.check.mistakes docs/causes.md`` writes it between
 its markers); short names of causes resolve through :data:`~ekfviz.check.mutations.ALIASES`.
 
@@ -55,7 +55,7 @@ def cause(cause_id: str) -> Cause:
 def catalogue() -> list[Cause]:
     """Every cause an event can reveal, in the catalogue's order, each with the mutations
     it stands for."""
-    from ekfviz.check.search import classes  # the probes run only when asked for
+    from ekfviz.check.probes import classes  # the probes run only when asked for
 
     found = classes()
     members: dict[str, list[str]] = {}

@@ -22,15 +22,25 @@ from ekfviz.check.operators import (
     FAMILIES,
     MatrixFormula,
     Mutation,
+    NoiseUse,
     angle_swapped,
     heading_swapped,
     matrix_mutations,
+    scaled_noise,
 )
 from ekfviz.check.predict_mutations import predict_mutations
 from ekfviz.check.update_mutations import init_mutations, update_mutations
 
 __all__ = [
-    "ALIASES", "FAMILIES", "INERT", "MATRICES", "MUTATION", "MUTATIONS", "Mutation", "resolve",
+    "ALIASES",
+    "FAMILIES",
+    "INERT",
+    "MATRICES",
+    "MUTATION",
+    "MUTATIONS",
+    "NOISE_USES",
+    "Mutation",
+    "resolve",
 ]  # fmt: skip
 
 MATRICES: tuple[MatrixFormula, ...] = (
@@ -50,6 +60,23 @@ MATRICES: tuple[MatrixFormula, ...] = (
 )  # fmt: skip
 
 
+# every operation that takes a noise matrix (or makes one): each has a mutation of its noise
+# scaled by a factor k that the search reads off the filter's result. (Joseph's form of the
+# corrected covariance takes R too; a filter that writes it so and scales R there scales it
+# in S as well, which is the measurement noise's mutation.)
+NOISE_USES: tuple[NoiseUse, ...] = (
+    NoiseUse("motion_noise", None, "Q", "the predicted covariance",
+             "P_rr' = G P_rr G^T + W (k Q) W^T"),
+    NoiseUse("pose_covariance", 3, "Q", "the predicted pose covariance",
+             "P_rr' = G P_rr G^T + k W Q W^T"),
+    NoiseUse("measurement_noise", None, "R", "S and in a new landmark's covariance",
+             "S = H P H^T + k R, P_ll = J_p P_rr J_p^T + J_z (k R) J_z^T"),
+    NoiseUse("innovation_covariance", 2, "R", "S", "S = H P H^T + k R"),
+    NoiseUse("landmark_covariance", 3, "R", "a new landmark's covariance",
+             "P_ll = J_p P_rr J_p^T + k J_z R J_z^T"),
+)  # fmt: skip
+
+
 # -- the catalogue ---------------------------------------------------------------------------
 
 
@@ -64,6 +91,7 @@ def _catalogue() -> tuple[Mutation, ...]:
     mutations += init_mutations()
     for formula in MATRICES[3:]:
         mutations += matrix_mutations(formula)
+    mutations += [scaled_noise(use) for use in NOISE_USES]
     return tuple(mutations)
 
 
@@ -73,7 +101,7 @@ MUTATION: dict[str, Mutation] = {mutation.id: mutation for mutation in MUTATIONS
 # the mutations that change no event at all alone (check compares the heading modulo 2 pi,
 # and R's diagonal hides a sign of a column of J_z): the search leaves them out, as they
 # can only round differently; a test checks this against the probes
-# (ekfviz.check.search.is_inert)
+# (ekfviz.check.probes.is_inert)
 INERT = frozenset({
     "corrected_mean.heading_not_wrapped", "expected_measurement.not_wrapped",
     "init_jacobian_measurement.sign_column_bearing",

@@ -36,6 +36,7 @@ FAMILIES: dict[str, str] = {
     "wrap": "a wrong wrap range, or no wrap",
     "skipped": "the whole operation skipped",
     "own": "a quantity of the filter's own (its noise, a constant covariance)",
+    "scale": "a noise matrix used scaled (k R, k Q, k not 1), k read off the filter's result",
     "handout": "the handout's own simplification",
     "form": "another form of the update (joint or sequential): not a mistake",
 }
@@ -50,6 +51,8 @@ class Mutation:
     :param tokens: text that marks the line computing it in a student's source
     :param when: the events it can act on (``still``: a control of d = alpha = 0,
         ``not_driving``: d = 0); empty: all of its operation's
+    :param says: what the code does given the factor the search read off the filter
+        (a mutation of the ``scale`` family; ``wrong`` says it with k)
     """
 
     operation: str
@@ -60,6 +63,7 @@ class Mutation:
     apply: Apply = field(compare=False, repr=False)
     tokens: tuple[str, ...] = ()
     when: str = ""
+    says: Callable[[float], str] | None = field(default=None, compare=False, repr=False)
 
     @property
     def id(self) -> str:
@@ -254,6 +258,62 @@ def heading_swapped(pose: FloatArray, d: float) -> tuple[FloatArray, float]:
 def angle_swapped(pose: FloatArray, z: FloatArray) -> tuple[FloatArray, FloatArray]:
     """cos and sin of theta + beta swapped: theta' = pi/2 - theta - 2 beta."""
     return turned(pose, math.pi / 2 - 2.0 * float(z[0])), z
+
+
+# -- a noise matrix scaled: one mutation per operation that takes one ----------------------
+
+
+@dataclass(frozen=True, slots=True)
+class NoiseUse:
+    """An operation that takes a noise matrix (or makes one: ``operand`` None).
+
+    :param operand: the index of the noise among the operation's operands
+    :param symbol: ``Q`` or ``R``
+    :param where: where the scaled noise shows, after "in" ("S", "every use")
+    :param equation: the operation's equation with the noise scaled by k
+    """
+
+    operation: str
+    operand: int | None
+    symbol: str
+    where: str
+    equation: str
+
+
+def times(k: float) -> str:
+    """A factor as a sentence says it: "10 times too large", "4 times too small"."""
+    if k >= 1.0:
+        return f"{k:.3g} times too large"
+    return f"{1.0 / k:.3g} times too small"
+
+
+def _scaled_operand(index: int) -> Apply:
+    def apply(rerun: Rerun, function: Callable[..., Any], operands: tuple[Any, ...]) -> Any:
+        changed = list(operands)
+        changed[index] = rerun.scale * np.asarray(changed[index], dtype=np.float64)
+        return function(*changed)
+
+    return apply
+
+
+def _scaled_result(rerun: Rerun, function: Callable[..., Any], operands: tuple[Any, ...]) -> Any:
+    return rerun.scale * np.asarray(function(*operands), dtype=np.float64)
+
+
+def scaled_noise(use: NoiseUse) -> Mutation:
+    """The mutation of ``use`` with its noise k times what it is (k read off the filter's
+    result by the search: :mod:`ekfviz.check.scaling`)."""
+    name = "scaled" if use.operand is None else "noise_scaled"
+    apply = _scaled_result if use.operand is None else _scaled_operand(use.operand)
+
+    def says(k: float) -> str:
+        return (f"{use.symbol} is used {times(k)} in {use.where}:"
+                f" {use.equation.replace('k ', f'{k:.3g} ')}")  # fmt: skip
+
+    return Mutation(use.operation, name, "scale",
+                    f"{use.symbol} is used k times too large or too small (k not 1) in"
+                    f" {use.where}: {use.equation}", OPERATION[use.operation].equation, apply,
+                    ("*",), says=says)  # fmt: skip
 
 
 # -- the other operations, one by one ---------------------------------------------------------

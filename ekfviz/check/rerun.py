@@ -59,6 +59,10 @@ class Mutation(Protocol):
     ) -> Any: ...
 
 
+# the factor of a scaled noise (see ekfviz.check.scaling) where the search has fitted none:
+# the probes' and a bare re-run's, far from 1 as the mistakes are (10 R, R / 10)
+PROBE_SCALE = 10.0
+
 # what a re-run may raise on a state it does not fit (a singular S, a landmark at the
 # robot, an index past the state): that mutation does not reproduce the event
 RERUN_ERRORS = (ValueError, IndexError, ArithmeticError, np.linalg.LinAlgError)
@@ -144,12 +148,14 @@ class Rerun:
     :param target: the filter's own state after the event, which a mutation that reads
         a quantity off the filter's result (its own Q, a constant landmark covariance)
         needs
+    :param scale: the factor k of a scaled-noise mutation (k R, k Q)
     """
 
     noise: Noise
     mutations: dict[str, Mutation] = field(default_factory=dict)
     form: Form = field(default_factory=Form)
     target: State | None = None
+    scale: float = PROBE_SCALE
     # the event's context, which mutations read (stale operands, fitted quantities)
     before: State | None = None
     control: tuple[float, float] = (0.0, 0.0)
@@ -163,9 +169,14 @@ class Rerun:
 
     @classmethod
     def with_mutations(
-        cls, noise: Noise, mutations: Iterable[Mutation], form: Form, target: State | None
+        cls,
+        noise: Noise,
+        mutations: Iterable[Mutation],
+        form: Form,
+        target: State | None,
+        scale: float = PROBE_SCALE,
     ) -> Rerun:
-        return cls(noise, {m.operation: m for m in mutations}, form, target)
+        return cls(noise, {m.operation: m for m in mutations}, form, target, scale)
 
     def call(self, operation: str, function: Callable[..., Any], *operands: Any) -> Any:
         """``function(*operands)``, or what the mutation of ``operation`` makes of it."""

@@ -23,15 +23,28 @@ import itertools
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field, replace
-from functools import cache
 
 import numpy as np
 
 from ekfviz.check.mutations import INERT, MUTATIONS, Mutation
-from ekfviz.check.rerun import FORMS, RERUN_ERRORS, Form, Noise, Rerun, State, Step
+from ekfviz.check.probes import MUTATION_BY_ID, acts_on, breadth, fingerprint
+from ekfviz.check.rerun import (
+    FORMS,
+    PROBE_SCALE,
+    RERUN_ERRORS,
+    Form,
+    Noise,
+    Rerun,
+    State,
+    Step,
+)
+from ekfviz.check.scaling import fit_scale
 from ekfviz.core.types import FloatArray
 from ekfviz.models.angles import wrap_angle
 
+# the families of mutations that read a quantity off the filter's result (its own noise, a
+# noise's factor): any set they complete may fit, so a specific one is named before them
+FITTED = frozenset({"own", "scale"})
 # the operations whose mutations make K other than P H^T (H P H^T + R)^-1: only with them
 # do the forms of the covariance update differ
 _GAIN_OPERATIONS = frozenset({"innovation_covariance", "kalman_gain"})
@@ -46,6 +59,7 @@ _ASYMMETRIC_OPERATIONS = frozenset({"corrected_covariance"})
 # are made of; and how many of the nearest a deeper search adds one at a time (see
 # Diagnosis._beam)
 PAIR_CANDIDATES = 20
+COMPLETED_CANDIDATES = 10  # the nearest singles a fitted mutation completes, alone or paired
 TRIPLE_ANCHORS = 3
 SECOND_ANCHORS = 2
 BEAM_CANDIDATES = 60  # the nearest singles the deeper search adds, one at a time
@@ -82,6 +96,7 @@ class Finding:
     :param detail: what a mutation read off the filter (its own noise's sigmas)
     :param indistinct: the sets no event of the run tells from ``causes`` (named as the
         broadest of them)
+    :param scales: each scaled-noise cause's factor k, as read off the filter's result
     """
 
     causes: tuple[str, ...] = ()
@@ -89,6 +104,7 @@ class Finding:
     inherited: bool = False
     detail: str = ""
     indistinct: tuple[tuple[str, ...], ...] = ()
+    scales: tuple[tuple[str, float], ...] = ()
 
     @property
     def known(self) -> bool:
@@ -123,6 +139,8 @@ class Diagnosis:
     searches_left: dict[str, int] = field(default_factory=dict)
     # the causes named among equals, and the options the log had not told them from
     undecided: dict[tuple[str, ...], tuple[tuple[str, ...], ...]] = field(default_factory=dict)
+    # the factor of each scaled noise found (where the next event's fit starts)
+    scales: dict[str, float] = field(default_factory=dict)
 
     def explain(
         self,
@@ -136,7 +154,7 @@ class Diagnosis:
         filter's result ``after`` of ``step`` from ``before``; where several do, those
         the earlier events of ``history`` refute are dropped."""
         close = max(self.tolerance * 10, 1e-8, 1e-9 * divergence)
-        trial = _Trial(self.noise, before, after, step, close)
+        trial = _Trial(self.noise, before, after, step, close, self.scales)
         base = [m for m in self.found.values() if acts_on(m, step, before)]
         forms = self._forms(step, before)
         hit = trial.first(base, forms)
@@ -241,6 +259,12 @@ class Diagnosis:
                                              by_mode[joint])  # fmt: skip
             if reached:
                 return reached, form_of
+        fitted = [m for m in candidates if m.family in FITTED]
+        plain = [m for m in candidates if m.family not in FITTED]
+        for joint in modes:
+            reached, form_of = _completed(trial, base, plain, fitted, by_mode[joint])
+            if reached:
+                return reached, form_of
         if self.deep_left <= 0:
             return [], None
         self.deep_left -= 1
@@ -295,14 +319,7 @@ class Diagnosis:
             elif origin is not None and result.state is not None:
                 cosine, left = trial.relevance(origin, result.state)
                 scored.append((cosine, left, mutation))
-        by_cosine = [m for _, _, m in sorted(scored, key=lambda t: -t[0])]
-        by_left = [m for _, _, m in sorted(scored, key=lambda t: t[1])]
-        nearest: list[Mutation] = []
-        for pair in zip(by_cosine, by_left, strict=True):
-            for mutation in pair:
-                if mutation not in nearest:
-                    nearest.append(mutation)
-        return reached, form_of, nearest
+        return reached, form_of, _nearest_first(scored)
 
     def _named(
         self, sets: list[list[Mutation]], form: Form, trial: _Trial, history: Sequence[Seen]
@@ -321,8 +338,10 @@ class Diagnosis:
         options = sorted(distinct.values() if distinct else sets,
                          key=lambda s: (len(s), [m.id for m in s]))  # fmt: skip
         smallest = [s for s in options if len(s) == len(options[0])]
+        for option in smallest:  # (their factors, for the events that may refute them)
+            self.scales.update(trial.scales_of(option))
         smallest = self._unrefuted(smallest, history)
-        specific = [s for s in smallest if all(m.family != "own" for m in s)]
+        specific = [s for s in smallest if not any(m.family in FITTED for m in s)]
         smallest = _broadest_first(specific or smallest)
         if not trial.step.is_predict and self.joint is None and trial.decides_mode():
             self.joint = form.joint
@@ -335,7 +354,10 @@ class Diagnosis:
         others = tuple(tuple(m.id for m in s) for s in smallest[1:])
         if others:
             self.undecided[tuple(m.id for m in chosen)] = others
-        return Finding(tuple(causes), (), detail=detail, indistinct=others)
+        scales = trial.scales_of(chosen)
+        self.scales.update(scales)
+        return Finding(tuple(causes), (), detail=detail, indistinct=others,
+                       scales=tuple(scales.items()))  # fmt: skip
 
     def _keep(self, mutations: Iterable[Mutation]) -> None:
         for mutation in mutations:
@@ -348,13 +370,18 @@ class Diagnosis:
         """The ``options`` no event of ``history`` refutes (all of them where it refutes
         every one): an option is refuted by an event it acts on that, re-run with what
         explained it (nothing: the filter matched) and the option, is no longer
-        reproduced."""
+        reproduced (an option re-run in place of its rivals where one of them explained
+        it)."""
         if len(options) < 2:
             return options
+        rivals = {m.id for option in options for m in option}
         kept = [
             option
             for option in options
-            if not any(_refutes(self.noise, option, seen, self.tolerance) for seen in history)
+            if not any(
+                _refutes(self.noise, option, seen, self.tolerance, self.scales, rivals)
+                for seen in history
+            )
         ]
         return kept or options
 
@@ -371,17 +398,14 @@ class Diagnosis:
         self._keep(options[0])
         left = tuple(tuple(m.id for m in option) for option in options[1:])
         causes = tuple(m.id for m in options[0]) + form_causes
-        return Finding(causes, (), finding.inherited, finding.detail, left)
+        return Finding(causes, (), finding.inherited, finding.detail, left, finding.scales)
 
 
 def _broadest_first(options: list[list[Mutation]]) -> list[list[Mutation]]:
     """``options`` ordered by how many kinds of event they change, the most first (R's
     sigmas everywhere before S's alone: the one that explains the most), in catalogue
     order among equals."""
-    return sorted(options, key=lambda option: -sum(_breadth(m.id) for m in option))
-
-
-MUTATION_BY_ID: dict[str, Mutation] = {m.id: m for m in MUTATIONS}
+    return sorted(options, key=lambda option: -sum(breadth(m.id) for m in option))
 
 
 @dataclass(frozen=True, slots=True)
@@ -389,6 +413,60 @@ class _Result:
     form: Form | None  # the form that reproduces the event, None where none does
     distance: float  # else how near the nearest came (the largest scaled difference)
     state: State | None = None  # the nearest re-run's result
+
+
+def _nearest_first(scored: list[tuple[float, float, Mutation]]) -> list[Mutation]:
+    """The mutations of (cosine, length left, mutation) by turns the one whose change best
+    points the way of the filter's and the one that leaves the least of it."""
+    by_cosine = [m for _, _, m in sorted(scored, key=lambda t: -t[0])]
+    by_left = [m for _, _, m in sorted(scored, key=lambda t: t[1])]
+    nearest: list[Mutation] = []
+    for pair in zip(by_cosine, by_left, strict=True):
+        for mutation in pair:
+            if mutation not in nearest:
+                nearest.append(mutation)
+    return nearest
+
+
+def _completed(
+    trial: _Trial,
+    base: list[Mutation],
+    candidates: list[Mutation],
+    fitted: list[Mutation],
+    forms: list[Form],
+) -> tuple[list[list[Mutation]], Form | None]:
+    """The sets of one, else two, of ``candidates`` and one of ``fitted`` (a mutation that
+    reads its quantity off the filter's result) beside ``base`` that reproduce the event;
+    and the form. A fitted one reproduces nothing while another mistake is left, so it
+    never ranks by itself; and what it reads off hides whatever else differs where it
+    reaches: the others are ranked by the filter's change outside its reach, the nearest
+    :data:`COMPLETED_CANDIDATES` of them completed by it."""
+    origin = trial.run(base, forms[0])
+    if origin is None:
+        return [], None
+    nearest: dict[str, list[Mutation]] = {}
+    for last in fitted:
+        outside = trial.outside_reach(origin, base, last, forms[0])
+        scored = []
+        for mutation in candidates:
+            state = trial.run([*base, mutation], forms[0])
+            if mutation.operation != last.operation and state is not None:
+                scored.append((*trial.relevance(origin, state, outside), mutation))
+        nearest[last.id] = _nearest_first(scored)[:COMPLETED_CANDIDATES]
+    for size in (1, 2):
+        reached: list[list[Mutation]] = []
+        form_of: Form | None = None
+        for last in fitted:
+            for combo in itertools.combinations(nearest[last.id], size):
+                if len({m.operation for m in combo}) < size:
+                    continue
+                result = trial.best([*base, *combo, last], forms)
+                if result.form is not None:
+                    reached.append([*base, *combo, last])
+                    form_of = form_of or result.form
+        if reached:
+            return reached, form_of
+    return [], None
 
 
 def _combinations(
@@ -411,7 +489,17 @@ def _combinations(
 class _Trial:
     """The re-runs of one event against the filter's result."""
 
-    def __init__(self, noise: Noise, before: State, after: State, step: Step, close: float):
+    def __init__(
+        self,
+        noise: Noise,
+        before: State,
+        after: State,
+        step: Step,
+        close: float,
+        starts: dict[str, float] | None = None,
+        *,
+        fit: bool = True,
+    ):
         self.noise, self.before, self.after, self.step, self.close = (
             noise,
             before,
@@ -420,10 +508,40 @@ class _Trial:
             close,
         )
         self._modes_differ: bool | None = None
+        # a scaled noise's factor: where its fit starts (or, not fitted, the one it takes),
+        # and what it found for each set
+        self.starts, self.fit = starts or {}, fit
+        self.scales: dict[tuple[str, ...], float] = {}
+        self._runs: dict[tuple[tuple[str, ...], Form], State | None] = {}
 
     def run(self, mutations: Sequence[Mutation], form: Form) -> State | None:
+        """The event re-run with ``mutations`` in ``form``; a scaled noise's factor fitted
+        to the filter's result (one at most a set); None where it cannot run."""
+        scaled = [m for m in mutations if m.family == "scale"]
+        if not scaled:
+            key = (_key(mutations), form)
+            if key not in self._runs:
+                self._runs[key] = self._run(mutations, form, PROBE_SCALE)
+            return self._runs[key]
+        if len(scaled) > 1:
+            return None
+        start = self.starts.get(scaled[0].id, 1.0)
+        if not self.fit:
+            return self._run(mutations, form, start)
+        fitted = fit_scale(lambda k: self._run(mutations, form, k), self.after, self.close, start)
+        if fitted is None:
+            return None
+        self.scales[_key(mutations)] = fitted[0]
+        return fitted[1]
+
+    def scales_of(self, mutations: Sequence[Mutation]) -> dict[str, float]:
+        """The factors of the scaled noises of ``mutations`` as fitted last."""
+        k = self.scales.get(_key(mutations))
+        return {m.id: k for m in mutations if m.family == "scale" and k is not None}
+
+    def _run(self, mutations: Sequence[Mutation], form: Form, scale: float) -> State | None:
         try:
-            rerun = Rerun.with_mutations(self.noise, mutations, form, self.after)
+            rerun = Rerun.with_mutations(self.noise, mutations, form, self.after, scale)
             with np.errstate(all="ignore"):  # a mutation may overflow: it reproduces nothing
                 result = rerun.run(self.before, self.step)
         except RERUN_ERRORS:
@@ -454,19 +572,37 @@ class _Trial:
                 nearest, state = distance, result
         return _Result(None, nearest, state)
 
-    def relevance(self, origin: State, result: State) -> tuple[float, float]:
+    def relevance(
+        self, origin: State, result: State, where: FloatArray | None = None
+    ) -> tuple[float, float]:
         """How a re-run's change from ``origin`` compares with the filter's: the cosine of
         the two changes, and the length of what it leaves of the filter's (both scaled as
-        the comparison scales its differences)."""
+        the comparison scales its differences; over the entries ``where`` is 1 only)."""
         wanted, made = _change(origin, self.after), _change(origin, result)
         if wanted is None or made is None:
             return -1.0, math.inf
+        if where is not None and len(where) == len(wanted) == len(made):
+            wanted, made = wanted * where, made * where
         norms = float(np.linalg.norm(wanted) * np.linalg.norm(made))
         cosine = float(wanted @ made) / norms if norms > 0 else -1.0
         return cosine, float(np.linalg.norm(wanted - made))
 
     def first(self, mutations: Sequence[Mutation], forms: Sequence[Form]) -> Form | None:
         return self.best(mutations, forms).form
+
+    def outside_reach(
+        self, origin: State, base: list[Mutation], fitted: Mutation, form: Form
+    ) -> FloatArray | None:
+        """1 at the entries of x and P (as :func:`_change` lays them out) that no quantity
+        ``fitted`` reads off can change, 0 at the others: those the scaled noise of its
+        operation changes (its own noise reaches where a scale of the run's does); None
+        where its operation has no such noise."""
+        scaled = SCALED_OF.get(fitted.operation)
+        if scaled is None:
+            return None
+        probe = self._run([*base, scaled], form, PROBE_SCALE)
+        change = None if probe is None else _change(origin, probe)
+        return None if change is None else (np.abs(change) <= 1e-12).astype(np.float64)
 
     def decides_mode(self) -> bool:
         """Whether the event tells the joint update from the sequential one: two known
@@ -479,6 +615,14 @@ class _Trial:
                 and scaled_distance(joint, sequential) > self.close
             )
         return self._modes_differ
+
+
+# each operation's scaled noise: what a quantity of that operation read off a filter reaches
+SCALED_OF: dict[str, Mutation] = {m.operation: m for m in MUTATIONS if m.family == "scale"}
+
+
+def _key(mutations: Sequence[Mutation]) -> tuple[str, ...]:
+    return tuple(sorted(m.id for m in mutations))
 
 
 def _change(origin: State, result: State) -> FloatArray | None:
@@ -538,33 +682,6 @@ def _kind(step: Step) -> str:
     return "predict" if step.is_predict else "update"
 
 
-def acts_on(mutation: Mutation, step: Step, before: State) -> bool:
-    """Whether ``mutation`` can change ``step`` from ``before`` at all."""
-    event = mutation.event
-    if step.is_predict:
-        if event != "predict":
-            return False
-        if mutation.when == "still":
-            return step.d == 0.0 and step.alpha == 0.0
-        if mutation.when == "not_driving":
-            return step.d == 0.0
-        return True
-    if event == "predict" or mutation.family == "form":
-        return False
-    assert step.ids is not None
-    known_ids = set(before.ids.tolist())
-    line = step.ids.tolist()
-    has_known = any(i in known_ids for i in line)
-    has_new = any(i not in known_ids for i in line)
-    if mutation.operation == "measurement_noise":
-        return True
-    if mutation.id in ("update_loop.init_in_line_order", "init_pose.before_line"):
-        return has_known and has_new
-    if mutation.id == "update_loop.update_at_init":
-        return has_new
-    return has_new if event == "init" else has_known
-
-
 def _minimal(trial: _Trial, base: Sequence[Mutation], form: Form) -> list[Mutation]:
     """``base`` without the mutations the event does not need."""
     kept = list(base)
@@ -575,26 +692,29 @@ def _minimal(trial: _Trial, base: Sequence[Mutation], form: Form) -> list[Mutati
     return kept
 
 
-def _refutes(noise: Noise, option: Sequence[Mutation], seen: Seen, tolerance: float) -> bool:
+def _refutes(
+    noise: Noise,
+    option: Sequence[Mutation],
+    seen: Seen,
+    tolerance: float,
+    scales: dict[str, float],
+    rivals: set[str],
+) -> bool:
     """Whether ``option`` breaks the explanation of an earlier event (see
-    :meth:`Diagnosis._unrefuted`)."""
+    :meth:`Diagnosis._unrefuted`); a scaled noise at the factor ``scales`` found for it
+    (one factor a run: the code scales its noise alike at every event)."""
     acting = [m for m in option if acts_on(m, seen.step, seen.before)]
     if not acting or any(m.id in seen.explained_by for m in acting):
         return False
     explained = [MUTATION_BY_ID[c] for c in seen.explained_by if c in MUTATION_BY_ID]
     operations = {m.operation for m in acting}
-    mutations = [m for m in explained if m.operation not in operations] + acting
+    kept = [m for m in explained if m.operation not in operations and m.id not in rivals]
+    mutations = kept + acting
     joint = any(c == "update_loop.joint" for c in seen.explained_by)
-    trial = _Trial(noise, seen.before, seen.after, seen.step, max(tolerance * 10, 1e-8))
+    trial = _Trial(noise, seen.before, seen.after, seen.step, max(tolerance * 10, 1e-8), scales,
+                   fit=False)  # fmt: skip
     forms = [Form(joint, covariance) for covariance in ("ikh", "sks", "joseph")]
     return trial.best(mutations, forms).form is None
-
-
-@cache
-def _breadth(mutation_id: str) -> int:
-    """How many probe events a mutation changes."""
-    return sum(1 for k, r in zip(fingerprint(mutation_id), fingerprint(""), strict=False)
-               if k not in (b"", r))  # fmt: skip
 
 
 def _detail(chosen: Sequence[Mutation], trial: _Trial, form: Form) -> str:
@@ -613,111 +733,3 @@ def _detail(chosen: Sequence[Mutation], trial: _Trial, form: Form) -> str:
         f"its motion sigmas are about {sigmas[0]:.4g}, {sigmas[1]:.4g}, {sigmas[2]:.4g}"
         " (along, sideways, turn)"
     )
-
-
-# -- equivalences ------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True, slots=True)
-class Classes:
-    """What the probes tell of the catalogue (see :func:`classes`).
-
-    :param representative: each mutation no event tells from an earlier one of the
-        catalogue, mapped to that one
-    :param inert: the mutations that change no event at all (a sign of a column of J_z,
-        which R's diagonal hides; a heading wrapped otherwise, which check compares
-        modulo 2 pi): no cause ``check`` can name
-    """
-
-    representative: dict[str, str]
-    inert: frozenset[str]
-
-
-@cache
-def fingerprint(mutation_id: str) -> tuple[bytes, ...]:
-    """What a mutation (empty: none) does to each probe event of :func:`_probes` (empty
-    where it cannot act): two mutations of the same fingerprint change every event the
-    same way (the heading compared modulo 2 pi, as check compares it), and are one cause.
-    The mutations that read the filter's own result are their own (no fingerprint)."""
-    if not mutation_id:
-        return tuple(_fingerprint([], before, step) for before, step in _probes())
-    mutation = MUTATION_BY_ID[mutation_id]
-    if mutation.family in ("own", "form"):
-        return (mutation_id.encode(),)
-    return tuple(
-        _fingerprint([mutation], before, step) if acts_on(mutation, step, before) else b""
-        for before, step in _probes()
-    )
-
-
-def is_inert(mutation_id: str) -> bool:
-    """Whether a mutation changes no probe event at all (see :class:`Classes`)."""
-    return all(
-        k in (b"", r) for k, r in zip(fingerprint(mutation_id), fingerprint(""), strict=False)
-    )
-
-
-def classes() -> Classes:
-    """The whole catalogue's classes (its table and coverage; a run asks :func:`fingerprint`
-    of the mutations it meets only)."""
-    representative: dict[str, str] = {}
-    inert: set[str] = set()
-    seen: dict[tuple[bytes, ...], str] = {}
-    for mutation in MUTATIONS:
-        if is_inert(mutation.id):
-            inert.add(mutation.id)
-            continue
-        first = seen.setdefault(fingerprint(mutation.id), mutation.id)
-        if first != mutation.id:
-            representative[mutation.id] = first
-    return Classes(representative, frozenset(inert))
-
-
-def _fingerprint(mutations: list[Mutation], before: State, step: Step) -> bytes:
-    try:
-        result = Rerun.with_mutations(_PROBE_NOISE, mutations, Form(), None).run(before, step)
-    except RERUN_ERRORS:
-        return b"error"
-    x = result.x.copy()
-    x[2] = wrap_angle(float(x[2]))
-    values = np.concatenate([x, result.P.ravel()])
-    return np.round(values, 9).tobytes()
-
-
-_PROBE_NOISE = Noise(np.diag([0.0625, 0.01, 0.01]), np.diag([1e-4, 0.0064]))
-
-
-def _probes() -> list[tuple[State, Step]]:
-    """Events of every kind from random states (a fixed seed): see :func:`fingerprint`."""
-    rng = np.random.default_rng(20261)
-    probes = []
-    for heading in (0.4, 2.9, -2.2):
-        pose = np.array([0.3, -0.2, heading])
-        # ahead-left, right behind (its bearing about pi), to the right, behind-right
-        directions = heading + np.array([0.6, math.pi - 0.01, -1.2, -2.5])
-        ranges = np.array([5.0, 6.0, 7.0, 4.5])
-        landmarks = pose[:2] + ranges[:, None] * np.column_stack(
-            [np.cos(directions), np.sin(directions)]
-        )
-        x = np.concatenate([pose, landmarks.ravel()])
-        A = rng.normal(size=(len(x), len(x)))
-        P = A @ A.T / len(x) * 0.05 + np.diag(np.full(len(x), 0.01))
-        ids = np.array([3, 5, 8, 9])
-        s = State(x, P, ids)
-        seen = np.column_stack([directions - heading + rng.normal(0.0, 0.05, 4),
-                                ranges + rng.normal(0.0, 0.1, 4)])  # fmt: skip
-        seen[1, 0] = -math.pi + 0.02  # across +-pi from the predicted bearing
-        seen[:, 0] = [wrap_angle(b) for b in seen[:, 0]]
-        mixed = np.vstack([seen[1], [0.7, 4.0], seen[0], [-2.5, 6.0]])
-        first = np.array([[0.5, 5.0], [-2.8, 4.0], [2.0, 7.0]])
-        empty = State(x[:3].copy(), P[:3, :3].copy(), np.zeros(0, dtype=np.int64))
-        probes += [
-            (s, Step(d=1.3, alpha=0.4)),
-            (s, Step(d=0.8, alpha=-2.0)),
-            (s, Step(d=0.0, alpha=0.0)),
-            (s, Step(d=0.0, alpha=0.3)),
-            (s, Step(ids=ids, z=seen)),
-            (s, Step(ids=np.array([5, 11, 3, 12]), z=mixed)),
-            (empty, Step(ids=np.array([1, 2, 3]), z=first)),
-        ]
-    return probes

@@ -255,6 +255,11 @@ MISTAKES: dict[str, Mistake] = {
                       "np.array([[1, 0, rng * np.sin(phi)], [0, 1, -rng * np.cos(phi)]])"),),
         "solution": ((_JP_SOLUTION,
                       "J_p = np.array([[1, 0, r * np.sin(phi)], [0, 1, -r * np.cos(phi)]])"),)}),
+    # (the solution's J_p heading column negated changes nothing: see UNTELLABLE; nor can
+    # its P_ll alone tell which entry of that column is negated)
+    "jp_one_sign": Mistake("init_jacobian_pose.sign_ly_theta", {
+        "skeleton": ((_JP_SKELETON,
+                      "np.array([[1, 0, -rng * np.sin(phi)], [0, 1, -rng * np.cos(phi)]])"),)}),
     "jz_transposed": Mistake("init_jacobian_measurement.transposed", {
         "skeleton": ((_JZ_SKELETON, "np.array([[-rng * np.sin(phi), rng * np.cos(phi)],"
                                     " [np.cos(phi), np.sin(phi)]])"),),
@@ -423,6 +428,91 @@ CORRECT: dict[str, str] = {
 }
 
 
+# -- mutants of the families the search fits a quantity for -----------------------------------
+#
+# each in several shapes of code (the course functions with column vectors, the skeleton
+# with flat ones, a class of the course functions, a protocol filter class): a noise
+# matrix used scaled (the factor read off the filter), a noise of the filter's own that it
+# does not declare beside another mistake, and J_p's heading sign
+_TEXTBOOK = (ROOT / "tests" / "plugins" / "textbook.py").read_text()
+_OWN_Q = "np.diag([0.3, 0.15, 0.05]) ** 2"
+
+
+def _textbook_with(name: str, body: str) -> str:
+    """The textbook protocol filter's module with a subclass ``name`` of ``body``."""
+    return f"{_TEXTBOOK}\n\nclass {name}(Textbook):\n{body}"
+
+
+_OWN_NOISE_INIT = f"""    def __init__(self, params: Any) -> None:
+        super().__init__(params)
+        self.Q = {_OWN_Q}
+"""
+
+
+@dataclass(frozen=True, slots=True)
+class FamilyMutant:
+    """A module of a family beside the corpus's: its text, the causes check must name
+    beside the handout's, and the class to load from it (none: the module's functions)."""
+
+    causes: frozenset[str]
+    text: str
+    spec: str = ""
+
+
+def _causes(*ids: str) -> frozenset[str]:
+    return frozenset(ids)
+
+
+FAMILY_MUTANTS: dict[str, FamilyMutant] = {
+    # a noise matrix used scaled
+    "scaled/textbook_r_everywhere": FamilyMutant(_causes("measurement_noise.scaled"),
+        _textbook_with("RTenfold", _OWN_NOISE_INIT.replace(f"self.Q = {_OWN_Q}",
+                                                           "self.R = 10.0 * self.R")),
+        "RTenfold"),
+    "scaled/skeleton_r_in_s": FamilyMutant(_causes("innovation_covariance.noise_scaled"),
+        apply(SKELETON_TEXT, ((_S_SKELETON, "S = H @ P @ H.T + 10 * measure_cov"),))),
+    "scaled/flat_q_halved": FamilyMutant(_causes("motion_noise.scaled"),
+        apply(FLAT_SKELETON, (("W @ control_cov @ W.T", "W @ (control_cov / 2) @ W.T"),))),
+    "scaled/class_pll_quarter": FamilyMutant(_causes("landmark_covariance.noise_scaled"),
+        _class_of(apply(SKELETON_TEXT, ((_PLL_SKELETON,
+                                         "block = block + J_z @ init_measure_cov @ J_z.T / 4"),)))),
+    "scaled/solution_r_everywhere": FamilyMutant(_causes("measurement_noise.scaled"),
+        apply(SOLUTION_TEXT, (("    X, P = X_pre.copy(), P_pre.copy()\n",
+                               "    X, P = X_pre.copy(), P_pre.copy()\n"
+                               "    measure_cov = measure_cov * 5\n"),
+                              ("J_z @ init_measure_cov @ J_z.T",
+                               "J_z @ (5 * init_measure_cov) @ J_z.T")))),
+    # a noise of the filter's own, undeclared, beside another mistake
+    "own_noise/textbook_g_heading_sign": FamilyMutant(
+        _causes("motion_noise.own", "motion_jacobian.sign_column_theta"),
+        _textbook_with("OwnNoise", "    heading_sign = -1.0\n\n" + _OWN_NOISE_INIT), "OwnNoise"),
+    "own_noise/solution_g_transposed": FamilyMutant(
+        _causes("motion_noise.own", "motion_jacobian.transposed"),
+        apply(SOLUTION_TEXT, (("P_pre = G @ P @ G.T + Q", "P_pre = G.T @ P @ G + Q"),
+                              ("    d, alpha = control[0, 0], control[1, 0]\n",
+                               f"    d, alpha = control[0, 0], control[1, 0]\n"
+                               f"    control_cov = {_OWN_Q}\n")))),
+    "own_noise/flat_pose_block_only": FamilyMutant(
+        _causes("motion_noise.own", "cross_covariance.skipped"),
+        apply(FLAT_SKELETON, (("P = G @ P @ G.T",
+                               "P[:3, :3] = G[:3, :3] @ P[:3, :3] @ G[:3, :3].T"),
+                              ("W @ control_cov @ W.T", f"W @ {_OWN_Q} @ W.T")))),
+    # J_p's heading column negated, where a correlated pose at initialisation shows it
+    "jp_sign/class_of_the_skeleton": FamilyMutant(
+        _causes("init_jacobian_pose.sign_column_theta"),
+        _class_of(apply(SKELETON_TEXT, MISTAKES["jp_sign"].edits["skeleton"]))),
+    "jp_sign/flat_one_entry": FamilyMutant(_causes("init_jacobian_pose.sign_ly_theta"),
+        apply(FLAT_SKELETON, MISTAKES["jp_one_sign"].edits["skeleton"])),
+    "jp_sign/flat": FamilyMutant(_causes("init_jacobian_pose.sign_column_theta"),
+        apply(FLAT_SKELETON, MISTAKES["jp_sign"].edits["skeleton"])),
+}  # fmt: skip
+
+# mutants whose mistake changes no number a course module can give on the battery: the
+# handout's init has no cross-covariances and init_landmarks gets a diagonal pose
+# covariance, so J_p's heading column enters P_ll as J_p P_rr J_p^T, whatever its sign
+UNTELLABLE = {"solution/jp_sign": "solution"}
+
+
 # -- running check on them -------------------------------------------------------------------
 
 
@@ -438,8 +528,9 @@ class Verdict:
     hints: tuple[str, ...]
 
 
-def verdict(path: Path, every: bool = True) -> Verdict:
-    """``check`` of the module at ``path`` on the course logs of the battery."""
+def verdict(path: Path, every: bool = True, spec: str = "") -> Verdict:
+    """``check`` of the module at ``path`` (its class ``spec``, if given) on the course
+    logs of the battery."""
     from dataclasses import replace
 
     from ekfviz.check.lockstep import lockstep
@@ -456,7 +547,7 @@ def verdict(path: Path, every: bool = True) -> Verdict:
     for log, start in (("classic", None), ("edge", EDGE_START)):
         params = FilterParams() if start is None else replace(FilterParams(), init_pose=start)
         try:
-            make_filter = FilterSpec(str(path)).load()
+            make_filter = FilterSpec(f"{path}:{spec}" if spec else str(path)).load()
         except FilterSpecError as error:
             errors.append(f"{log}: {error}")
             continue
