@@ -347,11 +347,13 @@ def test_an_open_source_style_filter_gets_its_predict_mistakes_named(
         assert predict["cause"] == (
             "motion_noise.declared+motion_jacobian.transposed+cross_covariance.skipped"
         )
-    else:  # a noise of its own it does not declare: the first operation that differs is G
-        assert predict["operation"] == "motion_jacobian", predict
+    else:  # a noise of its own it does not declare, read off its result; G and P_rm named
+        assert predict["cause"] == (
+            "motion_jacobian.transposed+cross_covariance.skipped+motion_noise.own"
+        ), predict
 
 
-@pytest.mark.slow  # a class graded whole (tests/sandbox grade each case alone)
+@pytest.mark.slow  # a whole class again (each kind of row is graded by default above)
 def test_grade_on_a_dask_cluster_gives_the_same_rows(tmp_path: Path) -> None:
     """Each submission in its sandbox on the cluster's workers: one that dials the
     scheduler (its address was in an ancestor's command line) reaches nothing."""
@@ -621,18 +623,25 @@ def test_the_handouts_main_at_import_is_skipped_and_said(tmp_path: Path) -> None
         assert said in line, line
 
 
-@pytest.mark.slow  # a class graded whole (tests/sandbox grade each case alone)
+@pytest.mark.slow  # a whole class again (each kind of row is graded by default above)
 def test_grade_of_wild_students_names_each_ones_mistake(tmp_path: Path) -> None:
     folder = tmp_path / "class"
     students.write(folder / "ada", "stale_linearisation")
     (folder / "bob.py").write_text(students.class_based())
     students.write(folder / "cy", "control_swapped")
-    students.write(folder / "dee", "r_thrice")
+    students.write(folder / "eve", "r_thrice")
+    # a mistake of no family (R plus a constant in S): its row says unknown
+    students.write(folder / "dee", "correct").write_text(
+        students.source("correct").replace(
+            "S = H @ P @ H.T + measure_cov", "S = H @ P @ H.T + measure_cov + 0.01"
+        )
+    )
     result = ekfviz("grade", str(folder), "--json")
     assert result.returncode == 0, result.stderr
     rows = {row["submission"]: row for row in json.loads(result.stdout)["submissions"]}
     assert {name: row["status"] for name, row in rows.items()} == {
-        "ada": "diverged", "bob.py": "diverged", "cy": "diverged", "dee": "diverged"
+        "ada": "diverged", "bob.py": "diverged", "cy": "diverged", "dee": "diverged",
+        "eve": "diverged",
     }  # fmt: skip
     # a correct module's causes, and divergences of no known cause: "unknown", last, tells
     # the two apart in the causes column too
@@ -648,6 +657,7 @@ def test_grade_of_wild_students_names_each_ones_mistake(tmp_path: Path) -> None:
     # the class's methods are the handout's functions: the correct module's verdict
     assert set(rows["bob.py"]["causes"]) == _resolved("correct")
     assert set(rows["cy"]["causes"]) == _resolved("control_swapped")
+    assert set(rows["eve"]["causes"]) == _resolved("r_thrice")  # R used 3 times too large
 
 
 def test_pairs_of_update_mutations_re_run_on_a_line_of_known_and_new() -> None:
