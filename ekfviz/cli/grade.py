@@ -151,11 +151,7 @@ def grade(
     if gradescope_zip is not None or gradescope:
         _refuse_class_options(gradescope_zip is not None)
     if gradescope_zip is not None:
-        from ekfviz.app.gradescope import write_autograder_zip
-
-        write_autograder_zip(gradescope_zip, rubric)
-        out.print(plain(f"Wrote {gradescope_zip}: upload it as the autograder of a Gradescope"
-                        " programming assignment (Ubuntu 22.04 image or later)"))  # fmt: skip
+        _autograder_zip(gradescope_zip, rubric)
         return
     if gradescope:
         _gradescope(submission, results, rubric, python, no_sandbox)
@@ -180,6 +176,15 @@ def grade(
         _print(outcome, json_output)
     if outcome.stopped_by is not None:
         interrupted(outcome.stopped_by, outcome.kept)
+
+
+def _autograder_zip(path: Path, rubric: Path | None) -> None:
+    """Write Gradescope's autograder zip and say how to use it."""
+    from ekfviz.app.gradescope import write_autograder_zip
+
+    write_autograder_zip(path, rubric)
+    out.print(plain(f"Wrote {path}: upload it as the autograder of a Gradescope programming"
+                    " assignment (Ubuntu 22.04 image or later)"))  # fmt: skip
 
 
 def _print(outcome: GradeOutcome, json_output: bool) -> None:

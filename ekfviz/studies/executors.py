@@ -121,7 +121,11 @@ def _pooled(
     pool = ProcessPoolExecutor(max_workers=workers, initializer=_worker_signals)
     broken: list[int] = []
     try:
-        futures = {pool.submit(fn, items[index]): index for index in indices}
+        # a local pool forks its processes as runs are submitted: a signal acted on inside
+        # os.fork's hooks breaks them (logging's lock released unheld, said on stderr), so
+        # one that comes meanwhile is acted on once the runs are queued
+        with signals.held():
+            futures = {pool.submit(fn, items[index]): index for index in indices}
         for future in _completed(list(futures)):
             try:
                 found[futures[future]] = future.result()
