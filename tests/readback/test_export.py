@@ -349,7 +349,7 @@ def test_a_recording_cut_at_a_chunk_s_end_is_not_exported_as_whole(tmp_path: Pat
     def ekfviz(*args: str) -> subprocess.CompletedProcess[str]:
         return run_ekfviz(*args, cwd=tmp_path)
 
-    assert ekfviz("replay", str(DATA / "loop.txt"), "--save", "whole.rrd").returncode == 0
+    assert ekfviz("replay", str(DATA / "classic.txt"), "--save", "whole.rrd").returncode == 0
     data = (tmp_path / "whole.rrd").read_bytes()
     starts, at = [], 12  # the file's header, then (kind, length) and the body of each message
     while at + 16 <= len(data):

@@ -59,8 +59,9 @@ KINDS = {
     "classic-history": ["replay", str(CLASSIC), "--truth", str(TRUTH), "--history"],
     "classic-no-truth": ["replay", str(CLASSIC)],
     "loop": ["replay", str(LOOP), "--truth", str(LOOP_TRUTH)],
+    "short-loop": ["replay", "SHORT_LOOP", "--truth", "SHORT_LOOP_TRUTH"],
     "scans": ["replay", str(SCANS), "--truth", str(SCANS_TRUTH)],
-    "scans-no-truth": ["replay", str(SCANS), "--association", "nn"],
+    "scans-no-truth": ["replay", "SCANS_HEAD", "--association", "nn"],
     "compare-2": ["compare", str(CLASSIC), "--truth", str(TRUTH), "--filter", "ekf",
                   "--filter", plugin("Textbook"), "--workers", "1"],
     "compare-3": ["compare", str(CLASSIC), "--truth", str(TRUTH), "--filter", "ekf",
@@ -77,15 +78,17 @@ KINDS = {
     "rosbag": ["replay", "BAG"],
     "consistency": ["consistency", "--runs", "3", "--workers", "1"],
 }  # fmt: skip
+# the bundled loop's 2,000 lines record what the short one's 150 steps do
+SLOW_KINDS = {"loop"}
 
 
 @pytest.fixture(scope="module")
 def short_loop(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A loop in the extended format, as the bundled one, of 300 steps and 60 landmarks
-    (the dense textbook filter of a compare is cubic in the map)."""
+    """A loop in the extended format, as the bundled one, of 150 steps and 40 landmarks
+    (the dense textbook filter of a compare is cubic in the map); its truth beside it."""
     log = tmp_path_factory.mktemp("loop") / "loop.txt"
     result = runner.invoke(
-        app, ["simulate", "--scenario", "loop", "--steps", "300", "--landmarks", "60",
+        app, ["simulate", "--scenario", "loop", "--steps", "150", "--landmarks", "40",
               "-o", str(log), "--truth-out", str(log.with_suffix(".json"))],
     )  # fmt: skip
     assert result.exit_code == 0, result.output
@@ -104,6 +107,25 @@ def bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.fixture(scope="module")
+def scans_head(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The first 500 lines of the bundled log of scans (its header with them)."""
+    head = tmp_path_factory.mktemp("scans") / "scans.txt"
+    head.write_text("".join(SCANS.read_text().splitlines(keepends=True)[:500]))
+    return head
+
+
+def stand_ins(args: list[str], request: pytest.FixtureRequest) -> list[str]:
+    """``args`` with the names of the fixtures' files in them made their paths."""
+    found = {
+        "SHORT_LOOP": lambda: str(request.getfixturevalue("short_loop")),
+        "SHORT_LOOP_TRUTH": lambda: str(request.getfixturevalue("short_loop").with_suffix(".json")),
+        "BAG": lambda: str(request.getfixturevalue("bag")),
+        "SCANS_HEAD": lambda: str(request.getfixturevalue("scans_head")),
+    }
+    return [found[arg]() if arg in found else arg for arg in args]
+
+
+@pytest.fixture(scope="module")
 def recorded(
     tmp_path_factory: pytest.TempPathFactory, request: pytest.FixtureRequest
 ) -> Callable[[str], tuple[Path, Layout]]:
@@ -113,11 +135,7 @@ def recorded(
 
     def record(kind: str) -> tuple[Path, Layout]:
         if kind not in made_once:
-            args = KINDS[kind]
-            for stand_in, fixture in (("SHORT_LOOP", "short_loop"), ("BAG", "bag")):
-                if stand_in in args:
-                    found = str(request.getfixturevalue(fixture))
-                    args = [found if arg == stand_in else arg for arg in args]
+            args = stand_ins(KINDS[kind], request)
             save = folder / f"{kind}.rrd"
             made_once[kind] = save, made(args, save, code=1 if kind.startswith("check-a") else 0)
         return made_once[kind]
@@ -125,7 +143,9 @@ def recorded(
     return record
 
 
-@pytest.mark.parametrize("kind", list(KINDS))
+@pytest.mark.parametrize(
+    "kind", [pytest.param(k, marks=pytest.mark.slow) if k in SLOW_KINDS else k for k in KINDS]
+)
 def test_every_entity_with_data_is_in_a_view_and_no_view_is_empty(
     kind: str, recorded: Callable[[str], tuple[Path, Layout]]
 ) -> None:
