@@ -4,14 +4,13 @@ from __future__ import annotations
 
 import json
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
 from blueprints import read_layout
+from commands import run_ekfviz
 from conftest import entity_rows, rrd_verify
 from typer.testing import CliRunner
 
@@ -303,9 +302,8 @@ def test_a_faulty_plugin_is_one_line_and_keeps_the_recording(
     tmp_path: Path, name: str, where: str, what: str, kept: bool
 ) -> None:
     save = tmp_path / "run.rrd"
-    command = [sys.executable, "-m", "ekfviz", "replay", str(CLASSIC), "--filter", plugin(name),
-               "--save", str(save)]  # fmt: skip
-    done = subprocess.run(command, capture_output=True, text=True)
+    command = ["replay", str(CLASSIC), "--filter", plugin(name), "--save", str(save)]
+    done = run_ekfviz(*command)
     assert done.returncode == 2
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1, done.stderr
@@ -314,7 +312,7 @@ def test_a_faulty_plugin_is_one_line_and_keeps_the_recording(
     assert save.exists() is kept
     if kept:
         assert entity_rows(save, "/world/robot")
-    debug = subprocess.run([*command[:3], "--debug", *command[3:]], capture_output=True, text=True)
+    debug = run_ekfviz("--debug", *command)
     assert "Traceback" in debug.stderr
     if name == "Raises":  # the user's own frame is in it
         assert "division by zero in my predict" in debug.stderr and "textbook.py" in debug.stderr
@@ -325,24 +323,18 @@ def test_a_p_that_drifts_from_symmetric_by_rounding_runs_and_is_said_once(
 ) -> None:
     # a Joseph form never symmetrised drifts a little at every event: not a wrong formula
     save = tmp_path / "run.rrd"
-    command = [sys.executable, "-m", "ekfviz", "replay", str(CLASSIC), "--filter",
-               plugin("Drifting"), "--save", str(save)]  # fmt: skip
-    done = subprocess.run(command, capture_output=True, text=True)
+    done = run_ekfviz("replay", CLASSIC, "--filter", plugin("Drifting"), "--save", save)
     assert done.returncode == 0, done.stderr
     said = [line for line in done.stderr.splitlines() if "P drifts from symmetric" in line]
     assert len(said) == 1 and "symmetrise P after each update" in said[0], done.stderr
-    checked = subprocess.run(
-        [sys.executable, "-m", "ekfviz", "check", str(CLASSIC), "--filter", plugin("Drifting")],
-        capture_output=True, text=True,
-    )  # fmt: skip
+    checked = run_ekfviz("check", CLASSIC, "--filter", plugin("Drifting"))
     assert checked.returncode == 0 and checked.stdout.startswith("match"), checked.stdout
 
 
-def test_a_drift_from_symmetric_that_keeps_growing_stops_with_its_own_hint() -> None:
-    done = subprocess.run(
-        [sys.executable, "-m", "ekfviz", "replay", str(CLASSIC), "--filter",
-         plugin("DriftingFast")], capture_output=True, text=True,
-    )  # fmt: skip
+def test_a_drift_from_symmetric_that_keeps_growing_stops_with_its_own_hint(
+    tmp_path: Path,
+) -> None:
+    done = run_ekfviz("replay", CLASSIC, "--filter", plugin("DriftingFast"), cwd=tmp_path)
     assert done.returncode == 2
     (line,) = done.stderr.strip().splitlines()
     assert "P is not symmetric" in line and "at most 1e-06" in line

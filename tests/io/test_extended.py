@@ -294,8 +294,15 @@ def _blocks_read_at_once(monkeypatch: pytest.MonkeyPatch) -> list[bool]:
     return read_at_once
 
 
+# seeds 0, 1, 2 and 5 are the four kinds (timed or not, scans or observations by id)
+_SEEDS = [
+    *(pytest.param(seed) for seed in (0, 1, 2, 5)),
+    *(pytest.param(seed, marks=pytest.mark.slow) for seed in (3, 4, *range(6, 12))),
+]
+
+
 @pytest.mark.parametrize("parser", ["compiled", "float"])
-@pytest.mark.parametrize("seed", range(12))
+@pytest.mark.parametrize("seed", _SEEDS)
 def test_blocks_read_at_once_read_as_line_by_line(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, seed: int, parser: str
 ) -> None:
@@ -351,20 +358,48 @@ _MUTATION_WORDS = [
 ]  # fmt: skip
 
 
-@settings(
-    max_examples=1000,
+_MUTATIONS = {
+    "scans": st.booleans(),
+    "timed": st.booleans(),
+    "edits": st.lists(
+        st.tuples(st.integers(0, 4), st.floats(0, 1), st.integers(0, 255)), min_size=1, max_size=8
+    ),
+}
+_MUTATED = settings(
     deadline=None,
     suppress_health_check=[HealthCheck.function_scoped_fixture],
     derandomize=True,  # the same examples on every run: a failure is reproducible
 )
-@given(
-    scans=st.booleans(),
-    timed=st.booleans(),
-    edits=st.lists(
-        st.tuples(st.integers(0, 4), st.floats(0, 1), st.integers(0, 255)), min_size=1, max_size=8
-    ),
-)
+
+
+@settings(_MUTATED, max_examples=150)
+@given(**_MUTATIONS)
 def test_mutated_logs_read_at_once_as_line_by_line(
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    scans: bool,
+    timed: bool,
+    edits: list[tuple[int, float, int]],
+) -> None:
+    """See :func:`_mutated_log_reads_at_once_as_line_by_line`."""
+    _mutated_log_reads_at_once_as_line_by_line(tmp_path, monkeypatch, scans, timed, edits)
+
+
+@pytest.mark.slow
+@settings(_MUTATED, max_examples=1000)
+@given(**_MUTATIONS)
+def test_many_mutated_logs_read_at_once_as_line_by_line(
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    scans: bool,
+    timed: bool,
+    edits: list[tuple[int, float, int]],
+) -> None:
+    """See :func:`_mutated_log_reads_at_once_as_line_by_line`."""
+    _mutated_log_reads_at_once_as_line_by_line(tmp_path, monkeypatch, scans, timed, edits)
+
+
+def _mutated_log_reads_at_once_as_line_by_line(
     tmp_path: Path,
     monkeypatch: pytest.MonkeyPatch,
     scans: bool,

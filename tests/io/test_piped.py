@@ -21,6 +21,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from commands import run_ekfviz, run_ekfviz_process
 from conftest import catches_signal, entity_rows
 
 from ekfviz.io.piped import PipedInputError, read_ahead
@@ -34,10 +35,9 @@ LOG, TRUTH = DATA / "classic.txt", DATA / "classic_truth.json"
 
 
 def ekfviz(*args: str, **kwargs: object) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(  # type: ignore[call-overload, no-any-return]
-        [sys.executable, "-m", "ekfviz", *args],
-        capture_output=True, text=True, timeout=120, **kwargs,
-    )  # fmt: skip
+    """``python -m ekfviz ARGS`` on a standard input of its own: ``-`` reads descriptor 0,
+    which in the test's process is the test runner's."""
+    return run_ekfviz_process(*args, timeout=120, **kwargs)
 
 
 def piped(content: bytes) -> int:
@@ -52,11 +52,11 @@ def piped(content: bytes) -> int:
     return read_end
 
 
-@pytest.fixture
-def by_file(tmp_path: Path) -> tuple[str, list[dict[str, object]]]:
+@pytest.fixture(scope="module")
+def by_file(tmp_path_factory: pytest.TempPathFactory) -> tuple[str, list[dict[str, object]]]:
     """What a replay of the bundled log and truth, given as files, prints and records."""
-    rrd = tmp_path / "file.rrd"
-    done = ekfviz("replay", str(LOG), "--truth", str(TRUTH), "--save", str(rrd))
+    rrd = tmp_path_factory.mktemp("by_file") / "file.rrd"
+    done = run_ekfviz("replay", LOG, "--truth", TRUTH, "--save", rrd)
     assert done.returncode == 0, done.stderr
     return done.stdout, entity_rows(rrd, "/world/robot")
 
@@ -78,7 +78,7 @@ def test_a_log_on_standard_input_replays_as_its_file(
     assert _results(done.stdout) == _results(stdout)
     assert done.stdout.splitlines()[-1].startswith(f"Saved {rrd}; open it with: ")
     assert entity_rows(rrd, "/world/robot") == robot  # every pose, as recorded from the file
-    info = ekfviz("info", str(rrd))
+    info = run_ekfviz("info", rrd)
     assert "ekfviz replay - --truth" in info.stdout  # the command as it was given
     assert "input              stdin (3046 bytes)" in info.stdout
     assert f"input sha256       {hashlib.sha256(LOG.read_bytes()).hexdigest()}" in info.stdout
@@ -90,10 +90,7 @@ def test_a_process_substitution_of_log_and_truth_replays_as_their_files(
     log, truth = piped(LOG.read_bytes()), piped(TRUTH.read_bytes())
     rrd = tmp_path / "sub.rrd"
     try:
-        done = ekfviz(
-            "replay", f"/dev/fd/{log}", f"--truth=/dev/fd/{truth}", "--save", str(rrd),
-            pass_fds=(log, truth),
-        )  # fmt: skip
+        done = run_ekfviz("replay", f"/dev/fd/{log}", f"--truth=/dev/fd/{truth}", "--save", rrd)
     finally:
         os.close(log)
         os.close(truth)
@@ -107,7 +104,7 @@ def test_a_bad_line_in_a_piped_log_is_named_by_the_path_given(tmp_path: Path) ->
     log = piped(b"0.1 0.2 0.3 0.4\n0.5 zero\n")
     try:
         rrd = str(tmp_path / "x.rrd")
-        done = ekfviz("replay", f"/dev/fd/{log}", "--save", rrd, pass_fds=(log,))
+        done = run_ekfviz("replay", f"/dev/fd/{log}", "--save", rrd)
     finally:
         os.close(log)
     assert done.returncode == 2
@@ -207,10 +204,8 @@ def test_a_pipe_open_for_writing_is_left_alone(pipe: tuple[int, int]) -> None:
 
 def test_standard_input_is_read_only_where_an_input_is_given_as_dash(tmp_path: Path) -> None:
     """``-`` as an output's value is not standard input: ``simulate -o -`` writes ./-"""
-    done = ekfviz(
-        "simulate", "-o", "-", "--truth-out", "t.json",
-        cwd=tmp_path, input="the piped text\n",
-    )  # fmt: skip
+    done = run_ekfviz("simulate", "-o", "-", "--truth-out", "t.json", cwd=tmp_path,
+                      input="the piped text\n")  # fmt: skip
     assert done.returncode == 0, done.stderr
     written = (tmp_path / "-").read_text().splitlines()  # the simulated log
     assert len(written) > 50 and all(len(line.split()) in (2, 12) for line in written)

@@ -204,30 +204,41 @@ def test_truth_lookup_by_id_with_gaps_and_unknown_ids() -> None:
     assert np.isnan(found[[1, 4]]).all()
 
 
+_NOT_NUMBERS = [
+    b"nan", b"1_0", b"1e400", b"x", b"\xff\xfe", b"1.5e19", b"--1", b"# \xff", b"1.2.3", b"3e",
+    b"1e-400", b"-0.05e-330",
+]  # fmt: skip
+
+
 @pytest.mark.parametrize("parser", ["compiled", "float"])
-@pytest.mark.parametrize(
-    "bad",
-    [
-        b"nan",
-        b"1_0",
-        b"1e400",
-        b"x",
-        b"\xff\xfe",
-        b"1.5e19",
-        b"--1",
-        b"# \xff",
-        b"1.2.3",
-        b"3e",
-        b"1e-400",
-        b"-0.05e-330",
-    ],
-)
+@pytest.mark.parametrize("bad", _NOT_NUMBERS)
 def test_block_reader_reads_as_line_by_line(
     tmp_path: Path, bad: bytes, parser: str, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """number_blocks converts a block at once but gives the lines, numbers and first
     error numeric_lines gives, even in a later block, after a comment or a blank line;
-    with the compiled parser and with float() alike."""
+    with the compiled parser and with float() alike (blocks of 4 kB: some 50 of them)."""
+    from ekfviz.io import text as text_io
+
+    monkeypatch.setattr(text_io, "BLOCK_BYTES", 4096)
+    _block_reader_reads_as_line_by_line(tmp_path, bad, parser, monkeypatch, repeats=2000)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("parser", ["compiled", "float"])
+@pytest.mark.parametrize("bad", _NOT_NUMBERS)
+def test_block_reader_reads_a_long_file_as_line_by_line(
+    tmp_path: Path, bad: bytes, parser: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """As above, in blocks of the size the readers read (100,000 lines: 8 blocks)."""
+    _block_reader_reads_as_line_by_line(tmp_path, bad, parser, monkeypatch, repeats=20000)
+
+
+def _block_reader_reads_as_line_by_line(
+    tmp_path: Path, bad: bytes, parser: str, monkeypatch: pytest.MonkeyPatch, repeats: int
+) -> None:
+    """number_blocks against numeric_lines on ``5 * repeats`` lines, ``bad`` in a line of
+    its last quarter."""
     from ekfviz.io import text as text_io
 
     if parser == "float":
@@ -235,8 +246,9 @@ def test_block_reader_reads_as_line_by_line(
     elif not text_io.HAVE_PARSER:
         pytest.skip("the compiled parser was not built")
 
-    lines = [b"1.5 -2 3e-2 # c", b"", b"\t4 5  ", b"# only a comment", b"-0.5 .5 +1."] * 20000
-    lines[77777] = b"7 " + bad + b" 8"
+    lines = [b"1.5 -2 3e-2 # c", b"", b"\t4 5  ", b"# only a comment", b"-0.5 .5 +1."] * repeats
+    wrong = repeats * 5 * 7 // 9  # the 77,778th line of 100,000
+    lines[wrong] = b"7 " + bad + b" 8"
     path = tmp_path / "numbers.txt"
     path.write_bytes(b"\r\n".join(lines) + b"\n")
     expected: list[tuple[int, list[float]]] = []
@@ -248,10 +260,10 @@ def test_block_reader_reads_as_line_by_line(
         for line, start, count in zip(block.lines, block.starts, block.counts, strict=True):
             got.append((line, block.values[start : start + count].tolist()))
         fault = block.fault
-    assert len(got) == len(expected) > 40000
+    assert len(got) == len(expected) > 2 * repeats
     assert got == expected
     assert fault is not None and str(fault) == str(line_by_line.value)
-    assert fault.line == 77778
+    assert fault.line == wrong + 1
 
 
 def test_the_parser_is_built_wherever_a_c_compiler_is() -> None:
@@ -276,12 +288,28 @@ _TOKEN = st.one_of(
 )
 
 
-@settings(max_examples=300, deadline=None)
-@given(
-    st.lists(st.lists(_TOKEN, max_size=6), min_size=1, max_size=8),
-    st.sampled_from([" ", "\t", "  "]),
-)
+_TOKEN_LINES = st.lists(st.lists(_TOKEN, max_size=6), min_size=1, max_size=8)
+_GAPS = st.sampled_from([" ", "\t", "  "])
+
+
+@settings(max_examples=60, deadline=None)
+@given(_TOKEN_LINES, _GAPS)
 def test_compiled_parser_gives_the_bits_float_gives(lines: list[list[str]], gap: str) -> None:
+    """See :func:`_compiled_parser_gives_the_bits_float_gives`."""
+    _compiled_parser_gives_the_bits_float_gives(lines, gap)
+
+
+@pytest.mark.slow
+@settings(max_examples=300, deadline=None)
+@given(_TOKEN_LINES, _GAPS)
+def test_compiled_parser_gives_the_bits_float_gives_on_many_examples(
+    lines: list[list[str]], gap: str
+) -> None:
+    """See :func:`_compiled_parser_gives_the_bits_float_gives`."""
+    _compiled_parser_gives_the_bits_float_gives(lines, gap)
+
+
+def _compiled_parser_gives_the_bits_float_gives(lines: list[list[str]], gap: str) -> None:
     """The same float64 bits as float() of each token (correct rounding either way:
     halfway cases, subnormals, overflow to inf, 40 digits), the same counts per line, and
     which tokens are digits alone (an id as written) as bytes.isdigit says, as the float()

@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from commands import run_ekfviz
 from conftest import entity_rows
 from typer.testing import CliRunner
 
@@ -311,14 +312,12 @@ def test_look_alike_recordings_are_one_line_not_a_traceback(tmp_path: Path) -> N
             "export",
         ),
     }
-    env = {**os.environ, "XDG_CONFIG_HOME": str(tmp_path), "XDG_DATA_HOME": str(tmp_path)}
     for name, (extra, landmarks, command) in cases.items():
         _look_alike(tmp_path / name, extra, landmarks)
         args = [command, str(tmp_path / name)]
         if command == "export":
             args += ["--landmarks", str(tmp_path / "map.csv")]
-        done = subprocess.run([sys.executable, "-m", "ekfviz", *args], capture_output=True,
-                              text=True, env=env, timeout=120)  # fmt: skip
+        done = run_ekfviz(*args)
         assert done.returncode == 2, (name, done.stdout, done.stderr)
         (line,) = done.stderr.strip().splitlines()
         assert line.startswith(f"error: {tmp_path / name}: "), line
@@ -330,11 +329,9 @@ def test_a_recording_whose_name_is_not_utf8_is_read(tmp_path: Path) -> None:
     """``replay --save $'r\\xfe.rrd'`` saved it; ``info`` and ``export`` refused it: Rerun's
     reader takes UTF-8 names only ("'utf-8' codec can't encode character '\\udcfe'")."""
     name = os.fsdecode(b"r\xfe.rrd")
-    env = {**os.environ, "XDG_CONFIG_HOME": str(tmp_path), "XDG_DATA_HOME": str(tmp_path)}
 
     def ekfviz(*args: str) -> subprocess.CompletedProcess[str]:
-        return subprocess.run([sys.executable, "-m", "ekfviz", *args], capture_output=True,
-                              text=True, env=env, cwd=tmp_path, timeout=120)  # fmt: skip
+        return run_ekfviz(*args, cwd=tmp_path)
 
     assert ekfviz("replay", str(DATA / "classic.txt"), "--save", name).returncode == 0
     shown = ekfviz("info", name)
@@ -349,13 +346,10 @@ def test_a_recording_cut_at_a_chunk_s_end_is_not_exported_as_whole(tmp_path: Pat
     half of its poses and landmarks; ``info`` said "finished"."""
     import struct
 
-    env = {**os.environ, "XDG_CONFIG_HOME": str(tmp_path), "XDG_DATA_HOME": str(tmp_path)}
-
     def ekfviz(*args: str) -> subprocess.CompletedProcess[str]:
-        return subprocess.run([sys.executable, "-m", "ekfviz", *args], capture_output=True,
-                              text=True, env=env, cwd=tmp_path, timeout=120)  # fmt: skip
+        return run_ekfviz(*args, cwd=tmp_path)
 
-    assert ekfviz("replay", str(DATA / "loop.txt"), "--save", "whole.rrd").returncode == 0
+    assert ekfviz("replay", str(DATA / "classic.txt"), "--save", "whole.rrd").returncode == 0
     data = (tmp_path / "whole.rrd").read_bytes()
     starts, at = [], 12  # the file's header, then (kind, length) and the body of each message
     while at + 16 <= len(data):
@@ -391,9 +385,7 @@ def test_another_program_s_recording_of_ekfviz_s_entities_is_not_taken_for_ekfvi
         rec.log(f"/{style.LOG}", rr.TextLog("hello"))
         rec.flush()
         rec.disconnect()
-        done = subprocess.run([sys.executable, "-m", "ekfviz", "info", str(path)],
-                              capture_output=True, text=True, timeout=120,
-                              env={**os.environ, "XDG_CONFIG_HOME": str(tmp_path)})  # fmt: skip
+        done = run_ekfviz("info", path)
         assert said in done.stdout + done.stderr, (application, done.stdout, done.stderr)
         if application == "foo_app":
             assert done.returncode == 2 and done.stderr.endswith(
@@ -405,19 +397,13 @@ def test_a_file_of_two_merged_recordings_is_refused_not_read_as_one(tmp_path: Pa
     """``rerun rrd merge a.rrd b.rrd -o m.rrd`` of two replays: info and export read the
     one of the lower recording id, without a word."""
     rerun = Path(sys.executable).parent / "rerun"
-    env = {**os.environ, "XDG_CONFIG_HOME": str(tmp_path), "XDG_DATA_HOME": str(tmp_path)}
-
-    def run(*args: str) -> subprocess.CompletedProcess[str]:
-        return subprocess.run(list(args), capture_output=True, text=True, env=env,
-                              cwd=tmp_path, timeout=120)  # fmt: skip
-
     for name, log in (("a.rrd", "classic.txt"), ("b.rrd", "edge.txt")):
-        assert run(sys.executable, "-m", "ekfviz", "replay", str(DATA / log), "--save",
-                   name).returncode == 0  # fmt: skip
-    merged = run(str(rerun), "rrd", "merge", "a.rrd", "b.rrd", "-o", "m.rrd")
+        assert run_ekfviz("replay", DATA / log, "--save", name, cwd=tmp_path).returncode == 0
+    merged = subprocess.run([rerun, "rrd", "merge", "a.rrd", "b.rrd", "-o", "m.rrd"],
+                            capture_output=True, text=True, cwd=tmp_path, timeout=120)  # fmt: skip
     assert merged.returncode == 0, merged.stderr
     for command in (["info", "m.rrd"], ["export", "m.rrd", "--tum", "e.tum"]):
-        done = run(sys.executable, "-m", "ekfviz", *command)
+        done = run_ekfviz(*command, cwd=tmp_path)
         assert done.returncode == 2
         assert done.stderr == "error: m.rrd: holds 2 recordings, expected one (files merged?)\n"
     assert not (tmp_path / "e.tum").exists()

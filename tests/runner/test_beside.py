@@ -105,10 +105,16 @@ def checked_predict(events: list[AnyEvent]) -> tuple[int, int]:
     return record.line, predicts
 
 
+@pytest.fixture(scope="module")
+def checked(large: list[AnyEvent]) -> tuple[int, int]:
+    """:func:`checked_predict` of the large loop, found once."""
+    return checked_predict(large)
+
+
 def test_a_p_not_finite_stops_the_run_at_its_line_after_every_event_before_it(
-    large: list[AnyEvent],
+    large: list[AnyEvent], checked: tuple[int, int]
 ) -> None:
-    line, predicts = checked_predict(large)
+    line, predicts = checked
     records: list[EventRecord] = []
     with pytest.raises(FilterLineError, match="NaN or infinity") as caught:
         for batch in replay(large, slam=Faulty(predicts, np.nan)):
@@ -120,9 +126,9 @@ def test_a_p_not_finite_stops_the_run_at_its_line_after_every_event_before_it(
 
 
 def test_an_indefinite_p_is_named_in_the_warnings_of_its_event(
-    large: list[AnyEvent], monkeypatch: pytest.MonkeyPatch
+    large: list[AnyEvent], checked: tuple[int, int], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    line, predicts = checked_predict(large)
+    line, predicts = checked
 
     def run() -> list[EventRecord]:
         records: list[EventRecord] = []

@@ -2,7 +2,7 @@
 started in a session of its own, a clean-up of the folder, lines of megabytes, a silenced
 ``sys.stdout``, 64-bit hashed ids, a module list grown until memory runs out; and a class
 whose file names are not UTF-8 or collide once made safe. Each through the real command
-line, in a process of its own."""
+line; the filter in the worker process ekfviz starts for it."""
 
 from __future__ import annotations
 
@@ -15,19 +15,16 @@ import sys
 from pathlib import Path
 
 import pytest
+from commands import run_ekfviz, run_ekfviz_process
 
 ROOT = Path(__file__).parents[2]
 SAMPLE = ROOT / "data" / "classic.txt"
 BASE = ROOT / "examples" / "my_filter.py"  # a class filter of the protocol: MyFilter
 
 
-def ekfviz(*args: str, cwd: Path, timeout: float = 120) -> subprocess.CompletedProcess[str]:
-    """``python -m ekfviz ARGS`` in ``cwd``; a hang fails the test at ``timeout``."""
-    env = {**os.environ, "XDG_CONFIG_HOME": str(cwd), "XDG_DATA_HOME": str(cwd), "CI": "1"}
-    return subprocess.run(
-        [sys.executable, "-m", "ekfviz", *args], capture_output=True, text=True, cwd=cwd,
-        env=env, timeout=timeout,
-    )  # fmt: skip
+def ekfviz(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
+    """``ekfviz ARGS`` in ``cwd``."""
+    return run_ekfviz(*args, cwd=cwd)
 
 
 def filter_module(folder: Path, body: str, name: str = "f.py") -> str:
@@ -59,9 +56,9 @@ def test_a_helper_process_in_a_session_of_its_own_does_not_hold_the_run(tmp_path
         "open('helper.pid', 'w').write(str(helper.pid))\n"
         "class F(Base):\n    pass\n",
     )
-    try:
-        result = ekfviz("replay", str(SAMPLE), "--filter", spec, "--save", "run.rrd",
-                        "--no-sandbox", cwd=tmp_path, timeout=60)  # fmt: skip
+    try:  # in a process of its own: a run held by the helper fails at the time-out
+        result = run_ekfviz_process("replay", SAMPLE, "--filter", spec, "--save", "run.rrd",
+                                    "--no-sandbox", cwd=tmp_path, timeout=60)  # fmt: skip
         assert result.returncode == 0, result.stderr
         assert (tmp_path / "run.rrd").stat().st_size > 0
     finally:
@@ -198,7 +195,7 @@ def test_a_class_graded_whatever_its_file_names(tmp_path: Path) -> None:
     with open(os.fsencode(group) + b"/M\xfcller.py", "w") as handle:
         handle.write(source)
     result = ekfviz("grade", "class", "--log", str(SAMPLE), "--workers", "1", "--report",
-                    "grades.csv", "--save-dir", "recs", cwd=tmp_path, timeout=300)  # fmt: skip
+                    "grades.csv", "--save-dir", "recs", cwd=tmp_path)  # fmt: skip
     assert result.returncode == 0, result.stderr
     with (tmp_path / "grades.csv").open(encoding="utf-8") as handle:
         names = sorted(row["submission"] for row in csv.DictReader(handle))
@@ -333,13 +330,11 @@ def test_the_worker_closes_its_streams_under_pythonwarnings(tmp_path: Path) -> N
     """With PYTHONWARNINGS=default the worker printed a ResourceWarning for each stream of
     its own it left to the garbage collector (commands, answers, /dev/null), as the
     filter's output; with =error, "Exception ignored" tracebacks before the error line."""
-    env = {**os.environ, "PYTHONWARNINGS": "default", "XDG_CONFIG_HOME": str(tmp_path),
-           "XDG_DATA_HOME": str(tmp_path), "CI": "1"}  # fmt: skip
-    done = subprocess.run(
-        [sys.executable, "-m", "ekfviz", "replay", str(SAMPLE), "--filter", f"{BASE}:MyFilter",
-         "--save", str(tmp_path / "run.rrd")],
-        capture_output=True, text=True, env=env, timeout=120,
-    )  # fmt: skip
+    # in a process of its own: the variable sets the warnings of ekfviz's process too, from
+    # its start to the collection of its streams at exit ("Exception ignored")
+    env = {**os.environ, "PYTHONWARNINGS": "default"}
+    done = run_ekfviz_process("replay", SAMPLE, "--filter", f"{BASE}:MyFilter", "--save",
+                              tmp_path / "run.rrd", env=env, timeout=120)  # fmt: skip
     assert done.returncode == 0, done.stderr
     assert "ResourceWarning" not in done.stderr and "Exception ignored" not in done.stderr
 

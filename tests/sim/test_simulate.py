@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from commands import run_ekfviz
 from typer.testing import CliRunner
 
 from ekfviz.cli import app
@@ -240,17 +241,12 @@ def test_the_commands_it_prints_are_quoted_for_the_shell(
     """``ekfviz replay sim space.txt --truth tru'th.json`` was printed as it is: pasted,
     two arguments and an open quote."""
     import shlex
-    import subprocess
-    import sys
 
-    monkeypatch.chdir(tmp_path)
-    env = {**os.environ, "XDG_CONFIG_HOME": str(tmp_path), "XDG_DATA_HOME": str(tmp_path)}
-    env.pop("DISPLAY", None)
-    env.pop("WAYLAND_DISPLAY", None)
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
 
     def run(*args: str) -> str:
-        done = subprocess.run([sys.executable, "-m", "ekfviz", *args], capture_output=True,
-                              text=True, env=env, cwd=tmp_path, timeout=120)  # fmt: skip
+        done = run_ekfviz(*args, cwd=tmp_path)
         assert done.returncode == 0, done.stderr
         return done.stdout + done.stderr
 

@@ -52,6 +52,12 @@ def skewed(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return write_dataset(tmp_path_factory.mktemp("skewed") / "sim", files)
 
 
+@pytest.fixture(scope="module")
+def skewed_run(skewed: Path) -> tuple[list[LogEvent], GroundTruth]:
+    """The events and the truth of :func:`skewed`, read once (the tests change neither)."""
+    return events_and_truth(skewed)
+
+
 def events_and_truth(directory: Path) -> tuple[list[LogEvent], GroundTruth]:
     source = open_source(directory)  # robot 1
     own = source.own_truth(lambda _: None)
@@ -66,8 +72,10 @@ def start_of(truth: GroundTruth) -> tuple[float, float, float]:
     return x, y, theta
 
 
-def test_calibrate_recovers_a_known_odometry_scale_error_and_the_noise(skewed: Path) -> None:
-    events, truth = events_and_truth(skewed)
+def test_calibrate_recovers_a_known_odometry_scale_error_and_the_noise(
+    skewed_run: tuple[list[LogEvent], GroundTruth],
+) -> None:
+    events, truth = skewed_run
     result = calibrate(events, truth)
     odometry = result.odometry
     assert odometry is not None
@@ -102,10 +110,12 @@ def test_an_odometry_without_errors_is_left_alone() -> None:
     assert abs(fit.scale_d - 1) < 3 * fit.se_d + 1e-12
 
 
-def test_replay_takes_the_odometry_errors_out(skewed: Path) -> None:
+def test_replay_takes_the_odometry_errors_out(
+    skewed_run: tuple[list[LogEvent], GroundTruth],
+) -> None:
     """The correction of the replay is the one the simulator put in: applied, the final
     map is far closer to the truth than without it."""
-    events, truth = events_and_truth(skewed)
+    events, truth = skewed_run
     base = FilterParams(
         ODOMETRY_ERRORS.sigma_x, ODOMETRY_ERRORS.sigma_y, ODOMETRY_ERRORS.sigma_alpha,
         ODOMETRY_ERRORS.sigma_bearing, ODOMETRY_ERRORS.sigma_range,
@@ -162,10 +172,12 @@ def test_calibrate_line_applies_the_correction_and_the_report_holds_the_candidat
     assert summary["inside_3sigma"] >= 0.8 * summary["landmarks"]
 
 
-def test_a_sigma_at_its_fit_limit_is_said_and_never_printed(skewed: Path) -> None:
+def test_a_sigma_at_its_fit_limit_is_said_and_never_printed(
+    skewed_run: tuple[list[LogEvent], GroundTruth],
+) -> None:
     """A fit that finds 0 for a sigma (MRCLAM's robot 4: 1e-9 sideways): the replay
     is told a tenth of the default instead, with a note, never the degenerate value."""
-    events, truth = events_and_truth(skewed)
+    events, truth = skewed_run
     fitted = calibrate(events[: len(events) // 4], truth)
     assert fitted.motion is not None
     sx, _, sa = fitted.motion.sigmas
@@ -187,9 +199,9 @@ def test_a_sigma_at_its_fit_limit_is_said_and_never_printed(skewed: Path) -> Non
 
 
 def test_the_held_out_judgement_never_prefers_a_setting_worse_than_the_defaults(
-    skewed: Path,
+    skewed_run: tuple[list[LogEvent], GroundTruth],
 ) -> None:
-    events, truth = events_and_truth(skewed)
+    events, truth = skewed_run
     defaults = FilterParams(motion_noise=MotionNoise.PER_SQRT_SECOND, init_pose=start_of(truth))
     result = recommend(events, truth, defaults, defaults)
     assert result.candidates[0].name == "defaults" and result.best is not None
@@ -199,10 +211,12 @@ def test_the_held_out_judgement_never_prefers_a_setting_worse_than_the_defaults(
         assert (not best.credible, best.error) <= (not plain.credible, plain.error)
 
 
-def test_an_inflated_covariance_reads_too_cautious(skewed: Path) -> None:
+def test_an_inflated_covariance_reads_too_cautious(
+    skewed_run: tuple[list[LogEvent], GroundTruth],
+) -> None:
     """The same run told ten times the noise: its map is inside 3 sigma and its NEES
     passes, but its NIS lies far below its bounds: too cautious, not consistent."""
-    events, truth = events_and_truth(skewed)
+    events, truth = skewed_run
     start = start_of(truth)
     n = ODOMETRY_ERRORS
     honest = FilterParams(
@@ -267,10 +281,10 @@ def test_alignment_refuses_a_reflection() -> None:
     assert np.linalg.det(R) == pytest.approx(1.0)
 
 
-def test_the_fast_judgement_is_the_replay_s(skewed: Path) -> None:
+def test_the_fast_judgement_is_the_replay_s(skewed_run: tuple[list[LogEvent], GroundTruth]) -> None:
     """calibrate judges candidates by driving the filter directly: the same final map,
     NEES and NIS as a replay's, with a gate and an odometry correction."""
-    events, truth = events_and_truth(skewed)
+    events, truth = skewed_run
     params = FilterParams(
         0.05, 0.02, 0.05, 0.03, 0.1, motion_noise=MotionNoise.PER_SQRT_SECOND,
         init_pose=start_of(truth), gate=13.8, odometry_scale=(0.95, 1.05), odometry_bias=0.02,
@@ -286,14 +300,14 @@ def test_the_fast_judgement_is_the_replay_s(skewed: Path) -> None:
 
 
 def test_where_no_candidate_is_credible_the_closest_is_widened(
-    skewed: Path, monkeypatch: pytest.MonkeyPatch
+    skewed_run: tuple[list[LogEvent], GroundTruth], monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """No map can have over 100 % inside: the closest candidate is widened twice, 2 and 4
     times, each judged and listed, and the recommendation is still the lowest error."""
     import ekfviz.calibrate.recommend as calibration
 
     monkeypatch.setattr(calibration, "MAP_CREDIBLE", 1.01)
-    events, truth = events_and_truth(skewed)
+    events, truth = skewed_run
     defaults = FilterParams(motion_noise=MotionNoise.PER_SQRT_SECOND, init_pose=start_of(truth))
     result = recommend(events, truth, defaults, defaults)
     wider = [c for c in result.candidates if "times wider" in c.name]

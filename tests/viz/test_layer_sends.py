@@ -29,6 +29,12 @@ from ekfviz.viz.layers.map_rows import IdRows, joined_rows, root_norms
 from ekfviz.viz.layers.text import TextLayer
 
 
+def seeds(count: int, fast: int) -> list[Any]:
+    """The seeds ``0 .. count - 1``, those from ``fast`` on under ``-m slow``."""
+    return [pytest.param(seed, marks=pytest.mark.slow) if seed >= fast else seed
+            for seed in range(count)]  # fmt: skip
+
+
 def random_covs(rng: np.random.Generator, n: int) -> FloatArray:
     roots = rng.normal(size=(n, 2, 2)) * 10.0 ** rng.integers(-4, 2, size=(n, 1, 1))
     covs: FloatArray = roots @ np.swapaxes(roots, 1, 2)
@@ -339,7 +345,7 @@ def reference_changes(
     return out
 
 
-@pytest.mark.parametrize("seed", range(12))
+@pytest.mark.parametrize("seed", seeds(12, fast=4))
 def test_the_updates_whose_map_is_logged_are_the_definitions(seed: int) -> None:
     """The map's window search finds the very updates the plain definition does, across
     batches, with maps that grow, drift, jump and hold still."""
@@ -442,7 +448,7 @@ def association(confirmed: list[int], removed: list[int]) -> ScanAssociation:
     )  # fmt: skip
 
 
-@pytest.mark.parametrize("seed", range(8))
+@pytest.mark.parametrize("seed", seeds(8, fast=3))
 @pytest.mark.parametrize("which", ["observed", "initialised"])
 def test_the_joined_rows_are_each_updates_landmark_rows(seed: int, which: str) -> None:
     rng = np.random.default_rng(seed)
@@ -553,7 +559,7 @@ def reference_sends(
     return out
 
 
-@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("seed", seeds(6, fast=2))
 def test_the_maps_sends_are_each_updates(seed: int) -> None:
     """Batches of large maps with observations and scans: the whole maps' ellipses, the
     observed landmarks' and the first sightings confirmed are sent as an update at a

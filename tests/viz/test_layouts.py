@@ -3,6 +3,7 @@ with data is in some view, no view is empty, a check opens on its divergence."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -59,8 +60,9 @@ KINDS = {
     "classic-history": ["replay", str(CLASSIC), "--truth", str(TRUTH), "--history"],
     "classic-no-truth": ["replay", str(CLASSIC)],
     "loop": ["replay", str(LOOP), "--truth", str(LOOP_TRUTH)],
+    "short-loop": ["replay", "SHORT_LOOP", "--truth", "SHORT_LOOP_TRUTH"],
     "scans": ["replay", str(SCANS), "--truth", str(SCANS_TRUTH)],
-    "scans-no-truth": ["replay", str(SCANS), "--association", "nn"],
+    "scans-no-truth": ["replay", "SCANS_HEAD", "--association", "nn"],
     "compare-2": ["compare", str(CLASSIC), "--truth", str(TRUTH), "--filter", "ekf",
                   "--filter", plugin("Textbook"), "--workers", "1"],
     "compare-3": ["compare", str(CLASSIC), "--truth", str(TRUTH), "--filter", "ekf",
@@ -77,15 +79,17 @@ KINDS = {
     "rosbag": ["replay", "BAG"],
     "consistency": ["consistency", "--runs", "3", "--workers", "1"],
 }  # fmt: skip
+# the bundled loop's 2,000 lines record what the short one's 150 steps do
+SLOW_KINDS = {"loop"}
 
 
 @pytest.fixture(scope="module")
 def short_loop(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A loop in the extended format, as the bundled one, of 300 steps and 60 landmarks
-    (the dense textbook filter of a compare is cubic in the map)."""
+    """A loop in the extended format, as the bundled one, of 150 steps and 40 landmarks
+    (the dense textbook filter of a compare is cubic in the map); its truth beside it."""
     log = tmp_path_factory.mktemp("loop") / "loop.txt"
     result = runner.invoke(
-        app, ["simulate", "--scenario", "loop", "--steps", "300", "--landmarks", "60",
+        app, ["simulate", "--scenario", "loop", "--steps", "150", "--landmarks", "40",
               "-o", str(log), "--truth-out", str(log.with_suffix(".json"))],
     )  # fmt: skip
     assert result.exit_code == 0, result.output
@@ -103,16 +107,50 @@ def bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return write_bag(tmp_path_factory.mktemp("bag") / "run_bag", classic().run(seed=4))
 
 
-@pytest.mark.parametrize("kind", list(KINDS))
+@pytest.fixture(scope="module")
+def scans_head(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The first 500 lines of the bundled log of scans (its header with them)."""
+    head = tmp_path_factory.mktemp("scans") / "scans.txt"
+    head.write_text("".join(SCANS.read_text().splitlines(keepends=True)[:500]))
+    return head
+
+
+def stand_ins(args: list[str], request: pytest.FixtureRequest) -> list[str]:
+    """``args`` with the names of the fixtures' files in them made their paths."""
+    found = {
+        "SHORT_LOOP": lambda: str(request.getfixturevalue("short_loop")),
+        "SHORT_LOOP_TRUTH": lambda: str(request.getfixturevalue("short_loop").with_suffix(".json")),
+        "BAG": lambda: str(request.getfixturevalue("bag")),
+        "SCANS_HEAD": lambda: str(request.getfixturevalue("scans_head")),
+    }
+    return [found[arg]() if arg in found else arg for arg in args]
+
+
+@pytest.fixture(scope="module")
+def recorded(
+    tmp_path_factory: pytest.TempPathFactory, request: pytest.FixtureRequest
+) -> Callable[[str], tuple[Path, Layout]]:
+    """The recording of a kind of :data:`KINDS` and its layout, made once for the module."""
+    folder = tmp_path_factory.mktemp("kinds")
+    made_once: dict[str, tuple[Path, Layout]] = {}
+
+    def record(kind: str) -> tuple[Path, Layout]:
+        if kind not in made_once:
+            args = stand_ins(KINDS[kind], request)
+            save = folder / f"{kind}.rrd"
+            made_once[kind] = save, made(args, save, code=1 if kind.startswith("check-a") else 0)
+        return made_once[kind]
+
+    return record
+
+
+@pytest.mark.parametrize(
+    "kind", [pytest.param(k, marks=pytest.mark.slow) if k in SLOW_KINDS else k for k in KINDS]
+)
 def test_every_entity_with_data_is_in_a_view_and_no_view_is_empty(
-    kind: str, tmp_path: Path, request: pytest.FixtureRequest
+    kind: str, recorded: Callable[[str], tuple[Path, Layout]]
 ) -> None:
-    args = KINDS[kind]
-    for stand_in, fixture in (("SHORT_LOOP", "short_loop"), ("BAG", "bag")):
-        if stand_in in args:
-            found = str(request.getfixturevalue(fixture))
-            args = [found if arg == stand_in else arg for arg in args]
-    layout = made(args, tmp_path / f"{kind}.rrd", code=1 if kind.startswith("check-a") else 0)
+    _, layout = recorded(kind)
     assert layout.views and layout.data
     assert layout.unshown() == []
     assert layout.empty() == []
@@ -132,19 +170,23 @@ def test_real_formats_show_everything_they_record(
         assert layout.showing("/metrics/association/matched")
 
 
-def test_a_recording_without_landmark_errors_has_no_landmark_error_plot(tmp_path: Path) -> None:
+def test_a_recording_without_landmark_errors_has_no_landmark_error_plot(
+    recorded: Callable[[str], tuple[Path, Layout]],
+) -> None:
     # id-less scans with truth: the landmark errors are not logged (the pairing is the
     # association's), so neither are their plots
-    layout = made(KINDS["scans"], tmp_path / "scans.rrd")
+    _, layout = recorded("scans")
     names = {view.name for view in layout.views}
     assert "Landmark error [m]" not in names and "Mahalanobis distance" not in names
     assert "Association per scan (counts)" in names
-    with_truth = made(KINDS["classic"], tmp_path / "classic.rrd")
+    _, with_truth = recorded("classic")
     assert {"Landmark error [m]", "Mahalanobis distance"} <= {v.name for v in with_truth.views}
 
 
-def test_pose_sigma_shows_lengths_and_the_angle_apart(tmp_path: Path) -> None:
-    layout = made(KINDS["classic"], tmp_path / "classic.rrd")
+def test_pose_sigma_shows_lengths_and_the_angle_apart(
+    recorded: Callable[[str], tuple[Path, Layout]],
+) -> None:
+    _, layout = recorded("classic")
     lengths, angle = layout.view("Pose sigma x, y [m]"), layout.view("Pose sigma theta [rad]")
     assert lengths.shown == angle.shown == {f"/{style.POSE_SIGMA}"}
     visible = {
@@ -231,16 +273,16 @@ def test_real_data_maps_draw_first_sightings_for_a_while(tmp_path: Path, mrclam:
     assert first_sightings(history)["time"]["start"] is None  # from the start: accumulated
 
 
-def test_info_shows_a_runs_results_and_only_the_parameters_that_applied(tmp_path: Path) -> None:
-    scans = tmp_path / "scans.rrd"
-    made(KINDS["scans"], scans)
+def test_info_shows_a_runs_results_and_only_the_parameters_that_applied(
+    recorded: Callable[[str], tuple[Path, Layout]],
+) -> None:
+    scans, _ = recorded("scans")
     shown = runner.invoke(app, ["info", str(scans)])
     assert shown.exit_code == 0, shown.output
     (line,) = [line for line in shown.output.splitlines() if line.startswith("association ")]
     assert "matched" in line and "precision" in line
     assert '"jcbb"' in shown.output  # its association's parameters: they applied
-    classic = tmp_path / "classic.rrd"
-    made(KINDS["classic"], classic)
+    classic, _ = recorded("classic")
     shown = runner.invoke(app, ["info", str(classic)])
     # no association parameter among the parameters (the command line shown may name
     # anything: under pytest it is pytest's own)

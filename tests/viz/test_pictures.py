@@ -56,7 +56,10 @@ def test_the_map_has_a_legend_of_the_marks_it_draws(classic: Path, tmp_path: Pat
     untruthful = saved(["replay", str(CLASSIC)], tmp_path / "plain.rrd")
     text = legend_text(untruthful)
     assert "blue line" in text and "true landmarks" not in text and "grey line" not in text
-    scans = saved(["replay", str(DATA / "scans.txt"), "--association", "nn"], tmp_path / "s.rrd")
+    # a log of scans: the head of the bundled one (its header with it) is enough for a legend
+    head = tmp_path / "scans.txt"
+    head.write_text("".join((DATA / "scans.txt").read_text().splitlines(keepends=True)[:300]))
+    scans = saved(["replay", str(head), "--association", "nn"], tmp_path / "s.rrd")
     assert "green: matched, orange: new, red: rejected" in legend_text(scans)
 
 

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 import pytest
 import rerun.blueprint as rrb
+from commands import run_ekfviz
 from conftest import entity_rows, rrd_verify
 
 from ekfviz import __version__, readback, viz
@@ -660,16 +661,12 @@ def test_first_sighting_outlines_are_smooth_the_maps_light(run: Run) -> None:
 def test_info_shows_a_recording_s_names_and_never_obeys_them(tmp_path: Path) -> None:
     """A log named ``esc<ESC>[31m...[bold]`` put the terminal's escape sequence raw on
     the screen through ``info`` (errors escaped it), and rich read its markup."""
-    import os
-    import subprocess
 
     log = tmp_path / "esc\x1b[31mred[bold]x.txt"
     log.write_text((Path(__file__).parents[2] / "data" / "classic.txt").read_text())
-    env = {**os.environ, "XDG_CONFIG_HOME": str(tmp_path), "XDG_DATA_HOME": str(tmp_path)}
 
     def ekfviz(*args: str) -> str:
-        done = subprocess.run([sys.executable, "-m", "ekfviz", *args], capture_output=True,
-                              text=True, env=env, timeout=120)  # fmt: skip
+        done = run_ekfviz(*args)
         assert done.returncode == 0, done.stderr
         return done.stdout
 
