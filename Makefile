@@ -20,12 +20,11 @@ $(BIN)/python:
 $(BIN)/uv: | $(BIN)/python
 	$(BIN)/python -m pip install --quiet 'uv>=0.5'
 
-# setup.py builds the compiled kernel of small maps (ekfviz/filters/_kernel.c), the
-# readers' number parser (ekfviz/io/_numbers.c) and JCBB's search
-# (ekfviz/association/_search.c) in place; the kernel and the search take their float64
-# arrays by ekfviz/_doubles.h
+# setup.py builds the compiled kernel of small maps (ekfviz/filters/_kernel.c) and JCBB's
+# search (ekfviz/association/_search.c) in place; both take their float64 arrays by
+# ekfviz/_doubles.h
 BUILD_INPUTS := pyproject.toml setup.py ekfviz/filters/_kernel.c ekfviz/_doubles.h \
-	ekfviz/io/_numbers.c ekfviz/association/_search.c
+	ekfviz/association/_search.c
 
 $(VENV)/.installed: $(BUILD_INPUTS) | $(BIN)/uv
 	$(UV) --python $(BIN)/python -e .
@@ -75,7 +74,7 @@ sample: $(VENV)/.installed $(VENV)/.compiled
 
 clean:
 	rm -rf $(VENV) .venv-numpy1 .mypy_cache .ruff_cache .pytest_cache .hypothesis build site
-	rm -f ekfviz/filters/_kernel*.so ekfviz/io/_numbers*.so ekfviz/association/_search*.so
+	rm -f ekfviz/filters/_kernel*.so ekfviz/association/_search*.so
 
 # Benchmarks (not part of make test): core against dense, the bandwidth bound, end-to-end
 # replays, each command's start-up and wrap-up, and the scaling curves (drawn as PNGs beside

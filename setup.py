@@ -1,10 +1,10 @@
-"""The compiled parts: the kernel of small maps, the number parser of the log readers and
-JCBB's search; everything else is in pyproject.toml.
+"""The compiled parts: the kernel of small maps and JCBB's search, each kept because a
+speed target needs it (``make bench``: "What each compiled extension buys"); everything
+else is in pyproject.toml.
 
 Every extension is optional: without a C compiler the install goes on, the filter uses
-its numpy code throughout (``ekfviz.filters.ekf.HAVE_KERNEL`` is then False), the readers
-convert numbers with ``float()`` (``ekfviz.io.text.HAVE_PARSER`` False) and JCBB searches
-in Python (``ekfviz.association.jcbb.HAVE_SEARCH`` False).
+its numpy code throughout (``ekfviz.filters.ekf.HAVE_KERNEL`` is then False) and JCBB
+searches in Python (``ekfviz.association.jcbb.HAVE_SEARCH`` False).
 """
 
 from setuptools import Extension, setup
@@ -20,12 +20,6 @@ setup(
         Extension(
             "ekfviz.association._search",
             ["ekfviz/association/_search.c"],
-            extra_compile_args=["-O2", "-std=c99", "-Wall", "-Wextra", "-Wno-unused-parameter"],
-            optional=True,
-        ),
-        Extension(
-            "ekfviz.io._numbers",
-            ["ekfviz/io/_numbers.c"],
             extra_compile_args=["-O2", "-std=c99", "-Wall", "-Wextra", "-Wno-unused-parameter"],
             optional=True,
         ),

@@ -17,13 +17,6 @@ from ekfviz.core.errors import InputError
 from ekfviz.core.types import BoolArray, FloatArray, IntArray
 from ekfviz.models.angles import wrap_angles
 
-try:  # optional, built with the filter's kernel: without it the blocks convert in numpy
-    from ekfviz.io import _numbers
-except ImportError:  # pragma: no cover - no C compiler at install time
-    _numbers = None  # type: ignore[assignment]
-
-HAVE_PARSER = _numbers is not None
-
 # ASCII digits only: float() also takes the digits of other scripts (Arabic-Indic,
 # full-width) and underscores ("1_000"), which no log means as numbers
 _NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?", re.ASCII)
@@ -288,17 +281,7 @@ def _converted(
 ) -> tuple[FloatArray, IntArray, BoolArray | None] | None:
     """The numbers of ``joined`` (``lines`` lines of plain bytes joined by LF), how many
     each line holds and (``digits``) whether each is written as digits alone; None where
-    a token is not a number. In one pass of the compiled parser (``_numbers.c``, the same
-    values: strtod rounds correctly, as float() does) where it was built, else
-    ``float()`` of each token and the counts in numpy."""
-    if _numbers is not None:
-        values = np.empty(len(joined) // 2 + 1)
-        counts = np.empty(lines, dtype=np.int64)
-        flags = np.empty(len(values), dtype=np.uint8) if digits else None
-        written = _numbers.parse(joined, lines, values, counts, flags)
-        if written >= 0:
-            return values[:written], counts, None if flags is None else flags[:written] == 1
-        # a token it does not take whole, or another locale's decimal point: float() says
+    a token is not a number: ``float()`` of each token, the counts in numpy."""
     tokens = joined.split()
     try:
         values = np.array(list(map(float, tokens)), dtype=np.float64)

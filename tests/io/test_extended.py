@@ -301,10 +301,9 @@ _SEEDS = [
 ]
 
 
-@pytest.mark.parametrize("parser", ["compiled", "float"])
 @pytest.mark.parametrize("seed", _SEEDS)
 def test_blocks_read_at_once_read_as_line_by_line(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, seed: int, parser: str
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, seed: int
 ) -> None:
     """A block of plain lines is converted at once, any other read line by line; the
     events, the first error (its line and words) and the warnings are the same as line
@@ -314,10 +313,6 @@ def test_blocks_read_at_once_read_as_line_by_line(
     id-less scans, a scan among observations by id and the other way round."""
     from ekfviz.io import text as text_io
 
-    if parser == "float":
-        monkeypatch.setattr(text_io, "_numbers", None)
-    elif not text_io.HAVE_PARSER:
-        pytest.skip("the compiled parser was not built")
     monkeypatch.setattr(text_io, "BLOCK_BYTES", 600)  # some 20 lines a block
     read_at_once = _blocks_read_at_once(monkeypatch)
     rng = np.random.default_rng(seed)

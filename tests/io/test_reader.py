@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
-from unittest import mock
 
 import numpy as np
 import pytest
@@ -210,41 +209,30 @@ _NOT_NUMBERS = [
 ]  # fmt: skip
 
 
-@pytest.mark.parametrize("parser", ["compiled", "float"])
 @pytest.mark.parametrize("bad", _NOT_NUMBERS)
 def test_block_reader_reads_as_line_by_line(
-    tmp_path: Path, bad: bytes, parser: str, monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, bad: bytes, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """number_blocks converts a block at once but gives the lines, numbers and first
-    error numeric_lines gives, even in a later block, after a comment or a blank line;
-    with the compiled parser and with float() alike (blocks of 4 kB: some 50 of them)."""
+    error numeric_lines gives, even in a later block, after a comment or a blank line
+    (blocks of 4 kB: some 50 of them)."""
     from ekfviz.io import text as text_io
 
     monkeypatch.setattr(text_io, "BLOCK_BYTES", 4096)
-    _block_reader_reads_as_line_by_line(tmp_path, bad, parser, monkeypatch, repeats=2000)
+    _block_reader_reads_as_line_by_line(tmp_path, bad, repeats=2000)
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("parser", ["compiled", "float"])
 @pytest.mark.parametrize("bad", _NOT_NUMBERS)
-def test_block_reader_reads_a_long_file_as_line_by_line(
-    tmp_path: Path, bad: bytes, parser: str, monkeypatch: pytest.MonkeyPatch
-) -> None:
+def test_block_reader_reads_a_long_file_as_line_by_line(tmp_path: Path, bad: bytes) -> None:
     """As above, in blocks of the size the readers read (100,000 lines: 8 blocks)."""
-    _block_reader_reads_as_line_by_line(tmp_path, bad, parser, monkeypatch, repeats=20000)
+    _block_reader_reads_as_line_by_line(tmp_path, bad, repeats=20000)
 
 
-def _block_reader_reads_as_line_by_line(
-    tmp_path: Path, bad: bytes, parser: str, monkeypatch: pytest.MonkeyPatch, repeats: int
-) -> None:
+def _block_reader_reads_as_line_by_line(tmp_path: Path, bad: bytes, repeats: int) -> None:
     """number_blocks against numeric_lines on ``5 * repeats`` lines, ``bad`` in a line of
     its last quarter."""
     from ekfviz.io import text as text_io
-
-    if parser == "float":
-        monkeypatch.setattr(text_io, "_numbers", None)
-    elif not text_io.HAVE_PARSER:
-        pytest.skip("the compiled parser was not built")
 
     lines = [b"1.5 -2 3e-2 # c", b"", b"\t4 5  ", b"# only a comment", b"-0.5 .5 +1."] * repeats
     wrong = repeats * 5 * 7 // 9  # the 77,778th line of 100,000
@@ -266,17 +254,6 @@ def _block_reader_reads_as_line_by_line(
     assert fault.line == wrong + 1
 
 
-def test_the_parser_is_built_wherever_a_c_compiler_is() -> None:
-    """`pip install` builds it when it can; elsewhere float() stands in."""
-    import shutil
-
-    from ekfviz.io import text as text_io
-
-    if shutil.which("cc") is None and shutil.which("gcc") is None:
-        pytest.skip("no C compiler here: float() stands in for the parser")
-    assert text_io.HAVE_PARSER
-
-
 _TOKEN = st.one_of(
     st.floats(allow_nan=False, allow_infinity=False).map(repr),
     st.floats(-1e6, 1e6).flatmap(
@@ -294,30 +271,27 @@ _GAPS = st.sampled_from([" ", "\t", "  "])
 
 @settings(max_examples=60, deadline=None)
 @given(_TOKEN_LINES, _GAPS)
-def test_compiled_parser_gives_the_bits_float_gives(lines: list[list[str]], gap: str) -> None:
-    """See :func:`_compiled_parser_gives_the_bits_float_gives`."""
-    _compiled_parser_gives_the_bits_float_gives(lines, gap)
+def test_a_block_gives_the_bits_float_gives(lines: list[list[str]], gap: str) -> None:
+    """See :func:`_a_block_gives_the_bits_float_gives`."""
+    _a_block_gives_the_bits_float_gives(lines, gap)
 
 
 @pytest.mark.slow
 @settings(max_examples=300, deadline=None)
 @given(_TOKEN_LINES, _GAPS)
-def test_compiled_parser_gives_the_bits_float_gives_on_many_examples(
+def test_a_block_gives_the_bits_float_gives_on_many_examples(
     lines: list[list[str]], gap: str
 ) -> None:
-    """See :func:`_compiled_parser_gives_the_bits_float_gives`."""
-    _compiled_parser_gives_the_bits_float_gives(lines, gap)
+    """See :func:`_a_block_gives_the_bits_float_gives`."""
+    _a_block_gives_the_bits_float_gives(lines, gap)
 
 
-def _compiled_parser_gives_the_bits_float_gives(lines: list[list[str]], gap: str) -> None:
-    """The same float64 bits as float() of each token (correct rounding either way:
-    halfway cases, subnormals, overflow to inf, 40 digits), the same counts per line, and
-    which tokens are digits alone (an id as written) as bytes.isdigit says, as the float()
-    fallback says."""
+def _a_block_gives_the_bits_float_gives(lines: list[list[str]], gap: str) -> None:
+    """A block converted at once gives the float64 bits float() gives each token alone
+    (halfway cases, subnormals, overflow to inf, 40 digits), the count of tokens of
+    each line, and which tokens are digits alone (an id as written)."""
     from ekfviz.io import text as text_io
 
-    if not text_io.HAVE_PARSER:
-        pytest.skip("the compiled parser was not built")
     joined = "\n".join(gap.join(tokens) for tokens in lines).encode()
     converted = text_io._converted(joined, len(lines), digits=True)
     if any(float(t) == 0.0 and text_io.underflows(t) for tokens in lines for t in tokens):
@@ -330,35 +304,23 @@ def _compiled_parser_gives_the_bits_float_gives(lines: list[list[str]], gap: str
     assert counts.tolist() == [len(tokens) for tokens in lines]
     assert digits is not None
     assert digits.tolist() == [t.isascii() and t.isdigit() for tokens in lines for t in tokens]
-    with mock.patch.object(text_io, "_numbers", None):  # the float() fallback
-        fallback = text_io._converted(joined, len(lines), digits=True)
-    assert fallback is not None and fallback[2] is not None
-    np.testing.assert_array_equal(fallback[0].view(np.int64), values.view(np.int64))
-    assert fallback[1].tolist() == counts.tolist() and fallback[2].tolist() == digits.tolist()
 
 
 @pytest.mark.parametrize("bad", [b"1.2.3", b"e5", b"-", b"1e", b".", b"+-1", b"1e+", b"2 3\n4 e"])
-def test_compiled_parser_refuses_what_is_not_a_number_as_a_whole(bad: bytes) -> None:
-    """A token strtod would read in part is refused, and the block goes line by line."""
+def test_a_block_with_what_is_not_a_number_is_refused_whole(bad: bytes) -> None:
+    """A token that is a number only in part is refused, and the block goes line by line."""
     from ekfviz.io import text as text_io
 
-    if not text_io.HAVE_PARSER:
-        pytest.skip("the compiled parser was not built")
-    lines = bad.count(b"\n") + 1
-    values, counts = np.empty(len(bad) // 2 + 1), np.empty(lines, dtype=np.int64)
-    from ekfviz.io import _numbers
-
-    assert _numbers.parse(bad, lines, values, counts) == -1
-    assert text_io._converted(bad, lines) is None
+    assert text_io._converted(bad, bad.count(b"\n") + 1) is None
 
 
 @pytest.mark.parametrize("bad", [None, b"0x10", b"1e400", b"nan", b"1.2.3", b"1_000", b"4 5"])
-def test_table_blocks_read_the_same_with_either_parser(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, bad: bytes | None
+def test_table_blocks_read_every_row_up_to_the_first_bad_one(
+    tmp_path: Path, bad: bytes | None
 ) -> None:
-    """numeric_blocks (MRCLAM's and Victoria Park's tables) gives the same rows and the
-    same first error with the compiled parser and with float(): hexadecimal, which
-    strtod would read, is refused by both."""
+    """numeric_blocks (MRCLAM's and Victoria Park's tables) gives every row, each as
+    float() reads it, up to the first bad one, and names that one's line: hexadecimal,
+    "1_000" (float()'s, no log's) and a short row included."""
     from ekfviz.io import text as text_io
 
     rng = np.random.default_rng(3)
@@ -379,11 +341,14 @@ def test_table_blocks_read_the_same_with_either_parser(
             return got, str(error)
         return got, None
 
-    compiled = read()
-    monkeypatch.setattr(text_io, "_numbers", None)
-    assert read() == compiled
-    # "1_000" is float()'s, no log's: refused as the line-by-line reader refuses it
-    assert sum(len(lines) for lines, _ in compiled[0]) == (30000 if bad is None else 23456)
+    got, error = read()
+    assert sum(len(lines) for lines, _ in got) == (30000 if bad is None else 23456)
+    assert [row for _, table in got for row in table][:3] == [
+        [float(v) for v in row.split()] for row in rows[:3]
+    ]
+    assert (error is None) == (bad is None)
+    if error is not None:
+        assert "23458" in error, error  # the header, then 1-based
 
 
 def _with_poses(tmp_path: Path, poses: np.ndarray) -> tuple[list[Control | Sighting], Path]:
