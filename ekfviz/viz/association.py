@@ -37,6 +37,7 @@ from ekfviz.viz import style
 from ekfviz.viz.ellipses import N_POINTS, ellipse_outlines
 from ekfviz.viz.layers import arrow
 from ekfviz.viz.layers.arrow import time_is_epoch  # the recorder's choice of the time's type
+from ekfviz.viz.legend import KIND_CLASS
 
 RAYS = "world/association/rays"
 LINKS = "world/association/links"
@@ -87,8 +88,15 @@ class AssociationView:
         self._times: list[float] = []  # and their times (nan: the log has none)
         self._scores: list[ScanScore | None] = []  # and the tally's scores
         self._series = _Series()
-        rec.log(path(RAYS), rr.LineStrips2D([], radii=rr.Radius.ui_points(0.75)), static=True)
-        rec.log(path(TENTATIVE), rr.Points2D([], colors=[TENTATIVE_COLOR]), static=True)
+        # named by their class on hover, their class's name not drawn
+        rays = rr.LineStrips2D(
+            [], radii=rr.Radius.ui_points(0.75), class_ids=KIND_CLASS[RAYS], show_labels=False
+        )
+        rec.log(path(RAYS), rays, static=True)
+        tentative = rr.Points2D(
+            [], colors=[TENTATIVE_COLOR], class_ids=KIND_CLASS[TENTATIVE], show_labels=False
+        )
+        rec.log(path(TENTATIVE), tentative, static=True)
 
     def log(self, events: EventBatch) -> None:
         """Hold the association of each scan of ``events``; sent every ``SCANS_EVERY``

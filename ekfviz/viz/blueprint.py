@@ -23,6 +23,10 @@ WHOLE_RUN = rrb.archetypes.TimeAxis(
 )
 
 
+# a study's maps, and its plots above its documents (the summary's tables fit the second)
+STUDY_COLUMN_SHARES = (3, 2)
+
+
 def accumulated_range() -> rrb.VisibleTimeRanges:
     """Show an entity from the infinite past up to the time cursor, on every timeline."""
     return rrb.VisibleTimeRanges(
@@ -601,7 +605,7 @@ def sweep_blueprint(
             ),
             # the summary's table as wide as a comparison's needs at 1600 px (at 5:3 it
             # was cut; a sweep's wider one can be maximised: narrower maps cut their titles)
-            column_shares=[3, 2],
+            column_shares=list(STUDY_COLUMN_SHARES),
         ),
         rrb.TimePanel(timeline=style.STEP, play_state="following", state="collapsed"),
         collapse_panels=True,

@@ -8,6 +8,7 @@ previous run's path and final map as a ghost, static, in the checked filter's ma
 | ``<prefix>/world/previous/trajectory`` | the previous run's path, grey, labelled with its run |
 | ``<prefix>/world/previous/landmarks`` | its final landmark means, grey |
 | ``<prefix>/world/previous/ellipses`` | its final 3-sigma outlines (landmarks and pose), grey |
+| ``<prefix>/world/previous`` | the classes naming the three on hover (its annotation context) |
 | ``log/watch`` | the run's verdict, causes or error, for the log view |
 
 A run that could not check anything (a syntax error) is a recording of the ghost, the
@@ -26,6 +27,7 @@ import rerun.blueprint as rrb
 from ekfviz.core.batch import EventBatch
 from ekfviz.core.types import FloatArray
 from ekfviz.viz import style
+from ekfviz.viz.annotations import annotation_context
 from ekfviz.viz.blueprint import log_view, map_view, with_panels
 from ekfviz.viz.ellipses import ellipse_outlines
 from ekfviz.viz.recording import Recording, finish_recorders
@@ -37,6 +39,8 @@ LOG = f"{style.LOG}/watch"  # under the log: its view shows it
 
 # lighter than the check's "expected" outlines (110) and the true path (150): behind all
 GHOST_COLOR: style.Rgb = (185, 185, 185)
+# the class id of each part of the ghost, in the context of ``world/previous``
+GHOST_CLASS = {TRAJECTORY: 0, LANDMARKS: 1, ELLIPSES: 2}
 
 
 @dataclass(frozen=True, slots=True)
@@ -78,6 +82,18 @@ def map_note(ghost: Ghost | None) -> str:
 def log_ghost(rec: rr.RecordingStream, prefix: str, ghost: Ghost) -> None:
     """Log ``ghost`` under ``<prefix>/world/previous``, static and grey."""
     root = f"{prefix.strip('/')}/" if prefix.strip("/") else ""
+    rec.log(  # what hovering each part names it, "<label>: ..." ("run 3: its path")
+        f"{root}{style.PREVIOUS}",
+        annotation_context(
+            list(GHOST_CLASS.values()),
+            [
+                f"{ghost.label}: its estimated path",
+                f"{ghost.label}: its landmarks at the end",
+                f"{ghost.label}: its 3σ at the end",
+            ],
+        ),
+        static=True,
+    )
     rec.log(
         f"{root}{TRAJECTORY}",
         rr.LineStrips2D(
@@ -86,6 +102,7 @@ def log_ghost(rec: rr.RecordingStream, prefix: str, ghost: Ghost) -> None:
             radii=rr.Radius.ui_points(style.LINE_RADIUS_UI),
             labels=[ghost.label],
             show_labels=True,
+            class_ids=GHOST_CLASS[TRAJECTORY],
         ),
         static=True,
     )
@@ -96,6 +113,8 @@ def log_ghost(rec: rr.RecordingStream, prefix: str, ghost: Ghost) -> None:
                 ghost.landmarks_xy,
                 colors=[GHOST_COLOR],
                 radii=rr.Radius.ui_points(style.POINT_RADIUS_UI),
+                class_ids=GHOST_CLASS[LANDMARKS],
+                show_labels=False,
             ),
             static=True,
         )
@@ -105,6 +124,8 @@ def log_ghost(rec: rr.RecordingStream, prefix: str, ghost: Ghost) -> None:
             list(ellipse_outlines(ghost.means_xy, ghost.covs)),
             colors=[GHOST_COLOR],
             radii=rr.Radius.ui_points(style.THIN_LINE_RADIUS_UI),
+            class_ids=GHOST_CLASS[ELLIPSES],
+            show_labels=False,
         ),
         static=True,
     )

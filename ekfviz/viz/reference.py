@@ -19,6 +19,7 @@ from ekfviz.core.types import FloatArray
 from ekfviz.evaluation.reference import ReferenceFit
 from ekfviz.viz import style
 from ekfviz.viz.layers import arrow
+from ekfviz.viz.legend import GPS_TRACK, KIND_CLASS
 
 REFERENCE = "world/reference/gps"
 REFERENCE_JUMPS = "world/reference/gps_jumps"  # fixes far off their neighbours' line
@@ -64,6 +65,8 @@ def log_reference(
             gps_pieces(kept, fit.times[~fit.jumps]),
             colors=[REFERENCE_COLOR],
             radii=rr.Radius.ui_points(1.0),
+            class_ids=KIND_CLASS[GPS_TRACK],
+            show_labels=False,
         ),
         static=True,
     )

@@ -19,11 +19,12 @@ from ekfviz.evaluation.errors import Evaluation, landmark_errors
 from ekfviz.studies.runs import Run
 from ekfviz.viz import style
 from ekfviz.viz.axes import FittedAxis, study_axis
-from ekfviz.viz.blueprint import sweep_blueprint
+from ekfviz.viz.blueprint import STUDY_COLUMN_SHARES, sweep_blueprint
 from ekfviz.viz.ellipses import ellipse_extent
 from ekfviz.viz.legend import legend_markdown, markdown_document
 from ekfviz.viz.recorder import Recorder
 from ekfviz.viz.recording import Recording, finish_recorders
+from ekfviz.viz.tables import fit_tables, view_characters
 
 SUMMARY = "run/summary"
 # matplotlib's tab10 (its grey swapped for navy: grey is the 95% bounds' colour) and a
@@ -65,7 +66,10 @@ def record_study(
                 rec.log(f"{prefix}/{series}", marks, static=True)
             if truth is not None:
                 rec.log(f"{prefix}/{style.MEAN_LANDMARK_ERROR}", marks, static=True)
-    rec.log(SUMMARY, rr.TextDocument(summary, media_type=rr.MediaType.MARKDOWN), static=True)
+    # its tables cut to the summary view's width: the view neither wraps nor scrolls them
+    shares = STUDY_COLUMN_SHARES
+    fitted = fit_tables(summary, view_characters(shares[1] / sum(shares)))
+    rec.log(SUMMARY, rr.TextDocument(fitted, media_type=rr.MediaType.MARKDOWN), static=True)
     finish_recorders(recording, recorders)
     colours = [PALETTE_NAMES[k % len(PALETTE)] for k in range(len(runs))]
     # the plots' colours here too: a narrow map's title cuts its colour off

@@ -30,9 +30,11 @@ from ekfviz.viz.layers.arrow import (
     time_is_epoch,
     times_of,
 )
+from ekfviz.viz.legend import FIRST_KIND_CLASS
 
 SHAPES_EVERY = 256  # line strips in chunks of at most this many events (Canvas.send_strips)
-MAX_CLASS_ID = 65535  # Rerun class ids are u16
+# the largest landmark class id (Rerun's are u16; the kinds of marks take the top ones)
+MAX_CLASS_ID = FIRST_KIND_CLASS - 1
 NO_ROWS: IntArray = np.zeros(0, dtype=np.int64)
 
 
@@ -142,6 +144,11 @@ class Entities:
     def path(self, entity: str) -> str:
         return self._prefix + entity
 
+    @property
+    def run_name(self) -> str:
+        """The last part of the prefix (a compared filter's or a variant's name), or ""."""
+        return self._prefix.rstrip("/").rpartition("/")[2]
+
     def style(self, entity: str, *styling: rr.AsComponents) -> None:
         """Styling of an entity that gets data over time, sent with its first row.
 
@@ -173,11 +180,13 @@ class Entities:
             self.rec.log(path, *styling, static=True)
         self._styles.clear()
 
-    def log(self, entity: str, data: Any, *, static: bool = False) -> None:
+    def log(self, entity: str, data: Any, *more: Any, static: bool = False) -> None:
+        """Log ``data`` (and ``more`` components, in the same row) with the entity's
+        styling if not sent yet."""
         self.sent.add(entity)
         path = self.path(entity)
         styling = self._styles.pop(path, ())
-        self.rec.log(path, data, *styling, static=static)
+        self.rec.log(path, data, *more, *styling, static=static)
 
     def send_columns(self, entity: str, indexes: Sequence[rr.TimeColumnLike], columns: Any) -> None:
         self.sent.add(entity)

@@ -12,6 +12,7 @@ from ekfviz.viz.ellipses import ellipse_outlines
 from ekfviz.viz.layers.arrow import radius
 from ekfviz.viz.layers.batch import Batch
 from ekfviz.viz.layers.canvas import Canvas
+from ekfviz.viz.legend import KIND_CLASS
 
 PATHS = {
     style.POSE_PREDICTED: (style.POSE_PREDICTED_HISTORY, style.PREDICTED_COLOR),
@@ -31,7 +32,11 @@ class HistoryLayer:
             self._canvas.entities.style(
                 path,
                 rr.LineStrips2D.from_fields(
-                    colors=color, radii=line, show_labels=False, draw_order=20.0
+                    colors=color,
+                    radii=line,
+                    show_labels=False,
+                    draw_order=20.0,
+                    class_ids=KIND_CLASS[path],
                 ),
             )
 

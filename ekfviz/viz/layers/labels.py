@@ -1,5 +1,6 @@
 """The landmarks' labels: "L<id>" hanging from each landmark's point in a small map
-(``world/landmarks/labels``), and the classes of ``world`` that name every landmark id."""
+(``world/landmarks/labels``), and the classes of ``world`` that name every landmark id
+and every kind of mark."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ from ekfviz.viz import style
 from ekfviz.viz.annotations import annotation_context
 from ekfviz.viz.layers.arrow import column, radius, xy
 from ekfviz.viz.layers.canvas import MAX_CLASS_ID, Canvas
+from ekfviz.viz.legend import kind_classes
 
 # A landmark label's box as a fraction of the map's span, at the zoom that frames the map
 # (about "L12" at 14 px on a 700 px map): closer labels are stacked (see unclutter)
@@ -71,6 +73,7 @@ class LabelsLayer:
         self._class_extra: set[int] = set()
         self._class_pending: set[int] = set()
         self._class_count = 0
+        self._classes_logged = False
 
     def log_styling(self) -> None:
         self._canvas.entities.style(
@@ -161,16 +164,20 @@ class LabelsLayer:
             self._log_classes()
 
     def finish(self) -> None:
-        """Log the classes still pending."""
-        if self._class_pending:
+        """Log the classes still pending, and those of the kinds of marks if no landmark
+        ever came."""
+        if self._class_pending or not self._classes_logged:
             self._log_classes()
 
     def _log_classes(self) -> None:
+        """The context of ``world``: the landmarks' classes and the kinds of marks'."""
         self._class_extra |= self._class_pending
         self._class_pending.clear()
         classes = [*range(self._class_top + 1), *sorted(self._class_extra)]
+        kind_ids, kind_names = kind_classes(self._canvas.entities.run_name)
         self._canvas.entities.log(
             style.WORLD,
-            annotation_context(classes, [f"L{i}" for i in classes]),
+            annotation_context([*classes, *kind_ids], [*(f"L{i}" for i in classes), *kind_names]),
             static=True,
         )
+        self._classes_logged = True

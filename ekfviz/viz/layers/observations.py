@@ -10,6 +10,7 @@ from ekfviz.viz import style
 from ekfviz.viz.layers.arrow import VECTOR, column, radius, xy
 from ekfviz.viz.layers.batch import Batch
 from ekfviz.viz.layers.canvas import Canvas
+from ekfviz.viz.legend import KIND_CLASS
 
 
 class ObservationsLayer:
@@ -26,6 +27,8 @@ class ObservationsLayer:
                 colors=style.OBSERVATION_COLOR,
                 radii=radius(style.THIN_LINE_RADIUS_UI),
                 draw_order=15.0,
+                class_ids=KIND_CLASS[style.OBSERVATIONS],
+                show_labels=False,
             ),
             static=True,
         )

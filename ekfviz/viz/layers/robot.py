@@ -22,6 +22,7 @@ from ekfviz.viz.layers.arrow import (
 )
 from ekfviz.viz.layers.batch import Batch
 from ekfviz.viz.layers.canvas import Canvas, Rows
+from ekfviz.viz.legend import KIND_CLASS
 
 HEADING_LENGTH = 1.0  # metres
 
@@ -46,6 +47,8 @@ class RobotLayer:
                 colors=style.ROBOT_COLOR,
                 radii=radius(style.ROBOT_RADIUS_UI),
                 draw_order=40.0,
+                class_ids=KIND_CLASS[style.ROBOT],
+                show_labels=False,
             ),
             in_parent_frame(entities.path(style.ROBOT)),  # see arrow.robot_frame
         )
@@ -57,12 +60,20 @@ class RobotLayer:
                 colors=style.ROBOT_COLOR,
                 radii=line,
                 draw_order=40.0,
+                class_ids=KIND_CLASS[style.HEADING],
+                show_labels=False,
             ),
             static=True,
         )
         entities.style(
             style.TRAJECTORY,
-            rr.LineStrips2D.from_fields(colors=style.TRAJECTORY_COLOR, radii=line, draw_order=10.0),
+            rr.LineStrips2D.from_fields(
+                colors=style.TRAJECTORY_COLOR,
+                radii=line,
+                draw_order=10.0,
+                class_ids=KIND_CLASS[style.TRAJECTORY],
+                show_labels=False,
+            ),
         )
         for path, color in (
             (style.POSE_PREDICTED, style.PREDICTED_COLOR),
@@ -73,7 +84,12 @@ class RobotLayer:
             entities.style(
                 path,
                 rr.LineStrips2D(
-                    [unit_circle()], colors=color, radii=line, show_labels=False, draw_order=20.0
+                    [unit_circle()],
+                    colors=color,
+                    radii=line,
+                    show_labels=False,
+                    draw_order=20.0,
+                    class_ids=KIND_CLASS[path],
                 ),
             )
 

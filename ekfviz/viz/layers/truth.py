@@ -15,10 +15,12 @@ from ekfviz.core.types import BoolArray, FloatArray, IntArray
 from ekfviz.evaluation.consistency import chi2_bounds, poses_nees
 from ekfviz.evaluation.errors import landmark_errors
 from ekfviz.viz import style
+from ekfviz.viz.annotations import annotation_context
 from ekfviz.viz.layers.arrow import in_parent_frame, positions, radius, robot_frame
 from ekfviz.viz.layers.batch import Batch, landmark_rows
 from ekfviz.viz.layers.canvas import Canvas, has_class_ids
 from ekfviz.viz.layers.map_rows import JoinedIds, joined_rows
+from ekfviz.viz.legend import KIND_CLASS
 
 
 class TruthLayer:
@@ -63,6 +65,8 @@ class TruthLayer:
                     colors=style.TRUTH_PATH_COLOR,
                     radii=radius(style.TRUTH_RADIUS_UI),
                     draw_order=36.0,
+                    class_ids=KIND_CLASS[style.TRUTH_ROBOT],
+                    show_labels=False,
                 ),
                 in_parent_frame(entities.path(style.TRUTH_ROBOT)),  # see arrow.robot_frame
             )
@@ -72,12 +76,26 @@ class TruthLayer:
                     colors=style.TRUTH_PATH_COLOR,
                     radii=radius(style.THIN_LINE_RADIUS_UI),
                     draw_order=5.0,
+                    class_ids=KIND_CLASS[style.TRUTH_TRAJECTORY],
+                    show_labels=False,
                 ),
             )
-        class_ids = truth.ids if has_class_ids(truth.ids) else None
-        entities.log(  # with its styling: one static chunk
-            style.TRUTH_LANDMARKS, rr.Points2D(truth.landmarks_xy, class_ids=class_ids), static=True
-        )
+        # named "true L<id>" on hover by a context of their own, in the same static chunk
+        # as the points and their styling; an id beyond the class ids by a label
+        ids = truth.ids.tolist()
+        if has_class_ids(truth.ids):
+            points = rr.Points2D(truth.landmarks_xy, class_ids=truth.ids)
+            entities.log(
+                style.TRUTH_LANDMARKS,
+                points,
+                annotation_context(ids, [f"true L{i}" for i in ids]),
+                static=True,
+            )
+        else:
+            labels = [f"true L{i}" for i in ids]
+            entities.log(
+                style.TRUTH_LANDMARKS, rr.Points2D(truth.landmarks_xy, labels=labels), static=True
+            )
 
     def send(self, batch: Batch) -> None:
         """The landmarks' errors of the batch's updates (:meth:`send_landmark_errors`),
