@@ -120,6 +120,7 @@ def _pooled(
 
     pool = ProcessPoolExecutor(max_workers=workers, initializer=_worker_signals)
     broken: list[int] = []
+    futures: dict[Future[R], int] = {}
     try:
         # a local pool forks its processes as runs are submitted: a signal acted on inside
         # os.fork's hooks breaks them (logging's lock released unheld, said on stderr), so
@@ -135,10 +136,25 @@ def _pooled(
             if done is not None:
                 done(found[futures[future]])
     except BaseException:
+        _keep_finished(futures, found, done)
         _stop_pool(pool)
         raise
     pool.shutdown(wait=not broken)
     return sorted(broken)
+
+
+def _keep_finished(
+    futures: dict[Future[R], int], found: dict[int, R], done: Callable[[R], None] | None
+) -> None:
+    """The runs whose results had come when an interrupt did, kept (into ``found``, told
+    to ``done``) as if it had come after them."""
+    for future, index in futures.items():
+        if index in found or not future.done() or future.cancelled():
+            continue
+        if future.exception() is None:
+            found[index] = future.result()
+            if done is not None:
+                done(found[index])
 
 
 STOP_GRACE_S = 0.5  # how long a stopped worker gets to exit before it is killed
