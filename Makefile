@@ -6,7 +6,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 RECORDING := recordings/classic.rrd
 
-.PHONY: test-all demo test bench sample clean screenshots docs
+.PHONY: test-all demo test typecheck unit-tests site bench sample clean screenshots docs
 
 # uv installs into the environment what pip would, in seconds rather than a minute and a
 # half; --compile-bytecode because an editable install compiles nothing and, where
@@ -56,11 +56,21 @@ $(NUMPY1): | $(BIN)/uv
 	$(UV) --python $(NUMPY1) \
 		"numpy==$$($(PYTHON) -c 'import sys; print("1.23.5" if sys.version_info < (3, 12) else "1.26.4")')"
 
+# ruff first (a second), then the type check and the documentation site beside the tests:
+# mypy takes one core for half a minute, which the tests' two workers would otherwise leave
+# to it alone
 test: $(VENV)/.installed-dev $(VENV)/.compiled $(NUMPY1)
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
+	$(MAKE) --no-print-directory -j3 typecheck unit-tests site
+
+typecheck:
 	$(BIN)/mypy
+
+unit-tests:
 	$(BIN)/pytest
+
+site:
 	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --quiet --site-dir site
 
 # The tests marked slow, which make test leaves out (the corpora of hostile submissions and of

@@ -6,11 +6,12 @@ import subprocess
 import sys
 import time
 from collections import defaultdict
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
+from _pytest.mark import ParameterSet
 
 
 def rrd_verify(path: Path) -> None:
@@ -138,3 +139,20 @@ def compiled(request: pytest.FixtureRequest) -> bool:
     """Both ways the filter runs: the compiled kernel of small maps, and the numpy code
     that stands in where it is not built."""
     return bool(request.param)
+
+
+def few_by_default(cases: Iterable[Any], keep: int = 1, *, multi: bool = False) -> list[Any]:
+    """Parametrize ``cases`` with the first ``keep`` run by ``make test`` and the rest marked
+    slow (``make test-all`` runs them); ``multi``: each case is a tuple of several values."""
+    found = []
+    for k, case in enumerate(cases):
+        if k < keep:
+            found.append(case)
+        elif isinstance(case, ParameterSet):
+            found.append(
+                pytest.param(*case.values, marks=[*case.marks, pytest.mark.slow], id=case.id)
+            )
+        else:
+            values = tuple(case) if multi else (case,)
+            found.append(pytest.param(*values, marks=pytest.mark.slow))
+    return found

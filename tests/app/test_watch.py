@@ -234,6 +234,7 @@ def _helper_filter(folder: Path) -> tuple[Path, Path]:
     return module, helper
 
 
+@pytest.mark.slow
 def test_a_file_replaced_by_rename_and_one_deleted_then_made_again_are_still_followed(
     tmp_path: Path,
 ) -> None:
@@ -261,6 +262,7 @@ def test_a_file_replaced_by_rename_and_one_deleted_then_made_again_are_still_fol
         watching.kill()
 
 
+@pytest.mark.slow
 def test_a_burst_of_writes_is_one_change(tmp_path: Path) -> None:
     """An editor's save in several steps (the file written in pieces, its mode set, a
     backup made and removed) comes as one change; the next save as another."""
@@ -430,6 +432,7 @@ def test_a_save_during_a_run_cancels_it_and_the_viewer_gets_complete_runs_only(
     assert sorted(name.split(" (")[0] for name in names) == ["ekf_slam run 001", "ekf_slam run 002"]
 
 
+@pytest.mark.slow
 def test_check_watch_runs_the_battery_under_the_interpreter_given(tmp_path: Path) -> None:
     """``check --watch`` without a log: every log of the battery at every run, a numpy-1
     module under its own interpreter (--python), a recording of each it can read kept."""

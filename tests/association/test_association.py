@@ -285,7 +285,9 @@ def test_victoria_reader_refuses_malformed_lines(tmp_path: Path, text: str, mess
         list(read_victoria(path))
 
 
-@pytest.mark.parametrize("fault", [None, "range", "time"])
+@pytest.mark.parametrize(
+    "fault", ["range", *(pytest.param(f, marks=pytest.mark.slow) for f in (None, "time"))]
+)
 def test_victoria_scans_span_blocks_and_a_late_fault_keeps_the_scans_before(
     tmp_path: Path, fault: str | None
 ) -> None:

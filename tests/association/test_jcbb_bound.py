@@ -172,6 +172,7 @@ def _two_bearing_log(path: Path, scans: int, per_scan: int) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_a_replay_of_two_bearing_scans_reports_and_logs_its_fallbacks(tmp_path: Path) -> None:
     # the first scan maps its rays, the second is searched until its budget runs out
     log = _two_bearing_log(tmp_path / "rays.txt", scans=2, per_scan=120)

@@ -12,6 +12,7 @@ import corpus
 import numpy as np
 import pytest
 import students
+from conftest import few_by_default
 
 from ekfviz.check.mistakes import catalogue, table, table_in
 from ekfviz.check.mutations import ALIASES, MUTATION, MUTATIONS, resolve
@@ -138,6 +139,7 @@ def test_every_mutation_is_named_from_what_it_does(mutation_id: str) -> None:
     assert _named_from_its_own_result(mutation_id)
 
 
+@pytest.mark.slow
 def test_two_and_three_mistakes_at_once_are_named_together() -> None:
     s = _state(3)
     before, step = _events(s)[2]
@@ -281,12 +283,12 @@ def _correct_passes(tmp_path: Path, name: str) -> None:
     assert all(MUTATION[c].family in ("handout", "form") for c in found.others)
 
 
-@pytest.mark.parametrize("name", FAST_MUTANTS)
+@pytest.mark.parametrize("name", few_by_default(FAST_MUTANTS, 2))
 def test_a_students_mistake_is_named_exactly(tmp_path: Path, name: str) -> None:
     _mutant_is_named_exactly(tmp_path, name)
 
 
-@pytest.mark.parametrize("name", FAST_CORRECT)
+@pytest.mark.parametrize("name", few_by_default(FAST_CORRECT, 2))
 def test_correct_code_written_unusually_passes(tmp_path: Path, name: str) -> None:
     _correct_passes(tmp_path, name)
 
@@ -359,7 +361,7 @@ def _family_mutant_is_named_exactly(tmp_path: Path, name: str) -> None:
     assert found.others <= {corpus.HANDOUT}
 
 
-@pytest.mark.parametrize("name", FAST_FAMILY)
+@pytest.mark.parametrize("name", few_by_default(FAST_FAMILY, 1))
 def test_a_family_mutant_is_named_exactly(tmp_path: Path, name: str) -> None:
     _family_mutant_is_named_exactly(tmp_path, name)
 

@@ -122,7 +122,7 @@ def _handles(signum: int) -> Callable[[int], bool]:
         pytest.param("consistency", signal.SIGINT, True, marks=pytest.mark.slow),
         pytest.param("compare", signal.SIGINT, True, marks=pytest.mark.slow),
         pytest.param("sweep", signal.SIGTERM, False, marks=pytest.mark.slow),
-        ("compare", signal.SIGTERM, False),
+        pytest.param("compare", signal.SIGTERM, False, marks=pytest.mark.slow),
     ],
 )
 def test_a_study_stops_at_once_with_one_line(
@@ -457,7 +457,10 @@ def test_a_grade_stopped_says_what_it_kept_and_removes_its_workers_temporary_fil
 # -- a signalled replay keeps its recording ------------------------------------------------
 
 
-@pytest.mark.parametrize(("signum", "code", "word"), [(2, 130, "SIGINT"), (15, 143, "SIGTERM")])
+@pytest.mark.parametrize(
+    ("signum", "code", "word"),
+    [(2, 130, "SIGINT"), pytest.param(15, 143, "SIGTERM", marks=pytest.mark.slow)],
+)
 def test_a_signal_leaves_a_complete_recording(
     tmp_path: Path, slow_log: Path, signum: int, code: int, word: str
 ) -> None:
@@ -483,7 +486,10 @@ def test_a_signal_leaves_a_complete_recording(
 
 
 @pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="reads /proc")
-@pytest.mark.parametrize(("signum", "code", "word"), [(2, 130, "SIGINT"), (15, 143, "SIGTERM")])
+@pytest.mark.parametrize(
+    ("signum", "code", "word"),
+    [pytest.param(2, 130, "SIGINT", marks=pytest.mark.slow), (15, 143, "SIGTERM")],
+)
 def test_a_signal_during_start_up_still_leaves_a_recording(
     tmp_path: Path, signum: int, code: int, word: str
 ) -> None:

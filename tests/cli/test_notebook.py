@@ -5,11 +5,14 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import pytest
+
 EXAMPLES = Path(__file__).parents[2] / "examples"
 WIDGET_VIEW = "application/vnd.jupyter.widget-view+json"
 WIDGET_STATE = "application/vnd.jupyter.widget-state+json"
 
 
+@pytest.mark.slow
 def test_the_example_notebook_replays_the_sample_into_the_rerun_viewer() -> None:
     import nbformat
     from nbclient import NotebookClient

@@ -209,7 +209,7 @@ def _ekfviz(*args: str, cwd: Path) -> subprocess.Popen[str]:
     )
 
 
-@pytest.mark.parametrize("kind", ["closed", "deaf"])
+@pytest.mark.parametrize("kind", ["closed", pytest.param("deaf", marks=pytest.mark.slow)])
 def test_connect_where_no_viewer_answers_is_one_line_and_exit_2(
     tmp_path: Path, kind: str, request: pytest.FixtureRequest
 ) -> None:

@@ -162,6 +162,7 @@ def long_enough_for_a_bar(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return log
 
 
+@pytest.mark.slow
 def test_a_long_replay_writes_nothing_to_a_standard_error_that_is_no_terminal(
     long_enough_for_a_bar: Path, tmp_path: Path
 ) -> None:

@@ -112,6 +112,7 @@ def test_a_filter_killing_itself_is_said_as_such(tmp_path: Path) -> None:
     one_error_line(result.stderr, "the filter's process was killed by SIGKILL during predict")
 
 
+@pytest.mark.slow
 def test_a_process_the_filter_forked_does_not_hold_the_command(tmp_path: Path) -> None:
     spec = _plugin(
         tmp_path,

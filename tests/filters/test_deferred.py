@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from conftest import few_by_default
 
 from ekfviz.association.associator import _joint_covariance, state_rows
 from ekfviz.association.gating import predict_landmarks, predict_landmarks_of
@@ -131,7 +132,7 @@ def _run(deferred: EkfSlam, eager: EkfSlam, *, drive: bool, seed: int, steps: in
 
 
 @pytest.mark.parametrize("compiled", [False, True] if HAVE_KERNEL else [False])
-@pytest.mark.parametrize("init", list(LandmarkInit))
+@pytest.mark.parametrize("init", few_by_default(list(LandmarkInit)))
 def test_the_deferred_model_filter_is_the_fold_at_once_one(
     init: LandmarkInit, compiled: bool
 ) -> None:

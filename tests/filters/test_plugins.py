@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from blueprints import read_layout
 from commands import run_ekfviz
-from conftest import entity_rows, rrd_verify
+from conftest import entity_rows, few_by_default, rrd_verify
 from typer.testing import CliRunner
 
 from ekfviz.check.lockstep import Quantity, lockstep, numbered
@@ -223,7 +223,9 @@ def behind(tmp_path: Path) -> Path:
     return path
 
 
-@pytest.mark.parametrize(("name", "log", "event", "kind", "quantity", "hint"), SEEDED)
+@pytest.mark.parametrize(
+    ("name", "log", "event", "kind", "quantity", "hint"), few_by_default(SEEDED, 3, multi=True)
+)
 def test_check_finds_each_seeded_bug(
     tmp_path: Path, behind: Path, name: str, log: str, event: int, kind: EventKind,
     quantity: Quantity, hint: str,
@@ -297,7 +299,7 @@ FAULTS = [
 ]
 
 
-@pytest.mark.parametrize(("name", "where", "what", "kept"), FAULTS)
+@pytest.mark.parametrize(("name", "where", "what", "kept"), few_by_default(FAULTS, 3, multi=True))
 def test_a_faulty_plugin_is_one_line_and_keeps_the_recording(
     tmp_path: Path, name: str, where: str, what: str, kept: bool
 ) -> None:
@@ -443,7 +445,13 @@ BROKEN_SKELETONS = [
 ]
 
 
-@pytest.mark.parametrize(("old", "new", "kind"), BROKEN_SKELETONS)
+@pytest.mark.parametrize(
+    ("old", "new", "kind"),
+    [
+        *BROKEN_SKELETONS[::2],
+        *(pytest.param(*b, marks=pytest.mark.slow) for b in BROKEN_SKELETONS[1::2]),
+    ],
+)
 def test_check_finds_bugs_in_a_broken_skeleton(
     tmp_path: Path, old: str, new: str, kind: str
 ) -> None:
@@ -493,6 +501,7 @@ def test_a_plugin_replays_id_less_scans_as_the_builtin_does(tmp_path: Path) -> N
     )
 
 
+@pytest.mark.slow
 def test_a_plugin_without_removal_needs_confirm_one_for_scans(tmp_path: Path) -> None:
     log = tmp_path / "scans.txt"
     log.write_text("scan 0.1 5.0 0.5 7.0\ncontrol 1.0 0.0\nscan 0.1 4.0 0.5 6.2\n")
@@ -533,6 +542,7 @@ def test_a_plugin_failing_in_a_worker_process_is_one_line(tmp_path: Path) -> Non
     assert not save.exists()
 
 
+@pytest.mark.slow
 def test_compare_and_sweep_pair_id_less_scans(tmp_path: Path) -> None:
     """--association on the studies: each run pairs the scans itself; a plugin with
     remove_landmarks gets the built-in's pairing and map."""

@@ -187,6 +187,7 @@ def states(events: list[AnyEvent]) -> tuple[dict[int, bytes], EventRecord]:
     return {r.event: r.pose.tobytes() + r.pose_cov.tobytes() for r in records}, records[-1]
 
 
+@pytest.mark.slow
 def test_the_filters_floats_do_not_depend_on_when_the_thread_is_done(
     large: list[AnyEvent], monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -38,6 +38,7 @@ def test_the_corpus_holds_every_kind_and_forty_attacks() -> None:
     assert set(REPRESENTATIVE) <= {a.key for a in ATTACKS}
 
 
+@pytest.mark.slow
 def test_a_representative_set_graded_together_leaves_everything_clean(
     tmp_path: Path, baseline: dict[str, dict[str, object]]
 ) -> None:

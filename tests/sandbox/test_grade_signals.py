@@ -64,7 +64,9 @@ def started_grade(tmp_path: Path) -> tuple[subprocess.Popen[str], Path]:
     return grade, folder
 
 
-@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
+@pytest.mark.parametrize(
+    "signum", [pytest.param(signal.SIGTERM, marks=pytest.mark.slow), signal.SIGINT]
+)
 def test_a_signal_writes_the_rows_done_and_leaves_no_process(tmp_path: Path, signum: int) -> None:
     grade, folder = started_grade(tmp_path)
     assert processes_naming(str(folder))  # (the slow one's sandbox, its grading process)
@@ -82,6 +84,7 @@ def test_a_signal_writes_the_rows_done_and_leaves_no_process(tmp_path: Path, sig
     wait_for(lambda: not processes_naming(str(folder)), "every process of the grade gone", 30)
 
 
+@pytest.mark.slow
 def test_a_grade_killed_outright_leaves_no_process(tmp_path: Path) -> None:
     """Its pool processes die with it, and their sandboxes with them."""
     grade, folder = started_grade(tmp_path)

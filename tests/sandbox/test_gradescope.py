@@ -115,6 +115,7 @@ def test_a_rubric_accepts_a_cause_by_either_name_and_refuses_one_check_never_nam
         read_rubric(rubric)
 
 
+@pytest.mark.slow
 def test_each_part_has_its_own_time(tmp_path: Path) -> None:
     """An update that never returns zeroes its own parts, not the prediction's."""
     submission = tmp_path / "submission"

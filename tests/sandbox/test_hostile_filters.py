@@ -45,6 +45,7 @@ def refused(spec: str, folder: Path, *options: str) -> str:
     return result.stderr
 
 
+@pytest.mark.slow
 def test_a_helper_process_in_a_session_of_its_own_does_not_hold_the_run(tmp_path: Path) -> None:
     """It outlives the worker's process group and held the worker's output pipe: ekfviz,
     closing that pipe while a thread read it, waited for the helper to end (a class's
@@ -180,6 +181,7 @@ def test_a_list_grown_until_memory_runs_out_is_said_as_memory(tmp_path: Path) ->
     )
 
 
+@pytest.mark.slow
 def test_a_class_graded_whatever_its_file_names(tmp_path: Path) -> None:
     """A name that is not UTF-8 (a zip from another system) crashed the CSV for the whole
     class; two names made alike by making them safe (``a b.py``, ``a_b.py``) wrote one
@@ -205,6 +207,7 @@ def test_a_class_graded_whatever_its_file_names(tmp_path: Path) -> None:
     assert "a_b.py-classic.rrd" in recordings  # a safe name as it was
 
 
+@pytest.mark.slow
 def test_an_answer_too_large_to_take_is_refused_before_it_is_allocated(tmp_path: Path) -> None:
     """A covariance "preallocated" for 6,000 landmarks (lazy zeros: nothing to the
     filter) took ekfviz to 2.4 GB reading it before the shapes were checked."""

@@ -85,6 +85,7 @@ def test_noise_free_loop_with_partial_observations_recovers_the_map() -> None:
     np.testing.assert_allclose(last.pose, run.poses_xytheta[-1], atol=1e-9)
 
 
+@pytest.mark.slow
 def test_loop_matched_filter_keeps_most_landmarks_inside_3_sigma(tmp_path: Path) -> None:
     log, truth = simulate(tmp_path, "--scenario", "loop", "--seed", "2", "--steps", "1000")
     report = tmp_path / "r.json"

@@ -297,6 +297,7 @@ def test_the_detail_option_logs_every_predict(dataset: Path, tmp_path: Path) -> 
     assert len(entity_rows(rrd, "/world/robot")) == len(list(open_source(dataset).events())) + 1
 
 
+@pytest.mark.slow
 def test_calibrate_recovers_the_simulated_noise_within_ten_percent(tmp_path: Path) -> None:
     noise = MrclamNoise()
     directory = write_dataset(
@@ -456,6 +457,7 @@ def test_a_sweep_of_a_dataset_runs_the_filter_a_replay_of_it_runs(
     assert baseline["motion_noise"] == "per-sqrt-second"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "command",
     [

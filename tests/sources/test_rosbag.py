@@ -529,7 +529,16 @@ def test_a_bag_s_numbers_are_checked_as_every_reader_s(tmp_path: Path) -> None:
     assert "/gt message 3: found stamp" in line and "expected stamps that never decrease" in line
 
 
-@pytest.mark.parametrize("kind", ["fifo", "folder", "dangling link", "link loop"])
+@pytest.mark.parametrize(
+    "kind",
+    [
+        "fifo",
+        *(
+            pytest.param(k, marks=pytest.mark.slow)
+            for k in ("folder", "dangling link", "link loop")
+        ),
+    ],
+)
 def test_only_the_storage_files_the_metadata_lists_are_read(tmp_path: Path, kind: str) -> None:
     """A file of the folder beside the bag's own is none of the bag's: a stray FIFO hung
     the replay for ever (SIGTERM too: a FIFO's open waits for a writer), a dangling link

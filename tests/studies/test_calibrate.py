@@ -110,6 +110,7 @@ def test_an_odometry_without_errors_is_left_alone() -> None:
     assert abs(fit.scale_d - 1) < 3 * fit.se_d + 1e-12
 
 
+@pytest.mark.slow
 def test_replay_takes_the_odometry_errors_out(
     skewed_run: tuple[list[LogEvent], GroundTruth],
 ) -> None:
@@ -198,6 +199,7 @@ def test_a_sigma_at_its_fit_limit_is_said_and_never_printed(
     assert "y" in fit.at_limit
 
 
+@pytest.mark.slow
 def test_the_held_out_judgement_never_prefers_a_setting_worse_than_the_defaults(
     skewed_run: tuple[list[LogEvent], GroundTruth],
 ) -> None:
@@ -281,6 +283,7 @@ def test_alignment_refuses_a_reflection() -> None:
     assert np.linalg.det(R) == pytest.approx(1.0)
 
 
+@pytest.mark.slow
 def test_the_fast_judgement_is_the_replay_s(skewed_run: tuple[list[LogEvent], GroundTruth]) -> None:
     """calibrate judges candidates by driving the filter directly: the same final map,
     NEES and NIS as a replay's, with a gate and an odometry correction."""
@@ -299,6 +302,7 @@ def test_the_fast_judgement_is_the_replay_s(skewed_run: tuple[list[LogEvent], Gr
     assert fast.verdict == slow.verdict
 
 
+@pytest.mark.slow
 def test_where_no_candidate_is_credible_the_closest_is_widened(
     skewed_run: tuple[list[LogEvent], GroundTruth], monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -319,6 +323,7 @@ def test_where_no_candidate_is_credible_the_closest_is_widened(
     assert result.best.held_out.error == min(c.held_out.error for c in trusted)
 
 
+@pytest.mark.slow
 def test_no_setting_is_recommended_where_every_reading_is_distrusted(
     skewed: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

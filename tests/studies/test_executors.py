@@ -103,6 +103,7 @@ def untimed(document: dict[str, object], key: str) -> list[dict[str, object]]:
     return [{k: v for k, v in row.items() if k not in ("seconds", "ms_per_step")} for row in rows]
 
 
+@pytest.mark.slow
 def test_consistency_on_a_dask_cluster_equals_the_local_run(tmp_path: Path, scheduler: str) -> None:
     args = ["consistency", "--scenario", "classic", "--runs", "6", "--seed", "4"]
     local = report_of(tmp_path, "local", *args, "--workers", "2")
@@ -127,6 +128,7 @@ def test_sweep_on_a_dask_cluster_equals_the_local_run(tmp_path: Path, scheduler:
     assert untimed(dask, "variants") == untimed(local, "variants")
 
 
+@pytest.mark.slow
 def test_compare_on_a_dask_cluster_equals_the_local_run(tmp_path: Path, scheduler: str) -> None:
     root = Path(__file__).parents[2]
     args = [

@@ -98,7 +98,13 @@ def every_entity(path: Path) -> dict[str, list[dict[str, object]]]:
     return found
 
 
-@pytest.mark.parametrize("case", list(CASES))
+# a plain run and true poses by default; the other kinds under make test-all
+FAST_CASES = {"plain", "with-true-poses"}
+
+
+@pytest.mark.parametrize(
+    "case", [c if c in FAST_CASES else pytest.param(c, marks=pytest.mark.slow) for c in CASES]
+)
 def test_the_recording_is_the_same_whatever_the_batches(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, case: str
 ) -> None:

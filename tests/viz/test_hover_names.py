@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import every_entity_rows
+from conftest import every_entity_rows, few_by_default
 from typer.testing import CliRunner
 
 from ekfviz.cli import app
@@ -89,7 +89,7 @@ KINDS = {
 }  # fmt: skip
 
 
-@pytest.mark.parametrize("kind", list(KINDS))
+@pytest.mark.parametrize("kind", few_by_default(list(KINDS), 2))
 def test_every_mark_of_a_map_is_named_on_hover(kind: str, tmp_path: Path) -> None:
     args, code = KINDS[kind]
     rrd = saved(args, tmp_path / f"{kind}.rrd", code)

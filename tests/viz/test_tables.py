@@ -20,9 +20,9 @@ CLASSIC, TRUTH = DATA / "classic.txt", DATA / "classic_truth.json"
 WIDTH = view_characters(STUDY_COLUMN_SHARES[1] / sum(STUDY_COLUMN_SHARES))
 SWEEPS = [
     ("sigma_x", "x0.1,x10"),
-    ("sigma_y", "x0.1,x0.5,x10"),
-    ("sigma_alpha", "x0.1,x0.3,x3,x10"),
-    ("sigma_bearing", "x0.2,x0.5,x2,x5,x10"),
+    pytest.param("sigma_y", "x0.1,x0.5,x10", marks=pytest.mark.slow),
+    pytest.param("sigma_alpha", "x0.1,x0.3,x3,x10", marks=pytest.mark.slow),
+    pytest.param("sigma_bearing", "x0.2,x0.5,x2,x5,x10", marks=pytest.mark.slow),
     ("sigma_range", "x0.1,x0.3,x0.5,x2,x3,x10"),
 ]
 

@@ -490,6 +490,7 @@ def test_spawn_without_display_is_a_one_line_error(
         pass
 
 
+@pytest.mark.slow
 def test_200_landmarks_are_one_batch(tmp_path: Path) -> None:
     rng = np.random.default_rng(200)
     landmarks = rng.uniform([-4.0, -4.0], [16.0, 20.0], size=(200, 2))
