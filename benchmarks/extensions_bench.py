@@ -123,7 +123,7 @@ def extensions_section(folder: Path, victoria: Path | None) -> str:
     lines += [
         "",
         "The readers parse numbers with `float()` and numpy: a compiled parser saved about"
-        " 0.1 s of the long log's 4 s and carried no target, so there is none.",
+        " 6 % of the long log's CPU time (paired runs) and carried no target, so there is none.",
         END,
     ]
     return "\n".join(lines)
