@@ -326,7 +326,7 @@ def test_the_battery_is_the_bundled_data(tmp_path: Path) -> None:
         assert truth.read_bytes() == (DATA / truth.name).read_bytes()
 
 
-@pytest.mark.parametrize("exposed", [False, True])
+@pytest.mark.parametrize("exposed", [False, pytest.param(True, marks=pytest.mark.slow)])
 def test_an_open_source_style_filter_gets_its_predict_mistakes_named(
     tmp_path: Path, exposed: bool
 ) -> None:

@@ -60,6 +60,7 @@ def run_autograder(root: Path, student: str, tmp_path: Path) -> dict[str, object
     return dict(json.loads((tree / "results" / "results.json").read_text()))
 
 
+@pytest.mark.slow
 def test_a_correct_module_gets_full_marks(unpacked: Path, tmp_path: Path) -> None:
     results = run_autograder(unpacked, "correct", tmp_path)
     tests = results["tests"]

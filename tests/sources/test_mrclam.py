@@ -421,10 +421,11 @@ def test_an_extended_log_with_times_gets_a_duration_timeline(tmp_path: Path) -> 
 @pytest.mark.parametrize(
     "command",
     [
-        ["sweep", "--vary", "sigma_range=x1,x2", "--workers", "1"],
+        pytest.param(["sweep", "--vary", "sigma_range=x1,x2", "--workers", "1"],
+                     marks=pytest.mark.slow),
         ["compare", "--filter", "ekf", "--filter", "ekf", "--label", "a", "--label", "b",
          "--workers", "1"],
-        ["check", "--filter", "ekf"],
+        pytest.param(["check", "--filter", "ekf"], marks=pytest.mark.slow),
     ],
 )  # fmt: skip
 def test_the_studies_and_check_take_a_dataset_s_robot(

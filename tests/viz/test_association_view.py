@@ -265,9 +265,8 @@ def reference_scans(records: list[EventRecord]) -> list[dict[str, Any]]:
     return out
 
 
-@pytest.mark.parametrize(
-    "seed", [0, *(pytest.param(seed, marks=pytest.mark.slow) for seed in range(1, 8))]
-)
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", range(8))
 def test_the_held_scans_joined_are_each_scans_own(seed: int) -> None:
     """Links, tentative landmarks and the smoothed sizes of batches of scans, found for
     each batch at once, against each scan's own (sizes carried from batch to batch)."""
