@@ -45,8 +45,6 @@ $(VENV)/.compiled: $(SOURCES) | $(BIN)/python
 demo: $(VENV)/.installed $(VENV)/.compiled
 	$(BIN)/ekfviz replay data/classic.txt --truth data/classic_truth.json \
 		--save $(RECORDING) --report recordings/classic.json
-	@echo
-	@echo "Saved $(RECORDING). Open it with:  $(BIN)/rerun $(RECORDING)"
 
 # an interpreter with numpy 1 (no ekfviz), for the tests of --python: students' code written
 # for numpy 1 runs under it (1.23 still builds ragged arrays; Python 3.12+ gets 1.26)
