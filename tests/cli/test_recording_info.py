@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 import rerun as rr
 from commands import run_ekfviz
+from rerun.chunk import RrdReader
 from typer.testing import CliRunner
 
 from ekfviz.cli import app
@@ -55,7 +56,14 @@ def recordings(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     rec.disconnect()
     whole = made["replay"].read_bytes()
     made["truncated"] = root / "truncated.rrd"
-    made["truncated"].write_bytes(whole[: len(whole) // 2])
+    # cut inside a message (a cut between two reads as a shorter recording): of two cuts a
+    # byte apart, at most one falls between messages
+    for cut in (len(whole) // 2, len(whole) // 2 + 1):
+        made["truncated"].write_bytes(whole[:cut])
+        try:
+            list(RrdReader(made["truncated"]).stream())
+        except Exception:  # (what Rerun's reader raises for a file cut short)
+            break
     return made
 
 
