@@ -25,9 +25,8 @@ from ekfviz.io.text import open_input
 
 ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT / "data"
-SAMPLE, TRUTH = DATA / "classic.txt", DATA / "classic_truth.json"
+TRUTH = DATA / "classic_truth.json"
 OBS = "0.1 5.0 0.2 6.0"
-CLASSIC = f"{OBS}\n3 0\n{OBS}\n3 0\n{OBS}\n"
 runner = CliRunner()
 
 

@@ -10,14 +10,9 @@ from pathlib import Path
 
 import pytest
 from commands import one_error_line
-from typer.testing import CliRunner
 
 ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT / "data"
-SAMPLE, TRUTH = DATA / "classic.txt", DATA / "classic_truth.json"
-OBS = "0.1 5.0 0.2 6.0"
-CLASSIC = f"{OBS}\n3 0\n{OBS}\n3 0\n{OBS}\n"
-runner = CliRunner()
 
 
 def _limited(size: int) -> None:  # (in the child, before exec)

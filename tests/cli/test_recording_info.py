@@ -21,8 +21,6 @@ from ekfviz.runner.replay import replay
 ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT / "data"
 SAMPLE, TRUTH = DATA / "classic.txt", DATA / "classic_truth.json"
-OBS = "0.1 5.0 0.2 6.0"
-CLASSIC = f"{OBS}\n3 0\n{OBS}\n3 0\n{OBS}\n"
 runner = CliRunner()
 
 

@@ -18,9 +18,7 @@ from ekfviz.cli import app
 
 ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT / "data"
-SAMPLE, TRUTH = DATA / "classic.txt", DATA / "classic_truth.json"
-OBS = "0.1 5.0 0.2 6.0"
-CLASSIC = f"{OBS}\n3 0\n{OBS}\n3 0\n{OBS}\n"
+SAMPLE = DATA / "classic.txt"
 runner = CliRunner()
 
 

@@ -12,14 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 from commands import one_error_line, run_ekfviz, run_ekfviz_process
-from typer.testing import CliRunner
 
 ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT / "data"
-SAMPLE, TRUTH = DATA / "classic.txt", DATA / "classic_truth.json"
-OBS = "0.1 5.0 0.2 6.0"
-CLASSIC = f"{OBS}\n3 0\n{OBS}\n3 0\n{OBS}\n"
-runner = CliRunner()
 
 
 TEXTBOOK = Path(__file__).parents[1] / "plugins" / "textbook.py"
