@@ -22,7 +22,7 @@ from pathlib import Path
 
 import pytest
 from commands import run_ekfviz
-from conftest import catches_signal, recording_holds, recording_started
+from conftest import catches_signal, recording_holds
 from typer.testing import CliRunner
 
 from ekfviz.cli import app
@@ -467,16 +467,13 @@ def test_a_signal_leaves_a_complete_recording(
     from conftest import entity_rows, rrd_verify
 
     rrd = tmp_path / "run.rrd"
-    process = subprocess.Popen(
-        [sys.executable, "-m", "ekfviz", "replay", str(slow_log), "--save", str(rrd)],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
+    returned, stderr, _ = _interrupt(
+        ["replay", str(slow_log), "--save", str(rrd)],
+        signum,
+        group=False,
+        ready=lambda pid: recording_holds(tmp_path, rrd.name, RECORDED),  # before its end
     )
-    recording_started(tmp_path, rrd.name, holding=RECORDED)  # into the replay, before its end
-    os.kill(process.pid, signum)
-    _, stderr = process.communicate(timeout=60)
-    assert process.returncode == code, stderr
+    assert returned == code, stderr
     assert f"interrupted ({word})" in stderr or f"terminated ({word})" in stderr
     assert "Traceback" not in stderr
     rrd_verify(rrd)
@@ -526,16 +523,13 @@ def test_info_says_a_run_cut_by_sigterm_stopped_early_and_where(
     tmp_path: Path, slow_log: Path
 ) -> None:
     rrd = tmp_path / "cut.rrd"
-    process = subprocess.Popen(
-        [sys.executable, "-m", "ekfviz", "replay", str(slow_log), "--save", str(rrd)],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
+    code, stderr, _ = _interrupt(
+        ["replay", str(slow_log), "--save", str(rrd)],
+        signal.SIGTERM,
+        group=False,
+        ready=lambda pid: recording_holds(tmp_path, rrd.name, RECORDED),  # before its end
     )
-    recording_started(tmp_path, rrd.name, holding=RECORDED)  # into the replay, before its end
-    process.send_signal(signal.SIGTERM)
-    _, stderr = process.communicate(timeout=60)
-    assert process.returncode == 143, stderr
+    assert code == 143, stderr
     document = json.loads(run_ekfviz("info", str(rrd), "--json").stdout)
     status = document["status"]
     assert status["state"] == "stopped" and status["stopped_early"] is True
