@@ -894,6 +894,13 @@ def worker_worlds(quick: bool) -> list[tuple[int, int, list[LogEvent]]]:
     return worlds
 
 
+def _write_section(out: Path, section: str) -> None:
+    """Put ``section`` in place of its old text in ``out`` (or at its end), and print it."""
+    old = out.read_text() if out.exists() else ""
+    out.write_text(splice(old, section))
+    print(section)
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
     parser.add_argument("--quick", action="store_true", help="small cases, for a smoke test")
@@ -950,18 +957,14 @@ def main(argv: Sequence[str] | None = None) -> None:
     started = time.perf_counter()
     if args.worker_only:
         section = worker_section(worker_worlds(args.quick))
-        old = args.out.read_text() if args.out.exists() else ""
-        args.out.write_text(splice(old, section))
-        print(section)
+        _write_section(args.out, section)
         return
     if args.check_only:
         from check_bench import check_section
 
         with tempfile.TemporaryDirectory() as tmp:
             section = check_section(Path(tmp), args.before)
-        old = args.out.read_text() if args.out.exists() else ""
-        args.out.write_text(splice(old, section))
-        print(section)
+        _write_section(args.out, section)
         return
     if args.extensions_only:
         from association_bench import find_dataset
@@ -969,9 +972,7 @@ def main(argv: Sequence[str] | None = None) -> None:
 
         with tempfile.TemporaryDirectory() as tmp:
             section = extensions_section(Path(tmp), find_dataset())
-        old = args.out.read_text() if args.out.exists() else ""
-        args.out.write_text(splice(old, section))
-        print(section)
+        _write_section(args.out, section)
         return
     if args.targets_only:
         from association_bench import find_dataset
@@ -979,9 +980,7 @@ def main(argv: Sequence[str] | None = None) -> None:
 
         with tempfile.TemporaryDirectory() as tmp:
             section = targets_section(Path(tmp), find_dataset())
-        old = args.out.read_text() if args.out.exists() else ""
-        args.out.write_text(splice(old, section))
-        print(section)
+        _write_section(args.out, section)
         return
     if (
         args.mrclam_only
@@ -1006,9 +1005,7 @@ def main(argv: Sequence[str] | None = None) -> None:
             else:
                 make = mrclam_section if args.mrclam_only else smoother_section
                 section = make(Path(tmp))
-        old = args.out.read_text() if args.out.exists() else ""
-        args.out.write_text(splice(old, section))
-        print(section)
+        _write_section(args.out, section)
         return
     # end to end first: a child's peak resident memory counts the pages it shares with
     # this process when forked, so this process must still be small
