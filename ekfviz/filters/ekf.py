@@ -121,6 +121,7 @@ class EkfSlam(LineUpdates):
         p = self.params
         self._compiled = compiled and HAVE_KERNEL
         self._Q = motion_noise(p.sigma_x, p.sigma_y, p.sigma_alpha)
+        self._q_diagonal = tuple(np.diag(self._Q).tolist())  # as floats, for the kernel
         self._R = measurement_noise(p.sigma_bearing, p.sigma_range)
         # R's diagonal as floats, for the compiled kernel
         self._r = (float(self._R[0, 0]), float(self._R[1, 1]))
@@ -345,7 +346,8 @@ class EkfSlam(LineUpdates):
             if self._rank:
                 theta = float(x[2])
                 self._predict_pending(-d * math.sin(theta), d * math.cos(theta))
-            if not _kernel.predict(x, P, n, d, alpha, Q[0, 0], Q[1, 1], Q[2, 2]):
+            qx, qy, qa = self._q_diagonal if Q is self._Q else np.diag(Q).tolist()
+            if not _kernel.predict(x, P, n, d, alpha, qx, qy, qa):
                 raise FilterError("the state became non-finite in predict")
             return
         pose = x[:3].copy()
@@ -426,7 +428,7 @@ class EkfSlam(LineUpdates):
             innovation=values[:, 2:4],
             S=values[:, 4:8].reshape(m, 2, 2),
             nis=values[:, 8],
-            initialised=frozen(np.array(new, dtype=bool)) if any_new else no_flags(m),
+            initialised=frozen(np.array(new, dtype=bool)) if any_new else flags_none,
             skipped=skipped if skipped is flags_none else frozen(np.asarray(skipped, dtype=bool)),
         )
 

@@ -287,8 +287,9 @@ def _converted(
         values = np.array(list(map(float, tokens)), dtype=np.float64)
     except ValueError:
         return None
-    if any(underflows(tokens[k]) for k in np.flatnonzero(values == 0).tolist()):
-        return None  # line by line, to name it
+    zeros = np.flatnonzero(values == 0).tolist()
+    if zeros and any(map(underflows, set(map(tokens.__getitem__, zeros)))):
+        return None  # line by line, to name it (each way a 0 is written asked once)
     plain = np.array(list(map(bytes.isdigit, tokens)), dtype=bool) if digits else None
     return values, _token_counts(joined, lines), plain
 
@@ -302,8 +303,9 @@ def _token_counts(joined: bytes, lines: int) -> IntArray:
     gap = line_end | (text == 0x20) | (text == 0x09)
     starts = ~gap
     starts[1:] &= gap[:-1]
-    line_of = np.cumsum(line_end)  # the line of each byte (a line end: the next line's)
-    return np.bincount(line_of[starts], minlength=lines).astype(np.int64)
+    # a token's line: how many line ends come before its first byte
+    line_of = np.searchsorted(np.flatnonzero(line_end), np.flatnonzero(starts))
+    return np.bincount(line_of, minlength=lines).astype(np.int64)
 
 
 def _checked_block(path: Path, first: int, raw: list[bytes]) -> NumberBlock:

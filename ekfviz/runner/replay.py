@@ -34,6 +34,8 @@ if TYPE_CHECKING:  # the association is loaded by a log with scans (or --gate) o
 
 __all__ = ["FilterLineError", "corrected_controls", "plugged", "replay"]
 
+MOVES = (Control, Drive)  # the events that move the filter (a tuple: isinstance's fastest)
+
 
 def replay(
     events: Iterable[AnyEvent],
@@ -135,7 +137,7 @@ class Events:
         """
         line, time = log_event.line, log_event.time
         try:
-            if isinstance(log_event, Control | Drive):
+            if isinstance(log_event, MOVES):
                 event, step = counter.predict()
                 control = move(self._ekf, log_event)
                 if last:
