@@ -9,10 +9,12 @@ RECORDING := recordings/classic.rrd
 .PHONY: test-all demo test typecheck unit-tests site bench sample clean screenshots docs
 
 # uv installs into the environment what pip would, in seconds rather than a minute and a
-# half; --compile-bytecode because an editable install compiles nothing and, where
-# PYTHONDONTWRITEBYTECODE is set (as on CI machines), every start would compile the
-# dependencies' modules from source again
-UV := $(BIN)/uv pip install --quiet --compile-bytecode
+# half. The commands' own dependencies are installed with their bytecode: an install
+# compiles none by itself and, where PYTHONDONTWRITEBYTECODE is set (as on CI machines),
+# every start would compile their modules from source again. The tests' and the
+# documentation's many more are installed without it: the test run writes the bytecode of
+# what it imports, once (see WRITE_BYTECODE); compiling all of them took longer.
+UV := $(BIN)/uv pip install --quiet
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -27,7 +29,7 @@ BUILD_INPUTS := pyproject.toml setup.py ekfviz/filters/_kernel.c ekfviz/_doubles
 	ekfviz/association/_search.c
 
 $(VENV)/.installed: $(BUILD_INPUTS) | $(BIN)/uv
-	$(UV) --python $(BIN)/python -e .
+	$(UV) --compile-bytecode --python $(BIN)/python -e .
 	touch $@
 
 $(VENV)/.installed-dev: $(BUILD_INPUTS) | $(BIN)/uv
@@ -51,8 +53,12 @@ demo: $(VENV)/.installed $(VENV)/.compiled
 NUMPY1 := .venv-numpy1/bin/python
 $(NUMPY1): | $(BIN)/uv
 	$(PYTHON) -m venv --without-pip .venv-numpy1
-	$(UV) --python $(NUMPY1) \
+	$(UV) --compile-bytecode --python $(NUMPY1) \
 		"numpy==$$($(PYTHON) -c 'import sys; print("1.23.5" if sys.version_info < (3, 12) else "1.26.4")')"
+
+# the modules a run imports are compiled as they are first imported and kept (within the
+# environment and the source tree), whatever PYTHONDONTWRITEBYTECODE says outside
+WRITE_BYTECODE := PYTHONDONTWRITEBYTECODE=
 
 # ruff first (a second), then the type check and the documentation site beside the tests:
 # mypy takes one core for half a minute, which the tests' two workers would otherwise leave
@@ -60,7 +66,7 @@ $(NUMPY1): | $(BIN)/uv
 test: $(VENV)/.installed-dev $(VENV)/.compiled $(NUMPY1)
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
-	$(MAKE) --no-print-directory -j3 typecheck unit-tests site
+	$(WRITE_BYTECODE) $(MAKE) --no-print-directory -j3 typecheck unit-tests site
 
 typecheck:
 	$(BIN)/mypy
@@ -74,7 +80,7 @@ site:
 # The tests marked slow, which make test leaves out (the corpora of hostile submissions and of
 # students' modules, the mutation search over every operation): CI runs them after make test.
 test-all: test
-	$(BIN)/pytest -m slow
+	$(WRITE_BYTECODE) $(BIN)/pytest -m slow
 
 # Regenerate the bundled sample (a test checks data/ matches this).
 sample: $(VENV)/.installed $(VENV)/.compiled

@@ -344,6 +344,7 @@ def _env(cwd: Path) -> dict[str, str]:
     return env
 
 
+@pytest.mark.slow
 def test_a_path_too_long_for_its_file_system_is_one_line(tmp_path: Path) -> None:
     """A log name of 256 bytes was a traceback (OSError: File name too long, from a check
     of the path); so was the default recording's name of a 251-byte log's second run.

@@ -115,6 +115,7 @@ def test_a_terminal_that_cannot_show_unicode_gets_the_results_not_a_traceback(
     assert "+----" in text  # the table drawn in ASCII
 
 
+@pytest.mark.slow
 def test_a_non_ascii_file_name_in_an_ascii_locale_is_one_line_and_recorded(
     tmp_path: Path,
 ) -> None:

@@ -129,6 +129,7 @@ def test_isam2_joint_marginals_equal_the_ekf_covariance_on_noise_free_data() -> 
         np.testing.assert_allclose(isam.P, ekf.P, rtol=1e-6, atol=1e-8 * np.abs(ekf.P).max())
 
 
+@pytest.mark.slow
 def test_isam2_is_consistent_on_simulated_loops_with_matched_noise() -> None:
     """Pose NEES (3 dof) inside its 95 % bounds at >= 90 % of the updates of noisy loops,
     pooled over three runs (one run's steps are strongly correlated)."""

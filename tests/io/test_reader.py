@@ -269,7 +269,7 @@ _TOKEN_LINES = st.lists(st.lists(_TOKEN, max_size=6), min_size=1, max_size=8)
 _GAPS = st.sampled_from([" ", "\t", "  "])
 
 
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=30, deadline=None)
 @given(_TOKEN_LINES, _GAPS)
 def test_a_block_gives_the_bits_float_gives(lines: list[list[str]], gap: str) -> None:
     """See :func:`_a_block_gives_the_bits_float_gives`."""

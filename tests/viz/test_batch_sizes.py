@@ -98,8 +98,8 @@ def every_entity(path: Path) -> dict[str, list[dict[str, object]]]:
     return found
 
 
-# a plain run and true poses by default; the other kinds under make test-all
-FAST_CASES = {"plain", "with-true-poses"}
+# a plain run by default; the other kinds under make test-all
+FAST_CASES = {"plain"}
 
 
 @pytest.mark.parametrize(
