@@ -50,9 +50,7 @@ try:
 except ImportError:  # installed without a C compiler: numpy throughout
     _kernel = None  # type: ignore[assignment]
 
-_NO_SPANS = np.zeros((0, 3))  # where the kernel drove them
 _UPPER = np.triu_indices(3)  # the upper triangle of a 3x3 block, row by row
-_NO_SPANS.flags.writeable = False
 
 # what _kernel.model_update says of a line: S not finite, or U full (fold it, go on)
 _S_NOT_FINITE, _U_FULL = 1, 3
@@ -138,36 +136,50 @@ class ModelEkfSlam(EkfSlam):
         """
         if self.vehicle is None:
             raise FilterError("this filter has no vehicle model for speed and steering controls")
-        n = self._n
         x, P = self._x, self._P
         vehicle = self.vehicle
         Q = vehicle.Q
-        pose, P_rr = x[:3].copy(), P[:3, :3].copy()
-        G_all = np.eye(3)
         spans = np.asarray(segments, dtype=np.float64)
         if self._model_kernel and type(vehicle) is Ackermann:  # the same algebra, in C
-            (px, py, pt), (p00, p01, p02, p11, p12, p22) = pose.tolist(), P_rr[_UPPER].tolist()
+            (px, py, pt), (p00, p01, p02, p11, p12, p22) = x[:3].tolist(), P[_UPPER].tolist()
             (px, py, pt, p00, p01, p02, p11, p12, p22, a_all, b_all) = _kernel.ackermann_drive(
                 np.ascontiguousarray(spans), px, py, pt, p00, p01, p02, p11, p12, p22,
                 vehicle.wheelbase, vehicle.encoder_offset, float(Q[0, 0]), float(Q[1, 1]),
             )  # fmt: skip
-            pose = np.array((px, py, pt))
-            P_rr = np.array(((p00, p01, p02), (p01, p11, p12), (p02, p12, p22)))
-            G_all[0, 2], G_all[1, 2] = a_all, b_all
-            spans = _NO_SPANS
+            if not math.isfinite(px + py + pt + p00 + p01 + p02 + p11 + p12 + p22):
+                raise FilterError("the state became non-finite in predict")
+            P_rr = ((p00, p01, p02), (p01, p11, p12), (p02, p12, p22))
+            self._driven((px, py, pt), P_rr, a_all, b_all)
+            return
+        pose, P_rr_now = x[:3].copy(), P[:3, :3].copy()
+        a_all = b_all = 0.0
         for speed, steering, dt in spans.tolist():
             if dt <= 0.0:
                 continue
             G, W = vehicle.jacobians(pose, speed, steering, dt)
-            P_rr = predicted_pose_covariance(P_rr, G, W, Q)
+            P_rr_now = predicted_pose_covariance(P_rr_now, G, W, Q)
             pose = vehicle.motion(pose, speed, steering, dt)
-            G_all[:2, 2] += G[:2, 2]
-        if not (np.isfinite(pose).all() and np.isfinite(P_rr).all()):
+            a_all, b_all = a_all + float(G[0, 2]), b_all + float(G[1, 2])
+        if not (np.isfinite(pose).all() and np.isfinite(P_rr_now).all()):
             raise FilterError("the state became non-finite in predict")
+        self._driven(pose, P_rr_now, a_all, b_all)
+
+    def _driven(
+        self,
+        pose: FloatArray | tuple[float, float, float],
+        P_rr: FloatArray | tuple[tuple[float, float, float], ...],
+        a_all: float,
+        b_all: float,
+    ) -> None:
+        """Write a drive's pose and pose covariance into the state, and take the cross-
+        covariances with the map through G_all (the identity but for its heading column
+        (a_all, b_all, 1)): P_rm' = G_all P_rm."""
+        n, x, P = self._n, self._x, self._P
         x[:3] = pose
         if self._rank:  # the pending changes of P through G_all (see EkfSlam._fold)
-            self._predict_pending(float(G_all[0, 2]), float(G_all[1, 2]))
+            self._predict_pending(a_all, b_all)
         if n > 3:
+            G_all = np.array(((1.0, 0.0, a_all), (0.0, 1.0, b_all), (0.0, 0.0, 1.0)))
             P_rm = predicted_cross_covariance(G_all, P[:3, 3:n])
             P[:3, 3:n] = P_rm
             P[3:n, :3] = P_rm.T
