@@ -935,7 +935,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         "--before",
         type=Path,
         default=None,
-        help="a clone from before (with its own .venv) to time check --all against",
+        help="a clone from before (with its own .venv) to time check --all and the targets against",
     )
     parser.add_argument(
         "--association-only",
@@ -976,10 +976,11 @@ def main(argv: Sequence[str] | None = None) -> None:
         return
     if args.targets_only:
         from association_bench import find_dataset
+        from mrclam_bench import find_dataset as find_mrclam
         from targets_bench import targets_section
 
         with tempfile.TemporaryDirectory() as tmp:
-            section = targets_section(Path(tmp), find_dataset())
+            section = targets_section(Path(tmp), find_dataset(), args.before, find_mrclam())
         _write_section(args.out, section)
         return
     if (
@@ -1031,9 +1032,10 @@ def main(argv: Sequence[str] | None = None) -> None:
         startups = startup_section(Path(tmp))
         print("the speed targets in one run", flush=True)
         from association_bench import find_dataset
+        from mrclam_bench import find_dataset as find_mrclam
         from targets_bench import targets_section
 
-        targets = targets_section(Path(tmp), find_dataset())
+        targets = targets_section(Path(tmp), find_dataset(), args.before, find_mrclam())
         scaling = scaling_section(Path(tmp), args.quick, args.out.parent)
         print("the sandbox of user code", flush=True)
         sandbox = sandbox_section(Path(tmp), args.quick)

@@ -14,8 +14,13 @@
    RMSE read back from the recording (``association_bench.victoria_run``): target, at
    most 10 s, RMSE 3.52 m.
 
-Wall and CPU (the child's user + system, Rerun's threads included) are both given: on a
-loaded machine the wall time is the one that suffers.
+4. An MRCLAM robot (robot 1 of dataset 6) end to end, the median of three: target, at
+   most 3 s.
+
+With ``--before CLONE`` (a checkout from before, its own ``.venv`` built) every timed
+command of that clone runs in turn with this one's, and the table gives both. Wall and
+CPU (the child's user + system, Rerun's threads included) are both given: on a loaded
+machine the wall time is the one that suffers.
 """
 
 from __future__ import annotations
@@ -111,79 +116,186 @@ def long_logs(folder: Path, steps: int = LONG_STEPS) -> tuple[Path, Path]:
     return classic, extended
 
 
-def targets_section(folder: Path, victoria: Path | None) -> str:
-    """The section of RESULTS.md: each target, what this run measured, met or not."""
-    ekfviz = str(BIN / "ekfviz")
-    imports, replays = [], []
-    for _ in range(REPEATS):  # interleaved: the same load for both
-        imports.append(timed([sys.executable, "-c", "import rerun, numpy, typer"], folder))
-        classic = [ekfviz, "replay", str(ROOT / "data" / "classic.txt"), "--save"]
-        replays.append(timed([*classic, str(folder / "classic.rrd")], folder))
-    imp, rep = _median(imports), _median(replays)
+@dataclass(frozen=True, slots=True)
+class Row:
+    """One target: what it asks, what this run measured now and before, and whether
+    it is met now."""
 
+    target: str
+    now: str
+    before: str
+    met: bool
+
+
+def interleaved(
+    commands: dict[str, list[str]], folder: Path, repeats: int
+) -> dict[str, list[Timed]]:
+    """Each command run ``repeats`` times, in turn (the same load for all), every run."""
+    runs: dict[str, list[Timed]] = {name: [] for name in commands}
+    for _ in range(repeats):
+        for name, command in commands.items():
+            runs[name].append(timed(command, folder))
+    return runs
+
+
+def _wall(runs: list[Timed]) -> str:
+    middle = _median(runs)
+    return f"{middle.wall_s:.2f} s wall ({_spread(runs)}), {middle.cpu_s:.2f} s CPU"
+
+
+def _ratio(now: list[Timed], before: list[Timed] | None) -> str:
+    if not before:
+        return ""
+    return f"{_median(now).wall_s / _median(before).wall_s:.2f}x"
+
+
+def targets_section(
+    folder: Path,
+    victoria: Path | None,
+    before: Path | None = None,
+    mrclam: Path | None = None,
+) -> str:
+    """The section of RESULTS.md: each target, what this run measured, met or not; with
+    ``before`` (a clone from before, its own ``.venv`` built) the same commands of that
+    clone, run in turn with this one's."""
+    ekfviz = {"now": str(BIN / "ekfviz")}
+    if before is not None:
+        ekfviz["before"] = str(before / ".venv" / "bin" / "ekfviz")
+    classic = ROOT / "data" / "classic.txt"
+    short = interleaved(
+        {
+            "imports": [sys.executable, "-c", "import rerun, numpy, typer"],
+            **{
+                k: [e, "replay", str(classic), "--save", str(folder / f"classic_{k}.rrd")]
+                for k, e in ekfviz.items()
+            },
+        },
+        folder,
+        REPEATS,
+    )
+    imp, rep = _median(short["imports"]), _median(short["now"])
     log, extended_log = long_logs(folder)
-    rrd = folder / "long.rrd"
-    long_runs, extended_runs = [], []
-    for _ in range(LONG_REPEATS):  # in turn: the same load for both
-        long_runs.append(timed([ekfviz, "replay", str(log), "--save", str(rrd)], folder))
-        extended = [ekfviz, "replay", str(extended_log), "--save", str(folder / "ext.rrd")]
-        extended_runs.append(timed(extended, folder))
-    long_run, extended_run = _median(long_runs), _median(extended_runs)
+    rrd = folder / "long_now.rrd"
+    long = interleaved(
+        {
+            **{
+                f"long_{k}": [e, "replay", str(log), "--save", str(folder / f"long_{k}.rrd")]
+                for k, e in ekfviz.items()
+            },
+            **{
+                f"ext_{k}": [e, "replay", str(extended_log), "--save", str(folder / "x.rrd")]
+                for k, e in ekfviz.items()
+            },
+        },
+        folder,
+        LONG_REPEATS,
+    )
+    long_run = _median(long["long_now"])
     size_mb = rrd.stat().st_size / 1e6
     done = subprocess.run(
         [sys.executable, "-c", _READ_AND_FILTER, str(log)],
         env=_env(folder), capture_output=True, text=True, check=True,
     )  # fmt: skip
     read_s, filter_s = (float(v) for v in done.stdout.split())
-
+    was = before is not None
     rows = [
-        ("classic sample end to end <= imports + 0.15 s",
-         f"{rep.wall_s:.2f} s against {imp.wall_s:.2f} s (+{rep.wall_s - imp.wall_s:.2f} s);"
-         f" CPU {rep.cpu_s:.2f} s against {imp.cpu_s:.2f} s (+{rep.cpu_s - imp.cpu_s:.2f} s)",
-         rep.wall_s <= imp.wall_s + 0.15),
-        (f"{LONG_STEPS:,}-step classic-size log end to end <= 5 s",
-         f"{long_run.wall_s:.2f} s wall ({_spread(long_runs)}), {long_run.cpu_s:.2f} s CPU",
-         long_run.wall_s <= 5.0),
-        ("... <= 2 x (reading + filter)",
-         f"{long_run.wall_s:.2f} s against 2 x ({read_s:.2f} + {filter_s:.2f}) ="
-         f" {2 * (read_s + filter_s):.2f} s",
-         long_run.wall_s <= 2 * (read_s + filter_s)),
-        ("... recording <= 50 MB", f"{size_mb:.1f} MB", size_mb <= 50.0),
-        ("... the same events as an extended log <= 5 s",
-         f"{extended_run.wall_s:.2f} s wall ({_spread(extended_runs)}),"
-         f" {extended_run.cpu_s:.2f} s CPU",
-         extended_run.wall_s <= 5.0),
+        Row("classic sample end to end <= imports + 0.15 s",
+            f"{rep.wall_s:.2f} s against {imp.wall_s:.2f} s (+{rep.wall_s - imp.wall_s:.2f} s);"
+            f" CPU {rep.cpu_s:.2f} s against {imp.cpu_s:.2f} s (+{rep.cpu_s - imp.cpu_s:.2f} s)",
+            f"{_median(short['before']).wall_s:.2f} s ({_ratio(short['now'], short['before'])})"
+            if was else "",
+            rep.wall_s <= imp.wall_s + 0.15),
+        Row(f"{LONG_STEPS:,}-step classic-size log end to end <= 5 s", _wall(long["long_now"]),
+            f"{_wall(long['long_before'])} ({_ratio(long['long_now'], long['long_before'])})"
+            if was else "",
+            long_run.wall_s <= 5.0),
+        Row("... <= 2 x (reading + filter)",
+            f"{long_run.wall_s:.2f} s against 2 x ({read_s:.2f} + {filter_s:.2f}) ="
+            f" {2 * (read_s + filter_s):.2f} s", "",
+            long_run.wall_s <= 2 * (read_s + filter_s)),
+        Row("... recording <= 50 MB", f"{size_mb:.1f} MB",
+            f"{(folder / 'long_before.rrd').stat().st_size / 1e6:.1f} MB" if was else "",
+            size_mb <= 50.0),
+        Row("... the same events as an extended log <= 5 s", _wall(long["ext_now"]),
+            f"{_wall(long['ext_before'])} ({_ratio(long['ext_now'], long['ext_before'])})"
+            if was else "",
+            _median(long["ext_now"]).wall_s <= 5.0),
     ]  # fmt: skip
+    if mrclam is not None:
+        robot = interleaved(
+            {
+                k: [e, "replay", str(mrclam), "--robot", "1", "--save", str(folder / "m.rrd")]
+                for k, e in ekfviz.items()
+            },
+            folder,
+            LONG_REPEATS,
+        )
+        rows.append(
+            Row("an MRCLAM robot (1) end to end <= 3 s", _wall(robot["now"]),
+                f"{_wall(robot['before'])} ({_ratio(robot['now'], robot['before'])})"
+                if was else "",
+                _median(robot["now"]).wall_s <= 3.0)
+        )  # fmt: skip
     if victoria is not None:
-        from association_bench import victoria_run
+        rows += _victoria_rows(victoria, folder, ekfviz.get("before"))
+    return _section(rows, was, victoria is not None, mrclam is not None)
 
-        vps = [victoria_run(victoria, folder) for _ in range(LONG_REPEATS)]
-        vp = sorted(vps, key=lambda run: run.wall_s)[len(vps) // 2]  # the median run
-        walls = [Timed(run.wall_s, run.cpu_s) for run in vps]
-        rows += [
-            ("Victoria Park end to end <= 10 s",
-             f"{vp.wall_s:.2f} s wall ({_spread(walls)}), {vp.cpu_s:.2f} s CPU",
-             vp.wall_s <= 10.0),
-            ("... GPS RMSE unchanged (3.52 m; 2.86 m without the jump), landmarks (290)",
-             f"{vp.rmse_m:.2f} m; {vp.without_jump_m:.2f} m; {vp.landmarks} landmarks",
-             round(vp.rmse_m, 2) == 3.52 and vp.landmarks == 290),
-        ]  # fmt: skip
+
+def _victoria_rows(victoria: Path, folder: Path, before: str | None) -> list[Row]:
+    """Victoria Park end to end, in turn with the clone from before where given, and its
+    GPS RMSE and landmarks read back from this run's recording."""
+    from association_bench import victoria_run
+
+    vps, befores = [], []
+    for _ in range(LONG_REPEATS):
+        vps.append(victoria_run(victoria, folder))
+        if before is not None:
+            befores.append(timed([before, "replay", str(victoria), "--save",
+                                  str(folder / "vp_before.rrd")], folder))  # fmt: skip
+    vp = sorted(vps, key=lambda run: run.wall_s)[len(vps) // 2]  # the median run
+    walls = [Timed(run.wall_s, run.cpu_s) for run in vps]
+    return [
+        Row("Victoria Park end to end <= 10 s", _wall(walls),
+            f"{_wall(befores)} ({_ratio(walls, befores)})" if befores else "",
+            vp.wall_s <= 10.0),
+        Row("... GPS RMSE unchanged (3.52 m; 2.86 m without the jump), landmarks (290)",
+            f"{vp.rmse_m:.2f} m; {vp.without_jump_m:.2f} m; {vp.landmarks} landmarks", "",
+            round(vp.rmse_m, 2) == 3.52 and vp.landmarks == 290),
+    ]  # fmt: skip
+
+
+def _section(rows: list[Row], was: bool, victoria: bool, mrclam: bool) -> str:
     load = os.getloadavg()[0]
     lines = [
         BEGIN,
         "## The speed targets, in one run",
         "",
-        f"`python benchmarks/bench.py --targets-only` (`benchmarks/targets_bench.py`);"
-        f" load average {load:.1f} on {os.cpu_count()} cores when it started. Wall: medians"
-        " of five for the classic sample and the imports (interleaved), of"
-        f" {LONG_REPEATS} for the long log and Victoria Park (every run in brackets);"
-        " CPU: the child's user + system, Rerun's threads included.",
+        "`python benchmarks/bench.py --targets-only"
+        + (" --before CLONE`" if was else "`")
+        + f" (`benchmarks/targets_bench.py`); load average {load:.1f} on {os.cpu_count()}"
+        " cores at the end. Wall: medians of five for the classic sample and the imports"
+        f" (interleaved), of {LONG_REPEATS} for the long log, MRCLAM and Victoria Park"
+        " (every run in brackets); CPU: the child's user + system, Rerun's threads"
+        " included."
+        + (
+            " *Before*: the same commands of a clone from before the event batches, the"
+            " filter's named operations and the application layer, run in turn with these"
+            " (now / before in brackets)."
+            if was
+            else ""
+        ),
         "",
-        "| target | measured | |",
-        "|---|---|---|",
-        *(f"| {t} | {m} | {'met' if ok else '**not met**'} |" for t, m, ok in rows),
+        "| target | measured | before | |" if was else "| target | measured | |",
+        "|---|---|---|---|" if was else "|---|---|---|",
+        *(
+            f"| {r.target} | {r.now} |{f' {r.before} |' if was else ''}"
+            f" {'met' if r.met else '**not met**'} |"
+            for r in rows
+        ),
     ]
-    if victoria is None:
+    if not victoria:
         lines += ["", "Victoria Park skipped: the dataset was not found."]
+    if not mrclam:
+        lines += ["", "MRCLAM skipped: the dataset was not found."]
     lines.append(END)
     return "\n".join(lines)
