@@ -10,7 +10,6 @@ and owns the private copy they see. Numpy only.
 from __future__ import annotations
 
 import os
-import tempfile
 import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -31,7 +30,14 @@ from ekfviz.sandbox.host import (
     load_limit_name,
     load_timeout,
 )
-from ekfviz.sandbox.submission import Submission, SubmissionRefused, copy, remove, survey
+from ekfviz.sandbox.submission import (
+    Submission,
+    SubmissionRefused,
+    copy,
+    private_folder,
+    remove,
+    survey,
+)
 from ekfviz.sandbox.text import printable
 
 
@@ -263,7 +269,7 @@ class PrivateCopy:
         self._submission = submission_of(target, options) if options.sandbox else None
         self.mounts: tuple[bwrap.Mount, ...] = ()
         if self._submission is not None:
-            folder = tempfile.mkdtemp(prefix="ekfviz-submission-")
+            folder = private_folder()
             self.mounts = (bwrap.Mount(folder, self._submission.root),)
         self._removal = weakref.finalize(self, _remove_copies, self.mounts)
 

@@ -15,6 +15,7 @@ Numpy only.
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import shutil
 import stat
@@ -175,7 +176,7 @@ def copy(submission: Submission, found: Survey, into: str | None = None) -> str:
         its path: a sandbox that shows it already shows the new copy)
     :raises SubmissionRefused: a file changed under the copy (grew past the bound)
     """
-    folder = into if into is not None else tempfile.mkdtemp(prefix="ekfviz-submission-")
+    folder = into if into is not None else private_folder()
     if into is not None:
         _empty(into)
     try:
@@ -215,6 +216,55 @@ def _empty(folder: str) -> None:
             shutil.rmtree(entry.path)
         else:
             os.unlink(entry.path)
+
+
+# A private copy's folder: the prefix, then the process that made it
+COPY_PREFIX = "ekfviz-submission-"
+
+
+def private_folder() -> str:
+    """A new private folder (mode 0700) for a submission's copy, named after this
+    process. The first of a process removes the copies left by processes no longer
+    running (stopped by SIGKILL, say, before they could remove their own)."""
+    _remove_orphans_once()
+    return tempfile.mkdtemp(prefix=f"{COPY_PREFIX}{os.getpid()}-")
+
+
+@functools.cache
+def _remove_orphans_once() -> None:
+    remove_orphans(tempfile.gettempdir())
+
+
+def remove_orphans(parent: str) -> list[str]:
+    """Remove the private copies in ``parent`` that this user's processes made and that
+    no process running now owns (its number is in the name); the folders removed."""
+    removed = []
+    with contextlib.suppress(OSError), os.scandir(parent) as entries:
+        for entry in entries:
+            if not entry.name.startswith(COPY_PREFIX):
+                continue
+            number = entry.name[len(COPY_PREFIX) :].split("-", 1)[0]
+            if not number.isdigit() or _running(int(number)):
+                continue  # named without its process, or its process still runs
+            with contextlib.suppress(OSError):
+                if (
+                    entry.is_dir(follow_symlinks=False)
+                    and entry.stat(follow_symlinks=False).st_uid == os.getuid()
+                ):
+                    remove(entry.path)
+                    removed.append(entry.path)
+    return removed
+
+
+def _running(pid: int) -> bool:
+    """Whether a process numbered ``pid`` runs (another user's too)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 def remove(folder: str) -> None:

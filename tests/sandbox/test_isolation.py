@@ -293,3 +293,83 @@ def test_a_sandbox_that_cannot_start_is_one_line_naming_what_to_check(
     assert graded.exit_code == 0, graded.output
     assert "each in a sandbox: none (--no-sandbox)" in graded.output
     assert "1 match" in graded.output
+
+
+def _dead_pid() -> int:
+    """The number of a process that has ended."""
+    import subprocess
+
+    done = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                          capture_output=True, text=True, check=True)  # fmt: skip
+    return int(done.stdout)
+
+
+def test_copies_of_processes_no_longer_running_are_removed_and_no_other(tmp_path: Path) -> None:
+    from ekfviz.sandbox.submission import COPY_PREFIX, remove_orphans
+
+    dead, alive = _dead_pid(), os.getpid()
+    orphan = tmp_path / f"{COPY_PREFIX}{dead}-a1b2"
+    (orphan / "pkg").mkdir(parents=True)
+    (orphan / "pkg" / "mod.py").write_text("x = 1\n")
+    for folder in (orphan / "pkg", orphan):  # read-only, as a copy is
+        for entry in folder.iterdir():
+            entry.chmod(0o444 if entry.is_file() else 0o555)
+        folder.chmod(0o555)
+    kept = [
+        tmp_path / f"{COPY_PREFIX}{alive}-c3d4",  # its process runs
+        tmp_path / f"{COPY_PREFIX}x9y8z7w6",  # named without a process
+        tmp_path / f"{dead}-e5f6",  # not a copy
+    ]
+    for folder in kept:
+        folder.mkdir()
+    (tmp_path / f"{COPY_PREFIX}{dead}-file").write_text("")  # not a folder
+    (tmp_path / f"{COPY_PREFIX}{dead}-link").symlink_to(kept[0])  # a link: never followed
+    assert remove_orphans(str(tmp_path)) == [str(orphan)]
+    assert not orphan.exists() and all(folder.is_dir() for folder in kept)
+    assert (tmp_path / f"{COPY_PREFIX}{dead}-file").exists()
+
+
+@pytest.mark.slow
+def test_a_copy_left_by_a_killed_check_goes_with_the_next_run(tmp_path: Path) -> None:
+    """SIGKILL leaves a check no time to remove its submission's private copy: the next
+    command that copies a submission removes it."""
+    import contextlib
+    import signal
+    import subprocess
+    import time
+
+    from ekfviz.sandbox.submission import COPY_PREFIX
+
+    temporary = tmp_path / "tmp"
+    temporary.mkdir()
+    env = dict(os.environ, TMPDIR=str(temporary))
+    stuck = tmp_path / "stuck.py"
+    stuck.write_text(
+        "import time\nimport numpy as np\n\n\nclass Stuck:\n"
+        "    def __init__(self, params):\n"
+        "        self.x, self.P, self.landmark_ids = np.zeros(3), np.eye(3), []\n"
+        "    def predict(self, d, alpha):\n        time.sleep(600)\n"
+        "    def update(self, ids, z):\n        pass\n"
+    )
+    check = subprocess.Popen(
+        [sys.executable, "-m", "ekfviz", "check", "--filter", f"{stuck}:Stuck",
+         "--filter-timeout", "600"],
+        env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
+    )  # fmt: skip
+    try:
+        deadline = time.monotonic() + 60
+        while not list(temporary.glob(f"{COPY_PREFIX}{check.pid}-*")):
+            assert check.poll() is None and time.monotonic() < deadline
+            time.sleep(0.05)
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(check.pid, signal.SIGKILL)
+        check.wait()
+    (left,) = temporary.glob(f"{COPY_PREFIX}*")
+    example = ROOT / "examples" / "my_filter.py"
+    done = subprocess.run(
+        [sys.executable, "-m", "ekfviz", "check", "--filter", f"{example}:MyFilter"],
+        env=env, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert not left.exists() and list(temporary.glob(f"{COPY_PREFIX}*")) == []
