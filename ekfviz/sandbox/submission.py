@@ -20,6 +20,7 @@ import os
 import shutil
 import stat
 import tempfile
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -220,6 +221,9 @@ def _empty(folder: str) -> None:
 
 # A private copy's folder: the prefix, then the process that made it
 COPY_PREFIX = "ekfviz-submission-"
+# a copy whose process no longer runs is removed once it is this old (a copy just made
+# is never taken for another's, whatever became of the process number in its name)
+ORPHAN_AGE_S = 60.0
 
 
 def private_folder() -> str:
@@ -236,9 +240,11 @@ def _remove_orphans_once() -> None:
 
 
 def remove_orphans(parent: str) -> list[str]:
-    """Remove the private copies in ``parent`` that this user's processes made and that
-    no process running now owns (its number is in the name); the folders removed."""
+    """Remove the private copies in ``parent`` that this user's processes made, that no
+    process running now owns (its number is in the name) and that were last changed
+    :data:`ORPHAN_AGE_S` ago or more; the folders removed."""
     removed = []
+    settled = time.time() - ORPHAN_AGE_S
     with contextlib.suppress(OSError), os.scandir(parent) as entries:
         for entry in entries:
             if not entry.name.startswith(COPY_PREFIX):
@@ -247,9 +253,11 @@ def remove_orphans(parent: str) -> list[str]:
             if not number.isdigit() or _running(int(number)):
                 continue  # named without its process, or its process still runs
             with contextlib.suppress(OSError):
+                info = entry.stat(follow_symlinks=False)
                 if (
-                    entry.is_dir(follow_symlinks=False)
-                    and entry.stat(follow_symlinks=False).st_uid == os.getuid()
+                    stat.S_ISDIR(info.st_mode)
+                    and info.st_uid == os.getuid()
+                    and info.st_mtime <= settled
                 ):
                     remove(entry.path)
                     removed.append(entry.path)

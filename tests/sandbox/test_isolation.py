@@ -304,8 +304,16 @@ def _dead_pid() -> int:
     return int(done.stdout)
 
 
+def _age(folder: Path, seconds: float) -> None:
+    """Set ``folder``'s times ``seconds`` back."""
+    import time
+
+    then = time.time() - seconds
+    os.utime(folder, (then, then))
+
+
 def test_copies_of_processes_no_longer_running_are_removed_and_no_other(tmp_path: Path) -> None:
-    from ekfviz.sandbox.submission import COPY_PREFIX, remove_orphans
+    from ekfviz.sandbox.submission import COPY_PREFIX, ORPHAN_AGE_S, remove_orphans
 
     dead, alive = _dead_pid(), os.getpid()
     orphan = tmp_path / f"{COPY_PREFIX}{dead}-a1b2"
@@ -324,6 +332,9 @@ def test_copies_of_processes_no_longer_running_are_removed_and_no_other(tmp_path
         folder.mkdir()
     (tmp_path / f"{COPY_PREFIX}{dead}-file").write_text("")  # not a folder
     (tmp_path / f"{COPY_PREFIX}{dead}-link").symlink_to(kept[0])  # a link: never followed
+    assert remove_orphans(str(tmp_path)) == []  # just made: taken for no one's yet
+    for folder in (orphan, *kept):
+        _age(folder, ORPHAN_AGE_S + 1.0)
     assert remove_orphans(str(tmp_path)) == [str(orphan)]
     assert not orphan.exists() and all(folder.is_dir() for folder in kept)
     assert (tmp_path / f"{COPY_PREFIX}{dead}-file").exists()
@@ -338,7 +349,7 @@ def test_a_copy_left_by_a_killed_check_goes_with_the_next_run(tmp_path: Path) ->
     import subprocess
     import time
 
-    from ekfviz.sandbox.submission import COPY_PREFIX
+    from ekfviz.sandbox.submission import COPY_PREFIX, ORPHAN_AGE_S
 
     temporary = tmp_path / "tmp"
     temporary.mkdir()
@@ -366,6 +377,7 @@ def test_a_copy_left_by_a_killed_check_goes_with_the_next_run(tmp_path: Path) ->
             os.killpg(check.pid, signal.SIGKILL)
         check.wait()
     (left,) = temporary.glob(f"{COPY_PREFIX}*")
+    _age(left, ORPHAN_AGE_S + 1.0)  # left a while ago
     example = ROOT / "examples" / "my_filter.py"
     done = subprocess.run(
         [sys.executable, "-m", "ekfviz", "check", "--filter", f"{example}:MyFilter"],
