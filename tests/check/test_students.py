@@ -259,8 +259,8 @@ def test_compare_of_three_students_and_a_broken_one_records_the_three(tmp_path: 
 
 
 def test_grade_gives_each_submission_its_row(tmp_path: Path) -> None:
-    """Two classes: one of modules that run (with the table's columns and recordings),
-    one of modules that break, hang or hog (a short --timeout for the one that hangs)."""
+    """A class of modules that run and one that does not parse: the table's columns and
+    recordings."""
     folder = tmp_path / "class"
     students.write(folder / "ada", "correct")
     students.write(folder / "bob", "transposed_and_missing_pose_term")
@@ -279,6 +279,11 @@ def test_grade_gives_each_submission_its_row(tmp_path: Path) -> None:
         "operation,mutation,source_line,numbers,sandbox,complete"
     )
     assert (tmp_path / "rec" / "ada-classic.rrd").is_file()
+
+
+def test_grade_gives_a_module_that_hangs_hogs_or_quits_its_row(tmp_path: Path) -> None:
+    """A class of modules that break, hang or hog (a short --timeout for the one that
+    hangs)."""
     hostile = "def predict(X, P, c, q, k):\n    return X, P\n\ndef update(X, P, m, r, k):\n" \
               "    return X, P\n\ndef init_landmarks(m, r, p, c):\n{body}\n"  # fmt: skip
     bodies = {
