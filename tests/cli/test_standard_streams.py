@@ -174,6 +174,7 @@ def test_a_long_replay_writes_nothing_to_a_standard_error_that_is_no_terminal(
     assert result.returncode == 0 and result.stderr == ""
 
 
+@pytest.mark.slow
 def test_a_long_replay_shows_its_progress_on_a_terminal_and_its_results_where_asked(
     long_enough_for_a_bar: Path, tmp_path: Path
 ) -> None:

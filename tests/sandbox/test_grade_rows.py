@@ -136,6 +136,7 @@ def test_a_submission_over_a_bound_or_not_its_own_is_an_error_row(
     assert said[shape] in row.detail, row.detail
 
 
+@pytest.mark.slow
 def test_every_pass_over_a_submission_s_text_is_linear(tmp_path: Path) -> None:
     """A class and a file of blank lines took the old scans 25 s past --timeout: each
     line was matched again from every line before it. Run apart: a quadratic scan of

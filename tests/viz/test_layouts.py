@@ -81,7 +81,7 @@ KINDS = {
 }  # fmt: skip
 # under make test-all: the bundled loop's 2,000 lines record what the short one's 150 steps
 # do; scans-no-truth, compare-2, check-match and classic stand for the others by default
-SLOW_KINDS = {"loop", "scans", "compare-3", "check-at-init", "classic-history"}
+SLOW_KINDS = {"loop", "scans", "compare-3", "compare-4", "check-at-init", "classic-history"}
 
 
 @pytest.fixture(scope="module")
