@@ -143,10 +143,11 @@ def _wall(runs: list[Timed]) -> str:
     return f"{middle.wall_s:.2f} s wall ({_spread(runs)}), {middle.cpu_s:.2f} s CPU"
 
 
-def _ratio(now: list[Timed], before: list[Timed] | None) -> str:
+def _beside(now: list[Timed], before: list[Timed] | None) -> str:
+    """The runs of the clone from before and their ratio to this one's ("" without)."""
     if not before:
         return ""
-    return f"{_median(now).wall_s / _median(before).wall_s:.2f}x"
+    return f"{_wall(before)} ({_median(now).wall_s / _median(before).wall_s:.2f}x)"
 
 
 def targets_section(
@@ -202,12 +203,10 @@ def targets_section(
         Row("classic sample end to end <= imports + 0.15 s",
             f"{rep.wall_s:.2f} s against {imp.wall_s:.2f} s (+{rep.wall_s - imp.wall_s:.2f} s);"
             f" CPU {rep.cpu_s:.2f} s against {imp.cpu_s:.2f} s (+{rep.cpu_s - imp.cpu_s:.2f} s)",
-            f"{_median(short['before']).wall_s:.2f} s ({_ratio(short['now'], short['before'])})"
-            if was else "",
+            _beside(short["now"], short.get("before")),
             rep.wall_s <= imp.wall_s + 0.15),
         Row(f"{LONG_STEPS:,}-step classic-size log end to end <= 5 s", _wall(long["long_now"]),
-            f"{_wall(long['long_before'])} ({_ratio(long['long_now'], long['long_before'])})"
-            if was else "",
+            _beside(long["long_now"], long.get("long_before")),
             long_run.wall_s <= 5.0),
         Row("... <= 2 x (reading + filter)",
             f"{long_run.wall_s:.2f} s against 2 x ({read_s:.2f} + {filter_s:.2f}) ="
@@ -217,8 +216,7 @@ def targets_section(
             f"{(folder / 'long_before.rrd').stat().st_size / 1e6:.1f} MB" if was else "",
             size_mb <= 50.0),
         Row("... the same events as an extended log <= 5 s", _wall(long["ext_now"]),
-            f"{_wall(long['ext_before'])} ({_ratio(long['ext_now'], long['ext_before'])})"
-            if was else "",
+            _beside(long["ext_now"], long.get("ext_before")),
             _median(long["ext_now"]).wall_s <= 5.0),
     ]  # fmt: skip
     if mrclam is not None:
@@ -232,8 +230,7 @@ def targets_section(
         )
         rows.append(
             Row("an MRCLAM robot (1) end to end <= 3 s", _wall(robot["now"]),
-                f"{_wall(robot['before'])} ({_ratio(robot['now'], robot['before'])})"
-                if was else "",
+                _beside(robot["now"], robot.get("before")),
                 _median(robot["now"]).wall_s <= 3.0)
         )  # fmt: skip
     if victoria is not None:
@@ -256,7 +253,7 @@ def _victoria_rows(victoria: Path, folder: Path, before: str | None) -> list[Row
     walls = [Timed(run.wall_s, run.cpu_s) for run in vps]
     return [
         Row("Victoria Park end to end <= 10 s", _wall(walls),
-            f"{_wall(befores)} ({_ratio(walls, befores)})" if befores else "",
+            _beside(walls, befores),
             vp.wall_s <= 10.0),
         Row("... GPS RMSE unchanged (3.52 m; 2.86 m without the jump), landmarks (290)",
             f"{vp.rmse_m:.2f} m; {vp.without_jump_m:.2f} m; {vp.landmarks} landmarks", "",
