@@ -15,6 +15,7 @@ import numpy as np
 
 from ekfviz.core.errors import InputError
 from ekfviz.core.types import BoolArray, FloatArray, IntArray
+from ekfviz.io.decimals import plain_decimals, token_bounds
 from ekfviz.models.angles import wrap_angles
 
 # ASCII digits only: float() also takes the digits of other scripts (Arabic-Indic,
@@ -281,7 +282,14 @@ def _converted(
 ) -> tuple[FloatArray, IntArray, BoolArray | None] | None:
     """The numbers of ``joined`` (``lines`` lines of plain bytes joined by LF), how many
     each line holds and (``digits``) whether each is written as digits alone; None where
-    a token is not a number: ``float()`` of each token, the counts in numpy."""
+    a token is not a number: plain decimals at once (:mod:`ekfviz.io.decimals`), any
+    other block by ``float()`` of each token, the counts in numpy."""
+    text = np.frombuffer(joined, dtype=np.uint8)
+    starts, ends, line_of = token_bounds(text)
+    counts = np.bincount(line_of, minlength=lines).astype(np.int64)
+    decimals = plain_decimals(joined, text, starts, ends)
+    if decimals is not None:
+        return decimals[0], counts, decimals[1] if digits else None
     tokens = joined.split()
     try:
         values = np.array(list(map(float, tokens)), dtype=np.float64)
@@ -291,21 +299,7 @@ def _converted(
     if zeros and any(map(underflows, set(map(tokens.__getitem__, zeros)))):
         return None  # line by line, to name it (each way a 0 is written asked once)
     plain = np.array(list(map(bytes.isdigit, tokens)), dtype=bool) if digits else None
-    return values, _token_counts(joined, lines), plain
-
-
-def _token_counts(joined: bytes, lines: int) -> IntArray:
-    """Tokens on each of the ``lines`` lines of ``joined`` (lines joined by LF, tokens
-    separated by spaces and tabs), counted at once: a token starts at a byte that is no
-    separator where the byte before is one, a line end, or nothing."""
-    text = np.frombuffer(joined, dtype=np.uint8)
-    line_end = text == 0x0A
-    gap = line_end | (text == 0x20) | (text == 0x09)
-    starts = ~gap
-    starts[1:] &= gap[:-1]
-    # a token's line: how many line ends come before its first byte
-    line_of = np.searchsorted(np.flatnonzero(line_end), np.flatnonzero(starts))
-    return np.bincount(line_of, minlength=lines).astype(np.int64)
+    return values, counts, plain
 
 
 def _checked_block(path: Path, first: int, raw: list[bytes]) -> NumberBlock:
