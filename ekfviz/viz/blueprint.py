@@ -342,7 +342,7 @@ def default_blueprint(
 ) -> rrb.Blueprint:
     """The layout: the map on the left, plots above and documents below on the right.
 
-    :param has_time: the run has a ``time`` timeline: the time panel shows it
+    :param has_time: the run has a ``time`` timeline: its plots span the whole run there
     :param has_truth: add the landmark error and Mahalanobis distance plots
     :param has_run_info: add the run information, input and evaluation documents
     :param has_true_poses: add the NEES plot
@@ -391,8 +391,11 @@ def default_blueprint(
             # the map, framed square more often than not, is bounded by its height anyway
             column_shares=[1, 1],
         ),
+        # steps, a timestamped log's too: Rerun labels a time axis every 1 s, 10 s, 1 min,
+        # 10 min or 1 h and at least 150 px apart (a 17-minute run's plots get one label),
+        # a sequence axis every 1, 2 or 5 x 10^k at any length; ``time`` is a click away
         rrb.TimePanel(
-            timeline=style.TIME if has_time else style.STEP,
+            timeline=style.STEP,
             play_state="following",
             state="collapsed",
         ),
