@@ -393,7 +393,7 @@ def default_blueprint(
         ),
         # steps, a timestamped log's too: Rerun labels a time axis every 1 s, 10 s, 1 min,
         # 10 min or 1 h and at least 150 px apart (a 17-minute run's plots get one label),
-        # a sequence axis every 1, 2 or 5 x 10^k at any length; ``time`` is a click away
+        # a sequence axis at powers of ten that fit, at any length; ``time`` is a click away
         rrb.TimePanel(
             timeline=style.STEP,
             play_state="following",

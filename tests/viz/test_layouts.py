@@ -166,8 +166,8 @@ def test_real_formats_show_everything_they_record(
     layout = made(args, tmp_path / "run.rrd")
     assert layout.unshown() == []
     assert layout.empty() == []
-    # a timestamped run opens on the step timeline: a sequence axis is labelled every
-    # 1, 2 or 5 x 10^k steps at any length, where a time axis of minutes gets one label
+    # a timestamped run opens on the step timeline: a sequence axis is labelled at round
+    # numbers of steps at any length, where a time axis of minutes gets one label
     assert layout.time_panel["TimePanelBlueprint:timeline"] == ["step"]
     if source == "park":  # the GPS error and the association counts are plotted
         assert layout.showing("/metrics/reference/gps_rmse")
