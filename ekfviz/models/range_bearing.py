@@ -66,8 +66,12 @@ class RangeBearing:
 
         :return: (z_D_pose (2x3), z_D_landmark (2x2)), rows (bearing, range)
         """
-        _, z_D_pose, z_D_landmark = self.predict_all(pose_xytheta, np.reshape(landmark_xy, (1, 2)))
-        return z_D_pose[0], z_D_landmark[0]
+        sx, sy, sx_D_theta, sy_D_theta = self.sensor(pose_xytheta)
+        offset = landmark_offset(np.array([sx, sy]), landmark_xy)  # (2,): in floats below
+        z_D_pose = measurement_jacobian_pose(offset)
+        dx, dy = offset.tolist()
+        z_D_pose[:, 2] = heading_column(dx, dy, sx_D_theta, sy_D_theta)
+        return z_D_pose, measurement_jacobian_landmark(offset)
 
     def inverse(self, pose_xytheta: FloatArray, z: FloatArray) -> FloatArray:
         """Where a landmark seen at ``z`` = (bearing, range) lies (2,): the classic inverse
@@ -94,8 +98,7 @@ class RangeBearing:
     ) -> tuple[FloatArray, FloatArray, FloatArray]:
         """:meth:`measure` and :meth:`jacobians` of many landmarks at once: the classic h(x),
         H_p and H_l of each landmark's offset (dx, dy) from the sensor, H_p's heading column
-        with the sensor's own motion, dz/dtheta = [(dy ds_x - dx ds_y) / q - 1,
-        (-dx ds_x - dy ds_y) / sqrt(q)] (ds = ds/dtheta: the sensor moves with the pose).
+        with the sensor's own motion (:func:`heading_column`).
 
         :param landmarks_xy: (N, 2)
         :return: z_pred (N, 2), z_D_pose (N, 2, 3), z_D_landmark (N, 2, 2)
@@ -105,8 +108,23 @@ class RangeBearing:
         z_pred = expected_measurement(offset, float(pose_xytheta[2]))
         z_D_landmark = measurement_jacobian_landmark(offset)
         z_D_pose = measurement_jacobian_pose(offset)
-        dx, dy = offset[:, 0], offset[:, 1]
-        q = dx * dx + dy * dy
-        z_D_pose[:, 0, 2] = (dy * sx_D_theta - dx * sy_D_theta) / q - 1.0
-        z_D_pose[:, 1, 2] = (-dx * sx_D_theta - dy * sy_D_theta) / np.sqrt(q)
+        z_D_pose[:, 0, 2], z_D_pose[:, 1, 2] = heading_column(
+            offset[:, 0], offset[:, 1], sx_D_theta, sy_D_theta
+        )
         return z_pred, z_D_pose, z_D_landmark
+
+
+Scalar = float | FloatArray
+
+
+def heading_column(
+    dx: Scalar, dy: Scalar, sx_D_theta: float, sy_D_theta: float
+) -> tuple[Scalar, Scalar]:
+    """H_p's heading column for a sensor that moves with the pose, of the landmark's
+    offset (dx, dy) from the sensor (floats, or arrays (K,) of many landmarks):
+    dz/dtheta = ((dy ds_x - dx ds_y) / q - 1, (-dx ds_x - dy ds_y) / sqrt(q)),
+    q = dx^2 + dy^2, ds = ds/dtheta."""
+    q = dx * dx + dy * dy
+    return (dy * sx_D_theta - dx * sy_D_theta) / q - 1.0, (
+        -dx * sx_D_theta - dy * sy_D_theta
+    ) / q**0.5
