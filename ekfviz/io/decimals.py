@@ -11,8 +11,6 @@ more digits, a sign or a point out of place) leaves the block to ``float()``.
 
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
 
 from ekfviz.core.types import BoolArray, ByteArray, FloatArray, IntArray
@@ -74,11 +72,13 @@ def plain_decimals(
 
 def _integers(joined: bytes, count: int) -> IntArray | None:
     """The ``count`` integers of ``joined`` (checked tokens of digits with a sign at
-    most, parted by whitespace), or None where numpy reads another count."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")  # numpy warns where it stops short
-        try:
-            whole = np.fromstring(joined, dtype=np.int64, sep=" ")
-        except (ValueError, DeprecationWarning):
-            return None
+    most, parted by whitespace), or None where numpy reads another count.
+
+    The tokens are checked first because numpy stops at the first it cannot read, with a
+    warning; a filter of warnings is not set here, as it would hold for every thread.
+    """
+    try:
+        whole = np.fromstring(joined, dtype=np.int64, sep=" ")
+    except ValueError:
+        return None
     return whole if len(whole) == count else None
