@@ -24,7 +24,6 @@ already.)
 from __future__ import annotations
 
 import contextlib
-import importlib.abc
 import importlib.machinery
 import importlib.util
 import os
@@ -135,7 +134,11 @@ def _answer_no(pyarrow: ModuleType) -> None:
         sys.meta_path.remove(finder)
 
 
-class _NotFound(importlib.abc.MetaPathFinder):
+# The finders below are plain classes with find_spec, all the import system asks of
+# one: importlib.abc's base class would import importlib.resources (17 ms) at start-up.
+
+
+class _NotFound:
     """Finds module ``name`` absent, as the import system says of a module not installed
     (the finders after it are not asked)."""
 
@@ -153,7 +156,7 @@ class _NotFound(importlib.abc.MetaPathFinder):
         return None
 
 
-class _AfterImport(importlib.abc.MetaPathFinder):
+class _AfterImport:
     """Finds nothing itself: wraps the loader of module ``name`` so that ``callback``
     runs on the module right after it is executed, before anyone uses it."""
 

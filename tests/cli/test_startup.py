@@ -75,6 +75,7 @@ NOT_IMPORTED = (
     "ekfviz.association.jcbb",
     "ekfviz.viz.association",
     "pyarrow.compute",  # what the SDK's casts and masked list arrays import (30-45 ms)
+    "importlib.resources",  # importlib.abc's (17 ms): a finder needs no base class
 )
 
 
