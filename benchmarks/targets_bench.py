@@ -4,18 +4,17 @@
    against ``python -c "import rerun, numpy, typer"``, interleaved, medians of five:
    target, the replay within the imports + 0.15 s.
 2. A classic-size log of 102,000 steps (the classic route again and again, as the
-   end-to-end bench makes its 100,000-step one) end to end, the median of three runs
-   (each one given), and the same events in the extended format (ekfviz's own format,
-   held to the classic log's target): target, at most 5 s on a
-   quiet two-core machine and at most twice its reading plus the filter (measured in a
-   process of their own: the log read into events, then ``predict`` and ``observe`` of
-   the built-in filter, nothing recorded); the recording at most 50 MB.
-3. Victoria Park end to end, the median of three runs, with its landmark count and GPS
-   RMSE read back from the recording (``association_bench.victoria_run``): target, at
-   most 10 s, RMSE 3.52 m.
-
-4. An MRCLAM robot (robot 1 of dataset 6) end to end, the median of three: target, at
-   most 3 s.
+   end-to-end bench makes its 100,000-step one) end to end, the median of
+   :data:`LONG_REPEATS` runs (each one given), and the same events in the extended
+   format (ekfviz's own format, held to the classic log's target): target, at most 5 s
+   on a quiet two-core machine and at most twice its reading plus the filter (measured
+   in a process of their own: the log read into events, then ``predict`` and
+   ``observe`` of the built-in filter, nothing recorded); the recording at most 50 MB.
+3. Victoria Park end to end, the median of :data:`LONG_REPEATS` runs, with its landmark
+   count and GPS RMSE read back from the recording (``association_bench.victoria_run``):
+   target, at most 10 s, RMSE 3.52 m.
+4. An MRCLAM robot (robot 1 of dataset 6) end to end, the median of
+   :data:`LONG_REPEATS` runs: target, at most 3 s.
 
 With ``--before CLONE`` (a checkout from before, its own ``.venv`` built) every timed
 command of that clone runs in turn with this one's, and the table gives both. Wall and
