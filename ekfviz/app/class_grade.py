@@ -3,9 +3,10 @@
 :func:`grade_submissions` is the use case: the folder and the outputs checked before any
 work, the battery written (or the ``--log`` files read with the noise their headers
 state), every submission graded on the executor asked for (:func:`~.grade.grade_class`),
-the CSV written whole. A grade stopped by SIGINT or SIGTERM still writes the rows done
-(the rest ``not graded``, the CSV marked partial) and says what it kept; the front end
-prints the table and exits as the signal asks.
+the CSV written whole as each submission's row arrives (marked partial, the rows to
+come ``not graded``, until the last: a grade killed outright keeps the rows done). A grade
+stopped by SIGINT or SIGTERM says what it kept; the front end prints the table and exits
+as the signal asks.
 """
 
 from __future__ import annotations
@@ -132,15 +133,25 @@ def grade_submissions(request: GradeRequest, reporter: Reporter) -> GradeOutcome
                       key=recording_key(os.fsencode(entry.name)), index=index)
             for index, entry in enumerate(entries)
         ]  # fmt: skip
-        with in_family():  # an executor that fails (a Dask cluster gone)
-            graded = grade_class(tasks, executor.map)
+        with in_family(), reporter.counting(f"{len(tasks)} submissions", len(tasks)) as tick:
+
+            def arrived(rows: list[GradeRow]) -> None:
+                tick()
+                _write_report(request.report, rows, sandbox, complete=False)
+
+            graded = grade_class(tasks, executor.map, done=arrived)
     stop = graded.stopped_by
-    with signals.held():  # a second signal now would lose what the first one kept
-        if request.report is not None:
-            csv = to_csv(graded.rows, sandbox, complete=stop is None)
-            write_bytes_atomic(request.report, csv.encode("utf-8"))
+    _write_report(request.report, graded.rows, sandbox, complete=stop is None)
     kept = "" if stop is None else _kept(request, graded.rows, tasks)
     return GradeOutcome(graded.rows, sandbox, request.report, stop, kept)
+
+
+def _write_report(report: Path | None, rows: list[GradeRow], sandbox: str, complete: bool) -> None:
+    """The CSV report written whole (``complete``: every row graded, else marked partial),
+    a signal held meanwhile: a second one would lose what the first one kept."""
+    if report is not None:
+        with signals.held():
+            write_bytes_atomic(report, to_csv(rows, sandbox, complete=complete).encode("utf-8"))
 
 
 def _kept(request: GradeRequest, rows: list[GradeRow], tasks: list[GradeTask]) -> str:

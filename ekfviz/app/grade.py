@@ -351,24 +351,28 @@ class ClassGrade:
 def grade_class(
     tasks: list[GradeTask],
     mapper: Callable[..., list[str]],
-    done: Callable[[GradeRow], None] | None = None,
+    done: Callable[[list[GradeRow]], None] | None = None,
 ) -> ClassGrade:
     """Grade every task through ``mapper`` (an executor's ``map``, given
     :func:`grade_json`); a signal keeps the rows done.
 
     :param mapper: ``mapper(function, tasks, done=..., lost=...)``; ``lost(task, why)``
         is the row of a task whose grading process died
+    :param done: told every row in the class's order as each arrives (those still to
+        come ``not graded``)
     """
     import json
 
     rows: dict[int, GradeRow] = {}
 
+    def so_far() -> list[GradeRow]:
+        return [rows.get(t.index) or not_graded(t.name) for t in tasks]
+
     def arrived(text: str) -> None:
         found = json.loads(text)
-        row = GradeRow.from_json(json.dumps(found["row"]))
-        rows[int(found["index"])] = row
+        rows[int(found["index"])] = GradeRow.from_json(json.dumps(found["row"]))
         if done is not None:
-            done(row)
+            done(so_far())
 
     def lost(task: GradeTask, why: str) -> str:
         row = GradeRow(task.name, "grader_error", (), "", 0.0, f"its grading process {why}")
@@ -377,8 +381,8 @@ def grade_class(
     try:
         mapper(grade_json, tasks, done=arrived, lost=lost)
     except signals.Interrupted as stop:
-        return ClassGrade([rows.get(t.index) or not_graded(t.name) for t in tasks], stop)
-    return ClassGrade([rows.get(t.index) or not_graded(t.name) for t in tasks])
+        return ClassGrade(so_far(), stop)
+    return ClassGrade(so_far())
 
 
 def submissions(folder: Path) -> list[Path]:

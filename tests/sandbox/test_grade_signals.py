@@ -1,7 +1,7 @@
 """A TA's ``kill PID`` (SIGTERM), Ctrl-C (SIGINT) or ``kill -9`` of a grade: the rows done
 are written (the others ``not graded``, the files marked partial), and no process of the
-grade or of a submission is left. Each waits for a first submission's recording (its
-handshake: that row is done), never on a fixed sleep."""
+grade or of a submission is left. Each waits for a first submission's row in the report
+(rewritten as each row arrives: its handshake), never on a fixed sleep."""
 
 from __future__ import annotations
 
@@ -42,9 +42,17 @@ def wait_for(condition: object, what: str, timeout: float = 120.0) -> None:
         time.sleep(0.05)
 
 
+def report_rows(report: Path) -> dict[str, dict[str, str]]:
+    """The rows of a grade's CSV report by submission (none before it is written)."""
+    if not report.is_file():
+        return {}
+    with report.open(newline="") as handle:
+        return {row["submission"]: row for row in csv.DictReader(handle)}
+
+
 def started_grade(tmp_path: Path) -> tuple[subprocess.Popen[str], Path]:
     """A grade of a quick submission and one that never ends, running once the quick
-    one's recording is saved; its class folder."""
+    one's row is in the report; its class folder."""
     folder = tmp_path / "class"
     folder.mkdir()
     shutil.copy(SKELETON, folder / "fast.py")
@@ -58,9 +66,14 @@ def started_grade(tmp_path: Path) -> tuple[subprocess.Popen[str], Path]:
          str(tmp_path / "recs"), "--json"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=tmp_path,
     )  # fmt: skip
-    wait_for(lambda: (tmp_path / "recs" / "fast.py-classic.rrd").is_file() or grade.poll(),
-             "the quick submission's recording")  # fmt: skip
+    report = tmp_path / "g.csv"
+    fast_row = lambda: report_rows(report).get("fast.py", {}).get("status", "not graded")  # noqa: E731
+    wait_for(lambda: fast_row() != "not graded" or grade.poll() is not None,
+             "the quick submission's row")  # fmt: skip
     assert grade.poll() is None, grade.communicate()
+    rows = report_rows(report)
+    assert (rows["fast.py"]["status"], rows["slow.py"]["status"]) == ("match", "not graded")
+    assert (tmp_path / "recs" / "fast.py-classic.rrd").is_file()  # saved before its row came
     return grade, folder
 
 
@@ -75,8 +88,7 @@ def test_a_signal_writes_the_rows_done_and_leaves_no_process(tmp_path: Path, sig
     assert grade.returncode == 128 + signum, stderr
     name = signal.Signals(signum).name
     assert f"error: interrupted ({name}): 1 of 2 submissions graded" in stderr
-    with (tmp_path / "g.csv").open(newline="") as handle:
-        rows = {row["submission"]: row for row in csv.DictReader(handle)}
+    rows = report_rows(tmp_path / "g.csv")
     assert (rows["fast.py"]["status"], rows["slow.py"]["status"]) == ("match", "not graded")
     assert {row["complete"] for row in rows.values()} == {"no"}
     document = json.loads(stdout)
@@ -86,8 +98,13 @@ def test_a_signal_writes_the_rows_done_and_leaves_no_process(tmp_path: Path, sig
 
 @pytest.mark.slow
 def test_a_grade_killed_outright_leaves_no_process(tmp_path: Path) -> None:
-    """Its pool processes die with it, and their sandboxes with them."""
+    """Its pool processes die with it, and their sandboxes with them; its report keeps
+    the rows done, marked partial."""
     grade, folder = started_grade(tmp_path)
     grade.kill()
     grade.communicate(timeout=60)
     wait_for(lambda: not processes_naming(str(folder)), "every process of the grade gone", 30)
+    rows = report_rows(tmp_path / "g.csv")
+    assert (rows["fast.py"]["status"], rows["slow.py"]["status"]) == ("match", "not graded")
+    assert {row["complete"] for row in rows.values()} == {"no"}
+    assert not list(tmp_path.glob(".*g.csv*"))  # no temporary file of the report left
