@@ -137,21 +137,18 @@ def grade_submissions(request: GradeRequest, reporter: Reporter) -> GradeOutcome
 
             def arrived(rows: list[GradeRow]) -> None:
                 tick()
-                _write_report(request.report, rows, sandbox, complete=False)
+                if request.report is not None:  # (a signal meanwhile: the rows kept below)
+                    csv = to_csv(rows, sandbox, complete=False)
+                    write_bytes_atomic(request.report, csv.encode("utf-8"))
 
             graded = grade_class(tasks, executor.map, done=arrived)
     stop = graded.stopped_by
-    _write_report(request.report, graded.rows, sandbox, complete=stop is None)
+    with signals.held():  # a second signal now would lose what the first one kept
+        if request.report is not None:
+            csv = to_csv(graded.rows, sandbox, complete=stop is None)
+            write_bytes_atomic(request.report, csv.encode("utf-8"))
     kept = "" if stop is None else _kept(request, graded.rows, tasks)
     return GradeOutcome(graded.rows, sandbox, request.report, stop, kept)
-
-
-def _write_report(report: Path | None, rows: list[GradeRow], sandbox: str, complete: bool) -> None:
-    """The CSV report written whole (``complete``: every row graded, else marked partial),
-    a signal held meanwhile: a second one would lose what the first one kept."""
-    if report is not None:
-        with signals.held():
-            write_bytes_atomic(report, to_csv(rows, sandbox, complete=complete).encode("utf-8"))
 
 
 def _kept(request: GradeRequest, rows: list[GradeRow], tasks: list[GradeTask]) -> str:
