@@ -185,8 +185,10 @@ def held() -> Iterator[None]:
     """Inside the block a first SIGINT or SIGTERM is remembered, not acted on, and handled
     as before the block once the block is done (a recording being finished: cut short
     there it would be lost whole, finished it is kept); a second one is acted on at once
-    (a flush to a viewer that does not answer may wait long)."""
+    (a flush to a viewer that does not answer may wait long). One remembered before the
+    block (by an enclosing block, or deferred) is remembered still after it."""
     before = (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM))
+    earlier = _pending[:]
 
     def act(signum: int, frame: FrameType | None) -> None:
         handler = before[0 if signum == signal.SIGINT else 1]
@@ -208,6 +210,7 @@ def held() -> Iterator[None]:
         signal.signal(signal.SIGINT, before[0])
         signal.signal(signal.SIGTERM, before[1])
     signum = _take_pending()
+    _pending[:] = earlier
     if signum is not None:
         act(signum, None)
 

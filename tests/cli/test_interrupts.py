@@ -365,6 +365,25 @@ def test_a_signal_while_a_recording_is_finished_is_acted_on_once_it_is() -> None
     assert done == ["finished", "again", "held one"]
 
 
+def test_a_signal_held_by_an_outer_block_outlives_an_inner_one() -> None:
+    """signals.held() inside signals.held() (an atomic write in a grade's last write):
+    a signal the outer block remembered is acted on at its end, not forgotten by the
+    inner block; one the inner block remembered too."""
+    from ekfviz import signals
+
+    with signals.as_exceptions():
+        with pytest.raises(signals.Terminated), signals.held():
+            signal.raise_signal(signal.SIGTERM)  # before the inner block
+            with signals.held():
+                pass
+        reached = []
+        with pytest.raises(signals.Terminated), signals.held():
+            with signals.held():
+                signal.raise_signal(signal.SIGTERM)  # inside it: the outer block's end
+            reached.append("the outer block's rest")
+        assert reached == ["the outer block's rest"]
+
+
 def test_ctrl_c_while_a_replay_finishes_keeps_the_whole_recording_and_says_where(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
