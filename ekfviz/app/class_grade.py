@@ -136,19 +136,22 @@ def grade_submissions(request: GradeRequest, reporter: Reporter) -> GradeOutcome
         with in_family(), reporter.counting(f"{len(tasks)} submissions", len(tasks)) as tick:
 
             def arrived(rows: list[GradeRow]) -> None:
-                tick()
-                if request.report is not None:  # (a signal meanwhile: the rows kept below)
-                    csv = to_csv(rows, sandbox, complete=False)
-                    write_bytes_atomic(request.report, csv.encode("utf-8"))
+                tick()  # (a signal while the report is written: the rows kept below)
+                _write_report(request.report, rows, sandbox, complete=False)
 
             graded = grade_class(tasks, executor.map, done=arrived)
     stop = graded.stopped_by
     with signals.held():  # a second signal now would lose what the first one kept
-        if request.report is not None:
-            csv = to_csv(graded.rows, sandbox, complete=stop is None)
-            write_bytes_atomic(request.report, csv.encode("utf-8"))
+        _write_report(request.report, graded.rows, sandbox, complete=stop is None)
     kept = "" if stop is None else _kept(request, graded.rows, tasks)
     return GradeOutcome(graded.rows, sandbox, request.report, stop, kept)
+
+
+def _write_report(report: Path | None, rows: list[GradeRow], sandbox: str, complete: bool) -> None:
+    """The CSV report written whole where one was asked for (``complete``: every row
+    graded, else marked partial)."""
+    if report is not None:
+        write_bytes_atomic(report, to_csv(rows, sandbox, complete=complete).encode("utf-8"))
 
 
 def _kept(request: GradeRequest, rows: list[GradeRow], tasks: list[GradeTask]) -> str:

@@ -67,9 +67,11 @@ def started_grade(tmp_path: Path) -> tuple[subprocess.Popen[str], Path]:
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=tmp_path,
     )  # fmt: skip
     report = tmp_path / "g.csv"
-    fast_row = lambda: report_rows(report).get("fast.py", {}).get("status", "not graded")  # noqa: E731
-    wait_for(lambda: fast_row() != "not graded" or grade.poll() is not None,
-             "the quick submission's row")  # fmt: skip
+
+    def fast_graded() -> bool:
+        return report_rows(report).get("fast.py", {}).get("status", "not graded") != "not graded"
+
+    wait_for(lambda: fast_graded() or grade.poll() is not None, "the quick submission's row")
     assert grade.poll() is None, grade.communicate()
     rows = report_rows(report)
     assert (rows["fast.py"]["status"], rows["slow.py"]["status"]) == ("match", "not graded")
