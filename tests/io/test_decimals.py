@@ -20,12 +20,28 @@ def _read(tokens: list[list[str]], gap: str = " ") -> tuple[np.ndarray, np.ndarr
     return plain_decimals(joined, text, starts, ends)
 
 
-@settings(max_examples=200, deadline=None)
-@given(
-    st.lists(st.lists(_PLAIN, min_size=1, max_size=6), min_size=1, max_size=6),
-    st.sampled_from([" ", "\t", " \t "]),
-)
+_PLAIN_LINES = st.lists(st.lists(_PLAIN, min_size=1, max_size=6), min_size=1, max_size=6)
+_GAPS = st.sampled_from([" ", "\t", " \t "])
+
+
+@settings(max_examples=40, deadline=None)
+@given(_PLAIN_LINES, _GAPS)
 def test_plain_decimals_give_the_bits_float_gives(tokens: list[list[str]], gap: str) -> None:
+    """See :func:`_plain_decimals_give_the_bits_float_gives`."""
+    _plain_decimals_give_the_bits_float_gives(tokens, gap)
+
+
+@pytest.mark.slow
+@settings(max_examples=400, deadline=None)
+@given(_PLAIN_LINES, _GAPS)
+def test_plain_decimals_give_the_bits_float_gives_on_many_examples(
+    tokens: list[list[str]], gap: str
+) -> None:
+    """See :func:`_plain_decimals_give_the_bits_float_gives`."""
+    _plain_decimals_give_the_bits_float_gives(tokens, gap)
+
+
+def _plain_decimals_give_the_bits_float_gives(tokens: list[list[str]], gap: str) -> None:
     """Every plain decimal is read here (none is left to float()), to float()'s bits,
     and digits alone are told apart."""
     read = _read(tokens, gap)
