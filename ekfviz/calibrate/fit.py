@@ -350,7 +350,7 @@ def _gather(
         if isinstance(event, Control):
             if correction != NO_CORRECTION:
                 d, alpha = k_d * event.d, k_alpha * event.alpha + bias * event.d
-                event = replace(event, d=d, alpha=alpha)
+                event = event._replace(d=d, alpha=alpha)
             window = _advance(window, event, step, truth, timed, window_s, gathered)
     return gathered
 

@@ -7,6 +7,12 @@ time as an :class:`EventRecord`: the pose, its 3x3 covariance, every landmark me
 its 2x2 marginal covariance and, for an update, what was done with each observation
 (:class:`Observations`, and for a scan what the association decided,
 :class:`ScanAssociation`).
+
+The records made once per line of a log or per update (the events, and
+:class:`Observations`) are named tuples: as immutable and typed as the frozen
+dataclasses of the rest, made in a third of the time (a long log makes hundreds of
+thousands of them). A named tuple's ``len()`` is its number of fields: an update's
+number of observations is ``len(observations.ids)``.
 """
 
 from __future__ import annotations
@@ -14,7 +20,7 @@ from __future__ import annotations
 import enum
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
-from typing import TypeVar
+from typing import NamedTuple, TypeVar
 
 import numpy as np
 
@@ -31,8 +37,7 @@ class EventKind(str, enum.Enum):
     UPDATE = "update"
 
 
-@dataclass(frozen=True, slots=True)
-class Control:
+class Control(NamedTuple):
     """A control read from a log: drive ``d`` metres, then turn ``alpha`` radians.
 
     ``time`` is the log's timestamp in seconds, when it has one: for a control that
@@ -49,8 +54,7 @@ class Control:
     dt: float | None = None
 
 
-@dataclass(frozen=True, slots=True)
-class Sighting:
+class Sighting(NamedTuple):
     """An observation line read from a log.
 
     ``ids`` (m,) are landmark ids, ``z`` (m, 2) their (bearing, range) in file order;
@@ -63,8 +67,7 @@ class Sighting:
     time: float | None = None
 
 
-@dataclass(frozen=True, slots=True)
-class Scan:
+class Scan(NamedTuple):
     """An observation line whose landmarks are unknown (``scan`` in the extended format).
 
     ``z`` (m, 2) is the (bearing, range) of each measurement in file order; the
@@ -79,8 +82,7 @@ class Scan:
     diameters: FloatArray | None = None
 
 
-@dataclass(frozen=True, slots=True)
-class Drive:
+class Drive(NamedTuple):
     """A vehicle's raw controls held over time spans, ending at ``time``.
 
     ``segments`` (k, 3) holds (speed m/s, steering rad, duration s) per span, in order:
@@ -125,8 +127,7 @@ def with_ids(events: Iterable[AnyEvent]) -> Iterator[LogEvent]:
         yield event
 
 
-@dataclass(frozen=True, slots=True)
-class Observations:
+class Observations(NamedTuple):
     """What one update did with each landmark of its observation line, in file order.
 
     Landmarks seen for the first time are initialised, not used to correct the state:
@@ -152,9 +153,6 @@ class Observations:
     nis: FloatArray
     initialised: BoolArray
     skipped: BoolArray
-
-    def __len__(self) -> int:
-        return int(self.ids.shape[0])
 
 
 class Fate(enum.IntEnum):

@@ -244,5 +244,5 @@ def _far_dropped(events: Iterator[AnyEvent], max_range: float) -> Iterator[AnyEv
             near = event.z[:, 1] <= max_range
             if not near.all():
                 diameters = None if event.diameters is None else event.diameters[near]
-                event = replace(event, z=event.z[near], diameters=diameters)
+                event = event._replace(z=event.z[near], diameters=diameters)
         yield event

@@ -166,6 +166,19 @@ def test_a_batch_is_read_only() -> None:
         record.pose[0] = 1.0
 
 
+def test_a_logs_events_and_an_updates_observations_cannot_be_changed() -> None:
+    events, batch = run("plain")
+    control = next(e for e in events if isinstance(e, Control))
+    sighting = next(e for e in events if isinstance(e, Sighting))
+    observations = batch.event(int(np.flatnonzero(batch.kinds == UPDATE)[0])).observations
+    assert observations is not None
+    for record, name in ((control, "d"), (sighting, "z"), (observations, "nis")):
+        with pytest.raises(AttributeError):
+            setattr(record, name, 0.0)
+    with pytest.raises(ValueError, match="read-only"):
+        observations.nis[0] = 1.0
+
+
 def drive(
     events: list[LogEvent], full_cov: bool
 ) -> tuple[list[tuple[np.ndarray, np.ndarray, list[int]]], EventBatch]:

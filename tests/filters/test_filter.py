@@ -259,7 +259,7 @@ def test_records_are_immutable_and_hold_no_full_covariance_by_default() -> None:
 def test_update_records_carry_predictions_innovations_and_nis() -> None:
     records = every_event(replay(classic().run(seed=2).events[:3]))
     obs = records[2].observations
-    assert obs is not None and len(obs) == 6 and not obs.initialised.any()
+    assert obs is not None and len(obs.ids) == 6 and not obs.initialised.any()
     np.testing.assert_allclose(obs.innovation[:, 1], obs.z[:, 1] - obs.z_pred[:, 1])
     manual = [nu @ np.linalg.solve(S, nu) for nu, S in zip(obs.innovation, obs.S, strict=True)]
     np.testing.assert_allclose(obs.nis, manual, rtol=1e-9)

@@ -7,7 +7,6 @@ import json
 import math
 import re
 import shlex
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -217,8 +216,8 @@ def test_a_line_of_unicode_white_space_is_blank_as_in_the_other_readers(
     plain = list(read_mrclam(open_dataset(write_dataset(tmp_path / "a", HAND), 1)))
     spaced = {**HAND, "Robot1_Odometry.dat": odometry}
     read = list(read_mrclam(open_dataset(write_dataset(tmp_path / "b", spaced), 1)))
-    assert [repr(replace(event, line=0)) for event in read] == [
-        repr(replace(event, line=0)) for event in plain
+    assert [repr(event._replace(line=0)) for event in read] == [
+        repr(event._replace(line=0)) for event in plain
     ]  # the same events (the lines after the blank one one further down)
 
 
@@ -357,9 +356,9 @@ def test_the_gate_rejects_an_outlier_with_a_warning(tmp_path: Path) -> None:
     )]  # fmt: skip
     gated = every_event(replay(events, FilterParams(gate=13.8)))[-1]
     assert gated.warnings and "NIS" in gated.warnings[0] and "rejected" in gated.warnings[0]
-    assert gated.observations is not None and len(gated.observations) == 0
+    assert gated.observations is not None and len(gated.observations.ids) == 0
     used = every_event(replay(events, FilterParams()))[-1]
-    assert used.observations is not None and len(used.observations) == 1
+    assert used.observations is not None and len(used.observations.ids) == 1
 
 
 def record(kind: EventKind, event: int, time: float | None) -> EventBatch:

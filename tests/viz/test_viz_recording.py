@@ -249,7 +249,7 @@ def test_observation_rays_at_updates_shown_at_the_cursor_only(run: Run) -> None:
     """Rays only at the updates; the layout shows them at the cursor's own step or event
     (nothing at a predict) instead of clearing them with an empty row at each predict."""
     rows = entity_rows(run.rrd, f"/{style.OBSERVATIONS}")
-    observed = [r for r in run.records if r.observations is not None and len(r.observations)]
+    observed = [r for r in run.records if r.observations is not None and len(r.observations.ids)]
     assert [row["event"] for row in rows] == [r.event for r in observed]
     overrides = map_view().visualizer_overrides
     assert overrides is not None and f"/{style.OBSERVATIONS}" in overrides
@@ -269,7 +269,7 @@ def test_observation_rays_at_updates_shown_at_the_cursor_only(run: Run) -> None:
         rays = points(row, "Arrows2D:vectors")
         assert record.observations is not None
         z = record.observations.z
-        assert rays.shape == (len(record.observations), 2)
+        assert rays.shape == (len(record.observations.ids), 2)
         np.testing.assert_allclose(np.linalg.norm(rays, axis=1), z[:, 1], rtol=1e-5)
         # in the world: where the measurement puts each landmark from the pose
         bearing = record.pose[2] + z[:, 0]
@@ -625,7 +625,9 @@ def test_a_long_run_across_flushes_keeps_every_row_and_small_strip_chunks(
     np.testing.assert_allclose(path, [r.pose[:2] for r in records], rtol=F32, atol=1e-5)
     rays = entity_rows(rrd, f"/{style.OBSERVATIONS}")
     assert [len(points(row, "Arrows2D:vectors")) for row in rays] == [
-        len(r.observations) for r in records if r.observations is not None and len(r.observations)
+        len(r.observations.ids)
+        for r in records
+        if r.observations is not None and len(r.observations.ids)
     ]
     ellipses = entity_rows(rrd, f"/{style.LANDMARK_ELLIPSES}")
     shown = [row["event"] for row in ellipses]
