@@ -40,7 +40,7 @@ def _cpu() -> float:
 
 def start_seconds(sandbox: bool) -> tuple[float, float]:
     """Wall and CPU seconds to start a worker, import the skeleton in it and end it."""
-    from ekfviz.sandbox.host import WorkerOptions
+    from ekfviz.sandbox.options import WorkerOptions
     from ekfviz.sandbox.remote import Target, WorkerFactory
 
     started, cpu = time.perf_counter(), _cpu()

@@ -240,7 +240,7 @@ def _checked(
 ) -> GradeRow:
     """The row of a submission found and surveyed: its check on every log."""
     from ekfviz.filters.spec import FilterSpec
-    from ekfviz.sandbox.host import WorkerOptions
+    from ekfviz.sandbox.options import WorkerOptions
 
     verdict = _Verdict(causes={})
     deadline = time.time() + task.timeout_s

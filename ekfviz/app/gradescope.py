@@ -382,7 +382,7 @@ def _graded(
     """One part: its run, with its own time limit, judged."""
     from ekfviz.app.check import check_log
     from ekfviz.filters.spec import FilterSpec, FilterSpecError
-    from ekfviz.sandbox.host import WorkerOptions
+    from ekfviz.sandbox.options import WorkerOptions
     from ekfviz.sandbox.submission import Submission
 
     log, truth, start = logs[part.log]

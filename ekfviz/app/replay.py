@@ -40,7 +40,7 @@ from ekfviz.evaluation.errors import Evaluation
 from ekfviz.filters.ekf import EkfSlam
 from ekfviz.filters.spec import BUILTIN, load_filter, release
 from ekfviz.io.files import check_outputs, refuse_output_over_input, write_json
-from ekfviz.sandbox.host import WorkerOptions
+from ekfviz.sandbox.options import WorkerOptions
 from ekfviz.sources import SourceArgs
 
 if TYPE_CHECKING:

@@ -21,13 +21,14 @@ from ekfviz.core.errors import InputError, UsageError
 from ekfviz.core.params import FilterParams, LandmarkInit, MotionNoise, UpdateMode
 from ekfviz.filters.spec import BUILTIN
 from ekfviz.io.text import MAX_MAGNITUDE, RANGE_TEXT
-from ekfviz.sandbox.host import WorkerOptions
+from ekfviz.sandbox.options import DEFAULT_TIMEOUT_S, WorkerOptions
 from ekfviz.studies.executors import Executor, ExecutorName
 
 __all__ = [
     "BUILTIN",
     "DEFAULT_ASSOCIATION",
     "DEFAULT_PARAMS",
+    "DEFAULT_TIMEOUT_S",
     "AssociationSettings",
     "ExecutionSettings",
     "ExecutorName",

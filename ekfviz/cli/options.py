@@ -37,6 +37,7 @@ from ekfviz.app.scenarios import (
 from ekfviz.app.settings import (
     DEFAULT_ASSOCIATION,
     DEFAULT_PARAMS,
+    DEFAULT_TIMEOUT_S,
     AssociationSettings,
     ExecutionSettings,
     ExecutorName,
@@ -56,9 +57,6 @@ DEFAULT = DEFAULT_PARAMS  # the classic defaults, stated once
 FILTER_NOISE = "Filter noise"
 FILTER_OPTIONS = "Filter options"
 ASSOCIATION_PANEL = "Association (id-less scans)"
-# as ekfviz.sandbox.host.DEFAULT_TIMEOUT_S (a test holds them equal; that module is
-# not imported at start-up)
-DEFAULT_FILTER_TIMEOUT_S = 60.0
 
 
 def _option(help: str, panel: str | None = None, **kwargs: Any) -> Any:
@@ -512,12 +510,12 @@ class UserFilter(OptionGroup):
     """How a user's filter runs: its interpreter and limits."""
 
     python: PythonOption = None
-    filter_timeout: FilterTimeout = DEFAULT_FILTER_TIMEOUT_S
+    filter_timeout: FilterTimeout = DEFAULT_TIMEOUT_S
     filter_memory: FilterMemory = None
     no_sandbox: NoSandbox = False
 
     def worker(self) -> WorkerOptions:
-        """The :class:`~ekfviz.sandbox.host.WorkerOptions`, the interpreter checked."""
+        """The :class:`~ekfviz.sandbox.options.WorkerOptions`, the interpreter checked."""
         return worker_options(
             self.python, self.filter_timeout, self.filter_memory, sandbox=not self.no_sandbox
         )

@@ -31,12 +31,14 @@ import re
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ekfviz.core.tables import utf8
 from ekfviz.filters.plugged import FilterFactory
-from ekfviz.sandbox.host import WorkerFault, WorkerOptions
-from ekfviz.sandbox.remote import StartedWorker, Target, WorkerFactory
-from ekfviz.sandbox.submission import Submission
+from ekfviz.sandbox.options import WorkerOptions
+
+if TYPE_CHECKING:  # the sandbox is imported where a user's filter is loaded
+    from ekfviz.sandbox.remote import StartedWorker, Target
 
 BUILTIN = "ekf"
 # name -> ("module:Class", the extra that provides its dependency, or None)
@@ -127,6 +129,10 @@ class FilterSpec:
 def release(make_filter: object) -> None:
     """End what a loaded filter holds: the spare worker a user's filter keeps started
     (:class:`~ekfviz.sandbox.remote.WorkerFactory`); nothing for the others."""
+    if isinstance(make_filter, type):  # a class of ekfviz's own: nothing held
+        return
+    from ekfviz.sandbox.remote import WorkerFactory
+
     if isinstance(make_filter, WorkerFactory):
         make_filter.close()
 
@@ -136,6 +142,8 @@ def target_of(text: str) -> Target:
 
     :raises FilterSpecError: neither ``PATH.py``, ``PATH.py:Class`` nor ``module:Class``
     """
+    from ekfviz.sandbox.remote import Target
+
     where, sep, name = text.rpartition(":")
     if sep and where and name.isidentifier():
         if where.endswith(".py") or "/" in where or "\\" in where:
@@ -173,6 +181,9 @@ def _module_target(module: str, name: str, text: str) -> Target:
             f"--filter {text}: one of ekfviz's own modules is not a user's filter: --filter"
             f" {BUILTIN} runs the built-in, in ekfviz's process"
         )
+    from ekfviz.sandbox.remote import Target
+    from ekfviz.sandbox.submission import Submission
+
     if locations:  # a package: its folder, shown in the folder that holds it
         return Target(None, module, name, os.path.dirname(place), Submission(place))
     origin = str(found.origin)
@@ -209,6 +220,9 @@ def load_filter(
                 f"--filter {text} needs the optional dependency {error.name!r}:"
                 f" the {extra} extra (pip install -e '.[{extra}]' in a clone of ekfviz)"
             ) from error
+    from ekfviz.sandbox.host import WorkerFault
+    from ekfviz.sandbox.remote import WorkerFactory
+
     user = target_of(text)
     options = worker if worker is not None else WorkerOptions()
     label = worker_label(user)

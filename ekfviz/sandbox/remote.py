@@ -25,11 +25,11 @@ from ekfviz.sandbox import bwrap
 from ekfviz.sandbox.host import (
     Output,
     WorkerFault,
-    WorkerOptions,
     WorkerProcess,
     load_limit_name,
     load_timeout,
 )
+from ekfviz.sandbox.options import WorkerOptions
 from ekfviz.sandbox.submission import (
     Submission,
     SubmissionRefused,

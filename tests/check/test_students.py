@@ -427,13 +427,6 @@ def test_bad_input_of_grade_and_check_is_one_line(
     assert line.startswith("error: ") and expected.format(tmp=tmp_path) in line, line
 
 
-def test_the_command_line_default_timeout_is_the_workers() -> None:
-    from ekfviz.cli.options import DEFAULT_FILTER_TIMEOUT_S
-    from ekfviz.sandbox.host import DEFAULT_TIMEOUT_S
-
-    assert DEFAULT_FILTER_TIMEOUT_S == DEFAULT_TIMEOUT_S
-
-
 # -- students of the wild (hand-ins in styles no handout shows) ------------------
 
 

@@ -76,6 +76,10 @@ NOT_IMPORTED = (
     "ekfviz.viz.association",
     "pyarrow.compute",  # what the SDK's casts and masked list arrays import (30-45 ms)
     "importlib.resources",  # importlib.abc's (17 ms): a finder needs no base class
+    "ekfviz.sandbox.host",  # a user's filter's worker: ekfviz's own runs in process
+    "ekfviz.sandbox.remote",
+    "ekfviz.sandbox.bwrap",
+    "ekfviz.sandbox.submission",
 )
 
 

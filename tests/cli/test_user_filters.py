@@ -143,7 +143,8 @@ def test_a_loop_at_import_or_construction_is_bounded_by_the_filter_timeout(
     """Once bounded only by the 120 s of a worker's start, whatever --filter-timeout said."""
     from ekfviz.core.params import FilterParams
     from ekfviz.sandbox import host as worker
-    from ekfviz.sandbox.host import WorkerFault, WorkerOptions
+    from ekfviz.sandbox.host import WorkerFault
+    from ekfviz.sandbox.options import WorkerOptions
     from ekfviz.sandbox.remote import Target, WorkerFactory
 
     monkeypatch.setattr(worker, "MIN_LOAD_TIMEOUT_S", 0.5)

@@ -15,7 +15,8 @@ import pytest
 
 from ekfviz.core.params import FilterParams
 from ekfviz.sandbox import bwrap
-from ekfviz.sandbox.host import WorkerFault, WorkerOptions
+from ekfviz.sandbox.host import WorkerFault
+from ekfviz.sandbox.options import WorkerOptions
 from ekfviz.sandbox.remote import Target, WorkerFactory
 from ekfviz.sandbox.submission import MAX_BYTES, MAX_DEPTH, MAX_FILES, Submission
 

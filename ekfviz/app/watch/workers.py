@@ -11,7 +11,8 @@ import threading
 from ekfviz import signals
 from ekfviz.filters.spec import FilterSpec, target_of, worker_label
 from ekfviz.sandbox import bwrap
-from ekfviz.sandbox.host import WorkerOptions, WorkerProcess
+from ekfviz.sandbox.host import WorkerProcess
+from ekfviz.sandbox.options import WorkerOptions
 from ekfviz.sandbox.remote import PrivateCopy, StartedWorker
 
 
