@@ -11,14 +11,13 @@ are done beside the filter (:mod:`ekfviz.runner.beside`), the check's finiteness
 
 from __future__ import annotations
 
-import functools
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ekfviz.core.correlation import Correlation, CorrelationCadence, correlation_of
 from ekfviz.core.health import NOT_FINITE, CovarianceCheck, check_covariance, check_interval
-from ekfviz.core.types import BoolArray, FloatArray, IntArray
+from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.filters.ekf import EkfSlam
 from ekfviz.runner.beside import Beside, Results
 from ekfviz.runner.errors import FilterLineError
@@ -119,19 +118,11 @@ def current_covariance(ekf: EkfSlam | Plugged) -> tuple[FloatArray, bool]:
     P_s, U = ekf.deferred_covariance()
     if U is None:
         return P_s, False
-    current: FloatArray = P_s - U.T @ U
-    # exactly symmetric, as the filter keeps its P: the upper triangle mirrored (a mask
-    # copy: half the time of the whole step where gathered by index pairs)
-    np.copyto(current, current.T, where=_below_diagonal(len(current)))
-    return current, True
-
-
-@functools.lru_cache(maxsize=1)
-def _below_diagonal(n: int) -> BoolArray:
-    """(n, n) True below the diagonal, read-only (kept for the next check of this size)."""
-    mask: BoolArray = np.tri(n, k=-1, dtype=bool)
-    mask.setflags(write=False)
-    return mask
+    # exactly symmetric, as the filter keeps its P: U^T U is numpy's symmetric rank-k
+    # product (one triangle computed, copied to the other), P_s is symmetric, and the
+    # difference is taken in place of the product
+    gram: FloatArray = U.T @ U
+    return np.subtract(P_s, gram, out=gram), True
 
 
 def _checked(

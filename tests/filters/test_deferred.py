@@ -4,8 +4,8 @@ A large map's sequential update keeps P -= U^T U pending across observation line
 predicts, new landmarks and removals, and folds it into P only when U is full or a reader
 asks for the whole P. Known answer: the same run through a filter that folds every
 observation at once (the textbook P -= A^T A, no U at all) gives the same state to
-round-off, and every reader (the whole P, the records, the association's gating and
-joint covariance) sees that current P while changes are pending.
+round-off, and every reader (the whole P, the records, the covariance checks, the
+association's gating and joint covariance) sees that current P while changes are pending.
 """
 
 from __future__ import annotations
@@ -25,6 +25,7 @@ from ekfviz.filters.ekf import DEFER_MIN_DIM, DEFER_ROWS, HAVE_KERNEL, EkfSlam
 from ekfviz.filters.model_ekf import ModelEkfSlam
 from ekfviz.models.ackermann import Ackermann
 from ekfviz.models.range_bearing import RangeBearing
+from ekfviz.runner.checks import current_covariance
 
 SENSOR = RangeBearing(a=3.78, b=0.5)
 _NONE = np.zeros((0, 0))
@@ -116,6 +117,10 @@ def _run(deferred: EkfSlam, eager: EkfSlam, *, drive: bool, seed: int, steps: in
         pending += U is not None
         _close(deferred.x, eager.x)
         _close(P, eager.P)
+        # what the covariance checks read: the same P, exactly symmetric, nothing folded
+        checked, _ = current_covariance(deferred)
+        _close(checked, P)
+        assert np.array_equal(checked, checked.T)
         assert deferred.landmark_ids == eager.landmark_ids
         # the state parts correct their pose block and marginals without folding
         got, expected = deferred.state_parts(), eager.state_parts()
