@@ -2,7 +2,7 @@
 
 The replay appends each event to the batch being built (:class:`BatchStream.add`); a
 batch is sealed once it holds ``BATCH_EVENTS`` events or its maps ``BATCH_LANDMARKS``
-landmarks (a large map's batches stay some 10 MB), and wherever the replay asks (its
+landmarks (a large map's batches stay some 3 MB), and wherever the replay asks (its
 initialisation is a batch of its own, so that the consumers see the start at once). A
 sealed batch whose events wait for work beside the filter (:mod:`ekfviz.runner.beside`)
 is held until that work is in, its results then joining those events' extras: the
@@ -23,7 +23,7 @@ if TYPE_CHECKING:
     from concurrent.futures import Future
 
 BATCH_EVENTS = 4096  # events of a batch at most
-BATCH_LANDMARKS = 1 << 18  # landmarks in a batch's maps, at most (some 12 MB of them)
+BATCH_LANDMARKS = 1 << 16  # landmarks in a batch's maps, at most (some 3 MB of them)
 
 Waiting = list[tuple[int, "Future[Results]"]]  # rows of a batch, and the work they wait for
 
