@@ -17,7 +17,7 @@ private copy of its file's folder (its Python files), or of the top-level packag
 module, under ``--python`` if given.
 Every class is constructed as ``Class(params)`` and follows the
 :class:`~ekfviz.filters.protocol.SlamFilter` protocol. Numpy only: nothing here imports a
-backend until it is asked for.
+backend, nor the worker and its sandbox, until it is asked for.
 """
 
 from __future__ import annotations
