@@ -26,7 +26,7 @@ from ekfviz.core.batch import (
     StateParts,
 )
 from ekfviz.core.params import FilterParams
-from ekfviz.core.records import Control, LogEvent, Sighting
+from ekfviz.core.records import Control, LogEvent, Observations, Sighting
 from ekfviz.filters.ekf import EkfSlam
 from ekfviz.runner.replay import replay
 from ekfviz.runner.run import every_event
@@ -285,6 +285,31 @@ def test_a_state_handed_in_is_one_event_of_the_batch() -> None:
         builder.add_state(rng.normal(size=4), np.eye(4), event=2, step=2, kind=PREDICT)
     parts = StateParts.of(ekf.x, ekf.P)
     assert parts.landmark_ids.tolist() == [1, 2]  # 1..N without ids
+
+
+@pytest.mark.parametrize("shared", [3, 2, 0])
+def test_each_updates_observations_are_read_back_shared_arrays_or_not(shared: int) -> None:
+    """A batch's observations are each update's own, to the bit, whether its updates
+    share their ids and flags (a classic log's lines: one array each) or not."""
+    ekf = EkfSlam()
+    ekf.observe([1, 2, 3], np.array([[0.1, 3.0], [-0.4, 5.0], [0.9, 2.0]]))
+    ids = np.array([1, 2, 3])
+    lines = [np.array([[0.1 + k / 50, 3.0], [-0.4, 5.0 - k / 10], [0.9, 2.0]]) for k in range(3)]
+    builder = BatchBuilder()
+    found = []
+    for k, z in enumerate(lines):
+        line_ids = ids if k < shared else np.array([3, 1, 2]) if k % 2 else ids.copy()
+        observations = ekf.observe(line_ids, z if k < shared else z[[2, 0, 1]])
+        found.append(observations)
+        builder.add(ekf.state_parts(), event=k, step=k, kind=UPDATE, observations=observations)
+    builder.add(ekf.state_parts(), event=3, step=4, kind=PREDICT, control=(1.0, 0.0))
+    batch = builder.build()
+    assert batch.event(3).observations is None
+    for row, observations in enumerate(found):
+        read = batch.event(row).observations
+        assert read is not None
+        for name in Observations._fields:
+            assert getattr(read, name).tobytes() == getattr(observations, name).tobytes(), name
 
 
 def test_joined_batches_share_what_their_events_share() -> None:
