@@ -30,6 +30,8 @@ import numpy as np
 from ekfviz.core.correlation import Correlation
 from ekfviz.core.health import CovarianceCheck
 from ekfviz.core.records import (
+    NIS,
+    TABLE_COLUMNS,
     EventKind,
     EventRecord,
     Observations,
@@ -229,12 +231,14 @@ class ObservationTable:
     present: BoolArray
     ids: IntArray
     z: FloatArray
-    z_pred: FloatArray
-    innovation: FloatArray
-    S: FloatArray
-    nis: FloatArray
+    table: FloatArray
     initialised: BoolArray
     skipped: BoolArray
+
+    @property
+    def nis(self) -> FloatArray:
+        """The NIS of each observation (a view of the table's column)."""
+        return self.table[:, NIS]
 
     @property
     def counts(self) -> IntArray:
@@ -248,17 +252,16 @@ class ObservationTable:
             return None
         span = slice(int(self.starts[row]), int(self.starts[row + 1]))
         return Observations(
-            ids=self.ids[span], z=self.z[span], z_pred=self.z_pred[span],
-            innovation=self.innovation[span], S=self.S[span], nis=self.nis[span],
-            initialised=self.initialised[span], skipped=self.skipped[span],
-        )  # fmt: skip
+            self.ids[span],
+            self.z[span],
+            self.table[span],
+            self.initialised[span],
+            self.skipped[span],
+        )
 
     def columns(self) -> tuple[AnyArray, ...]:
         """The flattened columns, in the order of :class:`Observations`' fields."""
-        return (
-            self.ids, self.z, self.z_pred, self.innovation, self.S, self.nis,
-            self.initialised, self.skipped,
-        )  # fmt: skip
+        return self.ids, self.z, self.table, self.initialised, self.skipped
 
     def take(self, rows: IntArray) -> ObservationTable:
         """The observations of the events at ``rows``, in a table of their own."""
@@ -472,10 +475,12 @@ def _batch(
 _NAN2 = (math.nan, math.nan)
 _NO_IDS: IntArray = _read_only(np.zeros(0, dtype=np.int64))
 _NO_OBSERVATIONS = Observations(
-    ids=_NO_IDS, z=np.zeros((0, 2)), z_pred=np.zeros((0, 2)), innovation=np.zeros((0, 2)),
-    S=np.zeros((0, 2, 2)), nis=np.zeros(0), initialised=np.zeros(0, dtype=bool),
-    skipped=np.zeros(0, dtype=bool),
-)  # fmt: skip
+    _NO_IDS,
+    np.zeros((0, 2)),
+    np.zeros((0, TABLE_COLUMNS)),
+    np.zeros(0, dtype=bool),
+    np.zeros(0, dtype=bool),
+)
 
 
 _FIRST_ROWS = 1024  # room for poses a batch starts with (twice as much whenever full)
@@ -710,10 +715,7 @@ def _observation_table(found: list[Observations | None]) -> ObservationTable:
         _read_only(present),
         _read_only(_joined([o.ids for o in each]).astype(np.int64, copy=False)),
         _read_only(np.concatenate([o.z for o in each])),
-        _read_only(np.concatenate([o.z_pred for o in each])),
-        _read_only(np.concatenate([o.innovation for o in each])),
-        _read_only(np.concatenate([o.S for o in each])),
-        _read_only(np.concatenate([o.nis for o in each])),
+        _read_only(np.concatenate([o.table for o in each])),
         _read_only(_joined([o.initialised for o in each]).astype(bool, copy=False)),
         _read_only(_joined([o.skipped for o in each]).astype(bool, copy=False)),
     )

@@ -127,6 +127,11 @@ def with_ids(events: Iterable[AnyEvent]) -> Iterator[LogEvent]:
         yield event
 
 
+# the columns of what a filter computed of each observation (:attr:`Observations.table`)
+Z_PRED, INNOVATION, S_ROWS, NIS = slice(0, 2), slice(2, 4), slice(4, 8), 8
+TABLE_COLUMNS = 9
+
+
 class Observations(NamedTuple):
     """What one update did with each landmark of its observation line, in file order.
 
@@ -134,25 +139,60 @@ class Observations(NamedTuple):
     their ``initialised`` flag is set and their prediction, innovation, S and NIS are NaN.
     An observation the filter could not use is ``skipped`` (the record's warnings say
     why): its NIS is NaN, and so are its prediction, innovation and S where undefined.
+    What the filter computed of each is one table, as its update writes it; ``z_pred``,
+    ``innovation``, ``S`` and ``nis`` are views of its columns.
 
     :param ids: (m,) landmark ids
     :param z: (m, 2) measured (bearing, range)
-    :param z_pred: (m, 2) predicted (bearing, range) just before the landmark was folded in
-    :param innovation: (m, 2) z - z_pred, bearing wrapped to (-pi, pi]
-    :param S: (m, 2, 2) innovation covariance
-    :param nis: (m,) normalised innovation squared nu^T S^-1 nu (2 dof each)
+    :param table: (m, 9) per observation: z_pred (2), innovation (2), S row by row (4), NIS
     :param initialised: (m,) True where the landmark was first seen here
     :param skipped: (m,) True where the observation was not used (see the warnings)
     """
 
     ids: IntArray
     z: FloatArray
-    z_pred: FloatArray
-    innovation: FloatArray
-    S: FloatArray
-    nis: FloatArray
+    table: FloatArray
     initialised: BoolArray
     skipped: BoolArray
+
+    @classmethod
+    def of(
+        cls,
+        *,
+        ids: IntArray,
+        z: FloatArray,
+        z_pred: FloatArray,
+        innovation: FloatArray,
+        S: FloatArray,
+        nis: FloatArray,
+        initialised: BoolArray,
+        skipped: BoolArray,
+    ) -> Observations:
+        """Observations of their columns, the computed ones copied into one table."""
+        table = np.empty((len(ids), TABLE_COLUMNS))
+        table[:, Z_PRED], table[:, INNOVATION] = z_pred, innovation
+        table[:, S_ROWS], table[:, NIS] = np.reshape(S, (-1, 4)), nis
+        return cls(ids, z, frozen(table), initialised, skipped)
+
+    @property
+    def z_pred(self) -> FloatArray:
+        """(m, 2) predicted (bearing, range) just before the landmark was folded in."""
+        return self.table[:, Z_PRED]
+
+    @property
+    def innovation(self) -> FloatArray:
+        """(m, 2) z - z_pred, bearing wrapped to (-pi, pi]."""
+        return self.table[:, INNOVATION]
+
+    @property
+    def S(self) -> FloatArray:
+        """(m, 2, 2) innovation covariance."""
+        return self.table[:, S_ROWS].reshape(-1, 2, 2)
+
+    @property
+    def nis(self) -> FloatArray:
+        """(m,) normalised innovation squared nu^T S^-1 nu (2 dof each)."""
+        return self.table[:, NIS]
 
 
 class Fate(enum.IntEnum):

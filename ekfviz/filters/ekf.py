@@ -42,7 +42,7 @@ from ekfviz.core.batch import MapParts, StateParts
 from ekfviz.core.errors import FilterError
 from ekfviz.core.memory import available_memory
 from ekfviz.core.params import FilterParams, LandmarkInit, MotionNoise, UpdateMode, noise_scale
-from ekfviz.core.records import Observations, frozen
+from ekfviz.core.records import TABLE_COLUMNS, Observations, frozen
 from ekfviz.core.types import BoolArray, FloatArray, IntArray
 from ekfviz.filters.ekf_pending import DEFER_MIN_DIM, DEFER_ROWS
 from ekfviz.filters.ekf_update import NAN_ROW, LineUpdates, nan_table, no_flags
@@ -418,16 +418,12 @@ class EkfSlam(LineUpdates):
                 if new[k]:
                     self._add_landmark(ids_list[k], z[k].tolist())
         if values.ndim != 2:  # the numpy code's table comes flat
-            values = values.reshape(m, 9)
-        frozen(values)  # its views below are read-only too
+            values = values.reshape(m, TABLE_COLUMNS)
         flags_none = no_flags(m)  # where nothing was skipped, shared
         return Observations(
             ids=ids_arr,
             z=frozen(z),
-            z_pred=values[:, 0:2],
-            innovation=values[:, 2:4],
-            S=values[:, 4:8].reshape(m, 2, 2),
-            nis=values[:, 8],
+            table=frozen(values),
             initialised=frozen(np.array(new, dtype=bool)) if any_new else flags_none,
             skipped=skipped if skipped is flags_none else frozen(np.asarray(skipped, dtype=bool)),
         )

@@ -18,7 +18,7 @@ import numpy as np
 
 from ekfviz.core.errors import FilterError
 from ekfviz.core.params import FilterParams
-from ekfviz.core.records import frozen
+from ekfviz.core.records import TABLE_COLUMNS, frozen
 from ekfviz.core.types import BoolArray, FloatArray, IntArray
 from ekfviz.filters.ekf_pending import PendingCovariance
 from ekfviz.models.angles import wrap_angle
@@ -40,7 +40,7 @@ except ImportError:  # installed without a C compiler: numpy throughout
 # Jacobian (it divides by the range): its observation is skipped with a warning.
 MIN_PREDICTED_RANGE = 1e-6
 # z_pred (2), innovation (2), S (4) and NIS of a landmark seen for the first time
-NAN_ROW: tuple[float, ...] = (math.nan,) * 9
+NAN_ROW: tuple[float, ...] = (math.nan,) * TABLE_COLUMNS
 # what the compiled update says of an observation, and of the whole line (see _kernel.c)
 ZERO_RANGE, NOT_DEFINITE = 2, 3
 _S_NOT_FINITE, _STATE_NOT_FINITE = 1, 2
@@ -247,10 +247,11 @@ _NAN_TABLES: dict[int, FloatArray] = {}
 
 
 def nan_table(m: int) -> FloatArray:
-    """(m, 9) NaN, a new array (a copy of a kept one: np.full costs more at small m)."""
+    """(m, 9) NaN, a new array for an update's :attr:`~ekfviz.core.records.Observations.table`
+    (a copy of a kept one: np.full costs more at small m)."""
     table = _NAN_TABLES.get(m)
     if table is None:
-        table = _NAN_TABLES.setdefault(m, np.full((m, 9), np.nan))
+        table = _NAN_TABLES.setdefault(m, np.full((m, TABLE_COLUMNS), np.nan))
     copy: FloatArray = table.copy()
     return copy
 

@@ -20,7 +20,7 @@ import numpy as np
 from ekfviz.core.batch import MapParts, StateParts
 from ekfviz.core.errors import FilterError
 from ekfviz.core.params import FilterParams
-from ekfviz.core.records import Observations, frozen
+from ekfviz.core.records import TABLE_COLUMNS, Observations, frozen
 from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.filters.ekf import EkfSlam
 from ekfviz.filters.protocol import DeclaresCapabilities, SlamFilter, state_of
@@ -364,13 +364,11 @@ def check_state(
 
 def _unjudged(ids: IntArray, z: FloatArray, state_ids: IntArray) -> Observations:
     """Observations with no prediction (NaN rows), new landmarks flagged."""
-    m = len(ids)
-    nan = np.full((m, 2), np.nan)
     new = ~np.isin(ids, state_ids)
     return Observations(
-        ids=frozen(ids.copy()), z=frozen(z.copy()), z_pred=frozen(nan),
-        innovation=frozen(nan.copy()), S=frozen(np.full((m, 2, 2), np.nan)),
-        nis=frozen(np.full(m, np.nan)), initialised=frozen(new), skipped=frozen(~new),
+        ids=frozen(ids.copy()), z=frozen(z.copy()),
+        table=frozen(np.full((len(ids), TABLE_COLUMNS), np.nan)),
+        initialised=frozen(new), skipped=frozen(~new),
     )  # fmt: skip
 
 

@@ -308,7 +308,7 @@ def test_each_updates_observations_are_read_back_shared_arrays_or_not(shared: in
     for row, observations in enumerate(found):
         read = batch.event(row).observations
         assert read is not None
-        for name in Observations._fields:
+        for name in (*Observations._fields, "z_pred", "innovation", "S", "nis"):
             assert getattr(read, name).tobytes() == getattr(observations, name).tobytes(), name
 
 

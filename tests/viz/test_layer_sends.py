@@ -58,7 +58,7 @@ def observations(rng: np.random.Generator, pool: IntArray, most: int) -> Observa
     nis = rng.uniform(0, 9, m)
     nis[rng.random(m) < 0.3] = math.nan
     z = rng.normal(size=(m, 2))
-    return Observations(
+    return Observations.of(
         ids=seen.astype(np.int64), z=z, z_pred=z, innovation=z * 0,
         S=np.tile(np.eye(2), (m, 1, 1)), nis=nis, initialised=rng.random(m) < 0.3,
         skipped=rng.random(m) < 0.1,

@@ -174,7 +174,7 @@ class ArrayInput:
             nis[known] = np.einsum("ij,ij->i", innovation[known], whitened)
         z_pred[initialised] = innovation[initialised] = np.nan
         S[initialised] = np.nan
-        return Observations(
+        return Observations.of(
             ids=ids, z=z, z_pred=z_pred, innovation=innovation, S=S, nis=nis,
             initialised=initialised, skipped=np.zeros(m, dtype=bool),
         )  # fmt: skip
