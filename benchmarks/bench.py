@@ -43,6 +43,10 @@
 13. Watch (``watch_bench.py``): ``ekfviz watch`` of the course skeleton, from a save to
    its run complete in the viewer (the median of 10 saves, target 1 s), and from Ctrl-C
    to its end; ``--watch-only`` runs just this.
+14. Instructions (``instructions_bench.py``): the instructions each of the targets'
+   replays executes, counted by Valgrind, now and (``--before CLONE``) before: a
+   difference of a few per cent that wall time on a shared machine cannot tell;
+   ``--instructions-only`` runs just this (about half an hour; not part of a whole run).
 
 It prints the tables and writes them, with the machine, the date and the command, to
 ``benchmarks/RESULTS.md``. Timings are medians (bounds: best) of repeated runs; where
@@ -949,6 +953,12 @@ def main(argv: Sequence[str] | None = None) -> None:
         "--watch-only", action="store_true", help="only the watch section of RESULTS.md"
     )
     parser.add_argument(
+        "--instructions-only",
+        action="store_true",
+        help="only the section of the instructions each replay executes (Valgrind), now and"
+        " --before",
+    )
+    parser.add_argument(
         "--extensions-only",
         action="store_true",
         help="only the section of what each compiled extension buys",
@@ -964,6 +974,15 @@ def main(argv: Sequence[str] | None = None) -> None:
 
         with tempfile.TemporaryDirectory() as tmp:
             section = check_section(Path(tmp), args.before)
+        _write_section(args.out, section)
+        return
+    if args.instructions_only:
+        from association_bench import find_dataset
+        from instructions_bench import instructions_section
+        from mrclam_bench import find_dataset as find_mrclam
+
+        with tempfile.TemporaryDirectory() as tmp:
+            section = instructions_section(Path(tmp), args.before, find_mrclam(), find_dataset())
         _write_section(args.out, section)
         return
     if args.extensions_only:
