@@ -36,13 +36,29 @@ BESIDE_MIN_DIM = 128
 Results = tuple[CovarianceCheck | None, Correlation | None]
 
 
-def whole_covariance_work(P: FloatArray, check: bool, ids: IntArray | None) -> Results:
+def whole_covariance_work(
+    P: FloatArray, check: bool, ids: IntArray | None, pending: FloatArray | None = None
+) -> Results:
     """The check of ``P`` (where ``check``) and its correlation (given the landmark
-    ``ids``)."""
+    ``ids``); with ``pending`` rows U, of P - U^T U (:func:`pending_taken_off`)."""
+    if pending is not None:
+        P = pending_taken_off(P, pending)
     return (
         check_covariance(P) if check else None,
         None if ids is None else correlation_of(P, ids),
     )
+
+
+def pending_taken_off(P_s: FloatArray, U: FloatArray) -> FloatArray:
+    """P_s - U^T U (n, n), a new array, exactly symmetric as the filter keeps its P: U^T U
+    is numpy's symmetric rank-k product (one triangle computed, copied to the other),
+    P_s is symmetric, and the difference is taken in place of the product.
+
+    :param P_s: (n, n) the covariance as stored
+    :param U: (r, n) the rows of the changes pending (see :mod:`ekfviz.filters.ekf_pending`)
+    """
+    gram: FloatArray = U.T @ U
+    return np.subtract(P_s, gram, out=gram)
 
 
 class Beside:
@@ -72,11 +88,19 @@ class Beside:
             self._running = None
 
     def submit(
-        self, P: FloatArray, check: bool, ids: IntArray | None, *, copy: bool = True
+        self,
+        P: FloatArray,
+        check: bool,
+        ids: IntArray | None,
+        *,
+        copy: bool = True,
+        pending: FloatArray | None = None,
     ) -> Future[Results]:
-        """The check and (given ``ids``) the correlation of ``P``: on a copy made now
-        where ``copy`` (the filter goes on changing its P), else on ``P`` itself (the
-        caller's to give away). The work given before is waited for first."""
+        """The check and (given ``ids``) the correlation of ``P``, or of P - U^T U given
+        the ``pending`` rows U (taken off in the thread: O(r n^2) the filter does not
+        wait for): on copies made now where ``copy`` (the filter goes on changing its P
+        and U), else on ``P`` itself (the caller's to give away). The work given before
+        is waited for first."""
         self.wait()
         if self._executor is None:
             from concurrent.futures import ThreadPoolExecutor
@@ -84,7 +108,8 @@ class Beside:
             self._executor = ThreadPoolExecutor(1, thread_name_prefix="ekfviz-whole-P")
         if copy:
             P = np.array(P, dtype=np.float64)
-        self._running = self._executor.submit(whole_covariance_work, P, check, ids)
+            pending = None if pending is None else pending.copy()
+        self._running = self._executor.submit(whole_covariance_work, P, check, ids, pending)
         return self._running
 
     def close(self) -> None:

@@ -6,20 +6,19 @@ wherever an event raised a warning; its problems join the event's warnings, and 
 that is not finite stops the run at the event's line. Its correlation matrix is taken
 at the initialisation, the updates and the last event where
 :class:`~ekfviz.core.correlation.CorrelationCadence` says it is due. On a large map both
-are done beside the filter (:mod:`ekfviz.runner.beside`), the check's finiteness at once.
+are done beside the filter (:mod:`ekfviz.runner.beside`), the built-in filter's pending
+changes taken off there too, the check's finiteness at once.
 """
 
 from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-import numpy as np
-
 from ekfviz.core.correlation import Correlation, CorrelationCadence, correlation_of
 from ekfviz.core.health import NOT_FINITE, CovarianceCheck, check_covariance, check_interval
 from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.filters.ekf import EkfSlam
-from ekfviz.runner.beside import Beside, Results
+from ekfviz.runner.beside import Beside, Results, pending_taken_off
 from ekfviz.runner.errors import FilterLineError
 
 if TYPE_CHECKING:
@@ -81,27 +80,38 @@ class WholeCovariance:
             return None, warnings, None, None
         if check:
             self.next_check = step + check_interval(self._ekf.dim)
-        large = Beside.takes(self._ekf.dim)
-        if large:
-            self._beside.wait()  # one copy of P at a time beside the filter's own
-        P, own = current_covariance(self._ekf)
-        if not large:
+        if not Beside.takes(self._ekf.dim):
+            P, _ = current_covariance(self._ekf)
             covariance, warnings = _checked(P, line, warnings) if check else (None, warnings)
             return covariance, warnings, correlation_of(P, ids) if correlate else None, None
-        covariance = None
+        self._beside.wait()  # one copy of P at a time beside the filter's own
         if check and now:
+            P, own = current_covariance(self._ekf)
             covariance, warnings = _checked(P, line, warnings)
-        beside_check = check and not now
-        if beside_check and not Beside.finite(P):
+            if not correlate:
+                return covariance, warnings, None, None
+            work = self._beside.submit(P, False, ids, copy=not own)
+            return covariance, warnings, None, work
+        # the pending changes are taken off in the thread; P_s and U finite (at once)
+        # make P finite (an overflow of U^T U aside, which the check names later)
+        P_s, U = deferred_covariance(self._ekf)
+        if check and not (Beside.finite(P_s) and (U is None or Beside.finite(U))):
             raise FilterLineError(line, NOT_FINITE)
-        if not beside_check and not correlate:
-            return covariance, warnings, None, None
-        work = self._beside.submit(P, beside_check, ids if correlate else None, copy=not own)
-        return covariance, warnings, None, work
+        work = self._beside.submit(P_s, check, ids if correlate else None, pending=U)
+        return None, warnings, None, work
 
     def close(self) -> None:
         """End the thread beside the filter, if one was started."""
         self._beside.close()
+
+
+def deferred_covariance(ekf: EkfSlam | Plugged) -> tuple[FloatArray, FloatArray | None]:
+    """The filter's covariance as stored and the rows U of its pending changes (None
+    where none: a filter of the protocol's, or nothing pending), the current one P_s -
+    U^T U (see :meth:`~ekfviz.filters.ekf_pending.PendingCovariance.deferred_covariance`)."""
+    if not isinstance(ekf, EkfSlam):
+        return ekf.P, None
+    return ekf.deferred_covariance()
 
 
 def current_covariance(ekf: EkfSlam | Plugged) -> tuple[FloatArray, bool]:
@@ -113,16 +123,10 @@ def current_covariance(ekf: EkfSlam | Plugged) -> tuple[FloatArray, bool]:
     filter's own later one, and the run's floats would depend on where a check or a
     correlation happened to read P (a warning's check, a consumer's).
     """
-    if not isinstance(ekf, EkfSlam):
-        return ekf.P, False
-    P_s, U = ekf.deferred_covariance()
+    P_s, U = deferred_covariance(ekf)
     if U is None:
         return P_s, False
-    # exactly symmetric, as the filter keeps its P: U^T U is numpy's symmetric rank-k
-    # product (one triangle computed, copied to the other), P_s is symmetric, and the
-    # difference is taken in place of the product
-    gram: FloatArray = U.T @ U
-    return np.subtract(P_s, gram, out=gram), True
+    return pending_taken_off(P_s, U), True
 
 
 def _checked(

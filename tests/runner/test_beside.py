@@ -38,9 +38,9 @@ def counted(monkeypatch: pytest.MonkeyPatch) -> list[int]:
     dims: list[int] = []
     work = beside.whole_covariance_work
 
-    def spied(P: np.ndarray, check: bool, ids: Any) -> Any:
+    def spied(P: np.ndarray, check: bool, ids: Any, pending: Any = None) -> Any:
         dims.append(P.shape[0])
-        return work(P, check, ids)
+        return work(P, check, ids, pending)
 
     monkeypatch.setattr(beside, "whole_covariance_work", spied)
     return dims
@@ -187,6 +187,27 @@ def states(events: list[AnyEvent]) -> tuple[dict[int, bytes], EventRecord]:
     return {r.event: r.pose.tobytes() + r.pose_cov.tobytes() for r in records}, records[-1]
 
 
+def test_the_pending_changes_are_taken_off_in_the_thread(
+    large: list[AnyEvent], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The filter hands its stored P and the rows of its pending changes to the thread,
+    which takes them off (O(r n^2) the filter does not wait for): the same checks and
+    correlations as at once."""
+    pending: list[bool] = []
+    work = beside.whole_covariance_work
+
+    def spied(P: np.ndarray, check: bool, ids: Any, rows: Any = None) -> Any:
+        pending.append(rows is not None)
+        return work(P, check, ids, rows)
+
+    at_once(monkeypatch)
+    expected = every_event(replay(large))
+    monkeypatch.undo()
+    monkeypatch.setattr(beside, "whole_covariance_work", spied)
+    assert_same(every_event(replay(large)), expected)
+    assert any(pending)
+
+
 @pytest.mark.slow
 def test_the_filters_floats_do_not_depend_on_when_the_thread_is_done(
     large: list[AnyEvent], monkeypatch: pytest.MonkeyPatch
@@ -197,9 +218,9 @@ def test_the_filters_floats_do_not_depend_on_when_the_thread_is_done(
     monkeypatch.undo()
     work = beside.whole_covariance_work
 
-    def slow(P: np.ndarray, check: bool, ids: Any) -> Any:
+    def slow(P: np.ndarray, check: bool, ids: Any, pending: Any = None) -> Any:
         time.sleep(0.05)  # batches held over many events
-        return work(P, check, ids)
+        return work(P, check, ids, pending)
 
     monkeypatch.setattr(beside, "whole_covariance_work", slow)
     got, last = states(large)
@@ -228,9 +249,9 @@ def test_one_copy_of_p_at_a_time_however_fast_the_work_is_asked_for(
 
     work = beside.whole_covariance_work
 
-    def slow(P: np.ndarray, check: bool, ids: Any) -> Any:
+    def slow(P: np.ndarray, check: bool, ids: Any, pending: Any = None) -> Any:
         time.sleep(0.02)
-        return work(P, check, ids)
+        return work(P, check, ids, pending)
 
     monkeypatch.setattr(beside, "np", Counting())
     monkeypatch.setattr(beside, "whole_covariance_work", slow)
