@@ -202,8 +202,8 @@ def targets_section(
     was = before is not None
     rows = [
         Row("classic sample end to end <= imports + 0.15 s",
-            f"{rep.wall_s:.2f} s against {imp.wall_s:.2f} s (+{rep.wall_s - imp.wall_s:.2f} s);"
-            f" CPU {rep.cpu_s:.2f} s against {imp.cpu_s:.2f} s (+{rep.cpu_s - imp.cpu_s:.2f} s)",
+            f"{rep.wall_s:.2f} s against {imp.wall_s:.2f} s ({rep.wall_s - imp.wall_s:+.2f} s);"
+            f" CPU {rep.cpu_s:.2f} s against {imp.cpu_s:.2f} s ({rep.cpu_s - imp.cpu_s:+.2f} s)",
             _beside(short["now"], short.get("before")),
             rep.wall_s <= imp.wall_s + 0.15),
         Row(f"{LONG_STEPS:,}-step classic-size log end to end <= 5 s", _wall(long["long_now"]),
