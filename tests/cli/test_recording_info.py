@@ -54,14 +54,17 @@ def recordings(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     rec.disconnect()
     whole = made["replay"].read_bytes()
     made["truncated"] = root / "truncated.rrd"
-    # cut inside a message (a cut between two reads as a shorter recording): of two cuts a
-    # byte apart, at most one falls between messages
-    for cut in (len(whole) // 2, len(whole) // 2 + 1):
+    # cut inside a message's body: a cut between two messages, or within the first bytes
+    # of one's header, reads as a shorter recording; the first cut from the middle on that
+    # Rerun's reader refuses
+    for cut in range(len(whole) // 2, len(whole) // 2 + 256):
         made["truncated"].write_bytes(whole[:cut])
         try:
             list(RrdReader(made["truncated"]).stream())
         except Exception:  # (what Rerun's reader raises for a file cut short)
             break
+    else:
+        raise AssertionError("no cut of the recording's middle reads as cut short")
     return made
 
 
