@@ -20,9 +20,10 @@ import numpy as np
 from ekfviz.core.batch import MapParts, StateParts
 from ekfviz.core.errors import FilterError
 from ekfviz.core.params import FilterParams
-from ekfviz.core.records import TABLE_COLUMNS, Observations, frozen
+from ekfviz.core.records import Observations, frozen
 from ekfviz.core.types import FloatArray, IntArray
 from ekfviz.filters.ekf import EkfSlam
+from ekfviz.filters.ekf_update import nan_table
 from ekfviz.filters.protocol import DeclaresCapabilities, SlamFilter, state_of
 
 # P counts as symmetric when |P - P^T| <= SYMMETRY_TOLERANCE * max |P|. A filter that
@@ -367,7 +368,7 @@ def _unjudged(ids: IntArray, z: FloatArray, state_ids: IntArray) -> Observations
     new = ~np.isin(ids, state_ids)
     return Observations(
         ids=frozen(ids.copy()), z=frozen(z.copy()),
-        table=frozen(np.full((len(ids), TABLE_COLUMNS), np.nan)),
+        table=frozen(nan_table(len(ids))),
         initialised=frozen(new), skipped=frozen(~new),
     )  # fmt: skip
 
